@@ -1,0 +1,141 @@
+"""Canonical state-space forms of a SISO plant with parameter vector ``theta = [a; b]``.
+
+Both forms of the seed paper (Ding & Ma 2014, ``shared/docs/algorithms.md`` §2 and §6) share
+``theta = [a1..an, b1..bn]`` and the output row ``c = [1, 0, ..., 0]``:
+
+* observer canonical form, eq. (1)-(5): ``A`` has ``-a`` in its first column and an identity
+  above the diagonal; its transfer function is
+  ``(b1 z^{n-1} + ... + bn) / (z^n + a1 z^{n-1} + ... + an)``;
+* observability canonical form, eq. (146)-(147): ``A`` is a shift with last row
+  ``[-a_n, ..., -a_1]``; here ``b1..bn`` are the first ``n`` Markov parameters (impulse
+  response samples) rather than the numerator coefficients.
+
+The helpers validate their input and never return non-finite matrices.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Form = Literal["observer", "observability"]
+FORMS: tuple[str, ...] = ("observer", "observability")
+
+
+def as_finite_vector(value: ArrayLike, name: str, *, length: int | None = None) -> NDArray:
+    """Return ``value`` as a 1-D float array, or raise naming ``name`` and the expected form."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a sequence of real numbers, got {value!r}") from exc
+    arr = np.atleast_1d(arr)
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be one-dimensional, got shape {arr.shape}")
+    if arr.size == 0:
+        raise ValueError(f"{name} must not be empty")
+    if length is not None and arr.size != length:
+        raise ValueError(f"{name} must have length {length}, got {arr.size}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr}")
+    return arr
+
+
+def check_form(form: str) -> str:
+    """Return the canonical-form name in lower case or raise ``ValueError``."""
+    f = str(form).lower()
+    if f not in FORMS:
+        raise ValueError(f"form must be one of {FORMS}, got {form!r}")
+    return f
+
+
+def split_theta(theta: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Split ``theta = [a; b]`` (length ``2n``) into ``a`` and ``b``."""
+    th = as_finite_vector(theta, "theta")
+    if th.size % 2:
+        raise ValueError(f"theta must have even length 2n (theta = [a; b]), got {th.size}")
+    n = th.size // 2
+    return th[:n].copy(), th[n:].copy()
+
+
+def check_ab(a: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Validate the parameter pair ``(a, b)``: finite, non-empty, equal lengths ``n``."""
+    a_arr = as_finite_vector(a, "a")
+    b_arr = as_finite_vector(b, "b")
+    if a_arr.size != b_arr.size:
+        raise ValueError(
+            f"a and b must have the same length n (theta = [a1..an, b1..bn]), "
+            f"got len(a)={a_arr.size}, len(b)={b_arr.size}"
+        )
+    return a_arr, b_arr
+
+
+def companion_A(a: NDArray, form: str = "observer") -> NDArray:
+    """System matrix ``A`` of the canonical form for the denominator coefficients ``a``.
+
+    Observer form, eq. (1): first column ``-a``, ones on the superdiagonal.
+    Observability form, eq. (146): ones on the superdiagonal, last row ``[-a_n .. -a_1]``.
+    """
+    a = np.asarray(a, dtype=float)
+    n = a.size
+    A = np.eye(n, k=1)
+    if check_form(form) == "observer":
+        A[:, 0] = -a
+    else:
+        A[-1, :] = -a[::-1]
+    return A
+
+
+def canonical_matrices(
+    a: ArrayLike, b: ArrayLike, form: str = "observer"
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Return ``(A, B, C, D)`` of the SISO canonical plant with parameters ``a``, ``b``.
+
+    ``B`` is the column ``b``, ``C = [1, 0, ..., 0]`` and ``D = 0`` (eq. (2), (147)).
+    """
+    a_arr, b_arr = check_ab(a, b)
+    n = a_arr.size
+    A = companion_A(a_arr, form)
+    B = b_arr.reshape(n, 1).copy()
+    C = np.zeros((1, n))
+    C[0, 0] = 1.0
+    D = np.zeros((1, 1))
+    return A, B, C, D
+
+
+def transfer_function_coefficients(
+    a: ArrayLike, b: ArrayLike, form: str = "observer"
+) -> tuple[NDArray, NDArray]:
+    """Numerator and denominator (highest power first) of ``c (zI - A)^{-1} b``.
+
+    The denominator is ``[1, a1, ..., an]`` in both forms. In the observer form the numerator is
+    ``[b1, ..., bn]`` (degree n-1). In the observability form ``b`` holds Markov parameters
+    ``h_1..h_n`` and the numerator is ``beta = T b`` with ``T`` the lower-triangular Toeplitz
+    matrix of ``[1, a1, ..., a_{n-1}]`` (from ``B(z) = A(z) H(z)`` truncated to its polynomial
+    part).
+    """
+    a_arr, b_arr = check_ab(a, b)
+    den = np.concatenate(([1.0], a_arr))
+    if check_form(form) == "observer":
+        return b_arr.copy(), den
+    n = a_arr.size
+    col = np.concatenate(([1.0], a_arr[: n - 1]))
+    T = np.zeros((n, n))
+    for k in range(n):
+        T[k:, k] = col[: n - k]
+    return T @ b_arr, den
+
+
+def observer_to_observability_b(a: ArrayLike, beta: ArrayLike) -> NDArray:
+    """Markov parameters ``h_1..h_n`` of ``beta(z) / (z^n + a1 z^{n-1} + ...)``.
+
+    Converts observer-form ``b`` (numerator coefficients) into observability-form ``b`` for the
+    same transfer function.
+    """
+    a_arr, beta_arr = check_ab(a, beta)
+    n = a_arr.size
+    h = np.zeros(n)
+    for k in range(n):
+        h[k] = beta_arr[k] - np.dot(a_arr[:k], h[:k][::-1])
+    return h
