@@ -1,0 +1,102 @@
+"""Linear plants as Gymnasium environments, registered under the ``stcgym`` namespace.
+
+``import stcgym.envs`` registers:
+
+==================================  =============================================================
+id                                  plant
+==================================  =============================================================
+``stcgym/ObserverCanonical-v0``      SISO observer canonical form (seed eq. (1)-(5))
+``stcgym/ObservabilityCanonical-v0`` SISO observability canonical form (seed eq. (146)-(147))
+``stcgym/StateSpace-v0``             MIMO ``(A, B, C, D)`` or any python-control system
+``stcgym/MultichannelStatic-v0``     static object ``y^T = u^T Theta + v`` (Voevoda-Troshina)
+==================================  =============================================================
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+from stcgym.envs.canonical import (
+    canonical_matrices,
+    companion_A,
+    observer_to_observability_b,
+    transfer_function_coefficients,
+)
+from stcgym.envs.catalogue import PLANTS, PlantSpec, get_plant, plant_names
+from stcgym.envs.plants import (
+    CanonicalPlantEnv,
+    LinearPlantEnv,
+    MultichannelStaticEnv,
+    ObservabilityCanonicalEnv,
+    ObserverCanonicalEnv,
+    StateSpaceEnv,
+)
+from stcgym.envs.signals import (
+    PRBS,
+    ArrayReference,
+    CallableReference,
+    Constant,
+    Jumps,
+    Ramp,
+    RandomWalk,
+    Reference,
+    Schedule,
+    Sine,
+    SquareWave,
+    Step,
+    Zero,
+    make_reference,
+    make_schedule,
+)
+
+DEFAULT_MAX_EPISODE_STEPS = 1000
+
+ENV_IDS = {
+    "stcgym/ObserverCanonical-v0": "stcgym.envs.plants:ObserverCanonicalEnv",
+    "stcgym/ObservabilityCanonical-v0": "stcgym.envs.plants:ObservabilityCanonicalEnv",
+    "stcgym/StateSpace-v0": "stcgym.envs.plants:StateSpaceEnv",
+    "stcgym/MultichannelStatic-v0": "stcgym.envs.plants:MultichannelStaticEnv",
+}
+
+
+def _register() -> None:
+    for env_id, entry_point in ENV_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id, entry_point=entry_point, max_episode_steps=DEFAULT_MAX_EPISODE_STEPS
+            )
+
+
+_register()
+
+__all__ = [
+    "ENV_IDS",
+    "PLANTS",
+    "PRBS",
+    "ArrayReference",
+    "CallableReference",
+    "CanonicalPlantEnv",
+    "Constant",
+    "Jumps",
+    "LinearPlantEnv",
+    "MultichannelStaticEnv",
+    "ObservabilityCanonicalEnv",
+    "ObserverCanonicalEnv",
+    "PlantSpec",
+    "Ramp",
+    "RandomWalk",
+    "Reference",
+    "Schedule",
+    "Sine",
+    "SquareWave",
+    "StateSpaceEnv",
+    "Step",
+    "Zero",
+    "canonical_matrices",
+    "companion_A",
+    "get_plant",
+    "make_reference",
+    "make_schedule",
+    "observer_to_observability_b",
+    "plant_names",
+    "transfer_function_coefficients",
+]
