@@ -63,3 +63,119 @@ def kf_d_lsi(n: int, L: int) -> int:
     """KF-D-LSI per iteration, table 8: ``4n^3 + 8n^2 L + 19n L - L - 4n``."""
     _positive(n=n, L=L)
     return 4 * n**3 + 8 * n**2 * L + 19 * n * L - L - 4 * n
+
+
+# ---------------------------------------------------------------------------------------------
+# Recursive algorithms not covered by tables 1-4, counted with the same conventions
+# (a division is a multiplication, a subtraction an addition, the structure of A_hat is used,
+# lambda = 1, no finite history). A full algorithm = parameter rule + state estimator:
+# table 1 = rls + open_loop_observer, table 2 = mils + kalman_filter; tables 3-4 (d_rls, d_mils)
+# are the parameter parts only.
+# ---------------------------------------------------------------------------------------------
+
+
+def open_loop_observer(n: int) -> int:
+    """Open-loop observer (46), table 1 row ``x_hat(t+1)``: ``2n`` mult + ``2n - 1`` add."""
+    _positive(n=n)
+    return 4 * n - 1
+
+
+def closed_loop_observer(n: int) -> int:
+    """Closed-loop observer (50): the open-loop observer plus ``K [y - c x_hat]``
+    (``n + 1`` mult, ``n`` add as in table 2): ``6n``. A gain callable is not counted."""
+    _positive(n=n)
+    return 6 * n
+
+
+def kalman_filter(n: int) -> int:
+    """Kalman filter (66)-(68), table 2 rows ``x_hat``, ``L1``, ``P1``, ``zeta1``:
+    ``4n^2 + 10n - 1``."""
+    _positive(n=n)
+    return 4 * n**2 + 10 * n - 1
+
+
+def sg(n: int) -> int:
+    """SG parameter update (12)-(15): ``e`` (2n, 2n), ``r`` (2n, 2n), ``e / r`` (1, 0),
+    ``theta + phi (e / r)`` (2n, 2n): ``12n + 1``."""
+    _positive(n=n)
+    return 12 * n + 1
+
+
+def misg(n: int, p: int, *, stacked_r: bool = False) -> int:
+    """MISG parameter update (16)-(22): ``E`` (2np, 2np), ``r`` (2n, 2n), ``E / r`` (p, 0),
+    ``Phi (E / r)`` (2np, 2n(p-1)), ``theta +`` (0, 2n): ``8np + 4n + p``.
+    With ``||Phi(p, t)||^2`` in ``r`` (remark 1): ``12np + p``. Equals :func:`sg` at p = 1."""
+    _positive(n=n, p=p)
+    if stacked_r:
+        return 12 * n * p + p
+    return 8 * n * p + 4 * n + p
+
+
+def rls(n: int) -> int:
+    """RLS parameter update (32)-(36), table 1 without the observer: ``16n^2 + 12n``."""
+    _positive(n=n)
+    return 16 * n**2 + 12 * n
+
+
+def mils(n: int, p: int) -> int:
+    """MILS parameter update (37)-(44), table 2 without the Kalman filter:
+    ``16n^2 p + 8n p^2 + 4n p + 2p^3 - 2p^2 + p`` (``rls(n) + 1`` at p = 1: table 2 counts the
+    1 x 1 inverse as a flop)."""
+    _positive(n=n, p=p)
+    return 16 * n**2 * p + 8 * n * p**2 + 4 * n * p + 2 * p**3 - 2 * p**2 + p
+
+
+def d_sg(n: int) -> int:
+    """D-SG parameter update (96)-(103): shared ``e`` (2n, 2n), ``r1``, ``r2`` (2n, 2n),
+    ``e / r1``, ``e / r2`` (2, 0), two block updates (2n, 2n): ``12n + 2``."""
+    _positive(n=n)
+    return 12 * n + 2
+
+
+def d_misg(n: int, p: int, *, stacked_r: bool = False) -> int:
+    """D-MISG parameter update (104)-(117): shared ``E`` (2np, 2np), ``r1``, ``r2`` (2n, 2n),
+    ``E / r_i`` (2p, 0), two blocks ``Phi_i (E / r_i)`` + add (2np, 2np): ``8np + 4n + 2p``.
+    With ``||Phi||^2``, ``||Psi||^2`` in ``r`` (116)-(117): ``12np + 2p``."""
+    _positive(n=n, p=p)
+    if stacked_r:
+        return 12 * n * p + 2 * p
+    return 8 * n * p + 4 * n + 2 * p
+
+
+_RULE_FLOPS = {
+    ("SG", False): lambda n, p, s: sg(n),
+    ("MISG", False): lambda n, p, s: misg(n, p, stacked_r=s),
+    ("RLS", False): lambda n, p, s: rls(n),
+    ("MILS", False): lambda n, p, s: mils(n, p),
+    ("SG", True): lambda n, p, s: d_sg(n),
+    ("MISG", True): lambda n, p, s: d_misg(n, p, stacked_r=s),
+    ("RLS", True): lambda n, p, s: d_rls(n),
+    ("MILS", True): lambda n, p, s: d_mils(n, p),
+}
+_STATE_FLOPS = {"O": open_loop_observer, "CO": closed_loop_observer, "KF": kalman_filter}
+
+
+def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> tuple[int, int]:
+    """``(parameter update, state estimate)`` flops per step of a named recursive algorithm
+    such as ``"KF-D-MILS"`` (state estimator ``O``, ``CO`` or ``KF``; ``p`` ignored by
+    SG/RLS)."""
+    parts = str(name).upper().split("-")
+    if len(parts) not in (2, 3) or parts[0] not in _STATE_FLOPS or (
+        len(parts) == 3 and parts[1] != "D"
+    ):
+        raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS', got {name!r}")
+    key = (parts[-1], len(parts) == 3)
+    if key not in _RULE_FLOPS:
+        raise ValueError(f"unknown parameter rule {parts[-1]!r} in {name!r}")
+    _positive(n=n, p=p)
+    return _RULE_FLOPS[key](n, p, stacked_r), _STATE_FLOPS[parts[0]](n)
+
+
+def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:
+    """Total flops per step (parameter update + state estimate) of a named recursive algorithm.
+
+    ``recursive("O-RLS", n) == o_rls(n)`` (table 1) and
+    ``recursive("KF-MILS", n, p) == kf_mils(n, p)`` (table 2).
+    """
+    a, b = recursive_parts(name, n, p, stacked_r=stacked_r)
+    return a + b

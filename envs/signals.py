@@ -314,7 +314,7 @@ class Jumps(Schedule):
 
 
 class Ramp(Schedule):
-    """Slow linear drift from the nominal parameters to ``target`` between ``start`` and ``stop``."""
+    """Slow linear drift from the nominal parameters to ``target`` over steps start..stop."""
 
     def __init__(self, target: ArrayLike, start: int, stop: int) -> None:
         if int(start) != start or int(stop) != stop or not 0 <= start < stop:

@@ -1,0 +1,40 @@
+# Set-up and main jobs; README.md documents `make bench` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+# CPU build of torch first (on these machines `torch==2.13.0` is a local CPU wheel); override
+# e.g. TORCH_SPEC="torch --index-url https://download.pytorch.org/whl/cpu" elsewhere.
+TORCH_SPEC ?= torch==2.13.0
+BIN := $(VENV)/bin
+PIP := $(BIN)/python -m pip
+STAMP := $(VENV)/.stcgym-installed
+
+.PHONY: install bench bench-full test lint perf clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+
+$(STAMP): $(BIN)/python pyproject.toml
+	$(PIP) install -q "$(TORCH_SPEC)"
+	$(PIP) install -q -e ".[all]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+bench: install
+	$(BIN)/stcgym bench --quick
+
+bench-full: install
+	$(BIN)/stcgym bench
+
+test: install
+	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -q
+
+perf: install
+	$(BIN)/python benchmarks/perf.py
+
+lint: install
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
