@@ -6,10 +6,12 @@ SelfTuningController` only in knowing ``(a, b)``:
 
 * :class:`KnownModelController` runs exactly the regulator's tracking law
   (:class:`~stcgym.adaptive.controller.TrackingLaw`: the same poles, integral action,
-  feed-forward, saturation and anti-windup) on the known ``(A, b)``, and estimates the state
-  with the same kind of filter the regulator's default estimator uses (the seed paper's Kalman
-  filter, ``shared/docs/algorithms.md`` §4 eq. (66)-(72), with optional process noise). The ratio
-  of the regulator's cost to this oracle's is the price of not knowing the parameters.
+  feed-forward, saturation and anti-windup) on the known ``(A, b)``, with the regulator's kind of
+  state estimate (the seed paper's Kalman filter, ``shared/docs/algorithms.md`` §4
+  eq. (66)-(72), corrected by the current sample). With the paper's ``Q = 0`` the filter is
+  optimal for the envs' noise model (output noise only), so the oracle's state estimate
+  converges to the true state: the ratio of the regulator's cost to this oracle's is the price
+  of not knowing the parameters.
 * :class:`LQGController` is the optimal linear design for the env's own cost
   ``(y - r)^2 + rho u^2``: ``control.dlqr`` on the (optionally integral-augmented) model with
   ``Q = c^T c``, ``R = rho``, a steady-state Kalman predictor from ``control.dlqe`` and the
@@ -22,7 +24,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
 from stcgym.adaptive.placement import augment_integral, steady_state_gains
 from stcgym.adaptive.policy import StatefulPolicy
 from stcgym.envs.canonical import check_ab, check_form, companion_A
@@ -102,13 +103,15 @@ class KnownModelController(StatefulPolicy):
         True plant parameters ``theta = [a; b]`` in the canonical ``form``.
     poles, integral, feedforward, action_bound, anti_windup
         As for :class:`~stcgym.adaptive.controller.SelfTuningController`, whose defaults they
-        share; pass the regulator's values to compare like with like.
+        share (poles all at 0.5, integral action and feed-forward on, ``action_bound`` 10 as the
+        envs); pass the regulator's values to compare like with like.
     form
         ``"observer"`` (default) or ``"observability"``.
     filtered
         Control on ``x(t|t)`` (default, as the regulator) instead of ``x(t|t-1)``.
     process_noise, measurement_noise, P0
-        Kalman filter tuning (defaults as the regulator's state estimator).
+        Kalman filter tuning; the defaults are the paper's filter (``Q = 0``, ``R = 1``,
+        ``P1(1) = I``).
     """
 
     def __init__(
@@ -119,7 +122,7 @@ class KnownModelController(StatefulPolicy):
         poles: ArrayLike | None = None,
         integral: bool = True,
         feedforward: bool = True,
-        action_bound: float | None = None,
+        action_bound: float | None = 10.0,
         anti_windup: bool = True,
         form: str = "observer",
         filtered: bool = True,
@@ -198,9 +201,9 @@ class LQGController(StatefulPolicy):
     Minimises ``sum (y - r)^2 + rho u^2`` for a constant reference: ``u = u_ss r - K (x - x_ss r)``
     with ``K`` from ``dlqr(A, b, c^T c, rho)``; with ``integral=True`` the integral of ``r - y``
     is added to the state with weight ``integral_weight``. The state comes from the steady-state
-    Kalman filter of ``dlqe`` for process noise ``q * b b^T + process_noise_floor * I`` (an input
-    disturbance model keeps the filter alive on stable plants) and measurement variance
-    ``noise_std^2``, used as a current estimator ``x(t|t)``.
+    Kalman filter of ``dlqe`` for process noise ``input_noise_std^2 b b^T + process_noise_floor I``
+    (a small input-disturbance model keeps the filter alive on stable plants) and measurement
+    variance ``noise_std^2``, used as a current estimator ``x(t|t)``.
 
     Parameters
     ----------
@@ -208,8 +211,13 @@ class LQGController(StatefulPolicy):
         True parameters. ``form`` as elsewhere.
     control_cost
         ``rho``, the weight of ``u^2`` (match the env's ``control_cost``); must be > 0.
-    noise_std
-        Output-noise standard deviation assumed by the Kalman filter.
+    noise_std, input_noise_std, process_noise_floor
+        Noise model of the Kalman filter (output noise std, input-disturbance std, floor).
+    integral, integral_weight
+        Optional integral state and its weight in the LQ cost (off by default: the oracle knows
+        the model, so the feed-forward is exact).
+    action_bound
+        Saturation (default 10 as the envs), with conditional integration as anti-windup.
     """
 
     def __init__(
@@ -219,11 +227,11 @@ class LQGController(StatefulPolicy):
         *,
         control_cost: float = 1e-2,
         noise_std: float = 0.05,
-        input_noise_std: float = 0.05,
+        input_noise_std: float = 0.01,
         process_noise_floor: float = 1e-8,
         integral: bool = False,
         integral_weight: float = 1e-2,
-        action_bound: float | None = None,
+        action_bound: float | None = 10.0,
         form: str = "observer",
     ) -> None:
         import control
@@ -244,7 +252,9 @@ class LQGController(StatefulPolicy):
         self.integral = bool(integral)
         x_ss, u_ss, rc = steady_state_gains(self.A, self.b)
         if rc < 1e-10:
-            raise ValueError("the model has a zero (or pole/zero cancellation) at z = 1: no tracking")
+            raise ValueError(
+                "the model has a zero (or pole/zero cancellation) at z = 1: no tracking"
+            )
         self.x_ss, self.u_ss = x_ss, u_ss
         if self.integral:
             Aa, ba = augment_integral(self.A, self.b)
@@ -278,8 +288,11 @@ class LQGController(StatefulPolicy):
         u = self.u_ss * r - self.K[:n] @ (xf - self.x_ss * r)
         if self.integral:
             u -= self.K[n] * self.xi
-        u_sat = u if self.action_bound is None else float(np.clip(u, -self.action_bound, self.action_bound))
-        if self.integral and (u_sat == u or (u - u_sat) * (r - y) * np.sign(self.b.sum() or 1) < 0):
+        bound = self.action_bound
+        u_sat = u if bound is None else min(max(u, -bound), bound)
+        # Conditional integration (anti-windup): d u / d xi = -K[n]; freeze xi while saturated
+        # when the error would push u further past the bound.
+        if self.integral and not (u_sat != u and (-self.K[n] * (r - y)) * u > 0.0):
             self.xi += r - y
         self.x = self.A @ xf + self.b * u_sat
         self.t += 1

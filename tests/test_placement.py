@@ -1,0 +1,162 @@
+"""Closed-form pole placement (stcgym.adaptive.placement) against python-control."""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from stcgym.adaptive.placement import (
+    UncontrollableError,
+    ackermann,
+    augment_integral,
+    characteristic_coefficients,
+    check_poles,
+    controllability_matrix,
+    place_poles,
+    steady_state_gains,
+)
+from stcgym.envs.canonical import companion_A, observer_to_observability_b
+
+FORMS = ("observer", "observability")
+
+
+def _random_pair(rng: np.random.Generator, n: int, form: str) -> tuple[np.ndarray, np.ndarray]:
+    """A random canonical pair, well controllable (rcond > 1e-4)."""
+    while True:
+        a = rng.uniform(-1.5, 1.5, n)
+        b = rng.uniform(-1.0, 1.0, n)
+        A = companion_A(a, form)
+        C = controllability_matrix(A, b)
+        if np.linalg.cond(C / np.linalg.norm(C, axis=0)) < 1e4:
+            return A, b
+
+
+def _distinct_poles(rng: np.random.Generator, m: int) -> np.ndarray:
+    """``m`` well separated poles inside the unit circle, complex ones in conjugate pairs."""
+    poles: list[complex] = []
+    while len(poles) < m:
+        if m - len(poles) >= 2 and rng.random() < 0.5:
+            rad, ang = rng.uniform(0.1, 0.9), rng.uniform(0.3, 2.5)
+            cand = [rad * np.exp(1j * ang), rad * np.exp(-1j * ang)]
+        else:
+            cand = [complex(rng.uniform(-0.9, 0.9))]
+        if all(abs(c - p) > 0.15 for c in cand for p in poles):
+            poles.extend(cand)
+    return np.array(poles)
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 5])
+def test_matches_control_place(form: str, n: int) -> None:
+    rng = np.random.default_rng(100 + n)
+    for _ in range(5):
+        A, b = _random_pair(rng, n, form)
+        poles = _distinct_poles(rng, n)
+        K = place_poles(A, b, poles)
+        K_ref = np.asarray(control.place(A, b.reshape(-1, 1), poles)).ravel()
+        np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-8)
+        eig = np.linalg.eigvals(A - np.outer(b, K))
+        np.testing.assert_allclose(np.sort_complex(eig), np.sort_complex(poles), atol=1e-6)
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_matches_control_acker_with_repeated_poles(form: str, n: int) -> None:
+    rng = np.random.default_rng(7 + n)
+    A, b = _random_pair(rng, n, form)
+    Aa, ba = augment_integral(A, b)
+    K = place_poles(Aa, ba, 0.5)  # n + 1 poles, all at 0.5 (place() refuses this)
+    K_ref = np.asarray(control.acker(Aa, ba.reshape(-1, 1), [0.5] * (n + 1))).ravel()
+    np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-8)
+    # Repeated poles are ill-conditioned eigenvalues: test the characteristic polynomial.
+    char = np.poly(Aa - np.outer(ba, K))
+    np.testing.assert_allclose(char, np.poly([0.5] * (n + 1)), atol=1e-8)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(1, 4),
+    seed=st.integers(0, 2**31 - 1),
+    form=st.sampled_from(FORMS),
+    integral=st.booleans(),
+)
+def test_placed_characteristic_polynomial(n: int, seed: int, form: str, integral: bool) -> None:
+    rng = np.random.default_rng(seed)
+    A, b = _random_pair(rng, n, form)
+    if integral:
+        A, b = augment_integral(A, b)
+    m = A.shape[0]
+    poles = _distinct_poles(rng, m)
+    K, rcond = ackermann(A, b, characteristic_coefficients(poles))
+    assert rcond > 0
+    np.testing.assert_allclose(np.poly(A - np.outer(b, K)), np.poly(poles), atol=1e-7)
+
+
+def test_augmented_model_structure() -> None:
+    A = companion_A(np.array([-1.5, 0.7]), "observer")
+    b = np.array([1.0, 0.5])
+    Aa, ba = augment_integral(A, b)
+    np.testing.assert_array_equal(Aa[:2, :2], A)
+    np.testing.assert_array_equal(Aa[2], [-1.0, 0.0, 1.0])
+    np.testing.assert_array_equal(ba, [1.0, 0.5, 0.0])
+
+
+def test_uncontrollable_pair_is_rejected() -> None:
+    # (z - 0.5) cancels: a(z) = (z - 0.5)(z - 0.8), B(z) = z - 0.5.
+    a = np.poly([0.5, 0.8])[1:]
+    A = companion_A(a, "observer")
+    b = np.array([1.0, -0.5])
+    with pytest.raises(UncontrollableError):
+        place_poles(A, b, [0.1, 0.2])
+    # Nearly cancelling: still placeable, but refused once rcond_min is asked for.
+    b_near = np.array([1.0, -0.5 + 1e-7])
+    place_poles(A, b_near, [0.1, 0.2])
+    with pytest.raises(UncontrollableError, match="uncontrollable"):
+        place_poles(A, b_near, [0.1, 0.2], rcond_min=1e-4)
+    with pytest.raises(UncontrollableError):
+        place_poles(A, np.zeros(2), [0.1, 0.2])
+
+
+@pytest.mark.parametrize(
+    ("poles", "m", "match"),
+    [
+        ([0.5, 1.2], 2, "unit circle"),
+        ([0.5, -1.0], 2, "unit circle"),
+        ([0.5, 0.5, 0.5], 2, "exactly 2"),
+        ([0.5], 2, "exactly 2"),
+        ([0.3 + 0.2j, 0.3 + 0.2j], 2, "conjugate"),
+        ([0.5, np.nan], 2, "finite"),
+        ("fast", 2, "number"),
+    ],
+)
+def test_check_poles_rejects(poles: object, m: int, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        check_poles(poles, m)
+
+
+def test_check_poles_scalar_broadcast() -> None:
+    np.testing.assert_array_equal(check_poles(0.4, 3), [0.4, 0.4, 0.4])
+    np.testing.assert_allclose(characteristic_coefficients([0.5, 0.5]), [-1.0, 0.25])
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_steady_state_gains(form: str) -> None:
+    a = np.array([-1.5, 0.7])
+    A = companion_A(a, form)
+    # The same plant (numerator z + 0.5) in both forms; b = Markov parameters when observability.
+    b = np.array([1.0, 0.5]) if form == "observer" else observer_to_observability_b(a, [1.0, 0.5])
+    x_ss, u_ss, rcond = steady_state_gains(A, b)
+    assert rcond > 1e-3
+    np.testing.assert_allclose(A @ x_ss + b * u_ss, x_ss, atol=1e-12)
+    assert x_ss[0] == pytest.approx(1.0)
+    assert u_ss == pytest.approx((1 - 1.5 + 0.7) / 1.5)  # 1 / G(1)
+
+
+def test_steady_state_gains_integrator_and_zero_at_one() -> None:
+    A = companion_A(np.array([-1.6, 0.6]), "observer")  # pole at z = 1
+    x_ss, u_ss, rcond = steady_state_gains(A, np.array([0.2, 0.1]))
+    assert rcond > 1e-3 and u_ss == pytest.approx(0.0, abs=1e-12) and x_ss[0] == 1.0
+    _, _, rcond0 = steady_state_gains(A, np.array([1.0, -1.0]))  # zero at z = 1
+    assert rcond0 < 1e-12
