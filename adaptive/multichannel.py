@@ -29,13 +29,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.rules import NumericalHealthError
+
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
 OnUnhealthy = Literal["raise", "reset"]
-
-
-class NumericalHealthError(FloatingPointError):
-    """An estimator's covariance or estimate became non-finite or lost positive definiteness."""
 
 
 def _positive_int(value: int, name: str) -> int:

@@ -15,6 +15,7 @@ id                                  plant
 from __future__ import annotations
 
 import gymnasium as gym
+
 from stcgym.envs.canonical import (
     canonical_matrices,
     companion_A,

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
+
 from stcgym.envs.signals import Jumps, Schedule
 
 __all__ = ["PlantSpec", "PLANTS", "get_plant", "plant_names"]

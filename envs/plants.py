@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
+
 from stcgym.envs.canonical import (
     canonical_matrices,
     check_ab,
