@@ -160,8 +160,10 @@ def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -
     such as ``"KF-D-MILS"`` (state estimator ``O``, ``CO`` or ``KF``; ``p`` ignored by
     SG/RLS)."""
     parts = str(name).upper().split("-")
-    if len(parts) not in (2, 3) or parts[0] not in _STATE_FLOPS or (
-        len(parts) == 3 and parts[1] != "D"
+    if (
+        len(parts) not in (2, 3)
+        or parts[0] not in _STATE_FLOPS
+        or (len(parts) == 3 and parts[1] != "D")
     ):
         raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS', got {name!r}")
     key = (parts[-1], len(parts) == 3)
@@ -179,3 +181,113 @@ def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:
     """
     a, b = recursive_parts(name, n, p, stacked_r=stacked_r)
     return a + b
+
+
+# --------------------------------------------------------------------------------------------
+# Iterative algorithms without a table in the paper (appended for stcgym.adaptive.iterative).
+#
+# Same accounting as tables 5-8: multiplications + additions of the parameter update and of the
+# state re-estimation over t = 1..L; building the regressors (copies and sign changes) is free,
+# a matrix inverse of size k costs k^3 + (k^3 - k^2) and products are not symmetry-exploited.
+# The rows of table 6 add up to 4n^3 + 4n^2 L + 8nL - 4n (its printed addition total carries
+# -4n^2 instead of -2n^2); table 8, which repeats those rows, agrees with the rows. ``d_lsi``
+# above keeps the printed total; the derived counts below that build on D-LSI say which they use.
+
+
+def observer_states(n: int, L: int) -> int:
+    """Open-loop state observer (238) over t = 1..L, row of table 7: ``2nL + (2n-1)L``
+    (``L * open_loop_observer(n)``)."""
+    _positive(n=n, L=L)
+    return L * open_loop_observer(n)
+
+
+def kalman_states(n: int, L: int) -> int:
+    """Kalman filter (258)-(263) over t = 1..L, the filter rows of table 8: ``4n^2 L + 11nL - L``.
+
+    (x update ``2nL + (2n-1)L``, gain times innovation ``nL + (n+1)L``, gain ``2nL + nL``,
+    covariance ``(n^2+2n)L + (n^2+n-1)L``, ``zeta = P A^T`` ``n^2 L + (n^2-n)L``.) This is
+    ``nL`` more than ``L * kalman_filter(n)`` from table 2's rows; table 8's rows are used so
+    that KF-D-LSI reproduces table 8.
+    """
+    _positive(n=n, L=L)
+    return 4 * n**2 * L + 11 * n * L - L
+
+
+def gi(n: int, L: int) -> int:
+    """GI (164)-(169) per iteration (no table in the paper): ``8n^2 L + 8nL - 4n^2 + 2n``.
+
+    ``H theta`` and ``Y - H theta``: ``4nL``; ``H^T e``: ``4nL - 2n``; ``theta + mu g``: ``4n``;
+    the Gram matrix ``H^T H`` for the step size (168): ``8n^2 L - 4n^2`` as in table 5. The
+    largest eigenvalue itself (LAPACK, iterative) is not counted.
+    """
+    _positive(n=n, L=L)
+    return 8 * n**2 * L + 8 * n * L - 4 * n**2 + 2 * n
+
+
+def d_gi(n: int, L: int) -> int:
+    """D-GI (190)-(200) per iteration (no table): ``4n^2 L + 8nL - 2n^2 + 2n``.
+
+    Shared residual ``Y - Phi a - Psi b``: ``4nL``; ``Phi^T e`` and ``Psi^T e``: ``2(2nL - n)``;
+    two scaled updates: ``4n``; Gram matrices ``Phi^T Phi`` and ``Psi^T Psi`` for the step sizes
+    (197)-(198): ``2(2n^2 L - n^2)``. Eigenvalues not counted.
+    """
+    _positive(n=n, L=L)
+    return 4 * n**2 * L + 8 * n * L - 2 * n**2 + 2 * n
+
+
+def o_gi(n: int, L: int) -> int:
+    """O-GI per iteration: ``gi + observer_states``."""
+    return gi(n, L) + observer_states(n, L)
+
+
+def kf_gi(n: int, L: int) -> int:
+    """KF-GI per iteration: ``gi + kalman_states``."""
+    return gi(n, L) + kalman_states(n, L)
+
+
+def o_d_gi(n: int, L: int) -> int:
+    """O-D-GI per iteration: ``d_gi + observer_states``."""
+    return d_gi(n, L) + observer_states(n, L)
+
+
+def kf_d_gi(n: int, L: int) -> int:
+    """KF-D-GI per iteration: ``d_gi + kalman_states``."""
+    return d_gi(n, L) + kalman_states(n, L)
+
+
+def kf_lsi(n: int, L: int) -> int:
+    """KF-LSI per iteration: ``lsi`` (table 5) ``+ kalman_states``."""
+    return lsi(n, L) + kalman_states(n, L)
+
+
+def o_d_lsi(n: int, L: int) -> int:
+    """O-D-LSI per iteration: ``d_lsi`` (table 6 as printed) ``+ observer_states``."""
+    return d_lsi(n, L) + observer_states(n, L)
+
+
+ITERATIVE: dict[str, object] = {
+    "GI": gi,
+    "D-GI": d_gi,
+    "LSI": lsi,
+    "D-LSI": d_lsi,
+    "O-GI": o_gi,
+    "KF-GI": kf_gi,
+    "O-D-GI": o_d_gi,
+    "KF-D-GI": kf_d_gi,
+    "O-LSI": o_lsi,
+    "KF-LSI": kf_lsi,
+    "O-D-LSI": o_d_lsi,
+    "KF-D-LSI": kf_d_lsi,
+}
+
+
+def iterative(name: str, n: int, L: int) -> int:
+    """Flops per iteration of the iterative algorithm ``name`` (e.g. ``"KF-D-LSI"``).
+
+    Tables 5-8 for LSI, D-LSI, O-LSI and KF-D-LSI; the counts above for the others. Plain names
+    (``"GI"``, ``"LSI"``, ...) are the parameter update alone, as used with known states.
+    """
+    key = str(name).upper()
+    if key not in ITERATIVE:
+        raise ValueError(f"name must be one of {sorted(ITERATIVE)}, got {name!r}")
+    return ITERATIVE[key](n, L)  # type: ignore[operator]

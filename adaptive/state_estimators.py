@@ -36,11 +36,31 @@ from numpy.typing import NDArray
 from stcgym.adaptive import flops as _flops
 
 __all__ = [
+    "is_schur_stable",
     "ModelMatrices",
     "OpenLoopObserver",
     "ClosedLoopObserver",
     "KalmanFilter",
 ]
+
+
+def is_schur_stable(a: NDArray | list[float]) -> bool:
+    """True when ``z^n + a1 z^{n-1} + ... + an`` has all roots strictly inside the unit circle.
+
+    Schur-Cohn / Jury test by the step-down (reflection-coefficient) recursion: the polynomial
+    is stable iff every reflection coefficient ``k_m`` satisfies ``|k_m| < 1``. ``O(n^2)``
+    scalar operations, no eigenvalue solver (cheap enough for every step).
+    """
+    c = [float(v) for v in a]
+    m = len(c)
+    while m:
+        k = c[m - 1]
+        if not -1.0 < k < 1.0:  # also False for NaN
+            return False
+        d = 1.0 - k * k
+        c = [(c[i] - k * c[m - 2 - i]) / d for i in range(m - 1)]
+        m -= 1
+    return True
 
 
 class ModelMatrices:
@@ -171,13 +191,14 @@ class KalmanFilter:
         """Return ``x_hat(t+1)`` and advance ``P1``, eq. (66)-(68) / (80)-(82)."""
         A = model.A
         P1 = self.P1
-        g = A @ P1[:, 0]  # A_hat P1 c^T
+        AP = A @ P1
+        g = AP[:, 0]  # A_hat P1 c^T
         s = self.R + P1[0, 0]
         L1 = g / s
         x_next = A @ x + model.b * u + L1 * (y - x[0])
         # P1(t+1) = A P1 A^T - L1 c P1 A^T; c P1 A^T = g^T, and g g^T keeps P1 symmetric.
-        P1_next = A @ P1 @ A.T
-        P1_next -= np.multiply.outer(g, g) * (1.0 / s)
+        P1_next = AP @ A.T
+        P1_next -= np.multiply.outer(g, L1)
         if self.has_Q:
             P1_next += self.Q
         # Symmetrise (A P1 A^T is not bit-symmetric) and guard against overflow.
