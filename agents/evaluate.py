@@ -1,0 +1,372 @@
+"""One evaluation loop for every controller, and the metrics the bench reports.
+
+Every controller (an SB3 model behind :class:`~stcgym.agents.sb3.SB3Policy`, the self-tuning
+controller, the known-model oracles) is driven through the shared policy protocol
+(:mod:`stcgym.adaptive.policy`): ``policy.reset()``, then
+``policy.predict(obs, episode_start=..., deterministic=True)`` on the *raw* observation
+``[y(k), r(k)]`` of the environment. For a given :class:`EnvSpec` and seed the environment is built
+afresh and reset with ``reset(seed=seed)``, so every controller in a comparison meets the same
+plant, the same output noise and the same reference.
+
+Scoring
+-------
+Everything is computed from the environment's reward, ``cost(k) = -reward(k) = (y_clean(k+1) -
+r(k+1))^2 + rho u(k)^2``:
+
+* ``cost``: mean cost per step over the episode;
+* ``cost_start``, ``cost_steady``, ``cost_post_jump``: mean cost over the windows of
+  :func:`default_windows` (steps ``[0, T/10)``, ``[T/2, T)``; with a jump at ``J``: steady is the
+  pre-jump ``[J/2, J)`` and post-jump is ``[J + 0.3 (T-J), J + 0.6 (T-J))``, i.e. 0-200,
+  1000-2000 and 1300-1600 for a 2000-step episode with the jump at 1000);
+* ``effort``: mean ``u(k)^2`` (plant units) over the steps run;
+* ``bounded``: the episode did not diverge (``|y|`` stayed below the environment's ``y_bound``);
+* ``reconverge_steps``: after a jump at ``J``, the first ``k >= J`` from which on the mean cost
+  over every following window of ``period`` steps (one reference period) stays below
+  ``1.1 x max(pre-jump steady cost, post-jump final cost)`` (final = last quarter after the
+  jump), minus ``J``. Using the controller's own final level as well makes it a settling time
+  that exists even when the new plant allows a different cost; ``inf`` when the run diverged.
+* ``step_us``: wall time of one ``predict`` call, microseconds (mean over the episode).
+
+A diverged episode ends early; it is charged its last step's cost for every step it did not
+live (that cost is at least ``y_bound^2``), so failed runs rank worst in every statistic and all
+numbers stay finite.
+
+Statistics over seeds (:func:`summarize`): median, inter-quartile range, CVaR of the worst
+quarter (mean of the ``ceil(n/4)`` largest values) and failure rate.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+
+from stcgym.adaptive.policy import reset_policy
+from stcgym.envs.catalogue import PlantSpec, get_plant
+
+__all__ = [
+    "EnvSpec",
+    "Episode",
+    "EvalResult",
+    "PolicyFactory",
+    "Windows",
+    "default_windows",
+    "episode_metrics",
+    "evaluate",
+    "reconvergence_steps",
+    "run_episode",
+    "summarize",
+]
+
+ENV_ID = "stcgym/ObserverCanonical-v0"
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """Everything needed to build the environment of one scenario (hashable, JSON-able).
+
+    Parameters
+    ----------
+    plants
+        One catalogue name, or several for a plant family (one drawn per episode).
+    steps
+        Episode length ``T`` (time limit).
+    noise_std
+        Output noise standard deviation.
+    control_cost
+        ``rho`` in the cost.
+    action_bound
+        Actions are clipped to ``[-action_bound, action_bound]``.
+    y_bound
+        Divergence bound on ``|y|``.
+    period, amplitude
+        Square-wave reference.
+    jump_step, jump_to
+        Optional parameter jump: from step ``jump_step`` on the plant has the observer-form
+        parameters ``jump_to = (a1..an, b1..bn)``.
+    """
+
+    plants: tuple[str, ...]
+    steps: int = 1000
+    noise_std: float = 0.05
+    control_cost: float = 0.01
+    action_bound: float = 10.0
+    y_bound: float = 100.0
+    period: int = 100
+    amplitude: float = 1.0
+    jump_step: int | None = None
+    jump_to: tuple[float, ...] | None = None
+
+    def __post_init__(self) -> None:
+        plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
+        object.__setattr__(self, "plants", plants)
+        if not plants:
+            raise ValueError("EnvSpec needs at least one plant")
+        specs = [get_plant(p) for p in plants]  # raises on unknown names
+        if len({s.n for s in specs}) > 1:
+            raise ValueError(f"a plant family must share one order, got {list(plants)}")
+        if int(self.steps) != self.steps or self.steps < 1:
+            raise ValueError(f"episode steps must be a positive integer, got {self.steps!r}")
+        if (self.jump_step is None) != (self.jump_to is None):
+            raise ValueError("jump_step and jump_to go together")
+        if self.jump_step is not None:
+            if not 0 < self.jump_step < self.steps:
+                raise ValueError(
+                    f"jump_step must lie inside the episode (0, {self.steps}), got {self.jump_step}"
+                )
+            object.__setattr__(self, "jump_to", tuple(float(v) for v in self.jump_to))
+            if len(self.jump_to) != 2 * specs[0].n:
+                raise ValueError(f"jump_to must have {2 * specs[0].n} parameters")
+
+    @property
+    def order(self) -> int:
+        return get_plant(self.plants[0]).n
+
+    def make(self, **overrides: Any) -> gym.Env:
+        """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields."""
+        import stcgym.envs  # noqa: F401  (registers the ids)
+        from stcgym.envs.signals import Jumps, SquareWave
+
+        spec = self if not overrides else EnvSpec(**{**asdict(self), **overrides})
+        kwargs: dict[str, Any] = dict(
+            plant=list(spec.plants) if len(spec.plants) > 1 else spec.plants[0],
+            noise_std=spec.noise_std,
+            control_cost=spec.control_cost,
+            action_bound=spec.action_bound,
+            y_bound=spec.y_bound,
+            reference=SquareWave(period=spec.period, amplitude=spec.amplitude),
+        )
+        if spec.jump_step is not None:
+            kwargs["schedule"] = Jumps({spec.jump_step: np.array(spec.jump_to)})
+        return gym.make(ENV_ID, max_episode_steps=spec.steps, **kwargs)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["plants"] = list(self.plants)
+        d["jump_to"] = None if self.jump_to is None else list(self.jump_to)
+        return d
+
+
+#: ``factory(plant) -> policy``: the controller for one episode on ``plant`` (the catalogue plant
+#: in force at the start of the episode, which only the oracles may look at).
+PolicyFactory = Callable[[PlantSpec], Any]
+
+
+@dataclass
+class Episode:
+    """Traces of one episode (length ``T``; ``y``, ``r`` have ``T + 1`` samples).
+
+    ``y`` is the noise-free output (the one the cost scores); after a divergence ``y`` and ``r``
+    are ``nan``.
+
+    ``cost`` holds the charged cost per step, including the charge of a diverged run for the
+    steps it did not live (``steps_run`` tells where it ended).
+    """
+
+    seed: int
+    plant: str
+    y: NDArray
+    r: NDArray
+    u: NDArray
+    cost: NDArray
+    steps_run: int
+    diverged: bool
+    n_clipped: int
+    step_us: float
+
+
+def run_episode(policy: Any, spec: EnvSpec, seed: int, *, plant: str | None = None) -> Episode:
+    """Run ``policy`` for one episode of ``spec`` from ``reset(seed=seed)``.
+
+    ``policy`` is a policy, or a :data:`PolicyFactory` called with the plant drawn by the reset.
+    ``plant`` picks one member of a family (``reset(options={"plant": plant})``); by default
+    the environment draws it from the seed. The policy is reset before the first step.
+    """
+    env = spec.make()
+    options = None if plant is None else {"plant": plant}
+    obs, info = env.reset(seed=int(seed), options=options)
+    drawn = env.unwrapped.plant
+    name = drawn.name if drawn is not None else "?"
+    if not hasattr(policy, "predict"):
+        policy = policy(drawn)
+    reset_policy(policy)
+    T = spec.steps
+    y, r, u, cost = np.zeros(T + 1), np.zeros(T + 1), np.zeros(T), np.zeros(T)
+    y[0], r[0] = info["y_clean"], obs[1]
+    wall, k, diverged, n_clipped = 0.0, 0, False, 0
+    for k in range(T):  # noqa: B007  (k is the number of steps run when the loop breaks)
+        t0 = time.perf_counter()
+        action, _ = policy.predict(obs, episode_start=np.array([k == 0]), deterministic=True)
+        wall += time.perf_counter() - t0
+        action = np.asarray(action, dtype=float).reshape(1)
+        obs, reward, terminated, truncated, info = env.step(action)
+        u[k] = np.clip(action[0], -spec.action_bound, spec.action_bound)
+        y[k + 1], r[k + 1], cost[k] = info["y_clean"], obs[1], -reward
+        n_clipped = int(info["n_clipped"])
+        if terminated:
+            diverged = bool(info.get("diverged", True))
+            cost[k + 1 :] = cost[k]  # the charge of a failed run, see the module docstring
+            y[k + 2 :], r[k + 2 :] = np.nan, np.nan
+            break
+    env.close()
+    steps_run = k + 1
+    return Episode(
+        int(seed), name, y, r, u, cost, steps_run, diverged, n_clipped, 1e6 * wall / steps_run
+    )
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Half-open step windows ``(start, stop)`` for the cost columns."""
+
+    start: tuple[int, int]
+    steady: tuple[int, int]
+    post_jump: tuple[int, int] | None = None
+    jump_step: int | None = None
+
+
+def default_windows(steps: int, jump_step: int | None = None) -> Windows:
+    """The windows of the module docstring for an episode of ``steps`` steps."""
+    T = int(steps)
+    start = (0, max(1, T // 10))
+    if jump_step is None:
+        return Windows(start, (T // 2, T))
+    J = int(jump_step)
+    post = (J + int(0.3 * (T - J)), max(J + int(0.6 * (T - J)), J + int(0.3 * (T - J)) + 1))
+    return Windows(start, (J // 2, J), post, J)
+
+
+def _window_mean(x: NDArray, window: tuple[int, int]) -> float:
+    lo, hi = window
+    return float(np.mean(x[lo:hi])) if hi > lo else math.nan
+
+
+def reconvergence_steps(cost: NDArray, jump_step: int, period: int, tol: float = 1.1) -> float:
+    """Steps from the jump until the per-period cost is back to steady (module docstring)."""
+    T, J = len(cost), int(jump_step)
+    period = max(1, min(int(period), T - J))
+    pre = float(np.mean(cost[J // 2 : J]))
+    final = float(np.mean(cost[T - max(1, (T - J) // 4) :]))
+    level = tol * max(pre, final) + 1e-12
+    # Forward means: fwd[i] = mean(cost[J+i : J+i+period]), for every full window after J.
+    c = np.concatenate(([0.0], np.cumsum(cost[J:])))
+    fwd = (c[period:] - c[:-period]) / period
+    above = np.nonzero(fwd > level)[0]
+    return 0.0 if above.size == 0 else float(above[-1] + 1)
+
+
+def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, float]:
+    """The per-episode columns of ``metrics.csv`` (see the module docstring)."""
+    u = ep.u[: ep.steps_run]
+    m = {
+        "cost": float(np.mean(ep.cost)),
+        "cost_start": _window_mean(ep.cost, windows.start),
+        "cost_steady": _window_mean(ep.cost, windows.steady),
+        "cost_post_jump": math.nan,
+        "reconverge_steps": math.nan,
+        "effort": float(np.mean(u**2)),
+        "bounded": int(not ep.diverged),
+        "steps_run": ep.steps_run,
+        "clip_frac": ep.n_clipped / max(ep.steps_run, 1),
+        "step_us": ep.step_us,
+    }
+    if windows.post_jump is not None:
+        m["cost_post_jump"] = _window_mean(ep.cost, windows.post_jump)
+        m["reconverge_steps"] = (
+            math.inf if ep.diverged else reconvergence_steps(ep.cost, windows.jump_step, period)
+        )
+    return m
+
+
+@dataclass
+class EvalResult:
+    """Episodes and their metrics, in the order of the seeds."""
+
+    episodes: list[Episode] = field(default_factory=list)
+    metrics: list[dict[str, float]] = field(default_factory=list)
+
+
+def evaluate(
+    policy_factory: PolicyFactory,
+    env_spec: EnvSpec,
+    seeds: Sequence[int],
+    steps: int | None = None,
+    *,
+    plant: str | None = None,
+    windows: Windows | None = None,
+    on_episode: Callable[[Episode, dict[str, float]], None] | None = None,
+) -> EvalResult:
+    """Evaluate one controller on ``env_spec`` for every seed.
+
+    Parameters
+    ----------
+    policy_factory
+        ``factory(plant_spec) -> policy``, called once per episode after the reset (it may return
+        the same object each time; it is reset). A plain policy object is accepted too.
+    env_spec
+        The scenario's environment.
+    seeds
+        Episode seeds; seed ``s`` means ``env.reset(seed=s)`` for every controller.
+    steps
+        Episode length; default ``env_spec.steps``.
+    plant
+        Family member to evaluate on (default: the environment's own draw).
+    windows
+        Cost windows; default :func:`default_windows`.
+    on_episode
+        Called after each episode with the episode and its metrics (the bench writes a CSV row
+        there, so an interrupted run keeps what it finished).
+    """
+    if steps is not None and steps != env_spec.steps:
+        env_spec = EnvSpec(**{**asdict(env_spec), "steps": int(steps)})
+    windows = windows or default_windows(env_spec.steps, env_spec.jump_step)
+    result = EvalResult()
+    for seed in seeds:
+        ep = run_episode(policy_factory, env_spec, int(seed), plant=plant)
+        metrics = episode_metrics(ep, windows, env_spec.period)
+        result.episodes.append(ep)
+        result.metrics.append(metrics)
+        if on_episode is not None:
+            on_episode(ep, metrics)
+    return result
+
+
+def summarize(values: Sequence[float], failed: Sequence[bool] | None = None) -> dict[str, float]:
+    """Median, IQR, CVaR of the worst quarter, mean and failure rate of per-seed values.
+
+    ``nan`` values (a column that does not apply) are dropped; ``inf`` counts as a very bad
+    value (it makes the CVaR infinite, which is the honest worst case).
+    """
+    x = np.asarray(values, dtype=float)
+    x = x[~np.isnan(x)]
+    out = {"n": float(x.size)}
+    if x.size == 0:
+        out.update(median=math.nan, iqr=math.nan, cvar25=math.nan, mean=math.nan)
+    else:
+        q25, med, q75 = (
+            np.percentile(x, [25, 50, 75]) if np.all(np.isfinite(x)) else (_inf_percentiles(x))
+        )
+        worst = np.sort(x)[-max(1, math.ceil(x.size / 4)) :]
+        out.update(
+            median=float(med),
+            iqr=float(q75 - q25) if np.isfinite(q75 - q25) else math.inf,
+            cvar25=float(np.mean(worst)),
+            mean=float(np.mean(x)),
+        )
+    if failed is not None:
+        f = np.asarray(failed, dtype=bool)
+        out["failure_rate"] = float(np.mean(f)) if f.size else math.nan
+    return out
+
+
+def _inf_percentiles(x: NDArray) -> tuple[float, float, float]:
+    # np.percentile interpolates inf - inf into nan; order statistics are what we mean here.
+    s = np.sort(x)
+    idx = [min(len(s) - 1, int(round(q * (len(s) - 1)))) for q in (0.25, 0.5, 0.75)]
+    return tuple(float(s[i]) for i in idx)  # type: ignore[return-value]

@@ -1,0 +1,230 @@
+"""The RL agents' observation: a window of past outputs, references and inputs.
+
+The plant state is not observed; an RL agent sees what the self-tuning controller sees, the
+input/output history. :class:`HistoryWindow` turns the raw ``[y(k), r(k)]`` observation of a
+SISO stcgym environment into a flat ``float32`` vector of the last ``W`` samples::
+
+    [ y(k-W+1) .. y(k) | r(k-W+1) .. r(k) | u(k-W) .. u(k-1) | e(k-W+1) .. e(k) ]
+       / y_scale          / y_scale           / action_bound     / y_scale (optional)
+
+with ``e = r - y``. Samples before the start of the episode are zero (the environment's own
+convention: every signal is zero before the first step). Values are clipped to
+``[-obs_clip, obs_clip]`` so that a run-away output cannot blow up the network's inputs.
+
+The action space is normalised to ``[-1, 1]`` and rescaled to the environment's
+``[-action_bound, action_bound]`` (the Stable-Baselines3 tip for continuous actions: Gaussian and
+squashed policies work best on a unit box).
+
+The same feature construction is needed at evaluation time, when the harness hands every
+controller the raw environment observation: :class:`HistoryBuffer` holds it and is shared by the
+wrapper (training) and :class:`stcgym.agents.sb3.SB3Policy` (evaluation), so the two cannot drift
+apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["WindowConfig", "HistoryBuffer", "HistoryWindow", "TrainingReward"]
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """How the observation window is built.
+
+    Parameters
+    ----------
+    window
+        Number ``W`` of past samples of each signal (``W >= 1``). The plant order bounds what
+        is needed: an order-``n`` plant is fully described by ``n`` past outputs and inputs, and
+        a few more help with noise.
+    include_error
+        Append the tracking error ``e = r - y`` (redundant, but it spares the network a
+        subtraction and speeds learning up).
+    y_scale
+        Outputs, references and errors are divided by it (the reference amplitude is a good
+        choice).
+    obs_clip
+        Every feature is clipped to ``[-obs_clip, obs_clip]`` after scaling.
+    """
+
+    window: int = 10
+    include_error: bool = True
+    y_scale: float = 1.0
+    obs_clip: float = 10.0
+
+    def __post_init__(self) -> None:
+        if int(self.window) != self.window or self.window < 1:
+            raise ValueError(f"window must be an integer >= 1, got {self.window!r}")
+        if not (np.isfinite(self.y_scale) and self.y_scale > 0):
+            raise ValueError(f"y_scale must be a positive number, got {self.y_scale!r}")
+        if not (np.isfinite(self.obs_clip) and self.obs_clip > 0):
+            raise ValueError(f"obs_clip must be a positive number, got {self.obs_clip!r}")
+
+    @property
+    def n_features(self) -> int:
+        return self.window * (4 if self.include_error else 3)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class HistoryBuffer:
+    """Windows of ``y``, ``r`` and ``u`` for ``batch`` independent lanes.
+
+    Call :meth:`start` with the first observation of an episode, then alternate
+    :meth:`push_action` (the input actually applied) and :meth:`push_obs` (the observation that
+    followed); :meth:`features` gives the network input at any time.
+    """
+
+    def __init__(self, config: WindowConfig, action_bound: float, batch: int = 1) -> None:
+        self.config, self.action_bound, self.batch = config, float(action_bound), int(batch)
+        w = config.window
+        self._y = np.zeros((batch, w))
+        self._r = np.zeros((batch, w))
+        self._u = np.zeros((batch, w))
+
+    @staticmethod
+    def _split(obs: ArrayLike, batch: int) -> tuple[NDArray, NDArray]:
+        o = np.asarray(obs, dtype=float).reshape(batch, 2)
+        return o[:, 0], o[:, 1]
+
+    def start(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
+        """Begin an episode (all lanes, or the boolean mask ``lanes``) at observation ``obs``."""
+        mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
+        y, r = self._split(obs, self.batch)
+        for arr in (self._y, self._r, self._u):
+            arr[mask] = 0.0
+        self._y[mask, -1], self._r[mask, -1] = y[mask], r[mask]
+
+    def push_obs(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
+        """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``)."""
+        mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
+        y, r = self._split(obs, self.batch)
+        for arr, v in ((self._y, y), (self._r, r)):
+            arr[mask] = np.roll(arr[mask], -1, axis=1)
+            arr[mask, -1] = v[mask]
+
+    def push_action(self, u: ArrayLike) -> None:
+        """Append the applied inputs ``u(k)`` (one per lane, in plant units)."""
+        self._u[:] = np.roll(self._u, -1, axis=1)
+        self._u[:, -1] = np.asarray(u, dtype=float).reshape(self.batch)
+
+    def features(self) -> NDArray:
+        """``(batch, n_features)`` float32 network input (see the module docstring)."""
+        c = self.config
+        parts = [self._y / c.y_scale, self._r / c.y_scale, self._u / self.action_bound]
+        if c.include_error:
+            parts.append((self._r - self._y) / c.y_scale)
+        feats = np.concatenate(parts, axis=1)
+        return np.clip(np.nan_to_num(feats), -c.obs_clip, c.obs_clip).astype(np.float32)
+
+
+class HistoryWindow(gym.Wrapper):
+    """Window observation and ``[-1, 1]`` action space on a SISO stcgym environment.
+
+    Parameters
+    ----------
+    env
+        An environment observing ``[y(k), r(k)]`` with a ``(1,)`` action box (every canonical
+        stcgym environment).
+    config
+        :class:`WindowConfig` (or a dict of its fields); default ``WindowConfig()``.
+
+    ``info["u"]`` carries the applied input in plant units. Works under ``gym.make_vec`` and
+    SB3's ``make_vec_env`` (pass it as ``wrapper_class``).
+    """
+
+    def __init__(self, env: gym.Env, config: WindowConfig | dict | None = None) -> None:
+        super().__init__(env)
+        if config is None:
+            config = WindowConfig()
+        elif isinstance(config, dict):
+            config = WindowConfig(**config)
+        self.config = config
+        box = env.action_space
+        if not isinstance(box, spaces.Box) or box.shape != (1,):
+            raise ValueError(f"HistoryWindow needs a (1,) action box, got {box}")
+        if env.observation_space.shape != (2,):
+            raise ValueError(
+                "HistoryWindow needs the SISO observation [y, r], got shape "
+                f"{env.observation_space.shape}"
+            )
+        self.action_bound = float(box.high[0])
+        self._buf = HistoryBuffer(config, self.action_bound)
+        self.observation_space = spaces.Box(
+            -config.obs_clip, config.obs_clip, shape=(config.n_features,), dtype=np.float32
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    def reset(self, **kwargs: Any) -> tuple[NDArray, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        self._buf.start(obs)
+        return self._buf.features()[0], info
+
+    def step(self, action: ArrayLike) -> tuple[NDArray, float, bool, bool, dict[str, Any]]:
+        a = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
+        u = np.array([a * self.action_bound])
+        obs, reward, terminated, truncated, info = self.env.step(u)
+        self._buf.push_action(u)
+        self._buf.push_obs(obs)
+        info["u"] = float(u[0])
+        return self._buf.features()[0], reward, terminated, truncated, info
+
+
+class TrainingReward(gym.Wrapper):
+    """The reward an RL agent is trained on (training only; evaluation uses the raw reward).
+
+    Two changes to the environment's reward ``-cost``, both needed for learning to work at all:
+
+    * the per-step cost is compressed, ``c -> s log(1 + c / s)`` with ``s = cost_squash``: a
+      saturated input on a high-gain plant costs thousands per step while a good controller
+      costs ~0.1, and value functions fitted over that range learn nothing about the small
+      costs. The map is the identity for ``c << s`` (good policies are ranked as before) and
+      logarithmic above, so it keeps a slope where plain clipping would leave a saturated
+      deterministic actor (TD3) without any gradient;
+    * a diverged episode is charged for the steps it did not live: the reward is a negative cost
+      per step, so an episode that ends early would collect *less* cost than a well-controlled
+      one and an agent would learn to blow the loop up. On divergence (``terminated`` with
+      ``info["diverged"]``) the terminal step's (compressed) cost is charged once more for every
+      step left until ``horizon``, the convention the evaluation harness uses to score failed
+      runs.
+
+    ``reward_scale`` then multiplies every reward. ``cost_squash=None`` leaves the cost as is.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        horizon: int,
+        reward_scale: float = 1.0,
+        cost_squash: float | None = 1.0,
+    ) -> None:
+        super().__init__(env)
+        if int(horizon) != horizon or horizon < 1:
+            raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+        if cost_squash is not None and not cost_squash > 0:
+            raise ValueError(f"cost_squash must be positive or None, got {cost_squash!r}")
+        self.horizon, self.reward_scale = int(horizon), float(reward_scale)
+        self.cost_squash = cost_squash
+        self._k = 0
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        self._k = 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self._k += 1
+        if self.cost_squash is not None:
+            s = self.cost_squash
+            reward = -s * float(np.log1p(max(-float(reward), 0.0) / s))
+        if terminated and info.get("diverged", False):
+            reward = reward * (1 + max(self.horizon - self._k, 0))
+        return obs, float(reward) * self.reward_scale, terminated, truncated, info
