@@ -1,0 +1,193 @@
+"""Native vector envs: equal to independent single envs, Gymnasium and SB3 plumbing."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import stcgym.envs  # noqa: F401 - registers the single envs
+from stcgym.envs.vector import (
+    ObservabilityCanonicalVectorEnv,
+    ObserverCanonicalVectorEnv,
+    SB3VecEnv,
+    StateSpaceVectorEnv,
+)
+
+SINGLE_IDS = {
+    ObserverCanonicalVectorEnv: "stcgym/ObserverCanonical-v0",
+    ObservabilityCanonicalVectorEnv: "stcgym/ObservabilityCanonical-v0",
+    StateSpaceVectorEnv: "stcgym/StateSpace-v0",
+}
+
+CASES = [
+    (ObserverCanonicalVectorEnv, dict(noise_std=0.1), None),
+    (
+        ObserverCanonicalVectorEnv,
+        dict(
+            plant=["stable2", "unstable2", "timevarying2", "nonminphase2"],
+            noise_std=0.1,
+            process_noise_std=0.05,
+            reference="prbs",
+        ),
+        None,
+    ),
+    (ObservabilityCanonicalVectorEnv, dict(plant="stable4", noise_std=0.2, reference="sine"), None),
+    (
+        ObservabilityCanonicalVectorEnv,
+        dict(plant=["timevarying2", "unstable2"], noise_std=0.2, reference="step"),
+        {"initial_state_std": 1.0},
+    ),
+    (
+        StateSpaceVectorEnv,
+        dict(A=[[0.9, 0.1], [0.0, 0.8]], B=[[1.0, 0.0], [0.0, 1.0]], noise_std=0.1),
+        None,
+    ),
+]
+
+
+def _run_pair(vcls, kwargs, options, *, exact, B=4, T=260, mes=90, seed=7):
+    """Step a vector env and B single envs (NEXT_STEP autoreset by hand) with one action
+    sequence; yield both results per step."""
+    seeds = [seed + 3 * i for i in range(B)]
+    venv = vcls(num_envs=B, max_episode_steps=mes, exact=exact, **kwargs)
+    envs = [gym.make(SINGLE_IDS[vcls], max_episode_steps=mes, **kwargs) for _ in range(B)]
+    vo, vi = venv.reset(seed=seeds, options=options)
+    singles = [e.reset(seed=s, options=options) for e, s in zip(envs, seeds, strict=True)]
+    yield vo, vi, [o for o, _ in singles], [i for _, i in singles], None, None, None
+    rng = np.random.default_rng(seed)
+    ended = np.zeros(B, dtype=bool)
+    for _ in range(T):
+        a = rng.uniform(-3, 3, size=(B, venv.n_inputs))
+        vout = venv.step(a)
+        souts = []
+        for i, e in enumerate(envs):
+            if ended[i]:
+                o, info = e.reset()
+                souts.append((o, 0.0, False, False, info))
+            else:
+                souts.append(e.step(a[i]))
+            ended[i] = souts[-1][2] or souts[-1][3]
+        yield vout[0], vout[4], [s[0] for s in souts], [s[4] for s in souts], vout, souts, a
+
+
+@pytest.mark.parametrize("exact", [True, False])
+@pytest.mark.parametrize(("vcls", "kwargs", "options"), CASES)
+def test_vector_env_equals_single_envs(vcls, kwargs, options, exact):
+    """Lane i reproduces gym.make(...) reset with seed s_i: observations, rewards, flags and
+    info, across autoresets (bit for bit with exact=True, to 1e-12 relative otherwise)."""
+    rtol = 0.0 if exact else 1e-12
+    for vo, vi, so, si, vout, souts, _ in _run_pair(vcls, kwargs, options, exact=exact):
+        for i, (o, info) in enumerate(zip(so, si, strict=True)):
+            np.testing.assert_allclose(vo[i], o, rtol=rtol, atol=0 if exact else 1e-12)
+            for key, val in info.items():
+                assert vi["_" + key][i]
+                np.testing.assert_allclose(
+                    np.asarray(vi[key][i], float),
+                    np.asarray(val, float),
+                    rtol=rtol,
+                    atol=0 if exact else 1e-12,
+                )
+        if vout is not None:
+            rew = np.array([s[1] for s in souts])
+            np.testing.assert_allclose(vout[1], rew, rtol=rtol, atol=0 if exact else 1e-12)
+            assert np.array_equal(vout[2], [s[2] for s in souts])
+            assert np.array_equal(vout[3], [s[3] for s in souts])
+
+
+def test_per_lane_parameters_and_options():
+    a = np.array([[-1.5, 0.7], [-1.2, 0.52], [-1.7, 0.66]])
+    b = np.array([[1.0, 0.5], [0.9, 0.3], [0.5, 0.3]])
+    venv = ObserverCanonicalVectorEnv(num_envs=3, a=a, b=b, exact=True)
+    venv.reset(seed=1)
+    np.testing.assert_array_equal(venv.theta, np.hstack((a, b)))
+    theta = np.array([[-1.0, 0.3, 1.0, 0.0]] * 3)
+    _, info = venv.reset(seed=1, options={"theta": theta, "initial_state": [[1.0, 0.0]] * 3})
+    np.testing.assert_array_equal(info["theta"], theta)
+    np.testing.assert_array_equal(info["x"], [[1.0, 0.0]] * 3)
+    single = gym.make("stcgym/ObserverCanonical-v0", a=a[1], b=b[1])
+    o1, _ = single.reset(seed=2)
+    venv2 = ObserverCanonicalVectorEnv(num_envs=3, a=a, b=b)
+    vo, _ = venv2.reset(seed=[0, 2, 4])
+    np.testing.assert_array_equal(vo[1], o1)
+
+
+def test_autoreset_modes_and_validation():
+    venv = ObserverCanonicalVectorEnv(
+        num_envs=2, max_episode_steps=3, autoreset_mode=AutoresetMode.SAME_STEP
+    )
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    venv.reset(seed=0)
+    for _ in range(2):
+        _, _, _, trunc, infos = venv.step(np.zeros((2, 1)))
+        assert not trunc.any()
+    obs, rew, term, trunc, infos = venv.step(np.zeros((2, 1)))
+    assert trunc.all() and infos["_final_obs"].all()
+    assert infos["final_info"]["t"].tolist() == [3, 3] and infos["t"].tolist() == [0, 0]
+    # DISABLED: stepping an ended lane is an error until it is reset by mask.
+    venv = ObserverCanonicalVectorEnv(num_envs=2, max_episode_steps=1, autoreset_mode="Disabled")
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, 1)))
+    with pytest.raises(RuntimeError):
+        venv.step(np.zeros((2, 1)))
+    venv.reset(options={"reset_mask": np.array([True, True])})
+    venv.step(np.zeros((2, 1)))
+    # Validation: shapes, non-finite actions, clipping counted like the single env.
+    venv = ObserverCanonicalVectorEnv(num_envs=2, action_bound=1.0)
+    with pytest.raises(RuntimeError):
+        venv.step(np.zeros((2, 1)))
+    venv.reset(seed=0)
+    with pytest.raises(ValueError):
+        venv.step(np.zeros((3, 1)))
+    with pytest.raises(ValueError):
+        venv.step(np.array([[np.nan], [0.0]]))
+    _, _, _, _, info = venv.step(np.array([[5.0], [0.5]]))
+    assert info["clipped"].tolist() == [True, False] and info["n_clipped"].tolist() == [1, 0]
+    assert (
+        venv.step(np.zeros(2))[4] and ObserverCanonicalVectorEnv(2, info_keys=()).reset()[1] == {}
+    )
+
+
+def test_make_vec_uses_the_vector_entry_point():
+    env_id = "stcgym-test/ObserverCanonicalVec-v0"
+    if env_id not in gym.registry:
+        gym.register(
+            id=env_id,
+            entry_point="stcgym.envs.plants:ObserverCanonicalEnv",
+            vector_entry_point="stcgym.envs.vector:ObserverCanonicalVectorEnv",
+            max_episode_steps=50,
+        )
+    envs = gym.make_vec(env_id, num_envs=8, plant=["stable2", "lightly_damped2"], noise_std=0.1)
+    assert isinstance(envs.unwrapped, ObserverCanonicalVectorEnv)
+    assert envs.num_envs == 8 and envs.unwrapped.max_episode_steps == 50
+    obs, _ = envs.reset(seed=3)
+    assert obs.shape == (8, 2) and envs.observation_space.shape == (8, 2)
+    assert envs.single_action_space.shape == (1,)
+    for _ in range(50):
+        obs, rew, term, trunc, _ = envs.step(envs.action_space.sample())
+    assert trunc.all()
+    envs.close()
+
+
+def test_sb3_adapter_trains_ppo():
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecEnv
+
+    venv = ObserverCanonicalVectorEnv(num_envs=8, max_episode_steps=40, noise_std=0.05)
+    vec = SB3VecEnv(venv)
+    assert isinstance(vec, VecEnv) and vec.num_envs == 8
+    vec.seed(5)
+    obs = vec.reset()
+    assert obs.shape == (8, 2)
+    _, _, dones, infos = vec.step(np.zeros((8, 1), dtype=np.float32))
+    assert dones.shape == (8,) and len(infos) == 8
+    for _ in range(39):
+        _, _, dones, infos = vec.step(np.zeros((8, 1), dtype=np.float32))
+    assert dones.all() and infos[0]["TimeLimit.truncated"]
+    assert infos[0]["terminal_observation"].shape == (2,)
+    model = PPO("MlpPolicy", vec, n_steps=32, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=512)
+    action, _ = model.predict(vec.reset(), deterministic=True)
+    assert action.shape == (8, 1)
