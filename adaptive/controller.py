@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
 from stcgym.adaptive.placement import (
     UncontrollableError,
     ackermann,

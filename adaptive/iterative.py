@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
 from stcgym.adaptive import flops as _flops
 from stcgym.adaptive.multichannel import NumericalHealthError
 from stcgym.envs.canonical import as_finite_vector, check_form, companion_A

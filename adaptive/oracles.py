@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
 from stcgym.adaptive.placement import augment_integral, steady_state_gains
 from stcgym.adaptive.policy import StatefulPolicy
 from stcgym.envs.canonical import check_ab, check_form, companion_A

@@ -36,6 +36,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.controller import SelfTuningController
 from stcgym.adaptive.oracles import KnownModelController, LQGController

@@ -7,6 +7,7 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.controller import SelfTuningController, TrackingLaw
 from stcgym.adaptive.oracles import KnownModelController, LQGController

@@ -122,8 +122,9 @@ def test_state_space_env_matches_forced_response_with_feedthrough():
     u = rng.normal(size=(40, 2))
     env = gym.make("stcgym/StateSpace-v0", A=A, B=B, C=C, D=D, reference="zero")
     obs, _ = _rollout(env, u)
-    resp = control.forced_response(control.ss(A, B, C, D, 1), T=np.arange(41),
-                                   U=np.vstack((u, np.zeros((1, 2)))).T)
+    resp = control.forced_response(
+        control.ss(A, B, C, D, 1), T=np.arange(41), U=np.vstack((u, np.zeros((1, 2)))).T
+    )
     # y(k+1) = C x(k+1) + D u(k): the input held from the last step (see envs.plants docstring).
     u_held = np.vstack((np.zeros((1, 2)), u))
     u_next = np.vstack((u, np.zeros((1, 2))))
@@ -154,8 +155,14 @@ def test_multichannel_static_output():
 
 
 def test_reward_uses_noise_free_output_and_control_cost():
-    env = gym.make("stcgym/ObserverCanonical-v0", a=[0.5], b=[2.0], control_cost=0.1,
-                   reference=0.25, noise_std=1.0)
+    env = gym.make(
+        "stcgym/ObserverCanonical-v0",
+        a=[0.5],
+        b=[2.0],
+        control_cost=0.1,
+        reference=0.25,
+        noise_std=1.0,
+    )
     env.reset(seed=0)
     obs, reward, _, _, info = env.step(np.array([0.5]))
     assert info["y_clean"] == pytest.approx(1.0)  # x(1) = 2 * 0.5
@@ -164,8 +171,9 @@ def test_reward_uses_noise_free_output_and_control_cost():
 
 
 def test_same_seed_same_episode_whatever_came_before():
-    env = gym.make("stcgym/ObserverCanonical-v0", noise_std=0.1, reference="prbs",
-                   schedule=RandomWalk(0.001))
+    env = gym.make(
+        "stcgym/ObserverCanonical-v0", noise_std=0.1, reference="prbs", schedule=RandomWalk(0.001)
+    )
     u = np.full(50, 0.05)
     first, infos1 = _rollout(env, u, seed=11)
     _rollout(env, u, seed=3)
@@ -176,14 +184,21 @@ def test_same_seed_same_episode_whatever_came_before():
     other, _ = _rollout(env, u, seed=12)
     assert not np.allclose(first[:, 0], other[:, 0])
     # A fresh env with the same seed gives the same episode too.
-    fresh = gym.make("stcgym/ObserverCanonical-v0", noise_std=0.1, reference="prbs",
-                     schedule=RandomWalk(0.001))
+    fresh = gym.make(
+        "stcgym/ObserverCanonical-v0", noise_std=0.1, reference="prbs", schedule=RandomWalk(0.001)
+    )
     np.testing.assert_array_equal(first, _rollout(fresh, u, seed=11)[0])
 
 
 def test_noise_statistics():
-    env = gym.make("stcgym/ObserverCanonical-v0", a=[0.0], b=[0.0], noise_std=0.3,
-                   reference="zero", max_episode_steps=None)
+    env = gym.make(
+        "stcgym/ObserverCanonical-v0",
+        a=[0.0],
+        b=[0.0],
+        noise_std=0.3,
+        reference="zero",
+        max_episode_steps=None,
+    )
     obs, _ = _rollout(env, np.zeros(4000), seed=1)
     assert np.std(obs[:, 0]) == pytest.approx(0.3, rel=0.05)
     assert abs(np.mean(obs[:, 0])) < 0.03
@@ -197,8 +212,7 @@ def test_parameter_jump_is_in_info_and_in_dynamics():
     assert np.allclose(infos[10]["theta"], new)
     np.testing.assert_allclose(env.unwrapped.a, new[:2])
     # timevarying2 carries its own jump at step 1000, in either form.
-    env = gym.make("stcgym/ObservabilityCanonical-v0", plant="timevarying2",
-                   max_episode_steps=2000)
+    env = gym.make("stcgym/ObservabilityCanonical-v0", plant="timevarying2", max_episode_steps=2000)
     _, infos = _rollout(env, np.zeros(1001))
     a_after, b_after = np.array([-1.2, 0.52]), np.array([0.9, 0.3])
     np.testing.assert_allclose(infos[1000]["a"], a_after)
@@ -236,10 +250,16 @@ def test_references():
 
 
 def test_divergence_terminates_with_flag_and_truncation_is_separate():
-    env = gym.make("stcgym/ObserverCanonical-v0", a=[-2.0], b=[1.0], y_bound=50.0,
-                   reference="zero", max_episode_steps=100)
+    env = gym.make(
+        "stcgym/ObserverCanonical-v0",
+        a=[-2.0],
+        b=[1.0],
+        y_bound=50.0,
+        reference="zero",
+        max_episode_steps=100,
+    )
     env.reset(seed=0)
-    for k in range(100):
+    for k in range(100):  # noqa: B007 (k is read after the loop)
         obs, reward, terminated, truncated, info = env.step(np.array([1.0]))
         assert np.isfinite(obs).all() and np.isfinite(reward)
         if terminated:
@@ -285,8 +305,9 @@ def test_catalogue_documentation_is_true():
 
 
 def test_make_vec_and_render():
-    envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, vectorization_mode="sync",
-                        noise_std=0.1)
+    envs = gym.make_vec(
+        "stcgym/ObserverCanonical-v0", num_envs=3, vectorization_mode="sync", noise_std=0.1
+    )
     obs, _ = envs.reset(seed=[1, 2, 3])
     assert obs.shape == (3, 2)
     obs, rewards, terms, truncs, _ = envs.step(np.zeros((3, 1)))
