@@ -4,12 +4,14 @@ Recursive estimators of Ding & Ma (2014) (``make_estimator``: O-/KF-/CO- x SG, M
 plain or model-decomposition D-), iterative batch estimators (``fit_iterative``: GI, LSI, D-GI,
 D-LSI with an observer or a Kalman filter), multichannel estimators (``MatrixRLS``,
 ``StateMatrixEstimator``), closed-form pole placement, the self-tuning pole-placement controller
-and the known-model oracles, all behind one SB3-style policy protocol.
+and the known-model oracles, all behind one SB3-style policy protocol; batched (``num_envs``)
+versions of the estimators and the controller for many plants at numpy speed.
 """
 
 from __future__ import annotations
 
 from stcgym.adaptive import flops
+from stcgym.adaptive.batched import BatchedSelfTuningController, FastLoop, make_batched_estimator
 from stcgym.adaptive.controller import SelfTuningController, TrackingLaw
 from stcgym.adaptive.iterative import ITERATIVE_NAMES, IterativeResult, fit_iterative
 from stcgym.adaptive.multichannel import MatrixRLS, StateMatrixEstimator
@@ -26,6 +28,8 @@ from stcgym.adaptive.rules import NumericalHealthError
 
 __all__ = [
     "ALGORITHMS",
+    "BatchedSelfTuningController",
+    "FastLoop",
     "ITERATIVE_NAMES",
     "IterativeResult",
     "KalmanObserver",
@@ -44,6 +48,7 @@ __all__ = [
     "augment_integral",
     "fit_iterative",
     "flops",
+    "make_batched_estimator",
     "make_estimator",
     "parse_name",
     "place_poles",

@@ -341,6 +341,10 @@ class SelfTuningController(StatefulPolicy):
     ----------
     n
         Plant order (``theta`` has ``2n`` entries); must match the env when ``env`` is given.
+    num_envs, mode
+        ``num_envs=B`` returns a :class:`~stcgym.adaptive.batched.BatchedSelfTuningController`
+        instead: ``B`` lanes of this controller on arrays, ``mode="exact"`` (bit-for-bit equal
+        to ``B`` single controllers) or ``"fast"`` (generated kernels, different rounding).
     estimator
         A paper name (``"O-RLS"``, ``"KF-MILS"``, ... case-insensitive; see
         :func:`stcgym.adaptive.recursive.make_estimator`) or a ready estimator object with
@@ -382,10 +386,25 @@ class SelfTuningController(StatefulPolicy):
         mismatching the env, ``action_bound`` larger than the env's, bad numeric settings.
     """
 
+    def __new__(
+        cls, *args: Any, num_envs: int | None = None, mode: str = "exact", **kwargs: Any
+    ) -> Any:
+        # ``num_envs`` lanes are a different object (arrays per lane, no Python loop per lane);
+        # one constructor keeps the single and batched controllers configured identically.
+        if num_envs is not None:
+            from stcgym.adaptive.batched import BatchedSelfTuningController
+
+            return BatchedSelfTuningController(*args, num_envs=num_envs, mode=mode, **kwargs)
+        if mode != "exact":
+            raise ValueError(f"mode={mode!r} applies to batched controllers (num_envs=...) only")
+        return super().__new__(cls)
+
     def __init__(
         self,
         n: int,
         *,
+        num_envs: None = None,
+        mode: str = "exact",
         estimator: str | Any = "KF-MILS",
         p: int = 2,
         p0: float = 1e6,

@@ -71,7 +71,7 @@ import math
 import warnings
 from collections.abc import Callable
 from numbers import Integral, Real
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -86,6 +86,9 @@ from stcgym.adaptive.state_estimators import (
     is_schur_stable,
 )
 from stcgym.envs.canonical import as_finite_vector, check_form
+
+if TYPE_CHECKING:
+    from stcgym.adaptive.batched_estimators import BatchedEstimatorBase
 
 __all__ = [
     "ALGORITHMS",
@@ -625,7 +628,9 @@ def make_estimator(
     on_failure: str = "reset",
     pd_check_every: int = 100,
     project_stable: bool = False,
-) -> RecursiveEstimator:
+    num_envs: int | None = None,
+    mode: str = "exact",
+) -> RecursiveEstimator | BatchedEstimatorBase:
     """Build one of the paper's recursive estimators by name.
 
     Parameters
@@ -682,11 +687,28 @@ def make_estimator(
         output-error / pseudo-linear-regression methods (Ljung & Soderstrom 1983). Without it an
         early unstable estimate can make the open-loop observer blow up; the huge ``phi_hat``
         entries then collapse ``P`` and ``a_hat`` stays wrong for thousands of steps.
+    num_envs : int, optional
+        Build ``num_envs`` lanes of this estimator stepped together on arrays instead
+        (:func:`~stcgym.adaptive.batched.make_batched_estimator`; ``theta0``/``P0`` may then
+        carry a leading lane axis).
+    mode : {"exact", "fast"}
+        Batched lanes only: ``"exact"`` is bit-for-bit equal to ``num_envs`` single
+        estimators, ``"fast"`` uses generated kernels (same equations, different rounding).
 
     Returns
     -------
     RecursiveEstimator
+        Or a batched estimator when ``num_envs`` is given.
     """
+    if num_envs is not None:
+        # Every argument but the batching ones goes through unchanged; the batched factory
+        # validates them with this very function (num_envs=None) on lane 0.
+        kwargs = {k: v for k, v in locals().items() if k not in ("name", "n", "num_envs", "mode")}
+        from stcgym.adaptive.batched import make_batched_estimator
+
+        return make_batched_estimator(name, n, num_envs=num_envs, mode=mode, **kwargs)
+    if mode != "exact":
+        raise ValueError(f"mode={mode!r} applies to batched estimators (num_envs=...) only")
     state_name, decomposed, rule_name = parse_name(name)
     n = _int(n, "n", 1)
     p = _int(p, "p", 1)

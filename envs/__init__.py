@@ -10,6 +10,9 @@ id                                  plant
 ``stcgym/StateSpace-v0``             MIMO ``(A, B, C, D)`` or any python-control system
 ``stcgym/MultichannelStatic-v0``     static object ``y^T = u^T Theta + v`` (Voevoda-Troshina)
 ==================================  =============================================================
+
+The first three also have a numpy vector env (:mod:`stcgym.envs.vector`):
+``gym.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point", **kwargs)``.
 """
 
 from __future__ import annotations
@@ -58,12 +61,23 @@ ENV_IDS = {
     "stcgym/MultichannelStatic-v0": "stcgym.envs.plants:MultichannelStaticEnv",
 }
 
+# ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")`` builds these: all
+# lanes in numpy arrays, no Python loop per lane (the multichannel static object has none).
+VECTOR_ENTRY_POINTS = {
+    "stcgym/ObserverCanonical-v0": "stcgym.envs.vector:ObserverCanonicalVectorEnv",
+    "stcgym/ObservabilityCanonical-v0": "stcgym.envs.vector:ObservabilityCanonicalVectorEnv",
+    "stcgym/StateSpace-v0": "stcgym.envs.vector:StateSpaceVectorEnv",
+}
+
 
 def _register() -> None:
     for env_id, entry_point in ENV_IDS.items():
         if env_id not in gym.registry:
             gym.register(
-                id=env_id, entry_point=entry_point, max_episode_steps=DEFAULT_MAX_EPISODE_STEPS
+                id=env_id,
+                entry_point=entry_point,
+                vector_entry_point=VECTOR_ENTRY_POINTS.get(env_id),
+                max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
             )
 
 
@@ -71,6 +85,7 @@ _register()
 
 __all__ = [
     "ENV_IDS",
+    "VECTOR_ENTRY_POINTS",
     "PLANTS",
     "PRBS",
     "ArrayReference",

@@ -36,10 +36,19 @@ def _data(B: int, T: int, form: str, n: int = 2, seed: int = 0) -> tuple[np.ndar
     return U, Y
 
 
-def _compare_estimators(mode: str, name: str, n: int, p: int, form: str, rtol: float, **kw):
+def _compare_estimators(
+    mode: str,
+    name: str,
+    n: int,
+    p: int,
+    form: str,
+    rtol: float,
+    factory=make_batched_estimator,
+    **kw,
+):
     B, T = 3, 150
     U, Y = _data(B, T, form, n)
-    batched = make_batched_estimator(name, n, num_envs=B, mode=mode, p=p, form=form, **kw)
+    batched = factory(name, n, num_envs=B, mode=mode, p=p, form=form, **kw)
     singles = [make_estimator(name, n, p=p, form=form, **kw) for _ in range(B)]
     for k in range(T):
         th = batched.update(Y[:, k])
@@ -76,6 +85,28 @@ NAMES = [
 def test_exact_estimators_bit_for_bit(name, p, form):
     """mode="exact" repeats the reference's BLAS/LAPACK calls per lane: zero difference."""
     _compare_estimators("exact", name, 2, p, form, rtol=0.0)
+
+
+def test_make_estimator_num_envs_routes_to_the_batched_lanes():
+    """``make_estimator(..., num_envs=B)`` passes every setting through (here forgetting and
+    the Kalman noise settings, which change the result) to B lanes equal to B single ones."""
+    kw = dict(forgetting=0.98, process_noise=0.01 * np.eye(2), measurement_noise=0.5)
+    _compare_estimators("exact", "KF-MILS", 2, 3, "observer", 0.0, factory=make_estimator, **kw)
+    _compare_estimators(
+        "fast", "O-RLS", 2, 1, "observer", 1e-12, factory=make_estimator, forgetting=0.98
+    )
+    with pytest.raises(ValueError, match="num_envs"):
+        make_estimator("O-RLS", 2, mode="fast")
+
+
+def test_self_tuning_controller_num_envs_builds_the_batched_controller():
+    ctl = SelfTuningController(2, num_envs=4, estimator="O-RLS")
+    assert isinstance(ctl, BatchedSelfTuningController) and ctl.num_envs == 4
+    assert type(SelfTuningController(2, num_envs=2, mode="fast")).__name__.startswith("Fast")
+    with pytest.raises(ValueError, match="num_envs"):
+        SelfTuningController(2, mode="fast")
+    single = SelfTuningController(2)
+    assert type(single) is SelfTuningController
 
 
 @pytest.mark.parametrize(("name", "p"), NAMES)

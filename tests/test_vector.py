@@ -150,15 +150,15 @@ def test_autoreset_modes_and_validation():
 
 
 def test_make_vec_uses_the_vector_entry_point():
-    env_id = "stcgym-test/ObserverCanonicalVec-v0"
-    if env_id not in gym.registry:
-        gym.register(
-            id=env_id,
-            entry_point="stcgym.envs.plants:ObserverCanonicalEnv",
-            vector_entry_point="stcgym.envs.vector:ObserverCanonicalVectorEnv",
-            max_episode_steps=50,
-        )
-    envs = gym.make_vec(env_id, num_envs=8, plant=["stable2", "lightly_damped2"], noise_std=0.1)
+    """The registered ids default to the numpy vector env in ``gym.make_vec``."""
+    env_id = "stcgym/ObserverCanonical-v0"
+    envs = gym.make_vec(
+        env_id,
+        num_envs=8,
+        plant=["stable2", "lightly_damped2"],
+        noise_std=0.1,
+        max_episode_steps=50,
+    )
     assert isinstance(envs.unwrapped, ObserverCanonicalVectorEnv)
     assert envs.num_envs == 8 and envs.unwrapped.max_episode_steps == 50
     obs, _ = envs.reset(seed=3)
@@ -168,6 +168,32 @@ def test_make_vec_uses_the_vector_entry_point():
         obs, rew, term, trunc, _ = envs.step(envs.action_space.sample())
     assert trunc.all()
     envs.close()
+    for env_id, vcls, kw in (
+        ("stcgym/ObservabilityCanonical-v0", ObservabilityCanonicalVectorEnv, {}),
+        ("stcgym/StateSpace-v0", StateSpaceVectorEnv, dict(A=[[0.5]], B=[[1.0]])),
+    ):
+        envs = gym.make_vec(env_id, num_envs=2, **kw)
+        assert type(envs) is vcls and envs.max_episode_steps == 1000
+
+
+def test_make_vec_vector_entry_point_equals_sync_vector_env():
+    """Same seeds and actions: the numpy vector env (exact=True) and gymnasium's
+    SyncVectorEnv of single envs give identical observations, rewards and autoresets."""
+    kw = dict(plant="unstable2", noise_std=0.1, max_episode_steps=30, exact=True)
+    ours = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, **kw)
+    kw.pop("exact")
+    sync = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, vectorization_mode="sync", **kw)
+    assert isinstance(sync, gym.vector.SyncVectorEnv)
+    o1, _ = ours.reset(seed=[4, 5, 6])
+    o2, _ = sync.reset(seed=[4, 5, 6])
+    rng = np.random.default_rng(0)
+    for _ in range(70):
+        np.testing.assert_array_equal(o1, o2)
+        a = rng.uniform(-1, 1, size=(3, 1))
+        o1, r1, te1, tr1, _ = ours.step(a)
+        o2, r2, te2, tr2, _ = sync.step(a)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(te1 | tr1, te2 | tr2)
 
 
 def test_sb3_adapter_trains_ppo():
