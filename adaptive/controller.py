@@ -670,13 +670,14 @@ class SelfTuningController(StatefulPolicy):
         """
         n = self.n
         boot = self._boot
+        self.n_handovers += 1
+        # Checked before the conversion, which rejects non-finite input with an exception.
+        if not np.all(np.isfinite(boot.theta)):  # pragma: no cover - RLS on finite data
+            return
         a, beta = boot.theta[:n].copy(), boot.theta[n:].copy()
         if self.form == "observability":
             beta = observer_to_observability_b(a, beta)
         theta0 = np.concatenate([a, beta])
-        self.n_handovers += 1
-        if not np.all(np.isfinite(theta0)):  # pragma: no cover - RLS on finite data
-            return
         P0 = None
         if self.estimator_name.split("-")[-1] in ("RLS", "MILS"):
             P0 = 0.5 * (boot.P + boot.P.T) * self.handover_inflation

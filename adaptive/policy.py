@@ -115,7 +115,9 @@ class StatefulPolicy(ABC):
 
         ``deterministic`` is accepted for compatibility only: the controllers' excitation signals
         are seeded pseudo-random sequences that are part of the control law, and the result is
-        reproducible either way.
+        reproducible either way. A batch of observations runs one copy of this controller per
+        row (same settings and seed, hence the same excitation sequence), like B identical
+        controllers on B plants; the batched controllers take a seed per lane instead.
         """
         obs, single = validate_observation(observation, self.obs_dim)
         starts = self._episode_starts(episode_start, obs.shape[0])

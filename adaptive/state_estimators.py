@@ -31,7 +31,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive import flops as _flops
 
@@ -175,12 +175,27 @@ class KalmanFilter:
     def __init__(self, n: int, P1_init: NDArray, Q: NDArray, R: float) -> None:
         self.n = n
         self.P1_init = np.array(P1_init, dtype=float)
-        self.Q = np.array(Q, dtype=float)
-        self.has_Q = bool(np.any(self.Q != 0.0))
+        self.Q = Q
         self.R = float(R)
         self.P1 = self.P1_init.copy()
         self.L1 = np.zeros(n)
         self.n_resets = 0
+
+    @property
+    def Q(self) -> NDArray:
+        """Process-noise covariance; may be replaced between steps (adaptive process noise)."""
+        return self._Q
+
+    @Q.setter
+    def Q(self, Q: ArrayLike) -> None:
+        Q = np.array(Q, dtype=float)
+        if Q.shape != (self.n, self.n) or not np.all(np.isfinite(Q)):
+            raise ValueError(
+                f"Q (process-noise covariance) must be finite, shape ({self.n}, {self.n})"
+            )
+        self._Q = Q
+        # The paper's filter has Q = 0; skipping the addition keeps it bit-for-bit the paper's.
+        self.has_Q = bool(np.any(Q != 0.0))
 
     def reset(self) -> None:
         """Back to ``P1(1)``."""

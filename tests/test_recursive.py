@@ -285,6 +285,14 @@ def test_paper_kalman_gain_dies_out_and_process_noise_keeps_it():
     noisy = make_estimator("KF-RLS", 2, process_noise=0.01)
     noisy.run(u, y)
     assert np.linalg.norm(noisy.L1) > 1e-2
+    # Q set after construction (the controller's adaptive process noise) takes effect too.
+    late = make_estimator("KF-RLS", 2)
+    late.state_estimator.Q = 0.01 * np.eye(2)
+    np.testing.assert_array_equal(
+        late.run(u, y), make_estimator("KF-RLS", 2, process_noise=0.01).run(u, y)
+    )
+    with pytest.raises(ValueError, match="Q"):
+        late.state_estimator.Q = np.eye(3)
 
 
 def test_closed_loop_observer_deadbeat_gain_recovers_the_state():
