@@ -33,7 +33,7 @@ from stcgym.adaptive.batched_estimators import (
     _vm,
     _vv,
 )
-from stcgym.adaptive.policy import validate_observation
+from stcgym.adaptive.policy import BatchedPolicy
 
 __all__ = ["BatchedSelfTuningController", "ControllerConfig", "REJECTION_REASONS"]
 
@@ -102,7 +102,7 @@ def _lfsr(state: NDArray) -> tuple[NDArray, NDArray]:
     return np.where(bit == 1, 1.0, -1.0), ((state << 1) | bit) & 0x1FF
 
 
-class BatchedSelfTuningController:
+class BatchedSelfTuningController(BatchedPolicy):
     """``num_envs`` lanes of :class:`~stcgym.adaptive.controller.SelfTuningController`.
 
     Parameters
@@ -116,8 +116,6 @@ class BatchedSelfTuningController:
     mode
         ``"exact"`` (bit-for-bit the single controller) or ``"fast"`` (generated kernels).
     """
-
-    obs_dim = 2
 
     def __new__(cls, n: int, *, num_envs: int, mode: str = "exact", **kwargs: Any) -> Any:
         if mode == "fast":
@@ -224,31 +222,9 @@ class BatchedSelfTuningController:
         self._u_hist[idx] = 0.0
         self._y_hist[idx] = 0.0
 
-    # ------------------------------------------------------------------------ SB3 protocol
-    def predict(
-        self,
-        observation: ArrayLike,
-        state: Any = None,
-        episode_start: ArrayLike | bool | None = None,
-        deterministic: bool = True,
-    ) -> tuple[NDArray, Any]:
-        """Actions ``(B, 1)`` for observations ``(B, 2)``; ``episode_start`` resets lanes first."""
-        obs, single = validate_observation(observation, self.obs_dim)
-        if obs.shape[0] != self.num_envs:
-            raise ValueError(
-                f"expected {self.num_envs} observations (one per lane), got {obs.shape[0]}"
-            )
-        if episode_start is not None:
-            starts = np.broadcast_to(
-                np.asarray(episode_start, dtype=bool).reshape(-1), (self.num_envs,)
-            )
-            if starts.any():
-                self.reset(starts)
-        u = self._act(obs[:, 0].copy(), obs[:, 1].copy())
-        return (u.reshape(-1) if single else u[:, None]), state
-
     # ------------------------------------------------------------------------ the step
-    def _act(self, y: NDArray, r: NDArray) -> NDArray:
+    def act(self, y: NDArray, r: NDArray) -> NDArray:
+        """One step of every lane from ``y(t)``, ``r(t)`` (shape ``(B,)``); returns ``u(t)``."""
         cfg, est, n = self.cfg, self.est, self.n
         t = self.t.copy()
         # -- 0. excitation phase and bootstrap

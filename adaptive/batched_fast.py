@@ -57,7 +57,7 @@ from stcgym.adaptive.batched_kernels import (
     estimator_layout,
     estimator_programs,
 )
-from stcgym.adaptive.policy import validate_observation
+from stcgym.adaptive.policy import BatchedPolicy
 
 __all__ = ["FastBatchedSelfTuningController", "FastLoop", "controller_layout"]
 
@@ -488,13 +488,11 @@ class _Programs:
 # --------------------------------------------------------------------------------------------
 # The numpy driver
 # --------------------------------------------------------------------------------------------
-class FastBatchedSelfTuningController:
+class FastBatchedSelfTuningController(BatchedPolicy):
     """``BatchedSelfTuningController(..., mode="fast")``: see the module docstring.
 
     ``chunk`` sets the lanes per kernel call (a few thousand keep the scratch in L2).
     """
-
-    obs_dim = 2
 
     def __init__(
         self,
@@ -593,29 +591,7 @@ class FastBatchedSelfTuningController:
             st.set("P1init", lanes, P1i)
             st.set("P1", lanes, P1i)
 
-    # ------------------------------------------------------------------------ protocol
-    def predict(
-        self,
-        observation: ArrayLike,
-        state: Any = None,
-        episode_start: ArrayLike | bool | None = None,
-        deterministic: bool = True,
-    ) -> tuple[NDArray, Any]:
-        """Actions ``(B, 1)`` for observations ``(B, 2)``; ``episode_start`` resets lanes first."""
-        obs, single = validate_observation(observation, self.obs_dim)
-        if obs.shape[0] != self.num_envs:
-            raise ValueError(
-                f"expected {self.num_envs} observations (one per lane), got {obs.shape[0]}"
-            )
-        if episode_start is not None:
-            starts = np.broadcast_to(
-                np.asarray(episode_start, dtype=bool).reshape(-1), (self.num_envs,)
-            )
-            if starts.any():
-                self.reset(starts)
-        u = self.act(obs[:, 0], obs[:, 1])
-        return (u.copy() if single else u[:, None].copy()), state
-
+    # ------------------------------------------------------------------------ the step
     #: Up to this many lanes the scalar kernel is run lane by lane (faster than numpy calls).
     scalar_lanes = 48
 
