@@ -32,10 +32,16 @@ from stcgym.adaptive.batched_estimators import (
     _mv,
     _vm,
     _vv,
+    stacked_lanes,
 )
 from stcgym.adaptive.policy import BatchedPolicy
 
-__all__ = ["BatchedSelfTuningController", "ControllerConfig", "REJECTION_REASONS"]
+__all__ = [
+    "REJECTION_REASONS",
+    "BatchedSelfTuningController",
+    "ControllerConfig",
+    "restart_covariance",
+]
 
 #: Safe-set rejection reasons, in the order of ``TrackingLaw.design`` (``rejections`` columns).
 REJECTION_REASONS = (
@@ -355,18 +361,7 @@ class BatchedSelfTuningController(BatchedPolicy):
         """``SelfTuningController._restart`` for ``lanes`` (rebuild, replay, optional update)."""
         cfg, n, est = self.cfg, self.n, self.est
         if P0 is not None:
-            P0 = 0.5 * (P0 + P0.transpose(0, 2, 1))
-            if cfg.decomposed:
-                P0[:, :n, n:] = 0.0
-                P0[:, n:, :n] = 0.0
-            bad = ~np.isfinite(P0).all(axis=(1, 2))
-            good = np.flatnonzero(~bad)
-            if good.size:
-                lam_min = np.linalg.eigvalsh(P0[good]).min(axis=1)
-                bad[good[lam_min <= 0.0]] = True
-            P0[bad] = 1e-2 * np.eye(2 * n)
-            # make_estimator validates (symmetrises) P0 again: 0.5 * (P0 + P0^T) is P0 here.
-            P0 = 0.5 * (P0 + P0.transpose(0, 2, 1))
+            P0 = restart_covariance(P0, n, cfg.decomposed)
         t = self.t[lanes]
         for tv in np.unique(t):
             grp = np.flatnonzero(t == tv)
@@ -516,7 +511,7 @@ class BatchedSelfTuningController(BatchedPolicy):
         if idx.size == 0:
             return K, rcond, fail
         Cn = C[idx] / norms[idx][:, None, :]
-        Cinv, ok = _inv_lanes(Cn)
+        Cinv, ok = stacked_lanes(np.linalg.inv, Cn)
         rc = np.zeros(idx.size)
         with np.errstate(all="ignore"):
             rc[ok] = 1.0 / (
@@ -544,7 +539,7 @@ class BatchedSelfTuningController(BatchedPolicy):
         M[:, :n, :n] = A - np.eye(n)
         M[:, :n, n] = b
         M[:, n, 0] = 1.0
-        Minv, ok = _inv_lanes(M)
+        Minv, ok = stacked_lanes(np.linalg.inv, M)
         ok &= np.isfinite(Minv).all(axis=(1, 2))
         x_ss = np.zeros((k, n))
         u_ss = np.zeros(k)
@@ -572,17 +567,20 @@ class BatchedSelfTuningController(BatchedPolicy):
         return {r: self.rejections[:, j].copy() for j, r in enumerate(REJECTION_REASONS)}
 
 
-def _inv_lanes(M: NDArray) -> tuple[NDArray, NDArray]:
-    """Stacked inverses and a per-lane success mask (numpy raises for the whole stack)."""
-    try:
-        return np.linalg.inv(M), np.ones(M.shape[0], dtype=bool)
-    except np.linalg.LinAlgError:
-        out = np.full_like(M, np.nan)
-        ok = np.zeros(M.shape[0], dtype=bool)
-        for i in range(M.shape[0]):
-            try:
-                out[i] = np.linalg.inv(M[i])
-                ok[i] = True
-            except np.linalg.LinAlgError:
-                pass
-        return out, ok
+def restart_covariance(P0: NDArray, n: int, decomposed: bool) -> NDArray:
+    """``P(0)`` of a restart, per lane, as ``SelfTuningController._restart`` builds it.
+
+    Symmetrised, the a/b cross blocks zeroed for D- rules, ``1e-2 I`` for lanes that are not
+    finite and positive definite; then symmetrised once more, as ``make_estimator``'s
+    validation does in the single controller (a no-op in exact arithmetic, not in rounding).
+    """
+    P0 = 0.5 * (P0 + P0.transpose(0, 2, 1))
+    if decomposed:
+        P0[:, :n, n:] = 0.0
+        P0[:, n:, :n] = 0.0
+    bad = ~np.isfinite(P0).all(axis=(1, 2))
+    good = np.flatnonzero(~bad)
+    if good.size:
+        bad[good[np.linalg.eigvalsh(P0[good]).min(axis=1) <= 0.0]] = True
+    P0[bad] = 1e-2 * np.eye(2 * n)
+    return 0.5 * (P0 + P0.transpose(0, 2, 1))

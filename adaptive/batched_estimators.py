@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -266,24 +267,25 @@ def _vv(v: NDArray, w: NDArray) -> NDArray:
     return (v[:, None, :] @ w[..., None])[:, 0, 0]
 
 
-def _cholesky_lanes(S: NDArray) -> tuple[NDArray, NDArray]:
-    """Stacked lower Cholesky factors and a per-lane success mask.
+def stacked_lanes(fn: Callable[[NDArray], NDArray], M: NDArray) -> tuple[NDArray, NDArray]:
+    """``fn`` (``np.linalg.cholesky`` / ``inv``) on a stack of matrices, and a success mask.
 
     numpy raises for the whole stack when one matrix fails; the (rare) failing call is then
-    repeated lane by lane, which gives the same factors for the lanes that succeed.
+    repeated lane by lane, which gives the same results for the lanes that succeed (NaN for
+    the others).
     """
     try:
-        return np.linalg.cholesky(S), np.ones(S.shape[0], dtype=bool)
+        return fn(M), np.ones(M.shape[0], dtype=bool)
     except np.linalg.LinAlgError:
-        C = np.full_like(S, np.nan)
-        ok = np.zeros(S.shape[0], dtype=bool)
-        for i in range(S.shape[0]):
+        out = np.full_like(M, np.nan)
+        ok = np.zeros(M.shape[0], dtype=bool)
+        for i in range(M.shape[0]):
             try:
-                C[i] = np.linalg.cholesky(S[i])
+                out[i] = fn(M[i])
                 ok[i] = True
             except np.linalg.LinAlgError:
                 pass
-        return C, ok
+        return out, ok
 
 
 class BatchedRecursiveEstimator(BatchedEstimatorBase):
@@ -434,7 +436,7 @@ class BatchedRecursiveEstimator(BatchedEstimatorBase):
         M = F.transpose(0, 2, 1) @ F
         diag = np.arange(M.shape[1])
         M[:, diag, diag] += cfg.lam
-        G, ok = _cholesky_lanes(M)
+        G, ok = stacked_lanes(np.linalg.cholesky, M)
         fail |= ~ok
         if ok.all():
             S[...] = np.linalg.solve(G, S.transpose(0, 2, 1)).transpose(0, 2, 1)
@@ -468,7 +470,7 @@ class BatchedRecursiveEstimator(BatchedEstimatorBase):
         fail = np.zeros(self.num_envs, dtype=bool)
         if self.cfg.least_squares:
             for S in self._S:
-                C, ok = _cholesky_lanes(self._P_of(S))
+                C, ok = stacked_lanes(np.linalg.cholesky, self._P_of(S))
                 tr = np.trace(C, axis1=1, axis2=2)
                 fail |= ~(ok & np.isfinite(tr))
         else:

@@ -48,7 +48,11 @@ from stcgym.adaptive.batched_codegen import (
     to_float,
     where,
 )
-from stcgym.adaptive.batched_controller import REJECTION_REASONS, ControllerConfig
+from stcgym.adaptive.batched_controller import (
+    REJECTION_REASONS,
+    ControllerConfig,
+    restart_covariance,
+)
 from stcgym.adaptive.batched_kernels import (
     EstimatorTrace,
     LaneState,
@@ -750,16 +754,7 @@ class FastBatchedSelfTuningController(BatchedPolicy):
         """``SelfTuningController._restart`` on the estimator rows of ``lanes`` in ``S``."""
         cfg, n = self.cfg, self.n
         if P0 is not None:
-            P0 = 0.5 * (P0 + P0.transpose(0, 2, 1))
-            if cfg.decomposed:
-                P0[:, :n, n:] = 0.0
-                P0[:, n:, :n] = 0.0
-            bad = ~np.isfinite(P0).all(axis=(1, 2))
-            good = np.flatnonzero(~bad)
-            if good.size:
-                bad[good[np.linalg.eigvalsh(P0[good]).min(axis=1) <= 0.0]] = True
-            P0[bad] = 1e-2 * np.eye(2 * n)
-            P0 = 0.5 * (P0 + P0.transpose(0, 2, 1))
+            P0 = restart_covariance(P0, n, cfg.decomposed)
         t = self._rows(S, "ct", lanes).astype(np.int64)
         elay = self._est_update_layout()
         for tv in np.unique(t):
