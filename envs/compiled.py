@@ -1,0 +1,104 @@
+"""Compiled lane functions: how every step of stcgym is written once and run for 1 or B plants.
+
+Convention (shared by the plant step in :mod:`stcgym.envs`, the estimators and the self-tuning
+controller in :mod:`stcgym.adaptive`):
+
+* A **lane function** advances *one* plant (or estimator, or controller) by one step. It is
+  decorated with :func:`lane`, works on the arrays of that one lane (1-D views), mutates them in
+  place and returns plain numbers (a status code, an output). It contains the paper's equations
+  and nothing about batching.
+* A **lane record** holds all the floating-point state of one lane in one ``float64`` vector (and,
+  where needed, integer state in one ``int64`` vector). :class:`Layout` names its pieces: offsets
+  and shapes fixed once per configuration on the Python side and handed to the lane function as
+  an ``int64`` offsets array, so a lane function reads ``theta = f[off[THETA]:off[THETA] + d]``.
+  A batch of ``B`` lanes is a C-contiguous ``(B, size)`` array whose row ``i`` is lane ``i``'s
+  record; reset, copy, pickle and memory accounting are plain array operations.
+* A **batch loop** is decorated with :func:`lanes` and is nothing but
+  ``for i in prange(B): lane_fn(F[i], ...)``. A single plant calls the same lane function on a
+  ``(1, size)`` record, so a single plant equals lane ``i`` of a batch **bit for bit by
+  construction**, on any CPU: the same compiled machine code runs on the same numbers (no BLAS,
+  no LAPACK inside lane functions; small dense loops are written out).
+
+Compilation is lazy (first call) and cached on disk (``cache=True``), so importing stcgym
+compiles nothing and a second process starts fast. ``NUMBA_DISABLE_JIT=1`` runs the very same
+source as plain Python (slow, but debuggable with pdb and coverage).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+#: Parallel range for batch loops (``numba.prange``; plain ``range`` without the JIT).
+prange = numba.prange
+
+
+def lane(fn: F) -> F:
+    """Compile ``fn`` as a lane function (nopython, cached, releases the GIL).
+
+    ``error_model="numpy"``: a division by zero gives inf/nan like numpy instead of raising,
+    so lane functions test their own denominators and report numerical trouble as status codes.
+    """
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)  # type: ignore[return-value]
+
+
+def lanes(fn: F) -> F:
+    """Compile ``fn`` as a batch loop over lanes (``prange`` runs lanes on all cores)."""
+    return numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")(fn)  # type: ignore[return-value]
+
+
+class Layout:
+    """Named pieces of a lane record: ``name -> (offset, shape)`` in one ``float64`` vector.
+
+    >>> lay = Layout()
+    >>> lay.add("theta", (4,)), lay.add("S", (4, 4)), lay.size
+    (0, 4, 20)
+    >>> rec = lay.empty(3)          # a batch of 3 lanes
+    >>> lay.view(rec, "S").shape
+    (3, 4, 4)
+    """
+
+    def __init__(self) -> None:
+        self.fields: dict[str, tuple[int, tuple[int, ...]]] = {}
+        self.size = 0
+
+    def add(self, name: str, shape: tuple[int, ...] | int = ()) -> int:
+        """Append a field; return its offset."""
+        if name in self.fields:
+            raise ValueError(f"field {name!r} is already in the layout")
+        shape = (shape,) if isinstance(shape, int) else tuple(int(s) for s in shape)
+        offset = self.size
+        self.fields[name] = (offset, shape)
+        self.size += int(np.prod(shape, dtype=np.int64)) if shape else 1
+        return offset
+
+    def offset(self, name: str) -> int:
+        return self.fields[name][0]
+
+    def offsets(self, names: tuple[str, ...] | list[str]) -> NDArray[np.int64]:
+        """Offsets of ``names`` in that order: the array a lane function indexes by constant."""
+        return np.array([self.fields[n][0] for n in names], dtype=np.int64)
+
+    def empty(self, num_lanes: int) -> NDArray[np.float64]:
+        """A zeroed ``(num_lanes, size)`` batch of records."""
+        return np.zeros((int(num_lanes), self.size), dtype=np.float64)
+
+    def view(self, records: NDArray, name: str) -> NDArray:
+        """The field ``name`` of every lane: shape ``records.shape[:-1] + field shape`` (a view)."""
+        offset, shape = self.fields[name]
+        size = int(np.prod(shape, dtype=np.int64)) if shape else 1
+        block = records[..., offset : offset + size]
+        return block.reshape(records.shape[:-1] + shape)
+
+    @property
+    def nbytes_per_lane(self) -> int:
+        return 8 * self.size
+
+    def __repr__(self) -> str:
+        return f"Layout(size={self.size}, fields={list(self.fields)})"
