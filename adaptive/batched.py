@@ -10,13 +10,14 @@
   code (the single-plant fast path).
 
 Modes: ``"exact"`` repeats the single implementation's numpy/BLAS/LAPACK calls on stacked
-arrays and is **bit-for-bit** equal to ``B`` independent single runs; ``"fast"`` runs
+arrays and equals ``B`` independent single runs to rounding (OpenBLAS may pick another kernel
+for a stacked product, by CPU); ``"fast"`` runs
 generated straight-line kernels (structure of the canonical matrices exploited, no BLAS), the
 same equations in another evaluation order: equal to rounding amplified by the conditioning
 (about 1e-13 relative with a moderate ``P(0)``, about 1e-9 with the paper's ``p0 = 1e6``
 during the first updates). The single-plant :class:`FastLoop` is bit-for-bit a lane of the
 fast batched controller. Pair them with the vector envs of :mod:`stcgym.envs.vector`
-(``exact=True`` there makes the whole closed loop bit-for-bit equal to single runs).
+(``exact=True`` there makes the whole closed loop equal to single runs to rounding).
 """
 
 from __future__ import annotations

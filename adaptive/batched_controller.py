@@ -8,9 +8,10 @@ single controller and behaves like ``B`` independent single controllers, lane ``
 resets lanes). ``seed`` may be one value or one per lane.
 
 ``mode="exact"`` (default) repeats every operation of the single controller on stacked arrays:
-the same numpy/BLAS/LAPACK calls per stack element, so lane ``i`` is **bit-for-bit** the single
-controller (with :class:`~stcgym.adaptive.batched_estimators.BatchedRecursiveEstimator`
-underneath). Branches of the single code (safe-set rejections, saturation, bootstrap hand-over,
+the same numpy/BLAS/LAPACK calls per stack element, so lane ``i`` equals the single
+controller to rounding (OpenBLAS may pick other kernels for stacked calls, by CPU), with
+:class:`~stcgym.adaptive.batched_estimators.BatchedRecursiveEstimator`
+underneath. Branches of the single code (safe-set rejections, saturation, bootstrap hand-over,
 covariance resets) become per-lane masks; the rare restarts replay the stored window on the
 affected lanes only.
 
@@ -120,7 +121,7 @@ class BatchedSelfTuningController(BatchedPolicy):
     seed
         PRBS seed: one int for all lanes (like copies of one controller) or one per lane.
     mode
-        ``"exact"`` (bit-for-bit the single controller) or ``"fast"`` (generated kernels).
+        ``"exact"`` (the single controller to rounding) or ``"fast"`` (generated kernels).
     """
 
     def __new__(cls, n: int, *, num_envs: int, mode: str = "exact", **kwargs: Any) -> Any:

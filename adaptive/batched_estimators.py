@@ -9,8 +9,9 @@ Two implementations share one interface (:class:`BatchedEstimatorBase`):
     Cholesky factorisation and solve is the *same* numpy/BLAS/LAPACK call on a stack of
     matrices (numpy's ``matmul`` / ``linalg`` gufuncs apply the single-matrix kernel to each
     stack element), and every elementwise operation is the same IEEE operation, so each lane
-    reproduces a single estimator **bit for bit**. Cost: a few stacked calls per step, about
-    1-3 us per lane-step.
+    reproduces a single estimator to rounding (not bit for bit: OpenBLAS may pick another
+    kernel for a stacked product than for a single one, depending on the CPU). Cost: a few
+    stacked calls per step, about 1-3 us per lane-step.
 
 ``mode="fast"`` (:class:`~stcgym.adaptive.batched_kernels.FastBatchedEstimator`)
     Straight-line kernels generated for the given ``n``, ``p`` that exploit the structure of
@@ -289,7 +290,7 @@ def stacked_lanes(fn: Callable[[NDArray], NDArray], M: NDArray) -> tuple[NDArray
 
 
 class BatchedRecursiveEstimator(BatchedEstimatorBase):
-    """``B`` lanes of a recursive estimator, bit-for-bit equal to ``B`` single estimators.
+    """``B`` lanes of a recursive estimator, equal to ``B`` single estimators to rounding.
 
     Build it with :func:`make_batched_estimator` (``mode="exact"``). State arrays have a leading
     batch axis; the public properties return copies.
@@ -763,7 +764,7 @@ def make_batched_estimator(
     num_envs
         Number of lanes ``B``.
     mode
-        ``"exact"``: bit-for-bit equal to ``B`` single estimators (stacked BLAS/LAPACK calls).
+        ``"exact"``: equal to ``B`` single estimators to rounding (stacked BLAS/LAPACK calls).
         ``"fast"``: generated structure-exploiting kernels, the same equations with different
         rounding (see :mod:`stcgym.adaptive.batched_kernels`).
     """

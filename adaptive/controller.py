@@ -343,8 +343,9 @@ class SelfTuningController(StatefulPolicy):
         Plant order (``theta`` has ``2n`` entries); must match the env when ``env`` is given.
     num_envs, mode
         ``num_envs=B`` returns a :class:`~stcgym.adaptive.batched.BatchedSelfTuningController`
-        instead: ``B`` lanes of this controller on arrays, ``mode="exact"`` (bit-for-bit equal
-        to ``B`` single controllers) or ``"fast"`` (generated kernels, different rounding).
+        instead: ``B`` lanes of this controller on arrays, ``mode="exact"`` (the single
+        controller's BLAS/LAPACK calls, stacked: equal to rounding) or ``"fast"`` (generated
+        kernels, different rounding).
     estimator
         A paper name (``"O-RLS"``, ``"KF-MILS"``, ... case-insensitive; see
         :func:`stcgym.adaptive.recursive.make_estimator`) or a ready estimator object with

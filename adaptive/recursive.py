@@ -692,8 +692,9 @@ def make_estimator(
         (:func:`~stcgym.adaptive.batched.make_batched_estimator`; ``theta0``/``P0`` may then
         carry a leading lane axis).
     mode : {"exact", "fast"}
-        Batched lanes only: ``"exact"`` is bit-for-bit equal to ``num_envs`` single
-        estimators, ``"fast"`` uses generated kernels (same equations, different rounding).
+        Batched lanes only: ``"exact"`` repeats the BLAS/LAPACK calls of ``num_envs`` single
+        estimators on stacked arrays (equal to rounding), ``"fast"`` uses generated kernels
+        (same equations, different rounding).
 
     Returns
     -------

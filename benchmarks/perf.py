@@ -16,7 +16,7 @@ of the same run, so they stay meaningful on a loaded machine (absolute numbers d
 * ``batched fast``: the vector env
   (:class:`~stcgym.envs.vector.ObserverCanonicalVectorEnv`) and
   ``BatchedSelfTuningController(mode="fast")`` with ``B`` plants, one kernel call per chunk.
-* ``batched exact``: ``mode="exact"``, bit-for-bit the single controller (stacked BLAS/LAPACK).
+* ``batched exact``: ``mode="exact"``, the single controller's calls stacked (equal to rounding).
 * ``batched fast, 2 procs``: the lanes split over two worker processes (both CPU cores).
 
 Throughput is measured after a warm-up past the bootstrap hand-over (step 100), i.e. in the
@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> None:
             )
     if not args.quick:
         rate, _ = _batched(1_000, 2, 50, mode="exact")
-        rows.append(("batched exact (bit-for-bit)", 1_000, 2, rate, ""))
+        rows.append(("batched exact", 1_000, 2, rate, ""))
     if args.workers > 1:
         B = max_b
         steps = int(min(200, max(5, budget // B)))

@@ -198,8 +198,8 @@ class LinearPlantVectorEnv(VectorEnv):
     info_keys
         Keys of ``infos`` to return (default all of the single env's; ``()`` for none).
     exact
-        Step with the single env's own matrix products, stacked: observations bit-for-bit
-        equal to single envs (slower). Otherwise the canonical structure is used (equal to
+        Step with the single env's own matrix products, stacked: observations equal to
+        single envs to rounding (slower). Otherwise the canonical structure is used (equal to
         about 1e-15 relative per step).
     **kwargs
         The single environment's arguments (``single_cls``); one prototype single env is built
@@ -240,7 +240,8 @@ class LinearPlantVectorEnv(VectorEnv):
         # None: every key of the single env's info; a subset saves the per-step copies.
         self.info_keys = None if info_keys is None else tuple(info_keys)
         # exact: step with the single env's own matrix products, stacked (numpy applies the
-        # same kernel to each lane), so observations are bit-for-bit those of single envs.
+        # same formula to each lane), so observations equal those of single envs to rounding;
+        # not bit for bit: OpenBLAS may pick another kernel for a stacked product, by CPU.
         self.exact = bool(exact)
 
         proto = self._make_proto(kwargs)

@@ -1,4 +1,11 @@
-"""Batched estimators and self-tuning controller: equal to B independent single runs."""
+"""Batched estimators and self-tuning controller: equal to B independent single runs.
+
+``mode="exact"`` repeats the single implementation's numpy/BLAS/LAPACK calls on stacked arrays.
+OpenBLAS picks its kernels by CPU (and a stacked ``(B, n, n)`` product may take another kernel
+than a single ``(n, n)`` one), so the claim is "equal to rounding", not bit for bit: a last-bit
+difference in a product, amplified by the conditioning of ``P`` (the paper's ``p0 = 1e6`` cancels
+about 6 of the 16 digits in the first updates), stays below ``ROUNDING_RTOL`` relative.
+"""
 
 from __future__ import annotations
 
@@ -15,6 +22,11 @@ from stcgym.adaptive.batched_fast import FastLoop
 from stcgym.adaptive.controller import SelfTuningController
 from stcgym.adaptive.recursive import make_estimator
 from stcgym.envs.vector import ObservabilityCanonicalVectorEnv, ObserverCanonicalVectorEnv
+
+#: Tolerance of "equal to rounding" between stacked and single BLAS/LAPACK calls (see above).
+ROUNDING_RTOL = 1e-9
+
+pytestmark = pytest.mark.equality
 
 ENV_IDS = {
     "observer": "stcgym/ObserverCanonical-v0",
@@ -64,7 +76,9 @@ def _compare_estimators(
             scale = np.maximum(np.abs(want).max(axis=1, keepdims=True), 1e-300)
             assert np.all(np.abs(got - want) <= rtol * scale), (k, got, want)
     if batched.P is not None:
-        np.testing.assert_allclose(batched.P, [s.P for s in singles], rtol=max(rtol, 1e-300))
+        P_ref = np.array([s.P for s in singles])
+        scale = np.abs(P_ref).max(axis=(1, 2), keepdims=True)
+        assert np.all(np.abs(batched.P - P_ref) <= max(rtol, 1e-300) * scale)
     assert batched.n_resets.tolist() == [s.n_resets for s in singles]
 
 
@@ -82,16 +96,18 @@ NAMES = [
 
 @pytest.mark.parametrize("form", ["observer", "observability"])
 @pytest.mark.parametrize(("name", "p"), NAMES)
-def test_exact_estimators_bit_for_bit(name, p, form):
-    """mode="exact" repeats the reference's BLAS/LAPACK calls per lane: zero difference."""
-    _compare_estimators("exact", name, 2, p, form, rtol=0.0)
+def test_exact_estimators_equal_to_rounding(name, p, form):
+    """mode="exact" repeats the reference's BLAS/LAPACK calls on stacked arrays."""
+    _compare_estimators("exact", name, 2, p, form, rtol=ROUNDING_RTOL)
 
 
 def test_make_estimator_num_envs_routes_to_the_batched_lanes():
     """``make_estimator(..., num_envs=B)`` passes every setting through (here forgetting and
     the Kalman noise settings, which change the result) to B lanes equal to B single ones."""
     kw = dict(forgetting=0.98, process_noise=0.01 * np.eye(2), measurement_noise=0.5)
-    _compare_estimators("exact", "KF-MILS", 2, 3, "observer", 0.0, factory=make_estimator, **kw)
+    _compare_estimators(
+        "exact", "KF-MILS", 2, 3, "observer", ROUNDING_RTOL, factory=make_estimator, **kw
+    )
     _compare_estimators(
         "fast", "O-RLS", 2, 1, "observer", 1e-12, factory=make_estimator, forgetting=0.98
     )
@@ -118,7 +134,7 @@ def test_fast_estimators_within_1e12(name, p):
 
 def test_fast_estimator_n4_and_forgetting():
     _compare_estimators("fast", "KF-MILS", 4, 3, "observer", rtol=1e-12, p0=100.0)
-    _compare_estimators("exact", "KF-MILS", 2, 5, "observer", rtol=0.0, forgetting=0.98)
+    _compare_estimators("exact", "KF-MILS", 2, 5, "observer", ROUNDING_RTOL, forgetting=0.98)
 
 
 def test_health_recovery_matches_reference():
@@ -210,7 +226,7 @@ def _closed_loop(mode, kw, plants, T, B=3, mes=250, seed=100):
                 o, _ = e.reset()
             sobs[i] = o
         if mode == "exact":
-            np.testing.assert_array_equal(obs, sobs)
+            np.testing.assert_allclose(obs, sobs, rtol=ROUNDING_RTOL, atol=1e-12)
     return du, dth, ctl, singles
 
 
@@ -225,14 +241,15 @@ CONTROLLER_CASES = [
 
 @pytest.mark.parametrize("kw", CONTROLLER_CASES)
 def test_exact_controller_equals_single_runs(kw):
-    """Vector env + exact batched controller = B single (env, controller) runs, bit for bit,
-    over several episodes (hand-over, rejections, saturation, episode_start resets)."""
+    """Vector env + exact batched controller = B single (env, controller) runs to rounding,
+    over several episodes (hand-over, rejections, saturation, episode_start resets), with
+    every discrete decision (rejections) the same."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         du, dth, ctl, singles = _closed_loop(
             "exact", kw, ("stable2", "unstable2", "nonminphase2"), T=420
         )
-    assert du == 0.0 and dth == 0.0
+    assert du < 1e-8 and dth < 1e-8, (du, dth)
     assert ctl.n_rejected.tolist() == [s.n_rejected for s in singles]
 
 
@@ -241,7 +258,7 @@ def test_exact_controller_covariance_reset():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         du, dth, ctl, singles = _closed_loop("exact", {}, ("timevarying2",), T=1150, B=2, mes=2000)
-    assert du == 0.0 and dth == 0.0
+    assert du < 1e-8 and dth < 1e-8, (du, dth)
     assert ctl.n_covariance_resets.tolist() == [s.n_covariance_resets for s in singles]
     assert all(s.n_covariance_resets >= 1 for s in singles)
 

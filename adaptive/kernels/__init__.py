@@ -1,4 +1,6 @@
-"""Lane functions of the estimators and the self-tuning controller (see :mod:`stcgym.envs.compiled`).
+"""Lane functions of the estimators and the self-tuning controller.
+
+See :mod:`stcgym.envs.compiled` for the convention.
 
 Each module holds the paper's equations for one plant as compiled lane functions; the public
 classes in :mod:`stcgym.adaptive` own the lane records and call these for one plant or a batch.
