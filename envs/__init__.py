@@ -11,8 +11,11 @@ id                                  plant
 ``stcgym/MultichannelStatic-v0``     static object ``y^T = u^T Theta + v`` (Voevoda-Troshina)
 ==================================  =============================================================
 
-The first three also have a numpy vector env (:mod:`stcgym.envs.vector`):
-``gym.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point", **kwargs)``.
+The first three also have a native vector env (:mod:`stcgym.envs.vector`), the default of
+``gym.make_vec(id, num_envs=B, **kwargs)``. Every env, single or vector, steps its plant with the
+compiled lane functions of :mod:`stcgym.envs.dynamics` (the plant step, written once), so a
+single env equals the matching lane of a vector env bit for bit. ``gym.make(id)`` works for
+every id with its defaults (``StateSpace-v0``: :data:`~stcgym.envs.plants.DEFAULT_STATE_SPACE`).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from stcgym.envs.canonical import (
 )
 from stcgym.envs.catalogue import PLANTS, PlantSpec, get_plant, plant_names
 from stcgym.envs.plants import (
+    DEFAULT_STATE_SPACE,
     CanonicalPlantEnv,
     LinearPlantEnv,
     MultichannelStaticEnv,
@@ -84,6 +88,7 @@ def _register() -> None:
 _register()
 
 __all__ = [
+    "DEFAULT_STATE_SPACE",
     "ENV_IDS",
     "VECTOR_ENTRY_POINTS",
     "PLANTS",

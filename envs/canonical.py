@@ -1,6 +1,6 @@
 """Canonical state-space forms of a SISO plant with parameter vector ``theta = [a; b]``.
 
-Both forms of the seed paper (Ding & Ma 2014, ``shared/docs/algorithms.md`` §2 and §6) share
+Both forms of the seed paper (Ding & Ma 2014, sections 2 and 6) share
 ``theta = [a1..an, b1..bn]`` and the output row ``c = [1, 0, ..., 0]``:
 
 * observer canonical form, eq. (1)-(5): ``A`` has ``-a`` in its first column and an identity
@@ -27,8 +27,11 @@ FORMS: tuple[str, ...] = ("observer", "observability")
 def as_finite_vector(value: ArrayLike, name: str, *, length: int | None = None) -> NDArray:
     """Return ``value`` as a 1-D float array, or raise naming ``name`` and the expected form."""
     try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
+        raw = np.asarray(value)
+        if raw.dtype.kind in "cUSV" or np.iscomplexobj(raw):  # no silent loss of an imaginary part
+            raise TypeError
+        arr = np.asarray(raw, dtype=float)
+    except (TypeError, ValueError, OverflowError) as exc:
         raise ValueError(f"{name} must be a sequence of real numbers, got {value!r}") from exc
     arr = np.atleast_1d(arr)
     if arr.ndim != 1:

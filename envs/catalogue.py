@@ -80,6 +80,12 @@ _STABLE2_A, _STABLE2_B = (-1.5, 0.7), (1.0, 0.5)
 TIMEVARYING2_JUMP_STEP = 1000
 TIMEVARYING2_AFTER = ((-1.2, 0.52), (0.9, 0.3))
 
+
+def _timevarying2_schedule() -> Schedule:
+    # A module-level function, not a lambda: envs holding the spec must pickle.
+    return Jumps({TIMEVARYING2_JUMP_STEP: np.array(TIMEVARYING2_AFTER[0] + TIMEVARYING2_AFTER[1])})
+
+
 PLANTS: dict[str, PlantSpec] = {
     p.name: p
     for p in (
@@ -124,9 +130,7 @@ PLANTS: dict[str, PlantSpec] = {
             _STABLE2_A,
             _STABLE2_B,
             "stable2 whose parameters jump at step 1000 (to a=(-1.2, 0.52), b=(0.9, 0.3)).",
-            schedule=lambda: Jumps(
-                {TIMEVARYING2_JUMP_STEP: np.array(TIMEVARYING2_AFTER[0] + TIMEVARYING2_AFTER[1])}
-            ),
+            schedule=_timevarying2_schedule,
         ),
     )
 }
@@ -139,7 +143,9 @@ def plant_names() -> list[str]:
 
 def get_plant(name: str) -> PlantSpec:
     """Look a plant up by name, raising ``ValueError`` that lists the valid names."""
-    key = str(name).lower()
+    if not isinstance(name, str):
+        raise TypeError(f"plant must be a catalogue name (one of {plant_names()}), got {name!r}")
+    key = name.lower()
     if key not in PLANTS:
         raise ValueError(f"plant must be one of {plant_names()}, got {name!r}")
     return PLANTS[key]

@@ -14,16 +14,28 @@ The reward of step ``k`` is ``-(||y_clean(k+1) - r(k+1)||^2 + rho ||u(k)||^2)``,
 noise-free output (the controller's quality, not the sensor's), with ``rho = control_cost``.
 
 Episodes end with ``terminated=True`` (and ``info["diverged"] = True``) when an output leaves
-``[-y_bound, y_bound]`` or the state stops being finite; the time limit (``max_episode_steps`` in
-the registration or ``gym.make``) gives ``truncated=True``.
+``[-y_bound, y_bound]``, the state stops being finite, or the reward overflows (then the reward
+is :data:`~stcgym.envs.dynamics.REWARD_FLOOR`, the most negative finite float: rewards and
+observations are always finite); the time limit (``max_episode_steps`` in the registration or
+``gym.make``) gives ``truncated=True``.
+
+The plant step itself is the compiled lane function of :mod:`stcgym.envs.dynamics`, the same
+one the vector envs of :mod:`stcgym.envs.vector` run for each lane, so a single env equals the
+matching lane of a vector env bit for bit.
 
 Randomness: ``reset(seed=...)`` seeds ``np_random``; each episode then draws independent child
 streams for output noise, process noise, the reference, the parameter schedule and the initial
 state / parameter draws, so an episode is reproducible from its seed whatever happened before.
+
+Bad input raises before any state changes: ``ValueError`` for a wrong value or shape,
+``TypeError`` for a wrong kind of object, each naming the argument and the expected form.
+Every env pickles and deep-copies; the copy continues exactly like the original.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import numbers
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,6 +44,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.envs import dynamics
 from stcgym.envs.canonical import (
     canonical_matrices,
     check_ab,
@@ -49,21 +62,62 @@ __all__ = [
     "ObservabilityCanonicalEnv",
     "StateSpaceEnv",
     "MultichannelStaticEnv",
+    "DEFAULT_STATE_SPACE",
 ]
 
 _NOISE_BLOCK = 512  # standard normals drawn per refill: one generator call per 512 steps
+_EMPTY = np.zeros(0)
+
+#: The plant of ``gym.make("stcgym/StateSpace-v0")`` without matrices: a stable, coupled
+#: two-state, two-input plant (eigenvalues 0.9 and 0.8) with measured state (``C = I``, ``D = 0``).
+DEFAULT_STATE_SPACE = {
+    "A": ((0.9, 0.1), (0.0, 0.8)),
+    "B": ((1.0, 0.0), (0.5, 1.0)),
+}
 
 
-def _non_negative(value: float, name: str) -> float:
-    v = float(value)
+def _number(value: Any, name: str) -> float:
+    """``value`` as a float, or ``TypeError`` naming ``name`` (strings, arrays, None ...)."""
+    if isinstance(value, np.ndarray) and value.shape == ():
+        value = value[()]
+    if isinstance(value, (str, bytes, bool)) or not isinstance(value, (numbers.Real, np.number)):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError as exc:  # an int beyond the float range
+        raise ValueError(f"{name} must be a finite number, got {value!r}") from exc
+
+
+def _non_negative(value: Any, name: str) -> float:
+    v = _number(value, name)
     if not np.isfinite(v) or v < 0:
         raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
     return v
 
 
+def _positive(value: Any, name: str) -> float:
+    v = _number(value, name)
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def _real_array(value: Any, name: str) -> NDArray:
+    """``value`` as a float array; ``ValueError`` naming ``name`` for ragged, complex or text."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError, OverflowError) as exc:  # ragged nested sequences
+        raise ValueError(f"{name} must be a rectangular array of real numbers") from exc
+    if arr.dtype.kind == "c":
+        raise ValueError(f"{name} must be real, got complex values {value!r}")
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be an array of real numbers, got {value!r}")
+    return arr.astype(float)
+
+
 def _matrix(value: ArrayLike, name: str, shape: tuple[int | None, int | None]) -> NDArray:
-    """2-D finite float matrix with the given shape (``None`` = any size)."""
-    arr = np.asarray(value, dtype=float)
+    """2-D finite float matrix with the given shape (``None`` = any size, at least 1)."""
+    arr = _real_array(value, name)
     if arr.ndim == 1 and shape[1] == 1:
         arr = arr.reshape(-1, 1)
     if arr.ndim != 2:
@@ -71,9 +125,11 @@ def _matrix(value: ArrayLike, name: str, shape: tuple[int | None, int | None]) -
     for got, want, what in zip(arr.shape, shape, ("rows", "columns"), strict=True):
         if want is not None and got != want:
             raise ValueError(f"{name} must have {want} {what} (shape {shape}), got {arr.shape}")
+        if want is None and got == 0:
+            raise ValueError(f"{name} must have at least one of its {what}, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite")
-    return arr
+    return np.ascontiguousarray(arr)
 
 
 class _NormalStream:
@@ -95,19 +151,23 @@ class _NormalStream:
 class LinearPlantEnv(gym.Env):
     """Base class: a discrete linear plant ``(A(k), B(k), C, D)`` driven by a parameter array.
 
-    Subclasses provide the nominal parameter array of an episode and map a parameter array to
-    the matrices (:meth:`_matrices`). See the module docstring for timing, reward and
-    termination. Public attributes of ``env.unwrapped``: ``A``, ``B``, ``C``, ``D`` (matrices in
-    force now), ``params`` (the scheduled parameter array), ``x`` (true state), ``t`` (step
-    index), ``reference`` (list of per-output :class:`~stcgym.envs.signals.Reference`),
-    ``schedule``.
+    Subclasses provide the nominal parameter array of an episode, map a parameter array to the
+    matrices (:meth:`_matrices`) and call their lane function of :mod:`stcgym.envs.dynamics`
+    (:meth:`_plant_step`). See the module docstring for timing, reward and termination. Public
+    attributes of ``env.unwrapped`` (all present from construction on): ``A``, ``B``, ``C``,
+    ``D`` (matrices in force now), ``params`` (the scheduled parameter array), ``x`` (true
+    state), ``t`` (step index), ``reference`` (list of per-output
+    :class:`~stcgym.envs.signals.Reference`), ``schedule``.
 
     Observation: ``[y(k) (p values), r(k) (p values)]``, a flat float64 ``Box``. Action: ``u(k)``
-    (``m`` values) in ``[-action_bound, action_bound]``; larger actions are clipped and counted
-    (``info["clipped"]``, ``info["n_clipped"]``); non-finite or wrongly shaped actions raise.
+    (``m`` real values) in ``[-action_bound, action_bound]``; larger actions are clipped and
+    counted (``info["clipped"]``, ``info["n_clipped"]``); non-finite, complex, non-numeric or
+    wrongly shaped actions raise ``ValueError`` and leave the env as it was.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+    #: ``reset(options=...)`` keys this env understands (subclasses extend it).
+    reset_options: frozenset[str] = frozenset({"initial_state", "initial_state_std"})
 
     def __init__(
         self,
@@ -130,10 +190,8 @@ class LinearPlantEnv(gym.Env):
         self.noise_std = _non_negative(noise_std, "noise_std")
         self.process_noise_std = _non_negative(process_noise_std, "process_noise_std")
         self.control_cost = _non_negative(control_cost, "control_cost")
-        self.action_bound = _non_negative(action_bound, "action_bound")
-        if self.action_bound == 0:
-            raise ValueError("action_bound must be positive")
-        self.y_bound = _non_negative(y_bound, "y_bound")
+        self.action_bound = _positive(action_bound, "action_bound")
+        self.y_bound = _positive(y_bound, "y_bound")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -149,12 +207,21 @@ class LinearPlantEnv(gym.Env):
             -np.inf, np.inf, shape=(2 * n_outputs,), dtype=np.float64
         )
         self.t = 0
-        self.x = np.zeros(n_states)
+        self._x = np.zeros(n_states)
+        self._u = np.zeros(n_inputs)
+        self._y = np.zeros(n_outputs)
+        self._y_clean = np.zeros(n_outputs)
         self.n_clipped = 0
+        self._clipped = False
+        self._diverged = False
         self._trace: dict[str, list] = {"y": [], "r": [], "u": []}
 
     # ---------------------------------------------------------------- subclass hooks
-    def _nominal_params(self, options: dict[str, Any], rng: np.random.Generator) -> NDArray:
+    def _parse_options(self, options: dict[str, Any]) -> Any:
+        """Validate this subclass's parameter options (no randomness, no state change)."""
+        return None
+
+    def _nominal_params(self, parsed: Any, rng: np.random.Generator) -> NDArray:
         """The parameter array of this episode (before the schedule acts)."""
         raise NotImplementedError
 
@@ -162,30 +229,66 @@ class LinearPlantEnv(gym.Env):
         """``(A, B, C, D)`` for a parameter array."""
         raise NotImplementedError
 
+    def _plant_step(
+        self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
+    ) -> tuple[float, bool, bool]:
+        """One call of this plant's lane function: ``(reward, clipped, diverged)``."""
+        raise NotImplementedError
+
+    def _reset_output(self) -> None:
+        """``y_clean(0) = C x(0)`` into ``self._y_clean``."""
+        raise NotImplementedError
+
+    #: The catalogue plant of this episode (canonical envs; ``None`` otherwise).
+    plant: PlantSpec | None = None
+
+    @property
+    def theta(self) -> NDArray:
+        """The parameter array in force now (a copy): ``[a; b]``, ``[A B]`` or ``Theta``."""
+        return np.array(self.params, copy=True)
+
     # ---------------------------------------------------------------- helpers
+    @property
+    def x(self) -> NDArray:
+        """True state ``x(k)``."""
+        return self._x
+
+    @x.setter
+    def x(self, value: ArrayLike) -> None:
+        self._x = self._check_state(value, "x")
+
     def _check_state(self, value: ArrayLike, name: str) -> NDArray:
-        x = np.asarray(value, dtype=float).ravel()
+        x = _real_array(value, name).ravel()
         if x.shape != (self.n_states,) or not np.all(np.isfinite(x)):
             raise ValueError(f"{name} must be a finite vector of length {self.n_states}")
-        return x
+        return np.ascontiguousarray(x)
 
     def _set_params(self, params: NDArray) -> None:
-        self.params = params
-        self.A, self.B, self.C, self.D = self._matrices(params)
+        self.params = np.ascontiguousarray(params, dtype=float)
+        self.A, self.B, self.C, self.D = self._matrices(self.params)
 
     def _r(self, k: int) -> NDArray:
-        return np.array([ref(k) for ref in self.reference])
+        kk = np.array([k], dtype=np.int64)
+        return np.array([float(ref.values(kk, _LANE0)[0]) for ref in self.reference])
 
     def _info(self) -> dict[str, Any]:
         return {
             "t": self.t,
-            "x": self.x.copy(),
+            "x": self._x.copy(),
             "y_clean": self._y_clean.copy(),
             "params": np.array(self.params, copy=True),
             "clipped": self._clipped,
             "n_clipped": self.n_clipped,
             "diverged": self._diverged,
         }
+
+    def _check_option_keys(self, options: dict[str, Any]) -> None:
+        unknown = sorted(set(options) - self.reset_options)
+        if unknown:
+            raise ValueError(
+                f"unknown reset option(s) {unknown} for {type(self).__name__}; expected keys "
+                f"from {sorted(self.reset_options)}"
+            )
 
     # ---------------------------------------------------------------- gymnasium API
     def reset(
@@ -194,86 +297,82 @@ class LinearPlantEnv(gym.Env):
         """Start an episode.
 
         ``options`` (all optional): ``"initial_state"`` (vector), ``"initial_state_std"`` (draw
-        ``x(0) ~ N(0, std^2 I)``), and parameter overrides documented by each subclass.
+        ``x(0) ~ N(0, std^2 I)``), and parameter overrides documented by each subclass. Unknown
+        keys (a typo such as ``"intial_state"``) raise ``ValueError`` before anything changes.
         """
-        super().reset(seed=seed)
+        if options is not None and not isinstance(options, dict):
+            raise TypeError(f"options must be a dict or None, got {options!r}")
         options = dict(options or {})
+        self._check_option_keys(options)
+        parsed = self._parse_options(options)
+        x0 = None
+        if "initial_state" in options:
+            x0 = self._check_state(options["initial_state"], "options['initial_state']")
+        elif "initial_state_std" in options:
+            std = _non_negative(options["initial_state_std"], "options['initial_state_std']")
+
+        super().reset(seed=seed)
         children = np.random.SeedSequence(int(self.np_random.integers(2**63))).spawn(5)
         rng_v, rng_w, rng_ref, rng_sched, rng_draw = (np.random.default_rng(s) for s in children)
         self._v = _NormalStream(rng_v, self.n_outputs)
         self._w = _NormalStream(rng_w, self.n_states)
         for ref, child in zip(self.reference, rng_ref.spawn(len(self.reference)), strict=True):
             ref.reset(child)
-        nominal = self._nominal_params(options, rng_draw)  # may swap in a plant's schedule
+        nominal = self._nominal_params(parsed, rng_draw)  # may swap in a plant's schedule
         self.schedule.reset(nominal, rng_sched)
 
-        if "initial_state" in options:
-            self.x = self._check_state(options["initial_state"], "options['initial_state']")
+        if x0 is not None:
+            self._x = x0
         elif "initial_state_std" in options:
-            std = _non_negative(options["initial_state_std"], "options['initial_state_std']")
-            self.x = std * rng_draw.standard_normal(self.n_states)
+            self._x = std * rng_draw.standard_normal(self.n_states)
         elif self._initial_state is not None:
-            self.x = self._initial_state.copy()
+            self._x = self._initial_state.copy()
         else:
-            self.x = np.zeros(self.n_states)
+            self._x = np.zeros(self.n_states)
 
         self.t = 0
         self.n_clipped = 0
         self._clipped = False
         self._diverged = False
         self._set_params(self.schedule(0))
-        self._y_clean = self.C @ self.x
-        y = self._y_clean + self.noise_std * self._v.next()
+        self._reset_output()
+        self._y = self._y_clean.copy()
+        dynamics.add_noise(self._y, self.noise_std, self._v.next())
         r = self._r(0)
-        self._trace = {"y": [y], "r": [r], "u": []}
-        return np.concatenate((y, r)), self._info()
+        self._trace = {"y": [self._y.copy()], "r": [r], "u": []}
+        return np.concatenate((self._y, r)), self._info()
 
     def _action(self, action: ArrayLike) -> NDArray:
-        u = np.asarray(action, dtype=float)
+        u = _real_array(action, "action")
         if u.size != self.n_inputs or u.ndim > 1 and u.shape != (self.n_inputs,):
             raise ValueError(
                 f"action must have shape ({self.n_inputs},) (a scalar is accepted when there is "
                 f"one input), got shape {u.shape}"
             )
-        u = u.reshape(self.n_inputs)
+        u = np.ascontiguousarray(u.reshape(self.n_inputs))
         if not np.all(np.isfinite(u)):
             raise ValueError(f"action must be finite, got {u}")
-        clipped = np.clip(u, -self.action_bound, self.action_bound)
-        self._clipped = bool(np.any(clipped != u))
-        self.n_clipped += self._clipped
-        return clipped
+        return u
 
     def step(self, action: ArrayLike) -> tuple[NDArray, float, bool, bool, dict[str, Any]]:
-        u = self._action(action)
-        x_next = self.A @ self.x + self.B @ u
-        if self.process_noise_std:
-            x_next = x_next + self.process_noise_std * self._w.next()
-        self.x = x_next
+        if not hasattr(self, "_v"):
+            raise RuntimeError("call reset() before step()")
+        u_raw = self._action(action)
+        r = self._r(self.t + 1)  # a user reference may raise: before any state change
+        z_w = self._w.next() if self.process_noise_std else _EMPTY
+        z_v = self._v.next()
+        reward, clipped, diverged = self._plant_step(u_raw, z_w, z_v, r)
+        self._clipped, self._diverged = bool(clipped), bool(diverged)
+        self.n_clipped += self._clipped
         self.t += 1
         if self.schedule.time_varying:
             self._set_params(self.schedule(self.t))
-        # y(k+1) uses D u(k): the input is still held when the next sample is taken.
-        self._y_clean = self.C @ self.x + self.D @ u
-        y = self._y_clean + self.noise_std * self._v.next()
-        r = self._r(self.t)
-
-        finite = bool(np.all(np.isfinite(self.x)) and np.all(np.isfinite(y)))
-        self._diverged = not finite or bool(np.any(np.abs(y) > self.y_bound))
-        if not finite:
-            # Keep observation and reward finite: a diverged loop must end, not overflow.
-            y = np.clip(
-                np.nan_to_num(y, posinf=self.y_bound, neginf=-self.y_bound),
-                -self.y_bound,
-                self.y_bound,
-            )
-            self._y_clean = y.copy()
-        e = np.clip(self._y_clean, -self.y_bound, self.y_bound) - r
-        reward = -float(e @ e + self.control_cost * (u @ u))
+        y = self._y.copy()
         if self.render_mode is not None:
             self._trace["y"].append(y)
             self._trace["r"].append(r)
-            self._trace["u"].append(u)
-        return np.concatenate((y, r)), reward, self._diverged, False, self._info()
+            self._trace["u"].append(self._u.copy())
+        return np.concatenate((y, r)), float(reward), self._diverged, False, self._info()
 
     def render(self) -> NDArray | None:
         """``rgb_array``: a picture of the episode so far (y, r and u traces)."""
@@ -283,6 +382,9 @@ class LinearPlantEnv(gym.Env):
         from stcgym.envs.render import render_traces
 
         return render_traces(self._trace, title=type(self).__name__)
+
+
+_LANE0 = np.zeros(1, dtype=np.int64)
 
 
 class CanonicalPlantEnv(LinearPlantEnv):
@@ -302,7 +404,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
     process_noise_std
         Standard deviation of the white Gaussian process noise ``w`` (each state).
     action_bound
-        Actions are clipped to ``[-action_bound, action_bound]``.
+        Actions are clipped to ``[-action_bound, action_bound]`` (``> 0``).
     control_cost
         ``rho`` in the reward ``-((y - r)^2 + rho u^2)``.
     reference
@@ -313,7 +415,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
         :class:`~stcgym.envs.signals.RandomWalk` or ``{step: theta}``. Catalogue plants with a
         schedule of their own (``timevarying2``) use it unless one is given.
     y_bound
-        Divergence bound on ``|y|`` (terminates the episode).
+        Divergence bound on ``|y|`` (``> 0``; terminates the episode).
     initial_state
         ``x(0)``; zero by default.
     render_mode
@@ -327,6 +429,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
     """
 
     form = "observer"
+    reset_options = LinearPlantEnv.reset_options | {"plant", "a", "b", "theta"}
 
     def __init__(
         self,
@@ -338,6 +441,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
         **kwargs: Any,
     ) -> None:
         check_form(self.form)
+        self._form_code = dynamics.FORM_CODES[self.form]
         if plant is not None and (a is not None or b is not None):
             raise ValueError("give either plant (a catalogue name) or a and b, not both")
         if (a is None) != (b is None):
@@ -346,7 +450,14 @@ class CanonicalPlantEnv(LinearPlantEnv):
             self._family: list[PlantSpec] = []
             self._user_theta = np.concatenate(check_ab(a, b))
         else:
-            names = ["stable2"] if plant is None else [plant] if isinstance(plant, str) else plant
+            if plant is None:
+                names: list[Any] = ["stable2"]
+            elif isinstance(plant, str):
+                names = [plant]
+            elif isinstance(plant, (list, tuple)):
+                names = list(plant)
+            else:
+                raise TypeError(f"plant must be a catalogue name or a list of names, got {plant!r}")
             if len(names) == 0:
                 raise ValueError("plant must be a catalogue name or a non-empty list of names")
             self._family = [get_plant(name) for name in names]
@@ -359,6 +470,8 @@ class CanonicalPlantEnv(LinearPlantEnv):
         self.plant: PlantSpec | None = None if self._family == [] else self._family[0]
         n = self._family[0].n if self._family else self._user_theta.size // 2
         super().__init__(n_states=n, n_inputs=1, n_outputs=1, schedule=schedule, **kwargs)
+        # The constructor's plant is in force until the first reset (A, B, C, D, theta exist).
+        self._set_params(self._theta_of(self.plant) if self.plant else self._user_theta)
 
     # -------------------------------------------------------------- parameters
     def _theta_of(self, spec: PlantSpec) -> NDArray:
@@ -375,8 +488,10 @@ class CanonicalPlantEnv(LinearPlantEnv):
             sched = Jumps([(k, self._theta_of(_spec_from_theta(v))) for k, v in sched.changes])
         return sched
 
-    def _nominal_params(self, options: dict[str, Any], rng: np.random.Generator) -> NDArray:
-        spec: PlantSpec | None = None
+    def _parse_options(self, options: dict[str, Any]) -> tuple[NDArray | None, PlantSpec | None]:
+        theta, spec = None, None
+        if ("a" in options) != ("b" in options):
+            raise ValueError("options 'a' and 'b' must be given together (theta = [a; b])")
         if "theta" in options:
             theta = np.concatenate(split_theta(options["theta"]))
         elif "a" in options or "b" in options:
@@ -384,20 +499,27 @@ class CanonicalPlantEnv(LinearPlantEnv):
         elif "plant" in options:
             spec = get_plant(options["plant"])
             theta = self._theta_of(spec)
-        elif self._family:
-            spec = (
-                self._family[int(rng.integers(len(self._family)))]
-                if len(self._family) > 1
-                else self._family[0]
-            )
-            theta = self._theta_of(spec)
-        else:
-            theta = self._user_theta.copy()
-        if theta.size != 2 * self.n_states:
+        if theta is not None and theta.size != 2 * self.n_states:
             raise ValueError(
                 f"episode parameters must have order n={self.n_states} like the env "
                 f"(theta of length {2 * self.n_states}), got length {theta.size}"
             )
+        return theta, spec
+
+    def _nominal_params(
+        self, parsed: tuple[NDArray | None, PlantSpec | None], rng: np.random.Generator
+    ) -> NDArray:
+        theta, spec = parsed
+        if theta is None:
+            if self._family:
+                spec = (
+                    self._family[int(rng.integers(len(self._family)))]
+                    if len(self._family) > 1
+                    else self._family[0]
+                )
+                theta = self._theta_of(spec)
+            else:
+                theta = self._user_theta.copy()
         self.plant = spec
         if not self._user_schedule:
             self.schedule = (self._catalogue_schedule(spec) if spec else None) or make_schedule(
@@ -409,10 +531,18 @@ class CanonicalPlantEnv(LinearPlantEnv):
         n = self.n_states
         return canonical_matrices(params[:n], params[n:], self.form)
 
-    @property
-    def theta(self) -> NDArray:
-        """True parameters ``[a; b]`` in force now (this env's canonical form)."""
-        return np.array(self.params, copy=True)
+    def _plant_step(
+        self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
+    ) -> tuple[float, bool, bool]:
+        reward, clipped, diverged, u, y_clean, y = dynamics.canonical_plant_step(
+            self._x, self.params, u_raw[0], self.action_bound, self.process_noise_std, z_w,
+            self.noise_std, z_v[0], r[0], self.control_cost, self.y_bound, self._form_code,
+        )  # fmt: skip
+        self._u[0], self._y_clean[0], self._y[0] = u, y_clean, y
+        return reward, clipped, diverged
+
+    def _reset_output(self) -> None:
+        self._y_clean[0] = dynamics.canonical_output(self._x)
 
     @property
     def a(self) -> NDArray:
@@ -437,7 +567,7 @@ def _spec_from_theta(theta: NDArray) -> PlantSpec:
 
 
 class ObserverCanonicalEnv(CanonicalPlantEnv):
-    """SISO plant in observer canonical form, seed paper eq. (1)-(5) (digest §2).
+    """SISO plant in observer canonical form, Ding & Ma (2014) eq. (1)-(5).
 
     ``A`` has ``-a`` in its first column and ones on the superdiagonal, ``B = b``,
     ``C = [1, 0, ..., 0]``; transfer function ``(b1 z^{n-1} + ... + bn) / (z^n + a1 z^{n-1} + ...
@@ -448,7 +578,7 @@ class ObserverCanonicalEnv(CanonicalPlantEnv):
 
 
 class ObservabilityCanonicalEnv(CanonicalPlantEnv):
-    """SISO plant in observability canonical form, seed paper eq. (146)-(147) (digest §6).
+    """SISO plant in observability canonical form, Ding & Ma (2014) eq. (146)-(147).
 
     ``A`` is a shift with last row ``[-a_n, ..., -a_1]``, ``B = b`` (the first ``n`` Markov
     parameters), ``C = [1, 0, ..., 0]``. See :class:`CanonicalPlantEnv` for the parameters.
@@ -464,7 +594,8 @@ class StateSpaceEnv(LinearPlantEnv):
     ----------
     A, B, C, D
         Matrices (``C`` defaults to the identity: the measured-state plant of Kunik et al.
-        2001; ``D`` to zero). Or give ``sys`` instead.
+        2001; ``D`` to zero). Or give ``sys`` instead. With neither, the documented default
+        plant :data:`DEFAULT_STATE_SPACE` (two states, two inputs, measured state).
     sys
         Any python-control ``StateSpace`` or ``TransferFunction`` (or anything ``control.ss``
         accepts). A continuous system is discretised with ``control.sample_system(sys, dt,
@@ -480,8 +611,11 @@ class StateSpaceEnv(LinearPlantEnv):
     Other keyword arguments as in :class:`LinearPlantEnv`; ``reference`` may be one spec for
     every output or a list with one per output. ``reset(options=...)`` accepts ``"A"`` and
     ``"B"`` to override this episode's matrices. ``env.unwrapped.sys`` is the discrete
-    python-control system of the nominal plant.
+    python-control system of the nominal plant (built on request: the env itself holds only
+    arrays, so it pickles).
     """
+
+    reset_options = LinearPlantEnv.reset_options | {"A", "B"}
 
     def __init__(
         self,
@@ -497,17 +631,37 @@ class StateSpaceEnv(LinearPlantEnv):
     ) -> None:
         import control
 
+        if dt is not None:
+            dt = _positive(dt, "dt")
+        if canonical is not None and canonical not in ("reachable", "observable", "modal"):
+            raise ValueError(
+                f"canonical must be None, 'reachable', 'observable' or 'modal', got {canonical!r}"
+            )
         if sys is not None:
             if A is not None or B is not None or C is not None or D is not None:
                 raise ValueError("give either sys or the matrices A, B (C, D), not both")
-            sysd = control.ss(sys)
+            try:
+                sysd = control.ss(sys)
+            except Exception as exc:  # python-control raises many types for a bad system
+                raise TypeError(
+                    f"sys must be a python-control system (StateSpace, TransferFunction) or "
+                    f"anything control.ss accepts, got {sys!r}"
+                ) from exc
             if sysd.isctime(strict=True):
-                if dt is None or not dt > 0:
+                if dt is None:
                     raise ValueError("dt (> 0) is required to discretise a continuous sys")
                 sysd = control.sample_system(sysd, dt, method="zoh")
+            if canonical is not None:
+                sysd = _canonical_form(sysd, canonical)
+            A_, B_ = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
+            C_, D_ = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
+            self.dt = sysd.dt
+            A_, B_ = _matrix(A_, "sys.A", (None, None)), _matrix(B_, "sys.B", (A_.shape[0], None))
         else:
+            if A is None and B is None:
+                A, B = DEFAULT_STATE_SPACE["A"], DEFAULT_STATE_SPACE["B"]
             if A is None or B is None:
-                raise ValueError("StateSpaceEnv needs the matrices A and B (or sys=...)")
+                raise ValueError("StateSpaceEnv needs both matrices A and B (or sys=...)")
             A_ = _matrix(A, "A", (None, None))
             if A_.shape[0] != A_.shape[1]:
                 raise ValueError(f"A must be square (n x n), got shape {A_.shape}")
@@ -519,28 +673,75 @@ class StateSpaceEnv(LinearPlantEnv):
                 if D is None
                 else _matrix(D, "D", (C_.shape[0], B_.shape[1]))
             )
-            sysd = control.ss(A_, B_, C_, D_, True if dt is None else dt)
-        if canonical is not None:
-            sysd, _ = control.canonical_form(sysd, canonical)
-        self.sys = sysd
-        self._A0, self._B0 = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
-        self._C, self._D = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
+            self.dt = True if dt is None else dt
+            if canonical is not None:
+                sysd = _canonical_form(control.ss(A_, B_, C_, D_, self.dt), canonical)
+                A_, B_ = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
+                C_, D_ = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
+        self._A0, self._B0 = np.ascontiguousarray(A_), np.ascontiguousarray(B_)
+        self._C, self._D = np.ascontiguousarray(C_), np.ascontiguousarray(D_)
         n, m = self._B0.shape
+        self._tmp = np.zeros(n)
         super().__init__(n_states=n, n_inputs=m, n_outputs=self._C.shape[0], **kwargs)
+        self._set_params(np.hstack((self._A0, self._B0)))
 
-    def _nominal_params(self, options: dict[str, Any], rng: np.random.Generator) -> NDArray:
+    @property
+    def sys(self) -> Any:
+        """The discrete python-control system of the nominal plant."""
+        import control
+
+        return control.ss(self._A0, self._B0, self._C, self._D, self.dt)
+
+    def _parse_options(self, options: dict[str, Any]) -> NDArray | None:
+        if "A" not in options and "B" not in options:
+            return None
         n, m = self._B0.shape
         A = _matrix(options["A"], "options['A']", (n, n)) if "A" in options else self._A0
         B = _matrix(options["B"], "options['B']", (n, m)) if "B" in options else self._B0
         return np.hstack((A, B))
 
+    def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:
+        return np.hstack((self._A0, self._B0)) if parsed is None else parsed
+
     def _matrices(self, params: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         n = self.n_states
         return params[:, :n], params[:, n:], self._C, self._D
 
+    def _plant_step(
+        self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
+    ) -> tuple[float, bool, bool]:
+        return dynamics.state_space_plant_step(
+            self._x, self.params, self._C, self._D, u_raw, self.action_bound,
+            self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
+            self.y_bound, self._u, self._y_clean, self._y, self._tmp,
+        )  # fmt: skip
+
+    def _reset_output(self) -> None:
+        dynamics.state_output(self._x, self._C, self._y_clean)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        spec = state.get("spec")
+        if spec is not None and "sys" in spec.kwargs:
+            # gym.make keeps its kwargs in env.spec; a python-control system holds a lambda.
+            # Re-specify the same plant by its discrete matrices.
+            kwargs = {k: v for k, v in spec.kwargs.items() if k not in ("sys", "canonical")}
+            kwargs.update(A=self._A0, B=self._B0, C=self._C, D=self._D, dt=self.dt)
+            state["spec"] = dataclasses.replace(spec, kwargs=kwargs)
+        return state
+
+
+def _canonical_form(sys: Any, form: str) -> Any:
+    import control
+
+    try:
+        return control.canonical_form(sys, form)[0]
+    except control.ControlNotImplemented as exc:
+        raise ValueError(f"canonical={form!r} needs a SISO plant (python-control): {exc}") from exc
+
 
 class MultichannelStaticEnv(LinearPlantEnv):
-    """Static multichannel object ``y^T = u^T Theta + v^T`` (Voevoda & Troshina 2017, digest §8).
+    """Static multichannel object ``y^T = u^T Theta + v^T`` (Voevoda & Troshina 2017).
 
     The action ``u(k)`` (``n_inputs`` values) produces ``y(k+1) = Theta^T u(k) + v(k+1)``; it is
     the state-space plant with no state and ``D = Theta^T``, so the timing convention of the
@@ -548,6 +749,8 @@ class MultichannelStaticEnv(LinearPlantEnv):
     seed's worked example. ``schedule`` acts on ``Theta``; ``reset(options={"theta": ...})``
     overrides it for one episode. The reward tracks the vector reference.
     """
+
+    reset_options = frozenset({"theta"})
 
     def __init__(
         self, theta: ArrayLike = ((1.0, 2.0), (0.0, 1.0)), *, noise_std: float = 0.1, **kwargs: Any
@@ -557,20 +760,33 @@ class MultichannelStaticEnv(LinearPlantEnv):
         if "process_noise_std" in kwargs or "initial_state" in kwargs:
             raise ValueError("a static object has no state: no process noise or initial state")
         super().__init__(n_states=0, n_inputs=n_in, n_outputs=n_out, noise_std=noise_std, **kwargs)
+        self._set_params(self._theta0.copy())
 
-    def _nominal_params(self, options: dict[str, Any], rng: np.random.Generator) -> NDArray:
+    def _parse_options(self, options: dict[str, Any]) -> NDArray | None:
         if "theta" in options:
             return _matrix(options["theta"], "options['theta']", self._theta0.shape)
-        return self._theta0.copy()
+        return None
+
+    def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:
+        return self._theta0.copy() if parsed is None else parsed
 
     def _matrices(self, params: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         n_in, n_out = params.shape
         return np.zeros((0, 0)), np.zeros((0, n_in)), np.zeros((n_out, 0)), params.T
 
-    @property
-    def theta(self) -> NDArray:
-        """The true ``Theta`` (``n_inputs x n_outputs``) in force now."""
-        return np.array(self.params, copy=True)
+    def _plant_step(
+        self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
+    ) -> tuple[float, bool, bool]:
+        # y(k+1) = Theta(k+1)^T u(k): the output is sampled after the parameters move on.
+        if self.schedule.time_varying:
+            self._set_params(self.schedule(self.t + 1))
+        return dynamics.static_plant_step(
+            self.params, u_raw, self.action_bound, self.noise_std, z_v, r, self.control_cost,
+            self.y_bound, self._u, self._y_clean, self._y, _EMPTY,
+        )  # fmt: skip
+
+    def _reset_output(self) -> None:
+        self._y_clean[:] = 0.0
 
     def _info(self) -> dict[str, Any]:
         info = super()._info()

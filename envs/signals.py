@@ -1,20 +1,34 @@
 """Reference signals and parameter schedules shared by every stcgym environment.
 
-Both kinds of object are small stateful generators driven by the environment:
+Both kinds of object produce their values **for a vector of lanes** (the plants of a vector env;
+a single env is one lane), with any per-episode state kept lane by lane inside the object:
 
-* a :class:`Reference` is ``reset(rng)`` at the start of an episode and then asked for ``r(k)``
-  at steps ``k = 0, 1, 2, ...``;
-* a :class:`Schedule` is ``reset(nominal, rng)`` with the nominal parameter array (theta of a
-  canonical plant, ``[A B]`` of a state-space plant, ``Theta`` of the static object) and then
-  asked for the parameters in force at step ``k``; ``k`` never decreases within an episode.
+* a :class:`Reference` is :meth:`~Reference.allocate`-d for ``B`` lanes, :meth:`reset_lanes
+  <Reference.reset_lanes>` at the start of an episode of some lanes (random references draw from
+  the generators handed over), and asked for ``r`` with :meth:`values(k, lanes)
+  <Reference.values>` (``k`` one step per lane);
+* a :class:`Schedule` is allocated for ``B`` lanes, reset with each lane's nominal parameter
+  array (theta of a canonical plant, ``[A B]`` of a state-space plant, ``Theta`` of the static
+  object) and asked for the parameters in force with :meth:`values(k, lanes)
+  <Schedule.values>`; ``k`` never decreases within a lane's episode.
+  :meth:`~Schedule.next_change` tells when a lane's parameters may change next, so a vector env
+  re-reads only lanes whose parameters move.
 
-Randomness comes only from the ``rng`` handed over at reset (a child of the environment's
+The single-lane forms ``ref.reset(rng)``, ``ref(k)``, ``schedule.reset(nominal, rng)`` and
+``schedule(k)`` are lane 0 of a one-lane object: the same code.
+
+Randomness comes only from the generators handed over at reset (children of the environment's
 ``np_random``), so an episode is reproducible from its seed whatever happened before.
+
+A user schedule subclasses :class:`Schedule` and implements :meth:`~Schedule.reset_lanes` and
+:meth:`~Schedule.values` (see :class:`Ramp` for a short example); a user reference is most
+easily a callable ``k -> r`` (:class:`CallableReference`).
 """
 
 from __future__ import annotations
 
 import copy
+import numbers
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -22,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    "NEVER",
     "Reference",
     "SquareWave",
     "Step",
@@ -40,34 +55,77 @@ __all__ = [
     "make_schedule",
 ]
 
+#: ``next_change`` of a lane whose parameters never change again.
+NEVER = int(np.iinfo(np.int64).max)
+_LANE0 = np.zeros(1, dtype=np.int64)
 
-def _finite(value: float, name: str) -> float:
-    v = float(value)
+
+def _finite(value: Any, name: str) -> float:
+    if isinstance(value, (str, bytes)) or not isinstance(value, (numbers.Real, np.number)):
+        raise TypeError(f"{name} must be a finite real number, got {value!r}")
+    try:
+        v = float(value)
+    except OverflowError as exc:  # an int beyond the float range
+        raise ValueError(f"{name} must be a finite number, got {value!r}") from exc
     if not np.isfinite(v):
         raise ValueError(f"{name} must be a finite number, got {value!r}")
     return v
 
 
-def _positive_int(value: int, name: str) -> int:
-    if int(value) != value or value < 1:
+def _positive_int(value: Any, name: str) -> int:
+    v = _finite(value, name)
+    if int(v) != v or v < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
+    return int(v)
+
+
+def _lanes(lanes: ArrayLike | None, num_lanes: int) -> NDArray[np.int64]:
+    return np.arange(num_lanes) if lanes is None else np.asarray(lanes, dtype=np.int64)
 
 
 # --------------------------------------------------------------------------------------------
 # References
 # --------------------------------------------------------------------------------------------
 class Reference:
-    """A scalar reference signal ``r(k)``; subclasses implement :meth:`__call__`."""
+    """A scalar reference signal ``r(k)`` for a vector of lanes.
 
+    Subclasses implement :meth:`values`; random ones also :meth:`allocate` and
+    :meth:`reset_lanes` and set ``random = True`` (a vector env then hands every lane a
+    generator at reset; deterministic references are never asked to draw).
+    """
+
+    #: Whether :meth:`reset_lanes` uses its generators.
+    random = False
+
+    def allocate(self, num_lanes: int) -> None:
+        """Allocate per-lane state for ``num_lanes`` lanes (deterministic references: none)."""
+        self.num_lanes = int(num_lanes)
+
+    def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
+        """Start a new episode in ``lanes`` (random references draw from ``rngs``)."""
+
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        """``r(k[j])`` of lane ``lanes[j]`` (all lanes when ``None``), float array like ``k``."""
+        raise NotImplementedError  # pragma: no cover - abstract
+
+    # single-lane convenience (lane 0 of a one-lane reference)
     def reset(self, rng: np.random.Generator) -> None:
-        """Start a new episode (random references draw from ``rng``)."""
+        """Start a new episode of a one-lane reference."""
+        if getattr(self, "num_lanes", None) != 1:
+            self.allocate(1)
+        self.reset_lanes(_LANE0, [rng])
 
-    def __call__(self, k: int) -> float:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def __call__(self, k: int) -> float:
+        if getattr(self, "num_lanes", None) is None:
+            self.allocate(1)
+        return float(self.values(np.array([k], dtype=np.int64), _LANE0)[0])
 
     def __repr__(self) -> str:
-        fields = ", ".join(f"{k}={v!r}" for k, v in vars(self).items() if not k.startswith("_"))
+        fields = ", ".join(
+            f"{k}={v!r}"
+            for k, v in vars(self).items()
+            if not k.startswith("_") and k != "num_lanes"
+        )
         return f"{type(self).__name__}({fields})"
 
 
@@ -85,9 +143,9 @@ class SquareWave(Reference):
         self.amplitude = _finite(amplitude, "amplitude")
         self.offset = _finite(offset, "offset")
 
-    def __call__(self, k: int) -> float:
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         first_half = (k % self.period) < self.period / 2
-        return self.offset + (self.amplitude if first_half else -self.amplitude)
+        return self.offset + np.where(first_half, self.amplitude, -self.amplitude)
 
 
 class Step(Reference):
@@ -95,13 +153,14 @@ class Step(Reference):
 
     def __init__(self, amplitude: float = 1.0, at: int = 0, initial: float = 0.0) -> None:
         self.amplitude = _finite(amplitude, "amplitude")
-        if int(at) != at or at < 0:
+        at_ = _finite(at, "at")
+        if int(at_) != at_ or at_ < 0:
             raise ValueError(f"at must be a non-negative integer step, got {at!r}")
-        self.at = int(at)
+        self.at = int(at_)
         self.initial = _finite(initial, "initial")
 
-    def __call__(self, k: int) -> float:
-        return self.amplitude if k >= self.at else self.initial
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        return np.where(k >= self.at, self.amplitude, self.initial)
 
 
 class Sine(Reference):
@@ -117,70 +176,123 @@ class Sine(Reference):
         self.phase = _finite(phase, "phase")
         self.offset = _finite(offset, "offset")
 
-    def __call__(self, k: int) -> float:
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         return self.offset + self.amplitude * np.sin(2 * np.pi * k / self.period + self.phase)
 
 
 class PRBS(Reference):
     """Pseudo-random binary sequence: ``+-amplitude`` held for ``hold`` steps per bit.
 
-    Bits are drawn from the episode's generator, so the sequence changes with the seed and is
-    identical for equal seeds.
+    Each lane draws its bits from its own episode generator, 64 bits at a time as it reaches
+    them, so the sequence changes with the seed, is identical for equal seeds, and a lane of a
+    vector env draws exactly the bits of the single env with the same seed.
     """
+
+    random = True
+    _CHUNK = 64
 
     def __init__(self, amplitude: float = 1.0, hold: int = 10, offset: float = 0.0) -> None:
         self.amplitude = _finite(amplitude, "amplitude")
         self.hold = _positive_int(hold, "hold")
         self.offset = _finite(offset, "offset")
-        self._bits = np.zeros(0)
-        self._rng = np.random.default_rng(0)
+        self.allocate(1)
+        self.reset_lanes(_LANE0, [np.random.default_rng(0)])
 
-    def reset(self, rng: np.random.Generator) -> None:
-        self._rng = np.random.default_rng(rng.integers(2**63))
-        self._bits = np.zeros(0)
+    def allocate(self, num_lanes: int) -> None:
+        super().allocate(num_lanes)
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        self._bits = np.zeros((self.num_lanes, 0), dtype=np.int8)  # +-1 per lane
+        self._count = np.zeros(self.num_lanes, dtype=np.int64)  # bits drawn this episode
 
-    def __call__(self, k: int) -> float:
-        j = k // self.hold
-        if j >= self._bits.size:
-            more = self._rng.choice([-1.0, 1.0], size=max(64, j + 1 - self._bits.size))
-            self._bits = np.concatenate((self._bits, more))
-        return self.offset + self.amplitude * self._bits[j]
+    def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
+        for i, g in zip(lanes, rngs, strict=True):
+            self._rngs[i] = np.random.default_rng(g.integers(2**63))
+            self._count[i] = 0
+
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        lanes = _lanes(lanes, self.num_lanes)
+        j = np.asarray(k, dtype=np.int64) // self.hold
+        short = j >= self._count[lanes]
+        if short.any():
+            self._draw(lanes[short], j[short])
+        return self.offset + self.amplitude * self._bits[lanes, j].astype(float)
+
+    def _draw(self, lanes: NDArray, j: NDArray) -> None:
+        """Extend each lane's bits to cover bit ``j`` (``max(64, missing)`` new draws)."""
+        need = int(j.max()) + 1
+        if need > self._bits.shape[1]:
+            grown = np.zeros((self.num_lanes, max(need, 2 * self._bits.shape[1])), np.int8)
+            grown[:, : self._bits.shape[1]] = self._bits
+            self._bits = grown
+        for i, ji in zip(lanes, j, strict=True):
+            c = int(self._count[i])
+            if ji < c:  # the same lane asked twice in one call
+                continue
+            more = self._rngs[i].choice([-1, 1], size=max(self._CHUNK, int(ji) + 1 - c))
+            end = c + more.size
+            if end > self._bits.shape[1]:
+                grown = np.zeros((self.num_lanes, 2 * end), np.int8)
+                grown[:, : self._bits.shape[1]] = self._bits
+                self._bits = grown
+            self._bits[i, c:end] = more
+            self._count[i] = end
 
 
 class Zero(Reference):
     """Regulation: ``r(k) = 0``."""
 
-    def __call__(self, k: int) -> float:
-        return 0.0
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        return np.zeros(np.shape(k))
 
 
 class ArrayReference(Reference):
     """A user array; the last value is held after the array ends."""
 
     def __init__(self, values: ArrayLike) -> None:
-        arr = np.asarray(values, dtype=float).ravel()
+        try:
+            arr = np.asarray(values, dtype=float).ravel()
+        except (TypeError, ValueError) as exc:
+            raise TypeError(
+                f"reference must be a number, a 1-D array of numbers, a name, a dict, a "
+                f"callable or a Reference; got {values!r}"
+            ) from exc
         if arr.size == 0 or not np.all(np.isfinite(arr)):
             raise ValueError("reference array must be non-empty and finite")
-        self.values = arr
+        self.table = arr
 
-    def __call__(self, k: int) -> float:
-        return float(self.values[min(k, self.values.size - 1)])
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        return self.table[np.minimum(k, self.table.size - 1)]
 
     def __repr__(self) -> str:
-        return f"ArrayReference(<{self.values.size} values>)"
+        return f"ArrayReference(<{self.table.size} values>)"
 
 
 class CallableReference(Reference):
-    """A user function ``k -> r(k)``; its result must be a finite number."""
+    """A user function ``k -> r(k)``; its result must be a finite real number.
+
+    Called once per lane and step, so prefer the built-in references for large vector envs. A
+    result that is not a finite number raises ``ValueError`` naming the reference, before the
+    environment's state changes.
+    """
 
     def __init__(self, fn: Callable[[int], float]) -> None:
         self.fn = fn
 
-    def __call__(self, k: int) -> float:
-        r = float(self.fn(k))
-        if not np.isfinite(r):
-            raise ValueError(f"reference callable returned a non-finite value {r} at step {k}")
-        return r
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        flat = np.asarray(k).ravel()
+        out = np.empty(flat.size)
+        for j, kj in enumerate(flat):
+            r = self.fn(int(kj))
+            if isinstance(r, np.ndarray) and r.size == 1:
+                r = r.reshape(())[()]
+            if isinstance(r, (str, bytes, bool)) or not isinstance(r, (numbers.Real, np.number)):
+                raise ValueError(
+                    f"reference callable must return a finite real number, got {r!r} at step {kj}"
+                )
+            out[j] = float(r)
+            if not np.isfinite(out[j]):
+                raise ValueError(f"reference callable returned a non-finite value {r} at step {kj}")
+        return out.reshape(np.shape(k))
 
 
 _REFERENCES: dict[str, type[Reference]] = {
@@ -199,13 +311,18 @@ def make_reference(spec: Any = "square", **kwargs: Any) -> Reference:
     Parameters
     ----------
     spec
-        A :class:`Reference`; a name (``"square"``/``"meander"``, ``"step"``, ``"sine"``,
-        ``"prbs"``, ``"zero"``) with keyword arguments for it; a dict ``{"kind": name, ...}``;
-        a number (constant reference); a 1-D array (held at its last value); or a callable
-        ``k -> r``.
+        A :class:`Reference` (copied, so that envs never share per-lane state); a name
+        (``"square"``/``"meander"``, ``"step"``, ``"sine"``, ``"prbs"``, ``"zero"``) with keyword
+        arguments for it; a dict ``{"kind": name, ...}``; a number (constant reference); a 1-D
+        array (held at its last value); or a callable ``k -> r``.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Naming ``reference`` (or the offending parameter) and the expected form.
     """
     if isinstance(spec, Reference):
-        return spec
+        return copy.deepcopy(spec)
     if spec is None:
         return Zero()
     if isinstance(spec, str):
@@ -215,28 +332,45 @@ def make_reference(spec: Any = "square", **kwargs: Any) -> Reference:
                 f"reference must be one of {sorted(_REFERENCES)}, a number, an array, a "
                 f"callable or a Reference; got {spec!r}"
             )
-        return _REFERENCES[key](**kwargs)
+        try:
+            return _REFERENCES[key](**kwargs)
+        except TypeError as exc:
+            if "argument" not in str(exc):
+                raise
+            raise TypeError(f"reference {key!r}: {exc}") from exc
     if isinstance(spec, Mapping):
         params = dict(spec)
         kind = params.pop("kind", None)
-        if kind is None:
-            raise ValueError("a reference dict needs a 'kind' entry, e.g. {'kind': 'square'}")
-        return make_reference(str(kind), **params, **kwargs)
+        if not isinstance(kind, str):
+            raise ValueError(
+                f"a reference dict needs a 'kind' entry naming one of {sorted(_REFERENCES)}, "
+                f"e.g. {{'kind': 'square'}}; got {spec!r}"
+            )
+        return make_reference(kind, **params, **kwargs)
     if callable(spec):
         return CallableReference(spec)
-    if np.ndim(spec) == 0:
-        return Step(amplitude=_finite(spec, "reference"), at=0, initial=float(spec))
-    return ArrayReference(spec)
+    if isinstance(spec, (numbers.Real, np.number)) and not isinstance(spec, bool):
+        value = _finite(spec, "reference")
+        return Step(amplitude=value, at=0, initial=value)
+    if isinstance(spec, (Sequence, np.ndarray)) and not isinstance(spec, bytes):
+        return ArrayReference(spec)
+    raise TypeError(
+        f"reference must be a name {sorted(_REFERENCES)}, a dict with 'kind', a number, a 1-D "
+        f"array, a callable k -> r or a Reference; got {spec!r}"
+    )
 
 
 def make_references(spec: Any, count: int) -> list[Reference]:
     """One reference per output channel.
 
-    A list or tuple of exactly ``count`` specs (``count > 1``) gives one per channel; any other
-    spec is built once and copied, so that random references draw independent bits per channel.
+    A list or tuple of exactly ``count`` specs gives one per channel (with ``count == 1`` only
+    when its entry is not a number: ``[0.5]`` is a one-value array); any other spec is built
+    once and copied, so that random references draw independent bits per channel.
     """
-    if count > 1 and isinstance(spec, (list, tuple)) and len(spec) == count:
-        return [make_reference(s) for s in spec]
+    if isinstance(spec, (list, tuple)) and len(spec) == count:
+        numbers_only = all(isinstance(s, (numbers.Real, np.number)) for s in spec)
+        if count > 1 or not numbers_only:  # a one-channel list of specs, not an array
+            return [make_reference(s) for s in spec]
     ref = make_reference(spec)
     return [ref] + [copy.deepcopy(ref) for _ in range(count - 1)]
 
@@ -245,39 +379,79 @@ def make_references(spec: Any, count: int) -> list[Reference]:
 # Parameter schedules
 # --------------------------------------------------------------------------------------------
 class Schedule:
-    """Parameters in force at step ``k``: a function of the nominal array and ``k``.
+    """Parameters in force at step ``k``, per lane: a function of the lane's nominal array and k.
 
-    The value returned for step ``k`` governs the transition from ``k`` to ``k + 1``.
+    The value for step ``k`` governs the transition from ``k`` to ``k + 1``. The base class holds
+    each lane's nominal parameters (``_nominal``, shape ``(B, *shape)``) and returns them;
+    subclasses override :meth:`values` (and :meth:`reset_lanes` if they keep more per-lane
+    state) and :meth:`next_change`.
     """
 
-    def reset(self, nominal: NDArray, rng: np.random.Generator) -> None:
-        self._nominal = np.array(nominal, dtype=float)
+    def allocate(self, num_lanes: int) -> None:
+        """Prepare per-lane state for ``num_lanes`` lanes (allocated at the first reset)."""
+        self.num_lanes = int(num_lanes)
+        self._nominal: NDArray | None = None
 
-    def __call__(self, k: int) -> NDArray:
-        return self._nominal
+    def reset_lanes(
+        self, lanes: NDArray, nominal: NDArray, rngs: Sequence[np.random.Generator | None]
+    ) -> None:
+        """New episode in ``lanes`` with nominal parameters ``nominal`` (one row per lane)."""
+        nominal = np.asarray(nominal, dtype=float)
+        shape = nominal.shape[1:]
+        if self._nominal is None or self._nominal.shape[1:] != shape:
+            self._nominal = np.zeros((self.num_lanes, *shape))
+        self._nominal[lanes] = nominal
+
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        """Parameters in force at step ``k[j]`` for lane ``lanes[j]``: ``(len, *shape)``."""
+        return self._nominal[_lanes(lanes, self.num_lanes)].copy()
+
+    def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        """First step after ``k[j]`` at which lane ``lanes[j]`` may get other parameters."""
+        return np.asarray(k, dtype=np.int64) + 1
 
     @property
     def time_varying(self) -> bool:
         return True
 
+    # single-lane convenience (lane 0 of a one-lane schedule)
+    def reset(self, nominal: NDArray, rng: np.random.Generator) -> None:
+        """Start a new episode of a one-lane schedule with nominal parameters ``nominal``."""
+        if getattr(self, "num_lanes", None) != 1:
+            self.allocate(1)
+        self.reset_lanes(_LANE0, np.asarray(nominal, dtype=float)[None], [rng])
+
+    def __call__(self, k: int) -> NDArray:
+        return self.values(np.array([k], dtype=np.int64), _LANE0)[0]
+
     def __repr__(self) -> str:
-        fields = ", ".join(f"{k}={v!r}" for k, v in vars(self).items() if not k.startswith("_"))
+        fields = ", ".join(
+            f"{k}={v!r}"
+            for k, v in vars(self).items()
+            if not k.startswith("_") and k != "num_lanes"
+        )
         return f"{type(self).__name__}({fields})"
 
 
 class Constant(Schedule):
     """Time-invariant plant: the nominal parameters throughout."""
 
+    def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        return np.full(np.shape(k), NEVER, dtype=np.int64)
+
     @property
     def time_varying(self) -> bool:
         return False
 
 
-def _check_shape(value: ArrayLike, like: NDArray, name: str) -> NDArray:
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != like.shape:
+def _check_shape(value: ArrayLike, like: tuple[int, ...], name: str) -> NDArray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be an array of numbers of shape {like}") from exc
+    if arr.shape != like:
         raise ValueError(
-            f"{name} must have the shape of the plant parameters {like.shape}, got {arr.shape}"
+            f"{name} must have the shape of the plant parameters {like}, got {arr.shape}"
         )
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite")
@@ -291,89 +465,147 @@ class Jumps(Schedule):
     """
 
     def __init__(self, changes: Mapping[int, ArrayLike] | Sequence[tuple[int, ArrayLike]]):
-        items = list(changes.items()) if isinstance(changes, Mapping) else list(changes)
+        try:
+            items = list(changes.items()) if isinstance(changes, Mapping) else list(changes)
+            items = [(k, v) for k, v in items]
+        except (TypeError, ValueError) as exc:
+            raise TypeError(
+                f"schedule changes must be {{step: parameters}} or (step, parameters) pairs, "
+                f"got {changes!r}"
+            ) from exc
         if not items:
-            raise ValueError("changes must name at least one (step, parameters) pair")
+            raise ValueError("schedule changes must name at least one (step, parameters) pair")
         for k, _ in items:
-            if int(k) != k or k < 0:
-                raise ValueError(f"jump steps must be non-negative integers, got {k!r}")
+            if isinstance(k, (str, bytes, bool)) or not isinstance(k, (numbers.Real, np.number)):
+                raise ValueError(f"schedule jump steps must be non-negative integers, got {k!r}")
+            if not np.isfinite(k) or int(k) != k or k < 0:
+                raise ValueError(f"schedule jump steps must be non-negative integers, got {k!r}")
         self.changes = sorted(
-            ((int(k), np.asarray(v, dtype=float)) for k, v in items), key=lambda kv: kv[0]
+            (
+                (int(k), _check_shape(v, np.shape(v), f"schedule parameters at step {k}"))
+                for k, v in items
+            ),
+            key=lambda kv: kv[0],
+        )
+        self._steps = np.array([k for k, _ in self.changes], dtype=np.int64)
+
+    def reset_lanes(
+        self, lanes: NDArray, nominal: NDArray, rngs: Sequence[np.random.Generator | None]
+    ) -> None:
+        super().reset_lanes(lanes, nominal, rngs)
+        shape = self._nominal.shape[1:]
+        self._table = np.stack(
+            [_check_shape(v, shape, f"parameters at step {k}") for k, v in self.changes]
         )
 
-    def reset(self, nominal: NDArray, rng: np.random.Generator) -> None:
-        super().reset(nominal, rng)
-        self._values = [
-            (k, _check_shape(v, self._nominal, f"parameters at step {k}")) for k, v in self.changes
-        ]
-        self._steps = np.array([k for k, _ in self._values])
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        lanes = _lanes(lanes, self.num_lanes)
+        i = np.searchsorted(self._steps, k, side="right")
+        out = self._nominal[lanes].copy()
+        jumped = i > 0
+        out[jumped] = self._table[i[jumped] - 1]
+        return out
 
-    def __call__(self, k: int) -> NDArray:
-        i = int(np.searchsorted(self._steps, k, side="right"))
-        return self._nominal if i == 0 else self._values[i - 1][1]
+    def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        i = np.searchsorted(self._steps, k, side="right")
+        later = np.append(self._steps, NEVER)
+        return later[i]
 
 
 class Ramp(Schedule):
     """Slow linear drift from the nominal parameters to ``target`` over steps start..stop."""
 
     def __init__(self, target: ArrayLike, start: int, stop: int) -> None:
-        if int(start) != start or int(stop) != stop or not 0 <= start < stop:
+        s0, s1 = _finite(start, "start"), _finite(stop, "stop")
+        if int(s0) != s0 or int(s1) != s1 or not 0 <= s0 < s1:
             raise ValueError(
                 f"need integer steps 0 <= start < stop, got start={start}, stop={stop}"
             )
-        self.target = np.asarray(target, dtype=float)
-        self.start, self.stop = int(start), int(stop)
+        self.target = _check_shape(target, np.shape(target), "target")
+        self.start, self.stop = int(s0), int(s1)
 
-    def reset(self, nominal: NDArray, rng: np.random.Generator) -> None:
-        super().reset(nominal, rng)
-        self._target = _check_shape(self.target, self._nominal, "target")
+    def reset_lanes(
+        self, lanes: NDArray, nominal: NDArray, rngs: Sequence[np.random.Generator | None]
+    ) -> None:
+        super().reset_lanes(lanes, nominal, rngs)
+        self._target = _check_shape(self.target, self._nominal.shape[1:], "target")
 
-    def __call__(self, k: int) -> NDArray:
-        s = min(max((k - self.start) / (self.stop - self.start), 0.0), 1.0)
-        return self._nominal + s * (self._target - self._nominal)
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        lanes = _lanes(lanes, self.num_lanes)
+        s = np.clip((np.asarray(k) - self.start) / (self.stop - self.start), 0.0, 1.0)
+        nom = self._nominal[lanes]
+        s = s.reshape(s.shape + (1,) * (nom.ndim - 1))
+        return nom + s * (self._target - nom)
+
+    def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        k = np.asarray(k, dtype=np.int64)
+        return np.where(k < self.stop, np.maximum(k + 1, self.start + 1), NEVER)
 
 
 class RandomWalk(Schedule):
     """Random-walk drift: each step after ``start`` adds ``N(0, std^2)`` to the masked entries.
 
-    ``mask`` (boolean, the parameters' shape) selects which entries drift; by default all. The
-    walk can make a plant unstable; the environment's divergence bound ends such an episode.
+    ``mask`` (boolean, the parameters' shape) selects which entries drift; by default all. Each
+    lane walks with its own generator. The walk can make a plant unstable; the environment's
+    divergence bound ends such an episode.
     """
 
     def __init__(self, std: float, start: int = 0, mask: ArrayLike | None = None) -> None:
         self.std = _finite(std, "std")
         if self.std < 0:
             raise ValueError(f"std must be non-negative, got {std}")
-        self.start = int(start)
+        s0 = _finite(start, "start")
+        if int(s0) != s0 or s0 < 0:
+            raise ValueError(f"start must be a non-negative integer step, got {start!r}")
+        self.start = int(s0)
         self.mask = None if mask is None else np.asarray(mask, dtype=bool)
 
-    def reset(self, nominal: NDArray, rng: np.random.Generator) -> None:
-        super().reset(nominal, rng)
-        self._rng = np.random.default_rng(rng.integers(2**63))
-        self._mask = np.ones(self._nominal.shape, bool) if self.mask is None else self.mask
-        if self._mask.shape != self._nominal.shape:
-            raise ValueError(f"mask must have shape {self._nominal.shape}, got {self._mask.shape}")
-        self._k = self.start
-        self._value = self._nominal.copy()
+    def allocate(self, num_lanes: int) -> None:
+        super().allocate(num_lanes)
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        self._k = np.zeros(self.num_lanes, dtype=np.int64)
+        self._value: NDArray | None = None
 
-    def __call__(self, k: int) -> NDArray:
-        while self._k < k:
-            self._k += 1
-            self._value = (
-                self._value + self.std * self._rng.standard_normal(self._value.shape) * self._mask
-            )
-        return self._value
+    def reset_lanes(
+        self, lanes: NDArray, nominal: NDArray, rngs: Sequence[np.random.Generator | None]
+    ) -> None:
+        super().reset_lanes(lanes, nominal, rngs)
+        shape = self._nominal.shape[1:]
+        self._mask = np.ones(shape, bool) if self.mask is None else self.mask
+        if self._mask.shape != shape:
+            raise ValueError(f"mask must have shape {shape}, got {self._mask.shape}")
+        if self._value is None or self._value.shape[1:] != shape:
+            self._value = np.zeros((self.num_lanes, *shape))
+        for i, g in zip(lanes, rngs, strict=True):
+            self._rngs[i] = np.random.default_rng(g.integers(2**63))
+        self._k[lanes] = self.start
+        self._value[lanes] = self._nominal[lanes]
+
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        lanes = _lanes(lanes, self.num_lanes)
+        k = np.asarray(k, dtype=np.int64)
+        out = np.empty((len(lanes), *self._value.shape[1:]))
+        for j, (i, ki) in enumerate(zip(lanes, k, strict=True)):
+            rng, value = self._rngs[i], self._value[i]
+            while self._k[i] < ki:
+                self._k[i] += 1
+                value = value + self.std * rng.standard_normal(value.shape) * self._mask
+            self._value[i] = out[j] = value
+        return out
 
 
 def make_schedule(spec: Any) -> Schedule:
-    """Build a :class:`Schedule` from ``None``/``"constant"``, a Schedule, or ``{step: params}``."""
+    """Build a :class:`Schedule` from ``None``/``"constant"``, a Schedule, or ``{step: params}``.
+
+    A given Schedule is copied, so that envs never share per-lane state.
+    """
     if spec is None or (isinstance(spec, str) and spec.lower() == "constant"):
         return Constant()
     if isinstance(spec, Schedule):
-        return spec
+        return copy.deepcopy(spec)
     if isinstance(spec, Mapping):
         return Jumps(spec)
-    raise ValueError(
+    raise TypeError(
         f"schedule must be None, 'constant', a Schedule (Jumps, Ramp, RandomWalk) or a dict "
         f"{{step: parameters}}, got {spec!r}"
     )

@@ -1,23 +1,27 @@
-"""Native Gymnasium vector environments: ``B`` linear plants stepped in one numpy operation.
+"""Native Gymnasium vector environments: ``B`` linear plants stepped by one compiled batch loop.
 
 ``ObserverCanonicalVectorEnv``, ``ObservabilityCanonicalVectorEnv`` and ``StateSpaceVectorEnv``
 are the vector counterparts of the single environments in :mod:`stcgym.envs.plants` (their
 ``vector_entry_point``, so ``gym.make_vec(id, num_envs=B)`` builds them). Each sub-environment
-("lane") has its own parameters, state, noise streams, reference and seed; ``step`` advances all
-lanes with a handful of array operations and no per-lane Python loop (Python loops run only for
-lanes that reset, and once per noise block to refill the per-lane noise buffers).
+("lane") has its own parameters, state, noise streams, reference and seed; ``step`` runs the
+plant step of :mod:`stcgym.envs.dynamics` for every lane in one ``prange`` loop (Python loops
+run only for lanes that reset, once per noise block to refill the per-lane noise buffers, and for
+the per-lane generators of random references and schedules).
 
 Equivalence with single environments
 ------------------------------------
-Lane ``i`` reproduces ``gym.make(id, **kwargs)`` reset with the same seed: the same observations,
-rewards, ``terminated``/``truncated`` flags and info values (up to float rounding of the matrix
-products), episode after episode. This holds because the vector env repeats the single env's
-per-episode RNG split exactly: the lane's ``np_random`` (seeded like ``Env.reset(seed=s)``) draws
-one 63-bit integer per episode, whose ``SeedSequence`` children 0-4 feed output noise, process
-noise, reference, schedule and draws. Only the children an episode actually uses are built (a
-child is ``SeedSequence(entropy, spawn_key=(j,))``, identical to ``spawn(5)[j]``), and noise is
-drawn per lane in blocks whose size only sets memory use: a numpy ``Generator`` gives the same
-normals whether drawn in one block of 512 or in smaller pieces.
+Lane ``i`` reproduces ``gym.make(id, **kwargs)`` reset with the same seed **bit for bit**: the
+same observations, rewards, ``terminated``/``truncated`` flags and info values, episode after
+episode. The plant step is the same compiled lane function on the same numbers; references and
+schedules produce the same values for a lane as for a single env (:mod:`stcgym.envs.signals`);
+and the vector env repeats the single env's per-episode RNG split exactly: the lane's
+``np_random`` (seeded like ``Env.reset(seed=s)``) draws one 63-bit integer per episode, whose
+``SeedSequence`` children 0-4 feed output noise, process noise, reference, schedule and draws.
+Only the children an episode actually uses are built (a child is ``SeedSequence(entropy,
+spawn_key=(j,))``, identical to ``spawn(5)[j]``), and noise is drawn per lane in blocks whose size
+only sets memory use: a numpy ``Generator`` gives the same normals whether drawn in one block of
+512 or in smaller pieces. (``exact=`` of earlier versions is accepted with a
+``DeprecationWarning`` and ignored: every lane is exact now.)
 
 Reset seeds follow :class:`gymnasium.vector.SyncVectorEnv`: ``seed=s`` gives lane ``i`` the seed
 ``s + i``; a list gives one seed per lane; ``None`` keeps each lane's generator (fresh entropy on
@@ -31,19 +35,29 @@ it (next episode of the lane's generator) and returns its first observation with
 both flags false. ``SAME_STEP`` resets in the same call and reports ``infos["final_obs"]`` /
 ``infos["final_info"]`` (what :class:`SB3VecEnv` needs); ``DISABLED`` leaves resets to the caller
 (``reset(options={"reset_mask": mask})``). ``max_episode_steps`` truncates like ``TimeLimit``.
+An autoreset starts the lane's next episode like ``env.reset()`` without options, as
+``SyncVectorEnv`` does: parameters given through ``reset(options=...)`` last one episode (a
+``UserWarning`` says so the first time such a lane autoresets); give per-lane ``a``/``b`` to the
+constructor to keep them.
 
 Infos are Gymnasium vector infos: one array per key with a boolean ``"_key"`` mask; the keys are
 those of the single env (``info_keys=(...)`` keeps a subset, ``()`` none: cheaper for many lanes).
 
 Options of ``reset`` are those of the single environment and apply to every lane being reset;
 parameter options (``"theta"``, ``"a"``/``"b"``, ``"initial_state"``, state-space ``"A"``/``"B"``)
-may also be given per lane with a leading axis of length ``num_envs``.
+may also be given per lane with a leading axis of length ``num_envs``. Unknown keys raise
+``ValueError``; every bad argument raises before any lane changes.
+
+For a compiled rollout of ``T`` steps, :meth:`LinearPlantVectorEnv.lookahead` returns the
+references, parameters and noise the next ``T`` steps would use, without changing the env.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+import dataclasses
+import warnings
+from collections.abc import Hashable, Sequence
 from typing import Any
 
 import numpy as np
@@ -52,6 +66,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.envs import dynamics
 from stcgym.envs.canonical import check_ab, split_theta
 from stcgym.envs.catalogue import PlantSpec, get_plant
 from stcgym.envs.plants import (
@@ -60,17 +75,10 @@ from stcgym.envs.plants import (
     ObservabilityCanonicalEnv,
     ObserverCanonicalEnv,
     StateSpaceEnv,
+    _non_negative,
+    _real_array,
 )
-from stcgym.envs.signals import (
-    ArrayReference,
-    Constant,
-    Jumps,
-    Schedule,
-    Sine,
-    SquareWave,
-    Step,
-    Zero,
-)
+from stcgym.envs.signals import NEVER, Schedule
 
 __all__ = [
     "LinearPlantVectorEnv",
@@ -86,7 +94,8 @@ __all__ = [
 _V, _W, _REF, _SCHED, _DRAW = range(5)
 #: Default memory budget of one noise buffer (all lanes); sets the block length per refill.
 NOISE_BUFFER_BYTES = 64 * 2**20
-_NEVER = np.iinfo(np.int64).max
+_NEVER = NEVER
+_USER = "user schedule"  # key of the schedule given to the constructor
 
 
 def episode_streams(entropy: int, which: Sequence[int]) -> list[np.random.Generator]:
@@ -112,7 +121,7 @@ class _LaneNormals:
 
     def __init__(self, num_envs: int, width: int, budget_bytes: int) -> None:
         self.width = width
-        self.block = int(np.clip(budget_bytes // (8 * num_envs * width), 16, 512))
+        self.block = int(np.clip(budget_bytes // (8 * num_envs * max(width, 1)), 16, 512))
         self.buf = np.zeros((self.block, num_envs, width))
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.pos = self.block  # next row to read; == block means "refill first"
@@ -148,37 +157,19 @@ class _LaneNormals:
         return self.buf.nbytes
 
 
-# Reference types whose value is a pure function of k and of parameters shared by all lanes.
-_PURE_REFERENCES = (SquareWave, Step, Sine, Zero, ArrayReference)
-
-
-def _pure_reference_values(ref: Any, k: NDArray) -> NDArray:
-    """``[ref(k_i) for k_i in k]`` for a :data:`_PURE_REFERENCES` instance, vectorised."""
-    t = type(ref)
-    if t is SquareWave:
-        return ref.offset + np.where(
-            (k % ref.period) < ref.period / 2, ref.amplitude, -ref.amplitude
-        )
-    if t is Step:
-        return np.where(k >= ref.at, ref.amplitude, ref.initial)
-    if t is Sine:
-        return ref.offset + ref.amplitude * np.sin(2 * np.pi * k / ref.period + ref.phase)
-    if t is Zero:
-        return np.zeros(k.shape)
-    return ref.values[np.minimum(k, ref.values.size - 1)]  # ArrayReference
-
-
 def _per_lane(value: ArrayLike, num_envs: int, shape: tuple[int, ...], name: str) -> NDArray:
     """Broadcast an option to ``(num_envs, *shape)``: one value for all lanes or one per lane."""
-    arr = np.asarray(value, dtype=float)
+    arr = _real_array(value, name)
     if arr.shape == shape:
-        return np.broadcast_to(arr, (num_envs, *shape))
-    if arr.shape == (num_envs, *shape):
-        return arr
-    raise ValueError(
-        f"{name} must have shape {shape} (all lanes) or {(num_envs, *shape)} (one per lane), "
-        f"got {arr.shape}"
-    )
+        arr = np.broadcast_to(arr, (num_envs, *shape))
+    elif arr.shape != (num_envs, *shape):
+        raise ValueError(
+            f"{name} must have shape {shape} (all lanes) or {(num_envs, *shape)} (one per lane), "
+            f"got {arr.shape}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return arr
 
 
 class LinearPlantVectorEnv(VectorEnv):
@@ -198,9 +189,8 @@ class LinearPlantVectorEnv(VectorEnv):
     info_keys
         Keys of ``infos`` to return (default all of the single env's; ``()`` for none).
     exact
-        Step with the single env's own matrix products, stacked: observations equal to
-        single envs to rounding (slower). Otherwise the canonical structure is used (equal to
-        about 1e-15 relative per step).
+        Deprecated and ignored (every lane equals its single env bit for bit); passing it warns
+        with a ``DeprecationWarning``.
     **kwargs
         The single environment's arguments (``single_cls``); one prototype single env is built
         from them to validate them and to hold the shared configuration.
@@ -220,29 +210,46 @@ class LinearPlantVectorEnv(VectorEnv):
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
         noise_buffer_bytes: int = NOISE_BUFFER_BYTES,
         info_keys: Sequence[str] | None = None,
-        exact: bool = False,
+        exact: bool | None = None,
         render_mode: str | None = None,
         **kwargs: Any,
     ) -> None:
-        if int(num_envs) != num_envs or num_envs < 1:
+        if exact is not None:
+            warnings.warn(
+                "exact= is deprecated and ignored: every lane runs the single env's compiled "
+                "plant step and equals it bit for bit",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)):
+            raise TypeError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         if render_mode is not None:
             raise ValueError("the vector environments do not render; use a single env for that")
         if max_episode_steps is not None and (
-            int(max_episode_steps) != max_episode_steps or max_episode_steps < 1
+            isinstance(max_episode_steps, bool)
+            or not isinstance(max_episode_steps, (int, np.integer))
+            or max_episode_steps < 1
         ):
-            raise ValueError("max_episode_steps must be a positive integer or None")
+            raise ValueError(
+                f"max_episode_steps must be a positive integer or None, got {max_episode_steps!r}"
+            )
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError as exc:
+            raise ValueError(
+                f"autoreset_mode must be one of {[m.value for m in AutoresetMode]}, "
+                f"got {autoreset_mode!r}"
+            ) from exc
+        noise_budget = int(_non_negative(noise_buffer_bytes, "noise_buffer_bytes"))
         self.num_envs = B = int(num_envs)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
-        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        self.autoreset_mode = mode
         self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
         self.render_mode = None
         # None: every key of the single env's info; a subset saves the per-step copies.
         self.info_keys = None if info_keys is None else tuple(info_keys)
-        # exact: step with the single env's own matrix products, stacked (numpy applies the
-        # same formula to each lane), so observations equal those of single envs to rounding;
-        # not bit for bit: OpenBLAS may pick another kernel for a stacked product, by CPU.
-        self.exact = bool(exact)
 
         proto = self._make_proto(kwargs)
         self._proto = proto
@@ -269,75 +276,126 @@ class LinearPlantVectorEnv(VectorEnv):
         self.t = np.zeros(B, dtype=np.int64)
         self.y_clean = np.zeros((B, p))
         self.n_clipped = np.zeros(B, dtype=np.int64)
+        self._u = np.zeros((B, m))
+        self._y = np.zeros((B, p))
+        self._reward = np.zeros(B)
         self._clipped = np.zeros(B, dtype=bool)
         self._diverged = np.zeros(B, dtype=bool)
         self._terminated = np.zeros(B, dtype=bool)
         self._truncated = np.zeros(B, dtype=bool)
         self._needs_reset = np.ones(B, dtype=bool)  # no episode yet
+        self._from_options = np.zeros(B, dtype=bool)  # parameters given by reset(options)
+        self._warned_revert = False
         self._lane_rng: list[np.random.Generator | None] = [None] * B
-        self._v = _LaneNormals(B, p, noise_buffer_bytes) if self.noise_std else None
-        self._w = _LaneNormals(B, n, noise_buffer_bytes) if self.process_noise_std else None
-        # References: pure ones are evaluated for all lanes at once; others get one copy per
-        # lane, reset from the lane's reference stream like the single env does.
-        self._pure_refs = all(type(r) in _PURE_REFERENCES for r in proto.reference)
-        self._lane_refs: list[list[Any] | None] = [None] * B
-        # Time-varying schedules: one object per lane; `_next_change[i]` is the first step at
-        # which lane i's parameters must be re-read (never for constant plants).
-        self._schedules: list[Schedule | None] = [None] * B
+        self._v = _LaneNormals(B, p, noise_budget) if self.noise_std else None
+        self._w = _LaneNormals(B, n, noise_budget) if self.process_noise_std else None
+        self._no_noise = np.zeros((B, 0))
+        self._no_noise_1d = np.zeros(B)
+        # References: one object per output channel, holding every lane's state.
+        self.reference = [copy.deepcopy(r) for r in proto.reference]
+        for ref in self.reference:
+            ref.allocate(B)
+        self._random_refs = any(r.random for r in self.reference)
+        # Time-varying schedules: objects holding their lanes' state, keyed like _schedule_key;
+        # `_schedule_id[i]` is lane i's (-1: constant) and `_next_change[i]` the first step at
+        # which lane i's parameters must be re-read.
+        self._schedules: list[Schedule] = []
+        self._schedule_keys: dict[Hashable, int] = {}
+        self._schedule_id = np.full(B, -1, dtype=np.int64)
         self._next_change = np.full(B, _NEVER, dtype=np.int64)
-        self._any_schedule = False
         self._started = False
         self._obs = np.zeros((B, 2 * p))
         self._init_params()
-        if self.exact:
-            self._A = np.zeros((B, n, n))
-            self._Bm = np.zeros((B, n, m))
 
     # ------------------------------------------------------------------ subclass hooks
     def _make_proto(self, kwargs: dict[str, Any]) -> LinearPlantEnv:
         return self.single_cls(**kwargs)
 
     def _init_params(self) -> None:
-        """Allocate ``self.params`` (leading axis = lane)."""
+        """Allocate ``self.params`` (leading axis = lane), set to the constructor's plant."""
         raise NotImplementedError
+
+    def _parse_options(self, options: dict[str, Any]) -> Any:
+        """Validate parameter options (per lane or for all lanes) without changing anything."""
+        return None
 
     def _nominal(
-        self, idx: NDArray, options: dict[str, Any], draw: list[np.random.Generator | None]
-    ) -> tuple[NDArray, list[Schedule | None]]:
-        """Nominal parameters ``(len(idx), ...)`` and schedules (``None`` = constant)."""
+        self, idx: NDArray, parsed: Any, draw: list[np.random.Generator | None]
+    ) -> tuple[NDArray, list[Hashable | None]]:
+        """Nominal parameters ``(len(idx), ...)`` and schedule keys (``None`` = constant)."""
         raise NotImplementedError
 
-    def _needs_draw_rng(self, options: dict[str, Any]) -> bool:
+    def _make_schedule(self, key: Hashable) -> Schedule:
+        """A fresh schedule object for ``key`` (see :meth:`_nominal`)."""
+        if key == _USER:
+            return copy.deepcopy(self._proto.schedule)
+        raise KeyError(key)
+
+    def _needs_draw_rng(self, parsed: Any) -> bool:
         """Whether :meth:`_nominal` consumes the lanes' draw streams."""
         return False
 
-    def _advance(self, u: NDArray) -> NDArray:
-        """``A x + B u`` for all lanes (``u`` of shape ``(B, m)``)."""
+    def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
+        """The batch loop of :mod:`stcgym.envs.dynamics` for this plant (all lanes)."""
         raise NotImplementedError
 
-    def _lane_matrices(self, params: NDArray) -> tuple[NDArray, NDArray]:
-        """Stacked ``(A, B)`` of parameter rows (``exact`` mode)."""
-        raise NotImplementedError
-
-    def _set_lane_matrices(self, idx: Any) -> None:
-        if self.exact:
-            self._A[idx], self._Bm[idx] = self._lane_matrices(self.params[idx])
-
-    def _advance_exact(self, u: NDArray) -> NDArray:
-        """``A @ x + B @ u`` per lane with the single env's matmul calls."""
-        return (self._A @ self.x[:, :, None])[:, :, 0] + (self._Bm @ u[:, :, None])[:, :, 0]
-
-    def _output(self, x: NDArray, u: NDArray | None, idx: NDArray | None = None) -> NDArray:
-        """Noise-free output ``C x + D u`` of lanes ``idx`` (all when ``None``); ``u=None`` at
-        reset, before any input."""
+    def _reset_outputs(self, idx: NDArray) -> NDArray:
+        """``C x(0)`` of lanes ``idx`` (before any input), shape ``(len(idx), p)``."""
         raise NotImplementedError
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:
         raise NotImplementedError
 
+    # ------------------------------------------------------------------ schedules
+    def _schedule_index(self, key: Hashable) -> int:
+        if key not in self._schedule_keys:
+            sched = self._make_schedule(key)
+            sched.allocate(self.num_envs)
+            self._schedule_keys[key] = len(self._schedules)
+            self._schedules.append(sched)
+        return self._schedule_keys[key]
+
+    def _update_schedules(self) -> None:
+        """Re-read the parameters of lanes whose schedule may have changed at their step."""
+        due = np.flatnonzero(self._next_change <= self.t)
+        if due.size == 0:
+            return
+        for s, sched in enumerate(self._schedules):
+            lanes = due[self._schedule_id[due] == s]
+            if lanes.size:
+                k = self.t[lanes]
+                self.params[lanes] = sched.values(k, lanes)
+                self._next_change[lanes] = sched.next_change(k, lanes)
+
     # ------------------------------------------------------------------ resets
+    def _check_options(self, options: dict[str, Any]) -> tuple[Any, NDArray | None, float | None]:
+        allowed = self._proto.reset_options
+        unknown = sorted(set(options) - allowed)
+        if unknown:
+            raise ValueError(
+                f"unknown reset option(s) {unknown} for {type(self).__name__}; expected keys "
+                f"from {sorted(allowed | {'reset_mask'})}"
+            )
+        parsed = self._parse_options(options)
+        x0 = std = None
+        if "initial_state" in options:
+            x0 = _per_lane(
+                options["initial_state"],
+                self.num_envs,
+                (self.n_states,),
+                "options['initial_state']",
+            )
+        elif "initial_state_std" in options:
+            std = _non_negative(options["initial_state_std"], "options['initial_state_std']")
+        return parsed, x0, std
+
     def _reset_lanes(
-        self, idx: NDArray, seeds: Sequence[int | None] | None, options: dict[str, Any]
+        self,
+        idx: NDArray,
+        seeds: Sequence[int | None] | None,
+        parsed: Any = None,
+        x0: NDArray | None = None,
+        std: float | None = None,
     ) -> None:
         """Start a new episode in lanes ``idx`` (exactly like ``LinearPlantEnv.reset``)."""
         k = len(idx)
@@ -354,48 +412,37 @@ class LinearPlantVectorEnv(VectorEnv):
             v0 = self._v.restart(idx, [episode_streams(e, [_V])[0] for e in entropy], True)
         if self._w is not None:
             self._w.restart(idx, [episode_streams(e, [_W])[0] for e in entropy], False)
-        if not self._pure_refs:
-            for j, i in enumerate(idx):
-                refs = [copy.deepcopy(r) for r in self._proto.reference]
-                (rng_ref,) = episode_streams(entropy[j], [_REF])
-                for ref, child in zip(refs, rng_ref.spawn(len(refs)), strict=True):
-                    ref.reset(child)
-                self._lane_refs[i] = refs
+        if self._random_refs:
+            children = [episode_streams(e, [_REF])[0].spawn(len(self.reference)) for e in entropy]
+            for c, ref in enumerate(self.reference):
+                ref.reset_lanes(idx, [ch[c] for ch in children])
 
-        uses_std = "initial_state" not in options and "initial_state_std" in options
         draw: list[np.random.Generator | None] = [None] * k
-        if uses_std or self._needs_draw_rng(options):
+        if std is not None or self._needs_draw_rng(parsed):
             draw = [episode_streams(e, [_DRAW])[0] for e in entropy]
-        nominal, schedules = self._nominal(idx, options, draw)
+        nominal, keys = self._nominal(idx, parsed, draw)
 
         # Schedules: params(0) and the first step at which they may change again.
         params = np.array(nominal, dtype=float, copy=True)
+        self._schedule_id[idx] = -1
         self._next_change[idx] = _NEVER
-        for j, i in enumerate(idx):
-            sched = schedules[j]
-            if sched is None or not sched.time_varying:
-                self._schedules[i] = None
-                if sched is not None:
-                    params[j] = sched(0)
-                continue
-            (rng_sched,) = episode_streams(entropy[j], [_SCHED])
-            sched.reset(nominal[j], rng_sched)
-            params[j] = sched(0)
-            self._schedules[i] = sched
-            self._next_change[i] = _first_change(sched, 0)
+        for key in {key for key in keys if key is not None}:
+            rows = np.array([j for j, kj in enumerate(keys) if kj == key], dtype=np.int64)
+            lanes = idx[rows]
+            s = self._schedule_index(key)
+            sched = self._schedules[s]
+            rngs = [episode_streams(entropy[j], [_SCHED])[0] for j in rows]
+            sched.reset_lanes(lanes, params[rows], rngs)
+            zero = np.zeros(len(lanes), dtype=np.int64)
+            params[rows] = sched.values(zero, lanes)
+            if sched.time_varying:
+                self._schedule_id[lanes] = s
+                self._next_change[lanes] = sched.next_change(zero, lanes)
         self.params[idx] = params
-        self._set_lane_matrices(idx)
-        self._any_schedule = bool((self._next_change != _NEVER).any())
 
-        if "initial_state" in options:
-            x0 = _per_lane(options["initial_state"], self.num_envs, (n,), "initial_state")[idx]
-            if not np.all(np.isfinite(x0)):
-                raise ValueError("options['initial_state'] must be finite")
-            self.x[idx] = x0
-        elif uses_std:
-            std = float(options["initial_state_std"])
-            if not np.isfinite(std) or std < 0:
-                raise ValueError("options['initial_state_std'] must be a finite number >= 0")
+        if x0 is not None:
+            self.x[idx] = x0[idx]
+        elif std is not None:
             self.x[idx] = [std * g.standard_normal(n) for g in draw]
         elif self._proto._initial_state is not None:
             self.x[idx] = self._proto._initial_state
@@ -409,9 +456,12 @@ class LinearPlantVectorEnv(VectorEnv):
         self._terminated[idx] = False
         self._truncated[idx] = False
         self._needs_reset[idx] = False
-        y_clean = self._output(self.x[idx], None, idx)
+        y_clean = self._reset_outputs(idx)
         self.y_clean[idx] = y_clean
-        y = y_clean + self.noise_std * v0 if v0 is not None else y_clean
+        y = y_clean.copy()
+        if v0 is not None:
+            for j in range(k):
+                dynamics.add_noise(y[j], self.noise_std, v0[j])
         self._obs[idx, : self.n_outputs] = y
         self._obs[idx, self.n_outputs :] = self._references(self.t[idx], idx)
 
@@ -423,23 +473,38 @@ class LinearPlantVectorEnv(VectorEnv):
     ) -> tuple[NDArray, dict[str, Any]]:
         """Reset all lanes, or those of ``options["reset_mask"]``; see the module docstring."""
         B = self.num_envs
+        if options is not None and not isinstance(options, dict):
+            raise TypeError(f"options must be a dict or None, got {options!r}")
         options = dict(options or {})
         if seed is None:
             seeds: list[int | None] | None = None
-        elif isinstance(seed, (int, np.integer)):
-            super().reset(seed=int(seed))
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             seeds = [int(seed) + i for i in range(B)]
-        else:
+        elif isinstance(seed, (Sequence, np.ndarray)) and not isinstance(seed, str):
             seeds = list(seed)
             if len(seeds) != B:
                 raise ValueError(
                     f"a list of seeds must have num_envs={B} entries, got {len(seeds)}"
                 )
+            for s in seeds:
+                if s is not None and (
+                    isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0
+                ):
+                    raise ValueError(
+                        f"seed entries must be non-negative integers or None, got {s!r}"
+                    )
+        else:
+            raise TypeError(
+                f"seed must be an int, a list of num_envs={B} ints, or None, got {seed!r}"
+            )
         mask = options.pop("reset_mask", None)
         if mask is None:
             mask = np.ones(B, dtype=bool)
         else:
-            mask = np.asarray(mask)
+            try:
+                mask = np.asarray(mask)
+            except (TypeError, ValueError):
+                mask = np.zeros(0)  # ragged: reported below
             if mask.shape != (B,) or mask.dtype != np.bool_ or not mask.any():
                 raise ValueError(
                     f"options['reset_mask'] must be a bool array of shape ({B},) with a True entry"
@@ -447,23 +512,38 @@ class LinearPlantVectorEnv(VectorEnv):
         idx = np.flatnonzero(mask)
         if not self._started and not mask.all():
             raise ValueError("the first reset must reset every lane (no reset_mask)")
-        self._reset_lanes(idx, None if seeds is None else [seeds[i] for i in idx], options)
+        parsed, x0, std = self._check_options(options)
+        if isinstance(seed, (int, np.integer)):
+            super().reset(seed=int(seed))
+        self._reset_lanes(idx, None if seeds is None else [seeds[i] for i in idx], parsed, x0, std)
+        self._from_options[idx] = parsed is not None
         self._started = True
         return self._obs.copy(), self._infos(mask)
+
+    def _autoreset(self, idx: NDArray) -> None:
+        if not self._warned_revert and self._from_options[idx].any():
+            warnings.warn(
+                "autoreset: lanes whose parameters came from reset(options=...) start their next "
+                "episode with the constructor's plant (as SyncVectorEnv does); give per-lane "
+                "a/b to the constructor to keep them",
+                UserWarning,
+                stacklevel=3,
+            )
+            self._warned_revert = True
+        self._from_options[idx] = False
+        self._reset_lanes(idx, None)
 
     # ------------------------------------------------------------------ stepping
     def _references(self, k: NDArray, idx: NDArray | None = None) -> NDArray:
         """``r(k)`` of lanes ``idx`` (all lanes when ``None``), shape ``(len, p)``."""
-        if self._pure_refs:
-            return np.stack([_pure_reference_values(r, k) for r in self._proto.reference], axis=1)
-        lanes = range(self.num_envs) if idx is None else idx
-        return np.array(
-            [[ref(int(kk)) for ref in self._lane_refs[i]] for i, kk in zip(lanes, k, strict=True)]
-        ).reshape(len(k), self.n_outputs)
+        out = np.empty((len(k), self.n_outputs))
+        for c, ref in enumerate(self.reference):
+            out[:, c] = ref.values(k, idx)
+        return out
 
     def _check_actions(self, actions: ArrayLike, active: NDArray | None) -> NDArray:
         B, m = self.num_envs, self.n_inputs
-        u = np.asarray(actions, dtype=float)
+        u = _real_array(actions, "actions")
         if u.shape == (B,) and m == 1:
             u = u.reshape(B, 1)
         if u.shape != (B, m):
@@ -471,7 +551,7 @@ class LinearPlantVectorEnv(VectorEnv):
         ok = np.isfinite(u)
         if not ok.all() and (active is None or not ok[active].all()):
             raise ValueError("actions must be finite (no lane was stepped)")
-        return u
+        return np.ascontiguousarray(u)
 
     def step(self, actions: ArrayLike) -> tuple[NDArray, NDArray, NDArray, NDArray, dict[str, Any]]:
         """Advance every lane one step; see the module docstring for autoreset and infos."""
@@ -485,66 +565,30 @@ class LinearPlantVectorEnv(VectorEnv):
                 "reset(options={'reset_mask': mask}) before stepping (autoreset_mode DISABLED)"
             )
         any_reset = bool(autoreset.any())
-        u = self._check_actions(actions, ~autoreset if any_reset else None)
+        u_raw = self._check_actions(actions, ~autoreset if any_reset else None)
         if any_reset:  # ignored actions of resetting lanes may be anything
-            u = np.where(autoreset[:, None], 0.0, u)
-        b = self.action_bound
-        uc = np.clip(u, -b, b)
-        self._clipped = (uc != u).any(axis=1)
+            u_raw = np.where(autoreset[:, None], 0.0, u_raw)
+        r = self._references(self.t + 1)  # a user reference may raise: before any change
+        z_w = self._w.take() if self._w is not None else self._no_noise
+        z_v = self._v.take() if self._v is not None else self._no_noise
+        self._step_lanes(u_raw, z_w, z_v, r)
         self.n_clipped += self._clipped
-        u = uc
-
-        with np.errstate(over="ignore", invalid="ignore"):
-            x = self._advance_exact(u) if self.exact else self._advance(u)
-            if self._w is not None:
-                x += self.process_noise_std * self._w.take()
-            self.x = x
-            self.t += 1
-            if self._any_schedule:
-                self._update_schedules()
-            y_clean = self._output(x, u, None)
-            y = y_clean + self.noise_std * self._v.take() if self._v is not None else y_clean
-            r = self._references(self.t)
-            finite = np.isfinite(np.sum(x)) and np.isfinite(np.sum(y))
-            if finite:
-                diverged = (np.abs(y) > self.y_bound).any(axis=1)
-            else:
-                fin = np.isfinite(x).all(axis=1) & np.isfinite(y).all(axis=1)
-                diverged = ~fin | (np.abs(y) > self.y_bound).any(axis=1)
-                if not fin.all():
-                    # Keep observation and reward finite, as the single env does.
-                    bad = ~fin
-                    yb = np.clip(
-                        np.nan_to_num(y[bad], posinf=self.y_bound, neginf=-self.y_bound),
-                        -self.y_bound,
-                        self.y_bound,
-                    )
-                    y = y.copy() if y is y_clean else y
-                    y[bad] = yb
-                    y_clean = y_clean.copy()
-                    y_clean[bad] = yb
-            self.y_clean = y_clean
-            e = np.clip(y_clean, -self.y_bound, self.y_bound) - r
-            if self.n_outputs == 1 and self.n_inputs == 1:
-                rewards = -(e[:, 0] * e[:, 0] + self.control_cost * (u[:, 0] * u[:, 0]))
-            else:
-                rewards = -(
-                    np.einsum("ij,ij->i", e, e) + self.control_cost * np.einsum("ij,ij->i", u, u)
-                )
-        self._diverged = diverged
-        terminated = diverged.copy()
+        self.t += 1
+        self._update_schedules()
+        rewards = self._reward.copy()
+        terminated = self._diverged.copy()
         if self.max_episode_steps is not None:
             truncated = self.t >= self.max_episode_steps
         else:
             truncated = np.zeros(self.num_envs, dtype=bool)
         obs = self._obs
-        obs[:, : self.n_outputs] = y
+        obs[:, : self.n_outputs] = self._y
         obs[:, self.n_outputs :] = r
 
         final: dict[str, Any] = {}
         if any_reset:  # NEXT_STEP: lanes that ended last step start over instead
             idx = np.flatnonzero(autoreset)
-            self._reset_lanes(idx, None, {})
+            self._autoreset(idx)
             rewards[idx] = 0.0
             terminated[idx] = False
             truncated[idx] = False
@@ -556,7 +600,7 @@ class LinearPlantVectorEnv(VectorEnv):
                 final_obs[i] = obs[i].copy()
             final["final_obs"], final["_final_obs"] = final_obs, done.copy()
             final["final_info"], final["_final_info"] = self._infos(done), done.copy()
-            self._reset_lanes(idx, None, {})
+            self._autoreset(idx)
             self._needs_reset[:] = False
         else:
             self._needs_reset = done
@@ -565,22 +609,54 @@ class LinearPlantVectorEnv(VectorEnv):
         infos.update(final)
         return obs.copy(), rewards, terminated, truncated, infos
 
-    def _update_schedules(self) -> None:
-        """Re-read the parameters of lanes whose schedule may have changed at their step."""
-        for i in np.flatnonzero(self._next_change <= self.t):
-            sched = self._schedules[i]
-            if sched is None:  # lane reset to a constant plant
-                self._next_change[i] = _NEVER
-                continue
-            k = int(self.t[i])
-            self.params[i] = sched(k)
-            self._set_lane_matrices([i])
-            self._next_change[i] = _first_change(sched, k)
-        self._any_schedule = bool((self._next_change != _NEVER).any())
-        self._params_changed()
+    # ------------------------------------------------------------------ rollouts
+    def lookahead(self, steps: int) -> dict[str, Any]:
+        """What the next ``steps`` calls of :meth:`step` would use, without changing the env.
 
-    def _params_changed(self) -> None:
-        """Hook: some lanes' parameters were rewritten."""
+        For a compiled rollout of ``T = steps`` steps of every lane (no lane resetting in
+        between). Returns a dict of arrays: ``"r"`` ``(B, T, p)`` with ``r[:, j] = r(t + 1 + j)``
+        (the reference returned with the observation of step ``j``), ``"z_v"`` ``(B, T, p)``
+        and ``"z_w"`` ``(B, T, n)`` the standard normals of the output and process noise (zeros
+        when that noise is off), and ``"params"``: ``None`` for constant plants, else
+        ``(B, T, *param_shape)`` with the parameters in force at step ``t + j``. Feeding these
+        to the lane functions of :mod:`stcgym.envs.dynamics` reproduces the env bit for bit.
+        """
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+            raise ValueError(f"steps must be a positive integer, got {steps!r}")
+        if not self._started:
+            raise RuntimeError("call reset() before lookahead()")
+        T, B, n, p = int(steps), self.num_envs, self.n_states, self.n_outputs
+        refs = copy.deepcopy(self.reference)
+        scheds = copy.deepcopy(self._schedules)
+        v, w = copy.deepcopy(self._v), copy.deepcopy(self._w)
+        out: dict[str, Any] = {
+            "r": np.empty((B, T, p)),
+            "z_v": np.zeros((B, T, p)),
+            "z_w": np.zeros((B, T, n)),
+            "params": None,
+        }
+        varying = bool((self._schedule_id >= 0).any())
+        if varying:
+            out["params"] = np.empty((B, T, *self.params.shape[1:]))
+        params = self.params.copy()
+        next_change = self._next_change.copy()
+        for j in range(T):
+            k = self.t + j
+            for c, ref in enumerate(refs):
+                out["r"][:, j, c] = ref.values(k + 1)
+            if v is not None:
+                out["z_v"][:, j] = v.take()
+            if w is not None:
+                out["z_w"][:, j] = w.take()
+            if varying:
+                due = np.flatnonzero(next_change <= k)
+                for s, sched in enumerate(scheds):
+                    lanes = due[self._schedule_id[due] == s]
+                    if lanes.size:
+                        params[lanes] = sched.values(k[lanes], lanes)
+                        next_change[lanes] = sched.next_change(k[lanes], lanes)
+                out["params"][:, j] = params
+        return out
 
     # ------------------------------------------------------------------ infos
     def _infos(self, mask: NDArray) -> dict[str, Any]:
@@ -611,14 +687,19 @@ class LinearPlantVectorEnv(VectorEnv):
             self.t,
             self.y_clean,
             self.n_clipped,
+            self._u,
+            self._y,
+            self._reward,
             self._clipped,
             self._diverged,
             self._terminated,
             self._truncated,
             self._needs_reset,
+            self._from_options,
+            self._schedule_id,
             self._next_change,
             self.params,
-            getattr(self, "_obs", np.zeros(0)),
+            self._obs,
         ]
         total = sum(a.nbytes for a in arrays)
         total += sum(s.nbytes for s in (self._v, self._w) if s is not None)
@@ -627,15 +708,16 @@ class LinearPlantVectorEnv(VectorEnv):
     def close_extras(self, **kwargs: Any) -> None:
         pass
 
-
-def _first_change(sched: Schedule, k: int) -> int:
-    """First step after ``k`` at which ``sched`` may return different parameters."""
-    if isinstance(sched, Constant):
-        return _NEVER
-    if type(sched) is Jumps:
-        later = sched._steps[sched._steps > k]
-        return int(later[0]) if later.size else _NEVER
-    return k + 1  # Ramp, RandomWalk, user schedules: every step
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        spec = state.get("spec")
+        if spec is not None and "sys" in getattr(spec, "kwargs", {}):
+            # As StateSpaceEnv: re-specify a python-control system (holds a lambda) by matrices.
+            proto = self._proto
+            kwargs = {k: v for k, v in spec.kwargs.items() if k not in ("sys", "canonical")}
+            kwargs.update(A=proto._A0, B=proto._B0, C=proto._C, D=proto._D, dt=proto.dt)
+            state["spec"] = dataclasses.replace(spec, kwargs=kwargs)
+        return state
 
 
 class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
@@ -653,7 +735,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         a, b = kwargs.get("a"), kwargs.get("b")
         self._lane_theta: NDArray | None = None
         if a is not None and b is not None and np.ndim(a) == 2 and np.ndim(b) == 2:
-            a2, b2 = np.asarray(a, float), np.asarray(b, float)
+            a2, b2 = _real_array(a, "a"), _real_array(b, "b")
             if a2.shape != b2.shape or a2.shape[0] != self.num_envs:
                 raise ValueError(
                     f"per-lane a and b must both have shape (num_envs={self.num_envs}, n), "
@@ -667,12 +749,14 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
 
     def _init_params(self) -> None:
         B, n = self.num_envs, self.n_states
-        self.params = np.zeros((B, 2 * n))
-        self.plant_index = np.full(B, -1, dtype=np.int64)
         proto: CanonicalPlantEnv = self._proto  # type: ignore[assignment]
+        self.params = np.zeros((B, 2 * n))
+        self.params[:] = proto.params if self._lane_theta is None else self._lane_theta
+        self.plant_index = np.full(B, -1 if proto.plant is None else 0, dtype=np.int64)
         self._family: list[PlantSpec] = proto._family
         self._family_theta = np.array([proto._theta_of(s) for s in self._family]).reshape(-1, 2 * n)
         self.form = proto.form
+        self._form_code = proto._form_code
 
     @property
     def theta(self) -> NDArray:
@@ -684,35 +768,53 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         """Each lane's catalogue plant of this episode (``None`` for user parameters)."""
         return [self._family[j] if j >= 0 else None for j in self.plant_index]
 
-    def _needs_draw_rng(self, options: dict[str, Any]) -> bool:
-        overridden = any(key in options for key in ("theta", "a", "b", "plant"))
-        return not overridden and len(self._family) > 1
+    def _parse_options(self, options: dict[str, Any]) -> Any:
+        n, B = self.n_states, self.num_envs
+        if ("a" in options) != ("b" in options):
+            raise ValueError("options 'a' and 'b' must be given together (theta = [a; b])")
+        if "theta" in options:
+            th = _real_array(options["theta"], "options['theta']")
+            if th.ndim == 2:
+                return ("theta", _lane_rows(th, B, 2 * n, "options['theta']"), None)
+            theta = np.concatenate(split_theta(th))
+        elif "a" in options or "b" in options:
+            a_opt, b_opt = options.get("a"), options.get("b")
+            if np.ndim(a_opt) == 2 or np.ndim(b_opt) == 2:
+                a2 = _lane_rows(_real_array(a_opt, "options['a']"), B, n, "options['a']")
+                b2 = _lane_rows(_real_array(b_opt, "options['b']"), B, n, "options['b']")
+                return ("theta", np.hstack((a2, b2)), None)
+            theta = np.concatenate(check_ab(a_opt, b_opt))
+        elif "plant" in options:
+            spec = get_plant(options["plant"])
+            if spec.n != n:
+                raise ValueError(
+                    f"options['plant'] {spec.name!r} has order {spec.n}, the env has order {n}"
+                )
+            return ("plant", self._proto._theta_of(spec), spec)
+        else:
+            return None
+        if theta.size != 2 * n:
+            raise ValueError(
+                f"episode parameters must have order n={n} like the env "
+                f"(theta of length {2 * n}), got length {theta.size}"
+            )
+        return ("theta", np.broadcast_to(theta, (B, 2 * n)), None)
+
+    def _needs_draw_rng(self, parsed: Any) -> bool:
+        return parsed is None and len(self._family) > 1
 
     def _nominal(
-        self, idx: NDArray, options: dict[str, Any], draw: list[np.random.Generator | None]
-    ) -> tuple[NDArray, list[Schedule | None]]:
+        self, idx: NDArray, parsed: Any, draw: list[np.random.Generator | None]
+    ) -> tuple[NDArray, list[Hashable | None]]:
         proto: CanonicalPlantEnv = self._proto  # type: ignore[assignment]
         n, k = self.n_states, len(idx)
         specs: list[PlantSpec | None] = [None] * k
         index = np.full(k, -1, dtype=np.int64)
-        if "theta" in options:
-            th = np.asarray(options["theta"], dtype=float)
-            theta = (
-                _lane_rows(th, self.num_envs, idx, 2 * n, "options['theta']")
-                if th.ndim == 2
-                else np.broadcast_to(np.concatenate(split_theta(th)), (k, th.size))
-            )
-        elif "a" in options or "b" in options:
-            a_opt, b_opt = options.get("a"), options.get("b")
-            if np.ndim(a_opt) == 2 or np.ndim(b_opt) == 2:
-                a2 = _lane_rows(np.asarray(a_opt, float), self.num_envs, idx, n, "options['a']")
-                b2 = _lane_rows(np.asarray(b_opt, float), self.num_envs, idx, n, "options['b']")
-                theta = np.hstack((a2, b2))
-            else:
-                theta = np.broadcast_to(np.concatenate(check_ab(a_opt, b_opt)), (k, 2 * n))
-        elif "plant" in options:
-            spec = get_plant(options["plant"])
-            theta = np.broadcast_to(proto._theta_of(spec), (k, 2 * spec.n))
+        if parsed is not None and parsed[0] == "theta":
+            theta = parsed[1][idx]
+        elif parsed is not None:  # a catalogue plant for these lanes
+            spec = parsed[2]
+            theta = np.broadcast_to(parsed[1], (k, 2 * n))
             specs = [spec] * k
             index[:] = self._family.index(spec) if spec in self._family else -1
         elif self._family:
@@ -726,37 +828,32 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
             theta = self._lane_theta[idx]
         else:
             theta = np.broadcast_to(proto._user_theta, (k, 2 * n))
-        if theta.shape[1] != 2 * n:
-            raise ValueError(
-                f"episode parameters must have order n={n} like the env "
-                f"(theta of length {2 * n}), got length {theta.shape[1]}"
-            )
-        if not np.all(np.isfinite(theta)):
-            raise ValueError("episode parameters must be finite")
         self.plant_index[idx] = index
-        schedules: list[Schedule | None]
         if proto._user_schedule:
-            user = proto.schedule
-            schedules = [copy.deepcopy(user) if user.time_varying else None for _ in range(k)]
+            keys: list[Hashable | None] = [_USER] * k
         else:
-            schedules = [
-                proto._catalogue_schedule(s) if s is not None and s.schedule else None
-                for s in specs
-            ]
-        return theta, schedules
+            keys = [s.name if s is not None and s.schedule else None for s in specs]
+        return theta, keys
 
-    def _output(self, x: NDArray, u: NDArray | None, idx: NDArray | None = None) -> NDArray:
-        return x[:, :1].copy()  # C = e1, D = 0: C x + D u is x_1 exactly
+    def _make_schedule(self, key: Hashable) -> Schedule:
+        if key == _USER:
+            return super()._make_schedule(key)
+        return self._proto._catalogue_schedule(get_plant(str(key)))
 
-    def _lane_matrices(self, params: NDArray) -> tuple[NDArray, NDArray]:
-        n = self.n_states
-        k = params.shape[0]
-        A = np.tile(np.eye(n, k=1), (k, 1, 1))
-        if self.form == "observer":
-            A[:, :, 0] = -params[:, :n]
-        else:
-            A[:, -1, :] = -params[:, n - 1 :: -1]
-        return A, params[:, n:, None].copy()
+    def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
+        B = self.num_envs  # SISO: one column per lane, as (B,) views
+        dynamics.canonical_plants_step(
+            self.x, self.params, u_raw.reshape(B), self.action_bound, self.process_noise_std,
+            z_w, self.noise_std, z_v.reshape(B) if z_v.size else self._no_noise_1d,
+            r.reshape(B), self.control_cost, self.y_bound, self._form_code, self._u.reshape(B),
+            self.y_clean.reshape(B), self._y.reshape(B), self._reward, self._clipped,
+            self._diverged,
+        )  # fmt: skip
+
+    def _reset_outputs(self, idx: NDArray) -> NDArray:
+        y = np.empty((len(idx), 1))
+        dynamics.canonical_outputs(self.x, idx, y)
+        return y
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:
         theta = self.params.copy()
@@ -765,49 +862,22 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         infos["theta"], infos["a"], infos["b"] = theta, theta[:, :n], theta[:, n:]
 
 
-def _lane_rows(arr: NDArray, num_envs: int, idx: NDArray, width: int, name: str) -> NDArray:
+def _lane_rows(arr: NDArray, num_envs: int, width: int, name: str) -> NDArray:
     if arr.shape != (num_envs, width) or not np.all(np.isfinite(arr)):
         raise ValueError(f"per-lane {name} must be finite with shape ({num_envs}, {width})")
-    return arr[idx]
+    return arr
 
 
 class ObserverCanonicalVectorEnv(CanonicalPlantVectorEnv):
-    """Vector version of :class:`~stcgym.envs.plants.ObserverCanonicalEnv` (eq. (1)-(5)).
-
-    ``x(k+1)_i = -a_i x_1 + x_{i+1} + b_i u`` (``x_{n+1} = 0``), ``y = x_1``.
-    """
+    """Vector version of :class:`~stcgym.envs.plants.ObserverCanonicalEnv` (eq. (1)-(5))."""
 
     single_cls = ObserverCanonicalEnv
 
-    def _advance(self, u: NDArray) -> NDArray:
-        n = self.n_states
-        th, x = self.params, self.x
-        xn = th[:, :n] * x[:, :1]
-        np.negative(xn, out=xn)
-        xn[:, :-1] += x[:, 1:]
-        xn += th[:, n:] * u
-        return xn
-
 
 class ObservabilityCanonicalVectorEnv(CanonicalPlantVectorEnv):
-    """Vector version of :class:`~stcgym.envs.plants.ObservabilityCanonicalEnv` (eq. (146)).
-
-    ``x(k+1)_i = x_{i+1} + b_i u`` for ``i < n``, ``x(k+1)_n = -sum_j a_{n+1-j} x_j + b_n u``.
-    """
+    """Vector version of :class:`~stcgym.envs.plants.ObservabilityCanonicalEnv` (eq. (146))."""
 
     single_cls = ObservabilityCanonicalEnv
-
-    def _advance(self, u: NDArray) -> NDArray:
-        n = self.n_states
-        th, x = self.params, self.x
-        xn = np.empty_like(x)
-        xn[:, :-1] = x[:, 1:]
-        last = th[:, n - 1] * x[:, 0]
-        for j in range(1, n):
-            last += th[:, n - 1 - j] * x[:, j]
-        xn[:, -1] = -last
-        xn += th[:, n:] * u
-        return xn
 
 
 class StateSpaceVectorEnv(LinearPlantVectorEnv):
@@ -822,76 +892,55 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
     def _init_params(self) -> None:
         proto: StateSpaceEnv = self._proto  # type: ignore[assignment]
         n, m = proto._B0.shape
+        self._AB0 = np.ascontiguousarray(np.hstack((proto._A0, proto._B0)))
         self.params = np.zeros((self.num_envs, n, n + m))
-        self._AB0 = np.hstack((proto._A0, proto._B0))
+        self.params[:] = self._AB0
         self._C, self._D = proto._C, proto._D
-        self._shared = True  # every lane runs the nominal [A B]: one matrix product
+        self._tmp = np.zeros((self.num_envs, n))
 
-    def _nominal(
-        self, idx: NDArray, options: dict[str, Any], draw: list[np.random.Generator | None]
-    ) -> tuple[NDArray, list[Schedule | None]]:
+    def _parse_options(self, options: dict[str, Any]) -> Any:
+        if "A" not in options and "B" not in options:
+            return None
         proto: StateSpaceEnv = self._proto  # type: ignore[assignment]
         n, m = proto._B0.shape
+        B = self.num_envs
+        A = _lane_matrix(options, "A", (n, n), B, proto._A0)
+        Bm = _lane_matrix(options, "B", (n, m), B, proto._B0)
+        return np.concatenate((A, Bm), axis=2)
+
+    def _nominal(
+        self, idx: NDArray, parsed: Any, draw: list[np.random.Generator | None]
+    ) -> tuple[NDArray, list[Hashable | None]]:
         k = len(idx)
-        A = self._lane_matrix(options, "A", (n, n), idx, proto._A0)
-        Bm = self._lane_matrix(options, "B", (n, m), idx, proto._B0)
-        nominal = np.concatenate((A, Bm), axis=2)
-        sched = proto.schedule
-        schedules = [copy.deepcopy(sched) if sched.time_varying else None for _ in range(k)]
-        if "A" in options or "B" in options or sched.time_varying:
-            self._shared = False
-        elif len(idx) == self.num_envs:
-            self._shared = True
-        return nominal, schedules
-
-    def _lane_matrix(
-        self, options: dict[str, Any], key: str, shape: tuple[int, int], idx: NDArray, default
-    ) -> NDArray:
-        if key not in options:
-            return np.broadcast_to(default, (len(idx), *shape))
-        arr = np.asarray(options[key], dtype=float)
-        if arr.shape == shape:
-            arr = np.broadcast_to(arr, (len(idx), *shape))
-        elif arr.shape == (self.num_envs, *shape):
-            arr = arr[idx]
+        if parsed is None:
+            nominal = np.broadcast_to(self._AB0, (k, *self._AB0.shape))
         else:
-            raise ValueError(
-                f"options['{key}'] must have shape {shape} or {(self.num_envs, *shape)}, "
-                f"got {arr.shape}"
-            )
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"options['{key}'] must be finite")
-        return arr
+            nominal = parsed[idx]
+        return nominal, [_USER if self._proto.schedule.time_varying else None] * k
 
-    def _params_changed(self) -> None:
-        self._shared = False
+    def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
+        dynamics.state_space_plants_step(
+            self.x, self.params, self._C, self._D, u_raw, self.action_bound,
+            self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
+            self.y_bound, self._u, self.y_clean, self._y, self._reward, self._clipped,
+            self._diverged, self._tmp,
+        )  # fmt: skip
 
-    def _lane_matrices(self, params: NDArray) -> tuple[NDArray, NDArray]:
-        n = self.n_states
-        return params[:, :, :n].copy(), params[:, :, n:].copy()
-
-    def _advance(self, u: NDArray) -> NDArray:
-        n = self.n_states
-        if self._shared:
-            return self.x @ self._AB0[:, :n].T + u @ self._AB0[:, n:].T
-        P = self.params
-        return np.einsum("bij,bj->bi", P[:, :, :n], self.x) + np.einsum(
-            "bij,bj->bi", P[:, :, n:], u
-        )
-
-    def _output(self, x: NDArray, u: NDArray | None, idx: NDArray | None = None) -> NDArray:
-        if self.exact:
-            y = (self._C @ x[:, :, None])[:, :, 0]
-            if u is not None:
-                y = y + (self._D @ u[:, :, None])[:, :, 0]
-            return y
-        y = x @ self._C.T
-        if u is not None:
-            y = y + u @ self._D.T
+    def _reset_outputs(self, idx: NDArray) -> NDArray:
+        y = np.empty((len(idx), self.n_outputs))
+        dynamics.state_outputs(self.x, idx, self._C, y)
         return y
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:
         infos["params"] = self.params.copy()
+
+
+def _lane_matrix(
+    options: dict[str, Any], key: str, shape: tuple[int, int], num_envs: int, default: NDArray
+) -> NDArray:
+    if key not in options:
+        return np.broadcast_to(default, (num_envs, *shape))
+    return _per_lane(options[key], num_envs, shape, f"options['{key}']")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import warnings
 
 import control
@@ -371,3 +372,64 @@ def test_bad_actions_raise():
         mimo.step(np.array([1.0]))
     with pytest.raises(ValueError, match="initial_state"):
         env.reset(options={"initial_state": [1.0]})
+
+
+LANE_REFERENCES = [
+    SquareWave(period=7, amplitude=2.0, offset=0.5),
+    PRBS(hold=3),
+    make_reference({"kind": "sine", "period": 11.5, "phase": 0.3}),
+    make_reference({"kind": "step", "at": 4, "initial": -1.0}),
+    make_reference([0.1, 0.2, 0.3]),
+    make_reference(lambda k: 0.1 * k),
+    make_reference("zero"),
+]
+
+
+@pytest.mark.parametrize("ref", LANE_REFERENCES, ids=lambda r: type(r).__name__)
+def test_references_give_each_lane_its_single_lane_values(ref):
+    """values(k, lanes) on B lanes (each at its own step) equals B one-lane references reset
+    with the same generators: the vector env needs no type switch over reference classes."""
+    B, T = 4, 40
+    seeds = np.random.SeedSequence(5).spawn(B)
+    batch = copy.deepcopy(ref)
+    batch.allocate(B)
+    batch.reset_lanes(np.arange(B), [np.random.default_rng(s) for s in seeds])
+    singles = [copy.deepcopy(ref) for _ in range(B)]
+    for single, s in zip(singles, seeds, strict=True):
+        single.reset(np.random.default_rng(s))
+    offsets = np.array([0, 3, 9, 1])
+    for k in range(T):
+        got = batch.values(k + offsets)
+        want = [single(int(k + o)) for single, o in zip(singles, offsets, strict=True)]
+        np.testing.assert_array_equal(got, want)
+    lanes = np.array([2, 0])
+    np.testing.assert_array_equal(
+        batch.values(np.array([T + 9, T]), lanes), [singles[2](T + 9), singles[0](T)]
+    )
+
+
+@pytest.mark.parametrize(
+    "schedule",
+    [Jumps({5: [0.0, 1.0], 12: [2.0, 2.0]}), Ramp([1.0, -1.0], 3, 15), RandomWalk(0.1, start=2)],
+    ids=lambda s: type(s).__name__,
+)
+def test_schedules_give_each_lane_its_single_lane_values(schedule):
+    B, T = 3, 25
+    nominal = np.array([[0.5, 0.5], [1.0, 0.0], [-1.0, 3.0]])
+    seeds = np.random.SeedSequence(2).spawn(B)
+    batch = copy.deepcopy(schedule)
+    batch.allocate(B)
+    batch.reset_lanes(np.arange(B), nominal, [np.random.default_rng(s) for s in seeds])
+    singles = [copy.deepcopy(schedule) for _ in range(B)]
+    for single, nom, s in zip(singles, nominal, seeds, strict=True):
+        single.reset(nom, np.random.default_rng(s))
+    k = np.zeros(B, dtype=np.int64)
+    for _ in range(T):
+        want = np.array([single(int(kk)) for single, kk in zip(singles, k, strict=True)])
+        np.testing.assert_array_equal(batch.values(k), want)
+        # next_change never skips a change: values are constant strictly before it.
+        nxt = batch.next_change(k)
+        for i in range(B):
+            if nxt[i] > k[i] + 1 and nxt[i] < k[i] + 50:
+                np.testing.assert_array_equal(singles[i](int(nxt[i]) - 1), want[i])
+        k = k + np.array([1, 2, 1])

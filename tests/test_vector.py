@@ -8,6 +8,7 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 import stcgym.envs  # noqa: F401 - registers the single envs
+from stcgym.envs.signals import Jumps, Ramp, RandomWalk
 from stcgym.envs.vector import (
     ObservabilityCanonicalVectorEnv,
     ObserverCanonicalVectorEnv,
@@ -23,6 +24,16 @@ SINGLE_IDS = {
 
 CASES = [
     (ObserverCanonicalVectorEnv, dict(noise_std=0.1), None),
+    (
+        ObserverCanonicalVectorEnv,
+        dict(plant="stable4", schedule=RandomWalk(0.002), process_noise_std=0.01, reference=0.5),
+        {"initial_state": [0.1, 0.0, -0.1, 0.2]},
+    ),
+    (
+        ObserverCanonicalVectorEnv,
+        dict(a=[-1.5, 0.7], b=[1.0, 0.5], schedule=Ramp([-1.2, 0.52, 0.9, 0.3], 20, 60)),
+        None,
+    ),
     (
         ObserverCanonicalVectorEnv,
         dict(
@@ -44,14 +55,26 @@ CASES = [
         dict(A=[[0.9, 0.1], [0.0, 0.8]], B=[[1.0, 0.0], [0.0, 1.0]], noise_std=0.1),
         None,
     ),
+    (
+        StateSpaceVectorEnv,
+        dict(
+            C=[[1.0, -0.5]],
+            D=[[0.2, 0.1]],
+            process_noise_std=0.02,
+            schedule=Jumps({30: [[0.5, 0.2, 1.0, 0.0], [0.1, 0.6, 0.0, 1.0]]}),
+            reference=[{"kind": "sine", "period": 17}],
+        ),
+        {"A": [[0.7, 0.1], [0.0, 0.9]]},
+    ),
+    (StateSpaceVectorEnv, dict(reference=["prbs", "step"], noise_std=0.05), None),
 ]
 
 
-def _run_pair(vcls, kwargs, options, *, exact, B=4, T=260, mes=90, seed=7):
+def _run_pair(vcls, kwargs, options, *, B=4, T=260, mes=90, seed=7):
     """Step a vector env and B single envs (NEXT_STEP autoreset by hand) with one action
     sequence; yield both results per step."""
     seeds = [seed + 3 * i for i in range(B)]
-    venv = vcls(num_envs=B, max_episode_steps=mes, exact=exact, **kwargs)
+    venv = vcls(num_envs=B, max_episode_steps=mes, **kwargs)
     envs = [gym.make(SINGLE_IDS[vcls], max_episode_steps=mes, **kwargs) for _ in range(B)]
     vo, vi = venv.reset(seed=seeds, options=options)
     singles = [e.reset(seed=s, options=options) for e, s in zip(envs, seeds, strict=True)]
@@ -73,37 +96,37 @@ def _run_pair(vcls, kwargs, options, *, exact, B=4, T=260, mes=90, seed=7):
 
 
 @pytest.mark.equality
-@pytest.mark.parametrize("exact", [True, False])
+@pytest.mark.filterwarnings("ignore:autoreset")  # options A: reverts on autoreset, as singles do
 @pytest.mark.parametrize(("vcls", "kwargs", "options"), CASES)
-def test_vector_env_equals_single_envs(vcls, kwargs, options, exact):
-    """Lane i reproduces gym.make(...) reset with seed s_i: observations, rewards, flags and
-    info, across autoresets, to 1e-12 relative. ``exact=True`` repeats the single env's matrix
-    products on stacked arrays, but OpenBLAS may pick another kernel for a stacked product
-    than for a single one (by CPU), so both modes are "equal to rounding"; the stable test
-    plants do not amplify a last-bit difference beyond 1e-12 over the episode."""
-    rtol = 1e-12
-    for vo, vi, so, si, vout, souts, _ in _run_pair(vcls, kwargs, options, exact=exact):
+def test_vector_env_equals_single_envs(vcls, kwargs, options):
+    """Lane i reproduces gym.make(...) reset with seed s_i bit for bit: observations, rewards,
+    flags and info, across autoresets. Both run the same compiled lane function of
+    stcgym.envs.dynamics (no BLAS) on the same numbers, and references and schedules give a
+    lane the values a single env gets."""
+    for vo, vi, so, si, vout, souts, _ in _run_pair(vcls, kwargs, options):
         for i, (o, info) in enumerate(zip(so, si, strict=True)):
-            np.testing.assert_allclose(vo[i], o, rtol=rtol, atol=1e-12)
+            np.testing.assert_array_equal(vo[i], o)
             for key, val in info.items():
                 assert vi["_" + key][i]
-                np.testing.assert_allclose(
-                    np.asarray(vi[key][i], float),
-                    np.asarray(val, float),
-                    rtol=rtol,
-                    atol=1e-12,
-                )
+                np.testing.assert_array_equal(np.asarray(vi[key][i], float), np.asarray(val, float))
         if vout is not None:
-            rew = np.array([s[1] for s in souts])
-            np.testing.assert_allclose(vout[1], rew, rtol=rtol, atol=1e-12)
+            np.testing.assert_array_equal(vout[1], [s[1] for s in souts])
             assert np.array_equal(vout[2], [s[2] for s in souts])
             assert np.array_equal(vout[3], [s[3] for s in souts])
+
+
+def test_exact_is_deprecated_and_ignored():
+    with pytest.warns(DeprecationWarning, match="exact"):
+        venv = ObserverCanonicalVectorEnv(num_envs=2, exact=True)
+    o1, _ = venv.reset(seed=3)
+    o2, _ = ObserverCanonicalVectorEnv(num_envs=2).reset(seed=3)
+    np.testing.assert_array_equal(o1, o2)
 
 
 def test_per_lane_parameters_and_options():
     a = np.array([[-1.5, 0.7], [-1.2, 0.52], [-1.7, 0.66]])
     b = np.array([[1.0, 0.5], [0.9, 0.3], [0.5, 0.3]])
-    venv = ObserverCanonicalVectorEnv(num_envs=3, a=a, b=b, exact=True)
+    venv = ObserverCanonicalVectorEnv(num_envs=3, a=a, b=b)
     venv.reset(seed=1)
     np.testing.assert_array_equal(venv.theta, np.hstack((a, b)))
     theta = np.array([[-1.0, 0.3, 1.0, 0.0]] * 3)
@@ -180,12 +203,12 @@ def test_make_vec_uses_the_vector_entry_point():
         assert type(envs) is vcls and envs.max_episode_steps == 1000
 
 
+@pytest.mark.equality
 def test_make_vec_vector_entry_point_equals_sync_vector_env():
-    """Same seeds and actions: the numpy vector env (exact=True) and gymnasium's
-    SyncVectorEnv of single envs give identical observations, rewards and autoresets."""
-    kw = dict(plant="unstable2", noise_std=0.1, max_episode_steps=30, exact=True)
+    """Same seeds and actions: the native vector env and gymnasium's SyncVectorEnv of single
+    envs give identical observations, rewards and autoresets (bit for bit)."""
+    kw = dict(plant="unstable2", noise_std=0.1, max_episode_steps=30)
     ours = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, **kw)
-    kw.pop("exact")
     sync = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, vectorization_mode="sync", **kw)
     assert isinstance(sync, gym.vector.SyncVectorEnv)
     o1, _ = ours.reset(seed=[4, 5, 6])
@@ -221,3 +244,39 @@ def test_sb3_adapter_trains_ppo():
     model.learn(total_timesteps=512)
     action, _ = model.predict(vec.reset(), deterministic=True)
     assert action.shape == (8, 1)
+
+
+@pytest.mark.equality
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(plant=["stable2", "timevarying2"], noise_std=0.1, reference="prbs"),
+        dict(plant="stable4", process_noise_std=0.05, schedule=RandomWalk(0.001)),
+    ],
+)
+def test_lookahead_feeds_a_compiled_rollout_equal_to_the_env(kwargs):
+    """lookahead(T) (references, parameters, noise of the next T steps) leaves the env as it
+    was, and T calls of the published lane function on them reproduce T env steps exactly."""
+    from stcgym.envs import dynamics
+
+    B, T = 3, 40
+    venv = ObserverCanonicalVectorEnv(num_envs=B, max_episode_steps=None, **kwargs)
+    venv.reset(seed=[3, 4, 5])
+    for _ in range(5):
+        venv.step(np.full((B, 1), 0.1))
+    plan = venv.lookahead(T)
+    x, theta = venv.x.copy(), venv.params.copy()
+    u_seq = np.random.default_rng(1).uniform(-1, 1, (T, B, 1))
+    form = dynamics.FORM_CODES[venv.form]
+    for j in range(T):
+        obs, rew, *_ = venv.step(u_seq[j])
+        if plan["params"] is not None:
+            theta = np.ascontiguousarray(plan["params"][:, j])
+        for i in range(B):
+            reward, _, _, _, _, y = dynamics.canonical_plant_step(
+                x[i], theta[i], u_seq[j, i, 0], venv.action_bound, venv.process_noise_std,
+                plan["z_w"][i, j], venv.noise_std, plan["z_v"][i, j, 0], plan["r"][i, j, 0],
+                venv.control_cost, venv.y_bound, form,
+            )  # fmt: skip
+            assert reward == rew[i] and y == obs[i, 0] and plan["r"][i, j, 0] == obs[i, 1]
+        np.testing.assert_array_equal(x, venv.x)

@@ -1,0 +1,535 @@
+"""The plant step, written once: compiled lane functions shared by every stcgym plant.
+
+Every environment of :mod:`stcgym.envs.plants` (one plant) and :mod:`stcgym.envs.vector`
+(``B`` plants) advances its plant with the functions of this module, following the convention of
+:mod:`stcgym.envs.compiled`: a *lane function* advances one plant on 1-D (or 2-D matrix) views of
+that plant's arrays, and a *batch loop* is ``for i in prange(B): lane_fn(X[i], ...)``. A single
+env therefore equals lane ``i`` of the vector env bit for bit, on any CPU: the same machine code
+runs on the same numbers (no BLAS inside; the small loops are written out).
+
+Plants (seed paper: Ding & Ma 2014)
+-----------------------------------
+* observer canonical form, eq. (1)-(5) (``form = OBSERVER = 0``):
+  ``x(t+1) = A(a) x(t) + b u(t) + w(t)``, ``A(a)`` with ``-a`` in its first column and ones on
+  the superdiagonal, ``y(t) = c x(t) + v(t)``, ``c = [1, 0, ..., 0]``;
+* observability canonical form, eq. (146)-(147) (``form = OBSERVABILITY = 1``): ``A(a)`` a shift
+  with last row ``[-a_n, ..., -a_1]``, ``b`` the first ``n`` Markov parameters, same ``c``;
+* a general state space ``x(k+1) = A x + B u + w``, ``y = C x + D u + v`` (MIMO);
+* the multichannel static object ``y^T = u^T Theta + v^T`` (Voevoda & Troshina 2017): no state.
+
+Both canonical forms share the parameter vector ``theta = [a1..an, b1..bn]``.
+
+Timing and reward (the environments' contract)
+-----------------------------------------------
+At step ``k`` the input ``u(k)`` is clipped to ``[-action_bound, action_bound]``, the state
+advances with the parameters in force at ``k``, and the output is
+``y(k+1) = C x(k+1) + D u(k) + sigma_v z_v``; the reward is
+``-(||clip(y_clean, +-y_bound) - r(k+1)||^2 + rho ||u(k)||^2)`` on the noise-free output
+``y_clean``. ``diverged`` is true when an output leaves ``[-y_bound, y_bound]``, the state or
+output stops being finite (then ``y`` and ``y_clean`` are replaced by their clipped values, NaN
+by 0, so the observation stays finite) or the reward overflows (then the reward is
+:data:`REWARD_FLOOR`, the most negative finite float): an episode never returns a non-finite
+reward or observation.
+
+Published signatures (also used by the compiled rollout of :mod:`stcgym.adaptive`)
+----------------------------------------------------------------------------------
+Pieces (lane functions; arrays are float64 and C-contiguous, modified in place where noted):
+
+``clip_input(u_raw, bound) -> (u, clipped)`` / ``clip_action(u_raw, bound, u) -> clipped``
+    ``u = clip(u_raw, -bound, bound)`` for one value / element by element.
+``canonical_transition(x, a, b, u, form)``
+    ``x <- A(a) x + b u`` in place (``u`` a float; ``form`` 0 observer, 1 observability).
+``shift_transition(x, a, a0, b, b0, u, form)``
+    The same with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` read in place (no array views: e.g.
+    ``shift_transition(x, theta, 0, theta, n, u, form)`` for ``theta = [a; b]``).
+``canonical_step(x, a, b, u, w, form)``
+    ``x <- A(a) x + b u + w`` in place (``w`` the scaled process noise, length ``n``).
+``canonical_output(x) -> float``
+    ``y_clean = c x = x[0]`` (``D = 0`` in both canonical forms).
+``add_noise(x, sigma, z)``
+    ``x <- x + sigma z`` in place (nothing when ``sigma == 0``).
+``state_space_transition(x, AB, u, tmp)``
+    ``x <- A x + B u`` in place for ``AB = [A B]`` of shape ``(n, n + m)`` (``tmp``: ``n`` floats).
+``linear_output(x, C, D, u, y)`` / ``state_output(x, C, y)``
+    ``y = C x + D u`` / ``y = C x``.
+``static_output(theta, u, y)``
+    ``y = Theta^T u`` for ``Theta`` of shape ``(m, p)``.
+``observe_scalar(x, y_clean, sigma_v, z_v, r, u, rho, y_bound) -> (y, y_clean, reward, diverged)``
+    One output, one input (floats): output noise, the divergence test, the safe replacement of
+    non-finite values and the reward.
+``observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y) -> (reward, diverged)``
+    The same for ``p`` outputs and ``m`` inputs (arrays; ``y`` and ``y_clean`` written).
+``measure``, ``safe_output``, ``squared_error``, ``reward_of``, ``all_finite``
+    The per-channel pieces of both ``observe`` functions.
+
+Whole env steps (what the environments call; returns start with ``(reward, clipped,
+diverged)``):
+
+``canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound,
+form) -> (reward, clipped, diverged, u, y_clean, y)``
+    SISO: ``u_raw``, ``z_v``, ``r`` and the returned ``u``, ``y_clean``, ``y`` are floats.
+``state_space_plant_step(x, AB, C, D, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound,
+u, y_clean, y, tmp)``
+    Arrays; ``u`` receives the clipped input, ``y_clean`` and ``y`` the outputs.
+``static_plant_step(theta, u_raw, bound, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, none)``
+    (``none`` an empty float array: the object has no state).
+
+``z_w`` and ``z_v`` are standard normals (unused, and may be empty, when the matching ``sigma``
+is 0; pass shape ``(B, 0)`` to a batch loop). Batch loops over lanes (leading axis ``B``, one
+row per lane; outputs ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` ``(B,)`` bool):
+:func:`canonical_plants_step` (``U_raw``, ``Z_v``, ``R``, ``U``, ``Y_clean``, ``Y`` of shape
+``(B,)``), :func:`state_space_plants_step` (per-lane ``AB`` of shape ``(B, n, n + m)``, a
+last scratch argument ``TMP`` of shape ``(B, n)``), and at reset :func:`canonical_outputs` /
+:func:`state_outputs` for lanes ``idx``. Each batch loop uses all cores from
+:data:`PARALLEL_MIN_LANES` lanes on and one thread below (``.compiled`` is the numba function
+itself). Lane functions take as few array views as possible: a view costs a reference-count
+update, which is most of the cost of a small plant's step.
+
+Reference values and parameters for a rollout
+---------------------------------------------
+References and schedules (:mod:`stcgym.envs.signals`) produce values for a vector of lanes
+themselves: ``ref.values(k, lanes)`` gives ``r`` at steps ``k`` (int array, one per lane) and
+``schedule.values(k, lanes)`` the parameters in force, ``(len(lanes), *shape)`` (a lane may
+repeat with increasing ``k``). A rollout of ``T`` steps for ``B`` lanes takes them from the
+vector env with :meth:`stcgym.envs.vector.LinearPlantVectorEnv.lookahead`, a dict of arrays:
+``"r"`` ``(B, T, p)`` with ``r[:, j] = r(t + 1 + j)`` (the reference returned with step ``j``'s
+observation), ``"z_v"`` ``(B, T, p)`` and ``"z_w"`` ``(B, T, n)`` the standard normals of those
+steps, and ``"params"``: ``None`` for constant plants, else ``(B, T, *shape)`` with the
+parameters in force at step ``t + j``. Feeding them to :func:`canonical_plant_step` reproduces
+the env bit for bit (``tests/test_vector.py`` checks it) until a lane ends its episode. For one
+plant, use a one-lane vector env: lane 0 equals the single env with the same seed.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import numba
+import numpy as np
+
+from stcgym.envs.compiled import lane, lanes, prange
+
+__all__ = [
+    "OBSERVER",
+    "OBSERVABILITY",
+    "FORM_CODES",
+    "REWARD_FLOOR",
+    "clip_action",
+    "canonical_transition",
+    "canonical_step",
+    "canonical_output",
+    "add_noise",
+    "state_space_transition",
+    "linear_output",
+    "state_output",
+    "static_output",
+    "observe",
+    "canonical_plant_step",
+    "state_space_plant_step",
+    "static_plant_step",
+    "canonical_plants_step",
+    "state_space_plants_step",
+    "canonical_outputs",
+    "state_outputs",
+    "PARALLEL_MIN_LANES",
+]
+
+#: Batches smaller than this run their loop on the calling thread. Every array view a lane
+#: takes updates its parent's reference count atomically, so threads stepping lanes of the same
+#: arrays contend for that counter: measured on 2 cores, 2 threads were no faster than one at
+#: 1e5 lanes (150 vs 161 ns per lane) and up to 10x slower on a loaded machine.
+PARALLEL_MIN_LANES = 1 << 20
+
+
+class _LaneLoop:
+    """A batch loop (:func:`lanes`) that runs on one thread below ``PARALLEL_MIN_LANES`` lanes.
+
+    The same compiled code either way (``numba.set_num_threads`` only limits how many threads
+    the ``prange`` uses), so every lane's numbers are the same.
+    """
+
+    def __init__(self, fn: Callable[..., Any]) -> None:
+        functools.update_wrapper(self, fn)
+        self.compiled = lanes(fn)
+
+    def __call__(self, *args: Any) -> Any:
+        if args[0].shape[0] >= PARALLEL_MIN_LANES:
+            return self.compiled(*args)
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+        try:
+            return self.compiled(*args)
+        finally:
+            numba.set_num_threads(threads)
+
+    def __reduce__(self) -> str:  # pickle by reference, like a function
+        return self.__qualname__
+
+
+#: ``form`` codes of the canonical lane functions.
+OBSERVER = 0
+OBSERVABILITY = 1
+FORM_CODES = {"observer": OBSERVER, "observability": OBSERVABILITY}
+
+#: Reward reported when ``-(||e||^2 + rho ||u||^2)`` overflows (the step is marked diverged).
+REWARD_FLOOR = -float(np.finfo(np.float64).max)
+
+
+# ----------------------------------------------------------------------------------- pieces
+@lane
+def clip_input(u_raw, bound):
+    """``(clip(u_raw, -bound, bound), clipped)`` for one input value."""
+    if u_raw > bound:
+        return bound, True
+    if u_raw < -bound:
+        return -bound, True
+    return u_raw, False
+
+
+@lane
+def clip_action(u_raw, bound, u):
+    """``u = clip(u_raw, -bound, bound)`` element by element; return whether any was clipped."""
+    clipped = False
+    for i in range(u.shape[0]):
+        u[i], c = clip_input(u_raw[i], bound)
+        clipped = clipped or c
+    return clipped
+
+
+@lane
+def shift_transition(x, a, a0, b, b0, u, form):
+    """``x <- A(a) x + b u`` in place with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` (no views).
+
+    Observer form, eq. (1): ``x_i(t+1) = -a_i x_1(t) + x_{i+1}(t) + b_i u(t)``, ``x_{n+1} = 0``.
+    Observability form, eq. (146): ``x_i(t+1) = x_{i+1}(t) + b_i u(t)`` for ``i < n`` and
+    ``x_n(t+1) = -(a_n x_1 + ... + a_1 x_n) + b_n u(t)``.
+    """
+    n = x.shape[0]
+    if form == 0:
+        x1 = x[0]
+        for i in range(n - 1):
+            x[i] = (-a[a0 + i] * x1 + x[i + 1]) + b[b0 + i] * u
+        x[n - 1] = -a[a0 + n - 1] * x1 + b[b0 + n - 1] * u
+    else:
+        last = a[a0 + n - 1] * x[0]
+        for j in range(1, n):
+            last += a[a0 + n - 1 - j] * x[j]
+        for i in range(n - 1):
+            x[i] = x[i + 1] + b[b0 + i] * u
+        x[n - 1] = -last + b[b0 + n - 1] * u
+
+
+@lane
+def canonical_transition(x, a, b, u, form):
+    """``x <- A(a) x + b u`` in place; ``form`` 0: observer (eq. (1)), 1: observability (146)."""
+    shift_transition(x, a, 0, b, 0, u, form)
+
+
+@lane
+def add_noise(x, sigma, z):
+    """``x <- x + sigma z`` in place (untouched when ``sigma == 0``)."""
+    if sigma != 0.0:
+        for i in range(x.shape[0]):
+            x[i] += sigma * z[i]
+
+
+@lane
+def canonical_step(x, a, b, u, w, form):
+    """``x <- A(a) x + b u + w`` in place (``w``: process noise already scaled, length ``n``)."""
+    shift_transition(x, a, 0, b, 0, u, form)
+    for i in range(x.shape[0]):
+        x[i] += w[i]
+
+
+@lane
+def canonical_output(x):
+    """``y = c x = x_1``: the output row of both canonical forms (eq. (2), (147))."""
+    return x[0]
+
+
+@lane
+def state_space_transition(x, AB, u, tmp):
+    """``x <- A x + B u`` in place, ``AB = [A B]`` of shape ``(n, n + m)``; ``tmp``: n floats."""
+    n = x.shape[0]
+    m = u.shape[0]
+    for i in range(n):
+        ax = 0.0
+        for j in range(n):
+            ax += AB[i, j] * x[j]
+        bu = 0.0
+        for j in range(m):
+            bu += AB[i, n + j] * u[j]
+        tmp[i] = ax + bu
+    for i in range(n):
+        x[i] = tmp[i]
+
+
+@lane
+def state_output(x, C, y):
+    """``y = C x``."""
+    for i in range(y.shape[0]):
+        s = 0.0
+        for j in range(x.shape[0]):
+            s += C[i, j] * x[j]
+        y[i] = s
+
+
+@lane
+def linear_output(x, C, D, u, y):
+    """``y = C x + D u``."""
+    for i in range(y.shape[0]):
+        cx = 0.0
+        for j in range(x.shape[0]):
+            cx += C[i, j] * x[j]
+        du = 0.0
+        for j in range(u.shape[0]):
+            du += D[i, j] * u[j]
+        y[i] = cx + du
+
+
+@lane
+def static_output(theta, u, y):
+    """``y = Theta^T u`` (``y^T = u^T Theta``), ``Theta`` of shape ``(m, p)``."""
+    for j in range(y.shape[0]):
+        s = 0.0
+        for i in range(u.shape[0]):
+            s += u[i] * theta[i, j]
+        y[j] = s
+
+
+@lane
+def all_finite(x):
+    """Whether every entry of ``x`` is finite."""
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return False
+    return True
+
+
+@lane
+def measure(y_clean, sigma_v, z_v):
+    """Measured output ``y_clean + sigma_v z_v`` of one channel (``y_clean`` when noise-free)."""
+    if sigma_v != 0.0:
+        return y_clean + sigma_v * z_v
+    return y_clean
+
+
+@lane
+def safe_output(y, y_bound):
+    """A non-finite loop's output: ``clip(y, +-y_bound)`` with NaN as 0."""
+    if np.isnan(y):
+        return 0.0
+    if y > y_bound:
+        return y_bound
+    if y < -y_bound:
+        return -y_bound
+    return y
+
+
+@lane
+def squared_error(y_clean, r, y_bound):
+    """``(clip(y_clean, +-y_bound) - r)^2``: one channel's tracking cost."""
+    yc = y_clean
+    if yc > y_bound:
+        yc = y_bound
+    elif yc < -y_bound:
+        yc = -y_bound
+    e = yc - r
+    return e * e
+
+
+@lane
+def reward_of(cost, effort, rho, diverged):
+    """``(-(cost + rho effort), diverged)``; an overflow gives ``REWARD_FLOOR`` and diverged."""
+    reward = -(cost + rho * effort)
+    if not np.isfinite(reward):
+        return REWARD_FLOOR, True
+    return reward, diverged
+
+
+@lane
+def observe_scalar(x, y_clean, sigma_v, z_v, r, u, rho, y_bound):
+    """:func:`observe` for one output and one input: ``(y, y_clean, reward, diverged)``."""
+    y = measure(y_clean, sigma_v, z_v)
+    finite = all_finite(x) and np.isfinite(y)
+    diverged = not finite or abs(y) > y_bound
+    if not finite:  # keep observation and reward finite: a diverged loop must end
+        y = safe_output(y, y_bound)
+        y_clean = y
+    reward, diverged = reward_of(squared_error(y_clean, r, y_bound), u * u, rho, diverged)
+    return y, y_clean, reward, diverged
+
+
+@lane
+def observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y):
+    """Measured output, divergence test and reward of one step; returns ``(reward, diverged)``.
+
+    ``y = y_clean + sigma_v z_v``. Diverged: ``|y_i| > y_bound``, or ``x``/``y`` not finite
+    (then ``y`` and ``y_clean`` become ``clip(y, +-y_bound)`` with NaN as 0), or the reward not
+    finite (then it is :data:`REWARD_FLOOR`). Reward
+    ``-(sum_i (clip(y_clean_i, +-y_bound) - r_i)^2 + rho sum_j u_j^2)``.
+    """
+    p = y.shape[0]
+    for i in range(p):
+        y[i] = measure(y_clean[i], sigma_v, z_v[i])
+    finite = all_finite(x) and all_finite(y)
+    diverged = not finite
+    for i in range(p):
+        if abs(y[i]) > y_bound:
+            diverged = True
+    if not finite:  # keep observation and reward finite: a diverged loop must end
+        for i in range(p):
+            y[i] = safe_output(y[i], y_bound)
+            y_clean[i] = y[i]
+    cost = 0.0
+    for i in range(p):
+        cost += squared_error(y_clean[i], r[i], y_bound)
+    effort = 0.0
+    for j in range(u.shape[0]):
+        effort += u[j] * u[j]
+    return reward_of(cost, effort, rho, diverged)
+
+
+# ----------------------------------------------------------------------------- env steps
+@lane
+def canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, form):
+    """One step of a canonical plant (``theta = [a; b]``, SISO: scalar input, noise, reference).
+
+    Returns ``(reward, clipped, diverged, u, y_clean, y)`` (``u`` the clipped input).
+    """
+    n = x.shape[0]
+    u, clipped = clip_input(u_raw, bound)
+    shift_transition(x, theta, 0, theta, n, u, form)
+    add_noise(x, sigma_w, z_w)
+    y, y_clean, reward, diverged = observe_scalar(
+        x, canonical_output(x), sigma_v, z_v, r, u, rho, y_bound
+    )
+    return reward, clipped, diverged, u, y_clean, y
+
+
+@lane
+def state_space_plant_step(
+    x, AB, C, D, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, tmp
+):
+    """One step of ``x+ = A x + B u + w``, ``y = C x + D u + v``: ``(reward, clipped, diverged)``.
+
+    ``u``, ``y_clean``, ``y`` receive the clipped input and the outputs.
+    """
+    clipped = clip_action(u_raw, bound, u)
+    state_space_transition(x, AB, u, tmp)
+    add_noise(x, sigma_w, z_w)
+    linear_output(x, C, D, u, y_clean)
+    reward, diverged = observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y)
+    return reward, clipped, diverged
+
+
+@lane
+def static_plant_step(theta, u_raw, bound, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, none):
+    """One step of the static object ``y = Theta^T u + v``; ``(reward, clipped, diverged)``."""
+    clipped = clip_action(u_raw, bound, u)
+    static_output(theta, u, y_clean)
+    reward, diverged = observe(none, y_clean, sigma_v, z_v, r, u, rho, y_bound, y)
+    return reward, clipped, diverged
+
+
+# --------------------------------------------------------------------------- batch loops
+@_LaneLoop
+def canonical_plants_step(
+    X,
+    Theta,
+    U_raw,
+    bound,
+    sigma_w,
+    Z_w,
+    sigma_v,
+    Z_v,
+    R,
+    rho,
+    y_bound,
+    form,
+    U,
+    Y_clean,
+    Y,
+    reward,
+    clipped,
+    diverged,
+):
+    """:func:`canonical_plant_step` for every lane; ``U_raw``, ``Z_v``, ``R``, ``U``,
+    ``Y_clean``, ``Y`` of shape ``(B,)``, ``Z_w`` ``(B, n)`` (``(B, 0)`` when unused)."""
+    for i in prange(X.shape[0]):
+        reward[i], clipped[i], diverged[i], U[i], Y_clean[i], Y[i] = canonical_plant_step(
+            X[i],
+            Theta[i],
+            U_raw[i],
+            bound,
+            sigma_w,
+            Z_w[i],
+            sigma_v,
+            Z_v[i],
+            R[i],
+            rho,
+            y_bound,
+            form,
+        )
+
+
+@_LaneLoop
+def state_space_plants_step(
+    X,
+    AB,
+    C,
+    D,
+    U_raw,
+    bound,
+    sigma_w,
+    Z_w,
+    sigma_v,
+    Z_v,
+    R,
+    rho,
+    y_bound,
+    U,
+    Y_clean,
+    Y,
+    reward,
+    clipped,
+    diverged,
+    TMP,
+):
+    """:func:`state_space_plant_step` for every lane, lane ``i`` with its own ``AB[i]``."""
+    for i in prange(X.shape[0]):
+        reward[i], clipped[i], diverged[i] = state_space_plant_step(
+            X[i],
+            AB[i],
+            C,
+            D,
+            U_raw[i],
+            bound,
+            sigma_w,
+            Z_w[i],
+            sigma_v,
+            Z_v[i],
+            R[i],
+            rho,
+            y_bound,
+            U[i],
+            Y_clean[i],
+            Y[i],
+            TMP[i],
+        )
+
+
+@_LaneLoop
+def canonical_outputs(X, idx, Y_clean):
+    """``Y_clean[j, 0] = c x`` of lane ``idx[j]`` (the output at reset, before any input)."""
+    for j in prange(idx.shape[0]):
+        Y_clean[j, 0] = canonical_output(X[idx[j]])
+
+
+@_LaneLoop
+def state_outputs(X, idx, C, Y_clean):
+    """``Y_clean[j] = C x`` of lane ``idx[j]`` (the output at reset, before any input)."""
+    for j in prange(idx.shape[0]):
+        state_output(X[idx[j]], C, Y_clean[j])
