@@ -1,6 +1,6 @@
 """Computational cost (flops = multiplications + additions) of the seed paper's algorithms.
 
-The formulas are those of tables 1-8 of Ding & Ma 2014 (``shared/docs/algorithms.md`` §7):
+The formulas are those of tables 1-8 of Ding & Ma (2014):
 per step for the recursive algorithms, per iteration for the iterative ones. ``n`` is the plant
 order, ``p`` the innovation length and ``L`` the batch length.
 """

@@ -1,10 +1,10 @@
 """Iterative (batch) joint parameter/state estimators of Ding & Ma (2014), sections 4-5.
 
 On a batch of ``L`` samples the parameter vector ``theta = [a1..an, b1..bn]`` of a canonical SISO
-plant (``shared/docs/algorithms.md`` §6) is refined over iterations ``k = 1, 2, ...``; every
-iteration builds the stacked regressor ``H_k`` from the state estimates of iteration ``k-1``,
-updates ``theta_k`` and then re-estimates all states ``x_hat_k(1..L)`` with ``A_hat_k``,
-``b_hat_k``:
+plant (observability form (146)-(153) or observer form (1)-(8)) is refined over iterations
+``k = 1, 2, ...``; every iteration builds the stacked regressor ``H_k`` from the state
+estimates of iteration ``k-1``, updates ``theta_k`` and then re-estimates all states
+``x_hat_k(1..L)`` with ``A_hat_k``, ``b_hat_k``:
 
 =========  =====================================================================================
 rule       parameter update
@@ -39,7 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive import flops as _flops
-from stcgym.adaptive.multichannel import NumericalHealthError
+from stcgym.adaptive.kernels.state_estimation import state_trajectory
+from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.canonical import as_finite_vector, check_form, companion_A
 
 __all__ = ["ITERATIVE_NAMES", "IterativeResult", "NumericalHealthError", "fit_iterative"]
@@ -199,41 +200,27 @@ def _gi_step(M: NDArray, mu: float | None) -> float:
     return mu
 
 
-def _open_loop_states(A: NDArray, b: NDArray, u: NDArray, x1: NDArray) -> NDArray:
-    """Open-loop observer (238): ``x(t+1) = A x(t) + b u(t)``, ``x(1) = x1``, ``t = 1..L-1``."""
-    L, n = u.size, b.size
-    xs = np.empty((L, n))
-    x = x1.copy()
-    with np.errstate(over="ignore", invalid="ignore"):
-        for t in range(L):
-            xs[t] = x
-            x = A @ x + b * u[t]
-    return xs
-
-
-def _kalman_states(
-    A: NDArray, b: NDArray, u: NDArray, y: NDArray, x1: NDArray, q: float, r: float
+def _states(
+    A: NDArray, b: NDArray, u: NDArray, y: NDArray, x1: NDArray, kalman: bool, q: float, r: float
 ) -> NDArray:
-    """Kalman filter (258)-(263) with process noise ``q I`` and measurement weight ``r``.
-
-    ``L(t) = A P c^T / (r + c P c^T)``, ``P(t+1) = A P A^T - L(t) c P A^T + q I``, ``P(1) = I``,
-    ``x(t+1) = A x + b u(t) + L(t) (y(t) - c x)``; the paper has ``q = 0``, ``r = 1``. ``P`` is
-    re-symmetrised every step.
-    """
-    L, n = u.size, b.size
-    xs = np.empty((L, n))
-    x = x1.copy()
-    P = np.eye(n)
-    Q = q * np.eye(n)
-    with np.errstate(over="ignore", invalid="ignore"):
-        for t in range(L):
-            xs[t] = x
-            zeta = P @ A.T  # zeta(t) := P A^T as in table 8
-            Pc = P[:, 0]  # P c^T with c = [1, 0, ..., 0]
-            gain = (A @ Pc) / (r + P[0, 0])
-            x = A @ x + b * u[t] + gain * (y[t] - x[0])
-            P = A @ zeta - np.outer(gain, zeta[0]) + Q
-            P = 0.5 * (P + P.T)
+    """State re-estimation over the batch with ``A_hat_k``, ``b_hat_k``: the open-loop observer
+    (238)-(241) or the Kalman filter (258)-(263) with process noise ``q I`` and measurement
+    weight ``r`` (the paper: ``q = 0``, ``r = 1``, ``P(1) = I``) -- the same lane functions as
+    the recursive estimators' state step."""
+    n = b.size
+    xs = np.empty((u.size, n))
+    state_trajectory(
+        np.ascontiguousarray(A, dtype=float),
+        np.ascontiguousarray(b, dtype=float),
+        u,
+        y,
+        np.ascontiguousarray(x1, dtype=float),
+        kalman,
+        np.eye(n),
+        q * np.eye(n),
+        float(r),
+        xs,
+    )
     return xs
 
 
@@ -401,9 +388,9 @@ def fit_iterative(
             A_hat = companion_A(theta[:n], form)
             b_hat = theta[n:]
             if state_est == "O":
-                x_prev = _open_loop_states(A_hat, b_hat, u_arr, x1)
+                x_prev = _states(A_hat, b_hat, u_arr, Y, x1, False, 0.0, 1.0)
             else:
-                x_prev = _kalman_states(A_hat, b_hat, u_arr, Y, x1, kalman_q, kalman_r)
+                x_prev = _states(A_hat, b_hat, u_arr, Y, x1, True, kalman_q, kalman_r)
             if not np.all(np.abs(x_prev) <= STATE_LIMIT):  # also catches inf and NaN
                 rho = float(np.max(np.abs(np.linalg.eigvals(A_hat))))
                 raise NumericalHealthError(

@@ -1,6 +1,6 @@
 """Multichannel least-squares estimators: matrix RLS and ``[A B]`` from measured states.
 
-Two recursive estimators of a matrix of parameters (``shared/docs/algorithms.md`` §8 and §10):
+Two recursive estimators of a matrix of parameters:
 
 * :class:`MatrixRLS` -- Voevoda & Troshina (2017), appendix 2: the static object
   ``y^T = x^T Theta + v`` with an ``n_inputs``-vector ``x``, an ``n_outputs``-vector ``y`` and an
@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.rules import NumericalHealthError
+from stcgym.adaptive.recursive import NumericalHealthError
 
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
@@ -92,7 +92,7 @@ def _is_spd(P: NDArray) -> bool:
 
 
 class MatrixRLS:
-    r"""Matrix recursive least squares for ``y^T = x^T Theta + v`` (digest §8).
+    r"""Matrix recursive least squares for ``y^T = x^T Theta + v`` (Voevoda & Troshina 2017).
 
     Voevoda & Troshina (2017), appendix 2, with exponential forgetting ``lambda``::
 
@@ -198,7 +198,7 @@ class MatrixRLS:
         """
         x = _vector(x, "x", self.n_inputs)
         y = _vector(y, "y", self.n_outputs)
-        self.t += 1
+        t = self.t + 1
         lam = self.forgetting
         P = self.P
         with np.errstate(over="ignore", invalid="ignore"):
@@ -217,12 +217,11 @@ class MatrixRLS:
                 # the paper's form (P.8) exactly, to reproduce its non-symmetric example
                 P_new = (P - np.outer(K, x @ P)) / lam
         problem = self._check(den, P_new, theta)
+        if problem is not None and self.on_unhealthy == "raise":
+            raise NumericalHealthError(f"MatrixRLS update {t}: {problem}; state left unchanged")
+        self.t = t
         if problem is None:
             self.P, self.theta, self.K = P_new, theta, K
-        elif self.on_unhealthy == "raise":
-            raise NumericalHealthError(
-                f"MatrixRLS update {self.t}: {problem}; state left unchanged"
-            )
         else:
             self.P = self._P0.copy()
             self.n_resets += 1
@@ -247,7 +246,7 @@ class MatrixRLS:
 
 
 class StateMatrixEstimator:
-    r"""Recursive estimate of ``C = [A B]`` from measured states (Kunik et al. 2001, digest §10).
+    r"""Recursive estimate of ``C = [A B]`` from measured states (Kunik et al. 2001).
 
     Model ``x(t+1) = A x(t) + B u(t) = C z(t)`` with ``z(t) = [x(t); u(t)]``, ``x`` in ``R^m``,
     ``u`` in ``R^N``. Each call of :meth:`update` supplies one triple ``(x(t), u(t), x(t+1))``

@@ -19,14 +19,9 @@ from stcgym.adaptive.recursive import (
     ALGORITHMS,
     NumericalHealthError,
     RecursiveEstimator,
+    is_schur_stable,
     make_estimator,
     parse_name,
-)
-from stcgym.adaptive.state_estimators import (
-    ClosedLoopObserver,
-    KalmanFilter,
-    OpenLoopObserver,
-    is_schur_stable,
 )
 from stcgym.envs.canonical import canonical_matrices
 
@@ -93,18 +88,17 @@ def rel_err(theta_hat, theta=THETA_TRUE):
 
 def test_sixteen_names_compose_from_parts():
     assert len(ALGORITHMS) == 16 and len(set(ALGORITHMS)) == 16
-    kinds = {"O": OpenLoopObserver, "KF": KalmanFilter}
     for name in ALGORITHMS:
         state, dec, rule = parse_name(name.lower())
         for form in FORMS:
             est = make_estimator(name.lower(), 2, p=3 if rule in ("MISG", "MILS") else 1, form=form)
             assert est.name == name
-            assert isinstance(est.state_estimator, kinds[state])
-            assert est.rule.kind == rule and est.rule.decomposed == dec
-            assert len(est.rule.cores) == (2 if dec else 1)
+            assert (est.spec.state, est.spec.rule, est.spec.decomposed) == (state, rule, dec)
             assert (est.P is None) == (rule in ("SG", "MISG"))
+            assert (est.P1 is None) == (state == "O")
+            assert (est.r is None) or est.r.shape == ((2,) if dec else (1,))
     co = make_estimator("co-d-mils", 2, p=2, observer_gain=[0.1, 0.2])
-    assert isinstance(co.state_estimator, ClosedLoopObserver) and co.name == "CO-D-MILS"
+    assert co.spec.state == "CO" and co.name == "CO-D-MILS"
     # an O- name with a gain is the closed-loop observer (50) as well
     assert make_estimator("O-RLS", 2, observer_gain=[0.0, 0.0]).name == "CO-RLS"
 
@@ -287,12 +281,12 @@ def test_paper_kalman_gain_dies_out_and_process_noise_keeps_it():
     assert np.linalg.norm(noisy.L1) > 1e-2
     # Q set after construction (the controller's adaptive process noise) takes effect too.
     late = make_estimator("KF-RLS", 2)
-    late.state_estimator.Q = 0.01 * np.eye(2)
+    late.Q = 0.01 * np.eye(2)
     np.testing.assert_array_equal(
         late.run(u, y), make_estimator("KF-RLS", 2, process_noise=0.01).run(u, y)
     )
     with pytest.raises(ValueError, match="Q"):
-        late.state_estimator.Q = np.eye(3)
+        late.Q = np.eye(3)
 
 
 def test_closed_loop_observer_deadbeat_gain_recovers_the_state():
@@ -701,11 +695,13 @@ def test_state_overflow_is_reset_with_a_warning():
 
 def test_lost_positive_definiteness_is_detected():
     est = make_estimator("O-RLS", 2, on_failure="raise", pd_check_every=1)
-    est.rule.cores[0].S[:, 3] = 0.0  # corrupt the factor of P: singular
+    est._field("S")[0, :, 3] = 0.0  # corrupt the factor of P: singular
+    before = est.record.copy()
     with pytest.raises(NumericalHealthError, match="not symmetric positive definite"):
         est.update(1.0)
+    np.testing.assert_array_equal(est.record, before)  # left exactly as before the call
     lenient = make_estimator("O-RLS", 2, pd_check_every=1)
-    lenient.rule.cores[0].S[:, 3] = 0.0
+    lenient._field("S")[0, :, 3] = 0.0
     with pytest.warns(RuntimeWarning, match="P reset to P"):
         lenient.update(1.0)
     np.testing.assert_allclose(lenient.P, 1e6 * np.eye(4), rtol=1e-14)

@@ -1,0 +1,127 @@
+"""Readable dense-numpy reference of the recursive estimators of Ding & Ma (2014).
+
+The paper's formulas as printed, with ``P`` held explicitly (no square-root factor, no
+structure exploited, no health checks): the compiled lane functions of
+:mod:`stcgym.adaptive.kernels` are compared against this to a stated tolerance.
+
+* innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)`` (17), (38);
+* SG/MISG (12)-(22): ``r(t) = lambda r(t-1) + ||phi_hat(t)||^2`` (or ``||Phi||^2``, remark 1),
+  ``theta(t) = theta(t-1) + Phi E / r(t)``;
+* RLS (32)-(36): ``L = P phi / (lambda + phi^T P phi)``, ``P = (P - L phi^T P) / lambda``;
+* MILS (37)-(44): ``L = P Phi (lambda I + Phi^T P Phi)^{-1}``, ``P = (P - L Phi^T P) / lambda``;
+* D- rules (96)-(145): the same on ``a`` (rows ``0..n-1``) and ``b`` (rows ``n..2n-1``), both
+  with the innovation computed from ``theta(t-1)``;
+* open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
+* regressors (9)/(57) (observer form) and (153) (observability form), zero before ``t = 1``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stcgym.envs.canonical import companion_A
+
+
+class ReferenceEstimator:
+    def __init__(
+        self,
+        name: str,
+        n: int,
+        *,
+        p: int = 1,
+        p0: float = 1e6,
+        form: str = "observer",
+        forgetting: float = 1.0,
+        theta0=None,
+        P0=None,
+        r0: float = 1.0,
+        stacked_r: bool = False,
+        x_init=None,
+        P1_init=None,
+        Q=None,
+        R: float = 1.0,
+        K=None,
+    ) -> None:
+        parts = name.upper().split("-")
+        self.state, self.rule, self.decomposed = parts[0], parts[-1], len(parts) == 3
+        self.n, self.p, self.form, self.lam = n, p, form, forgetting
+        d = 2 * n
+        self.theta = np.full(d, 1.0 / p0) if theta0 is None else np.array(theta0, float)
+        self.P = p0 * np.eye(d) if P0 is None else np.array(P0, float)
+        self.r = np.array([r0, r0])
+        self.stacked_r = stacked_r
+        self.x = np.full(n, 1.0 / p0) if x_init is None else np.array(x_init, float)
+        self.P1 = np.eye(n) if P1_init is None else np.array(P1_init, float)
+        self.Q = np.zeros((n, n)) if Q is None else np.array(Q, float)
+        self.R = R
+        self.K = None if K is None else np.array(K, float)
+        self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
+        self.Y = np.zeros(p)
+        self.xs = [np.zeros(n) for _ in range(n)]  # x_hat(t), x_hat(t-1), ..., zero before 1
+        self.phi = np.zeros(d)
+        self.y = 0.0
+
+    def blocks(self):
+        n, d = self.n, 2 * self.n
+        return [slice(0, n), slice(n, d)] if self.decomposed else [slice(0, d)]
+
+    def update(self, y: float) -> np.ndarray:
+        self.Phi = np.column_stack([self.phi, self.Phi[:, :-1]])
+        self.Y = np.r_[y, self.Y[:-1]]
+        self.y = y
+        E = self.Y - self.Phi.T @ self.theta
+        delta = np.zeros_like(self.theta)
+        lam = self.lam
+        for k, blk in enumerate(self.blocks()):
+            Phi = self.Phi[blk]
+            if self.rule in ("SG", "MISG"):
+                inc = np.sum(Phi**2) if self.stacked_r else np.sum(Phi[:, 0] ** 2)
+                self.r[k] = lam * self.r[k] + inc
+                delta[blk] = Phi @ E / self.r[k]
+                continue
+            P = self.P[blk, blk]
+            if self.rule == "RLS":
+                phi = Phi[:, 0]
+                L = P @ phi / (lam + phi @ P @ phi)
+                self.P[blk, blk] = (P - np.outer(L, phi @ P)) / lam
+                delta[blk] = L * E[0]
+            else:
+                L = P @ Phi @ np.linalg.inv(lam * np.eye(self.p) + Phi.T @ P @ Phi)
+                self.P[blk, blk] = (P - L @ Phi.T @ P) / lam
+                delta[blk] = L @ E
+        self.theta = self.theta + delta
+        self.E = E
+        return self.theta.copy()
+
+    def predict(self, u: float) -> np.ndarray:
+        n = self.n
+        A = companion_A(self.theta[:n], self.form)
+        b = self.theta[n:]
+        x = self.x
+        c = np.eye(n)[0]
+        if self.state == "KF":
+            s = self.R + c @ self.P1 @ c
+            L1 = A @ self.P1 @ c / s
+            x_next = A @ x + b * u + L1 * (self.y - x[0])
+            self.P1 = A @ self.P1 @ A.T - np.outer(L1, c @ self.P1 @ A.T) + self.Q
+            self.L1 = L1
+        elif self.K is not None:
+            x_next = A @ x + b * u + self.K * (self.y - x[0])
+        else:
+            x_next = A @ x + b * u
+        # regressor phi_hat(t+1)
+        self.xs = [x.copy(), *self.xs[:-1]]
+        if self.form == "observer":
+            phi_a = np.r_[-x[0], self.phi[: n - 1]]
+        else:
+            phi_a = -self.xs[n - 1][::-1]
+        self.phi = np.r_[phi_a, u, self.phi[n : 2 * n - 1]]
+        self.x = x_next
+        return x_next.copy()
+
+    def run(self, u, y) -> np.ndarray:
+        out = []
+        for uk, yk in zip(u, y, strict=True):
+            out.append(self.update(yk))
+            self.predict(uk)
+        return np.array(out)

@@ -1,0 +1,372 @@
+"""The compiled estimator lane functions against the dense-numpy reference of the paper's
+formulas (tests/reference_estimators.py), single versus batched lanes, and the lifecycle of
+the one estimator class (pickle, deepcopy, failed calls, bad batched input)."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from reference_estimators import ReferenceEstimator
+
+from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
+from stcgym.adaptive.kernels import estimator as K
+from stcgym.adaptive.kernels.least_squares import (
+    OK,
+    carlson_update,
+    least_squares_step,
+    rank_one_update,
+    upper_factor,
+)
+from stcgym.adaptive.kernels.state_estimation import companion_into, kalman_step
+from stcgym.envs.canonical import canonical_matrices, companion_A
+
+FORMS = ("observer", "observability")
+A_TRUE, B_TRUE = np.array([-0.6, 0.2]), np.array([0.5, 1.0])
+#: Kernels vs the dense reference: relative agreement of theta, x_hat and P over 200 steps
+#: with p0 = 100 (the explicit-P reference itself loses digits with p0 = 1e6).
+REF_RTOL = 1e-9
+
+
+def data(T=200, seed=0, form="observer", noise=0.1):
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal(T)
+    A, B, _, _ = canonical_matrices(A_TRUE, B_TRUE, form)
+    x = np.zeros(2)
+    y = np.empty(T)
+    for k in range(T):
+        y[k] = x[0] + noise * rng.standard_normal()
+        x = A @ x + B[:, 0] * u[k]
+    return u, y
+
+
+def spd(rng, d):
+    M = rng.standard_normal((d, d))
+    return M @ M.T + 0.5 * np.eye(d)
+
+
+# --------------------------------------------------------------------------------------------
+# Building blocks
+# --------------------------------------------------------------------------------------------
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(d=st.integers(1, 8), seed=st.integers(0, 2**31 - 1), lam=st.sampled_from([1.0, 0.9]))
+def test_carlson_update_is_the_rls_covariance_update(d, seed, lam):
+    rng = np.random.default_rng(seed)
+    P = spd(rng, d)
+    S = np.zeros((d, d))
+    assert upper_factor(P, S)
+    np.testing.assert_allclose(S @ S.T, P, rtol=1e-12, atol=1e-12)
+    assert np.all(np.tril(S, -1) == 0.0)
+    phi = rng.standard_normal(d)
+    Kv = np.zeros(d)
+    alpha = carlson_update(S, 0, d, phi, lam, Kv)
+    s = lam + phi @ P @ phi
+    assert alpha == pytest.approx(s, rel=1e-12)
+    np.testing.assert_allclose(Kv, P @ phi, rtol=1e-10, atol=1e-12)
+    expected = P - np.outer(P @ phi, P @ phi) / s  # (34) before the division by lambda
+    np.testing.assert_allclose(S @ S.T, expected, rtol=1e-9, atol=1e-11)
+    assert np.all(np.tril(S, -1) == 0.0) and np.all(np.diag(S) > 0.0)
+    v = rng.standard_normal(d)
+    before = S @ S.T
+    rank_one_update(S, 0, d, v.copy())
+    np.testing.assert_allclose(S @ S.T, before + np.outer(v, v), rtol=1e-9, atol=1e-11)
+    assert np.all(np.tril(S, -1) == 0.0)
+
+
+def test_upper_factor_rejects_indefinite_matrices():
+    S = np.zeros((2, 2))
+    assert not upper_factor(np.array([[1.0, 2.0], [2.0, 1.0]]), S)
+    assert not upper_factor(np.array([[1.0, 0.0], [0.0, np.nan]]), S)
+
+
+@pytest.mark.parametrize("p", [1, 3])
+def test_generic_least_squares_step_against_the_dense_formulas(p):
+    """The grey-box interface: RLS (33)-(35) / MILS (39)-(41) on user regressors."""
+    rng = np.random.default_rng(p)
+    d, lam = 5, 0.97
+    P = 10.0 * np.eye(d)
+    S = np.zeros((d, d))
+    upper_factor(P, S)
+    theta = rng.standard_normal(d)
+    theta_ref = theta.copy()
+    work = np.zeros(3 * d + p + d * d)
+    for _ in range(50):
+        Phi, Y = rng.standard_normal((p, d)), rng.standard_normal(p)
+        assert least_squares_step(theta, S, Phi, Y, lam, work) == OK
+        E = Y - Phi @ theta_ref
+        L = P @ Phi.T @ np.linalg.inv(lam * np.eye(p) + Phi @ P @ Phi.T)
+        P = (P - L @ Phi @ P) / lam
+        theta_ref = theta_ref + L @ E
+        np.testing.assert_allclose(work[2 * d : 2 * d + p], E, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(theta, theta_ref, rtol=1e-9)
+    np.testing.assert_allclose(S @ S.T, P, rtol=1e-8, atol=1e-14)
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_kalman_step_matches_a_textbook_filter(form):
+    """(66)-(68) with Q and R, on the canonical model built by companion_into."""
+    rng = np.random.default_rng(3)
+    n = 3
+    theta = np.r_[0.2, -0.1, 0.05, rng.standard_normal(n)]
+    A = np.zeros((n, n))
+    companion_into(theta, n, form == "observability", A)
+    np.testing.assert_array_equal(A, companion_A(theta[:n], form))
+    P1 = np.eye(n)
+    Q = 0.01 * np.eye(n)
+    R = 0.5
+    x = rng.standard_normal(n)
+    x_ref, P_ref = x.copy(), P1.copy()
+    x_next, L1, work = np.zeros(n), np.zeros(n), np.zeros(2 * n * n)
+    C = np.eye(n)[:1]
+    for _ in range(20):
+        u, y = rng.standard_normal(2)
+        assert kalman_step(A, theta[n:], P1, Q, R, x, u, y, x_next, L1, work) == 0
+        S = (C @ P_ref @ C.T).item() + R
+        Kg = (A @ P_ref @ C.T).ravel() / S
+        x_ref = A @ x_ref + theta[n:] * u + Kg * (y - x_ref[0])
+        P_ref = A @ P_ref @ A.T - np.outer(Kg, Kg) * S + Q
+        x = x_next.copy()
+        np.testing.assert_allclose(x, x_ref, rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(P1, P_ref, rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(L1, Kg, rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# Every algorithm against the dense reference
+# --------------------------------------------------------------------------------------------
+
+NAMES = [*K.ALGORITHMS, "CO-RLS", "CO-D-MISG"]
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("name", NAMES)
+def test_kernels_equal_the_dense_reference(name, form):
+    u, y = data(form=form)
+    mi = "MI" in name
+    kw: dict = {"p": 3} if mi else {}
+    ref_kw: dict = dict(kw)
+    if name.startswith("CO"):
+        kw["observer_gain"] = [0.3, -0.1]
+        ref_kw["K"] = [0.3, -0.1]
+    lam = 0.98 if "RLS" in name else 1.0
+    if name.startswith("KF"):
+        kw |= {"process_noise": 0.01, "measurement_noise": 0.5}
+        ref_kw |= {"Q": 0.01 * np.eye(2), "R": 0.5}
+    est = make_estimator(name, 2, p0=100.0, form=form, forgetting=lam, **kw)
+    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, forgetting=lam, **ref_kw)
+    for k in range(len(u)):
+        th = est.update(y[k])
+        th_ref = ref.update(y[k])
+        np.testing.assert_allclose(th, th_ref, rtol=REF_RTOL, atol=1e-12)
+        np.testing.assert_allclose(est.innovation, ref.E, rtol=REF_RTOL, atol=1e-11)
+        np.testing.assert_allclose(est.predict(u[k]), ref.predict(u[k]), rtol=REF_RTOL, atol=1e-12)
+    np.testing.assert_allclose(est.phi, ref.Phi[:, 0], rtol=REF_RTOL, atol=1e-12)
+    if est.P is not None:
+        np.testing.assert_allclose(est.P, ref.P, rtol=1e-8, atol=1e-12)
+    if name.startswith("KF"):
+        np.testing.assert_allclose(est.P1, ref.P1, rtol=REF_RTOL, atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# A single estimator is its lane of a batch, bit for bit (same compiled code on both sides)
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.equality
+@pytest.mark.parametrize(
+    ("name", "kw"),
+    [
+        ("O-RLS", {}),
+        ("KF-MILS", {"p": 5, "process_noise": 1e-3}),
+        ("KF-D-MISG", {"p": 2, "form": "observability"}),
+        ("O-D-RLS", {"window": 20, "p0": 50.0}),
+        ("O-MILS", {"p": 2, "project_stable": True}),
+    ],
+)
+def test_single_estimator_equals_its_lane_bit_for_bit(name, kw):
+    B, T = 5, 150
+    rng = np.random.default_rng(7)
+    U = rng.standard_normal((T, B))
+    Y = rng.standard_normal((T, B))
+    batch = make_estimator(name, 2, num_envs=B, **kw)
+    assert isinstance(batch, RecursiveEstimator)
+    singles = [make_estimator(name, 2, **kw) for _ in range(B)]
+    for k in range(T):
+        th = batch.update(Y[k])
+        for i, s in enumerate(singles):
+            np.testing.assert_array_equal(s.update(Y[k, i]), th[i])
+        x = batch.predict(U[k])
+        for i, s in enumerate(singles):
+            np.testing.assert_array_equal(s.predict(U[k, i]), x[i])
+    for i, s in enumerate(singles):
+        np.testing.assert_array_equal(s.record[0], batch.record[i])
+    # and run() (a compiled T-step loop) is the same lane function again
+    again = make_estimator(name, 2, **kw)
+    np.testing.assert_array_equal(again.run(U[:, 0], Y[:, 0])[-1], singles[0].theta)
+
+
+def test_batched_lanes_have_their_own_initial_values():
+    theta0 = np.array([[0.1, 0.2, 0.3, 0.4], [0.0, 0.0, 1.0, 1.0]])
+    P0 = np.array([np.eye(4), 3 * np.eye(4)])
+    est = make_estimator("O-RLS", 2, num_envs=2, theta0=theta0, P0=P0)
+    np.testing.assert_array_equal(est.theta, theta0)
+    np.testing.assert_allclose(est.P, P0, rtol=1e-14)
+    est.update([1.0, 2.0])
+    est.predict([0.5, 0.5])
+    est.reset(lanes=[1])
+    np.testing.assert_array_equal(est.theta[1], theta0[1])
+    assert est.t.tolist() == [1, 0]
+
+
+# --------------------------------------------------------------------------------------------
+# Lifecycle: pickle / deepcopy, failed calls, bad batched input, mode=
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("num_envs", [None, 3])
+@pytest.mark.parametrize("name", ["KF-MILS", "O-D-SG"])
+def test_pickle_and_deepcopy_continue_identically(name, num_envs):
+    u, y = data(T=60)
+    p = 3 if "MI" in name else 1
+    est = make_estimator(name, 2, p=p, num_envs=num_envs)
+    B = 1 if num_envs is None else num_envs
+
+    def step(e, k):
+        yk = y[k] if num_envs is None else np.full(B, y[k])
+        uk = u[k] if num_envs is None else np.full(B, u[k])
+        th = e.update(yk)
+        e.predict(uk)
+        return th
+
+    for k in range(30):
+        step(est, k)
+    clones = [pickle.loads(pickle.dumps(est)), copy.deepcopy(est)]
+    for c in clones:
+        assert type(c) is RecursiveEstimator and c.num_envs == num_envs
+    for k in range(30, 60):
+        th = step(est, k)
+        for c in clones:
+            np.testing.assert_array_equal(step(c, k), th)
+    for c in clones:
+        np.testing.assert_array_equal(c.record, est.record)
+
+
+def test_a_rejected_or_failed_call_leaves_the_estimator_unchanged():
+    est = make_estimator("KF-MILS", 2, p=3, on_failure="raise")
+    u, y = data(T=20)
+    est.run(u, y)
+    before = est.record.copy()
+    for bad in (np.nan, "a", [1.0, 2.0]):
+        with pytest.raises(ValueError, match=r"y\(t\)"):
+            est.update(bad)
+    np.testing.assert_array_equal(est.record, before)
+    est._field("S")[0, 1, 1] = 0.0  # corrupt: rank lost
+    corrupted = est.record.copy()
+    with pytest.raises(NumericalHealthError):
+        est.update(1.0)
+    np.testing.assert_array_equal(est.record, corrupted)
+    with pytest.raises(NumericalHealthError):  # run() is all-or-nothing too
+        est.run(u, y)
+    np.testing.assert_array_equal(est.record, corrupted)
+
+
+def test_batched_bad_input_names_the_argument():
+    est = make_estimator("O-RLS", 2, num_envs=4)
+    with pytest.raises(ValueError, match=r"y\(t\) must have shape \(4,\)"):
+        est.update(np.ones(3))
+    est.update(np.ones(4))
+    with pytest.raises(ValueError, match=r"u\(t\) must have shape \(4,\)"):
+        est.predict(np.ones(5))
+    with pytest.raises(ValueError, match=r"lanes must be integers in \[0, 4\)"):
+        est.reset(lanes=[7])
+    with pytest.raises(ValueError, match=r"lanes must be integers in \[0, 4\)"):
+        est.reset(lanes=[-1])
+    with pytest.raises(ValueError, match=r"lanes as a boolean mask must have shape \(4,\)"):
+        est.reset(lanes=[True, False])
+    with pytest.raises(ValueError, match="lanes must be lane indices"):
+        est.reset(lanes=[0.5])
+    with pytest.raises(ValueError, match=r"enabled must be a bool or one flag per lane"):
+        est.enabled = [True, False]
+    with pytest.raises(ValueError, match="per-lane theta0"):
+        make_estimator("O-RLS", 2, num_envs=4, theta0=np.zeros((3, 4)))
+    with pytest.raises(ValueError, match="num_envs must be a positive integer"):
+        make_estimator("O-RLS", 2, num_envs=0)
+    est.predict(np.zeros(4))
+    est.reset(lanes=np.array([True, False, True, False]))
+    assert est.t.tolist() == [0, 1, 0, 1]
+
+
+def test_mode_keyword_is_gone_with_a_clear_error():
+    with pytest.raises(TypeError, match="no longer takes mode="):
+        make_estimator("O-RLS", 2, mode="fast")
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        make_estimator("O-RLS", 2, windw=3)
+
+
+def test_restart_reset_covariance_and_the_controller_interface():
+    """The published lane interface: restart at (theta, P), reset P(0), offsets of the spec."""
+    est = make_estimator("KF-D-RLS", 2, p0=10.0, process_noise=0.01)
+    u, y = data(T=50)
+    est.run(u, y)
+    theta = np.array([0.1, 0.2, 0.3, 0.4])
+    P = np.diag([1.0, 2.0, 3.0, 4.0])
+    x = est.x_hat
+    est.restart(theta, P)
+    np.testing.assert_array_equal(est.theta, theta)
+    np.testing.assert_allclose(est.P, P, rtol=1e-14)
+    np.testing.assert_array_equal(est.x_hat, x)
+    with pytest.raises(ValueError, match="not symmetric positive definite"):
+        est.restart(theta, -np.eye(4))
+    np.testing.assert_array_equal(est.theta, theta)
+    est.reset_covariance()
+    np.testing.assert_allclose(est.P, 10.0 * np.eye(4), rtol=1e-14)
+    spec = est.spec
+    rec = np.zeros(7 + spec.size)  # embedded at an offset in a caller's record
+    rec[7:] = spec.initial_record()
+    st = K.estimator_update(rec, 7, spec.cfg_f, spec.cfg_i, 1.0)
+    K.estimator_predict(rec, 7, spec.cfg_f, spec.cfg_i, 0.5)
+    ref = make_estimator("KF-D-RLS", 2, p0=10.0, process_noise=0.01)
+    ref.update(1.0)
+    ref.predict(0.5)
+    assert st == 0
+    np.testing.assert_array_equal(rec[7:], ref.record[0])
+    o = spec.offset("theta")
+    np.testing.assert_array_equal(rec[7 + o : 7 + o + 4], ref.theta)
+
+
+def test_callable_observer_gain_runs_per_lane():
+    gain = lambda a, b: -a  # noqa: E731  (dead-beat gain of the observer form)
+    single = make_estimator("CO-RLS", 2, observer_gain=gain, theta0=np.r_[A_TRUE, B_TRUE])
+    batch = make_estimator(
+        "CO-RLS", 2, observer_gain=gain, theta0=np.r_[A_TRUE, B_TRUE], num_envs=2
+    )
+    u, y = data(T=30)
+    out = single.run(u, y)
+    outb = batch.run(np.c_[u, u], np.c_[y, y])
+    np.testing.assert_array_equal(outb[:, 1], out)
+
+
+def test_frozen_signal_on_a_collapsed_covariance():
+    """A frozen wrong model (P collapsed, large innovation) raises the flag and a warning; the
+    same data with p0 = 100 does not."""
+    u2, y = data(T=3000, seed=1)
+    est = make_estimator("O-RLS", 2, theta0=[0.5, 0.5, -1.0, 0.0], p0=100.0)
+    est.enabled = False
+    est.run(u2[:10], y[:10])
+    est.enabled = True
+    est.restart([0.5, 0.5, -1.0, 0.0], 1e-12 * np.eye(4))  # a collapsed P on a wrong model
+    with pytest.warns(RuntimeWarning, match="frozen on a wrong model"):
+        est.run(u2[10:], y[10:])
+    assert est.health["frozen"] and est.frozen
+    good = make_estimator("O-RLS", 2, p0=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        good.run(u2, y)
+    assert not good.health["frozen"]
