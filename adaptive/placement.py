@@ -1,25 +1,25 @@
-"""Closed-form pole placement for single-input models, fast enough for a per-step loop.
+"""Certainty-equivalence design for single-input models: the numpy face of the lane functions.
 
 The self-tuning regulator re-designs its state feedback at every step on the estimated model
-``(A_hat(t), b_hat(t))`` built from ``theta_hat(t)`` (``shared/docs/algorithms.md`` §4,
-eq. (59)-(60) for O-RLS, the same matrices for every estimator). python-control's ``place`` /
-``acker`` are general but cost tens to hundreds of microseconds per call, so the hot path uses
-Ackermann's formula in plain numpy:
+``(A_hat(t), b_hat(t))`` built from ``theta_hat(t)`` (Ding & Ma 2014, eq. (59)-(60) for O-RLS,
+the same matrices for every estimator). The algorithms live once, as compiled lane functions in
+:mod:`stcgym.adaptive.kernels.design`; this module validates numpy input, calls them, and turns
+their status codes into exceptions:
 
-    K = e_m^T  Ctrb(A, b)^{-1}  phi_d(A),      Ctrb = [b, A b, ..., A^{m-1} b],
+* :func:`ackermann` / :func:`place_poles`: Ackermann's formula
 
-with ``phi_d(z) = z^m + alpha_1 z^{m-1} + ... + alpha_m`` the desired characteristic polynomial,
-so that ``eig(A - b K)`` are the desired poles.  Two things keep it cheap and honest:
+      K = e_m^T  Ctrb(A, b)^{-1}  phi_d(A),      Ctrb = [b, A b, ..., A^{m-1} b],
 
-* ``phi_d(A)`` is never formed: with the row ``w^T = e_m^T Ctrb^{-1}`` the gain is
-  ``K = sum_k alpha_{m-k} w^T A^k``, i.e. ``m`` row-vector/matrix products (``O(m^3)`` in all,
-  against ``O(m^4)`` for Horner on matrices; ``m = n + 1 <= 5`` on the benchmark plants).
-* one inverse of the column-normalised controllability matrix gives both the solve and a
-  reciprocal (1-norm) condition number; a model whose ``rcond`` falls below a threshold is
-  reported as (nearly) uncontrollable instead of returning a huge, meaningless gain.
-
-The module also builds the integral-action augmentation used for offset-free tracking and the
-steady-state (feed-forward) solution of a model.
+  with ``phi_d`` the desired characteristic polynomial, so that ``eig(A - b K)`` are the desired
+  poles. ``phi_d(A)`` is never formed (``K = sum_k alpha_{m-k} w^T A^k`` with ``w^T`` the last
+  row of ``Ctrb^{-1}``), and one inverse of the column-normalised controllability matrix gives
+  both the solve and a reciprocal (1-norm) condition number; a model whose ``rcond`` falls
+  below a threshold is reported as (nearly) uncontrollable instead of returning a huge,
+  meaningless gain. Equivalent to python-control's ``acker`` (and ``place`` for distinct poles).
+* :func:`lq_gain`: the infinite-horizon LQ gain and stabilising Riccati solution (python-control's
+  ``dlqr`` / ``dare`` for a single input), by structured doubling.
+* :func:`augment_integral`, :func:`steady_state_gains`: the integral-action augmentation used
+  for offset-free tracking and the steady-state (feed-forward) solution of a model.
 """
 
 from __future__ import annotations
@@ -27,12 +27,15 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.kernels import design as _design
+
 __all__ = [
     "UncontrollableError",
     "check_poles",
     "characteristic_coefficients",
     "controllability_matrix",
     "ackermann",
+    "lq_gain",
     "place_poles",
     "augment_integral",
     "steady_state_gains",
@@ -132,31 +135,16 @@ def ackermann(
     UncontrollableError
         ``rcond < rcond_min`` or the controllability matrix is exactly singular / non-finite.
     """
+    A = np.ascontiguousarray(A, dtype=float)
     m = A.shape[0]
-    C = controllability_matrix(A, b)
-    norms = np.sqrt(np.einsum("ij,ij->j", C, C))
-    if not np.all(np.isfinite(norms)) or np.any(norms == 0.0):
-        raise UncontrollableError("controllability matrix has a zero or non-finite column")
-    Cn = C / norms
-    try:
-        Cinv = np.linalg.inv(Cn)
-    except np.linalg.LinAlgError as exc:
-        raise UncontrollableError("controllability matrix is singular") from exc
-    # 1-norm reciprocal condition number (within a factor m of the 2-norm one, far cheaper
-    # than an SVD in the per-step loop).
-    rcond = float(1.0 / (np.abs(Cn).sum(axis=0).max() * np.abs(Cinv).sum(axis=0).max()))
-    if not rcond > max(rcond_min, 1e-14):
+    b = np.ascontiguousarray(b, dtype=float).reshape(m)
+    alpha = np.ascontiguousarray(alpha, dtype=float).reshape(m)
+    K = np.zeros(m)
+    rcond = float(_design.ackermann_gain(A, b, alpha, K, np.zeros(_design.work_size(m - 1))))
+    if not rcond > max(rcond_min, _design.RCOND_FLOOR):
         raise UncontrollableError(
             f"(A, b) is (nearly) uncontrollable: rcond of the controllability matrix {rcond:.3g}"
         )
-    # w^T = e_m^T Ctrb^{-1} = e_m^T diag(1/norms) Cn^{-1}: the last row of Cn^{-1}, scaled.
-    w = Cinv[m - 1] / norms[m - 1]
-    # K = w^T phi_d(A) = sum_{k=0}^{m} alpha_{m-k} w^T A^k  (alpha_0 = 1).
-    K = alpha[m - 1] * w
-    v = w
-    for k in range(1, m + 1):
-        v = v @ A
-        K = K + (alpha[m - 1 - k] if k < m else 1.0) * v
     return K, rcond
 
 
@@ -164,7 +152,8 @@ def place_poles(A: ArrayLike, b: ArrayLike, poles: ArrayLike, *, rcond_min: floa
     """Convenience wrapper: validate ``poles`` and return the Ackermann gain ``K`` (1-D).
 
     Equivalent to ``control.acker(A, b, poles)`` (and to ``control.place`` for distinct poles),
-    but closed-form numpy; raises :class:`UncontrollableError` for an uncontrollable pair.
+    closed-form (the lane function :func:`stcgym.adaptive.kernels.design.ackermann_gain`); raises
+    :class:`UncontrollableError` for an uncontrollable pair.
     """
     A = np.asarray(A, dtype=float)
     if A.ndim != 2 or A.shape[0] != A.shape[1]:
@@ -209,17 +198,73 @@ def steady_state_gains(A: NDArray, b: NDArray) -> tuple[NDArray, float, float]:
         Steady state per unit reference and the reciprocal 1-norm condition estimate of the
         Rosenbrock matrix (small means the DC gain is nearly zero: no feed-forward possible).
     """
+    A = np.ascontiguousarray(A, dtype=float)
     n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A - np.eye(n)
-    M[:n, n] = b
-    M[n, 0] = 1.0
-    try:
-        Minv = np.linalg.inv(M)
-    except np.linalg.LinAlgError:
-        return np.zeros(n), 0.0, 0.0
-    if not np.all(np.isfinite(Minv)):
-        return np.zeros(n), 0.0, 0.0
-    sol = Minv[:, n]  # = Minv @ [0, ..., 0, 1]
-    rcond = float(1.0 / (np.abs(M).sum(axis=0).max() * np.abs(Minv).sum(axis=0).max()))
-    return sol[:n].copy(), float(sol[n]), rcond
+    b = np.ascontiguousarray(b, dtype=float).reshape(n)
+    x_ss = np.zeros(n)
+    u_ss, rcond = _design.steady_state(A, b, x_ss, np.zeros(_design.work_size(n)))
+    return x_ss, float(u_ss), float(rcond)
+
+
+def lq_gain(
+    A: ArrayLike,
+    b: ArrayLike,
+    Q: ArrayLike,
+    R: float,
+    *,
+    tol: float = 1e-12,
+    max_iter: int = 64,
+) -> tuple[NDArray, NDArray]:
+    """Infinite-horizon LQ state feedback of the single-input pair ``(A, b)``.
+
+    Minimises ``sum x^T Q x + R u^2`` with ``u = -K x``: ``K = (R + b^T P b)^{-1} b^T P A`` with
+    ``P`` the stabilising solution of the discrete algebraic Riccati equation, computed by the
+    structure-preserving doubling algorithm of the lane function
+    :func:`stcgym.adaptive.kernels.design.dare` (the same code the self-tuning LQ design runs).
+    Equivalent to ``control.dlqr(A, b, Q, R)[:2]``.
+
+    Returns
+    -------
+    K, P
+        The gain (1-D, length ``m``) and the Riccati solution (``m x m``).
+
+    Raises
+    ------
+    ValueError
+        Malformed ``A``, ``b``, ``Q`` (not square / symmetric positive semidefinite / finite) or
+        ``R <= 0``.
+    UncontrollableError
+        No stabilising solution: ``(A, b)`` not stabilisable or ``(A, Q)`` not detectable
+        (the doubling diverges or the closed loop is not stable), or no convergence.
+    """
+    A = np.ascontiguousarray(A, dtype=float)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
+        raise ValueError(f"A must be a non-empty square matrix, got shape {A.shape}")
+    m = A.shape[0]
+    b = np.ascontiguousarray(b, dtype=float).reshape(-1)
+    if b.size != m:
+        raise ValueError(f"b must have {m} entries (single input), got {b.size}")
+    Q = np.ascontiguousarray(Q, dtype=float)
+    if Q.shape != (m, m):
+        raise ValueError(f"Q must have shape ({m}, {m}), got {Q.shape}")
+    for name, arr in (("A", A), ("b", b), ("Q", Q)):
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite")
+    if not np.allclose(Q, Q.T) or np.linalg.eigvalsh(0.5 * (Q + Q.T)).min() < -1e-12 * max(
+        1.0, np.abs(Q).max()
+    ):
+        raise ValueError("Q must be symmetric positive semidefinite")
+    R = float(R)
+    if not (R > 0 and np.isfinite(R)):
+        raise ValueError(f"R (input weight) must be a finite number > 0, got {R}")
+    P = np.zeros((m, m))
+    K = np.zeros(m)
+    char_A = np.ascontiguousarray(np.real(np.poly(A))[1:])  # det(zI - A), for the stability test
+    work = np.zeros(_design.solve_work_size(m - 1))
+    status = _design.dare(A, b, Q, R, char_A, P, K, work, tol, int(max_iter))
+    if status != _design.OK:
+        raise UncontrollableError(
+            f"no stabilising LQ solution ({_design.STATUS_NAMES[status]}): (A, b) is not "
+            "stabilisable or (A, Q) not detectable"
+        )
+    return K, P

@@ -1,4 +1,4 @@
-"""Closed-form pole placement (stcgym.adaptive.placement) against python-control."""
+"""Pole placement and LQ gains (stcgym.adaptive.placement) against python-control."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from stcgym.adaptive.placement import (
     characteristic_coefficients,
     check_poles,
     controllability_matrix,
+    lq_gain,
     place_poles,
     steady_state_gains,
 )
@@ -161,3 +162,76 @@ def test_steady_state_gains_integrator_and_zero_at_one() -> None:
     assert rcond > 1e-3 and u_ss == pytest.approx(0.0, abs=1e-12) and x_ss[0] == 1.0
     _, _, rcond0 = steady_state_gains(A, np.array([1.0, -1.0]))  # zero at z = 1
     assert rcond0 < 1e-12
+
+
+# ----------------------------------------------------------------------------- LQ (lq_gain)
+def _output_weight(m: int, n: int, q_i: float = 0.0) -> np.ndarray:
+    Q = np.zeros((m, m))
+    Q[0, 0] = 1.0
+    if m > n:
+        Q[n, n] = q_i
+    return Q
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("n", [1, 2, 4, 8])
+@pytest.mark.parametrize("integral", [False, True])
+def test_lq_gain_matches_control_dlqr(form: str, n: int, integral: bool) -> None:
+    rng = np.random.default_rng(300 + n)
+    A, b = _random_pair(rng, n, form)
+    if integral:
+        A, b = augment_integral(A, b)
+    Q = _output_weight(A.shape[0], n, 1e-2)
+    K, P = lq_gain(A, b, Q, 1e-2)
+    K_ref, P_ref, _ = control.dlqr(A, b.reshape(-1, 1), Q, [[1e-2]])
+    np.testing.assert_allclose(K, np.ravel(K_ref), rtol=1e-7, atol=1e-9 * np.abs(K_ref).max())
+    np.testing.assert_allclose(P, P_ref, rtol=1e-7, atol=1e-9 * np.abs(P_ref).max())
+    assert np.max(np.abs(np.linalg.eigvals(A - np.outer(b, K)))) < 1.0
+
+
+def test_lq_gain_matches_control_dare_with_full_weights() -> None:
+    rng = np.random.default_rng(5)
+    A, b = _random_pair(rng, 3, "observer")
+    L = rng.normal(size=(3, 3))
+    Q = L @ L.T
+    K, P = lq_gain(A, b, Q, 0.7)
+    X, _, G = control.dare(A, b.reshape(-1, 1), Q, [[0.7]])
+    np.testing.assert_allclose(P, X, rtol=1e-8)
+    np.testing.assert_allclose(K, np.ravel(G), rtol=1e-8)
+
+
+def test_lq_gain_rejects_unstabilisable_and_bad_input() -> None:
+    # pole at 2 cancelled by the zero of b(z) = z - 2: (A, b) is not stabilisable
+    A = companion_A(np.array([-3.0, 2.0]), "observer")
+    with pytest.raises(UncontrollableError, match="stabilis"):
+        lq_gain(A, np.array([1.0, -2.0]), np.diag([1.0, 0.0]), 0.01)
+    # stable cancelled pole: stabilisable, the DARE has a solution (python-control agrees)
+    A_s = companion_A(np.poly([0.5, 0.8])[1:], "observer")
+    K, P = lq_gain(A_s, np.array([1.0, -0.5]), np.diag([1.0, 0.0]), 0.01)
+    K_ref, P_ref, _ = control.dlqr(A_s, np.array([[1.0], [-0.5]]), np.diag([1.0, 0.0]), [[0.01]])
+    np.testing.assert_allclose(K, np.ravel(K_ref), rtol=1e-7)
+    with pytest.raises(ValueError, match="R"):
+        lq_gain(A, np.array([1.0, 0.5]), np.eye(2), 0.0)
+    with pytest.raises(ValueError, match="Q"):
+        lq_gain(A, np.array([1.0, 0.5]), -np.eye(2), 1.0)
+    with pytest.raises(ValueError, match="Q must have shape"):
+        lq_gain(A, np.array([1.0, 0.5]), np.eye(3), 1.0)
+    with pytest.raises(ValueError, match="b must have 2"):
+        lq_gain(A, np.array([1.0]), np.eye(2), 1.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 5), seed=st.integers(0, 2**31 - 1), form=st.sampled_from(FORMS))
+def test_lq_gain_solves_the_riccati_equation(n: int, seed: int, form: str) -> None:
+    """Property: the returned P satisfies the DARE and K = (R + b'Pb)^-1 b'PA, loop stable."""
+    rng = np.random.default_rng(seed)
+    A, b = _random_pair(rng, n, form)
+    A, b = augment_integral(A, b)
+    Q = _output_weight(n + 1, n, rng.uniform(1e-3, 1.0))
+    R = float(rng.uniform(1e-3, 10.0))
+    K, P = lq_gain(A, b, Q, R)
+    s = R + b @ P @ b
+    np.testing.assert_allclose(K, (b @ P @ A) / s, rtol=1e-9, atol=1e-12 * np.abs(K).max())
+    residual = Q + A.T @ P @ A - np.outer(A.T @ P @ b, b @ P @ A) / s - P
+    assert np.abs(residual).max() <= 1e-7 * max(1.0, np.abs(P).max())
+    assert np.max(np.abs(np.linalg.eigvals(A - np.outer(b, K)))) < 1.0

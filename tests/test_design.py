@@ -1,0 +1,397 @@
+"""Certainty-equivalence design lane functions (stcgym.adaptive.kernels.design).
+
+References: python-control's ``acker`` / ``dlqr`` on the integral-augmented canonical model, the
+steady-state equations solved with numpy, and the tracking law written out by hand.
+"""
+
+from __future__ import annotations
+
+import math
+
+import control
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from stcgym.adaptive.kernels import design as d
+from stcgym.adaptive.placement import augment_integral, controllability_matrix
+from stcgym.envs.canonical import companion_A
+
+FORMS = {"observer": d.OBSERVER, "observability": d.OBSERVABILITY}
+
+
+def _plant(rng: np.random.Generator, n: int, form: str) -> tuple[np.ndarray, np.ndarray]:
+    """Random ``theta = [a; b]`` whose augmented model is well controllable, and its ``A``."""
+    while True:
+        theta = np.r_[rng.uniform(-1.2, 1.2, n), rng.uniform(-1.0, 1.0, n)]
+        A = companion_A(theta[:n], form)
+        Aa, ba = augment_integral(A, theta[n:])
+        C = controllability_matrix(Aa, ba)
+        if np.linalg.cond(C / np.linalg.norm(C, axis=0)) < 1e5:
+            return theta, A
+
+
+def _models(theta: np.ndarray, form: str, integral: bool) -> tuple[np.ndarray, ...]:
+    n = theta.size // 2
+    A = companion_A(theta[:n], form)
+    b = theta[n:].copy()
+    Ad, bd = augment_integral(A, b) if integral else (A, b)
+    return A, b, Ad, bd
+
+
+def _alpha(poles: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.real(np.poly(poles))[1:])
+
+
+def _dc_reference(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """``x_ss``, ``u_ss`` for ``y = 1`` by numpy's solver (the independent reference)."""
+    n = A.shape[0]
+    M = np.block([[A - np.eye(n), b[:, None]], [np.eye(1, n), np.zeros((1, 1))]])
+    sol = np.linalg.solve(M, np.r_[np.zeros(n), 1.0])
+    return sol[:n], sol[n]
+
+
+# ------------------------------------------------------------------------------ pole placement
+@pytest.mark.parametrize("form", list(FORMS))
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 8])
+@pytest.mark.parametrize(("integral", "feedforward"), [(True, True), (False, True), (True, False)])
+def test_place_design_matches_acker(form: str, n: int, integral: bool, feedforward: bool) -> None:
+    rng = np.random.default_rng(10 * n + integral)
+    theta, _ = _plant(rng, n, form)
+    A, b, Ad, bd = _models(theta, form, integral)
+    m = Ad.shape[0]
+    poles = np.linspace(0.2, 0.7, m)
+    gain = np.zeros(d.gain_size(n))
+    status = d.place_design(
+        theta, FORMS[form], integral, feedforward, _alpha(poles), d.safe_set(), gain,
+        np.zeros(d.work_size(n)),
+    )  # fmt: skip
+    assert status == d.OK
+    K_ref = np.ravel(control.acker(Ad, bd[:, None], poles))
+    K = np.r_[gain[:n], gain[n]] if integral else gain[:n]
+    np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9 * np.abs(K_ref).max())
+    assert gain[n + 2] == 1.0 and gain[n + 3] > 0.0
+    if integral is False:
+        assert gain[n] == 0.0
+    if feedforward:
+        # N = u_ss + K_x x_ss: on the exact model the loop rests at y = r with xi = 0
+        x_ss, u_ss = _dc_reference(A, b)
+        assert gain[n + 1] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-8, abs=1e-10)
+        x_cl = np.linalg.solve(np.eye(n) - (A - np.outer(b, K_ref[:n])), b * gain[n + 1])
+        assert x_cl[0] == pytest.approx(1.0, rel=1e-7)
+    else:
+        assert gain[n + 1] == 0.0
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    n=st.integers(1, 8),
+    seed=st.integers(0, 2**31 - 1),
+    form=st.sampled_from(list(FORMS)),
+    radius=st.floats(0.0, 0.95),
+)
+def test_place_design_characteristic_polynomial(
+    n: int, seed: int, form: str, radius: float
+) -> None:
+    """Property: the augmented closed loop has the requested characteristic polynomial."""
+    rng = np.random.default_rng(seed)
+    theta, _ = _plant(rng, n, form)
+    _, _, Ad, bd = _models(theta, form, True)
+    m = n + 1
+    half = radius * np.exp(1j * np.pi * rng.uniform(0, 1, m // 2))
+    poles = np.r_[half, half.conj(), radius * rng.uniform(-1, 1, m % 2)]
+    alpha = _alpha(poles)
+    gain = np.zeros(d.gain_size(n))
+    assert d.place_design(
+        theta, FORMS[form], True, True, alpha, d.safe_set(), gain, np.zeros(d.work_size(n))
+    ) == d.OK  # fmt: skip
+    K = np.r_[gain[:n], gain[n]]
+    char = np.poly(Ad - np.outer(bd, K))
+    scale = max(1.0, np.abs(K).max() * np.abs(bd).max())
+    np.testing.assert_allclose(char[1:], alpha, atol=1e-8 * scale)
+
+
+# ------------------------------------------------------------------------------ safe set
+def _status(theta: np.ndarray, safe: np.ndarray, gain: np.ndarray, **kw: object) -> int:
+    n = theta.size // 2
+    return d.place_design(
+        theta, kw.get("form", d.OBSERVER), kw.get("integral", True), kw.get("feedforward", True),
+        _alpha(np.full(n + 1, 0.5)), safe, gain, np.zeros(d.work_size(n)),
+    )  # fmt: skip
+
+
+def test_safe_set_status_codes_and_last_good_gain_kept() -> None:
+    good = np.array([-1.5, 0.7, 1.0, 0.5])  # stable2
+    gain = np.zeros(d.gain_size(2))
+    assert _status(good, d.safe_set(), gain) == d.OK
+    kept = gain.copy()
+    cases = {
+        d.NONFINITE: (np.array([-1.5, np.nan, 1.0, 0.5]), d.safe_set()),
+        d.B_SMALL: (np.array([-1.5, 0.7, 1e-3, 1e-3]), d.safe_set(b_min=0.01)),
+        # (z - 0.5) cancels: a(z) = (z - 0.5)(z - 0.8), b(z) = z - 0.5
+        d.UNCONTROLLABLE: (np.r_[np.poly([0.5, 0.8])[1:], 1.0, -0.5], d.safe_set()),
+        d.GAIN_LARGE: (good, d.safe_set(gain_max=0.5)),
+    }
+    for code, (theta, safe) in cases.items():
+        assert _status(theta, safe, gain) == code, d.STATUS_NAMES[code]
+        np.testing.assert_array_equal(gain, kept)
+    near = np.r_[np.poly([0.5, 0.8])[1:], 1.0, -0.5 + 1e-6]
+    assert _status(near, d.safe_set(), gain) == d.OK
+    assert _status(near, d.safe_set(rcond_min=1e-3), gain) == d.UNCONTROLLABLE
+    # b(z) = z - 1: a zero at z = 1 (with integral action the integrator would cancel it and
+    # the model be uncontrollable, so without)
+    zero_at_one = np.array([-1.5, 0.7, 1.0, -1.0])
+    assert _status(zero_at_one, d.safe_set(), gain, integral=False) == d.DC_SINGULAR
+    assert _status(zero_at_one, d.safe_set(), gain, integral=False, feedforward=False) == d.OK
+    assert [d.STATUS_NAMES[c] for c in range(8)] == [
+        "ok", "nonfinite", "b_small", "uncontrollable", "dc_singular", "gain_large",
+        "not_stabilisable", "not_converged",
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"gain_max": 0.0}, "gain_max"),
+        ({"gain_max": -1.0}, "gain_max"),
+        ({"gain_max": float("nan")}, "gain_max"),
+        ({"b_min": -1.0}, "b_min"),
+        ({"b_min": "big"}, "b_min"),
+        ({"rcond_min": 1.5}, "rcond_min"),
+        ({"dc_rcond_min": -0.1}, "dc_rcond_min"),
+    ],
+)
+def test_safe_set_rejects_nonsense(kwargs: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        d.safe_set(**kwargs)
+
+
+def test_short_work_array_is_an_error_not_garbage() -> None:
+    theta = np.array([-1.5, 0.7, 1.0, 0.5])
+    with pytest.raises(ValueError, match="work"):
+        d.place_design(
+            theta, d.OBSERVER, True, True, _alpha(np.full(3, 0.5)), d.safe_set(),
+            np.zeros(d.gain_size(2)), np.zeros(d.work_size(1)),
+        )  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ LQ
+@pytest.mark.parametrize("form", list(FORMS))
+@pytest.mark.parametrize("n", [1, 2, 4, 8])
+@pytest.mark.parametrize("integral", [True, False])
+def test_lq_solve_and_riccati_iteration_match_dlqr(form: str, n: int, integral: bool) -> None:
+    rng = np.random.default_rng(50 + n)
+    theta, _ = _plant(rng, n, form)
+    A, b, Ad, bd = _models(theta, form, integral)
+    m = Ad.shape[0]
+    weights = np.array([1.0, 0.05, 0.02])
+    Q = np.zeros((m, m))
+    Q[0, 0] = weights[0]
+    if integral:
+        Q[n, n] = weights[1]
+    K_ref, P_ref, _ = control.dlqr(Ad, bd[:, None], Q, [[weights[2]]])
+    K_ref = np.ravel(K_ref)
+    gain = np.zeros(d.gain_size(n))
+    P = np.zeros((m, m))
+    status = d.lq_solve(
+        theta, FORMS[form], integral, True, weights, d.safe_set(), P, gain,
+        np.zeros(d.solve_work_size(n)), 1e-12, 64,
+    )  # fmt: skip
+    assert status == d.OK
+    K = np.r_[gain[:n], gain[n]] if integral else gain[:n]
+    np.testing.assert_allclose(K, K_ref, rtol=1e-7, atol=1e-10 * np.abs(K_ref).max())
+    np.testing.assert_allclose(P, P_ref, rtol=1e-7, atol=1e-10 * np.abs(P_ref).max())
+    x_ss, u_ss = _dc_reference(A, b)
+    assert gain[n + 1] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-7, abs=1e-10)
+    # one Riccati iteration per call from the cold start P = Q converges to the same gain
+    P_it = d.lq_initial_P(n, integral, weights)
+    np.testing.assert_array_equal(P_it, Q)
+    g_it = np.zeros(d.gain_size(n))
+    work = np.zeros(d.work_size(n))
+    for _ in range(3000):
+        assert (
+            d.lq_design(theta, FORMS[form], integral, True, weights, d.safe_set(), P_it, g_it, work)
+            == d.OK
+        )
+    np.testing.assert_allclose(g_it, gain, rtol=1e-6, atol=1e-9 * np.abs(gain).max())
+
+
+def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
+    """One call = one step of P <- Q + A'PA - A'Pb (rho + b'Pb)^-1 b'PA (numpy by hand)."""
+    theta = np.array([-1.1, 0.3, 0.8, 0.4])
+    weights = np.array([1.0, 0.01, 0.01])
+    _, _, Ad, bd = _models(theta, "observer", True)
+    rng = np.random.default_rng(0)
+    L = rng.normal(size=(3, 3))
+    P = L @ L.T
+    P_ref = P.copy()
+    gain = np.zeros(d.gain_size(2))
+    assert d.lq_design(theta, d.OBSERVER, True, True, weights, d.safe_set(), P, gain,
+                       np.zeros(d.work_size(2))) == d.OK  # fmt: skip
+    Q = np.diag([1.0, 0.0, 0.01])
+    rho = 0.01
+    s = rho + bd @ P_ref @ bd
+    P_next = Q + Ad.T @ P_ref @ Ad - np.outer(Ad.T @ P_ref @ bd, bd @ P_ref @ Ad) / s
+    np.testing.assert_allclose(P, P_next, rtol=1e-10)
+    K = (bd @ P_next @ Ad) / (rho + bd @ P_next @ bd)
+    np.testing.assert_allclose(np.r_[gain[:2], gain[2]], K, rtol=1e-10)
+
+
+def test_lq_not_stabilisable_plant() -> None:
+    # a(z) = (z - 1)(z - 2), b(z) = z - 2: the unstable pole at 2 is cancelled
+    theta = np.array([-3.0, 2.0, 1.0, -2.0 + 1e-9])
+    weights = np.array(d.DEFAULT_LQ_WEIGHTS)
+    gain = np.zeros(d.gain_size(2))
+    P = np.zeros((3, 3))
+    status = d.lq_solve(
+        theta, d.OBSERVER, True, True, weights, d.safe_set(), P, gain,
+        np.zeros(d.solve_work_size(2)), 1e-12, 64,
+    )  # fmt: skip
+    assert status == d.NOT_STABILISABLE
+    assert not gain.any() and not P.any()
+    # the per-step iteration blows up and restarts from Q with NOT_STABILISABLE
+    P = d.lq_initial_P(2, True, weights)
+    codes = set()
+    for _ in range(200):
+        codes.add(d.lq_design(theta, d.OBSERVER, True, True, weights, d.safe_set(rcond_min=0.0),
+                              P, gain, np.zeros(d.work_size(2))))  # fmt: skip
+        assert np.all(np.isfinite(P)) and np.abs(P).max() <= d.P_MAX
+    assert d.NOT_STABILISABLE in codes
+
+
+def test_lq_solve_ill_conditioned_but_stabilisable() -> None:
+    """A near cancellation of an unstable pole: huge but valid gain (python-control agrees)."""
+    theta = np.array([-3.0, 2.0, 1.0, -2.0 + 1e-3])
+    weights = np.array(d.DEFAULT_LQ_WEIGHTS)
+    _, _, Ad, bd = _models(theta, "observer", True)
+    K_ref, _, E = control.dlqr(Ad, bd[:, None], np.diag([1.0, 0.0, 1e-2]), [[1e-2]])
+    assert np.abs(E).max() < 1
+    gain = np.zeros(d.gain_size(2))
+    P = np.zeros((3, 3))
+    assert d.lq_solve(theta, d.OBSERVER, True, True, weights, d.safe_set(), P, gain,
+                      np.zeros(d.solve_work_size(2)), 1e-12, 64) == d.OK  # fmt: skip
+    np.testing.assert_allclose(np.r_[gain[:2], gain[2]], np.ravel(K_ref), rtol=1e-5)
+
+
+# ------------------------------------------------------------------------------ tracking law
+def _law_by_hand(K, ki, N, xi, x, y, r, e, bound, integral, anti_windup):
+    u = N * r - K @ x - ki * xi + e
+    u_sat = float(np.clip(u, -bound, bound))
+    sat = u_sat != u
+    if integral and not (anti_windup and sat and (-ki * (r - y)) * u > 0):
+        xi = xi + (r - y)
+    return u_sat, xi, sat, u
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    vals=st.lists(st.floats(-5, 5), min_size=8, max_size=8),
+    bound=st.sampled_from([0.5, 3.0, math.inf]),
+    integral=st.booleans(),
+    anti_windup=st.booleans(),
+)
+def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> None:
+    K = np.array(vals[:2])
+    ki, N, xi, y, r, e = vals[2], vals[3], vals[4], vals[5], vals[6], vals[7]
+    x = np.array([0.3, -0.7])
+    gain = np.r_[K, ki if integral else 0.0, N, 1.0, 0.5]
+    law = np.array([xi, 0.0, 0.0])
+    u = d.track(gain, law, x, y, r, e, bound, integral, anti_windup)
+    u_ref, xi_ref, sat_ref, u_unsat = _law_by_hand(
+        K, ki if integral else 0.0, N, xi, x, y, r, e, bound, integral, anti_windup
+    )
+    assert u == pytest.approx(u_ref, rel=1e-12, abs=1e-12)
+    assert law[d.XI] == pytest.approx(xi_ref, rel=1e-12, abs=1e-12)
+    assert law[d.SATURATED] == float(sat_ref)
+    assert law[d.U_UNSAT] == pytest.approx(u_unsat, rel=1e-12, abs=1e-12)
+
+
+def test_track_without_gain_applies_only_the_excitation() -> None:
+    gain = np.zeros(d.gain_size(2))
+    gain[:2] = [5.0, 5.0]  # never used while has_gain is 0
+    law = np.array([0.7, 0.0, 0.0])
+    assert d.track(gain, law, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True) == 0.25
+    assert law[d.XI] == 0.7  # the integrator waits for a gain
+    assert d.track(gain, law, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True) == 10.0
+
+
+# ------------------------------------------------------------------------------ Kalman filter
+def test_filtered_state_is_the_kalman_correction() -> None:
+    x = np.array([0.2, -0.4, 1.0])
+    L = np.random.default_rng(1).normal(size=(3, 3))
+    P = L @ L.T
+    xf = np.empty(3)
+    innov = d.filtered_state(x, P, 0.3, 1.5, xf)
+    c = np.eye(1, 3)
+    gain_ref = P @ c.T / (0.3 + (c @ P @ c.T).item())
+    np.testing.assert_allclose(xf, x + gain_ref.ravel() * (1.5 - 0.2), rtol=1e-13)
+    assert innov == pytest.approx(1.3)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"q_y": 0.0}, "q_y"),
+        ({"rho": -1.0}, "rho"),
+        ({"rho": float("inf")}, "rho"),
+        ({"q_i": 0.0}, "q_i"),
+        ({"q_i": "x"}, "q_i"),
+    ],
+)
+def test_lq_weights_reject_nonsense(kwargs: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        d.lq_weights(**kwargs)
+
+
+def test_lq_weights_defaults_and_no_integral() -> None:
+    np.testing.assert_array_equal(d.lq_weights(), d.DEFAULT_LQ_WEIGHTS)
+    np.testing.assert_array_equal(d.lq_weights(q_i=0.0, integral=False), [1.0, 0.0, 1e-2])
+
+
+def test_batch_loops_equal_the_lane_functions() -> None:
+    """The prange loops run the same compiled lane function per row: equal bit for bit."""
+    rng = np.random.default_rng(11)
+    thetas = np.array([_plant(rng, 3, "observer")[0] for _ in range(6)])
+    thetas[2, 4] = np.nan  # one lane outside the safe set
+    alpha = _alpha(np.full(4, 0.4))
+    gains = np.zeros((6, d.gain_size(3)))
+    status = np.zeros(6, dtype=np.int64)
+    d.place_design_lanes(thetas, d.OBSERVER, True, True, alpha, d.safe_set(), gains, status)
+    weights = d.lq_weights()
+    Ps = np.zeros((6, 4, 4))
+    gains_lq = np.zeros((6, d.gain_size(3)))
+    status_lq = np.zeros(6, dtype=np.int64)
+    d.lq_solve_lanes(
+        thetas, d.OBSERVER, True, True, weights, d.safe_set(), Ps, gains_lq, status_lq, 1e-12, 64
+    )
+    for i in range(6):
+        g = np.zeros(d.gain_size(3))
+        work = np.zeros(d.solve_work_size(3))
+        st_i = d.place_design(thetas[i], d.OBSERVER, True, True, alpha, d.safe_set(), g, work)
+        assert status[i] == st_i
+        np.testing.assert_array_equal(gains[i], g)
+        P = np.zeros((4, 4))
+        g_lq = np.zeros(d.gain_size(3))
+        st_lq = d.lq_solve(
+            thetas[i], d.OBSERVER, True, True, weights, d.safe_set(), P, g_lq, work, 1e-12, 64
+        )
+        assert status_lq[i] == st_lq
+        np.testing.assert_array_equal(gains_lq[i], g_lq)
+        np.testing.assert_array_equal(Ps[i], P)
+    assert status[2] == d.NONFINITE and status_lq[2] == d.NONFINITE
+
+
+@pytest.mark.parametrize("form", list(FORMS))
+def test_kalman_covariance_lanes_match_dlqe(form: str) -> None:
+    rng = np.random.default_rng(12)
+    thetas = np.array([_plant(rng, 3, form)[0] for _ in range(3)])
+    W = np.stack([1e-4 * np.outer(t[3:], t[3:]) + 1e-6 * np.eye(3) for t in thetas])
+    Ps = np.zeros((3, 3, 3))
+    status = np.zeros(3, dtype=np.int64)
+    d.kalman_covariance_lanes(thetas, FORMS[form], W, 0.05**2, Ps, status, 1e-12, 64)
+    assert not status.any()
+    for t, Wi, P in zip(thetas, W, Ps, strict=True):
+        A = companion_A(t[:3], form)
+        _, P_ref, _ = control.dlqe(A, np.eye(3), np.eye(1, 3), Wi, [[0.05**2]])
+        np.testing.assert_allclose(P, P_ref, rtol=1e-7, atol=1e-12)
