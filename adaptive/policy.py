@@ -9,9 +9,10 @@ known-model oracles alike. SB3 models satisfy :class:`Policy` structurally (``is
 through :class:`typing.runtime_checkable`) except for ``reset``; :func:`reset_policy` copes with
 both.
 
-:class:`StatefulPolicy` is the base of the classical controllers. A controller is a causal
-filter with internal state (estimates, integrator, excitation sequence); the base class turns a
-single-observation step ``_act(obs) -> u`` into the SB3 convention:
+:class:`StatefulPolicy` is the base of the known-model oracles (the self-tuning controller,
+:class:`~stcgym.adaptive.controller.SelfTuningController`, holds its lanes in arrays itself).
+A controller is a causal filter with internal state (estimates, integrator); the base class
+turns a single-observation step ``_act(obs) -> u`` into the SB3 convention:
 
 * a single observation of shape ``(obs_dim,)`` gives an action of shape ``(1,)``;
 * a batch of shape ``(B, obs_dim)`` (a vectorised env) gives actions of shape ``(B, 1)``; each
@@ -34,7 +35,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["BatchedPolicy", "Policy", "StatefulPolicy", "reset_policy", "validate_observation"]
+__all__ = ["Policy", "StatefulPolicy", "reset_policy", "validate_observation"]
 
 
 @runtime_checkable
@@ -149,46 +150,3 @@ class StatefulPolicy(ABC):
                 f"got {starts.size}"
             )
         return starts
-
-
-class BatchedPolicy(ABC):
-    """Base class of the batched controllers: ``num_envs`` lanes stepped together on arrays.
-
-    ``predict`` takes the vector env's observations ``(num_envs, obs_dim)`` and returns actions
-    ``(num_envs, 1)``; ``episode_start`` resets the flagged lanes first. Unlike
-    :class:`StatefulPolicy` the lanes live in arrays with a leading lane axis, not in copies.
-    """
-
-    obs_dim: int = 2
-    num_envs: int
-
-    @abstractmethod
-    def reset(self, lanes: ArrayLike | None = None) -> None:
-        """Reset all lanes, or those selected by a boolean mask / index array."""
-
-    @abstractmethod
-    def act(self, y: NDArray, r: NDArray) -> NDArray:
-        """One step of every lane on outputs ``y`` and references ``r`` (shape ``(B,)``)."""
-
-    def predict(
-        self,
-        observation: ArrayLike,
-        state: Any = None,
-        episode_start: ArrayLike | bool | None = None,
-        deterministic: bool = True,
-    ) -> tuple[NDArray, Any]:
-        """Actions ``(B, 1)`` for observations ``(B, 2)``; ``episode_start`` resets lanes first."""
-        obs, single = validate_observation(observation, self.obs_dim)
-        if obs.shape[0] != self.num_envs:
-            raise ValueError(
-                f"expected {self.num_envs} observations (one per lane), got {obs.shape[0]}"
-            )
-        if episode_start is not None:
-            starts = np.broadcast_to(
-                np.asarray(episode_start, dtype=bool).reshape(-1), (self.num_envs,)
-            )
-            if starts.any():
-                self.reset(starts)
-        # Copies: the caller's observation array and the controller's work buffers stay apart.
-        u = self.act(obs[:, 0].copy(), obs[:, 1].copy())
-        return (u.reshape(-1).copy() if single else u[:, None].copy()), state

@@ -6,7 +6,7 @@ Usage::
 
 Setting (the issue's): catalogue plants in ``stcgym/ObserverCanonical-v0``, unit square-wave
 reference of period 100, output noise std 0.05, ``action_bound`` 10, ``control_cost`` 0.01,
-2000 steps, seeds ``0 .. seeds-1`` (env seed = controller PRBS seed). Cost of step ``k`` is the
+2000 steps, seeds ``0 .. seeds-1`` (env seed = controller probe seed). Cost of step ``k`` is the
 env's ``-reward = (y_clean(k+1) - r(k+1))^2 + rho u(k)^2``.
 
 Columns (ratios are of the seed-averaged window costs; ``max`` is the worst single seed):
@@ -14,8 +14,9 @@ Columns (ratios are of the seed-averaged window costs; ``max`` is the worst sing
 * ``bounded``: episodes that never left ``|y| <= 100`` (the env's divergence bound);
 * ``steady``: cost over steps 1000-2000, regulator / :class:`KnownModelController` (same poles,
   same law, Kalman filter on the true model);
-* ``start exc`` / ``start no-exc``: cost over steps 0-200 with the default excitation phase
-  (100 steps of PRBS, amplitude 3, aborted when ``|y| > 5``) and with ``excitation_steps=0``;
+* ``start``: cost over steps 0-200 (the start-up: a seeded probe for ``2n`` steps, then the
+  loop is closed; see ``benchmarks/startup.py`` for the full start-up figures);
+* ``LQ/LQG``: ``design="lq"`` against :class:`LQGController`, steady window and start;
 * ``O-RLS steady``: the same steady ratio with ``estimator="O-RLS"``;
 * ``oracle``: the oracle's steady cost; ``LQG/PP``: LQG oracle cost / pole-placement oracle cost
   (constant plants only);
@@ -86,7 +87,7 @@ def _one_seed(plant: str, seed: int, steps: int) -> dict[str, Any]:
         warnings.simplefilter("ignore", RuntimeWarning)
         for key, kw in (
             ("stc", {}),
-            ("noexc", {"excitation_steps": 0}),
+            ("lq", {"design": "lq"}),
             ("orls", {"estimator": "O-RLS"}),
         ):
             ctl = SelfTuningController(spec.n, seed=seed, action_bound=ACTION_BOUND, **kw)
@@ -103,13 +104,15 @@ def _one_seed(plant: str, seed: int, steps: int) -> dict[str, Any]:
     return out
 
 
-def _window_ratio(runs: list[dict], key: str, window: slice) -> tuple[float, float]:
+def _window_ratio(
+    runs: list[dict], key: str, window: slice, ref: str = "oracle"
+) -> tuple[float, float]:
     """Ratio of seed-averaged window costs (bounded runs only) and the worst per-seed ratio."""
-    ok = [r for r in runs if r[key]["bounded"] and r["oracle"]["bounded"]]
+    ok = [r for r in runs if r[key]["bounded"] and r[ref]["bounded"]]
     if not ok:
         return float("nan"), float("nan")
     num = np.array([r[key]["cost"][window].mean() for r in ok])
-    den = np.array([r["oracle"]["cost"][window].mean() for r in ok])
+    den = np.array([r[ref]["cost"][window].mean() for r in ok])
     return float(num.mean() / den.mean()), float(np.max(num / den))
 
 
@@ -120,12 +123,12 @@ def plant_figures(plant: str, seeds: int, steps: int, jobs: int) -> dict[str, An
     start = slice(0, min(200, steps))
     row: dict[str, Any] = {"plant": plant}
     row["bounded"] = 100.0 * np.mean([r["stc"]["bounded"] for r in runs])
-    row["bounded_noexc"] = 100.0 * np.mean([r["noexc"]["bounded"] for r in runs])
+    row["bounded_lq"] = 100.0 * np.mean([r["lq"]["bounded"] for r in runs])
     row["bounded_orls"] = 100.0 * np.mean([r["orls"]["bounded"] for r in runs])
     row["steady"] = _window_ratio(runs, "stc", steady)
-    row["start_exc"] = _window_ratio(runs, "stc", start)
-    row["start_noexc"] = _window_ratio(runs, "noexc", start)
-    row["steady_noexc"] = _window_ratio(runs, "noexc", steady)
+    row["start"] = _window_ratio(runs, "stc", start)
+    row["start_lq"] = _window_ratio(runs, "lq", start, "lqg")
+    row["steady_lq"] = _window_ratio(runs, "lq", steady, "lqg")
     row["orls"] = _window_ratio(runs, "orls", steady)
     row["oracle"] = float(np.mean([r["oracle"]["cost"][steady].mean() for r in runs]))
     lqg = [r["lqg"]["cost"][steady].mean() for r in runs if r["lqg"]["bounded"]]
@@ -169,13 +172,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     print(
-        f"Self-tuning regulator (KF-MILS, p=2, defaults) vs known-model pole placement; "
+        f"Self-tuning regulator (defaults: ELS, pole placement) vs known-model pole placement; "
         f"{args.seeds} seeds x {args.steps} steps, noise std {NOISE_STD}, square wave period 100."
     )
     print("Ratios: seed-averaged cost / oracle cost (worst seed in brackets).\n")
     head = (
-        "| plant | bounded % (no-exc, O-RLS) | steady 1000-2000 | start 0-200 exc | "
-        "start 0-200 no-exc | steady no-exc | O-RLS steady | oracle cost | LQG/PP | post-jump |"
+        "| plant | bounded % (LQ, O-RLS) | steady 1000-2000 | start 0-200 | "
+        "LQ/LQG start 0-200 | LQ/LQG steady | O-RLS steady | oracle cost | LQG/PP | post-jump |"
     )
     print(head)
     print("|---" * (head.count("|") - 1) + "|")
@@ -183,16 +186,16 @@ def main(argv: list[str] | None = None) -> None:
         row = plant_figures(plant, args.seeds, args.steps, args.jobs)
         post = _fmt(row["post_jump"]) if "post_jump" in row else ""
         print(
-            f"| {plant} | {row['bounded']:.0f} ({row['bounded_noexc']:.0f}, "
-            f"{row['bounded_orls']:.0f}) | {_fmt(row['steady'])} | {_fmt(row['start_exc'])} | "
-            f"{_fmt(row['start_noexc'])} | {_fmt(row['steady_noexc'])} | {_fmt(row['orls'])} | "
+            f"| {plant} | {row['bounded']:.0f} ({row['bounded_lq']:.0f}, "
+            f"{row['bounded_orls']:.0f}) | {_fmt(row['steady'])} | {_fmt(row['start'])} | "
+            f"{_fmt(row['start_lq'])} | {_fmt(row['steady_lq'])} | {_fmt(row['orls'])} | "
             f"{row['oracle']:.3f} | {row['lqg_pp']:.2f} | {post} |",
             flush=True,
         )
     print("\nCost of one controller step (predict on one observation, median):\n")
     print("| estimator | n = 2 (stable2) | n = 4 (stable4) |")
     print("|---|---|---|")
-    for est in ("O-RLS", "KF-MILS"):
+    for est in ("ELS", "O-RLS", "KF-MILS"):
         print(
             f"| {est} | {step_cost_us(est, 'stable2'):.0f} us | "
             f"{step_cost_us(est, 'stable4'):.0f} us |"

@@ -1,44 +1,51 @@
-"""Closed-loop throughput of the self-tuning regulator: naive loop, fast path, batched loop.
+"""Closed-loop throughput of the self-tuning controller (issue 10's performance table).
 
 Run from the repository root::
 
-    python benchmarks/perf.py            # full table (about 2-3 minutes on 2 cores)
-    python benchmarks/perf.py --quick    # fewer steps, B up to 1e4 (about 30 s)
+    python benchmarks/perf.py            # full table, B up to 1e6 (a few minutes on 2 cores)
+    python benchmarks/perf.py --quick    # fewer steps, B up to 1e4
 
-Every row is one closed-loop configuration measured in this run; ratios are to the naive loop
-of the same run, so they stay meaningful on a loaded machine (absolute numbers do not).
+Every row is measured in this run; ratios are to the naive loop of the same run, so they stay
+meaningful on a loaded machine (absolute numbers do not).
 
 * ``naive``: ``gym.make`` env step + :func:`~stcgym.adaptive.recursive.make_estimator`
-  KF-MILS (p = 5) + ``control.place`` on the integral-augmented estimated model every step.
-* ``fast path``: :class:`~stcgym.adaptive.batched_fast.FastLoop`, one plant, scalar generated
-  code: plant + the full :class:`~stcgym.adaptive.controller.SelfTuningController` step
-  (KF-MILS p = 5, bootstrap, Ackermann pole placement with its safe set, adaptive Kalman noise).
-* ``batched fast``: the vector env
-  (:class:`~stcgym.envs.vector.ObserverCanonicalVectorEnv`) and
-  ``BatchedSelfTuningController(mode="fast")`` with ``B`` plants, one kernel call per chunk.
-* ``batched exact``: ``mode="exact"``, the single controller's calls stacked (equal to rounding).
-* ``batched fast, 2 procs``: the lanes split over two worker processes (both CPU cores).
+  KF-MILS (p = 5) + ``control.place`` on the integral-augmented estimated model every step;
+* ``predict``: ``SelfTuningController(2).predict(obs)`` through the Python API (one call per
+  step, plant in numpy);
+* ``rollout``: :func:`stcgym.adaptive.rollout.rollout`, plant + controller fused in one
+  compiled call, ``B`` lanes in a ``prange``;
+* ``vector env``: the public batched route, ``gym.make_vec(..., num_envs=B)`` +
+  ``SelfTuningController(2, num_envs=B)``, one ``predict`` and one ``step`` per sample;
+* memory: bytes of controller lane records per plant; import time and first-call compile time
+  in fresh processes (the compile with an empty numba cache directory).
 
-Throughput is measured after a warm-up past the bootstrap hand-over (step 100), i.e. in the
-closed-loop regime; memory is bytes of lane state per plant (env + controller arrays, and with
-``tracemalloc`` everything allocated, Python objects included).
+Estimators: the default (``ELS``) and ``KF-MILS`` with ``p = 5``.
 """
 
 from __future__ import annotations
 
 import argparse
-import gc
-import math
-import multiprocessing as mp
+import os
+import subprocess
+import sys
+import tempfile
 import time
-import tracemalloc
-import warnings
-from typing import Any
 
 import numpy as np
 
-PLANTS = {2: "stable2", 4: "stable4"}
-WARMUP = 110  # past the bootstrap hand-over at t = 100
+WARMUP = 30
+SQUARE = np.array([1.0 if (k % 100) < 50 else -1.0 for k in range(100_001)])
+PLANT_OF = {2: "stable2", 4: "stable4", 8: None}
+
+
+def _theta(n: int) -> np.ndarray:
+    from stcgym.envs import PLANTS
+
+    if PLANT_OF[n] is not None:
+        return PLANTS[PLANT_OF[n]].theta
+    poles = 0.6 * np.exp(1j * np.linspace(0.3, 2.5, n // 2))
+    a = np.real(np.poly(np.r_[poles, poles.conj()]))[1:]
+    return np.r_[a, 0.1 * np.ones(n)]
 
 
 def _naive(steps: int) -> float:
@@ -57,8 +64,8 @@ def _naive(steps: int) -> float:
     xi = 0.0
     rng = np.random.default_rng(0)
     t0 = 0.0
-    for k in range(WARMUP // 4 + steps):
-        if k == WARMUP // 4:
+    for k in range(25 + steps):
+        if k == 25:
             t0 = time.perf_counter()
         y, r = float(obs[0]), float(obs[1])
         theta = est.update(y)
@@ -82,140 +89,130 @@ def _naive(steps: int) -> float:
     return steps / (time.perf_counter() - t0)
 
 
-def _fast_path(steps: int, n: int = 2) -> float:
-    from stcgym.adaptive.batched_fast import FastLoop
+def _predict_us(steps: int, estimator: str) -> float:
+    from stcgym.adaptive import SelfTuningController
+    from stcgym.envs.canonical import companion_A
 
-    loop = FastLoop(plant=PLANTS[n], noise_std=0.1, controller=dict(n=n, p=5), seed=0)
-    loop.run(WARMUP)
-    best = math.inf
-    chunk = max(steps // 5, 20)
-    for _ in range(5):
+    th = _theta(2)
+    A, b = companion_A(th[:2]), th[2:]
+    ctl = SelfTuningController(2, estimator=estimator, estimator_options={"p": 5})
+    x = np.zeros(2)
+    obs = np.zeros(2)
+    total = 0.0
+    for k in range(WARMUP + steps):
+        obs[0], obs[1] = x[0], SQUARE[k]
         t0 = time.perf_counter()
-        loop.run(chunk)
-        best = min(best, (time.perf_counter() - t0) / chunk)
-    return 1.0 / best
+        u = ctl.predict(obs)[0][0]
+        if k >= WARMUP:
+            total += time.perf_counter() - t0
+        x = A @ x + b * u
+    return total / steps * 1e6
 
 
-def _batched(B: int, n: int, steps: int, mode: str = "fast", seed: int = 0) -> tuple[float, dict]:
-    """Plant-steps per second of vector env + batched controller, and memory figures."""
-    from stcgym.adaptive.batched_controller import BatchedSelfTuningController
-    from stcgym.envs.vector import ObserverCanonicalVectorEnv
+def _rollout_rate(n: int, B: int, steps: int, estimator: str) -> float:
+    from stcgym.adaptive import SelfTuningController
+    from stcgym.adaptive.rollout import rollout
 
-    venv = ObserverCanonicalVectorEnv(
-        num_envs=B, plant=PLANTS[n], noise_std=0.1, max_episode_steps=10**9, info_keys=()
+    ctl = SelfTuningController(
+        n, num_envs=None if B == 1 else B, estimator=estimator, estimator_options={"p": 5}
     )
-    ctl = BatchedSelfTuningController(n, num_envs=B, p=5, mode=mode)
-    obs, _ = venv.reset(seed=seed)
-    for _ in range(WARMUP):
-        a, _ = ctl.predict(obs)
-        obs, *_ = venv.step(a)
+    rollout(ctl, _theta(n), 2, reference=SQUARE[:3])  # compile outside the timing
+    ctl.reset()
     t0 = time.perf_counter()
-    for _ in range(steps):
-        a, _ = ctl.predict(obs)
-        obs, *_ = venv.step(a)
-    dt = time.perf_counter() - t0
-    mem = {"env": venv.memory_per_lane, "ctl": getattr(ctl, "memory_per_lane", float("nan"))}
-    return B * steps / dt, mem
+    res = rollout(ctl, _theta(n), steps, reference=SQUARE[: steps + 1])
+    # a diverged lane stops early: count the steps actually run
+    return float(res.steps_run.sum()) / (time.perf_counter() - t0)
 
 
-def _traced_memory(B: int, n: int) -> float:
-    """Bytes per plant of everything a vector env + fast controller allocate (tracemalloc)."""
-    from stcgym.adaptive.batched_controller import BatchedSelfTuningController
-    from stcgym.envs.vector import ObserverCanonicalVectorEnv
+def _vector_rate(B: int, steps: int, estimator: str) -> float:
+    import gymnasium as gym
 
-    BatchedSelfTuningController(n, num_envs=1, p=5, mode="fast")  # compile outside the trace
-    gc.collect()
-    tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-    venv = ObserverCanonicalVectorEnv(num_envs=B, plant=PLANTS[n], noise_std=0.1, info_keys=())
-    ctl = BatchedSelfTuningController(n, num_envs=B, p=5, mode="fast")
+    import stcgym.envs  # noqa: F401
+    from stcgym.adaptive import SelfTuningController
+
+    venv = gym.make_vec(
+        "stcgym/ObserverCanonical-v0", num_envs=B, plant="stable2", noise_std=0.05,
+        max_episode_steps=100_000,
+    )  # fmt: skip
+    ctl = SelfTuningController(
+        2, num_envs=B, env=venv, estimator=estimator, estimator_options={"p": 5}
+    )
     obs, _ = venv.reset(seed=0)
-    a, _ = ctl.predict(obs)
-    venv.step(a)
-    used = tracemalloc.get_traced_memory()[0] - base
-    tracemalloc.stop()
-    del venv, ctl
-    return used / B
+    t0 = 0.0
+    for k in range(WARMUP + steps):
+        if k == WARMUP:
+            t0 = time.perf_counter()
+        action, _ = ctl.predict(obs)
+        obs, *_ = venv.step(action)
+    return B * steps / (time.perf_counter() - t0)
 
 
-def _worker(args: tuple[int, int, int, int, Any]) -> float:
-    B, n, steps, seed, barrier = args
-    from stcgym.adaptive.batched_controller import BatchedSelfTuningController
-    from stcgym.envs.vector import ObserverCanonicalVectorEnv
-
-    warnings.simplefilter("ignore")
-    venv = ObserverCanonicalVectorEnv(
-        num_envs=B, plant=PLANTS[n], noise_std=0.1, max_episode_steps=10**9, info_keys=()
-    )
-    ctl = BatchedSelfTuningController(n, num_envs=B, p=5, mode="fast")
-    obs, _ = venv.reset(seed=seed)
-    for _ in range(WARMUP):
-        a, _ = ctl.predict(obs)
-        obs, *_ = venv.step(a)
-    barrier.wait()
+def _fresh_process(code: str, cache_dir: str | None = None) -> float:
+    env = dict(os.environ)
+    if cache_dir is not None:
+        env["NUMBA_CACHE_DIR"] = cache_dir
     t0 = time.perf_counter()
-    for _ in range(steps):
-        a, _ = ctl.predict(obs)
-        obs, *_ = venv.step(a)
+    subprocess.run([sys.executable, "-c", code], check=True, env=env)
     return time.perf_counter() - t0
 
 
-def _processes(B: int, n: int, steps: int, workers: int) -> float:
-    ctx = mp.get_context("fork")
-    with ctx.Manager() as manager:
-        barrier = manager.Barrier(workers)
-        with ctx.Pool(workers) as pool:
-            jobs = [(B // workers, n, steps, 1000 * i, barrier) for i in range(workers)]
-            times = pool.map(_worker, jobs)
-    return (B // workers) * workers * steps / max(times)
-
-
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="fewer steps, B up to 1e4")
-    ap.add_argument("--max-b", type=int, default=None, help="largest batch (default 1e5)")
-    ap.add_argument("--n", type=int, nargs="+", default=[2, 4], help="plant orders")
-    ap.add_argument("--workers", type=int, default=2, help="processes for the split run")
+    ap = argparse.ArgumentParser(description="closed-loop throughput table")
+    ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
-    warnings.simplefilter("ignore")
-    max_b = args.max_b or (10_000 if args.quick else 100_000)
-    budget = 1.5e5 if args.quick else 1.5e6  # plant-steps per batched row
-    sizes = [b for b in (1, 100, 1_000, 10_000, 100_000) if b <= max_b]
+    q = args.quick
+    rows: list[tuple[str, str, str]] = []
 
-    rows: list[tuple[str, int, int, float, str]] = []
-    naive = _naive(100 if args.quick else 300)
-    rows.append(("naive loop (python-control place)", 1, 2, naive, ""))
-    rows.append(("fast path (FastLoop, scalar)", 1, 2, _fast_path(500 if args.quick else 2000), ""))
-    for n in args.n:
+    def row(name: str, value: str, ratio: float | None) -> None:
+        r = "" if ratio is None else f"{ratio:10.0f}x"
+        rows.append((name, value, r))
+        print(f"{name:58s} {value:>22s} {r:>12s}", flush=True)
+
+    print(f"{'configuration':58s} {'measured':>22s} {'vs naive':>12s}")
+    naive = _naive(100 if q else 400)
+    row("naive loop (gym.make + KF-MILS + control.place), n=2", f"{naive:.3g} steps/s", 1.0)
+    for est in ("ELS", "KF-MILS"):
+        us = _predict_us(500 if q else 3000, est)
+        row(f"SelfTuningController(2).predict, {est}", f"{us:.2f} us/call", 1e6 / us / naive)
+    for n in (2, 4, 8):
+        rate = _rollout_rate(n, 1, 2000 if q else 20000, "ELS")
+        row(f"compiled rollout, B=1, n={n}, ELS", f"{1e6 / rate:.2f} us/step", rate / naive)
+    rate = _rollout_rate(2, 1, 2000 if q else 20000, "KF-MILS")
+    row("compiled rollout, B=1, n=2, KF-MILS p=5", f"{1e6 / rate:.2f} us/step", rate / naive)
+    for est in ("ELS", "KF-MILS"):
+        for B in (1000, 10_000):
+            rate = _vector_rate(B, 20 if q else 100, est)
+            row(f"gym.make_vec + SelfTuningController(2, num_envs={B}), {est}",
+                f"{rate:.3g} steps/s", rate / naive)  # fmt: skip
+    sizes = (1, 100, 10_000) if q else (1, 100, 10_000, 100_000, 1_000_000)
+    for n in (2, 4, 8):
         for B in sizes:
-            steps = int(min(200, max(5, budget // B)))
-            rate, mem = _batched(B, n, steps)
-            rows.append(
-                ("batched fast", B, n, rate, f"{mem['env'] + mem['ctl']:.0f} B/plant (arrays)")
-            )
-    if not args.quick:
-        rate, _ = _batched(1_000, 2, 50, mode="exact")
-        rows.append(("batched exact", 1_000, 2, rate, ""))
-    if args.workers > 1:
-        B = max_b
-        steps = int(min(200, max(5, budget // B)))
-        rate = _processes(B, 2, steps, args.workers)
-        rows.append((f"batched fast, {args.workers} processes", B, 2, rate, ""))
-    traced = _traced_memory(min(max_b, 10_000), 2)
+            if n > 2 and B > 100_000:
+                continue
+            steps = max(10, min(2000, 2_000_000 // (B * n)))
+            rate = _rollout_rate(n, B, steps, "ELS")
+            row(f"compiled rollout, B={B}, n={n}, ELS", f"{rate:.3g} steps/s", rate / naive)
+    rate = _rollout_rate(2, 10_000, 50 if q else 200, "KF-MILS")
+    row("compiled rollout, B=10000, n=2, KF-MILS p=5", f"{rate:.3g} steps/s", rate / naive)
+    from stcgym.adaptive import SelfTuningController
 
-    print(f"\nclosed-loop throughput (KF-MILS p=5 + pole placement), numpy {np.__version__}")
-    head = f"{'configuration':40s} {'B':>7s} {'n':>2s} {'plant-steps/s':>14s} {'x naive':>9s}"
-    print(head + "  us/plant-step  note")
-    print("-" * (len(head) + 22))
-    for name, B, n, rate, note in rows:
-        print(
-            f"{name:40s} {B:>7d} {n:>2d} {rate:>14.3g} {rate / naive:>9.1f}  "
-            f"{1e6 / rate:>13.3f}  {note}"
+    for n in (2, 4, 8):
+        for est in ("ELS", "KF-MILS"):
+            mem = SelfTuningController(
+                n, num_envs=2, estimator=est, estimator_options={"p": 5}
+            ).nbytes_per_lane
+            row(f"memory per plant, n={n}, {est}", f"{mem} bytes", None)
+    imp = _fresh_process("import stcgym.adaptive, stcgym.envs")
+    row("import stcgym.adaptive + stcgym.envs (fresh process)", f"{imp:.2f} s", None)
+    with tempfile.TemporaryDirectory() as cache:
+        code = (
+            "import numpy as np; from stcgym.adaptive import SelfTuningController as S; "
+            "S(2).predict(np.array([0.1, 1.0]))"
         )
-    print(
-        f"\nmemory per plant (n=2, everything allocated incl. Python objects, tracemalloc): "
-        f"{traced:.0f} B"
-    )
+        cold = _fresh_process(code, cache)
+        warm = _fresh_process(code, cache)
+    row("first predict, empty numba cache (compile)", f"{cold:.1f} s", None)
+    row("first predict, warm numba cache", f"{warm:.1f} s", None)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,161 @@
+"""Compiled closed-loop rollout: ``T`` steps of plant + self-tuning controller in one call.
+
+For sweeps over many plants (e.g. chunks of ~1e4 lanes): the plant step of
+:mod:`stcgym.envs.dynamics` (``canonical_plant_step``, the env's own step: clipping, output noise,
+divergence test, reward) and the controller step of :mod:`stcgym.adaptive.kernels.controller`
+run fused in one compiled loop per lane, lanes in a ``prange``. A lane stops at its first
+divergence (``|y| > y_bound``), like an env episode that terminates.
+
+API
+---
+``rollout(controller, theta, steps, *, reference, noise_std=0.05, seed=0, z=None,
+control_cost=0.01, y_bound=100.0, x0=None, window=None, traces=False, jump=None)
+-> RolloutResult``
+
+* ``controller``: a :class:`~stcgym.adaptive.controller.SelfTuningController` with
+  ``num_envs = B`` (or ``None`` for one plant); its lane records are advanced in place (call
+  ``controller.reset()`` first for a fresh episode) and its ``action_bound`` is the plant's.
+* ``theta``: plant parameters ``[a; b]`` in the controller's canonical form, shape ``(2n,)``
+  (every lane) or ``(B, 2n)``.
+* ``reference``: ``r(0..T)`` as an array of shape ``(T + 1,)`` (every lane) or ``(B, T + 1)``;
+  the controller sees ``r(k)`` at step ``k``, the cost of step ``k`` is
+  ``(y_clean(k+1) - r(k+1))^2 + rho u(k)^2`` (the env's ``-reward``).
+* noise: output noise ``noise_std * z`` with ``z`` of shape ``(B, T + 1)`` standard normals
+  (``z[:, 0]`` for ``y(0)``), drawn from ``numpy.random.default_rng(seed)`` unless given.
+* ``x0``: initial plant state ``(n,)`` or ``(B, n)`` (zeros by default).
+* ``jump=(step, theta_after)``: parameters switch to ``theta_after`` at ``step`` (a jump test).
+* ``window``: the result's ``cost`` holds sums over consecutive windows of this many steps
+  (default: one window, the whole episode), shape ``(B, ceil(T / window))``.
+* ``traces=True``: also ``y`` (measured, ``(B, T + 1)``) and ``u`` (applied, ``(B, T)``).
+
+``RolloutResult``: ``cost`` (window sums; a diverged lane is charged its cost up to the
+divergence and ``diverged[i]`` is set), ``diverged`` ``(B,)`` bool, ``steps_run`` ``(B,)``, and
+``y``/``u`` (or ``None``). For one plant (``num_envs=None``) the leading lane axis is kept
+(``B = 1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.adaptive.controller import SelfTuningController
+from stcgym.adaptive.kernels.controller import controller_step
+from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.dynamics import canonical_plant_step
+
+__all__ = ["RolloutResult", "rollout"]
+
+
+@dataclass
+class RolloutResult:
+    """Per-window costs, divergence flags and optional traces of a :func:`rollout`."""
+
+    cost: NDArray
+    diverged: NDArray
+    steps_run: NDArray
+    y: NDArray | None = None
+    u: NDArray | None = None
+
+
+@lane
+def rollout_lane(f, g, off, cf, ci, ecf, eci, x, theta, theta_after, jump_at, form, bound,
+                 sigma_v, z, r, rho, y_bound, window, cost, y_tr, u_tr, traces):  # fmt: skip
+    """``T = r.size - 1`` closed-loop steps of one lane; returns ``(steps_run, diverged)``."""
+    T = r.shape[0] - 1
+    none = np.zeros(0)
+    y = x[0] + sigma_v * z[0]
+    if traces:
+        y_tr[0] = y
+    for k in range(T):
+        u_raw = controller_step(f, g, off, cf, ci, ecf, eci, y, r[k])
+        th = theta_after if k >= jump_at else theta
+        reward, _, diverged, u, _, y = canonical_plant_step(
+            x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form
+        )
+        cost[k // window] += -reward
+        if traces:
+            y_tr[k + 1] = y
+            u_tr[k] = u
+        if diverged:
+            return k + 1, True
+    return T, False
+
+
+@lanes
+def rollout_lanes(F, G, off, cf, ci, ecf, eci, X, Theta, Theta_after, jump_at, form, bound,
+                  sigma_v, Z, R, rho, y_bound, window, Cost, Y, U, traces, steps_run,
+                  diverged):  # fmt: skip
+    """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
+    for i in prange(F.shape[0]):
+        steps_run[i], diverged[i] = rollout_lane(
+            F[i], G[i], off, cf, ci, ecf, eci, X[i], Theta[i], Theta_after[i], jump_at, form,
+            bound, sigma_v, Z[i], R[i], rho, y_bound, window, Cost[i], Y[i], U[i], traces,
+        )  # fmt: skip
+
+
+def _per_lane(value: ArrayLike, B: int, width: int, name: str) -> NDArray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 1 and arr.shape[0] == width:
+        arr = np.broadcast_to(arr, (B, width))
+    if arr.shape != (B, width):
+        raise ValueError(f"{name} must have shape ({width},) or ({B}, {width}), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite")
+    return np.ascontiguousarray(arr)
+
+
+def rollout(
+    controller: SelfTuningController,
+    theta: ArrayLike,
+    steps: int,
+    *,
+    reference: ArrayLike,
+    noise_std: float = 0.05,
+    seed: int = 0,
+    z: ArrayLike | None = None,
+    control_cost: float = 0.01,
+    y_bound: float = 100.0,
+    x0: ArrayLike | None = None,
+    window: int | None = None,
+    traces: bool = False,
+    jump: tuple[int, ArrayLike] | None = None,
+) -> RolloutResult:
+    """Run ``steps`` closed-loop steps of ``controller`` on canonical plants (module docstring)."""
+    if not isinstance(controller, SelfTuningController):
+        raise ValueError(f"controller must be a SelfTuningController, got {controller!r}")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    B, n = controller.B, controller.n
+    th = _per_lane(theta, B, 2 * n, "theta")
+    if jump is None:
+        jump_at, th_after = steps + 1, th
+    else:
+        jump_at = int(jump[0])
+        th_after = _per_lane(jump[1], B, 2 * n, "jump theta")
+    R = _per_lane(reference, B, steps + 1, "reference")
+    X = _per_lane(np.zeros(n) if x0 is None else x0, B, n, "x0").copy()
+    if not (np.isfinite(noise_std) and noise_std >= 0):
+        raise ValueError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
+    if z is None:
+        Z = np.random.default_rng(seed).standard_normal((B, steps + 1))
+    else:
+        Z = _per_lane(z, B, steps + 1, "z")
+    window = steps if window is None else int(window)
+    if window < 1:
+        raise ValueError(f"window must be a positive integer, got {window!r}")
+    cost = np.zeros((B, -(-steps // window)))
+    Y = np.zeros((B, steps + 1)) if traces else np.zeros((B, 0))
+    U = np.zeros((B, steps)) if traces else np.zeros((B, 0))
+    steps_run = np.zeros(B, dtype=np.int64)
+    diverged = np.zeros(B, dtype=bool)
+    form = 1 if controller.form == "observability" else 0
+    c = controller
+    rollout_lanes(
+        c._F, c._G, c._off, c._cf, c._ci, c._ecf, c._eci, X, th, th_after, jump_at, form,
+        c.action_bound, float(noise_std), Z, R, float(control_cost), float(y_bound), window,
+        cost, Y, U, bool(traces), steps_run, diverged,
+    )  # fmt: skip
+    return RolloutResult(cost, diverged, steps_run, Y if traces else None, U if traces else None)
