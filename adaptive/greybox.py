@@ -1,0 +1,651 @@
+"""Grey-box structures: state-space objects affine in unknown parameters, turned into a regression.
+
+The object of Voevoda & Troshina (2016), eq. (5)-(6), generalised::
+
+    x(k+1) = Phi(theta) x(k) + Gamma(theta) u(k) + w(k),     y(k) = H x(k) + v(k),
+    Phi(theta) = Phi0 + sum_i theta_i Phi_i,     Gamma(theta) = Gamma0 + sum_i theta_i Gamma_i,
+
+with known ``Phi0``, ``Phi_i``, ``Gamma0``, ``Gamma_i`` (``n x n`` and ``n x m``), a known
+measurement matrix ``H`` (``p x n``) and ``q`` unknown scalars ``theta``. :class:`AffineStateSpace`
+turns measured ``u(k)``, ``y(k)`` into a linear regression ``z(k) = phi(k) theta`` (exact when
+``w = v = 0``) for :class:`~stcgym.adaptive.regression.RecursiveLeastSquares` or batch least
+squares, in one of two ways:
+
+``method="state"`` (the state is measured: ``H`` square and invertible)
+    ``x(k) = H^{-1} y(k)`` and the state equation itself is the regression::
+
+        z(k) = x(k+1) - Phi0 x(k) - Gamma0 u(k),      phi_i(k) = Phi_i x(k) + Gamma_i u(k),
+
+    ``p = n`` equations per step. It is linear in ``theta`` for every affine structure.
+
+``method="output"`` (the paper's way: eliminate the state, eq. (7)-(8))
+    By Cayley-Hamilton, ``chi(Phi) = 0`` for the characteristic polynomial
+    ``chi(s) = det(s I - Phi) = s^n + c_{n-1} s^{n-1} + ... + c_0``, so every trajectory,
+    whatever its initial state, satisfies the input-output equation::
+
+        sum_{i=0..n} c_i y(k+i) = sum_{l=0..n-1} beta_l u(k+l),   c_n = 1,
+
+    with ``beta_l = H M_{n-l} Gamma`` the numerator coefficients of ``H adj(sI - Phi) Gamma``
+    (``M_j`` the Faddeev-LeVerrier matrices, :func:`io_coefficients`). The coefficients
+    ``c_i(theta)``, ``beta_l(theta)`` are polynomials in ``theta``; when they are affine,
+    ``c = c^0 + sum_i theta_i c^i`` and ``beta = beta^0 + sum_i theta_i beta^i``, and::
+
+        z(k)     = sum_i c^0_i y(k+i) - sum_l beta^0_l u(k+l),
+        phi_j(k) = -sum_i c^j_i y(k+i) + sum_l beta^j_l u(k+l).
+
+    For the paper's object, ``Phi = [[0, 1], [-0.3, theta]]``, ``Gamma = [0, 1]^T``,
+    ``H = [1, 0]``: ``chi(s) = s^2 - theta s + 0.3`` and ``beta_0 = 1``, so
+    ``z(k) = y(k+2) + 0.3 y(k) - u(k)`` and ``phi(k) = y(k+1)``, the paper's (7)-(8).
+
+    When a coefficient is *not* affine (e.g. ``theta`` on the diagonal twice gives
+    ``chi(s) = (s - theta)^2``, with a ``theta^2`` term) the output does not depend linearly on
+    ``theta`` through any regression of this kind; :meth:`AffineStateSpace.regression` then
+    raises :class:`NotLinearInParameters` naming the coefficient and the offending product of
+    parameters, and suggests the alternatives (measure the state, or over-parametrise).
+
+``method="auto"`` (default) takes ``"state"`` when ``H`` is square and well conditioned and
+``"output"`` otherwise.
+
+Noise: with measurement noise ``v`` the regressor ``phi(k)`` is built from noisy ``y`` and is
+correlated with the equation error (an errors-in-variables problem), so least squares on the
+output route is biased towards zero by roughly ``E[phi_clean^2] / (E[phi_clean^2] + var v)`` (for
+one parameter whose regressor is one output sample); the equation error is also coloured
+(``sum_i c_i v(k+i)``). Process noise ``w`` enters the equation error through ``H`` and
+``Phi``, again correlated with the regressor in the output route. Instrumental variables or a
+joint state/parameter estimator (:func:`~stcgym.adaptive.make_estimator`) remove the bias; this
+module builds the paper's plain regression.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "AffineStateSpace",
+    "GreyBoxRegression",
+    "NotLinearInParameters",
+    "io_coefficients",
+]
+
+Method = Literal["auto", "state", "output"]
+
+#: Relative tolerance for "this coefficient does not depend on theta" / "this term is zero".
+_RTOL = 1e-9
+#: ``H`` with a larger condition number is not inverted by ``method="auto"``.
+_COND_MAX = 1e8
+
+
+class NotLinearInParameters(ValueError):
+    """The structure gives no regression that is linear in ``theta`` (the message says why)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Validation
+# --------------------------------------------------------------------------------------------
+
+
+def _finite_array(value: ArrayLike, name: str) -> NDArray:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be an array of real numbers, got {value!r}") from exc
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (no NaN or inf)")
+    return arr
+
+
+def _matrix(value: ArrayLike, name: str, rows: int | None, cols: int | None) -> NDArray:
+    arr = _finite_array(value, name)
+    if arr.ndim == 1 and cols == 1 and rows in (None, arr.size):
+        arr = arr.reshape(-1, 1)  # a column given as a flat vector
+    if arr.ndim != 2 or (rows is not None and arr.shape[0] != rows):
+        raise ValueError(
+            f"{name} must be a matrix with {rows or 'any number of'} rows, got shape {arr.shape}"
+        )
+    if cols is not None and arr.shape[1] != cols:
+        raise ValueError(f"{name} must have {cols} columns, got shape {arr.shape}")
+    return arr
+
+
+def _terms(value: ArrayLike | None, name: str, shape: tuple[int, int]) -> NDArray | None:
+    """``q`` matrices of ``shape`` stacked as ``(q, *shape)``; ``None`` stays ``None``."""
+    if value is None:
+        return None
+    arr = _finite_array(value, name)
+    if arr.ndim == 2 and arr.shape == shape and shape[1] != 1:
+        raise ValueError(
+            f"{name} must be a sequence of matrices (one per parameter), shape (q, {shape[0]}, "
+            f"{shape[1]}); for one parameter wrap the matrix in a list"
+        )
+    if arr.ndim == 2 and shape[1] == 1 and arr.shape[1] == shape[0]:
+        arr = arr[:, :, None]  # Gamma_i given as flat vectors
+    if arr.ndim != 3 or arr.shape[1:] != shape:
+        raise ValueError(f"{name} must have shape (q, {shape[0]}, {shape[1]}), got {arr.shape}")
+    return arr
+
+
+def _scale(*arrays: NDArray) -> float:
+    return max([1.0] + [float(np.abs(a).max()) for a in arrays if a.size])
+
+
+# --------------------------------------------------------------------------------------------
+# Input-output coefficients (Cayley-Hamilton, Faddeev-LeVerrier)
+# --------------------------------------------------------------------------------------------
+
+
+def io_coefficients(Phi: ArrayLike, Gamma: ArrayLike, H: ArrayLike) -> tuple[NDArray, NDArray]:
+    """Coefficients of the input-output equation of ``(Phi, Gamma, H)``.
+
+    Returns ``c`` (``n + 1``, ``c[n] = 1``) and ``beta`` (``(n, p, m)``) such that every
+    trajectory of ``x(k+1) = Phi x(k) + Gamma u(k)``, ``y(k) = H x(k)`` satisfies
+    ``sum_i c[i] y(k+i) = sum_l beta[l] u(k+l)``: ``c`` is the characteristic polynomial
+    (ascending powers) and ``beta`` the numerator of ``H adj(sI - Phi) Gamma``, computed by the
+    Faddeev-LeVerrier recursion ``M_1 = I``, ``c_{n-1} = -tr(Phi)``,
+    ``M_j = Phi M_{j-1} + c_{n-j+1} I``, ``c_{n-j} = -tr(Phi M_j) / j``,
+    ``adj(sI - Phi) = sum_j M_j s^{n-j}``. Division-free apart from ``1/j``, so structural zeros
+    of an affine structure stay (nearly) exact.
+    """
+    Phi = np.asarray(Phi, dtype=float)
+    Gamma = np.asarray(Gamma, dtype=float)
+    H = np.asarray(H, dtype=float)
+    n = Phi.shape[0]
+    c = np.zeros(n + 1)
+    c[n] = 1.0
+    beta = np.zeros((n, H.shape[0], Gamma.shape[1]))
+    M = np.eye(n)
+    for j in range(1, n + 1):
+        if j > 1:
+            M = Phi @ M + c[n - j + 1] * np.eye(n)
+        c[n - j] = -np.trace(Phi @ M) / j
+        beta[n - j] = H @ M @ Gamma
+    return c, beta
+
+
+# --------------------------------------------------------------------------------------------
+# The regression
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GreyBoxRegression:
+    """A linear regression ``z(k) = phi(k) theta`` built from measured ``u``, ``y``.
+
+    Produced by :meth:`AffineStateSpace.regression`; :meth:`build` applies it to data.
+
+    Attributes
+    ----------
+    method : {"state", "output"}
+    order : int
+        Samples of ``y`` ahead that one row needs (``1`` for ``"state"``, ``n`` for
+        ``"output"``): row ``k`` uses ``y(k .. k + order)`` and ``u(k .. k + order - 1)``.
+    y_coef0, y_coef : ndarray, shapes ``(order + 1, p, p)`` and ``(q, order + 1, p, p)``
+        ``z(k) = sum_i y_coef0[i] y(k+i) - sum_l u_coef0[l] u(k+l)`` and
+        ``phi_j(k) = -sum_i y_coef[j, i] y(k+i) + sum_l u_coef[j, l] u(k+l)``.
+    u_coef0, u_coef : ndarray, shapes ``(order, p, m)`` and ``(q, order, p, m)``
+    names : tuple of str
+        Parameter names (for messages and :meth:`equations`).
+    H_inv : ndarray or None
+        ``"state"`` only: the equations are written in ``x(k) = H_inv y(k)``.
+    """
+
+    method: str
+    order: int
+    y_coef0: NDArray
+    y_coef: NDArray
+    u_coef0: NDArray
+    u_coef: NDArray
+    names: tuple[str, ...]
+    H_inv: NDArray | None = None
+
+    @property
+    def num_params(self) -> int:
+        return self.y_coef.shape[0]
+
+    @property
+    def num_outputs(self) -> int:
+        """Equations per row: ``p`` outputs (``"output"``) or ``n`` states (``"state"``)."""
+        return self.y_coef0.shape[1]
+
+    @property
+    def num_inputs(self) -> int:
+        return self.u_coef0.shape[2]
+
+    def build(self, u: ArrayLike, y: ArrayLike) -> tuple[NDArray, NDArray]:
+        """Regressors and targets from measured ``u(0..T-1)``, ``y(0..T-1)``.
+
+        Parameters
+        ----------
+        u : array_like, shape (T,) or (T, m)
+            Input applied at step ``k`` (the env's action after observing ``y(k)``).
+        y : array_like, shape (T,) or (T, p_measured)
+            Measured output at step ``k``.
+
+        Returns
+        -------
+        phi : ndarray, shape (T - order, q) for one equation per row, else (T - order, p, q)
+            ``phi[k]`` is ``phi(k)``; with ``p`` equations its row ``r`` is the regressor of
+            equation ``r``: ``z(k) = phi(k) theta``, the layout
+            :class:`~stcgym.adaptive.regression.RecursiveLeastSquares` takes.
+        z : ndarray, shape (T - order,) or (T - order, p)
+        """
+        u_arr = _finite_array(u, "u")
+        y_arr = _finite_array(y, "y")
+        m = self.num_inputs
+        p_meas = self._measured_outputs
+        if u_arr.ndim == 1 and m == 1:
+            u_arr = u_arr[:, None]
+        if y_arr.ndim == 1 and p_meas == 1:
+            y_arr = y_arr[:, None]
+        if u_arr.ndim != 2 or u_arr.shape[1] != m:
+            want = "(T,) or (T, 1)" if m == 1 else f"(T, {m})"
+            raise ValueError(f"u must have shape {want}, got {np.shape(u)}")
+        if y_arr.ndim != 2 or y_arr.shape[1] != p_meas:
+            want = "(T,) or (T, 1)" if p_meas == 1 else f"(T, {p_meas})"
+            raise ValueError(f"y must have shape {want}, got {np.shape(y)}")
+        if u_arr.shape[0] != y_arr.shape[0]:
+            raise ValueError(
+                f"u and y must have the same number of samples T, got {u_arr.shape[0]} and "
+                f"{y_arr.shape[0]}"
+            )
+        T = y_arr.shape[0]
+        if T <= self.order:
+            raise ValueError(f"y needs more than {self.order} samples for one row, got {T}")
+        signals = self._equation_signals(y_arr)  # (T, p) signals the equations are written in
+        win = self.order + 1
+        Yw = np.lib.stride_tricks.sliding_window_view(signals, win, axis=0)  # (N, p, win)
+        Uw = np.lib.stride_tricks.sliding_window_view(u_arr[: T - 1], self.order, axis=0)
+        N = T - self.order
+        Uw = Uw[:N]
+        z = np.einsum("irs,ksi->kr", self.y_coef0, Yw) - np.einsum("lrs,ksl->kr", self.u_coef0, Uw)
+        phi = -np.einsum("jirs,ksi->krj", self.y_coef, Yw) + np.einsum(
+            "jlrs,ksl->krj", self.u_coef, Uw
+        )
+        if self.num_outputs == 1:
+            return phi[:, 0, :], z[:, 0]
+        return phi, z
+
+    @property
+    def _measured_outputs(self) -> int:
+        return self.num_outputs if self.H_inv is None else self.H_inv.shape[1]
+
+    def _equation_signals(self, y: NDArray) -> NDArray:
+        return y if self.H_inv is None else y @ self.H_inv.T
+
+    def equations(self, digits: int = 4) -> str:
+        """The regression written out, one line per equation and parameter.
+
+        E.g. ``z(k) = y(k+2) + 0.3 y(k) - u(k)`` and ``phi[theta](k) = y(k+1)`` for the paper's
+        object (subscripts ``_r`` number outputs / states / inputs when there are several).
+        """
+        p, m = self.num_outputs, self.num_inputs
+        sig = "x" if self.method == "state" else "y"
+
+        def symbol(name: str, idx: int, count: int, lag: int) -> str:
+            sub = f"_{idx + 1}" if count > 1 else ""
+            return f"{name}{sub}(k{f'+{lag}' if lag else ''})"
+
+        def combination(y_coef: NDArray, u_coef: NDArray, r: int) -> str:
+            """``sum_i y_coef[i, r] y(k+i) + sum_l u_coef[l, r] u(k+l)``, highest lag first."""
+            terms = [
+                (y_coef[i, r, s], symbol(sig, s, p, i))
+                for i in range(self.order, -1, -1)
+                for s in range(p)
+            ]
+            terms += [
+                (u_coef[lag, r, s], symbol("u", s, m, lag))
+                for lag in range(self.order - 1, -1, -1)
+                for s in range(m)
+            ]
+            text = ""
+            for coef, sym in terms:
+                if abs(coef) < 10.0 ** (-digits - 2):
+                    continue
+                body = sym if abs(abs(coef) - 1.0) < 1e-12 else f"{abs(coef):.{digits}g} {sym}"
+                sign = ("-" if coef < 0 else "") if not text else (" - " if coef < 0 else " + ")
+                text += sign + body
+            return text or "0"
+
+        lines = []
+        for r in range(p):
+            eq = f"_{r + 1}" if p > 1 else ""
+            lines.append(f"z{eq}(k) = {combination(self.y_coef0, -self.u_coef0, r)}")
+            for j, name in enumerate(self.names):
+                rhs = combination(-self.y_coef[j], self.u_coef[j], r)
+                lines.append(f"phi{eq}[{name}](k) = {rhs}")
+        return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
+# The structure
+# --------------------------------------------------------------------------------------------
+
+
+class AffineStateSpace:
+    """``x(k+1) = Phi(theta) x(k) + Gamma(theta) u(k)``, ``y(k) = H x(k)``, affine in ``theta``.
+
+    Parameters
+    ----------
+    Phi0 : array_like, shape (n, n)
+    Gamma0 : array_like, shape (n, m) (a flat vector for one input)
+    H : array_like, shape (p, n) (a flat vector for one output)
+    Phi_terms : array_like, shape (q, n, n), optional
+        ``Phi_i``: ``Phi(theta) = Phi0 + sum_i theta_i Phi_i`` (zeros when omitted).
+    Gamma_terms : array_like, shape (q, n, m), optional
+        ``Gamma_i`` (zeros when omitted). At least one of the two term arrays is required.
+    names : sequence of str, optional
+        Parameter names for messages (default ``theta[0]``, ``theta[1]``, ...).
+
+    Examples
+    --------
+    The object of Voevoda & Troshina (2016), eq. (5)-(6):
+
+    >>> obj = AffineStateSpace(
+    ...     Phi0=[[0, 1], [-0.3, 0]], Gamma0=[0, 1], H=[1, 0], Phi_terms=[[[0, 0], [0, 1]]]
+    ... )
+    >>> print(obj.regression().equations())
+    z(k) = y(k+2) + 0.3 y(k) - u(k)
+    phi[theta[0]](k) = y(k+1)
+    """
+
+    def __init__(
+        self,
+        Phi0: ArrayLike,
+        Gamma0: ArrayLike,
+        H: ArrayLike,
+        Phi_terms: ArrayLike | None = None,
+        Gamma_terms: ArrayLike | None = None,
+        *,
+        names: Sequence[str] | None = None,
+    ) -> None:
+        self.Phi0 = _matrix(Phi0, "Phi0", None, None)
+        n = self.Phi0.shape[0]
+        if self.Phi0.shape != (n, n):
+            raise ValueError(f"Phi0 must be square (n x n), got shape {self.Phi0.shape}")
+        G0 = _finite_array(Gamma0, "Gamma0")
+        self.Gamma0 = _matrix(G0.reshape(-1, 1) if G0.ndim == 1 else G0, "Gamma0", n, None)
+        H_arr = _finite_array(H, "H")
+        self.H = _matrix(H_arr.reshape(1, -1) if H_arr.ndim == 1 else H_arr, "H", None, n)
+        m = self.Gamma0.shape[1]
+        dPhi = _terms(Phi_terms, "Phi_terms", (n, n))
+        dGamma = _terms(Gamma_terms, "Gamma_terms", (n, m))
+        if dPhi is None and dGamma is None:
+            raise ValueError("give Phi_terms or Gamma_terms (the matrices multiplying theta_i)")
+        q = (dPhi if dPhi is not None else dGamma).shape[0]  # type: ignore[union-attr]
+        if dPhi is not None and dGamma is not None and dGamma.shape[0] != q:
+            raise ValueError(
+                f"Phi_terms and Gamma_terms must have one matrix per parameter each; got "
+                f"{q} and {dGamma.shape[0]}"
+            )
+        if q < 1:
+            raise ValueError("Phi_terms / Gamma_terms must hold at least one matrix")
+        self.Phi_terms = np.zeros((q, n, n)) if dPhi is None else dPhi
+        self.Gamma_terms = np.zeros((q, n, m)) if dGamma is None else dGamma
+        if names is None:
+            self.names = tuple(f"theta[{j}]" for j in range(q))
+        else:
+            self.names = tuple(str(s) for s in names)
+            if len(self.names) != q:
+                raise ValueError(
+                    f"names must hold {q} names (one per parameter), got {len(self.names)}"
+                )
+        for j in range(q):
+            if not (np.any(self.Phi_terms[j]) or np.any(self.Gamma_terms[j])):
+                raise ValueError(
+                    f"Phi_terms[{j}] and Gamma_terms[{j}] are both zero: {self.names[j]} does "
+                    "not enter the model"
+                )
+
+    # ---------------------------------------------------------------- alternative constructor
+    @classmethod
+    def from_functions(
+        cls,
+        Phi: Callable[[NDArray], ArrayLike] | ArrayLike,
+        Gamma: Callable[[NDArray], ArrayLike] | ArrayLike,
+        H: ArrayLike,
+        num_params: int,
+        *,
+        names: Sequence[str] | None = None,
+        seed: int = 0,
+    ) -> AffineStateSpace:
+        """Build from functions ``theta -> Phi(theta)``, ``theta -> Gamma(theta)`` (or constants).
+
+        ``Phi0 = Phi(0)`` and ``Phi_i = Phi(e_i) - Phi(0)``; the function is then checked to be
+        affine at a few random ``theta`` (and on every pair ``e_i + e_j``), and a
+        :class:`NotLinearInParameters` naming ``Phi`` or ``Gamma`` is raised when it is not.
+        """
+        q = int(num_params)
+        if q != num_params or q < 1:
+            raise ValueError(f"num_params must be a positive integer, got {num_params!r}")
+
+        def sample(fn: Callable | ArrayLike, name: str, theta: NDArray) -> NDArray:
+            value = fn(theta.copy()) if callable(fn) else fn
+            arr = _finite_array(value, f"{name}(theta)")
+            return arr.reshape(-1, 1) if name == "Gamma" and arr.ndim == 1 else arr
+
+        eye = np.eye(q)
+        out = {}
+        for fn, name in ((Phi, "Phi"), (Gamma, "Gamma")):
+            base = sample(fn, name, np.zeros(q))
+            terms = np.array([sample(fn, name, eye[j]) - base for j in range(q)])
+            rng = np.random.default_rng(seed)
+            probes = [
+                eye[i] + eye[j] for i, j in itertools.combinations_with_replacement(range(q), 2)
+            ]
+            probes += list(rng.standard_normal((3, q)))
+            for theta in probes:
+                value = sample(fn, name, theta)
+                if value.shape != base.shape:
+                    raise ValueError(f"{name}(theta) changed shape: {base.shape} -> {value.shape}")
+                gap = value - (base + np.tensordot(theta, terms, axes=1))
+                if np.abs(gap).max() > _RTOL * _scale(base, terms, value):
+                    raise NotLinearInParameters(
+                        f"{name} is not affine in theta: at theta = {np.round(theta, 4).tolist()} "
+                        f"{name}(theta) differs from {name}(0) + sum_i theta_i ({name}(e_i) - "
+                        f"{name}(0)) by up to {np.abs(gap).max():.3g}"
+                    )
+            out[name] = (base, terms)
+        return cls(out["Phi"][0], out["Gamma"][0], H, out["Phi"][1], out["Gamma"][1], names=names)
+
+    # ---------------------------------------------------------------- properties
+    @property
+    def num_params(self) -> int:
+        return self.Phi_terms.shape[0]
+
+    @property
+    def n(self) -> int:
+        return self.Phi0.shape[0]
+
+    def matrices(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
+        """``(Phi(theta), Gamma(theta))``, e.g. for ``stcgym/StateSpace-v0`` (``A``, ``B``)."""
+        th = _finite_array(theta, "theta").reshape(-1)
+        if th.size != self.num_params:
+            raise ValueError(f"theta must hold {self.num_params} values, got {th.size}")
+        return (
+            self.Phi0 + np.tensordot(th, self.Phi_terms, axes=1),
+            self.Gamma0 + np.tensordot(th, self.Gamma_terms, axes=1),
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"AffineStateSpace(n={self.n}, inputs={self.Gamma0.shape[1]}, "
+            f"outputs={self.H.shape[0]}, params={list(self.names)})"
+        )
+
+    # ---------------------------------------------------------------- regression
+    def regression(self, method: Method = "auto") -> GreyBoxRegression:
+        """The linear regression of this structure (see the module docstring).
+
+        Raises
+        ------
+        NotLinearInParameters
+            ``method="output"`` (or ``"auto"`` without an invertible ``H``) and the input-output
+            equation is not affine in ``theta``; the message names the coefficient and the
+            product of parameters.
+        ValueError
+            ``method="state"`` without a square invertible ``H``; parameters that cannot be
+            identified from the regression (they do not enter it, or only in fixed
+            combinations).
+        """
+        if method not in ("auto", "state", "output"):
+            raise ValueError(f"method must be 'auto', 'state' or 'output', got {method!r}")
+        invertible = self.H.shape[0] == self.n and np.linalg.cond(self.H) < _COND_MAX
+        if method == "state" and not invertible:
+            raise ValueError(
+                f"method='state' needs the whole state measured: H must be square ({self.n} x "
+                f"{self.n}) and invertible, got shape {self.H.shape}"
+                + (
+                    f" with condition number {np.linalg.cond(self.H):.3g}"
+                    if self.H.shape[0] == self.n
+                    else ""
+                )
+            )
+        if method == "state" or (method == "auto" and invertible):
+            reg = self._state_regression()
+        else:
+            reg = self._output_regression()
+        self._check_identifiable(reg)
+        return reg
+
+    def _state_regression(self) -> GreyBoxRegression:
+        n, q = self.n, self.num_params
+        y0 = np.zeros((2, n, n))
+        y0[1] = np.eye(n)
+        y0[0] = -self.Phi0
+        yc = np.zeros((q, 2, n, n))
+        yc[:, 0] = -self.Phi_terms
+        Hi = np.linalg.inv(self.H)
+        return GreyBoxRegression(
+            "state", 1, y0, yc, self.Gamma0[None], self.Gamma_terms[:, None], self.names, Hi
+        )
+
+    def _output_regression(self) -> GreyBoxRegression:
+        n, q, p = self.n, self.num_params, self.H.shape[0]
+        eye = np.eye(q)
+        c0, b0 = io_coefficients(*self.matrices(np.zeros(q)), self.H)
+        lin = [io_coefficients(*self.matrices(eye[j]), self.H) for j in range(q)]
+        dc = np.array([c - c0 for c, _ in lin])
+        db = np.array([b - b0 for _, b in lin])
+        self._check_affine(c0, b0, dc, db)
+        # a scalar characteristic polynomial acts on every output alike: y_coef[i] = c_i I_p
+        y0 = c0[:, None, None] * np.eye(p)
+        yc = dc[:, :, None, None] * np.eye(p)
+        return GreyBoxRegression("output", n, y0, yc, b0, db, self.names)
+
+    def _check_affine(self, c0: NDArray, b0: NDArray, dc: NDArray, db: NDArray) -> None:
+        """Raise unless the map ``theta -> (c, beta)`` is affine.
+
+        Its second differences at ``e_i + e_j`` reveal every quadratic term by name; three random
+        probes catch higher-degree terms whose unit-point differences cancel.
+        """
+        q = self.num_params
+        eye = np.eye(q)
+        scale = _scale(c0, b0, dc, db)
+
+        def gap_at(theta: NDArray) -> tuple[NDArray, NDArray]:
+            c, b = io_coefficients(*self.matrices(theta), self.H)
+            return (
+                c - c0 - np.tensordot(theta, dc, axes=1),
+                b - b0 - np.tensordot(theta, db, axes=1),
+            )
+
+        def fail(gc: NDArray, gb: NDArray, what: str) -> None:
+            if np.abs(gc).max() >= np.abs(gb).max():
+                i = int(np.argmax(np.abs(gc)))
+                where = f"c_{i}, the coefficient of y(k{f'+{i}' if i else ''}),"
+                size = gc[i]
+            else:
+                lag, r, s = np.unravel_index(int(np.argmax(np.abs(gb))), gb.shape)
+                where = f"beta_{lag}, the coefficient of u(k{f'+{lag}' if lag else ''})" + (
+                    f" in output {r}, input {s}," if gb.shape[1] * gb.shape[2] > 1 else ","
+                )
+                size = gb[lag, r, s]
+            raise NotLinearInParameters(
+                "the structure is not linear in the parameters: eliminating the state "
+                f"(Cayley-Hamilton) writes y(k+{self.n}) in terms of earlier y and u, and "
+                f"{where} contains {what} (second difference {size:.3g}), so no regression "
+                "z(k) = phi(k) theta exists on the measured output. Measure the state "
+                "(H invertible, method='state') or re-parametrise (estimate that product as a "
+                "parameter of its own)."
+            )
+
+        for i, j in itertools.combinations_with_replacement(range(q), 2):
+            gc, gb = gap_at(eye[i] + eye[j])
+            if max(np.abs(gc).max(), np.abs(gb).max()) > _RTOL * scale:
+                what = (
+                    f"a {self.names[i]}^2 term"
+                    if i == j
+                    else f"a {self.names[i]}*{self.names[j]} term"
+                )
+                fail(gc, gb, what)
+        rng = np.random.default_rng(0)
+        for theta in rng.standard_normal((3, q)):
+            gc, gb = gap_at(theta)
+            if max(np.abs(gc).max(), np.abs(gb).max()) > _RTOL * _scale(c0, b0, dc, db, theta):
+                fail(gc, gb, "terms of degree 3 or more in theta")
+
+    def _check_identifiable(self, reg: GreyBoxRegression) -> None:
+        """Every parameter must be identifiable from the data the regression uses.
+
+        State route: the pairs ``(Phi_j, Gamma_j)`` must be linearly independent. Output route:
+        the transfer function from ``u`` to ``y`` must depend on every parameter, independently;
+        checked by the rank of the Jacobian of the Markov parameters
+        ``h_k = H Phi^{k-1} Gamma`` (``k = 1 .. 2n``, which fix the transfer function) at a
+        random ``theta``. The Cayley-Hamilton equation is not minimal when ``(Phi, H)`` is
+        unobservable or ``(Phi, Gamma)`` uncontrollable: a parameter of a cancelled mode then
+        enters the equation but not the data (its regressor is zero on noise-free data).
+        """
+        q = self.num_params
+        if reg.method == "state":
+            what = "the state equation"
+            G = np.concatenate(
+                (self.Phi_terms.reshape(q, -1), self.Gamma_terms.reshape(q, -1)), axis=1
+            )
+        else:
+            what = "the transfer function from u to y"
+            G = self._markov_jacobian(np.random.default_rng(0).standard_normal(q) / 2).T
+        norms = np.linalg.norm(G, axis=1)
+        for j in range(q):
+            if norms[j] <= _RTOL * max(float(norms.max()), 1e-300):
+                raise ValueError(
+                    f"{reg.names[j]} does not change {what}, so it cannot be identified from "
+                    "the measured data (it acts only on modes that y does not see or that u "
+                    "does not excite)"
+                )
+        Gn = G / norms[:, None]
+        _, sv, Vt = np.linalg.svd(Gn.T, full_matrices=False)
+        if sv[-1] <= 1e-8:
+            combo = " + ".join(
+                f"{v:.3g} {reg.names[j]}" for j, v in enumerate(Vt[-1] / norms) if abs(v) > 1e-6
+            )
+            raise ValueError(
+                f"the parameters change {what} only in fixed combinations: moving theta along "
+                f"({combo}) leaves it unchanged, so they are not jointly identifiable"
+            )
+
+    def _markov_jacobian(self, theta: NDArray) -> NDArray:
+        """``d h_k / d theta_j`` for ``h_k = H Phi^{k-1} Gamma``, ``k = 1..2n``: ``(2n p m, q)``.
+
+        ``d(Phi^{k-1}) = sum_a Phi^a Phi_j Phi^{k-2-a}`` (exact for the affine structure).
+        """
+        n = self.n
+        Phi, Gamma = self.matrices(theta)
+        powers = [np.eye(n)]
+        for _ in range(2 * n):
+            powers.append(Phi @ powers[-1])
+        cols = []
+        for Pj, Gj in zip(self.Phi_terms, self.Gamma_terms, strict=True):
+            blocks = []
+            for k in range(1, 2 * n + 1):
+                dPow = sum(
+                    (powers[a] @ Pj @ powers[k - 2 - a] for a in range(k - 1)),
+                    np.zeros((n, n)),
+                )
+                blocks.append(self.H @ (dPow @ Gamma + powers[k - 1] @ Gj))
+            cols.append(np.concatenate([b.ravel() for b in blocks]))
+        return np.array(cols).T

@@ -1,0 +1,697 @@
+"""Recursive least squares on user-given regressors (what MATLAB's ``recursiveLS`` users expect).
+
+The model is ``y(t) = phi(t) theta + e(t)`` with a regressor that the user builds: a vector of
+``num_params`` values for a scalar output, or a ``num_outputs x num_params`` matrix whose row
+``r`` is the regressor of output ``r`` (MATLAB's ``H(t)`` in ``y = H theta``). One step is the
+recursive least-squares update of Voevoda & Troshina (2016), eq. (2)-(4) (Ding & Ma 2014,
+(32)-(36); for a vector output the multi-innovation form (37)-(44)), with exponential
+forgetting ``lambda``::
+
+    e(t)     = y(t) - phi(t) theta(t-1)                                 (innovation)
+    K(t)     = P(t-1) phi(t)^T [lambda I + phi(t) P(t-1) phi(t)^T]^{-1}  (3)
+    theta(t) = theta(t-1) + K(t) e(t)                                   (2)
+    P(t)     = [P(t-1) - K(t) phi(t) P(t-1)] / lambda                   (4)
+
+i.e. ``P^{-1}(t) = lambda P^{-1}(t-1) + phi(t)^T phi(t)``: after ``T`` steps ``theta(T)`` is the
+regularised least-squares estimate ``(lambda^T P0^{-1} + sum_t lambda^{T-t} phi^T phi)^{-1}
+(lambda^T P0^{-1} theta0 + sum_t lambda^{T-t} phi^T y)``. The rule is the project's one
+least-squares lane function (:func:`stcgym.adaptive.kernels.least_squares.least_squares_step`):
+``P`` is kept as an upper-triangular square-root factor ``P = S S^T`` (Carlson's update), so it
+cannot lose symmetry or positive definiteness through cancellation.
+
+Options (keywords of :class:`RecursiveLeastSquares`)
+---------------------------------------------------
+* ``P0``: positive scalar, vector (diagonal) or symmetric positive definite matrix; or exactly
+  ``0``, which freezes ``theta`` at ``theta0`` for ever (the gain (3) is zero), as Voevoda &
+  Troshina (2016) note after (4). Default ``1e4``, MATLAB's ``InitialParameterCovariance``.
+* ``forgetting``: ``lambda`` in ``(0, 1]``.
+* ``window``: finite history, the exact regularised estimate over the last ``W`` samples
+  (``P0^{-1}`` and ``theta0`` stay as the prior): each new sample is added and the one ``W``
+  steps old removed by an exact downdate; when the downdate would lose digits (a squared pivot
+  of ``I - phi P phi^T`` below ``WINDOW_DOWNDATE_TOL = 1e-4``: the sample carries nearly all
+  the information in some direction) the estimate is recomputed by replaying the stored window
+  from the prior instead (counted in ``n_recomputes``). Needs a positive definite ``P0``;
+  exclusive with ``forgetting < 1``.
+* ``enabled``: ``False`` freezes ``theta`` and ``P`` (the innovation and ``y_hat`` are still
+  computed): MATLAB's ``EnableAdaptation``.
+* ``reset()`` (all lanes or some): back to ``theta0``, ``P0``, ``t = 0``.
+* Numerical health (the project's one check, after every step): the factor ``S`` finite with a
+  strictly positive diagonal, the gain denominator positive and finite, ``theta`` finite. On a
+  failure ``on_failure="reset"`` keeps the last ``theta``, resets ``P`` to ``P0`` (empties the
+  window), counts it in ``n_resets`` and warns; ``on_failure="raise"`` raises
+  :class:`~stcgym.adaptive.NumericalHealthError` and leaves the failing lanes as they were
+  before the failing step.
+* ``num_envs=B``: ``B`` independent lanes stepped together (arrays with a leading ``B`` axis,
+  ``prange`` over lanes); a single estimator calls the same lane function, so lane ``i``
+  equals a single estimator fed lane ``i``'s data bit for bit.
+
+:meth:`RecursiveLeastSquares.run` steps a whole record (``T`` samples, all lanes) in compiled
+code; :meth:`~RecursiveLeastSquares.update` is one step, for an online loop.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from numbers import Integral, Real
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.adaptive.kernels.least_squares import OK as LS_OK
+from stcgym.adaptive.kernels.least_squares import (
+    factor_is_healthy,
+    least_squares_downdate,
+    least_squares_step,
+    upper_factor,
+)
+from stcgym.adaptive.recursive import NumericalHealthError
+from stcgym.envs.compiled import Layout, lane, lanes, prange
+
+__all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
+
+OnFailure = Literal["reset", "raise"]
+
+#: A finite-history sample is removed by a downdate only when every pivot of
+#: ``I - phi P phi^T`` exceeds this; otherwise the window is replayed. A downdate with pivot
+#: ``g`` loses about ``eps / g`` of relative accuracy, and the loss never decays (what is added
+#: and removed later is exact), so the shared kernel's own limit ``DOWNDATE_TOL = 1e-8`` would
+#: let errors of ``1e-8 .. 1e-5`` accumulate when dominant samples leave the window.
+WINDOW_DOWNDATE_TOL = 1e-4
+
+# lane status codes
+_OK = 0
+_FAILED = 1  # non-finite or non-positive: P reset (or the lane left untouched)
+_RECOMPUTED = 2  # finite history recomputed from the stored window
+
+
+# --------------------------------------------------------------------------------------------
+# The estimator step on one lane record (the rule itself is the shared least-squares lane
+# function of :mod:`stcgym.adaptive.kernels.least_squares`)
+# --------------------------------------------------------------------------------------------
+
+# offsets array indices (the order of the fields in RecursiveLeastSquares' layout)
+_THETA, _S, _E, _YHAT, _K, _T, _NRESET, _NRECOMP, _COUNT, _HPHI, _HY, _WORK = range(12)
+
+
+def work_size(d: int, p: int) -> int:
+    """Scratch floats of one lane: ``theta`` and ``S`` copies, the rule's work, ``y_pred``,
+    and the ``(p, d)``, ``(p, p)`` scratch of :func:`downdate_is_accurate`."""
+    return d + d * d + (3 * d + p + d * d) + p + p * d + p * p
+
+
+@lane
+def replay_window(theta, S, theta0, S0, hist_Phi, hist_Y, first, work):  # pragma: no cover
+    """Finite-history estimate recomputed by replaying the stored samples from the prior.
+
+    ``theta <- theta0``, ``S <- S0``, then :func:`least_squares_step` on every stored sample,
+    oldest (slot ``first``) first: exactly the regularised estimate over the window, without the
+    cancellation of a downdate. Returns ``False`` when a step fails.
+    """
+    W = hist_Phi.shape[0]
+    theta[:] = theta0
+    S[:, :] = S0
+    for k in range(W):
+        slot = (first + k) % W
+        if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, work) != LS_OK:
+            return False
+    return True
+
+
+@lane
+def downdate_is_accurate(S, Phi, F, M):  # pragma: no cover - compiled
+    """Removing ``Phi`` from ``P^{-1} = (S S^T)^{-1}`` keeps enough digits.
+
+    ``True`` when every squared Cholesky pivot of ``I - Phi P Phi^T`` exceeds
+    ``WINDOW_DOWNDATE_TOL`` (for one row: ``1 - phi^T P phi``; their product is
+    ``det(P^{-1} - Phi^T Phi) / det(P^{-1})``). ``F`` (p, d) and ``M`` (p, p) are scratch.
+    """
+    p, d = Phi.shape
+    for r in range(p):  # F = Phi S
+        for j in range(d):
+            acc = 0.0
+            for i in range(j + 1):  # S upper triangular
+                acc += Phi[r, i] * S[i, j]
+            F[r, j] = acc
+    for r in range(p):  # Cholesky I - F F^T = M M^T
+        for c in range(r + 1):
+            acc = 1.0 if r == c else 0.0
+            for j in range(d):
+                acc -= F[r, j] * F[c, j]
+            for k in range(c):
+                acc -= M[r, k] * M[c, k]
+            if r == c:
+                if not acc > WINDOW_DOWNDATE_TOL:
+                    return False
+                M[r, r] = math.sqrt(acc)
+            else:
+                M[r, c] = acc / M[c, c]
+    return True
+
+
+@lane
+def _gain(K, S, Phi, g):  # pragma: no cover - compiled
+    """``K(t) = P(t) Phi^T = S (S^T Phi^T)``, ``(d, p)`` (``= P(t-1) phi / alpha``, eq. (3));
+    ``g`` is scratch of length ``d``."""
+    p, d = Phi.shape
+    for r in range(p):
+        for j in range(d):
+            acc = 0.0
+            for i in range(d):
+                acc += S[i, j] * Phi[r, i]
+            g[j] = acc
+        for i in range(d):
+            acc = 0.0
+            for j in range(d):
+                acc += S[i, j] * g[j]
+            K[i, r] = acc
+
+
+@lane
+def rls_step(
+    rec, off, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure
+):  # pragma: no cover
+    """One step of :class:`RecursiveLeastSquares` on one lane record; returns a status code.
+
+    ``Phi`` (p, d), ``Y`` (p,). The rule is :func:`least_squares_step` (square-root RLS/MILS
+    with forgetting and its health check); with a window the sample ``window`` steps old is
+    removed by :func:`least_squares_downdate` or, when that would be inaccurate, the estimate
+    is recomputed over the window (:func:`replay_window`). Works on copies of ``theta`` and
+    ``S`` and commits only a healthy step, so a failing lane is either reset
+    (``reset_on_failure``: ``P <- P0``, window emptied, ``theta`` kept) or left exactly as it
+    was.
+    """
+    p, d = Phi.shape
+    theta = rec[off[_THETA] : off[_THETA] + d]
+    S = rec[off[_S] : off[_S] + d * d].reshape((d, d))
+    hPhi = rec[off[_HPHI] : off[_HPHI] + window * p * d].reshape((window, p, d))
+    hY = rec[off[_HY] : off[_HY] + window * p].reshape((window, p))
+    o = off[_WORK]  # scratch: no allocation inside the lane function
+    th = rec[o : o + d]
+    Sn = rec[o + d : o + d + d * d].reshape((d, d))
+    work = rec[o + d + d * d : o + 4 * d + p + 2 * d * d]
+    o += 4 * d + p + 2 * d * d
+    y_pred = rec[o : o + p]
+    F = rec[o + p : o + p + p * d].reshape((p, d))
+    M = rec[o + p + p * d : o + p + p * d + p * p].reshape((p, p))
+    for r in range(p):  # prediction with theta(t-1); innovation e(t) = y(t) - y_pred
+        acc = 0.0
+        for i in range(d):
+            acc += Phi[r, i] * theta[i]
+        y_pred[r] = acc
+    status = _OK
+    if adapt:
+        th[:] = theta
+        Sn[:, :] = S
+        ok = least_squares_step(th, Sn, Phi, Y, lam, work) == LS_OK
+        count = int(rec[off[_COUNT]])
+        slot = count % window if window > 0 else 0
+        if ok and window > 0 and count >= window:
+            if not (
+                downdate_is_accurate(Sn, hPhi[slot], F, M)
+                and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], work) == LS_OK
+            ):
+                saved_Phi = hPhi[slot].copy()  # recompute over the window after this step
+                saved_Y = hY[slot].copy()
+                hPhi[slot] = Phi
+                hY[slot] = Y
+                ok = replay_window(th, Sn, theta0, S0, hPhi, hY, (slot + 1) % window, work)
+                hPhi[slot] = saved_Phi
+                hY[slot] = saved_Y
+                status = _RECOMPUTED
+            ok = ok and factor_is_healthy(Sn, 0, d)
+        for i in range(d):
+            ok = ok and math.isfinite(th[i])
+        if not ok:
+            if not reset_on_failure:
+                return _FAILED
+            S[:, :] = S0
+            rec[off[_COUNT]] = 0.0
+            rec[off[_NRESET]] += 1.0
+            status = _FAILED
+        else:
+            theta[:] = th
+            S[:, :] = Sn
+            if window > 0:
+                hPhi[slot] = Phi
+                hY[slot] = Y
+                rec[off[_COUNT]] = count + 1.0
+            if status == _RECOMPUTED:
+                rec[off[_NRECOMP]] += 1.0
+        _gain(rec[off[_K] : off[_K] + d * p].reshape((d, p)), S, Phi, th)
+    for r in range(p):
+        rec[off[_YHAT] + r] = y_pred[r]
+        rec[off[_E] + r] = Y[r] - y_pred[r]
+    rec[off[_T]] += 1.0
+    return status
+
+
+@lane
+def rls_run(
+    rec, off, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
+):  # pragma: no cover
+    """``T`` steps of :func:`rls_step` on one lane: ``out[t] = theta(t)``.
+
+    Returns ``(failures, first failing step or -1)``; without ``reset_on_failure`` it stops at
+    the first failure (that step not applied).
+    """
+    d = Phis.shape[2]
+    off_theta = off[_THETA]
+    failures = 0
+    first = -1
+    for t in range(Phis.shape[0]):
+        status = rls_step(
+            rec, off, Phis[t], Ys[t], theta0, S0, lam, window, adapt, reset_on_failure
+        )
+        if status == _FAILED:
+            failures += 1
+            if first < 0:
+                first = t
+            if not reset_on_failure:
+                return failures, first
+        out[t] = rec[off_theta : off_theta + d]
+    return failures, first
+
+
+@lanes
+def rls_run_lanes(
+    F, off, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out, failures, first
+):  # pragma: no cover
+    """:func:`rls_run` on every lane."""
+    for i in prange(F.shape[0]):
+        failures[i], first[i] = rls_run(
+            F[i], off, Phis[i], Ys[i], theta0, S0, lam, window, adapt, reset_on_failure, out[i]
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Validation
+# --------------------------------------------------------------------------------------------
+
+
+def _count(value: object, name: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _forgetting(value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise ValueError(f"forgetting must be a real number in (0, 1], got {value!r}")
+    lam = float(value)
+    if not 0.0 < lam <= 1.0:  # also rejects NaN
+        raise ValueError(f"forgetting must lie in (0, 1], got {value!r}")
+    return lam
+
+
+def _initial_covariance(value: ArrayLike, d: int) -> tuple[NDArray, NDArray]:
+    """``(P0, S0)`` with ``S0`` upper triangular, ``S0 S0^T = P0``; ``P0 = 0`` gives zeros."""
+    expected = (
+        f"P0 must be a positive scalar, a vector of {d} positive values or a symmetric positive "
+        f"definite {d}x{d} matrix (or exactly 0: theta never adapts)"
+    )
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{expected}, got {value!r}") from exc
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{expected}; it is not finite")
+    if arr.ndim == 0 or (arr.ndim == 1 and arr.size == d):
+        diag = np.broadcast_to(arr, (d,)).astype(float)
+        if not (np.all(diag > 0) or np.all(diag == 0)):
+            raise ValueError(f"{expected}, got {value!r}")
+        return np.diag(diag), np.diag(np.sqrt(diag))
+    if arr.shape != (d, d):
+        raise ValueError(f"{expected}, got shape {arr.shape}")
+    if not np.any(arr):
+        return arr, np.zeros((d, d))
+    scale = float(np.abs(arr).max())
+    if not np.allclose(arr, arr.T, rtol=0.0, atol=1e-12 * scale):
+        raise ValueError(f"{expected}; it is not symmetric")
+    P0 = 0.5 * (arr + arr.T)
+    S0 = np.zeros((d, d))
+    if not upper_factor(P0, S0):
+        lam_min = float(np.linalg.eigvalsh(P0).min())
+        raise ValueError(f"{expected}; its smallest eigenvalue is {lam_min:g}")
+    return P0, S0
+
+
+# --------------------------------------------------------------------------------------------
+# Public class
+# --------------------------------------------------------------------------------------------
+
+
+class RecursiveLeastSquares:
+    """Recursive least squares ``y(t) = phi(t) theta + e(t)`` on user regressors.
+
+    See the module docstring for the equations and the options.
+
+    Parameters
+    ----------
+    num_params : int
+        ``d``, the length of ``theta``.
+    num_outputs : int
+        ``p``; with ``p > 1`` the regressor is a ``p x d`` matrix whose row ``r`` is the
+        regressor of output ``r`` (MATLAB's ``H(t)`` in ``y = H theta``).
+    theta0 : array_like, shape (d,), optional
+        Initial estimate (zeros).
+    P0 : float, array_like (d,) or (d, d)
+        Initial covariance (``1e4``, MATLAB's default), positive definite, or ``0``: the gain
+        (3) is then zero and ``theta`` stays at ``theta0`` for ever.
+    forgetting : float
+        ``lambda`` in ``(0, 1]`` (``1``: no forgetting).
+    window : int, optional
+        Finite history of ``W`` samples (needs ``forgetting = 1`` and a positive definite
+        ``P0``).
+    enabled : bool
+        Adaptation switch (settable later through :attr:`enabled`).
+    on_failure : {"reset", "raise"}
+        Safe action on numerical trouble (see the module docstring).
+    num_envs : int, optional
+        Number of lanes ``B``; ``None`` for a single estimator (no leading axis).
+
+    Examples
+    --------
+    >>> est = RecursiveLeastSquares(2, P0=1e6)
+    >>> for phi, y in [([1.0, 0.0], 2.0), ([0.0, 1.0], -1.0), ([1.0, 1.0], 1.0)]:
+    ...     theta = est.update(phi, y)
+    >>> np.round(theta, 4)
+    array([ 2., -1.])
+    """
+
+    def __init__(
+        self,
+        num_params: int,
+        num_outputs: int = 1,
+        *,
+        theta0: ArrayLike | None = None,
+        P0: float | ArrayLike = 1e4,
+        forgetting: float = 1.0,
+        window: int | None = None,
+        enabled: bool = True,
+        on_failure: OnFailure = "reset",
+        num_envs: int | None = None,
+    ) -> None:
+        d = _count(num_params, "num_params", 1)
+        p = _count(num_outputs, "num_outputs", 1)
+        self._d, self._p = d, p
+        self._lam = _forgetting(forgetting)
+        self._P0, self._S0 = _initial_covariance(P0, d)
+        self._frozen = not np.any(self._P0)  # P0 = 0: the gain is zero for ever
+        if theta0 is None:
+            self._theta0 = np.zeros(d)
+        else:
+            th = np.array(theta0, dtype=float).reshape(-1)
+            if th.size != d or not np.all(np.isfinite(th)):
+                raise ValueError(f"theta0 must be a finite vector of length {d}, got {theta0!r}")
+            self._theta0 = th
+        self._window = 0 if window is None else _count(window, "window", 1)
+        if self._window:
+            if self._lam != 1.0:
+                raise ValueError("window (finite history) and forgetting < 1 are exclusive")
+            if self._frozen:
+                raise ValueError("window (finite history) needs a positive definite P0, got 0")
+        if on_failure not in ("reset", "raise"):
+            raise ValueError(f"on_failure must be 'reset' or 'raise', got {on_failure!r}")
+        self._reset_on_failure = on_failure == "reset"
+        self._batched = num_envs is not None
+        B = 1 if num_envs is None else _count(num_envs, "num_envs", 1)
+        self.enabled = enabled
+
+        W = self._window
+        lay = Layout()
+        for name, shape in (  # the order of the _THETA, _S, ... indices of the lane function
+            ("theta", d),
+            ("S", (d, d)),
+            ("innovation", p),
+            ("y_hat", p),
+            ("K", (d, p)),
+            ("t", ()),
+            ("n_resets", ()),
+            ("n_recomputes", ()),
+            ("count", ()),
+            ("hist_Phi", (W, p, d)),
+            ("hist_Y", (W, p)),
+            ("work", work_size(d, p)),
+        ):
+            lay.add(name, shape)
+        self._layout = lay
+        self._off = lay.offsets(list(lay.fields))
+        self._F = lay.empty(B)
+        # views of every field (shape (B, ...)); self._F is only ever written in place
+        self._fields = {name: lay.view(self._F, name) for name in lay.fields}
+        self._lead = (B,) if self._batched else ()
+        self._out1 = np.empty((1, d))
+        self.reset()
+
+    # ---------------------------------------------------------------- lifecycle
+    def reset(self, lanes: ArrayLike | None = None) -> None:
+        """Back to ``theta0``, ``P0``, ``t = 0`` (all lanes, or the given lane indices / mask)."""
+        idx = self._lane_index(lanes)
+        rec = self._F[idx]
+        rec[...] = 0.0
+        self._layout.view(rec, "theta")[...] = self._theta0
+        self._layout.view(rec, "S")[...] = self._S0
+        self._F[idx] = rec
+
+    def _lane_index(self, lanes: ArrayLike | None) -> NDArray:
+        B = self._F.shape[0]
+        if lanes is None:
+            return np.arange(B)
+        idx = np.asarray(lanes)
+        if idx.dtype == bool:
+            if idx.shape != (B,):
+                raise ValueError(f"lanes as a mask must have shape ({B},), got {idx.shape}")
+            return np.flatnonzero(idx)
+        if not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"lanes must be lane indices or a boolean mask, got {lanes!r}")
+        idx = idx.reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= B):
+            raise ValueError(f"lanes must lie in 0..{B - 1}, got {lanes!r}")
+        return idx
+
+    # ---------------------------------------------------------------- data checks
+    def _regressor(self, phi: ArrayLike, lead: tuple[int, ...]) -> NDArray:
+        """``phi`` as ``lead + (p, d)`` float64, C-contiguous; ValueError naming it otherwise."""
+        d, p = self._d, self._p
+        arr = np.asarray(phi, dtype=float)
+        if p == 1 and arr.shape == lead + (d,):
+            arr = arr[..., None, :]
+        if arr.shape != lead + (p, d):
+            want = lead + (d,) if p == 1 else lead + (p, d)
+            raise ValueError(
+                f"phi must have shape {want} ({'num_outputs x ' if p > 1 else ''}num_params), "
+                f"got {arr.shape}"
+            )
+        if not np.isfinite(arr).all():
+            raise ValueError("phi must be finite (no NaN or inf)")
+        return np.ascontiguousarray(arr)
+
+    def _output(self, y: ArrayLike, lead: tuple[int, ...]) -> NDArray:
+        p = self._p
+        arr = np.asarray(y, dtype=float)
+        if p == 1 and arr.shape == lead:
+            arr = arr[..., None]
+        if arr.shape != lead + (p,):
+            want = lead if p == 1 else lead + (p,)
+            raise ValueError(f"y must have shape {want}, got {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ValueError("y must be finite (no NaN or inf)")
+        return np.ascontiguousarray(arr)
+
+    def _args(self) -> tuple:
+        adapt = self._enabled and not self._frozen
+        return (self._theta0, self._S0, self._lam, self._window, adapt)
+
+    # ---------------------------------------------------------------- stepping
+    def update(self, phi: ArrayLike, y: ArrayLike) -> NDArray:
+        """One step with regressor ``phi(t)`` and measurement ``y(t)``; returns ``theta(t)``.
+
+        Shapes: single ``phi`` (d,) / (p, d), ``y`` scalar / (p,); with ``num_envs=B`` a
+        leading ``B`` axis on both. Bad shapes or non-finite values raise ``ValueError`` before
+        any state changes.
+        """
+        Phi = self._regressor(phi, self._lead)
+        Y = self._output(y, self._lead)
+        if self._batched:  # the batch loop over lanes, one step
+            B = self._F.shape[0]
+            failures = np.zeros(B, dtype=np.int64)
+            rls_run_lanes(
+                self._F,
+                self._off,
+                Phi[:, None],
+                Y[:, None],
+                *self._args(),
+                self._reset_on_failure,
+                np.empty((B, 1, self._d)),
+                failures,
+                np.zeros(B, dtype=np.int64),
+            )
+            status = np.where(failures > 0, _FAILED, _OK)
+        else:  # the same lane function, called directly (no thread pool for one lane)
+            fails, _ = rls_run(
+                self._F[0],
+                self._off,
+                Phi[None],
+                Y[None],
+                *self._args(),
+                self._reset_on_failure,
+                self._out1,
+            )
+            if not fails:
+                return self._out1[0].copy()
+            status = np.array([_FAILED])
+        failed = np.flatnonzero(status == _FAILED)
+        if failed.size:
+            self._failure(failed, "the covariance factor or theta lost finiteness or rank")
+        return self.theta
+
+    def run(self, phi: ArrayLike, y: ArrayLike) -> NDArray:
+        """Many steps in compiled code: ``phi`` (T, d) / (T, p, d), ``y`` (T,) / (T, p).
+
+        With ``num_envs=B`` a leading ``B`` axis on both. Returns ``theta(t)`` after each step,
+        shape (T, d) or (B, T, d). With ``on_failure="raise"`` a failing lane stops before its
+        failing step (the other lanes finish) and the error names the step.
+        """
+        B = self._F.shape[0]
+        phi_arr = np.asarray(phi, dtype=float)
+        T_axis = 1 if self._batched else 0
+        if phi_arr.ndim <= T_axis:
+            raise ValueError(f"phi must have a time axis, got shape {phi_arr.shape}")
+        T = phi_arr.shape[T_axis]
+        lead = (B, T) if self._batched else (T,)
+        Phis = self._regressor(phi_arr, lead)
+        Ys = self._output(y, lead)
+        if not self._batched:
+            Phis, Ys = Phis[None], Ys[None]
+        out = np.empty((B, T, self._d))
+        failures = np.zeros(B, dtype=np.int64)
+        first = np.zeros(B, dtype=np.int64)
+        if self._batched:
+            rls_run_lanes(
+                self._F,
+                self._off,
+                Phis,
+                Ys,
+                *self._args(),
+                self._reset_on_failure,
+                out,
+                failures,
+                first,
+            )
+        else:  # one lane: the lane function itself
+            failures[0], first[0] = rls_run(
+                self._F[0], self._off, Phis[0], Ys[0], *self._args(), self._reset_on_failure, out[0]
+            )
+        failed = np.flatnonzero(failures)
+        if failed.size:
+            step = int(first[failed].min())
+            self._failure(
+                failed,
+                f"the covariance factor or theta lost finiteness or rank at run() step {step}",
+                count=int(failures.sum()),
+            )
+        return out if self._batched else out[0]
+
+    def predict(self, phi: ArrayLike) -> NDArray:
+        """``phi theta`` with the current estimate (no state change): shape (p,) or (B, p)."""
+        Phi = self._regressor(phi, self._lead)
+        return np.einsum("...rd,...d->...r", Phi, self.theta)
+
+    def _failure(self, failed: NDArray, reason: str, *, count: int | None = None) -> None:
+        """Raise (``on_failure="raise"``) or warn about lanes the lane function reset."""
+        lanes_txt = f"lane(s) {failed.tolist()}" if self._batched else "estimator"
+        msg = f"RecursiveLeastSquares {lanes_txt}: {reason}"
+        if not self._reset_on_failure:
+            raise NumericalHealthError(msg + " (the failing step was not applied)")
+        n = failed.size if count is None else count
+        warnings.warn(f"{msg}; P reset to P0 ({n} reset(s))", RuntimeWarning, stacklevel=3)
+
+    # ---------------------------------------------------------------- read-only state
+    def _get(self, name: str) -> NDArray:
+        v = self._fields[name]
+        return v.copy() if self._batched else v[0].copy()
+
+    def _counter(self, name: str) -> int | NDArray:
+        n = self._fields[name].astype(np.int64)
+        return n if self._batched else int(n[0])
+
+    @property
+    def theta(self) -> NDArray:
+        """``theta(t)``: (d,) or (B, d)."""
+        return self._get("theta")
+
+    @property
+    def P(self) -> NDArray:
+        """``P(t) = S S^T``: (d, d) or (B, d, d)."""
+        S = self._get("S")
+        return S @ S.swapaxes(-1, -2)
+
+    @property
+    def S(self) -> NDArray:
+        """The upper-triangular square-root factor, ``P = S S^T``."""
+        return self._get("S")
+
+    @property
+    def K(self) -> NDArray:
+        """Gain of the last step ``K(t) = P(t) phi(t)^T`` (eq. (3)): (d,) or (d, p), lanes first."""
+        K = self._get("K")
+        return K[..., 0] if self._p == 1 else K
+
+    @property
+    def innovation(self) -> NDArray:
+        """``e(t) = y(t) - phi(t) theta(t-1)`` of the last step: (p,) or (B, p)."""
+        return self._get("innovation")
+
+    @property
+    def y_hat(self) -> NDArray:
+        """One-step prediction ``phi(t) theta(t-1)`` of the last step: (p,) or (B, p)."""
+        return self._get("y_hat")
+
+    @property
+    def t(self) -> int | NDArray:
+        """Steps since the last reset (per lane with ``num_envs``)."""
+        return self._counter("t")
+
+    @property
+    def n_resets(self) -> int | NDArray:
+        """Covariance resets after numerical failures (per lane with ``num_envs``)."""
+        return self._counter("n_resets")
+
+    @property
+    def n_recomputes(self) -> int | NDArray:
+        """Finite-history recomputations from the stored window (ill-conditioned downdates)."""
+        return self._counter("n_recomputes")
+
+    @property
+    def enabled(self) -> bool:
+        """Adaptation switch: ``False`` freezes ``theta`` and ``P`` (predictions still made)."""
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        self._enabled = bool(value)
+
+    @property
+    def num_params(self) -> int:
+        return self._d
+
+    @property
+    def num_outputs(self) -> int:
+        return self._p
+
+    @property
+    def num_envs(self) -> int | None:
+        return self._F.shape[0] if self._batched else None
+
+    @property
+    def nbytes_per_lane(self) -> int:
+        return self._layout.nbytes_per_lane
+
+    def __repr__(self) -> str:
+        lanes_txt = f", num_envs={self._F.shape[0]}" if self._batched else ""
+        return (
+            f"RecursiveLeastSquares(num_params={self._d}, num_outputs={self._p}, "
+            f"forgetting={self._lam}, window={self._window or None}{lanes_txt})"
+        )
