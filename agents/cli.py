@@ -1,15 +1,19 @@
 """The ``stcgym`` command.
 
-``stcgym bench --quick``
-    The README's main job: the self-tuning controller, the known-model and LQG oracles and PPO,
-    SAC and TD3 (trained on the spot) on the nominal, plant-family and parameter-jump
-    scenarios; about 5-10 minutes on 2 CPU cores. ``stcgym bench`` (or ``--full``) is the full
-    version: more plants, A2C, 3 training seeds, 20 evaluation seeds, 10x budgets (hours).
+``stcgym bench`` (= ``stcgym bench --quick``, ``make bench``)
+    The self-tuning controller, the known-model and LQG oracles and PPO, SAC and RecurrentPPO
+    (3 training seeds each, trained on the spot through the task executor) on the nominal,
+    plant-family and parameter-jump scenarios; under 10 minutes on 2 CPU cores.
+    ``stcgym bench --full`` is the long version (all catalogue plants, TD3 and A2C too, 5
+    training seeds, 20 evaluation seeds, 10x budgets: hours); it announces its estimated time.
 ``stcgym eval MODEL_DIR``
     Re-evaluate a saved RL agent (a ``models/*`` folder of a bench run).
+``stcgym sweep FAMILY``
+    Classical controllers over a random plant family (:mod:`stcgym.agents.sweep`).
 
-Every input is checked before anything is trained; errors print one line and exit with
-status 2. Ctrl-C keeps the finished rows of ``metrics.csv`` (exit status 130).
+Every option is checked before any work starts (hyperparameters against each algorithm's
+rules and SB3's own constructor); errors print one line and exit with status 2. Ctrl-C keeps
+the finished rows of ``metrics.csv`` (exit status 130).
 """
 
 from __future__ import annotations
@@ -22,46 +26,81 @@ __all__ = ["main", "build_parser"]
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
+    from stcgym.agents.bench import FULL, QUICK, BenchConfig
     from stcgym.agents.configs import ALGORITHMS
+    from stcgym.agents.executors import EXECUTORS
     from stcgym.envs.catalogue import plant_names
 
     p = sub.add_parser(
         "bench",
         help="benchmark the self-tuning controller against RL agents",
         description="Benchmark the self-tuning controller against RL agents and known-model "
-        "oracles; writes results/<run>/ (metrics.csv, report.md, PNG plots, config.json).",
+        "oracles; writes results/<run>/ (metrics.csv, report.md, PNG plots, config.json). "
+        "Without --full it runs the quick preset.",
     )
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--quick", action="store_true", help="~5-10 min on 2 CPU cores")
     mode.add_argument(
-        "--full", action="store_true", help="all plants and agents, long budgets (the default)"
+        "--quick", action="store_true", help="the default: under 10 min on 2 CPU cores"
+    )
+    mode.add_argument(
+        "--full",
+        action="store_true",
+        help="all plants and agents, 5 training seeds, long budgets (hours; the estimate is "
+        "printed first)",
     )
     p.add_argument("--scenarios", help="comma list of nominal,family,jump (default: all)")
     p.add_argument(
-        "--plants", help=f"nominal-scenario plants (catalogue: {','.join(plant_names())})"
+        "--plants",
+        help=f"nominal-scenario plants (quick default: {','.join(QUICK['plants'])}; "
+        f"catalogue: {','.join(plant_names())})",
     )
-    p.add_argument("--family-train", help="plants RL trains on in the family scenario")
-    p.add_argument("--family-test", help="held-out plants of the family scenario")
+    defaults = BenchConfig(run="-")
+    p.add_argument(
+        "--family-train",
+        help="plants RL trains on in the family scenario (default: "
+        f"{','.join(defaults.family_train)})",
+    )
+    p.add_argument(
+        "--family-test",
+        help=f"held-out plants of the family scenario (default: {','.join(defaults.family_test)})",
+    )
     p.add_argument(
         "--jump",
         action="append",
         dest="jumps",
-        help="jump scenario: 'timevarying2' or BEFORE:AFTER plant names (repeatable)",
+        help="jump scenario: 'timevarying2' or BEFORE:AFTER plant names (repeatable; quick "
+        f"default: {','.join(QUICK['jumps'])}; full: {','.join(FULL['jumps'])})",
     )
     p.add_argument(
         "--agents",
-        help=f"comma list of {','.join(ALGORITHMS)},stc,oracle,lqg "
-        "(quick default: ppo,sac,td3,stc,oracle)",
+        help=f"comma list of {','.join(ALGORITHMS)},stc,oracle,lqg (quick default: "
+        f"{','.join(QUICK['agents'])}; full: {','.join(FULL['agents'])}); the oracle is "
+        "always evaluated",
     )
     p.add_argument(
         "--train-steps",
-        help="RL training budget in env steps: N for every agent, or ppo=N,sac=M",
+        help="RL training budget in env steps: N for every agent, or ppo=N,sac=M (defaults: "
+        "each algorithm's quick_steps / full_steps in agents/configs.py)",
     )
-    p.add_argument("--train-seeds", type=int, help="RL training seeds per agent")
-    p.add_argument("--seeds", type=int, help="evaluation episodes (seeds) per scenario")
-    p.add_argument("--first-seed", type=int, default=1000, help="first evaluation seed")
-    p.add_argument("--episode-steps", type=int, help="evaluation episode length")
-    p.add_argument("--train-episode-steps", type=int, help="RL training episode length")
+    p.add_argument("--train-seeds", type=int, help="RL training seeds per agent (quick 3, full 5)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        help=f"evaluation episodes (seeds) per scenario (quick {QUICK['seeds']}, full "
+        f"{FULL['seeds']})",
+    )
+    p.add_argument("--first-seed", type=int, default=1000, help="first evaluation seed (>= 0)")
+    p.add_argument(
+        "--episode-steps",
+        type=int,
+        help=f"evaluation episode length, >= 20 (quick {QUICK['episode_steps']}, full "
+        f"{FULL['episode_steps']}); the jump is at half of it",
+    )
+    p.add_argument(
+        "--train-episode-steps",
+        type=int,
+        help=f"RL training episode length (default {defaults.train_episode_steps})",
+    )
     p.add_argument("--noise", type=float, default=0.05, help="output noise std (default 0.05)")
     p.add_argument(
         "--train-y-bound",
@@ -74,9 +113,29 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="ALGO.KEY=VALUE",
-        help="override a hyperparameter, e.g. ppo.learning_rate=3e-4 (repeatable)",
+        help="override a hyperparameter, e.g. ppo.learning_rate=3e-4 (repeatable; checked "
+        "against the algorithm's rules)",
     )
-    p.add_argument("--curve-points", type=int, default=10, help="learning-curve points")
+    p.add_argument("--curve-points", type=int, default=10, help="log-spaced learning-curve points")
+    p.add_argument(
+        "--jobs",
+        type=int,
+        help="RL training jobs in parallel (local processes; default: min(2, CPUs))",
+    )
+    p.add_argument("--executor", default="local", help=f"task executor: {' or '.join(EXECUTORS)}")
+    p.add_argument("--address", help="Ray cluster address (with --executor ray), e.g. auto")
+    p.add_argument(
+        "--tensorboard-log",
+        metavar="DIR",
+        help="write TensorBoard logs of every RL training to DIR/<run>/ (learning curve "
+        "included: eval/curve_cost, eval/cost_to_oracle); view with tensorboard --logdir DIR",
+    )
+    p.add_argument(
+        "--bootstrap-reps",
+        type=int,
+        default=1000,
+        help="bootstrap replications of the confidence intervals (default 1000)",
+    )
     p.add_argument("--out", default="results", help="output folder (default results/)")
     p.add_argument("--run", help="run name (default: timestamp and mode)")
     p.add_argument("--overwrite", action="store_true", help="reuse an existing run folder")
@@ -87,7 +146,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         dest="progress",
         action="store_true",
         default=None,
-        help="SB3 progress bar (default: when stderr is a terminal)",
+        help="SB3's per-job progress bar with --jobs 1 (default: when stderr is a terminal)",
     )
     bar.add_argument("--no-progress", dest="progress", action="store_false")
 
@@ -95,11 +154,15 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
 def _eval_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate a saved RL agent (a bench models/ folder)")
     p.add_argument("model_dir", help="folder holding agent.json and model.zip")
-    p.add_argument("--plant", help="catalogue plant (default: the first training plant)")
-    p.add_argument("--seeds", type=int, default=5)
-    p.add_argument("--first-seed", type=int, default=1000)
-    p.add_argument("--episode-steps", type=int, default=1000)
-    p.add_argument("--noise", type=float, default=None, help="default: as in training")
+    p.add_argument(
+        "--plant", help="catalogue plant of the training order (default: the first training one)"
+    )
+    p.add_argument("--seeds", type=int, default=5, help="evaluation episodes (default 5)")
+    p.add_argument("--first-seed", type=int, default=1000, help="first seed (>= 0)")
+    p.add_argument("--episode-steps", type=int, default=1000, help="episode length (>= 20)")
+    p.add_argument(
+        "--noise", type=float, default=None, help="output noise std (default: as trained)"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -109,14 +172,26 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _bench_parser(sub)
     _eval_parser(sub)
+    try:
+        from stcgym.agents.sweep import add_sweep_subcommand
+    except ImportError:  # pragma: no cover  (sweep is part of the package)
+        pass
+    else:
+        add_sweep_subcommand(sub)
     return parser
 
 
 def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from stcgym.agents.bench import build_config, run_bench
+    from stcgym.agents.bench import (
+        _duration,
+        build_config,
+        check_runnable,
+        estimate_seconds,
+        run_bench,
+    )
 
     cfg = build_config(
-        quick=args.quick,
+        quick=not args.full,
         run=args.run,
         out=args.out,
         scenarios=args.scenarios,
@@ -137,21 +212,70 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
         curve_points=args.curve_points,
         plots=not args.no_plots,
         progress=args.progress,
+        jobs=args.jobs,
+        executor=args.executor,
+        address=args.address,
+        tensorboard_log=args.tensorboard_log,
+        bootstrap_reps=args.bootstrap_reps,
     )
-    result = run_bench(cfg, overwrite=args.overwrite, argv=list(argv))
+    check_runnable(cfg)
+    print(
+        f"stcgym bench: {cfg.mode} mode, estimated {_duration(estimate_seconds(cfg))} on "
+        f"{cfg.jobs} worker(s); results in {cfg.run_dir}",
+        file=sys.stderr,
+    )
+    result = run_bench(cfg, overwrite=args.overwrite, argv=list(argv), checked=True)
     print(result.run_dir / "report.md")
     return 0
+
+
+def _check_eval_args(args: argparse.Namespace) -> dict:
+    """Validate every ``stcgym eval`` option (and read ``agent.json``) before loading SB3."""
+    import json
+    import math
+    from pathlib import Path
+
+    from stcgym.agents.bench import BenchInputError
+    from stcgym.envs.catalogue import get_plant, plant_names
+
+    if args.seeds < 1:
+        raise BenchInputError(f"--seeds must be >= 1, got {args.seeds}")
+    if args.first_seed < 0:
+        raise BenchInputError(f"--first-seed must be >= 0, got {args.first_seed}")
+    if args.episode_steps < 20:
+        raise BenchInputError(f"--episode-steps must be >= 20, got {args.episode_steps}")
+    if args.noise is not None and not (math.isfinite(args.noise) and args.noise >= 0):
+        raise BenchInputError(f"--noise must be a finite number >= 0, got {args.noise}")
+    meta_file = Path(args.model_dir) / "agent.json"
+    if not meta_file.is_file():
+        raise BenchInputError(f"{args.model_dir} holds no agent.json (not a saved stcgym agent)")
+    try:
+        meta = json.loads(meta_file.read_text())
+        trained = meta["train_spec"]["plants"]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
+    if args.plant is not None:
+        if args.plant not in plant_names():
+            raise BenchInputError(
+                f"--plant must be a catalogue plant ({', '.join(plant_names())}), "
+                f"got {args.plant!r}"
+            )
+        if get_plant(args.plant).n != get_plant(trained[0]).n:
+            raise BenchInputError(
+                f"--plant {args.plant}: the agent was trained on order-"
+                f"{get_plant(trained[0]).n} plants ({', '.join(trained)})"
+            )
+    return meta
 
 
 def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
-    from stcgym.agents.bench import BenchInputError
     from stcgym.agents.evaluate import EnvSpec, evaluate, summarize
+
+    _check_eval_args(args)
     from stcgym.agents.sb3 import load_agent
 
-    if args.seeds < 1 or args.episode_steps < 1:
-        raise BenchInputError("--seeds and --episode-steps must be >= 1")
     agent = load_agent(args.model_dir)
     spec = agent.train_spec
     plant = args.plant or spec.plants[0]
@@ -177,6 +301,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``stcgym`` console script; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    if args.command == "sweep":
+        return args.handler(args)
     from stcgym.agents.bench import BenchInputError
 
     try:

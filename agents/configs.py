@@ -14,7 +14,12 @@ Besides the keyword arguments of the Stable-Baselines3 constructor (``hyperparam
 holds the bench-level knobs the Zoo keeps next to them: the number of parallel training envs
 (``n_envs``), reward normalisation (``normalize_reward``, the Zoo's ``normalize``), a fixed
 ``reward_scale`` (off-policy learners), Gaussian exploration noise for TD3 (``noise_std``) and
-the default training budget of the quick and full bench (``quick_steps``, ``full_steps``).
+the default training budget of the quick and full bench (``quick_steps``, ``full_steps``). The
+quick budgets are what fits three training seeds of PPO, SAC and RecurrentPPO on two training
+environments into the 10 minutes of ``make bench`` on 2 cores (SAC and TD3 make one gradient
+step per environment step, ~10 ms on one core, so they get the smallest budget); they show
+where each agent is after that much data, which is the question of the data-efficiency plot,
+not where it would end up.
 
 Override anything from the command line with ``--hp ALGO.KEY=VALUE``; ``VALUE`` is read as a
 Python literal when it is one (``3e-4``, ``True``, ``[32, 32]``, ``{"net_arch": [32]}``) and as
@@ -30,11 +35,17 @@ from __future__ import annotations
 import ast
 import copy
 import inspect
+import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 __all__ = [
     "ALGORITHMS",
+    "HYPERPARAMETER_RULES",
+    "RECURRENT_ALGORITHMS",
+    "RESERVED_ARGS",
+    "validate_config",
     "AlgoConfig",
     "DEFAULT_CONFIGS",
     "algorithm_class",
@@ -43,17 +54,45 @@ __all__ = [
     "parse_override",
 ]
 
-#: Algorithms the bench knows, with the Stable-Baselines3 class name.
-ALGORITHMS: dict[str, str] = {"ppo": "PPO", "sac": "SAC", "td3": "TD3", "a2c": "A2C"}
+#: Algorithms the bench knows, with the Stable-Baselines3 (or sb3-contrib) class name.
+ALGORITHMS: dict[str, str] = {
+    "ppo": "PPO",
+    "sac": "SAC",
+    "td3": "TD3",
+    "a2c": "A2C",
+    "rppo": "RecurrentPPO",
+}
+
+#: Recurrent (LSTM) agents: the adaptive-RL baseline. They are trained on the randomised plant
+#: family, never on one plant, and evaluated where adaptation is asked for (held-out plants,
+#: parameter jumps): the meta-RL recipe, where the memory must identify the plant in context.
+RECURRENT_ALGORITHMS: tuple[str, ...] = ("rppo",)
+
+#: Keyword arguments the bench sets itself; ``--hp`` may not touch them.
+RESERVED_ARGS: dict[str, str] = {
+    "tensorboard_log": "use --tensorboard-log DIR",
+    "verbose": "set by the bench",
+    "seed": "use --train-seeds",
+    "device": "the bench trains on the CPU",
+    "env": "set by the bench",
+    "policy": "use ALGO.policy (a config field)",
+    "action_noise": "use ALGO.noise_std",
+    "replay_buffer_class": "not configurable from the command line",
+    "replay_buffer_kwargs": "not configurable from the command line",
+}
 
 
 def algorithm_class(algo: str) -> type:
-    """The Stable-Baselines3 class of ``algo`` (imported lazily: SB3 pulls torch in)."""
-    import stable_baselines3
-
+    """The SB3 / sb3-contrib class of ``algo`` (imported lazily: SB3 pulls torch in)."""
     key = algo.lower()
     if key not in ALGORITHMS:
         raise ValueError(f"RL algorithm must be one of {sorted(ALGORITHMS)}, got {algo!r}")
+    if key in RECURRENT_ALGORITHMS:
+        import sb3_contrib
+
+        return getattr(sb3_contrib, ALGORITHMS[key])
+    import stable_baselines3
+
     return getattr(stable_baselines3, ALGORITHMS[key])
 
 
@@ -100,7 +139,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         },
         n_envs=4,
         normalize_reward=True,
-        quick_steps=40_000,
+        quick_steps=20_000,
         full_steps=400_000,
     ),
     # Zoo Pendulum-v1: lr 1e-3, otherwise SB3 defaults (buffer 1e6, batch 256, tau 0.005).
@@ -116,7 +155,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
             "gradient_steps": 1,
             "policy_kwargs": dict(_NET),
         },
-        quick_steps=12_000,
+        quick_steps=3_000,
         full_steps=100_000,
     ),
     # Zoo Pendulum-v1: normal action noise 0.1, lr 1e-3, batch 256, train_freq 1. Rewards
@@ -141,7 +180,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         },
         reward_scale=0.1,
         noise_std=0.05,
-        quick_steps=12_000,
+        quick_steps=3_000,
         full_steps=100_000,
     ),
     # Zoo Pendulum-v1 (A2C): n_envs 8, n_steps 8, gamma 0.9, RMSprop, gSDE, log_std_init -2.
@@ -164,6 +203,34 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         normalize_reward=True,
         quick_steps=40_000,
         full_steps=400_000,
+    ),
+    # sb3-contrib RecurrentPPO, after the Zoo's ppo_lstm entries for the velocity-free
+    # Pendulum (n_envs 4, gamma 0.9, lr 1e-3, LSTM policy with a [64] head): an LSTM of 32
+    # units over a 2-sample window of y, r, u, e, so that the memory, not the window, has to
+    # identify the plant. Trained on the plant family only (see RECURRENT_ALGORITHMS).
+    "rppo": AlgoConfig(
+        "rppo",
+        {
+            "learning_rate": 1e-3,
+            "n_steps": 256,
+            "batch_size": 256,
+            "n_epochs": 10,
+            "gamma": 0.95,
+            "gae_lambda": 0.95,
+            "clip_range": 0.2,
+            "ent_coef": 0.0,
+            "policy_kwargs": {
+                "lstm_hidden_size": 32,
+                "net_arch": [64],
+                "log_std_init": -2.0,
+            },
+        },
+        n_envs=4,
+        normalize_reward=True,
+        quick_steps=8_000,
+        full_steps=300_000,
+        policy="MlpLstmPolicy",
+        window={"window": 2},
     ),
 }
 
@@ -217,16 +284,25 @@ def apply_overrides(
         if path[0] in config_fields:
             if len(path) == 1:
                 setattr(cfg, path[0], value)
+                _check(cfg, text)
                 continue
             target, path = getattr(cfg, path[0]), path[1:]
             if not isinstance(target, dict):
                 raise ValueError(f"--hp {text!r}: {algo}.{path[0]} is not a dict")
+            if target is cfg.hyperparams and path[0] in RESERVED_ARGS:
+                raise ValueError(
+                    f"--hp {text!r}: {path[0]!r} is not a hyperparameter ({RESERVED_ARGS[path[0]]})"
+                )
             if target is cfg.hyperparams and path[0] not in _constructor_args(algo):
                 raise ValueError(
                     f"--hp {text!r}: {path[0]!r} is not an argument of "
                     f"{ALGORITHMS[algo]} (known: {sorted(_constructor_args(algo))})"
                 )
         else:
+            if path[0] in RESERVED_ARGS:
+                raise ValueError(
+                    f"--hp {text!r}: {path[0]!r} is not a hyperparameter ({RESERVED_ARGS[path[0]]})"
+                )
             if path[0] not in _constructor_args(algo):
                 raise ValueError(
                     f"--hp {text!r}: {path[0]!r} is neither a config field "
@@ -238,4 +314,152 @@ def apply_overrides(
             if not isinstance(target, dict):
                 raise ValueError(f"--hp {text!r}: {p!r} is not a dict")
         target[path[-1]] = value
+        _check(cfg, text)
     return configs
+
+
+def _check(cfg: AlgoConfig, text: str) -> None:
+    try:
+        validate_config(cfg)
+    except ValueError as exc:
+        raise ValueError(f"--hp {text!r}: {exc}") from None
+
+
+# ------------------------------------------------------------------------------ value rules
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _rule(check: Callable[[Any], bool], expected: str) -> tuple[Callable[[Any], bool], str]:
+    return check, expected
+
+
+_POSITIVE = _rule(lambda v: _is_num(v) and v > 0, "a positive number")
+_NONNEG = _rule(lambda v: _is_num(v) and v >= 0, "a number >= 0")
+_UNIT = _rule(lambda v: _is_num(v) and 0 <= v <= 1, "a number in [0, 1]")
+_DISCOUNT = _rule(lambda v: _is_num(v) and 0 < v <= 1, "a number in (0, 1]")
+_COUNT = _rule(lambda v: _is_int(v) and v >= 1, "an integer >= 1")
+_COUNT0 = _rule(lambda v: _is_int(v) and v >= 0, "an integer >= 0")
+_BOOL = _rule(lambda v: isinstance(v, bool), "True or False")
+_OPT_POSITIVE = _rule(lambda v: v is None or (_is_num(v) and v > 0), "None or a positive number")
+
+
+def _train_freq(v: Any) -> bool:
+    if _is_int(v):
+        return v >= 1
+    return (
+        isinstance(v, (list, tuple))
+        and len(v) == 2
+        and _is_int(v[0])
+        and v[0] >= 1
+        and v[1] in ("step", "episode")
+    )
+
+
+def _ent_coef(v: Any) -> bool:
+    if isinstance(v, str) and (v == "auto" or v.startswith("auto_")):
+        try:
+            return v == "auto" or float(v[5:]) > 0
+        except ValueError:
+            return False
+    return _is_num(v) and v >= 0
+
+
+#: What each constructor argument must be (SB3's own rules, checked before anything starts:
+#: SB3 asserts some of them only when the model is built or, like ``batch_size=0``, not at all).
+HYPERPARAMETER_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "learning_rate": _POSITIVE,
+    "gamma": _DISCOUNT,
+    "gae_lambda": _UNIT,
+    "tau": _DISCOUNT,
+    "clip_range": _POSITIVE,
+    "clip_range_vf": _OPT_POSITIVE,
+    "ent_coef": _rule(_ent_coef, "a number >= 0 (SAC also 'auto' or 'auto_<init>')"),
+    "vf_coef": _NONNEG,
+    "max_grad_norm": _POSITIVE,
+    "batch_size": _COUNT,
+    "n_steps": _COUNT,
+    "n_epochs": _COUNT,
+    "buffer_size": _COUNT,
+    "learning_starts": _COUNT0,
+    "train_freq": _rule(_train_freq, "an integer >= 1 or [N, 'step'|'episode']"),
+    "gradient_steps": _rule(lambda v: _is_int(v) and (v >= 1 or v == -1), "an integer >= 1 or -1"),
+    "policy_delay": _COUNT,
+    "target_policy_noise": _NONNEG,
+    "target_noise_clip": _NONNEG,
+    "target_update_interval": _COUNT,
+    "target_entropy": _rule(lambda v: v == "auto" or _is_num(v), "'auto' or a number"),
+    "target_kl": _OPT_POSITIVE,
+    "use_sde": _BOOL,
+    "use_sde_at_warmup": _BOOL,
+    "sde_sample_freq": _rule(lambda v: _is_int(v) and v >= -1, "an integer >= -1"),
+    "normalize_advantage": _BOOL,
+    "use_rms_prop": _BOOL,
+    "rms_prop_eps": _POSITIVE,
+    "optimize_memory_usage": _BOOL,
+    "stats_window_size": _COUNT,
+    "policy_kwargs": _rule(lambda v: isinstance(v, dict), "a dict"),
+}
+
+#: What each :class:`AlgoConfig` field must be.
+FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "n_envs": _COUNT,
+    "normalize_reward": _BOOL,
+    "reward_scale": _POSITIVE,
+    "cost_squash": _OPT_POSITIVE,
+    "noise_std": _NONNEG,
+    "quick_steps": _COUNT,
+    "full_steps": _COUNT,
+    "policy": _rule(lambda v: isinstance(v, str) and bool(v), "a policy name such as MlpPolicy"),
+    "window": _rule(lambda v: isinstance(v, dict), "a dict of WindowConfig fields"),
+    "hyperparams": _rule(lambda v: isinstance(v, dict), "a dict"),
+}
+
+#: Policy names each algorithm accepts (SB3's ``policy_aliases``).
+POLICIES: dict[str, tuple[str, ...]] = {
+    "ppo": ("MlpPolicy",),
+    "a2c": ("MlpPolicy",),
+    "sac": ("MlpPolicy",),
+    "td3": ("MlpPolicy",),
+    "rppo": ("MlpLstmPolicy",),
+}
+
+
+def validate_config(cfg: AlgoConfig) -> None:
+    """Check every value of ``cfg`` against the rules above; ``ValueError`` names the key.
+
+    Beyond single values: PPO-family rollouts need ``n_steps * n_envs > 1`` and PPO's
+    minibatches ``batch_size > 1`` (SB3 asserts both only when the model is built).
+    """
+    from stcgym.agents.wrappers import WindowConfig
+
+    name = cfg.algo
+    for key, (check, expected) in FIELD_RULES.items():
+        value = getattr(cfg, key)
+        if not check(value):
+            raise ValueError(f"{name}.{key} must be {expected}, got {value!r}")
+    if cfg.policy not in POLICIES.get(name, (cfg.policy,)):
+        raise ValueError(f"{name}.policy must be one of {POLICIES[name]}, got {cfg.policy!r}")
+    try:
+        WindowConfig(**cfg.window)
+    except TypeError as exc:
+        raise ValueError(f"{name}.window: {exc}") from None
+    for key, value in cfg.hyperparams.items():
+        if key in RESERVED_ARGS:
+            raise ValueError(f"{name}.{key} is not a hyperparameter ({RESERVED_ARGS[key]})")
+        rule = HYPERPARAMETER_RULES.get(key)
+        if rule is not None and not rule[0](value):
+            raise ValueError(f"{name}.{key} must be {rule[1]}, got {value!r}")
+    hp = cfg.hyperparams
+    if name in ("ppo", "a2c", "rppo") and hp.get("n_steps", 2) * cfg.n_envs < 2:
+        raise ValueError(f"{name}: n_steps * n_envs must be > 1 (SB3's rollout rule)")
+    if name in ("ppo", "rppo") and hp.get("batch_size", 2) < 2:
+        raise ValueError(f"{name}.batch_size must be > 1 (PPO normalises advantages per batch)")
+    if name == "sac" and "ent_coef" in hp and not _ent_coef(hp["ent_coef"]):
+        raise ValueError(f"{name}.ent_coef must be a number >= 0, 'auto' or 'auto_<init>'")
+    if name != "sac" and isinstance(hp.get("ent_coef"), str):
+        raise ValueError(f"{name}.ent_coef must be a number >= 0, got {hp['ent_coef']!r}")

@@ -20,11 +20,12 @@ r(k+1))^2 + rho u(k)^2``:
   1000-2000 and 1300-1600 for a 2000-step episode with the jump at 1000);
 * ``effort``: mean ``u(k)^2`` (plant units) over the steps run;
 * ``bounded``: the episode did not diverge (``|y|`` stayed below the environment's ``y_bound``);
-* ``reconverge_steps``: after a jump at ``J``, the first ``k >= J`` from which on the mean cost
-  over every following window of ``period`` steps (one reference period) stays below
-  ``1.1 x max(pre-jump steady cost, post-jump final cost)`` (final = last quarter after the
-  jump), minus ``J``. Using the controller's own final level as well makes it a settling time
-  that exists even when the new plant allows a different cost; ``inf`` when the run diverged.
+* ``overshoot_pct``, ``settling_steps``: step response at the reference steps of the steady
+  window, ``startup_settling_steps`` at the first reference step (step 0), see
+  :func:`stcgym.agents.response.step_response`;
+* the metrics relative to the oracle on the same episode (cost ratios, adaptation and
+  re-convergence steps, :mod:`stcgym.agents.response`) need the oracle's run and are computed
+  by the bench from ``Episode.cost``.
 * ``step_us``: wall time of one ``predict`` call, microseconds (mean over the episode).
 
 A diverged episode ends early; it is charged its last step's cost for every step it did not
@@ -48,6 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.policy import reset_policy
+from stcgym.agents.response import step_response
 from stcgym.envs.catalogue import PlantSpec, get_plant
 
 __all__ = [
@@ -59,7 +61,6 @@ __all__ = [
     "default_windows",
     "episode_metrics",
     "evaluate",
-    "reconvergence_steps",
     "run_episode",
     "summarize",
 ]
@@ -146,6 +147,15 @@ class EnvSpec:
             kwargs["schedule"] = Jumps({spec.jump_step: np.array(spec.jump_to)})
         return gym.make(ENV_ID, max_episode_steps=spec.steps, **kwargs)
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> EnvSpec:
+        """Inverse of :meth:`to_dict` (JSON data back to a spec)."""
+        d = dict(data)
+        d["plants"] = tuple(d["plants"])
+        if d.get("jump_to") is not None:
+            d["jump_to"] = tuple(d["jump_to"])
+        return cls(**d)
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["plants"] = list(self.plants)
@@ -153,9 +163,11 @@ class EnvSpec:
         return d
 
 
-#: ``factory(plant) -> policy``: the controller for one episode on ``plant`` (the catalogue plant
-#: in force at the start of the episode, which only the oracles may look at).
-PolicyFactory = Callable[[PlantSpec], Any]
+#: ``factory(plant, seed) -> policy``: the controller for one episode on ``plant`` (the
+#: catalogue plant in force at the start of the episode, which only the oracles may look at);
+#: ``seed`` is the episode's seed, so a controller with random parts (the self-tuning
+#: controller's probe) draws its own stream in every episode.
+PolicyFactory = Callable[[PlantSpec, int], Any]
 
 
 @dataclass
@@ -179,14 +191,27 @@ class Episode:
     diverged: bool
     n_clipped: int
     step_us: float
+    #: with ``record_theta``: true parameters ``(T + 1, 2n)`` and the policy's ``theta`` after
+    #: each step ``(T, 2n)`` (``nan`` where the policy has none)
+    theta: NDArray | None = None
+    theta_hat: NDArray | None = None
 
 
-def run_episode(policy: Any, spec: EnvSpec, seed: int, *, plant: str | None = None) -> Episode:
+def run_episode(
+    policy: Any,
+    spec: EnvSpec,
+    seed: int,
+    *,
+    plant: str | None = None,
+    record_theta: bool = False,
+) -> Episode:
     """Run ``policy`` for one episode of ``spec`` from ``reset(seed=seed)``.
 
-    ``policy`` is a policy, or a :data:`PolicyFactory` called with the plant drawn by the reset.
-    ``plant`` picks one member of a family (``reset(options={"plant": plant})``); by default
-    the environment draws it from the seed. The policy is reset before the first step.
+    ``policy`` is a policy, or a :data:`PolicyFactory` called with the plant drawn by the reset
+    and the seed. ``plant`` picks one member of a family (``reset(options={"plant": plant})``);
+    by default the environment draws it from the seed. The policy is reset before the first
+    step. ``record_theta`` keeps the true parameters and the policy's estimates
+    (``policy.theta``) per step.
     """
     env = spec.make()
     options = None if plant is None else {"plant": plant}
@@ -194,12 +219,17 @@ def run_episode(policy: Any, spec: EnvSpec, seed: int, *, plant: str | None = No
     drawn = env.unwrapped.plant
     name = drawn.name if drawn is not None else "?"
     if not hasattr(policy, "predict"):
-        policy = policy(drawn)
+        policy = policy(drawn, int(seed))
     reset_policy(policy)
     T = spec.steps
     y, r, u, cost = np.zeros(T + 1), np.zeros(T + 1), np.zeros(T), np.zeros(T)
     y[0], r[0] = info["y_clean"], obs[1]
     wall, k, diverged, n_clipped = 0.0, 0, False, 0
+    theta = theta_hat = None
+    if record_theta:
+        theta = np.full((T + 1, len(info["theta"])), np.nan)
+        theta_hat = np.full((T, len(info["theta"])), np.nan)
+        theta[0] = info["theta"]
     for k in range(T):  # noqa: B007  (k is the number of steps run when the loop breaks)
         t0 = time.perf_counter()
         action, _ = policy.predict(obs, episode_start=np.array([k == 0]), deterministic=True)
@@ -209,6 +239,11 @@ def run_episode(policy: Any, spec: EnvSpec, seed: int, *, plant: str | None = No
         u[k] = np.clip(action[0], -spec.action_bound, spec.action_bound)
         y[k + 1], r[k + 1], cost[k] = info["y_clean"], obs[1], -reward
         n_clipped = int(info["n_clipped"])
+        if record_theta:
+            theta[k + 1] = info["theta"]
+            est = getattr(policy, "theta", None)
+            if est is not None and np.size(est) == theta.shape[1]:
+                theta_hat[k] = np.ravel(est)
         if terminated:
             diverged = bool(info.get("diverged", True))
             cost[k + 1 :] = cost[k]  # the charge of a failed run, see the module docstring
@@ -217,7 +252,18 @@ def run_episode(policy: Any, spec: EnvSpec, seed: int, *, plant: str | None = No
     env.close()
     steps_run = k + 1
     return Episode(
-        int(seed), name, y, r, u, cost, steps_run, diverged, n_clipped, 1e6 * wall / steps_run
+        int(seed),
+        name,
+        y,
+        r,
+        u,
+        cost,
+        steps_run,
+        diverged,
+        n_clipped,
+        1e6 * wall / steps_run,
+        theta,
+        theta_hat,
     )
 
 
@@ -247,20 +293,6 @@ def _window_mean(x: NDArray, window: tuple[int, int]) -> float:
     return float(np.mean(x[lo:hi])) if hi > lo else math.nan
 
 
-def reconvergence_steps(cost: NDArray, jump_step: int, period: int, tol: float = 1.1) -> float:
-    """Steps from the jump until the per-period cost is back to steady (module docstring)."""
-    T, J = len(cost), int(jump_step)
-    period = max(1, min(int(period), T - J))
-    pre = float(np.mean(cost[J // 2 : J]))
-    final = float(np.mean(cost[T - max(1, (T - J) // 4) :]))
-    level = tol * max(pre, final) + 1e-12
-    # Forward means: fwd[i] = mean(cost[J+i : J+i+period]), for every full window after J.
-    c = np.concatenate(([0.0], np.cumsum(cost[J:])))
-    fwd = (c[period:] - c[:-period]) / period
-    above = np.nonzero(fwd > level)[0]
-    return 0.0 if above.size == 0 else float(above[-1] + 1)
-
-
 def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, float]:
     """The per-episode columns of ``metrics.csv`` (see the module docstring)."""
     u = ep.u[: ep.steps_run]
@@ -269,7 +301,6 @@ def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, flo
         "cost_start": _window_mean(ep.cost, windows.start),
         "cost_steady": _window_mean(ep.cost, windows.steady),
         "cost_post_jump": math.nan,
-        "reconverge_steps": math.nan,
         "effort": float(np.mean(u**2)),
         "bounded": int(not ep.diverged),
         "steps_run": ep.steps_run,
@@ -278,9 +309,11 @@ def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, flo
     }
     if windows.post_jump is not None:
         m["cost_post_jump"] = _window_mean(ep.cost, windows.post_jump)
-        m["reconverge_steps"] = (
-            math.inf if ep.diverged else reconvergence_steps(ep.cost, windows.jump_step, period)
-        )
+    steady = step_response(ep.y, ep.r, start=windows.steady[0], stop=windows.steady[1])
+    startup = step_response(ep.y, ep.r, start=0, stop=min(len(ep.r), max(2, period // 2)))
+    m["overshoot_pct"] = steady["overshoot_pct"]
+    m["settling_steps"] = steady["settling_steps"]
+    m["startup_settling_steps"] = startup["settling_steps"]
     return m
 
 
@@ -301,14 +334,16 @@ def evaluate(
     plant: str | None = None,
     windows: Windows | None = None,
     on_episode: Callable[[Episode, dict[str, float]], None] | None = None,
+    record_theta: bool = False,
 ) -> EvalResult:
     """Evaluate one controller on ``env_spec`` for every seed.
 
     Parameters
     ----------
     policy_factory
-        ``factory(plant_spec) -> policy``, called once per episode after the reset (it may return
-        the same object each time; it is reset). A plain policy object is accepted too.
+        ``factory(plant_spec, seed) -> policy``, called once per episode after the reset (it
+        may return the same object each time; it is reset). A plain policy object is accepted
+        too.
     env_spec
         The scenario's environment.
     seeds
@@ -322,13 +357,17 @@ def evaluate(
     on_episode
         Called after each episode with the episode and its metrics (the bench writes a CSV row
         there, so an interrupted run keeps what it finished).
+    record_theta
+        Keep the true and estimated parameters per step (:func:`run_episode`).
     """
     if steps is not None and steps != env_spec.steps:
         env_spec = EnvSpec(**{**asdict(env_spec), "steps": int(steps)})
     windows = windows or default_windows(env_spec.steps, env_spec.jump_step)
     result = EvalResult()
     for seed in seeds:
-        ep = run_episode(policy_factory, env_spec, int(seed), plant=plant)
+        ep = run_episode(
+            policy_factory, env_spec, int(seed), plant=plant, record_theta=record_theta
+        )
         metrics = episode_metrics(ep, windows, env_spec.period)
         result.episodes.append(ep)
         result.metrics.append(metrics)

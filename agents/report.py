@@ -1,4 +1,20 @@
-"""``report.md`` of a bench run: tables and one-line conclusions computed from the numbers."""
+"""``report.md`` of a bench run: the headline with confidence intervals, then the details.
+
+The headline answers three questions per scenario, each as a point estimate with a 95 %
+stratified-bootstrap interval (:mod:`stcgym.agents.statistics`, i.e. ``rliable``):
+
+1. where does each controller end up: steady-state cost / the oracle's on the same episode
+   (interquartile mean, IQM);
+2. how much data does it need: environment steps until its cost stays within 1.2x of the
+   oracle's (training steps for RL, read off the learning curve; adaptation steps within the
+   episode for the self-tuning controller; median, with the share of runs that got there);
+3. what happens after a change (``jump:*``): post-jump cost / the oracle's, and the steps until
+   the cost stays within 1.2x of the oracle told the new parameters (``inf``, shown as "never",
+   when it does not; median with the share of runs that recovered).
+
+Whole-episode cost stays as a column, and the probability that ``stc`` has the lower cost
+(rliable's probability of improvement) is given against every other controller.
+"""
 
 from __future__ import annotations
 
@@ -10,41 +26,54 @@ from typing import Any
 import numpy as np
 
 from stcgym.agents.evaluate import default_windows, summarize
+from stcgym.agents.statistics import Estimate, interval_estimates, probability_of_improvement
 
-__all__ = ["aggregate", "conclusions", "write_report"]
+__all__ = ["aggregate", "headline", "write_report"]
 
-_STATS_COLUMNS = (
+_DETAIL_COLUMNS = (
     "cost",
     "cost_start",
     "cost_steady",
-    "cost_post_jump",
-    "reconverge_steps",
     "effort",
     "data_steps",
     "train_wall_s",
     "step_us",
+    "overshoot_pct",
+    "settling_steps",
+    "startup_settling_steps",
 )
 
 
-def _g(x: float, digits: int = 3) -> str:
+def _g(x: float | None, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and math.isnan(x)):
         return "-"
     if math.isinf(x):
-        return "inf"
+        return "inf" if x > 0 else "-inf"
     if abs(x) >= 10 ** (digits + 2):
         return f"{x:.2e}"
     return f"{x:.{digits}g}"
 
 
-def aggregate(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
-    """``(scenario, controller) -> {column: summarize(...)} plus failure counts``."""
+def _float(v: Any) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _groups(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for row in rows:
         groups.setdefault((row["scenario"], row["controller"]), []).append(row)
+    return groups
+
+
+def aggregate(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
+    """``(scenario, controller) -> {column: summarize(...)} plus run and failure counts``."""
     out = {}
-    for key, rs in groups.items():
+    for key, rs in _groups(rows).items():
         failed = [not int(r["bounded"]) for r in rs]
-        stats = {c: summarize([float(r[c]) for r in rs], failed) for c in _STATS_COLUMNS}
+        stats = {c: summarize([_float(r.get(c)) for r in rs], failed) for c in _DETAIL_COLUMNS}
         stats["runs"] = len(rs)
         stats["failures"] = int(sum(failed))
         stats["family"] = rs[0]["family"]
@@ -52,110 +81,222 @@ def aggregate(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str,
     return out
 
 
-def _med(stats: dict[str, Any], col: str) -> float:
-    return stats[col]["median"]
+# ---------------------------------------------------------------------------------- headline
+def _censor(values: np.ndarray, cap: float) -> np.ndarray:
+    # "never" (inf) counts as the largest possible value: order statistics stay right and the
+    # bootstrap gets finite numbers.
+    return np.where(np.isfinite(values), values, cap)
 
 
-def conclusions(agg: dict[tuple[str, str], dict[str, Any]], scenarios: Sequence[str]) -> list[str]:
-    """Plain statements read off the medians (whole-episode cost and steady-state cost)."""
-    lines = []
-    wins = losses = 0
-    for sc in scenarios:
-        ctrls = {c: s for (name, c), s in agg.items() if name == sc}
-        if not ctrls:
-            continue
-        ranked = sorted(ctrls, key=lambda c: _med(ctrls[c], "cost"))
-        best = ranked[0]
-        parts = [f"best median episode cost: **{best}** ({_g(_med(ctrls[best], 'cost'))})"]
-        if "stc" in ctrls:
-            stc = _med(ctrls["stc"], "cost")
-            parts.append(
-                f"stc {_g(stc)}"
-                + (
-                    f" ({_g(stc / _med(ctrls[best], 'cost'), 2)}x best)"
-                    if best != "stc" and _med(ctrls[best], "cost") > 0
-                    else ""
-                )
-            )
-            rl = [c for c in ctrls if ctrls[c]["family"] == "rl"]
-            better = [c for c in rl if _med(ctrls[c], "cost") < stc]
-            worse = [c for c in rl if c not in better]
-            wins += len(worse)
-            losses += len(better)
-            if better:
-                parts.append(f"{', '.join(better)} beat{'s' if len(better) == 1 else ''} stc")
-            if worse:
-                parts.append(f"stc beats {', '.join(worse)}")
-            steady_rl = [
-                c for c in rl if _med(ctrls[c], "cost_steady") < _med(ctrls["stc"], "cost_steady")
-            ]
-            if steady_rl:
-                parts.append(f"in steady state {', '.join(steady_rl)} beat stc")
-        fails = [
-            f"{c} {ctrls[c]['failures']}/{ctrls[c]['runs']}" for c in ranked if ctrls[c]["failures"]
-        ]
-        if fails:
-            parts.append("diverged: " + ", ".join(fails))
-        lines.append(f"- `{sc}`: " + "; ".join(parts) + ".")
-    if wins + losses:
-        lines.append(
-            f"- Overall the self-tuning controller has the lower median episode cost in {wins} of "
-            f"{wins + losses} (RL agent, scenario) pairs."
-        )
-    return lines
+def headline(
+    rows: Sequence[dict[str, Any]],
+    scenario: str,
+    controllers: Sequence[str],
+    *,
+    jump: bool,
+    reps: int,
+) -> dict[str, dict[str, Any]]:
+    """Estimates of one scenario: ``controller -> {metric: Estimate, ...}`` (see the module).
 
-
-def _main_table(agg, scenarios: Sequence[str], controllers: Sequence[str]) -> list[str]:
-    head = "| controller | " + " | ".join(f"`{s}`" for s in scenarios) + " |"
-    lines = [head, "|" + "---|" * (len(scenarios) + 1)]
+    Step counts that never reach the tolerance (``inf``) are censored at the largest value
+    that could have been observed (the episode part or the training budget); the count of
+    runs that did reach it is reported next to them.
+    """
+    groups = _groups(rows)
+    cols = ["steady_ratio", "cost", "steps_to_oracle"] + (
+        ["post_jump_ratio", "reconverge_steps"] if jump else []
+    )
+    data: dict[str, np.ndarray] = {}
+    extra: dict[str, dict[str, Any]] = {}
     for c in controllers:
-        cells = []
-        for s in scenarios:
-            st = agg.get((s, c))
-            if st is None:
-                cells.append("")
-                continue
-            cell = f"{_g(st['cost']['median'])} [{_g(st['cost']['iqr'], 2)}]"
-            if st["failures"]:
-                cell += f" ({st['failures']}/{st['runs']} div.)"
-            cells.append(cell)
-        lines.append(f"| {c} | " + " | ".join(cells) + " |")
-    return lines
+        rs = groups.get((scenario, c))
+        if not rs:
+            continue
+        table = np.array([[_float(r.get(k)) for k in cols] for r in rs])
+        info: dict[str, Any] = {"runs": len(rs), "failures": sum(not int(r["bounded"]) for r in rs)}
+        for j, k in enumerate(cols):
+            v = table[:, j]
+            if k in ("steps_to_oracle", "reconverge_steps"):
+                cap = _step_cap(rs, k)
+                info[f"{k}_reached"] = int(np.sum(np.isfinite(v)))
+                info[f"{k}_cap"] = cap
+                table[:, j] = _censor(v, cap)
+            else:
+                # a diverged run has an infinite ratio at worst: the largest finite one stands in
+                finite = v[np.isfinite(v)]
+                table[:, j] = np.where(np.isfinite(v), v, finite.max() if finite.size else math.nan)
+        keep = np.all(np.isfinite(table), axis=0)
+        info["cols"] = [k for k, ok in zip(cols, keep, strict=True) if ok]
+        data[c] = table[:, keep]
+        extra[c] = info
+    est = interval_estimates(data, reps=reps) if data else {}
+    costs = {
+        c: data[c][:, extra[c]["cols"].index("cost")] for c in data if "cost" in extra[c]["cols"]
+    }
+    poi = (
+        probability_of_improvement(costs, "stc", reps=reps)
+        if "stc" in costs and len(costs) > 1
+        else {}
+    )
+    out = {}
+    for c, info in extra.items():
+        res = dict(info)
+        for j, k in enumerate(info["cols"]):
+            res[k] = {"iqm": est[c]["iqm"][j], "median": est[c]["median"][j]}
+        res["poi"] = poi.get(c)
+        out[c] = res
+    return out
 
 
-def _scenario_table(agg, scenario: str, controllers: Sequence[str], jump: bool) -> list[str]:
+def _step_cap(rs: Sequence[dict[str, Any]], key: str) -> float:
+    if key == "steps_to_oracle" and rs[0]["family"] == "rl":
+        return max(_float(r["train_steps"]) for r in rs)
+    T = max(_float(r["steps_run"]) for r in rs)
+    if key == "reconverge_steps":
+        return float(T // 2)  # the jump is at T/2
+    return float(T if rs[0]["kind"] != "jump" else T // 2)
+
+
+def _cell(res: dict[str, Any], key: str, stat: str = "iqm") -> str:
+    if key not in res:
+        return "-"
+    e: Estimate = res[key][stat]
+    if key in ("steps_to_oracle", "reconverge_steps"):
+        reached, cap = res[f"{key}_reached"], res[f"{key}_cap"]
+        if reached == 0:
+            return f"never (0/{res['runs']})"
+        if 2 * reached <= res["runs"]:  # the median is (or averages in) a run that never did
+            return f"> {_g(cap)} in half the runs or more ({reached}/{res['runs']})"
+        return f"{e.format(3)} ({reached}/{res['runs']})"
+    return e.format(3)
+
+
+def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
     cols = [
         "controller",
-        "cost median [IQR]",
+        "runs (div.)",
+        "steady / oracle, IQM",
+        "env steps to <= 1.2x oracle, median (reached)",
+    ]
+    if jump:
+        cols += ["post-jump / oracle, IQM", "re-converge steps, median (recovered)"]
+    cols += ["episode cost, IQM", "P(stc cost lower)"]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for c, res in hl.items():
+        div = f" ({res['failures']})" if res["failures"] else ""
+        cells = [
+            c,
+            f"{res['runs']}{div}",
+            _cell(res, "steady_ratio"),
+            _cell(res, "steps_to_oracle", "median"),
+        ]
+        if jump:
+            cells += [_cell(res, "post_jump_ratio"), _cell(res, "reconverge_steps", "median")]
+        poi = res.get("poi")
+        cells += [_cell(res, "cost"), poi.format(2) if poi is not None else "-"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _reach(res: dict[str, Any], key: str, verb: str, unit: str = "steps") -> str:
+    """``"gets within 1.2x after 16 steps (median; 5/5 runs)"`` or ``"never gets ..."``."""
+    reached, runs = res[f"{key}_reached"], res["runs"]
+    if reached == 0:
+        return f"never {verb} (0/{runs} runs)"
+    med = res[key]["median"].value
+    if 2 * reached <= runs:  # the median is (or averages in) a censored value
+        return f"{verb} in no more than half of the runs ({reached}/{runs})"
+    return f"{verb} after {_g(med)} {unit} (median; {reached}/{runs} runs)"
+
+
+def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
+    parts = []
+    stc = hl.get("stc")
+    if stc is not None and "steady_ratio" in stc:
+        parts.append(
+            f"stc ends at {_g(stc['steady_ratio']['iqm'].value)}x the oracle's steady cost and "
+            + _reach(stc, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
+        )
+    rl = {
+        c: r
+        for c, r in hl.items()
+        if c not in ("stc", "oracle", "lqg") and "steady_ratio" in r and "steps_to_oracle" in r
+    }
+    if rl:
+        best = min(rl, key=lambda c: rl[c]["steady_ratio"]["iqm"].value)
+        r = rl[best]
+        parts.append(
+            f"the best RL agent ({best}) ends at {_g(r['steady_ratio']['iqm'].value)}x and "
+            + _reach(r, "steps_to_oracle", "gets within 1.2x", "training steps")
+        )
+    if jump and stc is not None and "post_jump_ratio" in stc:
+        parts.append(
+            f"after the jump stc runs at {_g(stc['post_jump_ratio']['iqm'].value)}x the "
+            "informed oracle and " + _reach(stc, "reconverge_steps", "re-converges")
+        )
+    better = [c for c, r in hl.items() if r.get("poi") is not None and r["poi"].value > 0.5]
+    if better:
+        parts.append(
+            f"stc has the lower episode cost more often than not against {', '.join(better)}"
+        )
+    return f"- `{name}`: " + "; ".join(parts) + "." if parts else ""
+
+
+# ---------------------------------------------------------------------------------- details
+def _detail_table(agg, scenario: str, controllers: Sequence[str]) -> list[str]:
+    cols = [
+        "controller",
+        "episode cost median [IQR]",
         "CVaR25",
         "start",
         "steady",
+        "effort u^2",
+        "bounded",
+        "data steps",
+        "train s",
+        "us/step",
     ]
-    if jump:
-        cols += ["post-jump", "re-converge (steps)"]
-    cols += ["effort u^2", "bounded", "data steps", "train s", "us/step"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c in controllers:
         st = agg.get((scenario, c))
         if st is None:
             continue
-        cells = [
-            c,
-            f"{_g(_med(st, 'cost'))} [{_g(st['cost']['iqr'], 2)}]",
-            _g(st["cost"]["cvar25"]),
-            _g(_med(st, "cost_start")),
-            _g(_med(st, "cost_steady")),
-        ]
-        if jump:
-            cells += [_g(_med(st, "cost_post_jump")), _g(_med(st, "reconverge_steps"))]
-        cells += [
-            _g(_med(st, "effort")),
-            f"{st['runs'] - st['failures']}/{st['runs']}",
-            _g(_med(st, "data_steps"), 4),
-            _g(_med(st, "train_wall_s"), 3),
-            _g(_med(st, "step_us"), 3),
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
+        lines.append(
+            "| "
+            + " | ".join(
+                [
+                    c,
+                    f"{_g(st['cost']['median'])} [{_g(st['cost']['iqr'], 2)}]",
+                    _g(st["cost"]["cvar25"]),
+                    _g(st["cost_start"]["median"]),
+                    _g(st["cost_steady"]["median"]),
+                    _g(st["effort"]["median"]),
+                    f"{st['runs'] - st['failures']}/{st['runs']}",
+                    _g(st["data_steps"]["median"], 4),
+                    _g(st["train_wall_s"]["median"], 3),
+                    _g(st["step_us"]["median"], 3),
+                ]
+            )
+            + " |"
+        )
+    return lines
+
+
+def _step_table(agg, names: Sequence[str], controllers: Sequence[str]) -> list[str]:
+    lines = [
+        "| scenario | controller | overshoot % | settling steps | start-up settling steps |",
+        "|---|---|---|---|---|",
+    ]
+    for s in names:
+        for c in controllers:
+            st = agg.get((s, c))
+            if st is None:
+                continue
+            lines.append(
+                f"| `{s}` | {c} | {_g(st['overshoot_pct']['median'], 3)} | "
+                f"{_g(st['settling_steps']['median'])} | "
+                f"{_g(st['startup_settling_steps']['median'])} |"
+            )
     return lines
 
 
@@ -163,18 +304,20 @@ def _curve_table(curves: Sequence[dict[str, Any]], lines_ref: dict[str, dict[str
     if not curves:
         return []
     out = [
-        "| training env | agent | final curve cost (median over seeds) | classical on the same "
-        "episodes |",
+        "| training env | agent | final curve cost / oracle, per training seed | "
+        "classical on the same episodes |",
         "|---|---|---|---|",
     ]
-    keys = sorted({(c["train_env"], c["algo"]) for c in curves})
-    for env, algo in keys:
-        final = {}
+    for env, algo in sorted({(c["train_env"], c["algo"]) for c in curves}):
+        final: dict[Any, float] = {}
         for c in curves:
             if c["train_env"] == env and c["algo"] == algo:
-                final[c["train_seed"]] = c["cost"]  # rows are in step order: keep the last
-        ref = ", ".join(f"{k} {_g(v)}" for k, v in lines_ref.get(env, {}).items())
-        out.append(f"| `{env}` | {algo} | {_g(float(np.median(list(final.values()))))} | {ref} |")
+                final[c["train_seed"]] = c["cost_to_oracle"]  # rows in step order: keep last
+        ref = lines_ref.get(env, {})
+        oracle = ref.get("oracle")
+        refs = ", ".join(f"{k} {_g(v / oracle) if oracle else _g(v)}" for k, v in ref.items())
+        seeds = ", ".join(_g(final[s]) for s in sorted(final))
+        out.append(f"| `{env}` | {algo} | {seeds} | {refs} |")
     return out
 
 
@@ -183,17 +326,17 @@ def write_report(
     cfg: Any,
     scenarios: Sequence[Any],
     rows: Sequence[dict[str, Any]],
-    curves: Sequence[dict[str, Any]],
-    reference_lines: dict[str, dict[str, float]],
+    data: Any,
     wall_s: float,
     *,
     interrupted: bool = False,
 ) -> Path:
     """Write ``report.md`` from the metric rows (also a partial one after an interrupt)."""
+    from stcgym.agents.executors import write_atomic
+
     agg = aggregate(rows)
     names = [s.name for s in scenarios if any(r["scenario"] == s.name for r in rows)]
-    controllers = list(dict.fromkeys([a for a in cfg.agents]))
-    controllers = [c for c in controllers if any(r["controller"] == c for r in rows)]
+    controllers = [c for c in cfg.agents if any(r["controller"] == c for r in rows)]
     T = cfg.episode_steps
     w = default_windows(T)
     wj = default_windows(T, T // 2)
@@ -202,35 +345,58 @@ def write_report(
     if interrupted:
         out += ["**INTERRUPTED: partial results (the rows finished before the interrupt).**", ""]
     out += [
-        f"Mode `{cfg.mode}`; {cfg.seeds} evaluation seeds (from {cfg.first_seed}), "
-        f"{cfg.train_seeds} training seed(s) per RL agent; episodes of {T} steps; output noise "
+        f"Mode `{cfg.mode}`; {cfg.seeds} evaluation seeds (from {cfg.first_seed}) x "
+        f"{cfg.train_seeds} training seeds per RL agent; episodes of {T} steps; output noise "
         f"std {cfg.noise_std}; cost per step `(y - r)^2 + {cfg.control_cost} u^2` "
         f"(the environments' reward); RL training budgets (env steps): {budgets}. Wall time "
-        f"{wall_s:.0f} s. Exact configuration: `config.json`; per-run numbers: `metrics.csv`.",
+        f"{wall_s:.0f} s on {cfg.jobs} worker(s). Exact configuration: `config.json`; per-run "
+        "numbers: `metrics.csv`.",
         "",
-        "## Median episode cost [IQR]",
+        "## Headline",
         "",
-        "Mean cost per step over the whole episode, median over seeds (and RL training seeds); "
-        "lower is better. `div.`: runs that diverged (charged their last cost until the end).",
+        "Each cell: point estimate [95 % confidence interval]. A run is one (training seed, "
+        "evaluation seed) pair for an RL agent and one evaluation seed for the other "
+        "controllers, so the intervals cover both training and evaluation variation; they are "
+        f"rliable's stratified bootstrap ({cfg.bootstrap_reps} replications). IQM: mean of "
+        "the middle 50 % of runs. All "
+        "ratios are to the known-model oracle on the same episode (seed, noise, reference). "
+        "Env steps to <= 1.2x: training steps for RL (learning curve), adaptation steps "
+        "within the episode for `stc`, 0 for a controller that starts there. "
+        "P(stc cost lower): probability that `stc` has the lower episode cost than that "
+        "controller on a random pair of runs.",
         "",
-        *_main_table(agg, names, controllers),
+    ]
+    sentences = []
+    for name in names:
+        jump = name.startswith("jump:")
+        hl = headline(rows, name, controllers, jump=jump, reps=cfg.bootstrap_reps)
+        out += [f"### `{name}`", "", *_headline_table(hl, jump), ""]
+        line = _sentences(name, hl, jump)
+        if line:
+            sentences.append(line)
+    out += ["## Conclusions", "", *sentences, ""]
+    out += [
+        "## Step response",
         "",
-        "## Conclusions",
+        "Medians over episodes (and training seeds) at the reference steps of the steady "
+        "window; start-up: the first reference step. Settling: steps until |y - r| stays "
+        "within 5 % of the step.",
         "",
-        *conclusions(agg, names),
+        *_step_table(agg, names, controllers),
+        "",
+        "## Details per scenario",
         "",
     ]
     for name in names:
-        jump = name.startswith("jump:")
-        out += [f"### `{name}`", "", *_scenario_table(agg, name, controllers, jump), ""]
-    ct = _curve_table(curves, reference_lines)
+        out += [f"### `{name}`", "", *_detail_table(agg, name, controllers), ""]
+    ct = _curve_table(data.curves, data.reference_lines)
     if ct:
         out += [
             "## Learning curves",
             "",
-            f"Deterministic policy every 1/{cfg.curve_points} of the budget on "
+            f"Deterministic policy at {cfg.curve_points} log-spaced points of the budget on "
             f"{cfg.curve_seeds} fixed episodes per training plant of {cfg.train_episode_steps} "
-            "steps (`learning_curves.csv`, `learning_curves.png`).",
+            "steps (`learning_curves.csv`, `data_efficiency.png`).",
             "",
             *ct,
             "",
@@ -241,15 +407,17 @@ def write_report(
         f"- Windows (steps): start {w.start[0]}-{w.start[1]}, steady {w.steady[0]}-{w.steady[1]}; "
         f"with the jump at {wj.jump_step}: steady (pre-jump) {wj.steady[0]}-{wj.steady[1]}, "
         f"post-jump {wj.post_jump[0]}-{wj.post_jump[1]}.",
-        "- CVaR25: mean episode cost of the worst quarter of runs.",
-        "- Re-converge: steps after the jump until the mean cost of every following reference "
-        "period stays below 1.1 x max(pre-jump steady cost, final post-jump cost).",
+        "- Steps to <= 1.2x and re-converge: the first step from which on the cost over every "
+        "following reference period stays within 1.2x of the oracle's on the same episode "
+        "(`stcgym.agents.response.settling_step`); never reaching it reads `never`, not 0.",
+        "- CVaR25: mean episode cost of the worst quarter of runs. `div.`: diverged runs "
+        "(charged their last cost until the end).",
         "- Data steps: environment steps of RL training plus the steps an online learner adapts "
         "on (the self-tuning controller learns during the episode; the oracles know the model).",
-        "- us/step: wall time of one `predict` call; train s: RL training wall time.",
-        "- RL agents in `jump:*` are those trained on the pre-jump plant; the oracle is told the "
-        "new parameters at the jump (lqg is not); in `family:*` RL was trained on "
-        f"{', '.join(cfg.family_train)} and the plant is held out.",
+        "- Window agents in `jump:*` are those trained on the pre-jump plant; recurrent agents "
+        "(rppo) are trained on the family "
+        f"({', '.join(cfg.family_train)}); the oracle is told the new parameters at the jump "
+        "(lqg is not); in `family:*` the plant is held out.",
         "- RL training recipe: observation = window of past y, r, u (no plant state); training "
         "reward = compressed cost `log(1 + cost)`, a diverged episode charged until its end"
         + (f" (training bound |y| > {cfg.train_y_bound:g})" if cfg.train_y_bound else "")
@@ -258,5 +426,5 @@ def write_report(
         "",
     ]
     path = Path(run_dir) / "report.md"
-    path.write_text("\n".join(out))
+    write_atomic(path, "\n".join(out))
     return path

@@ -5,8 +5,10 @@ Training (:func:`train_agent`) runs on ``n_envs`` copies of the scenario's envir
 :class:`~stcgym.agents.wrappers.TrainingReward` (compressed per-step cost; a diverged episode
 pays for the steps it did not live), each with a SB3 ``Monitor`` on the raw environment
 (``monitor/*.monitor.csv``: raw episode returns). A callback evaluates the deterministic
-policy every ``curve_every`` steps through the bench's own evaluation loop, so the learning
-curve is on exactly the cost the bench reports.
+policy at log-spaced training steps through the bench's own evaluation loop, so the learning
+curve is on exactly the cost the bench reports; the curve also goes through SB3's logger
+(TensorBoard with ``tensorboard_log``). Recurrent agents (sb3-contrib ``RecurrentPPO``) go
+through the same code; :class:`SB3Policy` carries their LSTM state.
 
 A saved agent is a folder with ``model.zip`` (SB3) and ``agent.json`` (algorithm, config, seed,
 window, training environment, steps, wall time, learning curve); :func:`load_agent` returns an
@@ -30,7 +32,16 @@ from stcgym.agents.configs import AlgoConfig, algorithm_class
 from stcgym.agents.evaluate import EnvSpec, run_episode
 from stcgym.agents.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
-__all__ = ["SB3Policy", "TrainedAgent", "load_agent", "train_agent", "curve_cost"]
+__all__ = [
+    "SB3Policy",
+    "TrainedAgent",
+    "build_model",
+    "check_trainable",
+    "curve_checkpoints",
+    "curve_cost",
+    "load_agent",
+    "train_agent",
+]
 
 
 class SB3Policy:
@@ -55,10 +66,14 @@ class SB3Policy:
     def __init__(self, model: Any, window: WindowConfig, action_bound: float) -> None:
         self.model, self.window, self.action_bound = model, window, float(action_bound)
         self._buf: HistoryBuffer | None = None
+        # A recurrent model (sb3-contrib RecurrentPPO) carries its LSTM state from call to call.
+        self.recurrent = type(model).__name__ == "RecurrentPPO"
+        self._lstm: Any = None
 
     def reset(self) -> None:
-        """Forget the window (the next observation starts an episode)."""
+        """Forget the window and the recurrent state (the next observation starts an episode)."""
         self._buf = None
+        self._lstm = None
 
     def predict(
         self,
@@ -82,11 +97,20 @@ class SB3Policy:
         if self._buf is None or self._buf.batch != batch:
             self._buf = HistoryBuffer(self.window, self.action_bound, batch)
             starts = np.ones(batch, bool)
+            self._lstm = None
         if np.any(starts):
             self._buf.start(obs, starts)
         if not np.all(starts):
             self._buf.push_obs(obs, ~starts)
-        a, _ = self.model.predict(self._buf.features(), deterministic=deterministic)
+        if self.recurrent:
+            a, self._lstm = self.model.predict(
+                self._buf.features(),
+                state=self._lstm,
+                episode_start=starts.copy(),
+                deterministic=deterministic,
+            )
+        else:
+            a, _ = self.model.predict(self._buf.features(), deterministic=deterministic)
         u = np.clip(np.asarray(a, dtype=float).reshape(batch), -1.0, 1.0) * self.action_bound
         self._buf.push_action(u)
         return (u.reshape(1) if single else u.reshape(batch, 1)), state
@@ -124,8 +148,25 @@ def _progress_bar_wanted(progress: bool | None) -> bool:
     return sys.stderr.isatty()
 
 
+def curve_checkpoints(steps: int, points: int) -> list[int]:
+    """Training steps at which the learning curve is measured, log-spaced up to ``steps``.
+
+    Log spacing puts as many points on 1e3-1e4 steps as on 1e4-1e5, which is what the
+    data-efficiency plot (log-x) needs; step 0 (the untrained policy) is always measured too.
+    """
+    steps, points = int(steps), max(1, int(points))
+    first = max(1, min(1000, steps // (2 * points) or 1))
+    marks = np.unique(np.round(np.geomspace(first, steps, points)).astype(int))
+    return [int(m) for m in marks]
+
+
 def _make_callback(
-    curve: list, policy: SB3Policy, every: int, evaluate_curve: Any, keep_best: bool
+    curve: list,
+    policy: SB3Policy,
+    checkpoints: Sequence[int],
+    evaluate_curve: Any,
+    keep_best: bool,
+    reference: float | None,
 ) -> Any:
     import copy
 
@@ -136,18 +177,26 @@ def _make_callback(
         # collects n_steps x n_envs before it learns; SAC/TD3 update after every rollout).
         def _on_training_start(self) -> None:
             self.best_cost, self.best_state, self.best_step = float("inf"), None, 0
+            self._marks = list(checkpoints)
             self._record()
 
         def _record(self) -> None:
             cost = evaluate_curve(policy)
             curve.append((int(self.num_timesteps), cost))
-            self._next = self.num_timesteps + every
+            while self._marks and self._marks[0] <= self.num_timesteps:
+                self._marks.pop(0)
+            # Through SB3's logger: TensorBoard (--tensorboard-log) shows the curve next to
+            # SB3's own training statistics.
+            self.logger.record("eval/curve_cost", cost)
+            if reference is not None and reference > 0:
+                self.logger.record("eval/cost_to_oracle", cost / reference)
+            self.logger.dump(self.num_timesteps)
             if keep_best and cost < self.best_cost:
                 self.best_cost, self.best_step = cost, int(self.num_timesteps)
                 self.best_state = copy.deepcopy(self.model.policy.state_dict())
 
         def _on_rollout_start(self) -> None:
-            if self.num_timesteps >= self._next:
+            if self._marks and self.num_timesteps >= self._marks[0]:
                 self._record()
 
         def _on_step(self) -> bool:
@@ -164,6 +213,77 @@ def _make_callback(
     return _Curve()
 
 
+def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor_dir: Any) -> Any:
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    window = WindowConfig(**config.window)
+
+    def wrap(env: Any) -> Any:
+        env = HistoryWindow(env, window)
+        return TrainingReward(env, train_spec.steps, config.reward_scale, config.cost_squash)
+
+    vec = make_vec_env(
+        train_spec.make,
+        n_envs=int(config.n_envs),
+        seed=int(seed),
+        monitor_dir=monitor_dir,
+        wrapper_class=wrap,
+    )
+    if config.normalize_reward:
+        vec = VecNormalize(
+            vec, norm_obs=False, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99)
+        )
+    return vec
+
+
+def build_model(
+    algo: str,
+    config: AlgoConfig,
+    vec: Any,
+    seed: int,
+    *,
+    tensorboard_log: str | None = None,
+    hyperparams: dict[str, Any] | None = None,
+) -> Any:
+    """The SB3 / sb3-contrib model of ``config`` on the vector env ``vec`` (CPU)."""
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    kwargs = dict(config.hyperparams if hyperparams is None else hyperparams)
+    if config.noise_std > 0:
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(1), config.noise_std * np.ones(1))
+    return algorithm_class(algo)(
+        config.policy,
+        vec,
+        seed=int(seed),
+        device="cpu",
+        tensorboard_log=tensorboard_log,
+        **kwargs,
+    )
+
+
+def check_trainable(algo: str, config: AlgoConfig, train_spec: EnvSpec) -> None:
+    """Build (and discard) the model of ``config``, so SB3's own checks run before any work.
+
+    Catches what the value rules of :mod:`stcgym.agents.configs` cannot see, such as a
+    ``policy_kwargs`` entry the policy class does not take. Raises ``ValueError``. The replay
+    buffer is built with at most 1000 entries (its size was checked already).
+    """
+    import torch
+
+    torch.set_num_threads(1)
+    hp = dict(config.hyperparams)
+    if "buffer_size" in hp or algo in ("sac", "td3"):
+        hp["buffer_size"] = min(int(hp.get("buffer_size", 1000)), 1000)
+    vec = _training_env(config, train_spec, 0, None)
+    try:
+        build_model(algo, config, vec, 0, hyperparams=hp)
+    except (TypeError, ValueError, AssertionError, KeyError) as exc:
+        raise ValueError(f"{algo}: SB3 rejects the configuration: {exc}") from None
+    finally:
+        vec.close()
+
+
 def train_agent(
     algo: str,
     config: AlgoConfig,
@@ -176,15 +296,18 @@ def train_agent(
     curve_plants: Sequence[str] | None = None,
     curve_seeds: Sequence[int] = (10_000, 10_001),
     curve_points: int = 10,
+    curve_reference: float | None = None,
     keep_best: bool = True,
     progress: bool | None = None,
+    tensorboard_log: str | Path | None = None,
+    tb_log_name: str | None = None,
 ) -> TrainedAgent:
     """Train one agent.
 
     Parameters
     ----------
     algo
-        ``"ppo"``, ``"sac"``, ``"td3"`` or ``"a2c"``.
+        ``"ppo"``, ``"sac"``, ``"td3"``, ``"a2c"`` or ``"rppo"`` (sb3-contrib RecurrentPPO).
     config
         Its :class:`~stcgym.agents.configs.AlgoConfig`.
     train_spec
@@ -197,20 +320,23 @@ def train_agent(
         Where to save ``model.zip``, ``agent.json`` and the monitor logs (nothing saved when
         ``None``).
     curve_spec, curve_plants, curve_seeds, curve_points
-        Learning curve: every ``steps / curve_points`` steps the deterministic policy runs one
-        episode of ``curve_spec`` (default ``train_spec``) per seed and plant (default the
-        training plants); the mean cost per step is recorded.
+        Learning curve: at ``curve_points`` log-spaced training steps
+        (:func:`curve_checkpoints`) and at step 0 the deterministic policy runs one episode of
+        ``curve_spec`` (default ``train_spec``) per seed and plant (default the training
+        plants); the mean cost per step is recorded.
+    curve_reference
+        The oracle's cost on the same curve episodes; logged as ``eval/cost_to_oracle``.
     keep_best
         Keep the checkpoint with the lowest learning-curve cost rather than the last one (RL
         Zoo's ``EvalCallback`` best model). The curve episodes use their own seeds, so this is
         model selection on validation episodes, not on the bench's evaluation episodes.
     progress
         SB3's progress bar; default on when stderr is a terminal.
+    tensorboard_log, tb_log_name
+        TensorBoard folder and run name: SB3's training statistics and the learning curve
+        (``eval/curve_cost``, ``eval/cost_to_oracle``) are written there.
     """
     import torch
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.noise import NormalActionNoise
-    from stable_baselines3.common.vec_env import VecNormalize
 
     if int(steps) != steps or steps < 1:
         raise ValueError(f"training steps must be a positive integer, got {steps!r}")
@@ -220,26 +346,9 @@ def train_agent(
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-
-    def wrap(env: Any) -> Any:
-        env = HistoryWindow(env, window)
-        return TrainingReward(env, train_spec.steps, config.reward_scale, config.cost_squash)
-
-    vec = make_vec_env(
-        train_spec.make,
-        n_envs=int(config.n_envs),
-        seed=int(seed),
-        monitor_dir=None if out is None else str(out / "monitor"),
-        wrapper_class=wrap,
-    )
-    if config.normalize_reward:
-        vec = VecNormalize(
-            vec, norm_obs=False, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99)
-        )
-    kwargs = dict(config.hyperparams)
-    if config.noise_std > 0:
-        kwargs["action_noise"] = NormalActionNoise(np.zeros(1), config.noise_std * np.ones(1))
-    model = algorithm_class(algo)(config.policy, vec, seed=int(seed), device="cpu", **kwargs)
+    vec = _training_env(config, train_spec, seed, None if out is None else str(out / "monitor"))
+    tb = None if tensorboard_log is None else str(tensorboard_log)
+    model = build_model(algo, config, vec, seed, tensorboard_log=tb)
 
     policy = SB3Policy(model, window, train_spec.action_bound)
     cspec = curve_spec or train_spec
@@ -248,12 +357,18 @@ def train_agent(
     callback = _make_callback(
         curve,
         policy,
-        max(1, int(steps) // max(1, curve_points)),
+        curve_checkpoints(int(steps), curve_points),
         lambda p: curve_cost(p, cspec, curve_seeds, cplants),
         keep_best,
+        curve_reference,
     )
     t0 = time.perf_counter()
-    model.learn(int(steps), callback=callback, progress_bar=_progress_bar_wanted(progress))
+    model.learn(
+        int(steps),
+        callback=callback,
+        progress_bar=_progress_bar_wanted(progress),
+        tb_log_name=tb_log_name or algo.upper(),
+    )
     wall = time.perf_counter() - t0
     vec.close()
     # PPO/A2C finish their last rollout, so the steps used can exceed the budget asked for.

@@ -2,22 +2,31 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 
 import pytest
 
 from stcgym.agents import bench as bench_mod
-from stcgym.agents.bench import CONTROLLERS, METRIC_COLUMNS, ControllerInfo, build_config
+from stcgym.agents.bench import (
+    CONTROLLERS,
+    METRIC_COLUMNS,
+    QUICK,
+    ControllerInfo,
+    build_config,
+)
 from stcgym.agents.cli import main
 
-# A few hundred training steps, one seed, short episodes: the whole pipeline in seconds.
+# A few hundred training steps, 2 training seeds, short episodes: the whole pipeline in seconds.
 TINY = [
-    "--quick",
     "--train-steps",
     "300",
+    "--train-seeds",
+    "2",
     "--seeds",
-    "1",
+    "2",
     "--episode-steps",
     "120",
     "--train-episode-steps",
@@ -29,9 +38,23 @@ TINY = [
     "--hp",
     "ppo.n_envs=2",
     "--hp",
-    "sac.learning_starts=100",
+    "sac.learning_starts=250",
     "--hp",
-    "td3.learning_starts=100",
+    "rppo.n_steps=32",
+    "--hp",
+    "rppo.batch_size=64",
+    "--hp",
+    "rppo.n_envs=2",
+    "--hp",
+    "ppo.n_epochs=2",
+    "--hp",
+    "rppo.n_epochs=2",
+    "--agents",
+    "ppo,rppo,stc,oracle,lqg",
+    "--bootstrap-reps",
+    "100",
+    "--jobs",
+    "1",
     "--no-progress",
 ]
 
@@ -45,61 +68,115 @@ def _rows(path):
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    rc = main(["bench", *TINY, "--out", str(out), "--run", "tiny"])
-    assert rc == 0
-    return out / "tiny"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main(
+            [
+                "bench",
+                *TINY,
+                "--out",
+                str(out),
+                "--run",
+                "tiny",
+                "--tensorboard-log",
+                str(out / "tb"),
+            ]
+        )
+    assert rc == 0, err.getvalue()
+    return out / "tiny", err.getvalue(), out / "tb"
 
 
 def test_end_to_end_writes_every_file(tiny_run):
-    names = {p.name for p in tiny_run.iterdir()}
-    assert {"metrics.csv", "report.md", "config.json", "learning_curves.csv"} <= names
+    run, log, tb = tiny_run
+    names = {p.name for p in run.iterdir()}
+    assert {"metrics.csv", "report.md", "config.json", "learning_curves.csv", "models"} <= names
     pngs = {n for n in names if n.endswith(".png")}
-    assert "learning_curves.png" in pngs
-    assert {f"traces_{s}.png" for s in ("nominal_stable2", "family_nonminphase2")} <= pngs
-    assert "jump_cost_jump_timevarying2.png" in pngs
+    assert {
+        "data_efficiency.png",
+        "theta_jump_timevarying2.png",
+        "jump_cost_jump_timevarying2.png",
+        "traces_nominal_stable2.png",
+        "traces_family_nonminphase2.png",
+    } <= pngs
 
-    header, rows = _rows(tiny_run / "metrics.csv")
+    header, rows = _rows(run / "metrics.csv")
     assert header == METRIC_COLUMNS
-    scenarios = {r["scenario"] for r in rows}
-    assert scenarios == {
+    per = {}
+    for r in rows:
+        per.setdefault((r["scenario"], r["controller"]), []).append(r)
+    scenarios = {
         "nominal:stable2",
-        "nominal:unstable2",
         "family:lightly_damped2",
         "family:nonminphase2",
         "jump:timevarying2",
     }
-    controllers = {r["controller"] for r in rows}
-    assert controllers == {"ppo", "sac", "td3", "stc", "oracle", "lqg"}
-    assert len(rows) == len(scenarios) * len(controllers)  # one seed, one training seed
+    assert {s for s, _ in per} == scenarios
+    for s in scenarios:
+        for c in ("stc", "oracle", "lqg"):
+            assert len(per[(s, c)]) == 2  # evaluation seeds
+        assert len(per[(s, "ppo")]) == 4  # training seeds x evaluation seeds
+        # the recurrent agent is trained on the family: held-out plants and the jump only
+        assert len(per.get((s, "rppo"), [])) == (0 if s.startswith("nominal") else 4)
     for r in rows:
         assert float(r["cost"]) >= 0 and r["bounded"] in ("0", "1")
+        assert r["steady_ratio"] != "" and r["steps_to_oracle"] != ""
         if r["kind"] == "jump":
-            assert r["cost_post_jump"] != "" and r["reconverge_steps"] != ""
+            assert r["post_jump_ratio"] != "" and r["reconverge_steps"] != ""
+        if r["controller"] == "oracle":
+            assert float(r["steady_ratio"]) == 1.0 and float(r["steps_to_oracle"]) == 0.0
         if r["family"] == "rl":
             assert int(r["train_steps"]) >= 300 and float(r["train_wall_s"]) > 0
             assert int(r["data_steps"]) == int(r["train_steps"])
         elif r["controller"] == "stc":
             assert int(r["data_steps"]) == int(r["steps_run"])
+            assert r["controller_seed"] == r["seed"]  # every episode its own controller seed
 
-    header, curves = _rows(tiny_run / "learning_curves.csv")
-    assert header == ["train_env", "algo", "train_seed", "steps", "cost"]
-    assert {c["train_env"] for c in curves} == {"nominal:stable2", "nominal:unstable2", "family"}
+    header, curves = _rows(run / "learning_curves.csv")
+    assert header == ["train_env", "algo", "train_seed", "steps", "cost", "cost_to_oracle"]
+    keys = {(c["train_env"], c["algo"]) for c in curves}
+    assert keys == {("nominal:stable2", "ppo"), ("family", "ppo"), ("family", "rppo")}
 
-    config = json.loads((tiny_run / "config.json").read_text())
-    assert config["bench"]["train_steps"] == {"ppo": 300, "sac": 300, "td3": 300}
+    config = json.loads((run / "config.json").read_text())
+    assert config["bench"]["train_steps"] == {"ppo": 300, "rppo": 300}
     assert config["bench"]["algo_configs"]["ppo"]["hyperparams"]["n_steps"] == 64
-    assert "versions" in config and config["argv"][:2] == ["bench", "--quick"]
+    assert "versions" in config and config["argv"][0] == "bench"
 
-    report = (tiny_run / "report.md").read_text()
-    assert "## Median episode cost" in report and "## Conclusions" in report
-    assert "| stc |" in report and "`jump:timevarying2`" in report
+    report = (run / "report.md").read_text()
+    for section in ("## Headline", "## Conclusions", "## Step response", "## Learning curves"):
+        assert section in report
+    assert "P(stc cost lower)" in report and "re-converge steps" in report
+    assert "training seed, evaluation seed" in report  # what the intervals cover
+
+    # progress over the whole run, and the learning curve through SB3's logger
+    assert "job 1/" in log and "ETA" in log
+    events = list(tb.rglob("events.out.tfevents.*"))
+    assert len(events) == 6  # one TensorBoard run per training job
+    assert any(b"eval/curve_cost" in e.read_bytes() for e in events)
 
 
 def test_saved_model_reloads_for_evaluation(tiny_run, capsys):
-    model = tiny_run / "models" / "nominal-stable2_ppo_s0"
+    model = tiny_run[0] / "models" / "nominal-stable2_ppo_s0"
     assert (model / "agent.json").is_file()
     assert main(["eval", str(model), "--seeds", "2", "--episode-steps", "50"]) == 0
     assert "ppo (seed 0" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--plant", "bogus"], "catalogue plant"),
+        (["--plant", "stable4"], "order-2"),
+        (["--noise", "-1"], "--noise"),
+        (["--seeds", "0"], "--seeds"),
+        (["--first-seed", "-5"], "--first-seed"),
+        (["--episode-steps", "3"], "--episode-steps"),
+    ],
+)
+def test_eval_options_are_checked(tiny_run, capsys, extra, message):
+    model = tiny_run[0] / "models" / "nominal-stable2_ppo_s0"
+    assert main(["eval", str(model), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
 
 
 def _numbers(path):
@@ -108,25 +185,26 @@ def _numbers(path):
     return [{k: v for k, v in r.items() if k not in timing} for r in rows]
 
 
-def test_identical_seeds_give_identical_numbers(tmp_path):
+def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_path):
     args = [
         *TINY,
         "--agents",
-        "ppo,stc,oracle",
+        "ppo,oracle",
         "--scenarios",
-        "nominal,jump",
-        "--plants",
-        "stable2",
-        "--seeds",
-        "2",
+        "nominal",
+        "--train-seeds",
+        "1",
         "--no-plots",
         "--out",
         str(tmp_path),
     ]
-    assert main(["bench", *args, "--run", "a"]) == 0
-    assert main(["bench", *args, "--run", "b"]) == 0
+    with contextlib.redirect_stderr(io.StringIO()):
+        assert main(["bench", *args, "--run", "a"]) == 0
+        assert main(["bench", *args, "--run", "b", "--jobs", "2"]) == 0
     a, b = _numbers(tmp_path / "a" / "metrics.csv"), _numbers(tmp_path / "b" / "metrics.csv")
-    assert len(a) == 2 * 2 * 3 and a == b
+    assert len(a) == 2 * 2
+    key = lambda r: (r["scenario"], r["controller"], r["seed"])  # noqa: E731
+    assert sorted(a, key=key) == sorted(b, key=key)
 
 
 @pytest.mark.parametrize(
@@ -135,38 +213,66 @@ def test_identical_seeds_give_identical_numbers(tmp_path):
         (["--plants", "stable2,nosuchplant"], "unknown plant"),
         (["--agents", "ppo,dqn"], "unknown agent"),
         (["--train-steps", "0"], "positive integer"),
-        (["--train-steps", "-5"], "positive integer"),
         (["--train-steps", "ppo=100,sac=0"], "positive integer"),
         (["--seeds", "0"], "positive integer"),
-        (["--episode-steps", "0"], "positive integer"),
+        (["--first-seed", "-5"], "--first-seed"),
+        (["--noise", "-1"], "--noise"),
         (["--hp", "ppo.no_such_knob=1"], "no_such_knob"),
+        (["--hp", "sac.batch_size=0"], "batch_size"),
+        (["--hp", "ppo.learning_rate=abc"], "learning_rate"),
+        (["--hp", "ppo.learning_rate=-1"], "learning_rate"),
+        (["--hp", "ppo.tensorboard_log=tb"], "--tensorboard-log"),
+        (["--hp", "ppo.policy_kwargs.bogus=1"], "SB3 rejects"),
         (["--family-test", "stable2"], "held-out"),
         (["--jump", "stable2:stable4"], "same order"),
         (["--scenarios", "nominal,weird"], "scenarios"),
+        (["--scenarios", "nominal", "--agents", "rppo,stc"], "family and jump"),
+        (["--jobs", "0"], "--jobs"),
+        (["--executor", "slurm"], "--executor"),
     ],
 )
-def test_bad_input_fails_before_training(tmp_path, monkeypatch, capsys, extra, message):
-    def no_training(*args, **kwargs):  # pragma: no cover - must not be reached
-        raise AssertionError("training started")
+def test_bad_input_fails_before_any_work(tmp_path, monkeypatch, capsys, extra, message):
+    def no_work(*args, **kwargs):  # pragma: no cover - must not be reached
+        raise AssertionError("work started")
 
-    monkeypatch.setattr("stcgym.agents.sb3.train_agent", no_training)
+    monkeypatch.setattr("stcgym.agents.sb3.train_agent", no_work)
+    monkeypatch.setattr(bench_mod, "evaluate", no_work)
     rc = main(["bench", *TINY, "--out", str(tmp_path), "--run", "bad", *extra])
     assert rc == 2
     err = capsys.readouterr().err
-    assert "error" in err and message in err
+    assert err.startswith("stcgym bench: error:") and err.count("\n") == 1 and message in err
     assert not (tmp_path / "bad").exists()
+
+
+def test_bare_bench_runs_the_quick_preset_that_help_describes(monkeypatch, capsys):
+    seen = {}
+
+    def fake_run(cfg, **kwargs):
+        seen["cfg"] = cfg
+        raise KeyboardInterrupt  # stop right there
+
+    monkeypatch.setattr(bench_mod, "run_bench", fake_run)
+    assert main(["bench", "--out", "/nonexistent-never-written"]) == 130
+    cfg = seen["cfg"]
+    assert cfg.mode == "quick" and cfg.train_seeds >= 3
+    assert cfg.agents == QUICK["agents"]
+    with pytest.raises(SystemExit):
+        main(["bench", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"quick default: {','.join(QUICK['agents'])}" in help_text
+    assert "estimate is printed first" in help_text  # --full announces its time
 
 
 def test_unwritable_output_folder(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    rc = main(["bench", *TINY, "--out", str(blocker / "sub"), "--run", "x"])
+    rc = main(["bench", *TINY, "--agents", "oracle", "--out", str(blocker / "sub"), "--run", "x"])
     assert rc == 2 and "cannot be written" in capsys.readouterr().err
 
 
 def test_existing_run_is_not_overwritten(tmp_path, capsys):
     args = ["bench", *TINY, "--agents", "oracle", "--no-plots", "--out", str(tmp_path)]
-    assert main([*args, "--run", "r", "--scenarios", "nominal", "--plants", "stable2"]) == 0
+    assert main([*args, "--run", "r", "--scenarios", "nominal"]) == 0
     assert main([*args, "--run", "r"]) == 2
     assert "already holds a run" in capsys.readouterr().err
 
@@ -186,39 +292,26 @@ class _Exploding:
 
 
 def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
-    info = ControllerInfo("oracle", lambda cfg, sc: lambda plant: _Exploding())
+    info = ControllerInfo("oracle", lambda cfg, sc: lambda plant, seed: _Exploding())
     monkeypatch.setitem(CONTROLLERS, "boom", info)
     _Exploding.episodes = 0
     cfg = build_config(
         quick=True,
         run="int",
         out=str(tmp_path),
-        agents="oracle,boom,ppo",
+        agents="oracle,boom",
+        scenarios="nominal,family",
         seeds=2,
         episode_steps=50,
-        train_steps=300,
         plots=False,
+        bootstrap_reps=50,
     )
     with pytest.raises(KeyboardInterrupt):
         bench_mod.run_bench(cfg, log=lambda msg: None)
     header, rows = _rows(tmp_path / "int" / "metrics.csv")
     assert header == METRIC_COLUMNS
     # Scenario 1: oracle and boom on 2 seeds; scenario 2: oracle, then boom blows up.
-    assert [r["controller"] for r in rows] == [
-        "oracle",
-        "oracle",
-        "boom",
-        "boom",
-        "oracle",
-        "oracle",
-    ]
-    assert [r["scenario"] for r in rows] == ["nominal:stable2"] * 4 + ["nominal:unstable2"] * 2
+    assert [r["controller"] for r in rows] == ["oracle", "oracle", "boom", "boom"] + ["oracle"] * 2
+    assert [r["scenario"] for r in rows] == ["nominal:stable2"] * 4 + ["family:lightly_damped2"] * 2
     assert all(r["cost"] for r in rows)
     assert "INTERRUPTED" in (tmp_path / "int" / "report.md").read_text()
-
-    # Through the command line the interrupt exits with 130 and keeps the rows as well.
-    _Exploding.episodes = 0
-    rc = main(["bench", *TINY, "--agents", "oracle,boom", "--out", str(tmp_path), "--run", "cli"])
-    assert rc == 130
-    _, rows = _rows(tmp_path / "cli" / "metrics.csv")
-    assert [r["controller"] for r in rows] == ["oracle", "boom", "oracle", "boom", "oracle"]

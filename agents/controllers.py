@@ -1,0 +1,116 @@
+"""The classical controllers of ``stcgym bench``, behind one registry.
+
+``CONTROLLERS[name].build(cfg, scenario)`` gives a policy factory ``factory(plant, seed)`` (the
+protocol of :func:`stcgym.agents.evaluate.evaluate`): ``stc`` (the self-tuning controller with
+its defaults and the episode's seed), ``oracle`` (the known-model controller, told the new
+parameters at a jump) and ``lqg`` (LQG on the true pre-jump parameters). Tests may register
+more.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CONTROLLERS", "ControllerInfo", "stc_takes_seed"]
+
+
+class _SwitchingOracle:
+    """Known-model oracle told the true parameters at the jump (policy protocol)."""
+
+    def __init__(self, base: Any, jump_step: int, theta: Sequence[float]) -> None:
+        n = len(theta) // 2
+        self.base, self.jump_step = base, int(jump_step)
+        self.after = (np.asarray(theta[:n]), np.asarray(theta[n:]))
+        self._k = 0
+
+    def reset(self) -> None:
+        self.base.reset()  # also restores the initial (pre-jump) model
+        self._k = 0
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic=True
+    ) -> tuple[Any, Any]:
+        if episode_start is not None and np.any(episode_start):
+            self.reset()
+        # The schedule's value at step J governs the transition J -> J+1, so the model is
+        # switched before the input of step J is chosen.
+        if self._k == self.jump_step:
+            self.base.set_model(*self.after)
+        self._k += 1
+        return self.base.predict(observation, state, None, deterministic)
+
+
+@dataclass(frozen=True)
+class ControllerInfo:
+    """A classical controller of the bench.
+
+    ``build(cfg, scenario) -> factory(plant_spec, seed) -> policy``; ``online`` marks a
+    controller that learns from the episode (its data use is the episode's steps).
+    """
+
+    kind: str
+    build: Callable[[Any, Any], Callable[[Any, int], Any]]
+    online: bool = False
+    description: str = ""
+
+
+def _accepts_seed(cls: type) -> bool:
+    return "seed" in inspect.signature(cls).parameters
+
+
+def stc_takes_seed() -> bool:
+    """Whether :class:`~stcgym.adaptive.SelfTuningController` takes a ``seed`` (its probe)."""
+    from stcgym.adaptive import SelfTuningController
+
+    return _accepts_seed(SelfTuningController)
+
+
+def _stc(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    from stcgym.adaptive import SelfTuningController
+
+    seeded = stc_takes_seed()
+
+    def factory(plant: Any, seed: int) -> Any:
+        kw = {"seed": int(seed)} if seeded else {}
+        return SelfTuningController(plant.n, action_bound=cfg.action_bound, **kw)
+
+    return factory
+
+
+def _oracle(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    from stcgym.adaptive import KnownModelController
+
+    def factory(plant: Any, seed: int) -> Any:
+        base = KnownModelController(plant.a, plant.b, action_bound=cfg.action_bound)
+        if sc.env.jump_step is None:
+            return base
+        return _SwitchingOracle(base, sc.env.jump_step, sc.jump_to)
+
+    return factory
+
+
+def _lqg(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    from stcgym.adaptive import LQGController
+
+    return lambda plant, seed: LQGController(
+        plant.a,
+        plant.b,
+        control_cost=cfg.control_cost,
+        noise_std=cfg.noise_std,
+        action_bound=cfg.action_bound,
+    )
+
+
+#: Classical controllers by name (tests may register more).
+CONTROLLERS: dict[str, ControllerInfo] = {
+    "stc": ControllerInfo("adaptive", _stc, True, "self-tuning controller (defaults)"),
+    "oracle": ControllerInfo(
+        "oracle", _oracle, False, "known-model controller (regulator's design, true parameters)"
+    ),
+    "lqg": ControllerInfo("oracle", _lqg, False, "LQG on the true pre-jump parameters"),
+}
