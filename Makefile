@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip
 STAMP := $(VENV)/.stcgym-installed
 
-.PHONY: install bench bench-full test lint perf clean
+.PHONY: install bench bench-full test lint perf clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -44,5 +44,9 @@ perf: install
 lint: install
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
-clean:
+# numba's on-disk cache does not notice edits in other modules that a kernel inlines.
+clean-cache:
+	find envs adaptive agents -name '*.nbi' -delete -o -name '*.nbc' -delete
+
+clean: clean-cache
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

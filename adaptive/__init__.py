@@ -11,8 +11,15 @@ versions of the estimators and the controller for many plants at numpy speed.
 from __future__ import annotations
 
 from stcgym.adaptive import flops
-from stcgym.adaptive.batched import BatchedSelfTuningController, FastLoop, make_batched_estimator
-from stcgym.adaptive.controller import SelfTuningController, TrackingLaw
+from stcgym.adaptive.controller import (
+    ChangeDetection,
+    EstimatorOptions,
+    LawOptions,
+    SafeSet,
+    SelfTuningController,
+    StartupOptions,
+)
+from stcgym.adaptive.greybox import AffineStateSpace, GreyBoxRegression, NotLinearInParameters
 from stcgym.adaptive.iterative import ITERATIVE_NAMES, IterativeResult, fit_iterative
 from stcgym.adaptive.multichannel import MatrixRLS, StateMatrixEstimator
 from stcgym.adaptive.oracles import KalmanObserver, KnownModelController, LQGController
@@ -20,16 +27,32 @@ from stcgym.adaptive.placement import (
     UncontrollableError,
     ackermann,
     augment_integral,
+    lq_gain,
     place_poles,
 )
 from stcgym.adaptive.policy import Policy, StatefulPolicy, reset_policy
-from stcgym.adaptive.recursive import ALGORITHMS, RecursiveEstimator, make_estimator, parse_name
-from stcgym.adaptive.rules import NumericalHealthError
+from stcgym.adaptive.recursive import (
+    ALGORITHMS,
+    EstimatorSpec,
+    NumericalHealthError,
+    RecursiveEstimator,
+    make_estimator,
+    parse_name,
+)
+from stcgym.adaptive.regression import RecursiveLeastSquares
 
 __all__ = [
     "ALGORITHMS",
-    "BatchedSelfTuningController",
-    "FastLoop",
+    "ChangeDetection",
+    "EstimatorOptions",
+    "LawOptions",
+    "SafeSet",
+    "StartupOptions",
+    "AffineStateSpace",
+    "GreyBoxRegression",
+    "NotLinearInParameters",
+    "RecursiveLeastSquares",
+    "EstimatorSpec",
     "ITERATIVE_NAMES",
     "IterativeResult",
     "KalmanObserver",
@@ -42,15 +65,14 @@ __all__ = [
     "SelfTuningController",
     "StateMatrixEstimator",
     "StatefulPolicy",
-    "TrackingLaw",
     "UncontrollableError",
     "ackermann",
     "augment_integral",
     "fit_iterative",
     "flops",
-    "make_batched_estimator",
     "make_estimator",
     "parse_name",
+    "lq_gain",
     "place_poles",
     "reset_policy",
 ]

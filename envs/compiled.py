@@ -19,9 +19,14 @@ controller in :mod:`stcgym.adaptive`):
   construction**, on any CPU: the same compiled machine code runs on the same numbers (no BLAS,
   no LAPACK inside lane functions; small dense loops are written out).
 
-Compilation is lazy (first call) and cached on disk (``cache=True``), so importing stcgym
-compiles nothing and a second process starts fast. ``NUMBA_DISABLE_JIT=1`` runs the very same
-source as plain Python (slow, but debuggable with pdb and coverage).
+Compilation is lazy (first call) and cached on disk (``cache=True``, in ``__pycache__``), so
+importing stcgym compiles nothing and a second process starts fast. ``NUMBA_DISABLE_JIT=1``
+runs the very same source as plain Python (slow, but debuggable with pdb and coverage).
+
+Numba's cache checks only the source file of the function it caches: a lane function that
+inlines lane functions of *another* module keeps their old machine code after that module is
+edited. Developers who edit a kernel module run ``make clean-cache`` (installed packages and
+fresh clones have no stale cache).
 """
 
 from __future__ import annotations
