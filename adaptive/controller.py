@@ -337,7 +337,10 @@ class SelfTuningController:
         else:
             from stcgym.adaptive.kernels.estimator import EstimatorSpec, parse_name
 
-            state, _, rule = parse_name(estimator)  # ValueError naming the valid names
+            try:
+                state, _, rule = parse_name(estimator)
+            except ValueError as exc:
+                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
             kw: dict[str, Any] = {
                 "p0": eo.p0, "form": self.form, "forgetting": eo.forgetting,
                 "theta0": np.zeros(2 * n),

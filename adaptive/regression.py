@@ -342,6 +342,18 @@ def _initial_covariance(value: ArrayLike, d: int) -> tuple[NDArray, NDArray]:
 # --------------------------------------------------------------------------------------------
 
 
+def _real_array(value: ArrayLike, name: str) -> NDArray:
+    """``value`` as a float64 array; a ValueError naming ``name`` for text, objects, ragged
+    nesting or complex numbers (numpy would drop an imaginary part with only a warning)."""
+    try:
+        raw = np.asarray(value)
+        if np.iscomplexobj(raw):
+            raise TypeError("complex")
+        return np.asarray(raw, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be real numbers, got {value!r}") from exc
+
+
 class RecursiveLeastSquares:
     """Recursive least squares ``y(t) = phi(t) theta + e(t)`` on user regressors.
 
@@ -475,7 +487,7 @@ class RecursiveLeastSquares:
     def _regressor(self, phi: ArrayLike, lead: tuple[int, ...]) -> NDArray:
         """``phi`` as ``lead + (p, d)`` float64, C-contiguous; ValueError naming it otherwise."""
         d, p = self._d, self._p
-        arr = np.asarray(phi, dtype=float)
+        arr = _real_array(phi, "phi")
         if p == 1 and arr.shape == lead + (d,):
             arr = arr[..., None, :]
         if arr.shape != lead + (p, d):
@@ -490,7 +502,7 @@ class RecursiveLeastSquares:
 
     def _output(self, y: ArrayLike, lead: tuple[int, ...]) -> NDArray:
         p = self._p
-        arr = np.asarray(y, dtype=float)
+        arr = _real_array(y, "y")
         if p == 1 and arr.shape == lead:
             arr = arr[..., None]
         if arr.shape != lead + (p,):
