@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels import design as dz
+from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import validate_observation
@@ -81,12 +82,6 @@ def _real(value: Any, name: str, *, lo: float = -math.inf, hi: float = math.inf,
     return v
 
 
-def _int(value: Any, name: str, minimum: int = 0) -> int:
-    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 @dataclass(frozen=True)
 class EstimatorOptions:
     """Estimator settings.
@@ -112,7 +107,7 @@ class EstimatorOptions:
     def __post_init__(self) -> None:
         _real(self.p0, "p0", lo=0.0, lo_open=True)
         _real(self.forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
-        _int(self.p, "p", 1)
+        check_int(self.p, "p", 1)
         _real(self.process_noise_gain, "process_noise_gain", lo=0.0)
         _real(self.process_noise_floor, "process_noise_floor", lo=0.0)
         _real(self.measurement_noise, "measurement_noise", lo=0.0, lo_open=True)
@@ -128,7 +123,7 @@ class StartupOptions:
     def __post_init__(self) -> None:
         _real(self.probe_amplitude, "probe_amplitude", lo=0.0)
         if self.probe_steps is not None:
-            _int(self.probe_steps, "probe_steps", 0)
+            check_int(self.probe_steps, "probe_steps", 0)
 
 
 @dataclass(frozen=True)
@@ -166,7 +161,7 @@ class ChangeDetection:
         if not isinstance(self.enabled, (bool, np.bool_)):
             raise ValueError(f"enabled must be a bool, got {self.enabled!r}")
         _real(self.threshold, "threshold", lo=1.0, lo_open=True)
-        _int(self.holdoff, "holdoff", 0)
+        check_int(self.holdoff, "holdoff", 0)
         _real(self.inflation, "inflation", lo=1.0)
         _real(self.short, "short", lo=0.0, hi=1.0, lo_open=True)
         _real(self.long, "long", lo=0.0, hi=1.0, lo_open=True)
@@ -288,12 +283,12 @@ class SelfTuningController:
         change_detection: ChangeDetection | dict | None = None,
         law: LawOptions | dict | None = None,
     ) -> None:
-        self.n = n = _int(n, "n (plant order)", 1)
+        self.n = n = check_int(n, "n (plant order)", 1)
         env_n, env_bound, env_form, env_num = (None,) * 4 if env is None else _env_spec(env)
         if env_n is not None and env_n != n:
             raise ValueError(f"n={n} does not match the env's plant order n={env_n}")
         if num_envs is not None:
-            num_envs = _int(num_envs, "num_envs", 1)
+            num_envs = check_int(num_envs, "num_envs", 1)
         if env_num is not None and num_envs != env_num:
             raise ValueError(
                 f"num_envs={num_envs} does not match the env's num_envs={env_num}: build the "

@@ -53,12 +53,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from numbers import Integral, Real
+from numbers import Real
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.least_squares import (
     factor_is_healthy,
@@ -290,12 +291,6 @@ def rls_run_lanes(
 # --------------------------------------------------------------------------------------------
 
 
-def _count(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def _forgetting(value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, Real):
         raise ValueError(f"forgetting must be a real number in (0, 1], got {value!r}")
@@ -405,8 +400,8 @@ class RecursiveLeastSquares:
         on_failure: OnFailure = "reset",
         num_envs: int | None = None,
     ) -> None:
-        d = _count(num_params, "num_params", 1)
-        p = _count(num_outputs, "num_outputs", 1)
+        d = check_int(num_params, "num_params", 1)
+        p = check_int(num_outputs, "num_outputs", 1)
         self._d, self._p = d, p
         self._lam = _forgetting(forgetting)
         self._P0, self._S0 = _initial_covariance(P0, d)
@@ -418,7 +413,7 @@ class RecursiveLeastSquares:
             if th.size != d or not np.all(np.isfinite(th)):
                 raise ValueError(f"theta0 must be a finite vector of length {d}, got {theta0!r}")
             self._theta0 = th
-        self._window = 0 if window is None else _count(window, "window", 1)
+        self._window = 0 if window is None else check_int(window, "window", 1)
         if self._window:
             if self._lam != 1.0:
                 raise ValueError("window (finite history) and forgetting < 1 are exclusive")
@@ -428,7 +423,7 @@ class RecursiveLeastSquares:
             raise ValueError(f"on_failure must be 'reset' or 'raise', got {on_failure!r}")
         self._reset_on_failure = on_failure == "reset"
         self._batched = num_envs is not None
-        B = 1 if num_envs is None else _count(num_envs, "num_envs", 1)
+        B = 1 if num_envs is None else check_int(num_envs, "num_envs", 1)
         self.enabled = enabled
 
         W = self._window
