@@ -470,6 +470,24 @@ class SelfTuningController:
         ``episode_start``) raises ``ValueError`` before anything changes. ``episode_start``
         (a bool or one per lane) resets those lanes first. ``state`` is returned unchanged;
         ``deterministic`` is accepted for compatibility (the probe is part of the law)."""
+        if (
+            self.B == 1
+            and self.num_envs is None
+            and (episode_start is None or episode_start is False)
+            and type(observation) is np.ndarray
+            and observation.shape == (2,)
+            and observation.dtype == np.float64
+        ):
+            # fast path of the common single-plant call (a float64 [y, r]); anything unusual,
+            # including a non-finite or too large value, takes the validating path below
+            y, r = float(observation[0]), float(observation[1])
+            if abs(y) <= OBSERVATION_LIMIT and abs(r) <= OBSERVATION_LIMIT:
+                u = kc.controller_step(
+                    self._F[0], self._G[0], self._off, self._cf, self._ci, self._ecf, self._eci,
+                    y, r,
+                )  # fmt: skip
+                self._u[0] = u
+                return np.array([u]), state
         obs, single = validate_observation(observation, self.obs_dim)
         if obs.shape[0] != self.B:
             raise ValueError(

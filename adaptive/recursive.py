@@ -131,7 +131,7 @@ def is_schur_stable(a: ArrayLike) -> bool:
     """True when ``z^n + a1 z^{n-1} + ... + an`` has all roots strictly inside the unit circle
     (Schur-Cohn step-down recursion; the lane function the estimator's projection uses)."""
     arr = np.asarray(a, dtype=float).reshape(-1)
-    return bool(_schur_lane(arr, arr.size))
+    return bool(_schur_lane(arr, arr.size, np.empty(arr.size)))
 
 
 def _scalar(value: Any, name: str) -> float:

@@ -67,6 +67,7 @@ from stcgym.adaptive.kernels.least_squares import (
     least_squares_step,
     upper_factor,
 )
+from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.compiled import Layout, lane, lanes, prange
 
@@ -98,8 +99,9 @@ _THETA, _S, _E, _YHAT, _K, _T, _NRESET, _NRECOMP, _COUNT, _HPHI, _HY, _WORK = ra
 
 def work_size(d: int, p: int) -> int:
     """Scratch floats of one lane: ``theta`` and ``S`` copies, the rule's work, ``y_pred``,
-    and the ``(p, d)``, ``(p, p)`` scratch of :func:`downdate_is_accurate`."""
-    return d + d * d + (3 * d + p + d * d) + p + p * d + p * p
+    the ``(p, d)``, ``(p, p)`` scratch of :func:`downdate_is_accurate` and a saved window
+    block ``(p, d)``, ``(p,)`` (lane functions never allocate)."""
+    return d + d * d + (3 * d + p + d * d) + p + p * d + p * p + p * d + p
 
 
 @lane
@@ -111,8 +113,8 @@ def replay_window(theta, S, theta0, S0, hist_Phi, hist_Y, first, work):  # pragm
     cancellation of a downdate. Returns ``False`` when a step fails.
     """
     W = hist_Phi.shape[0]
-    theta[:] = theta0
-    S[:, :] = S0
+    copy_vector(theta0, theta)
+    copy_matrix(S0, S)
     for k in range(W):
         slot = (first + k) % W
         if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, work) != LS_OK:
@@ -185,17 +187,20 @@ def rls_step(
     """
     p, d = Phi.shape
     theta = rec[off[_THETA] : off[_THETA] + d]
-    S = rec[off[_S] : off[_S] + d * d].reshape((d, d))
-    hPhi = rec[off[_HPHI] : off[_HPHI] + window * p * d].reshape((window, p, d))
-    hY = rec[off[_HY] : off[_HY] + window * p].reshape((window, p))
+    S = view2d(rec, off[_S], d, d)
+    hPhi = view3d(rec, off[_HPHI], window, p, d)
+    hY = view2d(rec, off[_HY], window, p)
     o = off[_WORK]  # scratch: no allocation inside the lane function
     th = rec[o : o + d]
-    Sn = rec[o + d : o + d + d * d].reshape((d, d))
+    Sn = view2d(rec, o + d, d, d)
     work = rec[o + d + d * d : o + 4 * d + p + 2 * d * d]
     o += 4 * d + p + 2 * d * d
     y_pred = rec[o : o + p]
-    F = rec[o + p : o + p + p * d].reshape((p, d))
-    M = rec[o + p + p * d : o + p + p * d + p * p].reshape((p, p))
+    F = view2d(rec, o + p, p, d)
+    M = view2d(rec, o + p + p * d, p, p)
+    o += p + p * d + p * p
+    saved_Phi = view2d(rec, o, p, d)
+    saved_Y = rec[o + p * d : o + p * d + p]
     for r in range(p):  # prediction with theta(t-1); innovation e(t) = y(t) - y_pred
         acc = 0.0
         for i in range(d):
@@ -203,8 +208,8 @@ def rls_step(
         y_pred[r] = acc
     status = _OK
     if adapt:
-        th[:] = theta
-        Sn[:, :] = S
+        copy_vector(theta, th)
+        copy_matrix(S, Sn)
         ok = least_squares_step(th, Sn, Phi, Y, lam, work) == LS_OK
         count = int(rec[off[_COUNT]])
         slot = count % window if window > 0 else 0
@@ -213,13 +218,13 @@ def rls_step(
                 downdate_is_accurate(Sn, hPhi[slot], F, M)
                 and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], work) == LS_OK
             ):
-                saved_Phi = hPhi[slot].copy()  # recompute over the window after this step
-                saved_Y = hY[slot].copy()
-                hPhi[slot] = Phi
-                hY[slot] = Y
+                copy_matrix(hPhi[slot], saved_Phi)  # recompute over the window after this step
+                copy_vector(hY[slot], saved_Y)
+                copy_matrix(Phi, hPhi[slot])
+                copy_vector(Y, hY[slot])
                 ok = replay_window(th, Sn, theta0, S0, hPhi, hY, (slot + 1) % window, work)
-                hPhi[slot] = saved_Phi
-                hY[slot] = saved_Y
+                copy_matrix(saved_Phi, hPhi[slot])
+                copy_vector(saved_Y, hY[slot])
                 status = _RECOMPUTED
             ok = ok and factor_is_healthy(Sn, 0, d)
         for i in range(d):
@@ -227,20 +232,20 @@ def rls_step(
         if not ok:
             if not reset_on_failure:
                 return _FAILED
-            S[:, :] = S0
+            copy_matrix(S0, S)
             rec[off[_COUNT]] = 0.0
             rec[off[_NRESET]] += 1.0
             status = _FAILED
         else:
-            theta[:] = th
-            S[:, :] = Sn
+            copy_vector(th, theta)
+            copy_matrix(Sn, S)
             if window > 0:
-                hPhi[slot] = Phi
-                hY[slot] = Y
+                copy_matrix(Phi, hPhi[slot])
+                copy_vector(Y, hY[slot])
                 rec[off[_COUNT]] = count + 1.0
             if status == _RECOMPUTED:
                 rec[off[_NRECOMP]] += 1.0
-        _gain(rec[off[_K] : off[_K] + d * p].reshape((d, p)), S, Phi, th)
+        _gain(view2d(rec, off[_K], d, p), S, Phi, th)
     for r in range(p):
         rec[off[_YHAT] + r] = y_pred[r]
         rec[off[_E] + r] = Y[r] - y_pred[r]
@@ -271,7 +276,7 @@ def rls_run(
                 first = t
             if not reset_on_failure:
                 return failures, first
-        out[t] = rec[off_theta : off_theta + d]
+        copy_vector(rec[off_theta : off_theta + d], out[t])
     return failures, first
 
 

@@ -65,7 +65,7 @@ def rollout_lane(f, g, off, cf, ci, ecf, eci, x, theta, theta_after, jump_at, fo
                  sigma_v, z, r, rho, y_bound, window, cost, y_tr, u_tr, traces):  # fmt: skip
     """``T = r.size - 1`` closed-loop steps of one lane; returns ``(steps_run, diverged)``."""
     T = r.shape[0] - 1
-    none = np.zeros(0)
+    none = z[0:0]  # no schedule: an empty view (lane functions never allocate)
     y = x[0] + sigma_v * z[0]
     if traces:
         y_tr[0] = y

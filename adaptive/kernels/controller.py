@@ -45,6 +45,7 @@ import numpy as np
 from stcgym.adaptive.kernels import design as dz
 from stcgym.adaptive.kernels.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.kernels.extended_ls import extended_ls_push, extended_ls_update
+from stcgym.adaptive.kernels.records import view2d
 from stcgym.adaptive.kernels.state_estimation import kalman_step
 from stcgym.envs.compiled import Layout, lane, lanes, prange
 
@@ -226,7 +227,7 @@ def controller_step(f, g, off, cf, ci, ecf, eci, y, r):
     work = f[off[O_WORK] : off[O_MISC]]
     safe = cf[C_SAFE : C_SAFE + 4]
     if ci[K_DESIGN] == LQ:
-        P_lq = f[off[O_PLQ] : off[O_PLQ] + m * m].reshape((m, m))
+        P_lq = view2d(f, off[O_PLQ], m, m)
         status = dz.lq_design(
             theta, form, integral, ci[K_FEEDFORWARD] != 0, cf[C_WEIGHTS : C_WEIGHTS + 3], safe,
             P_lq, gain, work,
@@ -240,11 +241,11 @@ def controller_step(f, g, off, cf, ci, ecf, eci, y, r):
     if status != dz.OK:
         g[I_N_REJECTED] += 1
     # -- 4. state estimate x(t|t): Kalman filter on the estimated model
-    A = f[off[O_A] : off[O_A] + n * n].reshape((n, n))
+    A = view2d(f, off[O_A], n, n)
     b = f[off[O_B] : off[O_B] + n]
     dz.model_matrices(theta, form, A, b)
     x = f[off[O_X] : off[O_X] + n]
-    P1 = f[off[O_P1] : off[O_P1] + n * n].reshape((n, n))
+    P1 = view2d(f, off[O_P1], n, n)
     xf = f[off[O_XF] : off[O_XF] + n]
     dz.filtered_state(x, P1, cf[C_R], y, xf)
     # -- 5. control: the probe while the loop is open, then the tracking law
@@ -263,7 +264,7 @@ def controller_step(f, g, off, cf, ci, ecf, eci, y, r):
             g[I_N_SATURATED] += 1
     f[mi + M_U] = u
     # -- 6. process noise, Kalman time update, estimator state step
-    Q = f[off[O_Q] : off[O_Q] + n * n].reshape((n, n))
+    Q = view2d(f, off[O_Q], n, n)
     process_noise(f, ci, n, y, u, cf[C_Q_GAIN], cf[C_Q_FLOOR], Q)
     xn = f[off[O_XN] : off[O_XN] + n]
     L1 = f[off[O_L1] : off[O_L1] + n]
@@ -281,7 +282,7 @@ def controller_step(f, g, off, cf, ci, ecf, eci, y, r):
     else:
         if ci[K_EQ] >= 0:  # the paper's Kalman filter gets the same process noise
             for i in range(n * n):
-                f[ci[K_EQ] + i] = Q.ravel()[i]
+                f[ci[K_EQ] + i] = f[off[O_Q] + i]
         g[I_EST_STATUS] |= estimator_predict(f, off[O_EST], ecf, eci, u)
     g[I_T] = t + 1
     return u

@@ -120,6 +120,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from stcgym.adaptive.kernels.records import view2d, view3d
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable, kalman_step
 from stcgym.envs.compiled import lane, lanes, prange
 
@@ -306,16 +307,12 @@ def lq_initial_P(n: int, integral: bool, weights: NDArray) -> NDArray[np.float64
 
 # ------------------------------------------------------------------------------ small helpers
 @lane
-def _split_work(work, mm, n_mat):
-    """The scratch as a stack of ``n_mat`` matrices ``(n_mat, mm, mm)`` and 9 vectors
-    ``(9, mm)``: two reshapes per call, and every slot after that a cheap basic slice
-    (``Ws[slot, :m, :m]``). A short array would corrupt the result, so it is an error."""
-    size_m = n_mat * mm * mm
-    if work.size < size_m + _N_VEC * mm:
+def _check_work(work, mm, n_mat):
+    """A scratch shorter than ``n_mat`` ``mm x mm`` matrices and 9 ``mm``-vectors would corrupt
+    the result, so it is an error. The scratch is then viewed as ``Ws`` ``(n_mat, mm, mm)``
+    and ``Vs`` ``(9, mm)`` (every slot after that a cheap basic slice ``Ws[slot, :m, :m]``)."""
+    if work.size < n_mat * mm * mm + _N_VEC * mm:
         raise ValueError("work array too short: see work_size(n) / solve_work_size(n)")
-    Ws = work[:size_m].reshape((n_mat, mm, mm))
-    Vs = work[size_m : size_m + _N_VEC * mm].reshape((_N_VEC, mm))
-    return Ws, Vs
 
 
 @lane
@@ -516,7 +513,10 @@ def ackermann_gain(A, b, alpha, K, work):
     reciprocal 1-norm condition of the column-normalised controllability matrix (``<= 0``:
     singular or non-finite, ``K`` untouched).
     """
-    Ws, Vs = _split_work(work, A.shape[0], _N_MAT)
+    mm = A.shape[0]
+    _check_work(work, mm, _N_MAT)
+    Ws = view3d(work, 0, _N_MAT, mm, mm)
+    Vs = view2d(work, _N_MAT * mm * mm, _N_VEC, mm)
     rcond = _controllability(A, b, Ws, Vs)
     if rcond > 0.0:
         _ackermann_from_ctrb(A, alpha, K, Ws, Vs)
@@ -556,7 +556,9 @@ def steady_state(A, b, x_ss, work):
     ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] = [0; 1]``
     (regular exactly when the model has no zero at ``z = 1``; works with an integrator in ``A``).
     ``rcond = 0``: singular (``x_ss = 0``, ``u_ss = 0``)."""
-    Ws, _ = _split_work(work, A.shape[0] + 1, _N_MAT)
+    mm = A.shape[0] + 1
+    _check_work(work, mm, _N_MAT)
+    Ws = view3d(work, 0, _N_MAT, mm, mm)
     return _steady_state(A, b, x_ss, Ws)
 
 
@@ -623,7 +625,10 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
 
     Returns the status code; ``gain`` is written only when it is ``OK`` (0).
     """
-    Ws, Vs = _split_work(work, theta.size // 2 + 1, _N_MAT)
+    mm = theta.size // 2 + 1
+    _check_work(work, mm, _N_MAT)
+    Ws = view3d(work, 0, _N_MAT, mm, mm)
+    Vs = view2d(work, _N_MAT * mm * mm, _N_VEC, mm)
     status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
     if status != OK:
         return status
@@ -695,7 +700,10 @@ def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     finite on entry or blows up (``> P_MAX``: the model is not stabilisable) is re-initialised
     to ``Q`` and ``NOT_STABILISABLE`` returned.
     """
-    Ws, Vs = _split_work(work, theta.size // 2 + 1, _N_MAT)
+    mm = theta.size // 2 + 1
+    _check_work(work, mm, _N_MAT)
+    Ws = view3d(work, 0, _N_MAT, mm, mm)
+    Vs = view2d(work, _N_MAT * mm * mm, _N_VEC, mm)
     status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
     if status != OK:
         return status
@@ -749,7 +757,7 @@ def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
             w[i] = t
         for i in range(m):
             v[i] = w[i]
-    return is_schur_stable(c, m)
+    return is_schur_stable(c, m, c)
 
 
 @lane
@@ -828,7 +836,10 @@ def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     ``NOT_STABILISABLE`` (diverging doubling or a closed loop that is not Schur: no stabilising
     solution) or ``NOT_CONVERGED``.
     """
-    Ws, Vs = _split_work(work, A.shape[0], _N_MAT_SOLVE)
+    mm = A.shape[0]
+    _check_work(work, mm, _N_MAT_SOLVE)
+    Ws = view3d(work, 0, _N_MAT_SOLVE, mm, mm)
+    Vs = view2d(work, _N_MAT_SOLVE * mm * mm, _N_VEC, mm)
     return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
 
 
@@ -859,7 +870,10 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     Writes the Riccati solution into ``P`` and the gain into ``gain`` on ``OK``; both are left
     untouched otherwise.
     """
-    Ws, Vs = _split_work(work, theta.size // 2 + 1, _N_MAT_SOLVE)
+    mm = theta.size // 2 + 1
+    _check_work(work, mm, _N_MAT_SOLVE)
+    Ws = view3d(work, 0, _N_MAT_SOLVE, mm, mm)
+    Vs = view2d(work, _N_MAT_SOLVE * mm * mm, _N_VEC, mm)
     status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
     if status != OK:
         return status
@@ -969,17 +983,17 @@ def known_model_propose(f, off, n, s, y, r, filtered, integral, anti_windup, act
     when everything proposed is finite (then :func:`known_model_commit` makes it the state),
     1 otherwise; the record ``f`` is only read.
     """
-    A = f[off[_OA] : off[_OA] + n * n].reshape((n, n))
+    A = view2d(f, off[_OA], n, n)
     b = f[off[_OB] : off[_OB] + n]
-    Q = f[off[_OQ] : off[_OQ] + n * n].reshape((n, n))
+    Q = view2d(f, off[_OQ], n, n)
     x = f[off[_OX] : off[_OX] + n]
-    P = f[off[_OP] : off[_OP] + n * n].reshape((n, n))
+    P = view2d(f, off[_OP], n, n)
     gain = f[off[_OGAIN] : off[_OGAIN] + n + 4]
     law = f[off[_OLAW] : off[_OLAW] + LAW_SIZE]
     k = 2 * n + n * n
     x_next = s[0:n]
     x_filt = s[n : 2 * n]
-    P_next = s[2 * n : k].reshape((n, n))
+    P_next = view2d(s, 2 * n, n, n)
     law_next = s[k + 1 : k + 4]
     L1 = s[k + 5 : k + 5 + n]
     work = s[k + 5 + n : k + 5 + n + 2 * n * n]
@@ -1044,7 +1058,7 @@ def model_matrices_lanes(thetas, form, A, b):
         model_matrices(thetas[i], form, A[i], b[i])
 
 
-@lanes
+@lanes(allocates=True)
 def place_design_lanes(thetas, form, integral, feedforward, alpha, safe, gains, status):
     """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` ``(B, n + 4)``,
     ``status`` ``(B,)`` int64); each lane allocates its own scratch."""
@@ -1056,7 +1070,7 @@ def place_design_lanes(thetas, form, integral, feedforward, alpha, safe, gains, 
         )
 
 
-@lanes
+@lanes(allocates=True)
 def lq_solve_lanes(
     thetas, form, integral, feedforward, weights, safe, Ps, gains, status, tol, max_iter
 ):
@@ -1079,7 +1093,7 @@ def lq_solve_lanes(
         )
 
 
-@lane
+@lane(allocates=True)
 def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     """Steady-state (a-priori) Kalman filter covariance of the canonical model of ``theta``:
     the stabilising solution of the dual Riccati equation ``dare(A^T, c^T, W, R)`` (``W``
@@ -1098,7 +1112,7 @@ def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     return dare(At, c, W, R, char_A, P, K, work, tol, max_iter)
 
 
-@lanes
+@lanes(allocates=True)
 def kalman_covariance_lanes(thetas, form, W, R, Ps, status, tol, max_iter):
     """:func:`kalman_covariance` for every lane (``W``, ``Ps`` ``(B, n, n)``)."""
     for i in prange(thetas.shape[0]):

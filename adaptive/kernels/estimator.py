@@ -93,7 +93,7 @@ from stcgym.adaptive.kernels.least_squares import (
     least_squares_increment,
     upper_factor,
 )
-from stcgym.adaptive.kernels.records import view2d
+from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.state_estimation import (
     advance_regressor,
     companion_into,
@@ -168,11 +168,6 @@ def _o(cfg_i: NDArray, off: int, k: int) -> int:
 
 
 @lane
-def _mat(rec: NDArray, o: int, r: int, c: int) -> NDArray:
-    return view2d(rec, o, r, c)
-
-
-@lane
 def reset_covariance(rec: NDArray, off: int, cfg_i: NDArray) -> None:
     """``P <- P(0)`` / ``r <- r(0)`` and an empty finite-history window; ``theta`` kept."""
     d = 2 * cfg_i[C_N]
@@ -224,7 +219,7 @@ def _rule_increment(
         lo = 0 if nblocks == 1 else blk * n
         hi = d if nblocks == 1 else lo + n
         if rule >= RULE_RLS:
-            S = _mat(rec, _o(cfg_i, off, S_), d, d)
+            S = view2d(rec, _o(cfg_i, off, S_), d, d)
             alpha = least_squares_increment(
                 S, lo, hi, Phi, E, p, lam, rule == RULE_RLS, delta, K, w
             )
@@ -250,7 +245,7 @@ def _replay_window(rec: NDArray, off: int, cfg_i: NDArray, theta_w: NDArray) -> 
     dec = cfg_i[C_DEC] != 0
     rule = cfg_i[C_RULE]
     reset_covariance(rec, off, cfg_i)
-    S = _mat(rec, _o(cfg_i, off, S_), d, d)
+    S = view2d(rec, _o(cfg_i, off, S_), d, d)
     work = rec[_o(cfg_i, off, WORK) :]
     delta, K, w = work[:d], work[d : 2 * d], work[2 * d : 3 * d]
     E = work[5 * d : 5 * d + p]
@@ -263,7 +258,7 @@ def _replay_window(rec: NDArray, off: int, cfg_i: NDArray, theta_w: NDArray) -> 
     first = count % W  # the oldest block (the newest was written just before)
     for m in range(W):
         k = (first + m) % W
-        Phi = _mat(hPhi, k * p * d, p, d)
+        Phi = view2d(hPhi, k * p * d, p, d)
         Yk = hY[k * p : (k + 1) * p]
         if dec:
             for blk in range(2):
@@ -298,7 +293,7 @@ def _slide_window(
     count = int(rec[oc])
     k = count % W
     rec[oc] = count + 1
-    hPhi = _mat(rec[_o(cfg_i, off, HPHI) :], k * p * d, p, d)
+    hPhi = view2d(rec[_o(cfg_i, off, HPHI) :], k * p * d, p, d)
     hY = rec[_o(cfg_i, off, HY) + k * p : _o(cfg_i, off, HY) + (k + 1) * p]
     if count >= W:
         work = rec[_o(cfg_i, off, WORK) :]
@@ -308,9 +303,9 @@ def _slide_window(
         for i in range(d):
             tw[i] = theta[i] + delta[i]
         _innovation(tw, hPhi, hY, p, E_old)
-        S = _mat(rec, _o(cfg_i, off, S_), d, d)
-        saved = _mat(work, 5 * d + 2 * p, d, d)
-        saved[:, :] = S
+        S = view2d(rec, _o(cfg_i, off, S_), d, d)
+        saved = view2d(work, 5 * d + 2 * p, d, d)
+        copy_matrix(S, saved)
         nblocks = 2 if cfg_i[C_DEC] else 1
         ok = True
         for blk in range(nblocks):
@@ -319,8 +314,8 @@ def _slide_window(
             if ok:
                 ok = downdate_block(S, lo, hi, hPhi, E_old, p, delta, w)
         if not ok:
-            S[:, :] = saved
-            hPhi[:, :] = Phi[:p]
+            copy_matrix(saved, S)
+            copy_matrix(Phi[:p], hPhi)
             for j in range(p):
                 hY[j] = Y[j]
             rec[_o(cfg_i, off, NREC)] += 1.0
@@ -329,7 +324,7 @@ def _slide_window(
                 for i in range(d):
                     delta[i] = tw[i] - theta[i]
             return ST_RECOMPUTED
-    hPhi[:, :] = Phi[:p]
+    copy_matrix(Phi[:p], hPhi)
     for j in range(p):
         hY[j] = Y[j]
     return 0
@@ -339,7 +334,7 @@ def _slide_window(
 def _gain(rec: NDArray, off: int, cfg_i: NDArray, phi: NDArray) -> float:
     """``q = phi^T P phi = ||S^T phi||^2`` (over both halves for D- rules)."""
     d = 2 * cfg_i[C_N]
-    S = _mat(rec, _o(cfg_i, off, S_), d, d)
+    S = view2d(rec, _o(cfg_i, off, S_), d, d)
     q = 0.0
     for j in range(d):
         acc = 0.0
@@ -357,7 +352,7 @@ def estimator_update(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, y: 
     p = cfg_i[C_P]
     rule = cfg_i[C_RULE]
     theta = rec[_o(cfg_i, off, THETA) : _o(cfg_i, off, THETA) + d]
-    Phi = _mat(rec, _o(cfg_i, off, PHIS), p, d)
+    Phi = view2d(rec, _o(cfg_i, off, PHIS), p, d)
     Y = rec[_o(cfg_i, off, Y_) : _o(cfg_i, off, Y_) + p]
     E = rec[_o(cfg_i, off, E_) : _o(cfg_i, off, E_) + p]
     phi = rec[_o(cfg_i, off, PHI) : _o(cfg_i, off, PHI) + d]
@@ -390,7 +385,7 @@ def estimator_update(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, y: 
             ok = ok and math.isfinite(delta[i])
     check = cfg_i[C_CHECK]
     if ok and least_squares and check > 0 and int(t) % check == 0:
-        S = _mat(rec, _o(cfg_i, off, S_), d, d)
+        S = view2d(rec, _o(cfg_i, off, S_), d, d)
         if cfg_i[C_DEC]:
             healthy = factor_is_healthy(S, 0, n) and factor_is_healthy(S, n, d)
         else:
@@ -407,7 +402,7 @@ def estimator_update(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, y: 
             theta_prev[i] = theta[i]
     for i in range(d):
         theta[i] += delta[i]
-    if cfg_i[C_PROJECT] and not is_schur_stable(theta, n):
+    if cfg_i[C_PROJECT] and not is_schur_stable(theta, n, K):
         for i in range(d):
             theta[i] = theta_prev[i]
         rec[_o(cfg_i, off, NPROJ)] += 1.0
@@ -451,15 +446,15 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
     y = rec[_o(cfg_i, off, YLAST)]
     work = rec[_o(cfg_i, off, WORK) :]
     base = 5 * d + 2 * p + d * d
-    A = _mat(work, base, n, n)
+    A = view2d(work, base, n, n)
     x_next = work[base + n * n : base + n * n + n]
     kf_work = work[base + n * n + n : base + 3 * n * n + n]
     companion_into(theta, n, observability, A)
     b = theta[n:]
     status = 0
     if state == STATE_KF:
-        P1 = _mat(rec, _o(cfg_i, off, P1_), n, n)
-        Q = _mat(rec, _o(cfg_i, off, Q_), n, n)
+        P1 = view2d(rec, _o(cfg_i, off, P1_), n, n)
+        Q = view2d(rec, _o(cfg_i, off, Q_), n, n)
         L1 = rec[_o(cfg_i, off, L1_) : _o(cfg_i, off, L1_) + n]
         if kalman_step(A, b, P1, Q, cfg_f[F_R], x, u, y, x_next, L1, kf_work) != 0:
             o0, o1 = _o(cfg_i, off, P10_), _o(cfg_i, off, P1_)
@@ -473,7 +468,7 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
         K = rec[_o(cfg_i, off, K_) : _o(cfg_i, off, K_) + n]
         observer_step(A, b, x, u, y, K, state == STATE_CO, x_next)
     phi = rec[_o(cfg_i, off, PHI) : _o(cfg_i, off, PHI) + d]
-    xs = _mat(rec, _o(cfg_i, off, XS), n if observability else 0, n)
+    xs = view2d(rec, _o(cfg_i, off, XS), n if observability else 0, n)
     advance_regressor(phi, xs, x, u, n, observability)
     finite = True
     for i in range(n):
@@ -497,7 +492,7 @@ def estimator_restart(rec: NDArray, off: int, cfg_i: NDArray, theta: NDArray, P:
     d = 2 * n
     if cfg_i[C_RULE] >= RULE_RLS:
         p = cfg_i[C_P]
-        F = _mat(rec[_o(cfg_i, off, WORK) :], 5 * d + 2 * p, d, d)
+        F = view2d(rec[_o(cfg_i, off, WORK) :], 5 * d + 2 * p, d, d)
         if cfg_i[C_DEC]:
             F[:, :] = 0.0
             ok = upper_factor(P[:n, :n], F[:n, :n]) and upper_factor(P[n:, n:], F[n:, n:])
@@ -505,7 +500,7 @@ def estimator_restart(rec: NDArray, off: int, cfg_i: NDArray, theta: NDArray, P:
             ok = upper_factor(P, F)
         if not ok:
             return False
-        _mat(rec, _o(cfg_i, off, S_), d, d)[:, :] = F
+        copy_matrix(F, view2d(rec, _o(cfg_i, off, S_), d, d))
     else:
         reset_covariance(rec, off, cfg_i)
     rec[_o(cfg_i, off, COUNT)] = 0.0

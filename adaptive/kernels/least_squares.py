@@ -54,7 +54,7 @@ import math
 
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.records import view2d
+from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.envs.compiled import lane
 
 __all__ = [
@@ -322,7 +322,7 @@ def least_squares_downdate(
     w = work[d : 3 * d]
     E = work[3 * d : 3 * d + p]
     saved = view2d(work, 3 * d + p, d, d)
-    saved[:, :] = S
+    copy_matrix(S, saved)
     for k in range(p):
         acc = Y[k]
         for i in range(d):
@@ -331,7 +331,7 @@ def least_squares_downdate(
     for i in range(d):
         delta[i] = 0.0
     if not downdate_block(S, 0, d, Phi, E, p, delta, w):
-        S[:, :] = saved
+        copy_matrix(saved, S)
         return FAIL_DOWNDATE
     for i in range(d):
         theta[i] += delta[i]

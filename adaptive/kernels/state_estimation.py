@@ -27,7 +27,7 @@ Published interface (signatures fixed):
     ``[-x1_hat(t), ..., -x1_hat(t-n+1), u(t), ..., u(t-n+1)]``; observability form (153)
     ``[-x_n_hat(t+1-n), ..., -x_1_hat(t+1-n), u(t), ...]`` from the last ``n`` estimates
     ``xs`` (row ``j`` is ``x_hat(t - j)``; zero before ``t = 1``).
-``is_schur_stable(a, n) -> bool``
+``is_schur_stable(a, n, c) -> bool``
     ``z^n + a_1 z^{n-1} + ... + a_n`` has every root strictly inside the unit circle
     (Schur-Cohn step-down recursion, ``O(n^2)``, no eigenvalue solver).
 """
@@ -171,11 +171,13 @@ def advance_regressor(
 
 
 @lane
-def is_schur_stable(a: NDArray, n: int) -> bool:
+def is_schur_stable(a: NDArray, n: int, c: NDArray) -> bool:
     """Schur-Cohn / Jury step-down test of ``z^n + a_1 z^{n-1} + ... + a_n``: stable iff every
-    reflection coefficient ``k_m`` satisfies ``|k_m| < 1`` (False for NaN)."""
-    c = np.empty(n)
-    tmp = np.empty(n)
+    reflection coefficient ``k_m`` satisfies ``|k_m| < 1`` (False for NaN).
+
+    ``c`` (at least ``n`` floats) is scratch that receives the step-down coefficients; it may be
+    ``a`` itself when ``a`` need not survive. The step-down ``c_i <- (c_i - k c_{m-2-i}) / (1 -
+    k^2)`` is done in place pairwise (``i`` with ``m-2-i``), so the test allocates nothing."""
     for i in range(n):
         c[i] = a[i]
     m = n
@@ -184,15 +186,16 @@ def is_schur_stable(a: NDArray, n: int) -> bool:
         if not (-1.0 < k < 1.0):
             return False
         den = 1.0 - k * k
-        for i in range(m - 1):
-            tmp[i] = (c[i] - k * c[m - 2 - i]) / den
-        for i in range(m - 1):
-            c[i] = tmp[i]
+        for i in range((m - 1 + 1) // 2):
+            j = m - 2 - i
+            ci, cj = c[i], c[j]
+            c[i] = (ci - k * cj) / den
+            c[j] = (cj - k * ci) / den
         m -= 1
     return True
 
 
-@lane
+@lane(allocates=True)
 def state_trajectory(
     A: NDArray,
     b: NDArray,
