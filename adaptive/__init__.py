@@ -30,7 +30,7 @@ from stcgym.adaptive.placement import (
     lq_gain,
     place_poles,
 )
-from stcgym.adaptive.policy import Policy, StatefulPolicy, reset_policy
+from stcgym.adaptive.policy import Policy, reset_policy
 from stcgym.adaptive.recursive import (
     ALGORITHMS,
     EstimatorSpec,
@@ -64,7 +64,6 @@ __all__ = [
     "RecursiveEstimator",
     "SelfTuningController",
     "StateMatrixEstimator",
-    "StatefulPolicy",
     "UncontrollableError",
     "ackermann",
     "augment_integral",

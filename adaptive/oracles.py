@@ -32,7 +32,7 @@ rejected as a whole: no lane changes.
 from __future__ import annotations
 
 import math
-from abc import abstractmethod
+from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.kernels import design as _design
 from stcgym.adaptive.kernels.state_estimation import kalman_step
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
-from stcgym.adaptive.policy import StatefulPolicy, validate_observation
+from stcgym.adaptive.policy import episode_starts, validate_observation
 from stcgym.envs.canonical import as_finite_vector, check_form
 from stcgym.envs.compiled import Layout
 
@@ -121,7 +121,7 @@ def _lane_parameters(
     return a_l, b_l
 
 
-class _KnownModelLoop(StatefulPolicy):
+class _KnownModelLoop(ABC):
     """Lane records and the SB3-style ``predict`` shared by the two oracles.
 
     Subclasses set ``n``, ``form``, the flags and call :meth:`_build` with per-lane models,
@@ -129,6 +129,9 @@ class _KnownModelLoop(StatefulPolicy):
     plant) and, for ``num_envs=None``, in ``self._rows`` (the copies serving a batch of
     observations).
     """
+
+    #: Length of one observation: the envs observe ``[y(t), r(t)]``.
+    obs_dim: int = 2
 
     def _build(self, num_envs: int | None, a: NDArray, b: NDArray) -> None:
         n = self.n
@@ -328,9 +331,6 @@ class _KnownModelLoop(StatefulPolicy):
         else:
             self._a[idx], self._b[idx] = self._a0[idx], self._b0[idx]
 
-    def _reset_state(self) -> None:
-        self.reset()
-
     def predict(
         self,
         observation: ArrayLike,
@@ -350,7 +350,7 @@ class _KnownModelLoop(StatefulPolicy):
                 f"observation must have one row per lane: expected {self.num_envs} "
                 f"observations, got {batch}"
             )
-        starts = self._episode_starts(episode_start, batch)
+        starts = episode_starts(episode_start, batch)
         if self.num_envs is None and not single:
             if self._rows is None or self._rows.shape[0] != batch:
                 # one freshly reset copy of the single plant's record per observation row
@@ -391,9 +391,6 @@ class _KnownModelLoop(StatefulPolicy):
             return None
         _design.known_model_commit_lanes(F, self._off, n, S, u)
         return u
-
-    def _act(self, obs: NDArray) -> float:
-        return float(self.predict(obs)[0][0])
 
 
 class KnownModelController(_KnownModelLoop):

@@ -9,33 +9,22 @@ known-model oracles alike. SB3 models satisfy :class:`Policy` structurally (``is
 through :class:`typing.runtime_checkable`) except for ``reset``; :func:`reset_policy` copes with
 both.
 
-:class:`StatefulPolicy` is the base of the known-model oracles (the self-tuning controller,
-:class:`~stcgym.adaptive.controller.SelfTuningController`, holds its lanes in arrays itself).
-A controller is a causal filter with internal state (estimates, integrator); the base class
-turns a single-observation step ``_act(obs) -> u`` into the SB3 convention:
-
-* a single observation of shape ``(obs_dim,)`` gives an action of shape ``(1,)``;
-* a batch of shape ``(B, obs_dim)`` (a vectorised env) gives actions of shape ``(B, 1)``; each
-  batch row ("lane") is served by its own deep copy of the freshly reset controller, created on
-  first use, so the lanes never share state;
-* ``episode_start`` (a bool or an array of ``B`` bools, as SB3's ``evaluate_policy`` passes it)
-  resets the controller (the lane) before it acts;
-* the recurrent ``state`` argument is accepted and returned unchanged (``None``): the state is kept
-  inside the object;
-* every observation of the call is validated before any lane is touched, so a rejected call
-  (wrong shape, NaN/inf) leaves every controller exactly as it was.
+Every controller of stcgym keeps its lanes in arrays itself (one lane record per plant, see
+:mod:`stcgym.envs.compiled`): a single observation of shape ``(obs_dim,)`` gives an action of
+shape ``(1,)``, a batch ``(B, obs_dim)`` gives ``(B, 1)``; ``episode_start`` (a bool or ``B``
+bools, as SB3's ``evaluate_policy`` passes it) resets those lanes first; the recurrent
+``state`` is returned unchanged; every observation is validated before any lane is touched.
+:func:`validate_observation` and :func:`episode_starts` are the shared checks.
 """
 
 from __future__ import annotations
 
-import copy
-from abc import ABC, abstractmethod
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Policy", "StatefulPolicy", "reset_policy", "validate_observation"]
+__all__ = ["Policy", "episode_starts", "reset_policy", "validate_observation"]
 
 
 @runtime_checkable
@@ -81,72 +70,17 @@ def validate_observation(observation: ArrayLike, obs_dim: int) -> tuple[NDArray,
     return obs, single
 
 
-class StatefulPolicy(ABC):
-    """Base class: SB3-style ``predict`` over a per-lane stateful single-step law ``_act``."""
-
-    #: Length of one observation; the envs observe ``[y(t), r(t)]``.
-    obs_dim: int = 2
-
-    def __init__(self) -> None:
-        self._lanes: list[StatefulPolicy] | None = None
-
-    # -- to implement -------------------------------------------------------------------------
-    @abstractmethod
-    def _reset_state(self) -> None:
-        """Restore the state the controller had right after construction."""
-
-    @abstractmethod
-    def _act(self, obs: NDArray) -> float:
-        """One step on one finite observation of shape ``(obs_dim,)``; returns ``u(t)``."""
-
-    # -- protocol -----------------------------------------------------------------------------
-    def reset(self) -> None:
-        """Forget the episode: estimates, integrator, excitation, logs; batch lanes dropped."""
-        self._lanes = None
-        self._reset_state()
-
-    def predict(
-        self,
-        observation: ArrayLike,
-        state: Any = None,
-        episode_start: ArrayLike | bool | None = None,
-        deterministic: bool = True,
-    ) -> tuple[NDArray, Any]:
-        """SB3-compatible step; see the module docstring.
-
-        ``deterministic`` is accepted for compatibility only: the controllers' excitation signals
-        are seeded pseudo-random sequences that are part of the control law, and the result is
-        reproducible either way. A batch of observations runs one copy of this controller per
-        row (same settings and seed, hence the same excitation sequence), like B identical
-        controllers on B plants; the batched controllers take a seed per lane instead.
-        """
-        obs, single = validate_observation(observation, self.obs_dim)
-        starts = self._episode_starts(episode_start, obs.shape[0])
-        if single:
-            if starts[0]:
-                self.reset()
-            return np.array([self._act(obs[0])]), state
-        if self._lanes is None or len(self._lanes) != obs.shape[0]:
-            proto = copy.deepcopy(self)
-            proto.reset()
-            self._lanes = [copy.deepcopy(proto) for _ in range(obs.shape[0])]
-        actions = np.empty((obs.shape[0], 1))
-        for i, lane in enumerate(self._lanes):
-            if starts[i]:
-                lane.reset()
-            actions[i, 0] = lane._act(obs[i])
-        return actions, state
-
-    @staticmethod
-    def _episode_starts(episode_start: ArrayLike | bool | None, batch: int) -> NDArray:
-        if episode_start is None:
-            return np.zeros(batch, dtype=bool)
-        starts = np.asarray(episode_start, dtype=bool).reshape(-1)
-        if starts.size == 1:
-            return np.full(batch, bool(starts[0]))
-        if starts.size != batch:
-            raise ValueError(
-                f"episode_start must be a bool or have one entry per observation ({batch}), "
-                f"got {starts.size}"
-            )
-        return starts
+def episode_starts(episode_start: ArrayLike | bool | None, batch: int) -> NDArray:
+    """``episode_start`` as ``batch`` bools (one bool is broadcast); ``ValueError`` naming it
+    when its length is neither 1 nor ``batch``."""
+    if episode_start is None:
+        return np.zeros(batch, dtype=bool)
+    starts = np.asarray(episode_start, dtype=bool).reshape(-1)
+    if starts.size == 1:
+        return np.full(batch, bool(starts[0]))
+    if starts.size != batch:
+        raise ValueError(
+            f"episode_start must be a bool or have one entry per observation ({batch}), "
+            f"got {starts.size}"
+        )
+    return starts

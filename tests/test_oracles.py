@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from stcgym.adaptive.oracles import KalmanObserver, KnownModelController, LQGController
-from stcgym.adaptive.policy import StatefulPolicy
+from stcgym.adaptive.policy import Policy
 from stcgym.envs.canonical import companion_A, observer_to_observability_b
 
 A_S2, B_S2 = (-1.5, 0.7), (1.0, 0.5)  # stable2
@@ -132,7 +132,7 @@ def test_batched_lanes_equal_single_plants(cls: type) -> None:
     a = np.array([A_S2, A_U2, (-1.6, 0.6), (-1.2, 0.5)]) + rng.uniform(-0.01, 0.01, (B, 2))
     b = np.array([B_S2, B_U2, (0.2, 0.1), (1.0, -0.3)])
     batch = cls(a, b, num_envs=B)
-    assert isinstance(batch, cls) and isinstance(batch, StatefulPolicy)
+    assert isinstance(batch, cls) and isinstance(batch, Policy)
     singles = [cls(a[i], b[i]) for i in range(B)]
     obs = _observations(200, 2, lanes=B)
     for k, o in enumerate(obs):
