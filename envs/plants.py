@@ -197,7 +197,7 @@ class LinearPlantEnv(gym.Env):
         self.render_mode = render_mode
         self.reference: list[Reference] = make_references(reference, n_outputs)
         self.schedule: Schedule = make_schedule(schedule)
-        self._initial_state = (
+        self.initial_state = (
             None if initial_state is None else self._check_state(initial_state, "initial_state")
         )
         self.action_space = spaces.Box(
@@ -325,8 +325,8 @@ class LinearPlantEnv(gym.Env):
             self._x = x0
         elif "initial_state_std" in options:
             self._x = std * rng_draw.standard_normal(self.n_states)
-        elif self._initial_state is not None:
-            self._x = self._initial_state.copy()
+        elif self.initial_state is not None:
+            self._x = self.initial_state.copy()
         else:
             self._x = np.zeros(self.n_states)
 
@@ -441,14 +441,14 @@ class CanonicalPlantEnv(LinearPlantEnv):
         **kwargs: Any,
     ) -> None:
         check_form(self.form)
-        self._form_code = dynamics.FORM_CODES[self.form]
+        self.form_code = dynamics.FORM_CODES[self.form]
         if plant is not None and (a is not None or b is not None):
             raise ValueError("give either plant (a catalogue name) or a and b, not both")
         if (a is None) != (b is None):
             raise ValueError("a and b must be given together (theta = [a; b])")
         if a is not None:
-            self._family: list[PlantSpec] = []
-            self._user_theta = np.concatenate(check_ab(a, b))
+            self.family: list[PlantSpec] = []
+            self.user_theta = np.concatenate(check_ab(a, b))
         else:
             if plant is None:
                 names: list[Any] = ["stable2"]
@@ -460,32 +460,35 @@ class CanonicalPlantEnv(LinearPlantEnv):
                 raise TypeError(f"plant must be a catalogue name or a list of names, got {plant!r}")
             if len(names) == 0:
                 raise ValueError("plant must be a catalogue name or a non-empty list of names")
-            self._family = [get_plant(name) for name in names]
-            if len({spec.n for spec in self._family}) > 1:
+            self.family = [get_plant(name) for name in names]
+            if len({spec.n for spec in self.family}) > 1:
                 raise ValueError(
-                    f"plant family must share one order n, got {[s.name for s in self._family]}"
+                    f"plant family must share one order n, got {[s.name for s in self.family]}"
                 )
-            self._user_theta = None
-        self._user_schedule = schedule is not None
-        self.plant: PlantSpec | None = None if self._family == [] else self._family[0]
-        n = self._family[0].n if self._family else self._user_theta.size // 2
+            self.user_theta = None
+        self.has_user_schedule = schedule is not None
+        self.plant: PlantSpec | None = None if self.family == [] else self.family[0]
+        n = self.family[0].n if self.family else self.user_theta.size // 2
         super().__init__(n_states=n, n_inputs=1, n_outputs=1, schedule=schedule, **kwargs)
         # The constructor's plant is in force until the first reset (A, B, C, D, theta exist).
-        self._set_params(self._theta_of(self.plant) if self.plant else self._user_theta)
+        self._set_params(self.theta_of(self.plant) if self.plant else self.user_theta)
 
     # -------------------------------------------------------------- parameters
-    def _theta_of(self, spec: PlantSpec) -> NDArray:
+    def theta_of(self, spec: PlantSpec) -> NDArray:
+        """``theta = [a; b]`` of a catalogue plant in this env's canonical form."""
         a, b = np.array(spec.a), np.array(spec.b)
         if self.form == "observability":
             b = observer_to_observability_b(a, b)
         return np.concatenate((a, b))
 
-    def _catalogue_schedule(self, spec: PlantSpec) -> Schedule | None:
+    def catalogue_schedule(self, spec: PlantSpec) -> Schedule | None:
+        """A fresh copy of a catalogue plant's own parameter schedule in this env's form
+        (``None`` for a time-invariant plant)."""
         if spec.schedule is None:
             return None
         sched = spec.schedule()
         if self.form == "observability" and isinstance(sched, Jumps):
-            sched = Jumps([(k, self._theta_of(_spec_from_theta(v))) for k, v in sched.changes])
+            sched = Jumps([(k, self.theta_of(_spec_from_theta(v))) for k, v in sched.changes])
         return sched
 
     def _parse_options(self, options: dict[str, Any]) -> tuple[NDArray | None, PlantSpec | None]:
@@ -498,7 +501,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
             theta = np.concatenate(check_ab(options.get("a"), options.get("b")))
         elif "plant" in options:
             spec = get_plant(options["plant"])
-            theta = self._theta_of(spec)
+            theta = self.theta_of(spec)
         if theta is not None and theta.size != 2 * self.n_states:
             raise ValueError(
                 f"episode parameters must have order n={self.n_states} like the env "
@@ -511,18 +514,18 @@ class CanonicalPlantEnv(LinearPlantEnv):
     ) -> NDArray:
         theta, spec = parsed
         if theta is None:
-            if self._family:
+            if self.family:
                 spec = (
-                    self._family[int(rng.integers(len(self._family)))]
-                    if len(self._family) > 1
-                    else self._family[0]
+                    self.family[int(rng.integers(len(self.family)))]
+                    if len(self.family) > 1
+                    else self.family[0]
                 )
-                theta = self._theta_of(spec)
+                theta = self.theta_of(spec)
             else:
-                theta = self._user_theta.copy()
+                theta = self.user_theta.copy()
         self.plant = spec
-        if not self._user_schedule:
-            self.schedule = (self._catalogue_schedule(spec) if spec else None) or make_schedule(
+        if not self.has_user_schedule:
+            self.schedule = (self.catalogue_schedule(spec) if spec else None) or make_schedule(
                 None
             )
         return theta
@@ -536,7 +539,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
     ) -> tuple[float, bool, bool]:
         reward, clipped, diverged, u, y_clean, y = dynamics.canonical_plant_step(
             self._x, self.params, u_raw[0], self.action_bound, self.process_noise_std, z_w,
-            self.noise_std, z_v[0], r[0], self.control_cost, self.y_bound, self._form_code,
+            self.noise_std, z_v[0], r[0], self.control_cost, self.y_bound, self.form_code,
         )  # fmt: skip
         self._u[0], self._y_clean[0], self._y[0] = u, y_clean, y
         return reward, clipped, diverged
@@ -678,46 +681,46 @@ class StateSpaceEnv(LinearPlantEnv):
                 sysd = _canonical_form(control.ss(A_, B_, C_, D_, self.dt), canonical)
                 A_, B_ = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
                 C_, D_ = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
-        self._A0, self._B0 = np.ascontiguousarray(A_), np.ascontiguousarray(B_)
-        self._C, self._D = np.ascontiguousarray(C_), np.ascontiguousarray(D_)
-        n, m = self._B0.shape
+        self.A_nominal, self.B_nominal = np.ascontiguousarray(A_), np.ascontiguousarray(B_)
+        self.C, self.D = np.ascontiguousarray(C_), np.ascontiguousarray(D_)
+        n, m = self.B_nominal.shape
         self._tmp = np.zeros(n)
-        super().__init__(n_states=n, n_inputs=m, n_outputs=self._C.shape[0], **kwargs)
-        self._set_params(np.hstack((self._A0, self._B0)))
+        super().__init__(n_states=n, n_inputs=m, n_outputs=self.C.shape[0], **kwargs)
+        self._set_params(np.hstack((self.A_nominal, self.B_nominal)))
 
     @property
     def sys(self) -> Any:
         """The discrete python-control system of the nominal plant."""
         import control
 
-        return control.ss(self._A0, self._B0, self._C, self._D, self.dt)
+        return control.ss(self.A_nominal, self.B_nominal, self.C, self.D, self.dt)
 
     def _parse_options(self, options: dict[str, Any]) -> NDArray | None:
         if "A" not in options and "B" not in options:
             return None
-        n, m = self._B0.shape
-        A = _matrix(options["A"], "options['A']", (n, n)) if "A" in options else self._A0
-        B = _matrix(options["B"], "options['B']", (n, m)) if "B" in options else self._B0
+        n, m = self.B_nominal.shape
+        A = _matrix(options["A"], "options['A']", (n, n)) if "A" in options else self.A_nominal
+        B = _matrix(options["B"], "options['B']", (n, m)) if "B" in options else self.B_nominal
         return np.hstack((A, B))
 
     def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:
-        return np.hstack((self._A0, self._B0)) if parsed is None else parsed
+        return np.hstack((self.A_nominal, self.B_nominal)) if parsed is None else parsed
 
     def _matrices(self, params: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         n = self.n_states
-        return params[:, :n], params[:, n:], self._C, self._D
+        return params[:, :n], params[:, n:], self.C, self.D
 
     def _plant_step(
         self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
     ) -> tuple[float, bool, bool]:
         return dynamics.state_space_plant_step(
-            self._x, self.params, self._C, self._D, u_raw, self.action_bound,
+            self._x, self.params, self.C, self.D, u_raw, self.action_bound,
             self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
             self.y_bound, self._u, self._y_clean, self._y, self._tmp,
         )  # fmt: skip
 
     def _reset_output(self) -> None:
-        dynamics.state_output(self._x, self._C, self._y_clean)
+        dynamics.state_output(self._x, self.C, self._y_clean)
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -726,7 +729,7 @@ class StateSpaceEnv(LinearPlantEnv):
             # gym.make keeps its kwargs in env.spec; a python-control system holds a lambda.
             # Re-specify the same plant by its discrete matrices.
             kwargs = {k: v for k, v in spec.kwargs.items() if k not in ("sys", "canonical")}
-            kwargs.update(A=self._A0, B=self._B0, C=self._C, D=self._D, dt=self.dt)
+            kwargs.update(A=self.A_nominal, B=self.B_nominal, C=self.C, D=self.D, dt=self.dt)
             state["spec"] = dataclasses.replace(spec, kwargs=kwargs)
         return state
 

@@ -444,8 +444,8 @@ class LinearPlantVectorEnv(VectorEnv):
             self.x[idx] = x0[idx]
         elif std is not None:
             self.x[idx] = [std * g.standard_normal(n) for g in draw]
-        elif self._proto._initial_state is not None:
-            self.x[idx] = self._proto._initial_state
+        elif self._proto.initial_state is not None:
+            self.x[idx] = self._proto.initial_state
         else:
             self.x[idx] = 0.0
 
@@ -715,7 +715,7 @@ class LinearPlantVectorEnv(VectorEnv):
             # As StateSpaceEnv: re-specify a python-control system (holds a lambda) by matrices.
             proto = self._proto
             kwargs = {k: v for k, v in spec.kwargs.items() if k not in ("sys", "canonical")}
-            kwargs.update(A=proto._A0, B=proto._B0, C=proto._C, D=proto._D, dt=proto.dt)
+            kwargs.update(A=proto.A_nominal, B=proto.B_nominal, C=proto.C, D=proto.D, dt=proto.dt)
             state["spec"] = dataclasses.replace(spec, kwargs=kwargs)
         return state
 
@@ -753,10 +753,10 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         self.params = np.zeros((B, 2 * n))
         self.params[:] = proto.params if self._lane_theta is None else self._lane_theta
         self.plant_index = np.full(B, -1 if proto.plant is None else 0, dtype=np.int64)
-        self._family: list[PlantSpec] = proto._family
-        self._family_theta = np.array([proto._theta_of(s) for s in self._family]).reshape(-1, 2 * n)
+        self.family: list[PlantSpec] = proto.family
+        self._family_theta = np.array([proto.theta_of(s) for s in self.family]).reshape(-1, 2 * n)
         self.form = proto.form
-        self._form_code = proto._form_code
+        self.form_code = proto.form_code
 
     @property
     def theta(self) -> NDArray:
@@ -766,7 +766,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     @property
     def plants(self) -> list[PlantSpec | None]:
         """Each lane's catalogue plant of this episode (``None`` for user parameters)."""
-        return [self._family[j] if j >= 0 else None for j in self.plant_index]
+        return [self.family[j] if j >= 0 else None for j in self.plant_index]
 
     def _parse_options(self, options: dict[str, Any]) -> Any:
         n, B = self.n_states, self.num_envs
@@ -790,7 +790,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
                 raise ValueError(
                     f"options['plant'] {spec.name!r} has order {spec.n}, the env has order {n}"
                 )
-            return ("plant", self._proto._theta_of(spec), spec)
+            return ("plant", self._proto.theta_of(spec), spec)
         else:
             return None
         if theta.size != 2 * n:
@@ -801,7 +801,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         return ("theta", np.broadcast_to(theta, (B, 2 * n)), None)
 
     def _needs_draw_rng(self, parsed: Any) -> bool:
-        return parsed is None and len(self._family) > 1
+        return parsed is None and len(self.family) > 1
 
     def _nominal(
         self, idx: NDArray, parsed: Any, draw: list[np.random.Generator | None]
@@ -816,20 +816,20 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
             spec = parsed[2]
             theta = np.broadcast_to(parsed[1], (k, 2 * n))
             specs = [spec] * k
-            index[:] = self._family.index(spec) if spec in self._family else -1
-        elif self._family:
-            if len(self._family) > 1:
-                index = np.array([g.integers(len(self._family)) for g in draw], dtype=np.int64)
+            index[:] = self.family.index(spec) if spec in self.family else -1
+        elif self.family:
+            if len(self.family) > 1:
+                index = np.array([g.integers(len(self.family)) for g in draw], dtype=np.int64)
             else:
                 index[:] = 0
             theta = self._family_theta[index]
-            specs = [self._family[j] for j in index]
+            specs = [self.family[j] for j in index]
         elif self._lane_theta is not None:
             theta = self._lane_theta[idx]
         else:
-            theta = np.broadcast_to(proto._user_theta, (k, 2 * n))
+            theta = np.broadcast_to(proto.user_theta, (k, 2 * n))
         self.plant_index[idx] = index
-        if proto._user_schedule:
+        if proto.has_user_schedule:
             keys: list[Hashable | None] = [_USER] * k
         else:
             keys = [s.name if s is not None and s.schedule else None for s in specs]
@@ -838,14 +838,14 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     def _make_schedule(self, key: Hashable) -> Schedule:
         if key == _USER:
             return super()._make_schedule(key)
-        return self._proto._catalogue_schedule(get_plant(str(key)))
+        return self._proto.catalogue_schedule(get_plant(str(key)))
 
     def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
         B = self.num_envs  # SISO: one column per lane, as (B,) views
         dynamics.canonical_plants_step(
             self.x, self.params, u_raw.reshape(B), self.action_bound, self.process_noise_std,
             z_w, self.noise_std, z_v.reshape(B) if z_v.size else self._no_noise_1d,
-            r.reshape(B), self.control_cost, self.y_bound, self._form_code, self._u.reshape(B),
+            r.reshape(B), self.control_cost, self.y_bound, self.form_code, self._u.reshape(B),
             self.y_clean.reshape(B), self._y.reshape(B), self._reward, self._clipped,
             self._diverged,
         )  # fmt: skip
@@ -891,21 +891,21 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
 
     def _init_params(self) -> None:
         proto: StateSpaceEnv = self._proto  # type: ignore[assignment]
-        n, m = proto._B0.shape
-        self._AB0 = np.ascontiguousarray(np.hstack((proto._A0, proto._B0)))
+        n, m = proto.B_nominal.shape
+        self._AB0 = np.ascontiguousarray(np.hstack((proto.A_nominal, proto.B_nominal)))
         self.params = np.zeros((self.num_envs, n, n + m))
         self.params[:] = self._AB0
-        self._C, self._D = proto._C, proto._D
+        self.C, self.D = proto.C, proto.D
         self._tmp = np.zeros((self.num_envs, n))
 
     def _parse_options(self, options: dict[str, Any]) -> Any:
         if "A" not in options and "B" not in options:
             return None
         proto: StateSpaceEnv = self._proto  # type: ignore[assignment]
-        n, m = proto._B0.shape
+        n, m = proto.B_nominal.shape
         B = self.num_envs
-        A = _lane_matrix(options, "A", (n, n), B, proto._A0)
-        Bm = _lane_matrix(options, "B", (n, m), B, proto._B0)
+        A = _lane_matrix(options, "A", (n, n), B, proto.A_nominal)
+        Bm = _lane_matrix(options, "B", (n, m), B, proto.B_nominal)
         return np.concatenate((A, Bm), axis=2)
 
     def _nominal(
@@ -920,7 +920,7 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
 
     def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
         dynamics.state_space_plants_step(
-            self.x, self.params, self._C, self._D, u_raw, self.action_bound,
+            self.x, self.params, self.C, self.D, u_raw, self.action_bound,
             self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
             self.y_bound, self._u, self.y_clean, self._y, self._reward, self._clipped,
             self._diverged, self._tmp,
@@ -928,7 +928,7 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
 
     def _reset_outputs(self, idx: NDArray) -> NDArray:
         y = np.empty((len(idx), self.n_outputs))
-        dynamics.state_outputs(self.x, idx, self._C, y)
+        dynamics.state_outputs(self.x, idx, self.C, y)
         return y
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:
