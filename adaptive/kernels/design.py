@@ -306,7 +306,7 @@ def lq_initial_P(n: int, integral: bool, weights: NDArray) -> NDArray[np.float64
 
 
 # ------------------------------------------------------------------------------ small helpers
-@lane
+@lane(inline=True)
 def _check_work(work, mm, n_mat):
     """A scratch shorter than ``n_mat`` ``mm x mm`` matrices and 9 ``mm``-vectors would corrupt
     the result, so it is an error. The scratch is then viewed as ``Ws`` ``(n_mat, mm, mm)``
@@ -315,7 +315,7 @@ def _check_work(work, mm, n_mat):
         raise ValueError("work array too short: see work_size(n) / solve_work_size(n)")
 
 
-@lane
+@lane(inline=True)
 def _all_finite(v):
     for i in range(v.size):
         if not math.isfinite(v.flat[i]):
@@ -323,7 +323,7 @@ def _all_finite(v):
     return True
 
 
-@lane
+@lane(inline=True)
 def _matmul(X, Y, out, trans_x=False, trans_y=False):
     """``out = op(X) @ op(Y)`` for small square matrices, ``op`` the transpose when asked
     (``out`` distinct from ``X`` and ``Y``)."""
@@ -336,7 +336,7 @@ def _matmul(X, Y, out, trans_x=False, trans_y=False):
             out[i, j] = s
 
 
-@lane
+@lane(inline=True)
 def _norm1(M):
     """Largest absolute column sum."""
     m = M.shape[0]
@@ -350,7 +350,7 @@ def _norm1(M):
     return best
 
 
-@lane
+@lane(inline=True)
 def _max_abs(M):
     best = 0.0
     for i in range(M.size):
@@ -360,7 +360,7 @@ def _max_abs(M):
     return best
 
 
-@lane
+@lane(inline=True)
 def _invert(M, Minv):
     """Gauss-Jordan inverse with partial pivoting; ``M`` is destroyed. False if singular."""
     m = M.shape[0]
@@ -399,7 +399,7 @@ def _invert(M, Minv):
 
 
 # ------------------------------------------------------------------------------ model
-@lane
+@lane(inline=True)
 def model_matrices(theta, form, A, b):
     """Write the canonical-form ``A`` (``n x n``) and ``b`` of ``theta = [a; b]``.
 
@@ -419,7 +419,7 @@ def model_matrices(theta, form, A, b):
             A[n - 1, j] = -theta[n - 1 - j]
 
 
-@lane
+@lane(inline=True)
 def _augment(A, b, integral, Ad, bd):
     """``(A_aug, b_aug)`` of the integral state ``xi(t+1) = xi(t) + r(t) - c x(t)`` (or a copy)."""
     n = A.shape[0]
@@ -437,7 +437,7 @@ def _augment(A, b, integral, Ad, bd):
 
 
 # ------------------------------------------------------------------------------ pole placement
-@lane
+@lane(inline=True)
 def _controllability(A, b, Ws, Vs):
     """Invert the column-normalised controllability matrix ``Ctrb / norms``.
 
@@ -481,7 +481,7 @@ def _controllability(A, b, Ws, Vs):
     return rcond
 
 
-@lane
+@lane(inline=True)
 def _ackermann_from_ctrb(A, alpha, K, Ws, Vs):
     """``K = e_m^T Ctrb^{-1} phi_d(A) = sum_k alpha_{m-k} w^T A^k`` with ``w`` the last row of
     ``Ctrb^{-1}`` (``phi_d(A)`` never formed: ``m`` row-vector/matrix products)."""
@@ -523,7 +523,7 @@ def ackermann_gain(A, b, alpha, K, work):
     return rcond
 
 
-@lane
+@lane(inline=True)
 def _steady_state(A, b, x_ss, Ws):
     n = A.shape[0]
     M = Ws[_M0, : n + 1, : n + 1]
@@ -562,7 +562,7 @@ def steady_state(A, b, x_ss, work):
     return _steady_state(A, b, x_ss, Ws)
 
 
-@lane
+@lane(inline=True)
 def _prepare(theta, form, integral, safe, Ws, Vs):
     """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
     builds ``A``, ``b`` and ``(A_aug, b_aug)`` in the work and leaves ``Ctrb^{-1}`` there.
@@ -588,7 +588,7 @@ def _prepare(theta, form, integral, safe, Ws, Vs):
     return OK, rcond
 
 
-@lane
+@lane(inline=True)
 def _finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
     """Feed-forward from the steady state, the gain bound, and the commit of ``gain``."""
     n = theta.size // 2
@@ -640,7 +640,7 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
 
 
 # ------------------------------------------------------------------------------ LQ
-@lane
+@lane(inline=True)
 def _lq_gain(A, b, rho, P, K):
     """``K = (rho + b^T P b)^{-1} b^T P A``; returns ``rho + b^T P b``."""
     m = A.shape[0]
@@ -659,7 +659,7 @@ def _lq_gain(A, b, rho, P, K):
     return s
 
 
-@lane
+@lane(inline=True)
 def _riccati_step(A, b, Q, rho, P, K, Acl, T):
     """``P <- Q + (A - b K)^T P (A - b K) + rho K^T K`` with ``K`` the gain of ``P`` (the
     Joseph form of the Riccati difference equation: stays symmetric positive semidefinite)."""
@@ -681,7 +681,7 @@ def _riccati_step(A, b, Q, rho, P, K, Acl, T):
             P[i, j] = P[j, i]
 
 
-@lane
+@lane(inline=True)
 def _weight_matrix(n, integral, weights, Q):
     m = Q.shape[0]
     for i in range(m):
@@ -731,7 +731,7 @@ def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     return _finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 
-@lane
+@lane(inline=True)
 def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
     """Every root of ``det(zI - A + b K)`` strictly inside the unit circle.
 
@@ -843,7 +843,7 @@ def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
 
 
-@lane
+@lane(inline=True)
 def _augmented_characteristic(theta, integral, out):
     """``[c_1..c_m]`` of ``det(zI - A_aug) = (z^n + a_1 z^{n-1} + ... + a_n)(z - 1)`` (both
     canonical forms: ``A_aug`` is block triangular), or ``a`` itself without integral action."""
@@ -901,7 +901,7 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
 
 
 # ------------------------------------------------------------------------------ tracking law
-@lane
+@lane(inline=True)
 def track(gain, law, x, y, r, excitation, action_bound, integral, anti_windup):
     """``u(t) = sat(-K_x x(t) - k_i xi(t) + N r(t) + e(t))``; advances ``xi`` to ``xi(t+1)``.
 
@@ -933,7 +933,7 @@ def track(gain, law, x, y, r, excitation, action_bound, integral, anti_windup):
 
 
 # ------------------------------------------------------------------------------ Kalman filter
-@lane
+@lane(inline=True)
 def filtered_state(x, P1, R, y, x_filt):
     """The current estimate ``x(t|t) = x(t|t-1) + P1 c^T (y - c x(t|t-1)) / (R + c P1 c^T)`` of
     the seed paper's Kalman filter (eq. (66)-(72), ``c = e_1``); returns the innovation. The

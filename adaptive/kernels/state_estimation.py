@@ -51,7 +51,7 @@ __all__ = [
 ]
 
 
-@lane
+@lane(inline=True)
 def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> None:
     """Write ``A_hat(t)`` of the canonical form into ``A`` (n, n); see the module docstring."""
     for i in range(n):
@@ -67,7 +67,7 @@ def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> N
             A[i, 0] = -theta[i]
 
 
-@lane
+@lane(inline=True)
 def observer_step(
     A: NDArray,
     b: NDArray,
@@ -91,7 +91,7 @@ def observer_step(
         x_next[i] = acc
 
 
-@lane
+@lane(inline=True)
 def kalman_step(
     A: NDArray,
     b: NDArray,
@@ -148,7 +148,7 @@ def kalman_step(
     return 0
 
 
-@lane
+@lane(inline=True)
 def advance_regressor(
     phi: NDArray, xs: NDArray, x: NDArray, u: float, n: int, observability: bool
 ) -> None:
@@ -170,7 +170,7 @@ def advance_regressor(
         phi[0] = -x[0]
 
 
-@lane
+@lane(inline=True)
 def is_schur_stable(a: NDArray, n: int, c: NDArray) -> bool:
     """Schur-Cohn / Jury step-down test of ``z^n + a_1 z^{n-1} + ... + a_n``: stable iff every
     reflection coefficient ``k_m`` satisfies ``|k_m| < 1`` (False for NaN).
