@@ -525,9 +525,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
                 theta = self.user_theta.copy()
         self.plant = spec
         if not self.has_user_schedule:
-            self.schedule = (self.catalogue_schedule(spec) if spec else None) or make_schedule(
-                None
-            )
+            self.schedule = (self.catalogue_schedule(spec) if spec else None) or make_schedule(None)
         return theta
 
     def _matrices(self, params: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 import pickle
 
 import control
@@ -13,6 +14,7 @@ import pytest
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.controller import SelfTuningController
 from stcgym.adaptive.oracles import KnownModelController, LQGController
+from stcgym.adaptive.rollout import rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import companion_A
 
@@ -50,10 +52,12 @@ def _hash32(x: int) -> int:
 
 
 def _reference_run(
-    a, b, seed, steps, noise, probe=0.5, p0=300.0, q=0.01, q0=1e-6, R=10.0, pole=0.5
-):
+    a, b, seed, steps, noise, probe=0.5, p0=300.0, q=0.01, q0=1e-6, R=10.0, pole=0.5, level=0.5,
+    max_probe=None,
+):  # fmt: skip
     """The controller's equations in dense numpy (ELS, Kalman filter, python-control's acker on
-    the integral-augmented model, steady-state feed-forward, saturation, anti-windup)."""
+    the integral-augmented model, steady-state feed-forward, saturation, anti-windup, the probe
+    scaled by the largest output seen and extended while that stays below ``level``)."""
     n = len(a)
     d = 3 * n
     theta, P, phi = np.zeros(d), p0 * np.eye(d), np.zeros(d)
@@ -63,6 +67,8 @@ def _reference_run(
     xp = np.zeros(n)
     us = []
     y = noise[0]
+    max_probe = 5 * n if max_probe is None else max_probe
+    closed, ymax = False, 0.0
     for t in range(steps):
         r = 1.0 if (t % 100) < 50 else -1.0
         e = y - phi @ theta
@@ -87,10 +93,15 @@ def _reference_run(
                 K, N, has = Kc, Nc, True
         sden = R + P1[0, 0]
         xf = x + P1[:, 0] / sden * (y - x[0])
-        if t < 2 * n or not has:
+        if not closed:
+            ymax = max(ymax, abs(y))
+        probing = not closed and (t < 2 * n or (t < max_probe and ymax < level))
+        if probing or not has:
             h = _hash32(_hash32(_hash32(seed) ^ 0) ^ t)
-            u = probe * (1.0 if (h >> 7) & 1 else -1.0)
+            amp = probe * (level / ymax if ymax > level else 1.0)
+            u = amp * (1.0 if (h >> 7) & 1 else -1.0)
         else:
+            closed = True
             v = N * r - K[:n] @ xf - K[n] * xi
             u = float(np.clip(v, -10, 10))
             if not (u != v and (-K[n] * (r - y)) * v > 0):
@@ -121,15 +132,87 @@ def _lane_run(ctl, a, b, steps, noise):
     return np.array(us)
 
 
-def test_lane_step_matches_dense_numpy_reference() -> None:
+@pytest.mark.parametrize(
+    ("gain", "startup"),
+    [
+        (1.0, {}),  # stable2: the probe is scaled down once |y| > 0.5
+        (4.0, {}),  # high gain: scaled down from the first response on
+        (0.02, {}),  # low gain: |y| stays below 0.5, the probe runs on to 5n
+        (0.02, {"probe_output": 0.2, "max_probe_steps": 7}),
+    ],
+)
+def test_lane_step_matches_dense_numpy_reference(gain: float, startup: dict) -> None:
     steps = 60
+    b = tuple(gain * v for v in B_S2)
     noise = np.random.default_rng(0).standard_normal(steps + 1)
-    ctl = SelfTuningController(2, seed=5)
+    ctl = SelfTuningController(2, seed=5, startup=startup)
     ctl._G[:, 1] = -1  # episode 0 after the reset below, as in the reference
     ctl.reset()
-    got = _lane_run(ctl, A_S2, B_S2, steps, noise)
-    ref = _reference_run(A_S2, B_S2, 5, steps, noise)
+    got = _lane_run(ctl, A_S2, b, steps, noise)
+    kw = {"level": startup.get("probe_output", 0.5), "max_probe": startup.get("max_probe_steps")}
+    ref = _reference_run(A_S2, b, 5, steps, noise, **kw)
     np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-9)
+
+
+def _probe_run(b: tuple[float, float], steps: int = 30, **kw: object) -> tuple:
+    """Inputs, outputs and the closing step of one controller on stable2's poles with ``b``."""
+    ctl = SelfTuningController(2, seed=3, **kw)
+    noise = np.random.default_rng(1).standard_normal(steps + 1)
+    A, bb = companion_A(np.array(A_S2)), np.array(b)
+    x, y, us, ys = np.zeros(2), 0.05 * noise[0], [], []
+    for t in range(steps):
+        ys.append(y)
+        u = float(ctl.predict(np.array([y, 1.0]))[0][0])
+        us.append(u)
+        x = A @ x + bb * u
+        y = x[0] + 0.05 * noise[t + 1]
+    return np.array(us), np.array(ys), int(ctl.diagnostics["closed_at"])
+
+
+def test_probe_is_bounded_by_the_observed_output() -> None:
+    # high gain (DC gain 30): the loop closes at 2n, and every probe input is scaled so that
+    # |u(t)| * max|y(0..t)| <= probe_amplitude * probe_output
+    us, ys, closed = _probe_run((4.0, 2.0))
+    assert closed == 4
+    ymax = np.maximum.accumulate(np.abs(ys[:4]))
+    assert ymax[-1] > 0.5
+    np.testing.assert_array_less(np.abs(us[:4]) * np.maximum(ymax, 0.5), 0.25 + 1e-12)
+    assert np.all(np.abs(us[:4]) <= 0.5)
+    # low gain (DC gain 0.15): |y| stays below 0.5, the probe runs on to 5n = 10 samples
+    us, ys, closed = _probe_run((0.02, 0.01))
+    assert closed == 10 and np.all(np.abs(us[:10]) == 0.5)
+    assert np.max(np.abs(ys[:10])) < 0.5
+    # the former fixed probe: 2n samples of +-probe_amplitude whatever the output
+    fixed = {"probe_output": math.inf, "max_probe_steps": 0}
+    us, _, closed = _probe_run((4.0, 2.0), startup=fixed)
+    assert closed == 4 and np.all(np.abs(us[:4]) == 0.5)
+    us, _, closed = _probe_run((4.0, 2.0), startup={"probe_output": math.inf})
+    assert closed == 10 and np.all(np.abs(us[:10]) == 0.5)
+    us, _, closed = _probe_run((0.02, 0.01), startup={"max_probe_steps": 0})
+    assert closed == 4
+
+
+def test_lq_design_near_the_lqg_oracle_after_the_start() -> None:
+    # the LQ weights are the env's cost (as LQGController's) plus a small integrator weight:
+    # after the start-up the self-tuning LQ loop costs close to the LQG oracle
+    spec = PLANTS["nonminphase2"]  # with q_i = 1e-2 (the former weight) this ratio is 1.2
+    T, B = 600, 4
+    ref = np.array([1.0 if (k % 100) < 50 else -1.0 for k in range(T + 1)])
+    z = np.random.default_rng(2).standard_normal((B, T + 1))
+    ctl = SelfTuningController(2, num_envs=B, seed=0, design="lq")
+    c = rollout(ctl, np.tile(spec.theta, (B, 1)), T, reference=ref, z=z, window=100).cost
+    A, b = companion_A(np.array(spec.a)), np.array(spec.b)
+    oracle = np.zeros((B, T // 100))
+    for i in range(B):
+        lqg = LQGController(spec.a, spec.b, noise_std=0.05)
+        x, y = np.zeros(2), 0.05 * z[i, 0]
+        for k in range(T):
+            u = float(np.clip(lqg.predict(np.array([y, ref[k]]))[0][0], -10, 10))
+            x = A @ x + b * u
+            oracle[i, k // 100] += (x[0] - ref[k + 1]) ** 2 + 0.01 * u * u
+            y = x[0] + 0.05 * z[i, k + 1]
+    ratio = c[:, 2:].sum() / oracle[:, 2:].sum()
+    assert 0.95 < ratio < 1.08
 
 
 # ----------------------------------------------------------------------------- closed loop
@@ -253,6 +336,8 @@ def test_pickle_and_deepcopy_continue_identically(num_envs: int | None) -> None:
         ({"estimator_options": {"p0": 0.0}}, "p0"),
         ({"estimator_options": {"forgetting": 1.5}}, "forgetting"),
         ({"startup": {"probe_amplitude": -1}}, "probe_amplitude"),
+        ({"startup": {"probe_output": 0.0}}, "probe_output"),
+        ({"startup": {"max_probe_steps": -1}}, "max_probe_steps"),
         ({"change_detection": {"threshold": 0.5}}, "threshold"),
         ({"change_detection": {"nonsense": 1}}, "change_detection"),
         ({"law": {"lq_weights": (1.0, 0.0)}}, "lq_weights"),

@@ -265,7 +265,8 @@ def test_lq_solve_ill_conditioned_but_stabilisable() -> None:
     theta = np.array([-3.0, 2.0, 1.0, -2.0 + 1e-3])
     weights = np.array(d.DEFAULT_LQ_WEIGHTS)
     _, _, Ad, bd = _models(theta, "observer", True)
-    K_ref, _, E = control.dlqr(Ad, bd[:, None], np.diag([1.0, 0.0, 1e-2]), [[1e-2]])
+    q_y, q_i, rho = weights
+    K_ref, _, E = control.dlqr(Ad, bd[:, None], np.diag([q_y, 0.0, q_i]), [[rho]])
     assert np.abs(E).max() < 1
     gain = np.zeros(d.gain_size(2))
     P = np.zeros((3, 3))

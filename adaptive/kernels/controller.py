@@ -22,7 +22,12 @@ Every step, in this order:
 5. **control**: for the first ``probe_steps`` samples (default ``2n``), or while no design has
    been accepted, a small zero-mean probe ``+-probe_amplitude`` whose signs come from a
    counter-based hash of ``(seed, episode, t)`` (reproducible per lane and per episode, never the
-   same sequence for every episode or lane); afterwards the tracking law
+   same sequence for every episode or lane). The probe is bounded by the observed output: with
+   ``y_max = max |y|`` seen so far, its amplitude is ``probe_amplitude * min(1, probe_output /
+   y_max)`` (a high-gain or unstable plant is probed gently), and it runs on past
+   ``probe_steps``, up to ``max_probe_steps`` (default ``5n``), while ``y_max < probe_output`` (a
+   low-gain plant whose response is still buried in the noise gets more data before the first
+   design is trusted). Afterwards the tracking law
    ``u = sat(N r - K_x x(t|t) - k_i xi)`` with conditional-integration anti-windup
    (``design.track``);
 6. **process noise and state step**: ``Q(t)`` from the parameter covariance (the model error a
@@ -64,9 +69,9 @@ FLOAT_FIELDS = (
 )  # fmt: skip
 (O_EST, O_X, O_XN, O_P1, O_Q, O_L1, O_XF, O_GAIN, O_LAW, O_PLQ, O_A, O_B, O_WORK,
  O_MISC) = range(14)  # fmt: skip
-# misc floats (relative to off[O_MISC])
-M_EWS, M_EWL, M_U, M_E = range(4)
-N_MISC = 4
+# misc floats (relative to off[O_MISC]); M_YMAX: largest |y| seen while probing
+M_EWS, M_EWL, M_U, M_E, M_YMAX = range(5)
+N_MISC = 5
 # int record
 I_T, I_EPISODE, I_SEED, I_N_REJECTED, I_N_ALARMS, I_N_SATURATED = range(6)
 I_CLOSED_T, I_LAST_ALARM, I_LAST_REASON, I_N_PROBE, I_EST_STATUS, I_N_KF_RESETS = range(6, 12)
@@ -76,23 +81,37 @@ C_ACTION_BOUND, C_PROBE, C_Q_GAIN, C_Q_FLOOR, C_R, C_THRESHOLD, C_INFLATION = ra
 C_P0, C_LAMBDA, C_EW_SHORT, C_EW_LONG = range(7, 11)
 C_SAFE = 11  # 4 values: b_min, rcond_min, dc_rcond_min, gain_max
 C_WEIGHTS = 15  # 3 values: q_y, q_i, rho
-C_ALPHA = 18
+C_PROBE_OUTPUT = 18  # output level that scales the probe down and ends it early
+C_ALPHA = 19
 # int config (``ci``)
 K_N, K_INTEGRAL, K_FEEDFORWARD, K_ANTI_WINDUP, K_FILTERED, K_PROBE_STEPS = range(6)
 K_DESIGN, K_DETECT, K_HOLDOFF, K_EST, K_FORM, K_D = range(6, 12)
 K_TH, K_S, K_E, K_EQ = range(12, 16)  # paper estimator: offsets of theta, S, E, Q in the record
-K_ELS = 16  # ELS: offsets (absolute) of theta, P, phi, scratch: 4 values
-N_KCFG = 20
+K_ELS = 16  # ELS: offsets (absolute) of theta, S, phi, scratch: 4 values
+K_PROBE_MAX = 20  # longest probe (samples) while the output stays below the probe level
+N_KCFG = 21
 # estimator kinds and design kinds
 PAPER, ELS = 0, 1
 POLE_PLACEMENT, LQ = 0, 1
 
 
-def controller_layout(n: int, est_size: int) -> tuple[Layout, np.ndarray]:
-    """Float record of one lane (the estimator's record first) and its offsets array."""
+def controller_layout(
+    n: int, est_size: int, est_scratch: int = 0, lq: bool = True
+) -> tuple[Layout, np.ndarray]:
+    """Float record of one lane (the estimator's record first) and its offsets array.
+
+    ``est_scratch``: the number of floats at the end of the estimator's record that are pure
+    scratch (its ``work`` field). The controller's own scratch (design and Kalman step) starts
+    there and only the part that does not fit is added: the estimator's steps and the design
+    never run at the same time, and sharing the scratch keeps a lane small (memory per plant
+    is what limits a sweep). ``lq=False`` leaves out the Riccati matrix of ``design="lq"``.
+    """
     m = n + 1
+    need = max(dz.work_size(n), 2 * n * n)
     lay = Layout()
     lay.add("est", (est_size,))
+    lay.add("work", (max(need - est_scratch, 0),))  # continues the estimator's scratch
+    lay.add("misc", (N_MISC,))  # directly after "work": the scratch ends at off[O_MISC]
     lay.add("x", (n,))
     lay.add("x_next", (n,))
     lay.add("P1", (n, n))
@@ -101,16 +120,16 @@ def controller_layout(n: int, est_size: int) -> tuple[Layout, np.ndarray]:
     lay.add("xf", (n,))
     lay.add("gain", (dz.gain_size(n),))
     lay.add("law", (dz.LAW_SIZE,))
-    lay.add("P_lq", (m, m))
+    lay.add("P_lq", (m, m) if lq else (0,))
     lay.add("A", (n, n))
     lay.add("b", (n,))
-    lay.add("work", (max(dz.work_size(n), 2 * n * n),))
-    lay.add("misc", (N_MISC,))
-    return lay, lay.offsets(FLOAT_FIELDS)
+    off = lay.offsets(FLOAT_FIELDS)
+    off[O_WORK] -= min(est_scratch, need)  # the scratch is f[off[O_WORK] : off[O_MISC]]
+    return lay, off
 
 
 # ---------------------------------------------------------------------------------- probe
-@lane
+@lane(inline=True)
 def hash32(x):
     """32-bit integer hash (``lowbias32``, C. Wellons): a counter-based random generator."""
     x = x & 0xFFFFFFFF
@@ -122,7 +141,7 @@ def hash32(x):
     return x
 
 
-@lane
+@lane(inline=True)
 def probe_sign(seed, episode, t):
     """``+-1`` from ``hash(seed, episode, t)``: a fresh, reproducible sequence per lane/episode."""
     h = hash32(hash32(hash32(seed) ^ (episode & 0xFFFFFFFF)) ^ (t & 0xFFFFFFFF))
@@ -130,13 +149,11 @@ def probe_sign(seed, episode, t):
 
 
 # ------------------------------------------------------------------------ parameter covariance
-@lane
+@lane(inline=True)
 def covariance_entry(f, ci, i, j):
-    """``P_ij`` of the estimator (ELS: stored; paper rules: ``(S S^T)_ij``, 0 for SG/MISG)."""
+    """``P_ij = (S S^T)_ij`` of the estimator's square-root factor (0 for SG/MISG)."""
     d = ci[K_D]
-    if ci[K_EST] == ELS:
-        return f[ci[K_ELS + 1] + i * d + j]
-    o = ci[K_S]
+    o = ci[K_ELS + 1] if ci[K_EST] == ELS else ci[K_S]
     if o < 0:
         return 0.0
     acc = 0.0
@@ -145,21 +162,19 @@ def covariance_entry(f, ci, i, j):
     return acc
 
 
-@lane
+@lane(inline=True)
 def inflate_covariance(f, ci, factor):
-    """``P <- factor P`` (covariance resetting on a detected change)."""
+    """``P <- factor P`` (covariance resetting on a detected change): ``S <- sqrt(factor) S``."""
     d = ci[K_D]
-    if ci[K_EST] == ELS:
-        o, scale = ci[K_ELS + 1], factor
-    else:
-        o, scale = ci[K_S], math.sqrt(factor)
-        if o < 0:
-            return
+    o = ci[K_ELS + 1] if ci[K_EST] == ELS else ci[K_S]
+    if o < 0:
+        return
+    scale = math.sqrt(factor)
     for i in range(d * d):
         f[o + i] *= scale
 
 
-@lane
+@lane(inline=True)
 def process_noise(f, ci, n, y, u, q, q_floor, Q):
     """``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + q_floor I``.
 
@@ -251,8 +266,16 @@ def controller_step(f, g, off, cf, ci, ecf, eci, y, r):
     # -- 5. control: the probe while the loop is open, then the tracking law
     bound = cf[C_ACTION_BOUND]
     law = f[off[O_LAW] : off[O_LAW] + dz.LAW_SIZE]
-    if t < ci[K_PROBE_STEPS] or gain[n + 2] <= 0.0:
-        u = min(max(cf[C_PROBE] * probe_sign(g[I_SEED], g[I_EPISODE], t), -bound), bound)
+    level = cf[C_PROBE_OUTPUT]
+    open_loop = g[I_CLOSED_T] < 0
+    if open_loop:
+        f[mi + M_YMAX] = max(f[mi + M_YMAX], abs(y))
+    ymax = f[mi + M_YMAX]
+    probing = open_loop and (t < ci[K_PROBE_STEPS] or (t < ci[K_PROBE_MAX] and ymax < level))
+    if probing or gain[n + 2] <= 0.0:
+        # the probe is scaled down once the output exceeds the probe level
+        amp = cf[C_PROBE] * (level / ymax if ymax > level else 1.0)
+        u = min(max(amp * probe_sign(g[I_SEED], g[I_EPISODE], t), -bound), bound)
         g[I_N_PROBE] += 1
         law[1] = 0.0
     else:

@@ -9,10 +9,13 @@ and with ``theta = [a_1..a_n, b_1..b_n, c_1..c_n]``,
 
     phi(t) = [-y(t-1), ..., -y(t-n), u(t-1), ..., u(t-n), eps(t-1), ..., eps(t-n)],
     e(t)   = y(t) - phi(t)^T theta(t-1)                 (innovation, prior residual)
-    L(t)   = P(t-1) phi(t) / (lambda + phi(t)^T P(t-1) phi(t))
-    theta(t) = theta(t-1) + L(t) e(t)
-    P(t)   = (P(t-1) - L(t) phi(t)^T P(t-1)) / lambda
+    theta(t), P(t): one recursive least-squares step on (phi(t), y(t)) with forgetting lambda
     eps(t) = y(t) - phi(t)^T theta(t)                   (posterior residual, ELS)
+
+The least-squares step is the project's one implementation of RLS,
+:func:`~stcgym.adaptive.kernels.least_squares.least_squares_step` (square-root form ``P = S
+S^T``, Carlson's update; Ding & Ma 2014 eq. (32)-(36) on this regressor): ELS differs from the
+paper's RLS only in its regressor.
 
 The regressor is built from *measured* outputs and inputs (plus the residuals standing in for
 the unmeasured noise), so unlike the seed paper's estimators, whose regressors are state
@@ -20,105 +23,89 @@ estimates that are only as good as the current parameters, it needs no good init
 stays consistent when ``u`` is a feedback of ``y``. ``with_c = 0`` drops the ``c`` block: plain
 equation-error RLS (ARX), biased by output noise.
 
-The lane record (:func:`extended_ls_layout`): ``theta`` (``d``), ``P`` (``d x d``), ``phi``
-(``d``) and ``scratch`` (``d``), ``d = 2n`` or ``3n``; the estimate is always in the observer
-canonical form (the controller designs on it; it converts to the env's form for display).
+The lane record (:func:`extended_ls_layout`): ``theta`` (``d``), ``S`` (``d x d``, the upper
+factor of ``P``), ``phi`` (``d``) and ``scratch`` (``3 d + 2``), ``d = 2n`` or ``3n``; the
+estimate is always in the observer canonical form (the controller designs on it; it converts to
+the env's form for display).
 """
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
+from stcgym.adaptive.kernels.least_squares import OK, least_squares_step
+from stcgym.adaptive.kernels.records import view2d
 from stcgym.envs.compiled import Layout, lane
 
 __all__ = ["extended_ls_layout", "extended_ls_reset", "extended_ls_update", "extended_ls_push"]
 
-# offsets array indices
-THETA, P, PHI, SCRATCH = 0, 1, 2, 3
+# offsets array indices (``S``: the upper-triangular factor of ``P = S S^T``)
+THETA, S, PHI, SCRATCH = 0, 1, 2, 3
 
 
 def extended_ls_layout(n: int, with_c: bool) -> Layout:
-    """Record of one lane: ``theta``, ``P``, ``phi``, ``scratch``; ``d = 3n`` (``2n`` without c)."""
+    """Record of one lane: ``theta``, ``S``, ``phi``, ``scratch``; ``d = 3n`` (``2n`` without c)."""
     d = (3 if with_c else 2) * n
     lay = Layout()
     lay.add("theta", (d,))
-    lay.add("P", (d, d))
+    lay.add("S", (d, d))
     lay.add("phi", (d,))
-    lay.add("scratch", (d,))
+    lay.add("scratch", (3 * d + 2,))  # least_squares_step's work (p = 1) and y(t)
     return lay
 
 
-@lane
+@lane(inline=True)
 def extended_ls_reset(f, off, d, p0):
-    """``theta(0) = 0``, ``P(0) = p0 I``, ``phi(1) = 0`` (every signal zero before t = 1)."""
+    """``theta(0) = 0``, ``P(0) = p0 I`` (``S = sqrt(p0) I``), ``phi(1) = 0`` (every signal zero
+    before t = 1)."""
     for i in range(d):
         f[off[THETA] + i] = 0.0
         f[off[PHI] + i] = 0.0
-    P0 = off[P]
-    for i in range(d * d):
-        f[P0 + i] = 0.0
-    for i in range(d):
-        f[P0 + i * d + i] = p0
+    extended_ls_restart(f, off, d, p0)
 
 
-@lane
+@lane(inline=True)
 def extended_ls_update(f, off, d, y, lam, p0):
     """Measurement step with ``y(t)``: ``theta(t)``, ``P(t)``; returns ``(e(t), eps(t))``.
 
-    A non-positive or non-finite denominator, or a non-finite update, restarts ``P`` at
-    ``p0 I`` and keeps ``theta`` (returns the prior residual for both).
+    A failed least-squares step (non-positive or non-finite denominator, unhealthy factor,
+    non-finite update: ``least_squares_step`` leaves ``theta`` untouched) or a non-finite
+    innovation restarts ``P`` at ``p0 I`` and keeps ``theta`` (returns the prior residual for
+    both).
     """
-    th = off[THETA]
-    Pk = off[P]
-    ph = off[PHI]
-    g = off[SCRATCH]
-    e = y
-    for i in range(d):
-        e -= f[ph + i] * f[th + i]
-    s = lam
-    for i in range(d):
-        acc = 0.0
-        for j in range(d):
-            acc += f[Pk + i * d + j] * f[ph + j]
-        f[g + i] = acc
-        s += f[ph + i] * acc
-    if not (s > 0.0 and np.isfinite(s) and np.isfinite(e)):
+    theta = f[off[THETA] : off[THETA] + d]
+    S_ = view2d(f, off[S], d, d)
+    Phi = view2d(f, off[PHI], 1, d)  # the regressor as the one row of Phi (p = 1)
+    work = f[off[SCRATCH] : off[SCRATCH] + 3 * d + 1]
+    Y = f[off[SCRATCH] + 3 * d + 1 : off[SCRATCH] + 3 * d + 2]  # y(t) as a 1-block, after it
+    Y[0] = y
+    if not math.isfinite(y) or least_squares_step(theta, S_, Phi, Y, lam, work) != OK:
+        e = y
+        for i in range(d):
+            e -= Phi[0, i] * theta[i]
         extended_ls_restart(f, off, d, p0)
         return e, e
-    inv_s = 1.0 / s
-    inv_lam = 1.0 / lam
-    for i in range(d):
-        f[th + i] += f[g + i] * inv_s * e
-    for i in range(d):
-        gi = f[g + i] * inv_s
-        for j in range(i, d):
-            v = (f[Pk + i * d + j] - gi * f[g + j]) * inv_lam
-            f[Pk + i * d + j] = v
-            f[Pk + j * d + i] = v
+    e = work[2 * d]  # the innovation E(1, t) with theta(t-1), left there by the step
     eps = y
-    ok = True
     for i in range(d):
-        eps -= f[ph + i] * f[th + i]
-        if not np.isfinite(f[th + i]):
-            ok = False
-    if not ok:
-        extended_ls_restart(f, off, d, p0)
-        return e, e
+        eps -= Phi[0, i] * theta[i]
     return e, eps
 
 
-@lane
+@lane(inline=True)
 def extended_ls_restart(f, off, d, p0):
-    """``P = p0 I`` (numerical trouble); a non-finite ``theta`` goes back to zero."""
-    Pk = off[P]
+    """``P = p0 I`` (numerical trouble; ``S = sqrt(p0) I``); a non-finite ``theta`` goes back to
+    zero."""
+    o = off[S]
+    root = math.sqrt(p0)
     for i in range(d):
-        if not np.isfinite(f[off[THETA] + i]):
+        if not math.isfinite(f[off[THETA] + i]):
             f[off[THETA] + i] = 0.0
         for j in range(d):
-            f[Pk + i * d + j] = p0 if i == j else 0.0
+            f[o + i * d + j] = root if i == j else 0.0
 
 
-@lane
+@lane(inline=True)
 def extended_ls_push(f, off, n, d, y, u, eps):
     """Shift ``y(t)``, ``u(t)``, ``eps(t)`` into the regressor: it becomes ``phi(t+1)``."""
     ph = off[PHI]
