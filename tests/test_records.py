@@ -1,0 +1,93 @@
+"""Lane-record views and the no-allocation rule of lane functions (stcgym.envs.compiled)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
+from stcgym.adaptive.kernels.state_estimation import is_schur_stable
+from stcgym.envs.compiled import lane
+
+
+@lane
+def _write_through_views(a, offset, count, rows, cols):
+    """Write k * 1000 + i * 10 + j through view3d and read it back through view2d."""
+    M = view3d(a, offset, count, rows, cols)
+    for k in range(count):
+        for i in range(rows):
+            for j in range(cols):
+                M[k, i, j] = k * 1000.0 + i * 10.0 + j
+    total = 0.0
+    for k in range(count):
+        V = view2d(a, offset + k * rows * cols, rows, cols)
+        for i in range(rows):
+            for j in range(cols):
+                total += V[i, j]
+    return total
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.integers(0, 5), st.integers(1, 3), st.integers(1, 4), st.integers(1, 4), st.integers(0, 3)
+)
+def test_compiled_views_are_the_numpy_reshape(offset, count, rows, cols, tail):
+    size = offset + count * rows * cols + tail
+    a = np.full(size, -1.0)
+    total = _write_through_views(a, offset, count, rows, cols)
+    expected = np.fromfunction(lambda k, i, j: k * 1000.0 + i * 10.0 + j, (count, rows, cols))
+    # the compiled views wrote exactly the C-ordered block at offset, nothing around it
+    np.testing.assert_array_equal(
+        a[offset : offset + count * rows * cols].reshape(count, rows, cols), expected
+    )
+    assert np.all(a[:offset] == -1.0) and np.all(a[offset + count * rows * cols :] == -1.0)
+    assert total == expected.sum()
+    # the uncompiled definitions are numpy's reshape of the same block
+    np.testing.assert_array_equal(view3d(a, offset, count, rows, cols), expected)
+
+
+def test_copies_write_every_entry():
+    src = np.arange(12.0).reshape(3, 4)
+    dst = np.zeros((3, 4))
+    copy_matrix(src, dst)
+    np.testing.assert_array_equal(dst, src)
+    v = np.zeros(5)
+    copy_vector(np.arange(5.0), v)
+    np.testing.assert_array_equal(v, np.arange(5.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-2.5, 2.5), min_size=1, max_size=6))
+def test_schur_test_in_place_matches_roots(coeffs):
+    a = np.array(coeffs)
+    roots = np.abs(np.roots(np.r_[1.0, a]))
+    if np.any(np.abs(roots - 1.0) < 1e-6):
+        return  # on the unit circle: either answer is rounding
+    expected = bool(np.all(roots < 1.0))
+    scratch = np.empty(a.size)
+    assert is_schur_stable(a, a.size, scratch) == expected
+    # with the scratch being the coefficients themselves (allowed when they may be destroyed)
+    assert is_schur_stable(a.copy(), a.size, a.copy()) == expected
+    b = a.copy()
+    assert is_schur_stable(b, b.size, b) == expected
+
+
+def test_a_lane_function_that_allocates_does_not_compile():
+    """Lane functions run without numba's reference counting: an allocation is a compile
+    error, not a silent slowdown (``lane(allocates=True)`` is the documented opt-out)."""
+
+    @lane
+    def allocating(n):
+        return np.zeros(n).sum()
+
+    with pytest.raises(numba.core.errors.NumbaError):
+        allocating(3)
+
+    @lane(allocates=True)
+    def allowed(n):
+        return np.zeros(n).sum() + n
+
+    assert allowed(3) == 3.0
