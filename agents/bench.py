@@ -145,7 +145,7 @@ class BenchConfig:
     family_test: list[str] = field(default_factory=lambda: ["lightly_damped2", "nonminphase2"])
     jumps: list[str] = field(default_factory=lambda: ["timevarying2"])
     agents: list[str] = field(
-        default_factory=lambda: ["ppo", "sac", "rppo", "stc", "oracle", "lqg"]
+        default_factory=lambda: ["ppo", "sac", "rppo", "stc", "stc_lq", "oracle", "lqg"]
     )
     train_steps: dict[str, int] = field(default_factory=dict)
     train_seeds: int = 3
@@ -205,7 +205,7 @@ QUICK = dict(
     mode="quick",
     plants=["stable2"],
     jumps=["timevarying2"],
-    agents=["ppo", "sac", "rppo", "stc", "oracle", "lqg"],
+    agents=["ppo", "sac", "rppo", "stc", "stc_lq", "oracle", "lqg"],
     train_seeds=3,
     seeds=5,
     episode_steps=1000,
@@ -214,7 +214,7 @@ FULL = dict(
     mode="full",
     plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4"],
     jumps=["timevarying2", "stable2:unstable2"],
-    agents=["ppo", "sac", "td3", "a2c", "rppo", "stc", "oracle", "lqg"],
+    agents=["ppo", "sac", "td3", "a2c", "rppo", "stc", "stc_lq", "oracle", "lqg"],
     train_seeds=5,
     seeds=20,
     episode_steps=2000,
@@ -939,8 +939,8 @@ class _RunState:
     def _classical(self, sc: Scenario, name: str) -> None:
         cfg = self.cfg
         info = CONTROLLERS[name]
-        # the controller with random parts (the probe) takes the episode's seed
-        seeded = name == "stc" and stc_takes_seed()
+        # the self-tuning controllers (random probe) take the episode's seed
+        seeded = info.kind == "adaptive" and stc_takes_seed()
 
         def on_episode(ep: Episode, metrics: dict[str, float]) -> None:
             if name == "oracle":
@@ -964,7 +964,7 @@ class _RunState:
             cfg.eval_seeds,
             plant=sc.plant,
             on_episode=on_episode,
-            record_theta=name == "stc",
+            record_theta=info.kind == "adaptive",
         )
 
     def _references(self, key: str, curve_spec: EnvSpec, progress: JobProgress) -> None:

@@ -2,9 +2,10 @@
 
 ``CONTROLLERS[name].build(cfg, scenario)`` gives a policy factory ``factory(plant, seed)`` (the
 protocol of :func:`stcgym.agents.evaluate.evaluate`): ``stc`` (the self-tuning controller with
-its defaults and the episode's seed), ``oracle`` (the known-model controller, told the new
-parameters at a jump) and ``lqg`` (LQG on the true pre-jump parameters). Tests may register
-more.
+its defaults and the episode's seed), ``stc_lq`` (the same with the self-tuning LQ design,
+``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``), ``oracle``
+(the known-model controller, told the new parameters at a jump) and ``lqg`` (LQG on the true
+pre-jump parameters). Tests may register more.
 """
 
 from __future__ import annotations
@@ -82,6 +83,21 @@ def _stc(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
     return factory
 
 
+def _stc_lq(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    from stcgym.adaptive import LawOptions, SelfTuningController
+    from stcgym.adaptive.kernels.design import DEFAULT_LQ_WEIGHTS
+
+    # the LQ weights are the bench's own cost, as LQGController's (q_i keeps the integrator)
+    law = LawOptions(lq_weights=(1.0, DEFAULT_LQ_WEIGHTS[1], float(cfg.control_cost)))
+
+    def factory(plant: Any, seed: int) -> Any:
+        return SelfTuningController(
+            plant.n, design="lq", law=law, action_bound=cfg.action_bound, seed=int(seed)
+        )
+
+    return factory
+
+
 def _oracle(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
     from stcgym.adaptive import KnownModelController
 
@@ -109,6 +125,7 @@ def _lqg(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
 #: Classical controllers by name (tests may register more).
 CONTROLLERS: dict[str, ControllerInfo] = {
     "stc": ControllerInfo("adaptive", _stc, True, "self-tuning controller (defaults)"),
+    "stc_lq": ControllerInfo("adaptive", _stc_lq, True, "self-tuning LQ (design='lq')"),
     "oracle": ControllerInfo(
         "oracle", _oracle, False, "known-model controller (regulator's design, true parameters)"
     ),

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from stcgym.agents.controllers import CONTROLLERS
 from stcgym.agents.evaluate import default_windows, summarize
 from stcgym.agents.statistics import Estimate, interval_estimates, probability_of_improvement
 
@@ -133,10 +134,12 @@ def headline(
     costs = {
         c: data[c][:, extra[c]["cols"].index("cost")] for c in data if "cost" in extra[c]["cols"]
     }
-    poi = (
-        probability_of_improvement(costs, "stc", reps=reps)
-        if "stc" in costs and len(costs) > 1
+    # probability that each self-tuning controller has the lower episode cost than every other
+    poi, poi_lq = (
+        probability_of_improvement(costs, name, reps=reps)
+        if name in costs and len(costs) > 1
         else {}
+        for name in ("stc", "stc_lq")
     )
     out = {}
     for c, info in extra.items():
@@ -144,6 +147,7 @@ def headline(
         for j, k in enumerate(info["cols"]):
             res[k] = {"iqm": est[c]["iqm"][j], "median": est[c]["median"][j]}
         res["poi"] = poi.get(c)
+        res["poi_lq"] = poi_lq.get(c)
         out[c] = res
     return out
 
@@ -180,7 +184,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
     ]
     if jump:
         cols += ["post-jump / oracle, IQM", "re-converge steps, median (recovered)"]
-    cols += ["episode cost, IQM", "P(stc cost lower)"]
+    cols += ["episode cost, IQM", "P(stc cost lower)", "P(stc_lq cost lower)"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c, res in hl.items():
         div = f" ({res['failures']})" if res["failures"] else ""
@@ -192,8 +196,10 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
         ]
         if jump:
             cells += [_cell(res, "post_jump_ratio"), _cell(res, "reconverge_steps", "median")]
-        poi = res.get("poi")
-        cells += [_cell(res, "cost"), poi.format(2) if poi is not None else "-"]
+        cells.append(_cell(res, "cost"))
+        for key in ("poi", "poi_lq"):
+            p = res.get(key)
+            cells.append(p.format(2) if p is not None else "-")
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -217,10 +223,16 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
             f"stc ends at {_g(stc['steady_ratio']['iqm'].value)}x the oracle's steady cost and "
             + _reach(stc, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
         )
+    lq = hl.get("stc_lq")
+    if lq is not None and "steady_ratio" in lq:
+        parts.append(
+            f"self-tuning LQ (stc_lq) ends at {_g(lq['steady_ratio']['iqm'].value)}x and "
+            + _reach(lq, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
+        )
     rl = {
         c: r
         for c, r in hl.items()
-        if c not in ("stc", "oracle", "lqg") and "steady_ratio" in r and "steps_to_oracle" in r
+        if c not in CONTROLLERS and "steady_ratio" in r and "steps_to_oracle" in r
     }
     if rl:
         best = min(rl, key=lambda c: rl[c]["steady_ratio"]["iqm"].value)
@@ -239,6 +251,16 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
         parts.append(
             f"stc has the lower episode cost more often than not against {', '.join(better)}"
         )
+    if lq is not None:
+        rivals = [c for c, r in hl.items() if c not in CONTROLLERS and r.get("poi_lq") is not None]
+        wins = [c for c in rivals if hl[c]["poi_lq"].value > 0.5]
+        losses = [c for c in rivals if c not in wins]
+        if rivals:
+            parts.append(
+                "stc_lq has the lower episode cost more often than not against "
+                f"{', '.join(wins) or 'no RL agent'}"
+                + (f", not against {', '.join(losses)}" if losses else "")
+            )
     return f"- `{name}`: " + "; ".join(parts) + "." if parts else ""
 
 
@@ -362,7 +384,8 @@ def write_report(
         "ratios are to the known-model oracle on the same episode (seed, noise, reference). "
         "Env steps to <= 1.2x: training steps for RL (learning curve), adaptation steps "
         "within the episode for `stc`, 0 for a controller that starts there. "
-        "P(stc cost lower): probability that `stc` has the lower episode cost than that "
+        "P(stc cost lower), P(stc_lq cost lower): probability that `stc` (`stc_lq`) has the "
+        "lower episode cost than that "
         "controller on a random pair of runs.",
         "",
     ]

@@ -50,7 +50,7 @@ TINY = [
     "--hp",
     "rppo.n_epochs=2",
     "--agents",
-    "ppo,rppo,stc,oracle,lqg",
+    "ppo,rppo,stc,stc_lq,oracle,lqg",
     "--bootstrap-reps",
     "100",
     "--jobs",
@@ -112,7 +112,7 @@ def test_end_to_end_writes_every_file(tiny_run):
     }
     assert {s for s, _ in per} == scenarios
     for s in scenarios:
-        for c in ("stc", "oracle", "lqg"):
+        for c in ("stc", "stc_lq", "oracle", "lqg"):
             assert len(per[(s, c)]) == 2  # evaluation seeds
         assert len(per[(s, "ppo")]) == 4  # training seeds x evaluation seeds
         # the recurrent agent is trained on the family: held-out plants and the jump only
@@ -127,7 +127,8 @@ def test_end_to_end_writes_every_file(tiny_run):
         if r["family"] == "rl":
             assert int(r["train_steps"]) >= 300 and float(r["train_wall_s"]) > 0
             assert int(r["data_steps"]) == int(r["train_steps"])
-        elif r["controller"] == "stc":
+        elif r["controller"] in ("stc", "stc_lq"):
+            assert r["family"] == "adaptive"
             assert int(r["data_steps"]) == int(r["steps_run"])
             assert r["controller_seed"] == r["seed"]  # every episode its own controller seed
 
@@ -145,6 +146,10 @@ def test_end_to_end_writes_every_file(tiny_run):
     for section in ("## Headline", "## Conclusions", "## Step response", "## Learning curves"):
         assert section in report
     assert "P(stc cost lower)" in report and "re-converge steps" in report
+    # the self-tuning LQ controller is reported against the RL agents, never counted as one
+    assert "P(stc_lq cost lower)" in report and "self-tuning LQ (stc_lq) ends at" in report
+    assert "stc_lq has the lower episode cost more often than not against" in report
+    assert "the best RL agent (stc_lq)" not in report
     assert "training seed, evaluation seed" in report  # what the intervals cover
 
     # progress over the whole run, and the learning curve through SB3's logger
