@@ -49,7 +49,7 @@ from stcgym.adaptive.kernels import design as dz
 from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
-from stcgym.adaptive.policy import validate_observation
+from stcgym.adaptive.policy import episode_starts, validate_observation
 from stcgym.envs.canonical import check_form, observer_to_observability_b
 
 __all__ = [
@@ -547,14 +547,7 @@ class SelfTuningController:
             es = np.asarray(episode_start)
             if es.dtype != bool and not (es.dtype.kind in "iu" and np.all((es == 0) | (es == 1))):
                 raise ValueError(f"episode_start must be booleans, got {episode_start!r}")
-            es = es.astype(bool).reshape(-1)
-            if es.size == 1:
-                es = np.full(self.B, bool(es[0]))
-            if es.size != self.B:
-                raise ValueError(
-                    f"episode_start must be a bool or {self.B} bools (one per lane), got {es.size}"
-                )
-            starts = es
+            starts = episode_starts(es.astype(bool), self.B)
         if starts is not None and starts.any():
             self.reset(starts)
         y = np.ascontiguousarray(obs[:, 0])

@@ -96,6 +96,7 @@ from stcgym.adaptive import flops as _flops
 from stcgym.adaptive.kernels import estimator as _k
 from stcgym.adaptive.kernels.estimator import (
     ALGORITHMS,
+    FROZEN_RATIO,
     RULES,
     STATE_ESTIMATORS,
     EstimatorSpec,
@@ -776,7 +777,7 @@ def make_estimator(
     on_failure: str = "reset",
     pd_check_every: int = 1,
     project_stable: bool = False,
-    frozen_ratio: float = 0.05,
+    frozen_ratio: float = FROZEN_RATIO,
     num_envs: int | None = None,
     **removed: Any,
 ) -> RecursiveEstimator:

@@ -309,12 +309,14 @@ def lq_initial_P(n: int, integral: bool, weights: NDArray) -> NDArray[np.float64
 
 # ------------------------------------------------------------------------------ small helpers
 @lane(inline=True)
-def _check_work(work, mm, n_mat):
-    """A scratch shorter than ``n_mat`` ``mm x mm`` matrices and 9 ``mm``-vectors would corrupt
-    the result, so it is an error. The scratch is then viewed as ``Ws`` ``(n_mat, mm, mm)``
-    and ``Vs`` ``(9, mm)`` (every slot after that a cheap basic slice ``Ws[slot, :m, :m]``)."""
+def _split_work(work, mm, n_mat):
+    """The scratch as ``Ws`` ``(n_mat, mm, mm)`` and ``Vs`` ``(9, mm)`` views (every slot after
+    that a cheap basic slice ``Ws[slot, :m, :m]``). A scratch shorter than that would corrupt
+    the result, so it is an error. Inlined into its caller: a lane function compiled without
+    NRT may return views only where numba inlines it."""
     if work.size < n_mat * mm * mm + _N_VEC * mm:
         raise ValueError("work array too short: see work_size(n) / solve_work_size(n)")
+    return view3d(work, 0, n_mat, mm, mm), view2d(work, n_mat * mm * mm, _N_VEC, mm)
 
 
 @lane(inline=True)
@@ -516,9 +518,7 @@ def ackermann_gain(A, b, alpha, K, work):
     singular or non-finite, ``K`` untouched).
     """
     mm = A.shape[0]
-    _check_work(work, mm, _N_MAT)
-    Ws = view3d(work, 0, _N_MAT, mm, mm)
-    Vs = view2d(work, _N_MAT * mm * mm, _N_VEC, mm)
+    Ws, Vs = _split_work(work, mm, _N_MAT)
     rcond = _controllability(A, b, Ws, Vs)
     if rcond > 0.0:
         _ackermann_from_ctrb(A, alpha, K, Ws, Vs)
@@ -559,8 +559,7 @@ def steady_state(A, b, x_ss, work):
     (regular exactly when the model has no zero at ``z = 1``; works with an integrator in ``A``).
     ``rcond = 0``: singular (``x_ss = 0``, ``u_ss = 0``)."""
     mm = A.shape[0] + 1
-    _check_work(work, mm, _N_MAT)
-    Ws = view3d(work, 0, _N_MAT, mm, mm)
+    Ws, _ = _split_work(work, mm, _N_MAT)
     return _steady_state(A, b, x_ss, Ws)
 
 
@@ -628,9 +627,7 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
     Returns the status code; ``gain`` is written only when it is ``OK`` (0).
     """
     mm = theta.size // 2 + 1
-    _check_work(work, mm, _N_MAT)
-    Ws = view3d(work, 0, _N_MAT, mm, mm)
-    Vs = view2d(work, _N_MAT * mm * mm, _N_VEC, mm)
+    Ws, Vs = _split_work(work, mm, _N_MAT)
     status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
     if status != OK:
         return status
@@ -703,9 +700,7 @@ def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     to ``Q`` and ``NOT_STABILISABLE`` returned.
     """
     mm = theta.size // 2 + 1
-    _check_work(work, mm, _N_MAT)
-    Ws = view3d(work, 0, _N_MAT, mm, mm)
-    Vs = view2d(work, _N_MAT * mm * mm, _N_VEC, mm)
+    Ws, Vs = _split_work(work, mm, _N_MAT)
     status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
     if status != OK:
         return status
@@ -839,9 +834,7 @@ def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     solution) or ``NOT_CONVERGED``.
     """
     mm = A.shape[0]
-    _check_work(work, mm, _N_MAT_SOLVE)
-    Ws = view3d(work, 0, _N_MAT_SOLVE, mm, mm)
-    Vs = view2d(work, _N_MAT_SOLVE * mm * mm, _N_VEC, mm)
+    Ws, Vs = _split_work(work, mm, _N_MAT_SOLVE)
     return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
 
 
@@ -873,9 +866,7 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     untouched otherwise.
     """
     mm = theta.size // 2 + 1
-    _check_work(work, mm, _N_MAT_SOLVE)
-    Ws = view3d(work, 0, _N_MAT_SOLVE, mm, mm)
-    Vs = view2d(work, _N_MAT_SOLVE * mm * mm, _N_VEC, mm)
+    Ws, Vs = _split_work(work, mm, _N_MAT_SOLVE)
     status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
     if status != OK:
         return status
