@@ -1,0 +1,231 @@
+"""Where the time of one closed-loop lane step goes, against issue 10's throughput budget.
+
+Run from the repository root::
+
+    python benchmarks/lane_budget.py            # about 75 s (compiles its drivers)
+    python benchmarks/lane_budget.py --steps 100000
+
+Issue 10 asks for ``>= 5e6`` plant-steps/s through the public batched route and ``>= 1e7``
+through the compiled rollout (n = 2, KF-MILS p = 5). With every lane an independent scalar
+computation (the :mod:`stcgym.envs.compiled` convention), ``c`` cores give at most
+``c / t_lane`` plant-steps/s, so the budget is ``c / target`` of one core per lane-step. This
+script prints that budget next to the measured cost of each part of a lane step, every part
+timed in a compiled loop over one lane (no Python in the timing; the best of 20 short runs,
+which catches the quiet moments of a shared machine):
+
+* the canonical plant step (:func:`stcgym.envs.dynamics.canonical_plant_step`);
+* the KF-MILS estimator (``estimator_update`` + ``estimator_predict``, p = 5);
+* its core, the multi-innovation least-squares increment (``least_squares_increment``, d = 4,
+  p = 5), compiled twice from **the same source**: as shipped (the sizes are run-time values
+  read from the configuration, as in every lane function) and with the sizes as compile-time
+  constants (the function inlined into a driver that passes literal sizes, so LLVM unrolls its
+  loops). The ratio is what size specialisation would buy on the estimator's core;
+* the pole-placement design (``place_design``, order 2 + integrator), the same two ways;
+* the whole controller step (``controller_step``; KF-MILS p = 5 and the default ELS);
+* the compiled rollout with ``B = 1e4`` lanes on all threads: plant-steps/s, and the thread
+  scaling it implies.
+
+Every figure is a measurement of this run; the machine is shared, so the ratios are more
+stable than the absolute numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numba
+import numpy as np
+
+from stcgym.adaptive import SelfTuningController
+from stcgym.adaptive.kernels import controller as kc
+from stcgym.adaptive.kernels.design import place_design, work_size
+from stcgym.adaptive.kernels.estimator import estimator_predict, estimator_update
+from stcgym.adaptive.kernels.least_squares import least_squares_increment
+from stcgym.adaptive.rollout import rollout
+from stcgym.envs import PLANTS
+from stcgym.envs.dynamics import canonical_plant_step
+
+TARGETS = {"public batched route": 5e6, "compiled rollout": 1e7}
+
+# The shipped lane functions' source, compiled so that a caller's literal sizes reach its loops.
+_increment_const = numba.njit(inline="always")(least_squares_increment.py_func)
+_place_const = numba.njit(inline="always")(place_design.py_func)
+
+
+@numba.njit
+def _plant_loop(x, theta, u, z, r, steps):  # type: ignore[no-untyped-def]
+    none = z[0:0]
+    acc = 0.0
+    for k in range(steps):
+        reward, _, _, _, _, y = canonical_plant_step(
+            x, theta, u[k], 10.0, 0.0, none, 0.05, z[k], r[k], 0.01, 1e9, 0
+        )
+        acc += reward + y
+    return acc
+
+
+@numba.njit
+def _estimator_loop(f, off, ecf, eci, y, u, steps):  # type: ignore[no-untyped-def]
+    status = 0
+    for k in range(steps):
+        status |= estimator_update(f, off, ecf, eci, y[k])
+        status |= estimator_predict(f, off, ecf, eci, u[k])
+    return status
+
+
+@numba.njit
+def _increment_generic(S, Phi, E, p, delta, K, w, steps):  # type: ignore[no-untyped-def]
+    d = S.shape[0]
+    acc = 0.0
+    for _ in range(steps):
+        acc += least_squares_increment(S, 0, d, Phi, E, p, 0.99, False, delta, K, w)
+        for i in range(d):  # keep the factor from shrinking to zero over the loop
+            S[i, i] *= 1.005
+    return acc
+
+
+@numba.njit
+def _increment_specialised(S, Phi, E, p, delta, K, w, steps):  # type: ignore[no-untyped-def]
+    acc = 0.0
+    for _ in range(steps):
+        acc += _increment_const(S, 0, 4, Phi, E, 5, 0.99, False, delta, K, w)
+        for i in range(4):
+            S[i, i] *= 1.005
+    return acc
+
+
+@numba.njit
+def _place_generic(buf, alpha, safe, gain, work, steps):  # type: ignore[no-untyped-def]
+    status = 0
+    d = buf.shape[0]
+    for _ in range(steps):
+        buf[0] += 1e-12  # a new model every call, as in the controller
+        status += place_design(buf[0:d], 0, True, True, alpha, safe, gain, work)
+    return status
+
+
+@numba.njit
+def _place_specialised(buf, alpha, safe, gain, work, steps):  # type: ignore[no-untyped-def]
+    status = 0
+    for _ in range(steps):
+        buf[0] += 1e-12
+        status += _place_const(buf[0:4], 0, True, True, alpha, safe, gain, work)
+    return status
+
+
+@numba.njit
+def _controller_loop(f, g, off, cf, ci, ecf, eci, theta, z, r, steps):  # type: ignore[no-untyped-def]
+    """Closed loop on one lane: controller step + plant step (the rollout's inner loop)."""
+    none = z[0:0]
+    x = np.zeros(theta.shape[0] // 2)
+    y = 0.0
+    for k in range(steps):
+        u = kc.controller_step(f, g, off, cf, ci, ecf, eci, y, r[k])
+        _, _, diverged, _, _, y = canonical_plant_step(
+            x, theta, u, 10.0, 0.0, none, 0.05, z[k], r[k + 1], 0.01, 1e9, 0
+        )
+        if diverged:
+            return k
+    return steps
+
+
+def _best_ns(run, steps: int, repeats: int = 20) -> float:  # type: ignore[no-untyped-def]
+    """Best-of-``repeats`` wall time per step of ``run(steps)``, in ns (compiled first)."""
+    run(10)
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run(steps)
+        best = min(best, time.perf_counter() - t0)
+    return best / steps * 1e9
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description="lane-step cost against issue 10's budget")
+    ap.add_argument("--steps", type=int, default=20_000, help="steps per timed loop")
+    steps = ap.parse_args(argv).steps
+    rng = np.random.default_rng(0)
+    theta = PLANTS["stable2"].theta
+    square = np.where((np.arange(steps + 1) % 100) < 50, 1.0, -1.0)
+    z = rng.standard_normal(steps + 1)
+    u_in = rng.choice([-1.0, 1.0], size=steps)
+    rows: list[tuple[str, float]] = []
+
+    def row(name: str, ns: float) -> None:
+        rows.append((name, ns))
+        print(f"{name:66s} {ns:9.0f} ns", flush=True)
+
+    cores = numba.get_num_threads()
+    print(f"threads: {cores}")
+    for name, target in TARGETS.items():
+        print(f"budget, {name} >= {target:.0e} plant-steps/s: {cores / target * 1e9:.0f} ns "
+              f"of one core per lane-step")  # fmt: skip
+    print()
+    row("plant step (canonical, n = 2)",
+        _best_ns(lambda s: _plant_loop(np.zeros(2), theta, u_in, z, square, s), steps))  # fmt: skip
+
+    ctl = SelfTuningController(2, estimator="KF-MILS", estimator_options={"p": 5})
+    ctl.reset()
+    f0, o_est = ctl._F[0].copy(), int(ctl._off[kc.O_EST])
+    y_ol = np.zeros(steps)
+    x = np.zeros(2)
+    for k in range(steps):  # open-loop data of the plant under the +-1 input
+        y_ol[k] = x[0] + 0.05 * z[k]
+        x = np.array([-theta[0] * x[0] + x[1], -theta[1] * x[0]]) + theta[2:] * u_in[k]
+    row("KF-MILS estimator, update + predict (p = 5, d = 4)",
+        _best_ns(lambda s: _estimator_loop(f0.copy(), o_est, ctl._ecf, ctl._eci, y_ol, u_in, s),
+                 steps))  # fmt: skip
+
+    S = np.triu(rng.standard_normal((4, 4))) + 3.0 * np.eye(4)
+    Phi, E = rng.standard_normal((5, 4)), rng.standard_normal(5)
+    scratch = (np.zeros(4), np.zeros(4), np.zeros(8))
+    gen = _best_ns(lambda s: _increment_generic(S.copy(), Phi, E, 5, *scratch, s), steps)
+    spec = _best_ns(lambda s: _increment_specialised(S.copy(), Phi, E, 5, *scratch, s), steps)
+    row("  its MILS increment, sizes at run time (as shipped)", gen)
+    row(f"  the same source, sizes compile-time constants ({gen / spec:.1f}x)", spec)
+
+    cf = ctl._cf
+    alpha, safe = cf[kc.C_ALPHA : kc.C_ALPHA + 3], cf[kc.C_SAFE : kc.C_SAFE + 4]
+    gain, work = np.zeros(6), np.zeros(work_size(2))
+    gen = _best_ns(lambda s: _place_generic(theta.copy(), alpha, safe, gain, work, s), steps)
+    spec = _best_ns(lambda s: _place_specialised(theta.copy(), alpha, safe, gain, work, s), steps)
+    row("pole-placement design (order 2 + integrator), as shipped", gen)
+    row(f"  the same source, sizes compile-time constants ({gen / spec:.1f}x)", spec)
+
+    lane_ns = {}
+    for est in ("KF-MILS", "ELS"):
+        c = SelfTuningController(2, estimator=est, estimator_options={"p": 5})
+
+        def run(s: int, c: SelfTuningController = c) -> None:
+            c.reset()
+            f, g = c._F[0], c._G[0]
+            _controller_loop(f, g, c._off, c._cf, c._ci, c._ecf, c._eci, theta, z, square, s)
+
+        lane_ns[est] = _best_ns(run, steps)
+        row(f"controller step + plant step, one lane, {est}", lane_ns[est])
+
+    B = 10_000
+    T = max(20, 2_000_000 // B)
+    for est in ("KF-MILS", "ELS"):
+        c = SelfTuningController(2, num_envs=B, estimator=est, estimator_options={"p": 5})
+        rollout(c, theta, 2, reference=square[:3])
+        best = 0.0
+        for _ in range(3):
+            c.reset()
+            t0 = time.perf_counter()
+            res = rollout(c, theta, T, reference=square[: T + 1])
+            best = max(best, float(res.steps_run.sum()) / (time.perf_counter() - t0))
+        scaling = best * lane_ns[est] * 1e-9
+        print(f"compiled rollout, B = {B}, {est}: {best:.3g} plant-steps/s on {cores} threads "
+              f"(= {scaling:.2f} lanes' worth of one-lane speed)")  # fmt: skip
+    print()
+    for name, target in TARGETS.items():
+        budget = cores / target * 1e9
+        cost = lane_ns["KF-MILS"]
+        print(f"{name}: budget {budget:.0f} ns per lane-step; one KF-MILS lane step costs "
+              f"{cost:.0f} ns ({cost / budget:.1f}x the budget)")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
