@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/lane_budget.py            # about 75 s (compiles its drivers)
+    python benchmarks/lane_budget.py            # about 80 s (compiles its drivers)
     python benchmarks/lane_budget.py --steps 100000
 
 Issue 10 asks for ``>= 5e6`` plant-steps/s through the public batched route and ``>= 1e7``
@@ -21,6 +21,15 @@ which catches the quiet moments of a shared machine):
   constants (the function inlined into a driver that passes literal sizes, so LLVM unrolls its
   loops). The ratio is what size specialisation would buy on the estimator's core;
 * the pole-placement design (``place_design``, order 2 + integrator), the same two ways;
+* a **layout experiment** for the decision issue 10 leaves open: the same MILS increment on
+  blocks of ``W`` lanes stored as a structure of arrays (every scalar of the lane function
+  becomes a loop over the block's lanes, innermost), against the shipped lane function run
+  over the same ``B`` lanes one by one. The block version repeats the shipped function's
+  operations in the same order, and the script checks that both give the same bits. It is a
+  measurement, not part of the package. The block width is a run-time value on purpose: with a
+  compile-time width LLVM unrolls the lane loops and then does not vectorise them (numba cannot
+  promise that the record's fields do not alias), with a run-time width its loop vectoriser
+  does, behind a run-time overlap check;
 * the whole controller step (``controller_step``; KF-MILS p = 5 and the default ELS);
 * the compiled rollout with ``B = 1e4`` lanes on all threads: plant-steps/s, and the thread
   scaling it implies.
@@ -32,6 +41,7 @@ stable than the absolute numbers.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import numba
@@ -96,6 +106,117 @@ def _increment_specialised(S, Phi, E, p, delta, K, w, steps):  # type: ignore[no
 
 
 @numba.njit
+def _increment_lanes(S, Phi, E, lam, delta, K, w):  # type: ignore[no-untyped-def]
+    """The shipped lane function over ``B`` lanes, one after the other (``S`` ``(B, d, d)``)."""
+    d, p = S.shape[1], Phi.shape[1]
+    for i in range(S.shape[0]):
+        least_squares_increment(S[i], 0, d, Phi[i], E[i], p, lam, False, delta[i], K, w)
+
+
+@numba.njit(error_model="numpy")
+def _increment_lane_blocks(S, Phi, E, lam, delta, K, g, alpha, f, b, c):  # type: ignore[no-untyped-def]
+    """``least_squares_increment`` (MILS branch, eq. (39)-(41)) on blocks of ``W`` lanes.
+
+    Structure of arrays: ``S`` ``(NB, d, d, W)``, ``Phi`` ``(NB, p, d, W)``, ``E`` ``(NB, p, W)``,
+    ``delta`` ``(NB, d, W)``; scratch ``K``, ``g`` ``(d, W)``, ``alpha``, ``f``, ``b``, ``c``
+    ``(W,)``. Same operations in the same order as the lane function, lane loop innermost.
+    """
+    d, p, W = S.shape[1], Phi.shape[1], S.shape[3]
+    inv_sqrt_lam = 1.0 / math.sqrt(lam) if lam != 1.0 else 1.0
+    for blk in range(S.shape[0]):
+        Sb, Pb, Eb, Db = S[blk], Phi[blk], E[blk], delta[blk]
+        for k in range(p):  # p Carlson updates, the first with alpha_0 = lam
+            for lane in range(W):
+                alpha[lane] = lam if k == 0 else 1.0
+            for i in range(d):
+                for lane in range(W):
+                    K[i, lane] = 0.0
+            for j in range(d):
+                for lane in range(W):
+                    f[lane] = 0.0
+                for i in range(j + 1):
+                    for lane in range(W):
+                        f[lane] += Sb[i, j, lane] * Pb[k, i, lane]
+                for lane in range(W):
+                    alpha_new = alpha[lane] + f[lane] * f[lane]
+                    inv_r = 1.0 / math.sqrt(alpha[lane] * alpha_new)
+                    b[lane] = alpha[lane] * inv_r
+                    c[lane] = f[lane] * inv_r
+                    alpha[lane] = alpha_new
+                for i in range(j + 1):
+                    for lane in range(W):
+                        sij = Sb[i, j, lane]
+                        Sb[i, j, lane] = b[lane] * sij - c[lane] * K[i, lane]
+                        K[i, lane] += f[lane] * sij
+            if k == 0 and lam != 1.0:
+                for j in range(d):
+                    for i in range(j + 1):
+                        for lane in range(W):
+                            Sb[i, j, lane] *= inv_sqrt_lam
+        for i in range(d):  # K = Phi^T E, then delta = S S^T K
+            for lane in range(W):
+                K[i, lane] = 0.0
+            for k in range(p):
+                for lane in range(W):
+                    K[i, lane] += Pb[k, i, lane] * Eb[k, lane]
+        for j in range(d):
+            for lane in range(W):
+                g[j, lane] = 0.0
+            for i in range(j + 1):
+                for lane in range(W):
+                    g[j, lane] += Sb[i, j, lane] * K[i, lane]
+        for i in range(d):
+            for lane in range(W):
+                Db[i, lane] = 0.0
+            for j in range(i, d):
+                for lane in range(W):
+                    Db[i, lane] += Sb[i, j, lane] * g[j, lane]
+
+
+def _to_blocks(a: np.ndarray, width: int) -> np.ndarray:
+    """``(B, ...)`` lane-major to ``(B / width, ..., width)`` blocks (lanes innermost)."""
+    blocks = a.reshape((a.shape[0] // width, width) + a.shape[1:])
+    return np.ascontiguousarray(np.moveaxis(blocks, 1, -1))
+
+
+def _from_blocks(a: np.ndarray) -> np.ndarray:
+    return np.moveaxis(a, -1, 1).reshape((-1,) + a.shape[1:-1])
+
+
+def _layout_experiment(rng: np.random.Generator, lanes: int = 8192) -> None:
+    """Per-lane ns of the MILS increment (d = 4, p = 5, lam = 0.99) over ``lanes`` lanes."""
+    d, p, lam = 4, 5, 0.99
+    S0 = np.triu(rng.standard_normal((lanes, d, d))) + 3.0 * np.eye(d)
+    Phi, E = rng.standard_normal((lanes, p, d)), rng.standard_normal((lanes, p))
+    delta, K, w = np.zeros((lanes, d)), np.zeros(d), np.zeros(2 * d)
+    S_ref = S0.copy()
+    _increment_lanes(S_ref, Phi, E, lam, delta, K, w)  # one update from S0: the reference bits
+    delta_ref = delta.copy()
+    S = S0.copy()  # the timed runs keep updating the same factors
+    shipped = _best_per_lane(lambda: _increment_lanes(S, Phi, E, lam, delta, K, w), lanes)
+    label = f"  its MILS increment, the shipped lane function over B = {lanes} lanes"
+    print(f"{label:66s} {shipped:9.0f} ns")
+    for width in (16, 64):
+        Pb, Eb = _to_blocks(Phi, width), _to_blocks(E, width)
+        Db = np.zeros((lanes // width, d, width))
+        scratch = [np.zeros((d, width)), np.zeros((d, width))]
+        scratch += [np.zeros(width) for _ in range(4)]
+        Sb = _to_blocks(S0, width)
+        _increment_lane_blocks(Sb, Pb, Eb, lam, Db, *scratch)
+        same = np.array_equal(_from_blocks(Sb), S_ref)
+        same = same and np.array_equal(_from_blocks(Db), delta_ref)
+
+        def run(Sb=Sb, Pb=Pb, Eb=Eb, Db=Db, scratch=scratch) -> None:  # type: ignore[no-untyped-def]
+            _increment_lane_blocks(Sb, Pb, Eb, lam, Db, *scratch)
+
+        ns = _best_per_lane(run, lanes)
+        label = (
+            f"  the same on blocks of W = {width} lanes ({shipped / ns:.1f}x; same bits: {same})"
+        )
+        print(f"{label:66s} {ns:9.0f} ns")
+
+
+@numba.njit
 def _place_generic(buf, alpha, safe, gain, work, steps):  # type: ignore[no-untyped-def]
     status = 0
     d = buf.shape[0]
@@ -141,6 +262,17 @@ def _best_ns(run, steps: int, repeats: int = 20) -> float:  # type: ignore[no-un
     return best / steps * 1e9
 
 
+def _best_per_lane(run, lanes: int, repeats: int = 20) -> float:  # type: ignore[no-untyped-def]
+    """Best-of-``repeats`` wall time of ``run()`` per lane, in ns (compiled first)."""
+    run()
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        run()
+        best = min(best, time.perf_counter() - t0)
+    return best / lanes * 1e9
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="lane-step cost against issue 10's budget")
     ap.add_argument("--steps", type=int, default=20_000, help="steps per timed loop")
@@ -184,6 +316,8 @@ def main(argv: list[str] | None = None) -> None:
     spec = _best_ns(lambda s: _increment_specialised(S.copy(), Phi, E, 5, *scratch, s), steps)
     row("  its MILS increment, sizes at run time (as shipped)", gen)
     row(f"  the same source, sizes compile-time constants ({gen / spec:.1f}x)", spec)
+
+    _layout_experiment(rng)
 
     cf = ctl._cf
     alpha, safe = cf[kc.C_ALPHA : kc.C_ALPHA + 3], cf[kc.C_SAFE : kc.C_SAFE + 4]
