@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/lane_budget.py            # about 80 s (compiles its drivers)
+    python benchmarks/lane_budget.py            # about 50 s (3 min the first time: compiles)
     python benchmarks/lane_budget.py --steps 100000
 
 Issue 10 asks for ``>= 5e6`` plant-steps/s through the public batched route and ``>= 1e7``
@@ -14,7 +14,8 @@ timed in a compiled loop over one lane (no Python in the timing; the best of 20 
 which catches the quiet moments of a shared machine):
 
 * the canonical plant step (:func:`stcgym.envs.dynamics.canonical_plant_step`);
-* the KF-MILS estimator (``estimator_update`` + ``estimator_predict``, p = 5);
+* the KF-MILS estimator (``estimator_update`` + ``estimator_predict``, p = 5, through the
+  estimator's own ``run_lane``) on the plant's open-loop data;
 * its core, the multi-innovation least-squares increment (``least_squares_increment``, d = 4,
   p = 5), compiled twice from **the same source**: as shipped (the sizes are run-time values
   read from the configuration, as in every lane function) and with the sizes as compile-time
@@ -30,8 +31,9 @@ which catches the quiet moments of a shared machine):
   compile-time width LLVM unrolls the lane loops and then does not vectorise them (numba cannot
   promise that the record's fields do not alias), with a run-time width its loop vectoriser
   does, behind a run-time overlap check;
-* the whole controller step (``controller_step``; KF-MILS p = 5 and the default ELS);
-* the compiled rollout with ``B = 1e4`` lanes on all threads: plant-steps/s, and the thread
+* the whole controller step with the plant step, KF-MILS p = 5 and the default ELS: the
+  compiled rollout of ``benchmarks/perf.py`` (``rollout_rate``) with one lane, best of 5;
+* the same rollout with ``B = 1e4`` lanes on all threads: plant-steps/s, and the thread
   scaling it implies.
 
 Every figure is a measurement of this run; the machine is shared, so the ratios are more
@@ -46,13 +48,13 @@ import time
 
 import numba
 import numpy as np
+from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels.design import place_design, work_size
-from stcgym.adaptive.kernels.estimator import estimator_predict, estimator_update
+from stcgym.adaptive.kernels.estimator import EstimatorSpec, run_lane
 from stcgym.adaptive.kernels.least_squares import least_squares_increment
-from stcgym.adaptive.rollout import rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.dynamics import canonical_plant_step
 
@@ -64,24 +66,13 @@ _place_const = numba.njit(inline="always")(place_design.py_func)
 
 
 @numba.njit
-def _plant_loop(x, theta, u, z, r, steps):  # type: ignore[no-untyped-def]
+def _plant_loop(x, theta, u, z, r, steps, y_out):  # type: ignore[no-untyped-def]
+    """``steps`` plant steps under the input ``u``; ``y_out[k]`` the measured ``y(k + 1)``."""
     none = z[0:0]
-    acc = 0.0
     for k in range(steps):
-        reward, _, _, _, _, y = canonical_plant_step(
-            x, theta, u[k], 10.0, 0.0, none, 0.05, z[k], r[k], 0.01, 1e9, 0
+        _, _, _, _, _, y_out[k] = canonical_plant_step(
+            x, theta, u[k], 10.0, 0.0, none, 0.05, z[k + 1], r[k], 0.01, 1e9, 0
         )
-        acc += reward + y
-    return acc
-
-
-@numba.njit
-def _estimator_loop(f, off, ecf, eci, y, u, steps):  # type: ignore[no-untyped-def]
-    status = 0
-    for k in range(steps):
-        status |= estimator_update(f, off, ecf, eci, y[k])
-        status |= estimator_predict(f, off, ecf, eci, u[k])
-    return status
 
 
 @numba.njit
@@ -193,7 +184,7 @@ def _layout_experiment(rng: np.random.Generator, lanes: int = 8192) -> None:
     _increment_lanes(S_ref, Phi, E, lam, delta, K, w)  # one update from S0: the reference bits
     delta_ref = delta.copy()
     S = S0.copy()  # the timed runs keep updating the same factors
-    shipped = _best_per_lane(lambda: _increment_lanes(S, Phi, E, lam, delta, K, w), lanes)
+    shipped = _best_ns(lambda _: _increment_lanes(S, Phi, E, lam, delta, K, w), lanes)
     label = f"  its MILS increment, the shipped lane function over B = {lanes} lanes"
     print(f"{label:66s} {shipped:9.0f} ns")
     for width in (16, 64):
@@ -206,10 +197,10 @@ def _layout_experiment(rng: np.random.Generator, lanes: int = 8192) -> None:
         same = np.array_equal(_from_blocks(Sb), S_ref)
         same = same and np.array_equal(_from_blocks(Db), delta_ref)
 
-        def run(Sb=Sb, Pb=Pb, Eb=Eb, Db=Db, scratch=scratch) -> None:  # type: ignore[no-untyped-def]
+        def run(_: int, Sb=Sb, Pb=Pb, Eb=Eb, Db=Db, scratch=scratch) -> None:  # type: ignore[no-untyped-def]
             _increment_lane_blocks(Sb, Pb, Eb, lam, Db, *scratch)
 
-        ns = _best_per_lane(run, lanes)
+        ns = _best_ns(run, lanes)
         label = (
             f"  the same on blocks of W = {width} lanes ({shipped / ns:.1f}x; same bits: {same})"
         )
@@ -235,24 +226,9 @@ def _place_specialised(buf, alpha, safe, gain, work, steps):  # type: ignore[no-
     return status
 
 
-@numba.njit
-def _controller_loop(f, g, off, cf, ci, ecf, eci, theta, z, r, steps):  # type: ignore[no-untyped-def]
-    """Closed loop on one lane: controller step + plant step (the rollout's inner loop)."""
-    none = z[0:0]
-    x = np.zeros(theta.shape[0] // 2)
-    y = 0.0
-    for k in range(steps):
-        u = kc.controller_step(f, g, off, cf, ci, ecf, eci, y, r[k])
-        _, _, diverged, _, _, y = canonical_plant_step(
-            x, theta, u, 10.0, 0.0, none, 0.05, z[k], r[k + 1], 0.01, 1e9, 0
-        )
-        if diverged:
-            return k
-    return steps
-
-
 def _best_ns(run, steps: int, repeats: int = 20) -> float:  # type: ignore[no-untyped-def]
-    """Best-of-``repeats`` wall time per step of ``run(steps)``, in ns (compiled first)."""
+    """Best-of-``repeats`` wall time per step (or lane) of ``run(steps)``, in ns (compiled
+    first, by a call with 10)."""
     run(10)
     best = np.inf
     for _ in range(repeats):
@@ -260,17 +236,6 @@ def _best_ns(run, steps: int, repeats: int = 20) -> float:  # type: ignore[no-un
         run(steps)
         best = min(best, time.perf_counter() - t0)
     return best / steps * 1e9
-
-
-def _best_per_lane(run, lanes: int, repeats: int = 20) -> float:  # type: ignore[no-untyped-def]
-    """Best-of-``repeats`` wall time of ``run()`` per lane, in ns (compiled first)."""
-    run()
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - t0)
-    return best / lanes * 1e9
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -282,10 +247,8 @@ def main(argv: list[str] | None = None) -> None:
     square = np.where((np.arange(steps + 1) % 100) < 50, 1.0, -1.0)
     z = rng.standard_normal(steps + 1)
     u_in = rng.choice([-1.0, 1.0], size=steps)
-    rows: list[tuple[str, float]] = []
 
     def row(name: str, ns: float) -> None:
-        rows.append((name, ns))
         print(f"{name:66s} {ns:9.0f} ns", flush=True)
 
     cores = numba.get_num_threads()
@@ -294,65 +257,52 @@ def main(argv: list[str] | None = None) -> None:
         print(f"budget, {name} >= {target:.0e} plant-steps/s: {cores / target * 1e9:.0f} ns "
               f"of one core per lane-step")  # fmt: skip
     print()
-    row("plant step (canonical, n = 2)",
-        _best_ns(lambda s: _plant_loop(np.zeros(2), theta, u_in, z, square, s), steps))  # fmt: skip
+    y_next = np.zeros(steps)  # y(k + 1) of the plant under the +-1 input (open loop)
 
-    ctl = SelfTuningController(2, estimator="KF-MILS", estimator_options={"p": 5})
-    ctl.reset()
-    f0, o_est = ctl._F[0].copy(), int(ctl._off[kc.O_EST])
-    y_ol = np.zeros(steps)
-    x = np.zeros(2)
-    for k in range(steps):  # open-loop data of the plant under the +-1 input
-        y_ol[k] = x[0] + 0.05 * z[k]
-        x = np.array([-theta[0] * x[0] + x[1], -theta[1] * x[0]]) + theta[2:] * u_in[k]
-    row("KF-MILS estimator, update + predict (p = 5, d = 4)",
-        _best_ns(lambda s: _estimator_loop(f0.copy(), o_est, ctl._ecf, ctl._eci, y_ol, u_in, s),
-                 steps))  # fmt: skip
+    def plant(s: int) -> None:
+        _plant_loop(np.zeros(2), theta, u_in, z, square, s, y_next)
+
+    row("plant step (canonical, n = 2)", _best_ns(plant, steps))
+
+    # the estimator on that open-loop data (every timed run filled y_next from x = 0)
+    spec = EstimatorSpec.build("KF-MILS", 2, p=5)
+    y_ol = np.concatenate(([0.05 * z[0]], y_next[:-1]))  # y(k), measured before u(k)
+    thetas, status = np.zeros((steps, 4)), np.zeros(steps, dtype=np.int64)
+
+    def estimate(s: int) -> None:
+        rec = spec.initial_record()
+        run_lane(rec, spec.cfg_f, spec.cfg_i, u_in[:s], y_ol[:s], thetas, status, 0)
+
+    row("KF-MILS estimator, update + predict (p = 5, d = 4)", _best_ns(estimate, steps))
 
     S = np.triu(rng.standard_normal((4, 4))) + 3.0 * np.eye(4)
     Phi, E = rng.standard_normal((5, 4)), rng.standard_normal(5)
     scratch = (np.zeros(4), np.zeros(4), np.zeros(8))
     gen = _best_ns(lambda s: _increment_generic(S.copy(), Phi, E, 5, *scratch, s), steps)
-    spec = _best_ns(lambda s: _increment_specialised(S.copy(), Phi, E, 5, *scratch, s), steps)
+    fixed = _best_ns(lambda s: _increment_specialised(S.copy(), Phi, E, 5, *scratch, s), steps)
     row("  its MILS increment, sizes at run time (as shipped)", gen)
-    row(f"  the same source, sizes compile-time constants ({gen / spec:.1f}x)", spec)
+    row(f"  the same source, sizes compile-time constants ({gen / fixed:.1f}x)", fixed)
 
     _layout_experiment(rng)
 
-    cf = ctl._cf
+    cf = SelfTuningController(2)._cf  # the default poles and safe set
     alpha, safe = cf[kc.C_ALPHA : kc.C_ALPHA + 3], cf[kc.C_SAFE : kc.C_SAFE + 4]
     gain, work = np.zeros(6), np.zeros(work_size(2))
     gen = _best_ns(lambda s: _place_generic(theta.copy(), alpha, safe, gain, work, s), steps)
-    spec = _best_ns(lambda s: _place_specialised(theta.copy(), alpha, safe, gain, work, s), steps)
+    fixed = _best_ns(lambda s: _place_specialised(theta.copy(), alpha, safe, gain, work, s), steps)
     row("pole-placement design (order 2 + integrator), as shipped", gen)
-    row(f"  the same source, sizes compile-time constants ({gen / spec:.1f}x)", spec)
+    row(f"  the same source, sizes compile-time constants ({gen / fixed:.1f}x)", fixed)
 
+    # the compiled rollout (benchmarks/perf.py), best of a few calls
     lane_ns = {}
     for est in ("KF-MILS", "ELS"):
-        c = SelfTuningController(2, estimator=est, estimator_options={"p": 5})
-
-        def run(s: int, c: SelfTuningController = c) -> None:
-            c.reset()
-            f, g = c._F[0], c._G[0]
-            _controller_loop(f, g, c._off, c._cf, c._ci, c._ecf, c._eci, theta, z, square, s)
-
-        lane_ns[est] = _best_ns(run, steps)
-        row(f"controller step + plant step, one lane, {est}", lane_ns[est])
-
+        lane_ns[est] = 1e9 / max(rollout_rate(2, 1, steps, est) for _ in range(5))
+        row(f"controller step + plant step, one lane (rollout, B = 1), {est}", lane_ns[est])
     B = 10_000
-    T = max(20, 2_000_000 // B)
     for est in ("KF-MILS", "ELS"):
-        c = SelfTuningController(2, num_envs=B, estimator=est, estimator_options={"p": 5})
-        rollout(c, theta, 2, reference=square[:3])
-        best = 0.0
-        for _ in range(3):
-            c.reset()
-            t0 = time.perf_counter()
-            res = rollout(c, theta, T, reference=square[: T + 1])
-            best = max(best, float(res.steps_run.sum()) / (time.perf_counter() - t0))
-        scaling = best * lane_ns[est] * 1e-9
-        print(f"compiled rollout, B = {B}, {est}: {best:.3g} plant-steps/s on {cores} threads "
-              f"(= {scaling:.2f} lanes' worth of one-lane speed)")  # fmt: skip
+        rate = max(rollout_rate(2, B, max(20, 2_000_000 // B), est) for _ in range(3))
+        print(f"compiled rollout, B = {B}, {est}: {rate:.3g} plant-steps/s on {cores} threads "
+              f"(= {rate * lane_ns[est] * 1e-9:.2f} lanes' worth of one-lane speed)")  # fmt: skip
     print()
     for name, target in TARGETS.items():
         budget = cores / target * 1e9

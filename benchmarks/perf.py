@@ -109,7 +109,10 @@ def _predict_us(steps: int, estimator: str) -> float:
     return total / steps * 1e6
 
 
-def _rollout_rate(n: int, B: int, steps: int, estimator: str) -> float:
+def rollout_rate(n: int, B: int, steps: int, estimator: str) -> float:
+    """Plant-steps/s of one :func:`~stcgym.adaptive.rollout.rollout` call (``B`` lanes, ``steps``
+    steps, the order-``n`` test plant, the square-wave reference); also used by
+    ``lane_budget.py``."""
     from stcgym.adaptive import SelfTuningController
     from stcgym.adaptive.rollout import rollout
 
@@ -175,9 +178,9 @@ def main(argv: list[str] | None = None) -> None:
         us = _predict_us(500 if q else 3000, est)
         row(f"SelfTuningController(2).predict, {est}", f"{us:.2f} us/call", 1e6 / us / naive)
     for n in (2, 4, 8):
-        rate = _rollout_rate(n, 1, 2000 if q else 20000, "ELS")
+        rate = rollout_rate(n, 1, 2000 if q else 20000, "ELS")
         row(f"compiled rollout, B=1, n={n}, ELS", f"{1e6 / rate:.2f} us/step", rate / naive)
-    rate = _rollout_rate(2, 1, 2000 if q else 20000, "KF-MILS")
+    rate = rollout_rate(2, 1, 2000 if q else 20000, "KF-MILS")
     row("compiled rollout, B=1, n=2, KF-MILS p=5", f"{1e6 / rate:.2f} us/step", rate / naive)
     for est in ("ELS", "KF-MILS"):
         for B in (1000, 10_000):
@@ -190,9 +193,9 @@ def main(argv: list[str] | None = None) -> None:
             if n > 2 and B > 100_000:
                 continue
             steps = max(10, min(2000, 2_000_000 // (B * n)))
-            rate = _rollout_rate(n, B, steps, "ELS")
+            rate = rollout_rate(n, B, steps, "ELS")
             row(f"compiled rollout, B={B}, n={n}, ELS", f"{rate:.3g} steps/s", rate / naive)
-    rate = _rollout_rate(2, 10_000, 50 if q else 200, "KF-MILS")
+    rate = rollout_rate(2, 10_000, 50 if q else 200, "KF-MILS")
     row("compiled rollout, B=10000, n=2, KF-MILS p=5", f"{rate:.3g} steps/s", rate / naive)
     from stcgym.adaptive import SelfTuningController
 
