@@ -72,11 +72,14 @@ def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) 
     designs of a fresh model) say so with ``@lane(allocates=True)``.
 
     ``inline=True`` (numba's ``inline="always"``) for the small building blocks (a Kalman step,
-    a Carlson update, a 3 x 3 inverse): numba compiles every function separately and LLVM does
-    not inline across them, so a call with a few array arguments (each passed as a dozen
-    machine words) costs as much as the arithmetic of a small step; inlined, a pole-placement
-    design of order 2 went from 1.1 to 0.47 us. The public entry points (``controller_step``,
-    ``place_design``, ``estimator_update``...) stay separate functions.
+    a 3 x 3 inverse, the design's and the controller's helpers): numba compiles every function
+    separately and LLVM does not inline across them, so a call with a few array arguments (each
+    passed as a dozen machine words) costs as much as the arithmetic of a small step; inlined, a
+    pole-placement design of order 2 went from 1.1 to 0.47 us. Where inlining was measured not
+    to help it is not used: the least-squares and estimator blocks (a Carlson update, the record
+    offsets) and the plant step stay calls, as inlining them made the KF-MILS step slower. The
+    public entry points (``controller_step``, ``place_design``, ``estimator_update``...) stay
+    separate functions.
     """
     return _jit(fn, allocates, parallel=False, inline=inline)
 

@@ -186,7 +186,7 @@ def is_schur_stable(a: NDArray, n: int, c: NDArray) -> bool:
         if not (-1.0 < k < 1.0):
             return False
         den = 1.0 - k * k
-        for i in range((m - 1 + 1) // 2):
+        for i in range(m // 2):  # the ceil((m - 1) / 2) pairs of the m - 1 new coefficients
             j = m - 2 - i
             ci, cj = c[i], c[j]
             c[i] = (ci - k * cj) / den
