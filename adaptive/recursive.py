@@ -778,6 +778,7 @@ def make_estimator(
     pd_check_every: int = 1,
     project_stable: bool = False,
     frozen_ratio: float = FROZEN_RATIO,
+    regressor: str = "predicted",
     num_envs: int | None = None,
     **removed: Any,
 ) -> RecursiveEstimator:
@@ -837,6 +838,15 @@ def make_estimator(
         ``frozen_ratio`` times the mean output power (default 0.05: the model explains less
         than 95 % of the output). On data whose noise exceeds that share of the output power
         raise it (``math.inf`` disables the signal). See the module docstring.
+    regressor : {"predicted", "filtered"}
+        State estimate the regressor ``phi_hat`` is built from. ``"predicted"`` (default): the
+        paper's ``x_hat(t)`` of (46)/(66). ``"filtered"`` (not in the paper; for closed-loop
+        use, where the self-tuning controller takes it): the measurement-corrected
+        ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` with the Kalman gain
+        ``g = P1 c^T / (R + c P1 c^T)`` (``KF``), or ``g = c^T`` with the state propagated from
+        ``x_hat(t|t)`` (``O``: the closed-loop observer (50) with ``K = A_hat c^T``, deadbeat in
+        the observer form). Not for ``CO``. Details in
+        :mod:`stcgym.adaptive.kernels.estimator`.
     num_envs : int, optional
         Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.
 
@@ -894,6 +904,7 @@ def make_estimator(
         pd_check_every=pd_check_every,
         project_stable=project_stable,
         frozen_ratio=frozen_ratio,
+        regressor=regressor,
     )
     if lane_P0 is not None and spec.decomposed:
         n_ = spec.n

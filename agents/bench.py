@@ -30,7 +30,9 @@ Controllers
 -----------
 ``ppo``, ``sac``, ``td3``, ``a2c``, ``rppo``: Stable-Baselines3 / sb3-contrib agents
 (:mod:`stcgym.agents.sb3`), one model per training environment and training seed. ``stc``:
-:class:`~stcgym.adaptive.SelfTuningController` with its defaults. ``oracle``:
+:class:`~stcgym.adaptive.SelfTuningController` with its defaults; ``stc_lq`` and
+``stc_kfmils``: the same with the self-tuning LQ design and on the paper's KF-MILS estimator
+(:mod:`stcgym.agents.controllers`). ``oracle``:
 :class:`~stcgym.adaptive.KnownModelController`, the same design on the true parameters (always
 evaluated: every ratio is taken to it). ``lqg``: :class:`~stcgym.adaptive.LQGController`, the
 optimal linear controller for the bench's cost on the true (pre-jump) parameters.
@@ -145,7 +147,16 @@ class BenchConfig:
     family_test: list[str] = field(default_factory=lambda: ["lightly_damped2", "nonminphase2"])
     jumps: list[str] = field(default_factory=lambda: ["timevarying2"])
     agents: list[str] = field(
-        default_factory=lambda: ["ppo", "sac", "rppo", "stc", "stc_lq", "oracle", "lqg"]
+        default_factory=lambda: [
+            "ppo",
+            "sac",
+            "rppo",
+            "stc",
+            "stc_lq",
+            "stc_kfmils",
+            "oracle",
+            "lqg",
+        ]
     )
     train_steps: dict[str, int] = field(default_factory=dict)
     train_seeds: int = 3
@@ -205,7 +216,7 @@ QUICK = dict(
     mode="quick",
     plants=["stable2"],
     jumps=["timevarying2"],
-    agents=["ppo", "sac", "rppo", "stc", "stc_lq", "oracle", "lqg"],
+    agents=["ppo", "sac", "rppo", "stc", "stc_lq", "stc_kfmils", "oracle", "lqg"],
     train_seeds=3,
     seeds=5,
     episode_steps=1000,
@@ -214,7 +225,7 @@ FULL = dict(
     mode="full",
     plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4"],
     jumps=["timevarying2", "stable2:unstable2"],
-    agents=["ppo", "sac", "td3", "a2c", "rppo", "stc", "stc_lq", "oracle", "lqg"],
+    agents=["ppo", "sac", "td3", "a2c", "rppo", "stc", "stc_lq", "stc_kfmils", "oracle", "lqg"],
     train_seeds=5,
     seeds=20,
     episode_steps=2000,

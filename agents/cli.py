@@ -26,7 +26,7 @@ __all__ = ["main", "build_parser"]
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
-    from stcgym.agents.bench import FULL, QUICK, BenchConfig
+    from stcgym.agents.bench import CONTROLLERS, FULL, QUICK, BenchConfig
     from stcgym.agents.configs import ALGORITHMS
     from stcgym.agents.executors import EXECUTORS
     from stcgym.envs.catalogue import plant_names
@@ -73,7 +73,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--agents",
-        help=f"comma list of {','.join(ALGORITHMS)},stc,oracle,lqg (quick default: "
+        help=f"comma list of {','.join([*ALGORITHMS, *CONTROLLERS])} (quick default: "
         f"{','.join(QUICK['agents'])}; full: {','.join(FULL['agents'])}); the oracle is "
         "always evaluated",
     )

@@ -3,9 +3,11 @@
 ``CONTROLLERS[name].build(cfg, scenario)`` gives a policy factory ``factory(plant, seed)`` (the
 protocol of :func:`stcgym.agents.evaluate.evaluate`): ``stc`` (the self-tuning controller with
 its defaults and the episode's seed), ``stc_lq`` (the same with the self-tuning LQ design,
-``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``), ``oracle``
-(the known-model controller, told the new parameters at a jump) and ``lqg`` (LQG on the true
-pre-jump parameters). Tests may register more.
+``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``),
+``stc_kfmils`` (the same as ``stc`` on the paper's KF-MILS estimator, ``estimator="KF-MILS"``,
+with the closed-loop settings the controller chooses for it), ``oracle`` (the known-model
+controller, told the new parameters at a jump) and ``lqg`` (LQG on the true pre-jump
+parameters). Tests may register more.
 """
 
 from __future__ import annotations
@@ -71,16 +73,26 @@ def stc_takes_seed() -> bool:
     return _accepts_seed(SelfTuningController)
 
 
-def _stc(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+def _self_tuning(cfg: Any, **options: Any) -> Callable[[Any, int], Any]:
+    """The self-tuning controller with its defaults and ``options`` (episode-seeded)."""
     from stcgym.adaptive import SelfTuningController
 
     seeded = stc_takes_seed()
 
     def factory(plant: Any, seed: int) -> Any:
         kw = {"seed": int(seed)} if seeded else {}
-        return SelfTuningController(plant.n, action_bound=cfg.action_bound, **kw)
+        return SelfTuningController(plant.n, action_bound=cfg.action_bound, **options, **kw)
 
     return factory
+
+
+def _stc(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    return _self_tuning(cfg)
+
+
+def _stc_kfmils(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    # no estimator options: the controller picks its closed-loop settings for KF-MILS itself
+    return _self_tuning(cfg, estimator="KF-MILS")
 
 
 def _stc_lq(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
@@ -126,6 +138,12 @@ def _lqg(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
 CONTROLLERS: dict[str, ControllerInfo] = {
     "stc": ControllerInfo("adaptive", _stc, True, "self-tuning controller (defaults)"),
     "stc_lq": ControllerInfo("adaptive", _stc_lq, True, "self-tuning LQ (design='lq')"),
+    "stc_kfmils": ControllerInfo(
+        "adaptive",
+        _stc_kfmils,
+        True,
+        "the self-tuning controller on the paper's KF-MILS estimator",
+    ),
     "oracle": ControllerInfo(
         "oracle", _oracle, False, "known-model controller (regulator's design, true parameters)"
     ),

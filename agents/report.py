@@ -12,8 +12,9 @@ stratified-bootstrap interval (:mod:`stcgym.agents.statistics`, i.e. ``rliable``
    the cost stays within 1.2x of the oracle told the new parameters (``inf``, shown as "never",
    when it does not; median with the share of runs that recovered).
 
-Whole-episode cost stays as a column, and the probability that ``stc`` has the lower cost
-(rliable's probability of improvement) is given against every other controller.
+Whole-episode cost stays as a column, and the probability that each self-tuning controller
+(``stc``, ``stc_lq``, ``stc_kfmils``) has the lower cost (rliable's probability of improvement)
+is given against every other controller.
 """
 
 from __future__ import annotations
@@ -43,6 +44,15 @@ _DETAIL_COLUMNS = (
     "settling_steps",
     "startup_settling_steps",
 )
+
+#: The self-tuning controllers given against every other controller, each with the key of its
+#: probability of the lower episode cost in :func:`headline` (and a column of the headline).
+_SELF_TUNING = {"stc": "poi", "stc_lq": "poi_lq", "stc_kfmils": "poi_kfmils"}
+#: How the conclusions name the self-tuning controllers other than ``stc``.
+_VARIANTS = {
+    "stc_lq": "self-tuning LQ (stc_lq)",
+    "stc_kfmils": "the self-tuning controller on the paper's KF-MILS estimator (stc_kfmils)",
+}
 
 
 def _g(x: float | None, digits: int = 3) -> str:
@@ -135,19 +145,19 @@ def headline(
         c: data[c][:, extra[c]["cols"].index("cost")] for c in data if "cost" in extra[c]["cols"]
     }
     # probability that each self-tuning controller has the lower episode cost than every other
-    poi, poi_lq = (
-        probability_of_improvement(costs, name, reps=reps)
+    poi = {
+        name: probability_of_improvement(costs, name, reps=reps)
         if name in costs and len(costs) > 1
         else {}
-        for name in ("stc", "stc_lq")
-    )
+        for name in _SELF_TUNING
+    }
     out = {}
     for c, info in extra.items():
         res = dict(info)
         for j, k in enumerate(info["cols"]):
             res[k] = {"iqm": est[c]["iqm"][j], "median": est[c]["median"][j]}
-        res["poi"] = poi.get(c)
-        res["poi_lq"] = poi_lq.get(c)
+        for name, key in _SELF_TUNING.items():
+            res[key] = poi[name].get(c)
         out[c] = res
     return out
 
@@ -184,7 +194,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
     ]
     if jump:
         cols += ["post-jump / oracle, IQM", "re-converge steps, median (recovered)"]
-    cols += ["episode cost, IQM", "P(stc cost lower)", "P(stc_lq cost lower)"]
+    cols += ["episode cost, IQM", *(f"P({name} cost lower)" for name in _SELF_TUNING)]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c, res in hl.items():
         div = f" ({res['failures']})" if res["failures"] else ""
@@ -197,7 +207,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
         if jump:
             cells += [_cell(res, "post_jump_ratio"), _cell(res, "reconverge_steps", "median")]
         cells.append(_cell(res, "cost"))
-        for key in ("poi", "poi_lq"):
+        for key in _SELF_TUNING.values():
             p = res.get(key)
             cells.append(p.format(2) if p is not None else "-")
         lines.append("| " + " | ".join(cells) + " |")
@@ -223,12 +233,14 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
             f"stc ends at {_g(stc['steady_ratio']['iqm'].value)}x the oracle's steady cost and "
             + _reach(stc, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
         )
-    lq = hl.get("stc_lq")
-    if lq is not None and "steady_ratio" in lq:
-        parts.append(
-            f"self-tuning LQ (stc_lq) ends at {_g(lq['steady_ratio']['iqm'].value)}x and "
-            + _reach(lq, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
-        )
+    variants = [ctl for ctl in _VARIANTS if ctl in hl]
+    for ctl in variants:
+        res = hl[ctl]
+        if "steady_ratio" in res:
+            parts.append(
+                f"{_VARIANTS[ctl]} ends at {_g(res['steady_ratio']['iqm'].value)}x and "
+                + _reach(res, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
+            )
     rl = {
         c: r
         for c, r in hl.items()
@@ -251,13 +263,15 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
         parts.append(
             f"stc has the lower episode cost more often than not against {', '.join(better)}"
         )
-    if lq is not None:
-        rivals = [c for c, r in hl.items() if c not in CONTROLLERS and r.get("poi_lq") is not None]
-        wins = [c for c in rivals if hl[c]["poi_lq"].value > 0.5]
+    for ctl in variants:
+        # against the RL agents only: a classical controller is never counted as one
+        key = _SELF_TUNING[ctl]
+        rivals = [c for c, r in hl.items() if c not in CONTROLLERS and r.get(key) is not None]
+        wins = [c for c in rivals if hl[c][key].value > 0.5]
         losses = [c for c in rivals if c not in wins]
         if rivals:
             parts.append(
-                "stc_lq has the lower episode cost more often than not against "
+                f"{ctl} has the lower episode cost more often than not against "
                 f"{', '.join(wins) or 'no RL agent'}"
                 + (f", not against {', '.join(losses)}" if losses else "")
             )
@@ -383,10 +397,11 @@ def write_report(
         "the middle 50 % of runs. All "
         "ratios are to the known-model oracle on the same episode (seed, noise, reference). "
         "Env steps to <= 1.2x: training steps for RL (learning curve), adaptation steps "
-        "within the episode for `stc`, 0 for a controller that starts there. "
-        "P(stc cost lower), P(stc_lq cost lower): probability that `stc` (`stc_lq`) has the "
-        "lower episode cost than that "
-        "controller on a random pair of runs.",
+        "within the episode for the self-tuning controllers, 0 for a controller that starts "
+        "there. P(stc cost lower), P(stc_lq cost lower), P(stc_kfmils cost lower): "
+        "probability that `stc` (the self-tuning controller with its defaults), `stc_lq` "
+        "(self-tuning LQ) or `stc_kfmils` (the self-tuning controller on the paper's KF-MILS "
+        "estimator) has the lower episode cost than that controller on a random pair of runs.",
         "",
     ]
     sentences = []

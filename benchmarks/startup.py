@@ -1,33 +1,40 @@
-"""Start-up benchmark of the self-tuning controller (issue: close the loop from the first samples).
+"""Start-up and estimator benchmark of the self-tuning controller: every estimator name in the
+closed loop, on the catalogue and on a random family of plants.
 
 Usage::
 
-    python benchmarks/startup.py [--seeds 20] [--plants 1000] [--steps 1000] [--out FILE.json]
+    python benchmarks/startup.py [--seeds 20] [--plants 1000] [--steps 1000] [--names ...]
+                                 [--out FILE.json]
 
 Setting: ``stcgym/ObserverCanonical-v0``, square-wave reference of period 100, output noise std
 0.05, ``action_bound`` 10, ``control_cost`` 0.01. Cost of step ``k`` is the env's ``-reward``;
 episode cost is the sum over the episode, start included; a diverged episode (``|y| > 100``)
 counts as unbounded. Every episode and every lane gets its own controller seed.
 
-Sections
---------
 Costs come from the compiled rollout (:func:`stcgym.adaptive.rollout.rollout`, the env's own
 plant step) for the controller and from the oracles stepped on the same plant and noise.
 
-* **catalogue**: per plant, the ratio of the seed-averaged episode cost of
-  ``SelfTuningController(n)`` (defaults) to :class:`KnownModelController` (same poles), the start
-  window (steps 0-100) ratio, the steps to settle (first ``k`` from which the 100-step window
-  cost is within 1.2x the oracle's), and the same ratio for every estimator name and for
-  ``design="lq"`` against :class:`LQGController`; for ``timevarying2`` the post-jump window
-  (1000-1500 of a 1500-step episode) against the oracle that switches to the new parameters.
-* **random family**: ``--plants`` second-order plants, poles up to magnitude 1.15 (real or
-  complex), ``|b_i|`` in ``[0.1, 4]``, no zero within 0.1 of a pole; bounded fraction among the
-  plants the oracle holds, median and 90th percentile of the episode ratio, the plants lost
-  (poles, zeros, DC gain), false alarms of the change detector (alarms on these
-  time-invariant plants).
+Sections
+--------
+* **estimators on the random family** (one row per name: ``"ELS"`` and the 16 paper names, each
+  with the controller's default settings for it): ``--plants`` second-order plants, poles up to
+  magnitude 1.15 (real or complex), ``|b_i|`` in ``[0.1, 4]``, no zero within 0.1 of a pole;
+  the plants lost among those ``KnownModelController`` holds (and how many of them are
+  open-loop unstable), the bounded fraction, median and 90th percentile of the episode ratio
+  over the oracle. For the default estimator also the plants lost and the change detector's
+  false alarms (alarms on these time-invariant plants).
+* **estimators on the catalogue** (one row per name): geometric mean and worst plant of the
+  seed-averaged episode ratio over the catalogue, seeds of ``unstable2`` bounded, and the
+  ``timevarying2`` post-jump window (1000-1500 of a 1500-step episode) against the oracle
+  that switches to the new parameters.
+* **catalogue details** for the default estimator: start window (steps 0-100), steps 100-,
+  steps to settle (first ``k`` from which the 100-step window cost is within 1.2x the
+  oracle's), and ``design="lq"`` against :class:`LQGController`.
 
-Targets (issue 11): catalogue every ratio <= 1.5, geometric mean <= 1.3; random family bounded
-on >= 99.5 % of the plants the oracle holds, median <= 1.15, p90 <= 1.5; LQ <= 1.3x LQG.
+Targets: every estimator name bounded on >= 99.5 % of the plants the oracle holds; for the
+default and the paper's O-RLS and KF-MILS median <= 1.15, p90 <= 1.5, catalogue geometric mean
+<= 1.3 and every plant <= 1.5, ``unstable2`` bounded on every seed, within 1.2x of the
+informed oracle after the jump; LQ <= 1.3x LQG.
 """
 
 from __future__ import annotations
@@ -51,6 +58,9 @@ from stcgym.envs.canonical import companion_A
 NOISE = 0.05
 BOUND = 10.0
 CATALOGUE = ("stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4")
+#: The controller's default estimator, then the paper's 16 names.
+DEFAULT = "ELS"
+NAMES = (DEFAULT, *ALGORITHMS)
 
 
 NDArray = np.ndarray
@@ -124,7 +134,13 @@ def _ratio(c: NDArray, o: NDArray) -> float:
     return float(c[held].sum(1).mean() / o[held].sum(1).mean())
 
 
-def catalogue(seeds: int, steps: int) -> dict[str, Any]:
+def _estimator_kw(name: str) -> dict[str, Any]:
+    return {} if name == DEFAULT else {"estimator": name}
+
+
+def catalogue(seeds: int, steps: int, names: tuple[str, ...]) -> dict[str, Any]:
+    """Per plant and estimator name: seed-averaged episode ratio and bounded fraction; for the
+    default estimator also the start/steady windows, settling and ``design="lq"``."""
     rows: dict[str, Any] = {}
     for j, plant in enumerate(CATALOGUE):
         spec = PLANTS[plant]
@@ -140,7 +156,7 @@ def catalogue(seeds: int, steps: int) -> dict[str, Any]:
         for name, kw, ref in (
             ("default", {}, orc),
             ("lq", {"design": "lq"}, lqg),
-            *[(est, {"estimator": est}, orc) for est in ALGORITHMS],
+            *[(est, _estimator_kw(est), orc) for est in names if est != DEFAULT],
         ):
             c, _ = stc_costs(th, z, steps, 1000 * j, **kw)
             entry = {"ratio": _ratio(c, ref), "bounded": float(np.isfinite(c).all(1).mean())}
@@ -149,6 +165,7 @@ def catalogue(seeds: int, steps: int) -> dict[str, Any]:
                 entry["steady_ratio"] = _ratio(c[:, 100:], ref[:, 100:])
                 entry["settle"] = settle_step(c.mean(0), ref.mean(0))
             row[name] = entry
+        row[DEFAULT] = row["default"]
         rows[plant] = row
         d = row["default"]
         print(
@@ -158,19 +175,24 @@ def catalogue(seeds: int, steps: int) -> dict[str, Any]:
             f"after {row['lq']['steady_ratio']:.2f})",
             flush=True,
         )
-        print(
-            "    paper estimators (ratio, bounded): "
-            + ", ".join(f"{e} {row[e]['ratio']:.3g}/{row[e]['bounded']:.2f}" for e in ALGORITHMS),
-            flush=True,
-        )
-    r = [rows[p]["default"]["ratio"] for p in CATALOGUE]
-    rows["geometric_mean"] = float(np.exp(np.mean(np.log(r))))
-    rows["max"] = float(np.max(r))
-    print(f"catalogue: max {rows['max']:.3f}  geometric mean {rows['geometric_mean']:.3f}")
+    summary = {}
+    for name in names:
+        r = np.array([rows[p][name]["ratio"] for p in CATALOGUE])
+        worst = int(np.argmax(r))
+        summary[name] = {
+            "geometric_mean": float(np.exp(np.mean(np.log(r)))),
+            "max": float(r[worst]),
+            "worst_plant": CATALOGUE[worst],
+            "unstable2_bounded": rows["unstable2"][name]["bounded"],
+        }
+    rows["by_estimator"] = summary
+    d = summary[DEFAULT]
+    rows["geometric_mean"], rows["max"] = d["geometric_mean"], d["max"]
+    print(f"catalogue ({DEFAULT}): max {d['max']:.3f}  geometric mean {d['geometric_mean']:.3f}")
     return rows
 
 
-def jump(seeds: int) -> dict[str, float]:
+def jump(seeds: int, names: tuple[str, ...]) -> dict[str, Any]:
     """``timevarying2`` (jump at 1000): window 1000-1500 against the oracle that knows it."""
     spec = PLANTS["timevarying2"]
     th = np.tile(spec.theta, (seeds, 1))
@@ -180,18 +202,22 @@ def jump(seeds: int) -> dict[str, float]:
         *_, info = env.step(np.zeros(1))
     after = np.asarray(info["theta"], dtype=float)
     z = np.random.default_rng(7).standard_normal((seeds, 1501))
-    c, ctl = stc_costs(th, z, 1500, 0, jump=(1000, after))
     o = oracle_costs(
         [KnownModelController(spec.a, spec.b) for _ in range(seeds)], th, z, 1500, (1000, after)
     )
     w = slice(1000, 1500)
-    out = {
-        "post_jump_ratio": float(c[:, w].sum(1).mean() / o[:, w].sum(1).mean()),
-        "alarms_per_lane": float(np.mean(ctl.diagnostics["n_alarms"])),
-    }
+    out: dict[str, Any] = {}
+    for name in names:
+        c, ctl = stc_costs(th, z, 1500, 0, jump=(1000, after), **_estimator_kw(name))
+        out[name] = {
+            "post_jump_ratio": float(c[:, w].sum(1).mean() / o[:, w].sum(1).mean()),
+            "alarms_per_lane": float(np.mean(ctl.diagnostics["n_alarms"])),
+        }
+    d = out[DEFAULT]
     print(
-        f"timevarying2 post-jump ratio {out['post_jump_ratio']:.3f} "
-        f"(alarms per lane {out['alarms_per_lane']:.2f})"
+        f"timevarying2 ({DEFAULT}) post-jump ratio {d['post_jump_ratio']:.3f} "
+        f"(alarms per lane {d['alarms_per_lane']:.2f})",
+        flush=True,
     )
     return out
 
@@ -213,50 +239,99 @@ def random_plants(count: int, rng: np.random.Generator) -> list[tuple[NDArray, N
     return plants
 
 
-def family(count: int, steps: int, seed: int = 0) -> dict[str, Any]:
+def family(count: int, steps: int, names: tuple[str, ...], seed: int = 0) -> dict[str, Any]:
+    """Every estimator name on ``count`` random second-order plants (same plants and noise)."""
     rng = np.random.default_rng(seed)
     plants = random_plants(count, rng)
     th = np.array([np.r_[a, b] for a, b in plants])
     z = rng.standard_normal((count, steps + 1))
-    c_stc, ctl = stc_costs(th, z, steps, 10_000)
     c_orc = oracle_costs([KnownModelController(a, b) for a, b in plants], th, z, steps)
     held = np.isfinite(c_orc).all(1)
-    ok = np.isfinite(c_stc).all(1)
-    ratio = c_stc.sum(1)[held & ok] / c_orc.sum(1)[held & ok]
-    after = c_stc[:, 100:].sum(1)[held & ok] / c_orc[:, 100:].sum(1)[held & ok]
-    lost_rows = []
-    for i in np.flatnonzero(held & ~ok):
-        a, b = plants[i]
-        den = 1.0 + a.sum()
-        lost_rows.append(
-            {
-                "poles": np.roots(np.r_[1.0, a]).round(3).astype(str).tolist(),
-                "zero": round(float(-b[1] / b[0]), 3),
-                "dc_gain": float(b.sum() / den) if abs(den) > 1e-12 else float("inf"),
-            }
+    unstable = np.array([np.max(np.abs(np.roots(np.r_[1.0, a]))) >= 1.0 for a, _ in plants])
+    out: dict[str, Any] = {"plants": count, "oracle_held": int(held.sum()),
+                           "oracle_held_unstable": int((held & unstable).sum())}  # fmt: skip
+    for name in names:
+        c_stc, ctl = stc_costs(th, z, steps, 10_000, **_estimator_kw(name))
+        ok = np.isfinite(c_stc).all(1)
+        ratio = c_stc.sum(1)[held & ok] / c_orc.sum(1)[held & ok]
+        after = c_stc[:, 100:].sum(1)[held & ok] / c_orc[:, 100:].sum(1)[held & ok]
+        lost = held & ~ok
+        row: dict[str, Any] = {
+            "lost": int(lost.sum()),
+            "lost_unstable": int((lost & unstable).sum()),
+            "bounded_fraction_of_held": float((held & ok).sum() / max(held.sum(), 1)),
+            "median_ratio": float(np.median(ratio)) if ratio.size else float("inf"),
+            "p90_ratio": float(np.percentile(ratio, 90)) if ratio.size else float("inf"),
+            "p90_ratio_after_100": float(np.percentile(after, 90)) if ratio.size else float("inf"),
+            "lanes_with_alarm": int((ctl.diagnostics["n_alarms"] > 0).sum()),
+        }
+        if name == DEFAULT:
+            row["diverged_after_alarm"] = int(((ctl.diagnostics["n_alarms"] > 0) & lost).sum())
+            row["lost_plants"] = [_describe(*plants[i]) for i in np.flatnonzero(lost)]
+        out[name] = row
+        print(
+            f"{name:10s} lost {row['lost']:4d} ({row['lost_unstable']} open-loop unstable), "
+            f"bounded {100 * row['bounded_fraction_of_held']:6.2f} %, median "
+            f"{row['median_ratio']:.3f}, p90 {row['p90_ratio']:.3f} (steps 100-: "
+            f"{row['p90_ratio_after_100']:.3f}), lanes with an alarm {row['lanes_with_alarm']}",
+            flush=True,
         )
-    out = {
-        "plants": count,
-        "oracle_held": int(held.sum()),
-        "bounded_fraction_of_held": float((held & ok).sum() / max(held.sum(), 1)),
-        "median_ratio": float(np.median(ratio)),
-        "p90_ratio": float(np.percentile(ratio, 90)),
-        "p90_ratio_after_100": float(np.percentile(after, 90)),
-        "lanes_with_alarm": int((ctl.diagnostics["n_alarms"] > 0).sum()),
-        "diverged_after_alarm": int(((ctl.diagnostics["n_alarms"] > 0) & held & ~ok).sum()),
-        "lost": lost_rows,
-    }
+    d = out[DEFAULT]
     print(
-        f"random family: {count} plants, oracle holds {out['oracle_held']}, stc bounded on "
-        f"{100 * out['bounded_fraction_of_held']:.2f} % of those, median ratio "
-        f"{out['median_ratio']:.3f}, p90 {out['p90_ratio']:.3f} (steps 100- alone: p90 "
-        f"{out['p90_ratio_after_100']:.3f}); false alarms on "
-        f"{out['lanes_with_alarm']} lanes ({out['diverged_after_alarm']} of them lost); "
-        f"lost {len(lost_rows)}"
+        f"random family: {count} plants, oracle holds {out['oracle_held']} "
+        f"({out['oracle_held_unstable']} open-loop unstable); {DEFAULT}: false alarms on "
+        f"{d['lanes_with_alarm']} lanes ({d['diverged_after_alarm']} of them lost)"
     )
-    for row in lost_rows:
+    for row in d["lost_plants"]:
         print("  lost:", row)
     return out
+
+
+def _describe(a: NDArray, b: NDArray) -> dict[str, Any]:
+    den = 1.0 + a.sum()
+    return {
+        "poles": np.roots(np.r_[1.0, a]).round(3).astype(str).tolist(),
+        "zero": round(float(-b[1] / b[0]), 3),
+        "dc_gain": float(b.sum() / den) if abs(den) > 1e-12 else float("inf"),
+    }
+
+
+def _fmt(v: float) -> str:
+    return "inf" if not np.isfinite(v) else f"{v:.2f}"
+
+
+def table(result: dict[str, Any], names: tuple[str, ...]) -> str:
+    """The markdown table of every estimator name (the README shows it)."""
+    fam, cat, jmp = result.get("family"), result.get("catalogue"), result.get("jump")
+    head = ["estimator"]
+    if fam:
+        head += ["family: lost (unstable)", "bounded %", "median", "p90"]
+    if cat:
+        head += ["catalogue: geo. mean", "worst plant", "unstable2 bounded"]
+    if jmp:
+        head += ["after the jump"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name in names:
+        cells = [f"`{name}`"]
+        if fam:
+            f = fam[name]
+            cells += [
+                f"{f['lost']} ({f['lost_unstable']})",
+                f"{100 * f['bounded_fraction_of_held']:.1f}",
+                _fmt(f["median_ratio"]),
+                _fmt(f["p90_ratio"]),
+            ]
+        if cat:
+            c = cat["by_estimator"][name]
+            cells += [
+                _fmt(c["geometric_mean"]),
+                f"{_fmt(c['max'])} ({c['worst_plant']})",
+                f"{100 * c['unstable2_bounded']:.0f} %",
+            ]
+        if jmp:
+            cells += [_fmt(jmp[name]["post_jump_ratio"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -264,16 +339,22 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--plants", type=int, default=1000)
     ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--names", nargs="+", default=list(NAMES), help="estimator names")
     ap.add_argument("--skip-catalogue", action="store_true")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
+    names = tuple(dict.fromkeys([DEFAULT, *args.names]))  # the default first, once
+    for name in names:
+        SelfTuningController(2, **_estimator_kw(name))  # an unknown name fails here, at once
     warnings.simplefilter("ignore", RuntimeWarning)
     result: dict[str, Any] = {}
     if args.plants:
-        result["family"] = family(args.plants, args.steps)
+        result["family"] = family(args.plants, args.steps, names)
     if not args.skip_catalogue:
-        result["jump"] = jump(args.seeds)
-        result["catalogue"] = catalogue(args.seeds, args.steps)
+        result["jump"] = jump(args.seeds, names)
+        result["catalogue"] = catalogue(args.seeds, args.steps, names)
+    print()
+    print(table(result, names))
     if args.out:
         d = os.path.dirname(os.path.abspath(args.out))
         with tempfile.NamedTemporaryFile("w", dir=d, delete=False, suffix=".tmp") as fh:

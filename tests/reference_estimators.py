@@ -12,6 +12,8 @@ structure exploited, no health checks): the compiled lane functions of
 * D- rules (96)-(145): the same on ``a`` (rows ``0..n-1``) and ``b`` (rows ``n..2n-1``), both
   with the innovation computed from ``theta(t-1)``;
 * open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
+* ``filtered=True``: the regressor from ``x_hat(t|t) = x_hat(t) + g (y(t) - x1_hat(t))``,
+  ``g = P1 c^T / (R + c P1 c^T)`` (KF) or ``c^T`` (O, which then propagates ``x_hat(t|t)``);
 * regressors (9)/(57) (observer form) and (153) (observability form), zero before ``t = 1``.
 """
 
@@ -41,6 +43,7 @@ class ReferenceEstimator:
         Q=None,
         R: float = 1.0,
         K=None,
+        filtered: bool = False,
     ) -> None:
         parts = name.upper().split("-")
         self.state, self.rule, self.decomposed = parts[0], parts[-1], len(parts) == 3
@@ -55,6 +58,7 @@ class ReferenceEstimator:
         self.Q = np.zeros((n, n)) if Q is None else np.array(Q, float)
         self.R = R
         self.K = None if K is None else np.array(K, float)
+        self.filtered = filtered
         self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
         self.Y = np.zeros(p)
         self.xs = [np.zeros(n) for _ in range(n)]  # x_hat(t), x_hat(t-1), ..., zero before 1
@@ -99,6 +103,10 @@ class ReferenceEstimator:
         b = self.theta[n:]
         x = self.x
         c = np.eye(n)[0]
+        x_reg = x  # the state estimate the regressor is built from
+        if self.filtered:  # x_hat(t|t) = x_hat(t) + g (y(t) - c x_hat(t))
+            g = self.P1 @ c / (self.R + c @ self.P1 @ c) if self.state == "KF" else c
+            x_reg = x + g * (self.y - x[0])
         if self.state == "KF":
             s = self.R + c @ self.P1 @ c
             L1 = A @ self.P1 @ c / s
@@ -107,12 +115,14 @@ class ReferenceEstimator:
             self.L1 = L1
         elif self.K is not None:
             x_next = A @ x + b * u + self.K * (self.y - x[0])
+        elif self.filtered:  # output injection: propagate the corrected estimate
+            x_next = A @ x_reg + b * u
         else:
             x_next = A @ x + b * u
         # regressor phi_hat(t+1)
-        self.xs = [x.copy(), *self.xs[:-1]]
+        self.xs = [x_reg.copy(), *self.xs[:-1]]
         if self.form == "observer":
-            phi_a = np.r_[-x[0], self.phi[: n - 1]]
+            phi_a = np.r_[-x_reg[0], self.phi[: n - 1]]
         else:
             phi_a = -self.xs[n - 1][::-1]
         self.phi = np.r_[phi_a, u, self.phi[n : 2 * n - 1]]

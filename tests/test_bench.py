@@ -12,10 +12,13 @@ import pytest
 from stcgym.agents import bench as bench_mod
 from stcgym.agents.bench import (
     CONTROLLERS,
+    FULL,
     METRIC_COLUMNS,
     QUICK,
+    BenchConfig,
     ControllerInfo,
     build_config,
+    make_scenarios,
 )
 from stcgym.agents.cli import main
 
@@ -50,7 +53,7 @@ TINY = [
     "--hp",
     "rppo.n_epochs=2",
     "--agents",
-    "ppo,rppo,stc,stc_lq,oracle,lqg",
+    "ppo,rppo,stc,stc_lq,stc_kfmils,oracle,lqg",
     "--bootstrap-reps",
     "100",
     "--jobs",
@@ -112,7 +115,7 @@ def test_end_to_end_writes_every_file(tiny_run):
     }
     assert {s for s, _ in per} == scenarios
     for s in scenarios:
-        for c in ("stc", "stc_lq", "oracle", "lqg"):
+        for c in ("stc", "stc_lq", "stc_kfmils", "oracle", "lqg"):
             assert len(per[(s, c)]) == 2  # evaluation seeds
         assert len(per[(s, "ppo")]) == 4  # training seeds x evaluation seeds
         # the recurrent agent is trained on the family: held-out plants and the jump only
@@ -127,7 +130,7 @@ def test_end_to_end_writes_every_file(tiny_run):
         if r["family"] == "rl":
             assert int(r["train_steps"]) >= 300 and float(r["train_wall_s"]) > 0
             assert int(r["data_steps"]) == int(r["train_steps"])
-        elif r["controller"] in ("stc", "stc_lq"):
+        elif r["controller"] in ("stc", "stc_lq", "stc_kfmils"):
             assert r["family"] == "adaptive"
             assert int(r["data_steps"]) == int(r["steps_run"])
             assert r["controller_seed"] == r["seed"]  # every episode its own controller seed
@@ -150,6 +153,11 @@ def test_end_to_end_writes_every_file(tiny_run):
     assert "P(stc_lq cost lower)" in report and "self-tuning LQ (stc_lq) ends at" in report
     assert "stc_lq has the lower episode cost more often than not against" in report
     assert "the best RL agent (stc_lq)" not in report
+    # and so is the self-tuning controller on the paper's KF-MILS estimator
+    assert "P(stc_kfmils cost lower)" in report
+    assert "self-tuning controller on the paper's KF-MILS estimator (stc_kfmils) ends at" in report
+    assert "stc_kfmils has the lower episode cost more often than not against" in report
+    assert "the best RL agent (stc_kfmils)" not in report
     assert "training seed, evaluation seed" in report  # what the intervals cover
 
     # progress over the whole run, and the learning curve through SB3's logger
@@ -266,6 +274,50 @@ def test_bare_bench_runs_the_quick_preset_that_help_describes(monkeypatch, capsy
     help_text = " ".join(capsys.readouterr().out.split())
     assert f"quick default: {','.join(QUICK['agents'])}" in help_text
     assert "estimate is printed first" in help_text  # --full announces its time
+
+
+def test_stc_kfmils_is_stc_on_the_kf_mils_estimator_in_every_scenario(tmp_path):
+    from stcgym.adaptive import SelfTuningController
+    from stcgym.envs.catalogue import get_plant
+
+    for agents in (QUICK["agents"], FULL["agents"], BenchConfig(run="x").agents):
+        assert "stc_kfmils" in agents
+    info = CONTROLLERS["stc_kfmils"]
+    assert info.kind == "adaptive" and info.online
+    cfg = build_config(
+        quick=True,
+        run="kf",
+        out=str(tmp_path),
+        agents="stc,stc_lq,stc_kfmils,oracle,lqg",
+        seeds=2,
+        episode_steps=120,
+        plots=False,
+        bootstrap_reps=50,
+    )
+    for sc in make_scenarios(cfg):
+        plant = get_plant(sc.plant)
+        ctl = info.build(cfg, sc)(plant, 7)
+        ref = CONTROLLERS["stc"].build(cfg, sc)(plant, 7)
+        assert isinstance(ctl, SelfTuningController) and ctl.estimator == "KF-MILS"
+        assert ref.estimator == "ELS"  # otherwise built as stc: same design, bound and seed
+        assert (ctl.n, ctl.design, ctl.action_bound) == (ref.n, ref.design, ref.action_bound)
+        assert list(ctl.seeds) == list(ref.seeds) == [7]
+        assert list(ctl.poles) == list(ref.poles)
+
+    bench_mod.run_bench(cfg, log=lambda msg: None)
+    _, rows = _rows(tmp_path / "kf" / "metrics.csv")
+    scenarios = {r["scenario"] for r in rows}
+    assert len(scenarios) == 4
+    for s in scenarios:
+        ours = [r for r in rows if r["scenario"] == s and r["controller"] == "stc_kfmils"]
+        assert len(ours) == 2 and all(r["family"] == "adaptive" for r in ours)
+    report = (tmp_path / "kf" / "report.md").read_text()
+    assert "| P(stc cost lower) | P(stc_lq cost lower) | P(stc_kfmils cost lower) |" in report
+    assert "self-tuning controller on the paper's KF-MILS estimator (stc_kfmils) ends at" in report
+    # no RL agent in this run: the classical controllers are not rivals, nor the best RL agent
+    for name in ("stc_lq", "stc_kfmils"):
+        assert f"{name} has the lower episode cost" not in report
+    assert "the best RL agent" not in report
 
 
 def test_unwritable_output_folder(tmp_path, capsys):

@@ -175,6 +175,74 @@ def test_kernels_equal_the_dense_reference(name, form):
 
 
 # --------------------------------------------------------------------------------------------
+# The closed-loop regressor option (regressor="filtered")
+# --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("name", ["O-RLS", "KF-MILS", "O-D-SG", "KF-D-RLS", "O-MISG"])
+def test_filtered_regressor_equals_the_dense_reference(name, form):
+    u, y = data(form=form)
+    kw: dict = {"p": 3} if "MI" in name else {}
+    ref_kw: dict = dict(kw)
+    if name.startswith("KF"):
+        kw |= {"process_noise": 0.01, "measurement_noise": 0.5}
+        ref_kw |= {"Q": 0.01 * np.eye(2), "R": 0.5}
+    est = make_estimator(name, 2, p0=100.0, form=form, regressor="filtered", **kw)
+    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, filtered=True, **ref_kw)
+    paper = ReferenceEstimator(name, 2, p0=100.0, form=form, **ref_kw)
+    for k in range(len(u)):
+        th, th_ref, th_paper = est.update(y[k]), ref.update(y[k]), paper.update(y[k])
+        np.testing.assert_allclose(th, th_ref, rtol=REF_RTOL, atol=1e-12)
+        np.testing.assert_allclose(est.predict(u[k]), ref.predict(u[k]), rtol=REF_RTOL, atol=1e-12)
+        paper.predict(u[k])
+    np.testing.assert_allclose(est.phi, ref.Phi[:, 0], rtol=REF_RTOL, atol=1e-12)
+    # the option changes the algorithm: the paper's regressor gives other estimates
+    assert np.max(np.abs(th_ref - th_paper)) > 1e-6
+
+
+def test_filtered_open_loop_observer_is_least_squares_on_measured_outputs():
+    """Observer form, ``g = c^T``: ``phi_hat(t) = [-y(t-1), -y(t-2), u(t-1), u(t-2)]``, so
+    O-RLS with ``P(0) = p0 I`` is regularised batch least squares on input-output data."""
+    u, y = data(T=300, seed=3, noise=0.05)
+    p0 = 1e3
+    est = make_estimator("O-RLS", 2, p0=p0, theta0=np.zeros(4), regressor="filtered")
+    th = est.run(u, y)[-1]
+    yp = np.r_[0.0, 0.0, y]
+    up = np.r_[0.0, 0.0, u]
+    H = np.column_stack([-yp[1:-1], -yp[:-2], up[1:-1], up[:-2]])  # rows t = 1..T
+    theta_ls = np.linalg.solve(H.T @ H + np.eye(4) / p0, H.T @ y)
+    np.testing.assert_allclose(th, theta_ls, rtol=1e-8, atol=1e-10)
+    # and it is close to the plant (white noise on y; a small equation-error bias only)
+    np.testing.assert_allclose(th, np.r_[A_TRUE, B_TRUE], atol=0.05)
+
+
+def test_filtered_open_loop_observer_is_deadbeat_on_an_unstable_model():
+    """The paper's open-loop observer of an unstable model diverges whatever the data; the
+    output injection of ``regressor="filtered"`` keeps the state estimate bounded."""
+    a_unstable = np.array([-2.3, 1.32])  # poles 1.2, 1.1
+    kw = {"theta0": np.r_[a_unstable, 0.5, 0.2], "enabled": False}  # a model that cannot move
+    paper = make_estimator("O-RLS", 2, **kw)
+    filt = make_estimator("O-RLS", 2, regressor="filtered", **kw)
+    u, y = data(T=200, seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for k in range(len(u)):
+            for e in (paper, filt):
+                e.update(y[k])
+                e.predict(u[k])
+    assert np.max(np.abs(paper.x_hat)) > 1e6 or paper.health["n_state_resets"] > 0
+    assert np.max(np.abs(filt.x_hat)) < 100.0
+
+
+def test_filtered_regressor_is_validated():
+    with pytest.raises(ValueError, match="regressor must be one of"):
+        make_estimator("KF-RLS", 2, regressor="smoothed")
+    with pytest.raises(ValueError, match="closed-loop observer"):
+        make_estimator("CO-RLS", 2, observer_gain=[0.1, 0.0], regressor="filtered")
+
+
+# --------------------------------------------------------------------------------------------
 # A single estimator is its lane of a batch, bit for bit (same compiled code on both sides)
 # --------------------------------------------------------------------------------------------
 

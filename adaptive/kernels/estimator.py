@@ -31,6 +31,8 @@ Published interface (used by the self-tuning controller's lane step; signatures 
     ((59)-(60), (83)-(84)), ``x_hat(t+1)`` by the open-loop observer (58), the closed-loop
     observer (50) or the Kalman filter (80)-(82), and ``phi_hat(t+1)`` ((57)/(153)). Returns
     ``ST_STATE_RESET`` / ``ST_KF_RESET`` bits or 0.
+    With ``regressor="filtered"`` (not the paper's default, see below) ``phi_hat(t+1)`` is
+    built from the measurement-corrected estimate ``x_hat(t|t)``.
 ``ok = estimator_restart(rec, off, cfg_i, theta, P)``
     Restart the parameter estimate at ``theta`` (2n) with covariance ``P`` (2n x 2n; only its
     diagonal blocks for D- rules); SG/MISG: ``r <- r(0)``; empties the finite-history window.
@@ -47,6 +49,37 @@ the factor of ``P`` and ``P(0)``'s factor (for the safe reset), the state estima
 ``x_hat(1)``, the regressor ``phi_hat(t+1)``, the stacked ``Phi``, ``Y``, ``E``, the Kalman
 ``P1``, ``P1(1)``, ``Q``, ``L1``, the finite-history buffer, event counters, the time ``t``, the
 adaptation switch and scratch space (``"work"``), so that a lane function never allocates.
+
+The regressor in closed loop (``regressor="filtered"``)
+------------------------------------------------------
+The paper builds ``phi_hat(t)`` from the state *predictions* ``x_hat(t-i)`` of (46)/(66):
+``x1_hat(t|t-1)`` is a simulation of the current model (the open-loop observer (46) has no
+output injection at all; the Kalman filter (66) weighs ``y`` only through ``L1``), so in closed
+loop an early wrong or unstable model feeds its own errors back into the regressor, and the
+estimate settles on a wrong model or the state estimate diverges with an unstable ``A_hat``.
+``benchmarks/startup.py`` measures it: with the paper's regressor the self-tuning controller
+loses about a quarter of a random family of second-order plants with O-RLS or KF-MILS.
+
+``regressor="filtered"`` takes the measured ``y(t)`` into the state estimate before it enters
+the regressor (the filter-error / stabilised output-error idea of output injection, Maine &
+Iliff 1981; Ding & Zhuang 2014 run least squares on input-output data for the same models):
+``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` replaces ``x_hat(t)`` in (9)/(57)/(76) or
+(153), where
+
+* **Kalman filter**: ``g = P1(t) c^T / (R + c P1(t) c^T)``, the filtered estimate of the same
+  filter; (80)-(82) are unchanged, since ``x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)`` is what
+  (80) computes. While the model is uncertain (large ``P1``, e.g. with the controller's
+  process noise) ``x1_hat(t|t)`` follows ``y``; once it is good it follows the model, which
+  removes the noise from the regressor (no equation-error bias).
+* **open-loop observer**: ``g = c^T`` (the observer has no noise model: ``x1_hat(t|t) = y(t)``)
+  and the state is propagated from it, ``x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)``: the
+  closed-loop observer (50) with ``K(t) = A_hat(t) c^T``, which for the observer form makes
+  ``A_hat - K c`` nilpotent (deadbeat) whatever ``theta_hat``, so the state estimate cannot
+  diverge with an unstable model. In the observer form ``phi_hat`` then holds the measured
+  outputs: equation-error least squares, consistent only for white equation noise.
+
+The default ``"predicted"`` is the paper's algorithm (tested against a dense reference of its
+formulas); the self-tuning controller uses ``"filtered"``.
 
 Status bits
 -----------
@@ -122,6 +155,8 @@ __all__ = [
 
 RULES: tuple[str, ...] = ("SG", "MISG", "RLS", "MILS")
 STATE_ESTIMATORS: tuple[str, ...] = ("O", "KF", "CO")
+#: Which state estimate the regressor ``phi_hat`` is built from (see :meth:`EstimatorSpec.build`).
+REGRESSORS: tuple[str, ...] = ("predicted", "filtered")
 #: The 16 algorithms of the paper (``CO-...`` variants are accepted as well).
 ALGORITHMS: tuple[str, ...] = tuple(
     f"{s}-{d}{r}" for d in ("", "D-") for r in RULES for s in ("O", "KF")
@@ -129,6 +164,7 @@ ALGORITHMS: tuple[str, ...] = tuple(
 
 # ---- cfg_i: integer configuration --------------------------------------------------------
 C_N, C_P, C_RULE, C_DEC, C_STATE, C_FORM, C_W, C_CHECK, C_STACKED, C_PROJECT = range(10)
+C_FILTERED = 10  # 1: the regressor takes the measurement-corrected state x_hat(t|t)
 C_OFF = 16  # cfg_i[C_OFF + k] = offset of FIELDS[k] in the estimator record
 RULE_SG, RULE_MISG, RULE_RLS, RULE_MILS = range(4)
 STATE_O, STATE_CO, STATE_KF = range(3)
@@ -449,9 +485,13 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
     A = view2d(work, base, n, n)
     x_next = work[base + n * n : base + n * n + n]
     kf_work = work[base + n * n + n : base + 3 * n * n + n]
+    x_reg = work[base + 3 * n * n + n : base + 3 * n * n + 2 * n]
     companion_into(theta, n, observability, A)
     b = theta[n:]
     status = 0
+    filtered = cfg_i[C_FILTERED] != 0
+    if filtered:
+        _corrected_state(rec, off, cfg_f, cfg_i, x, y, x_reg)
     if state == STATE_KF:
         P1 = view2d(rec, _o(cfg_i, off, P1_), n, n)
         Q = view2d(rec, _o(cfg_i, off, Q_), n, n)
@@ -464,12 +504,15 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
                 L1[i] = 0.0
             rec[_o(cfg_i, off, NKF)] += 1.0
             status |= ST_KF_RESET
+    elif filtered:  # O with output injection: x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)
+        K = rec[_o(cfg_i, off, K_) : _o(cfg_i, off, K_) + n]
+        observer_step(A, b, x_reg, u, y, K, False, x_next)
     else:
         K = rec[_o(cfg_i, off, K_) : _o(cfg_i, off, K_) + n]
         observer_step(A, b, x, u, y, K, state == STATE_CO, x_next)
     phi = rec[_o(cfg_i, off, PHI) : _o(cfg_i, off, PHI) + d]
     xs = view2d(rec, _o(cfg_i, off, XS), n if observability else 0, n)
-    advance_regressor(phi, xs, x, u, n, observability)
+    advance_regressor(phi, xs, x_reg if filtered else x, u, n, observability)
     finite = True
     for i in range(n):
         finite = finite and math.isfinite(x_next[i])
@@ -483,6 +526,26 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
         x[i] = x_next[i]
     rec[_o(cfg_i, off, PHASE)] = 0.0
     return status
+
+
+@lane
+def _corrected_state(
+    rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, x: NDArray, y: float, x_reg: NDArray
+) -> None:
+    """The measurement-corrected state ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` of the
+    ``regressor="filtered"`` option: ``g = P1 c^T / (R + c P1 c^T)`` for the Kalman filter (its
+    filtered estimate), ``g = c^T`` for the observer (``x1_hat(t|t) = y(t)``)."""
+    n = cfg_i[C_N]
+    innov = y - x[0]
+    if cfg_i[C_STATE] == STATE_KF:
+        P1 = view2d(rec, _o(cfg_i, off, P1_), n, n)
+        s = cfg_f[F_R] + P1[0, 0]
+        for i in range(n):
+            x_reg[i] = x[i] + P1[i, 0] / s * innov
+    else:
+        for i in range(n):
+            x_reg[i] = x[i]
+        x_reg[0] = y
 
 
 @lane
@@ -670,6 +733,7 @@ class EstimatorSpec:
     R: float = 1.0
     observer_gain: Any = field(default=None, repr=False)
     frozen: tuple[float, float, float] = (FROZEN_RATE, FROZEN_RATIO, FROZEN_GAIN)
+    regressor: str = "predicted"
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
@@ -697,6 +761,7 @@ class EstimatorSpec:
         pd_check_every: int = 1,
         project_stable: bool = False,
         frozen_ratio: float = FROZEN_RATIO,
+        regressor: str = "predicted",
     ) -> EstimatorSpec:
         """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument)."""
         state, decomposed, rule = parse_name(name)
@@ -790,6 +855,13 @@ class EstimatorSpec:
                 f"frozen_ratio must be a positive real number (math.inf disables the frozen "
                 f"signal), got {frozen_ratio!r}"
             )
+        if regressor not in REGRESSORS:
+            raise ValueError(f"regressor must be one of {REGRESSORS}, got {regressor!r}")
+        if regressor == "filtered" and state == "CO":
+            raise ValueError(
+                "regressor='filtered' applies to the open-loop observer (O) and the Kalman filter "
+                "(KF); the closed-loop observer (CO, observer_gain) has its own output injection"
+            )
         canonical = f"{state}-{'D-' if decomposed else ''}{rule}"
         return cls(
             name=canonical,
@@ -815,6 +887,7 @@ class EstimatorSpec:
             R=R,
             observer_gain=gain,
             frozen=(FROZEN_RATE, float(frozen_ratio), FROZEN_GAIN),
+            regressor=regressor,
         )
 
     def __post_init__(self) -> None:
@@ -844,7 +917,8 @@ class EstimatorSpec:
             "hist_Phi": (W, p, d) if W else (0,),
             "hist_Y": (W, p) if W else (0,),
             # delta, K, w (2d), theta_prev / replay; E, E_old; saved S; A, x_next, 2 n^2 (KF)
-            "work": (5 * d + 2 * p + d * d + 3 * n * n + n,),
+            # x_hat(t|t) of the filtered regressor (n)
+            "work": (5 * d + 2 * p + d * d + 3 * n * n + 2 * n,),
         }
         layout = Layout()
         for name in FIELDS:
@@ -860,6 +934,7 @@ class EstimatorSpec:
         cfg_i[C_CHECK] = self.pd_check_every
         cfg_i[C_STACKED] = int(self.stacked_r)
         cfg_i[C_PROJECT] = int(self.project_stable)
+        cfg_i[C_FILTERED] = int(self.regressor == "filtered")
         cfg_i[C_OFF:] = layout.offsets(FIELDS)
         cfg_f = np.array([self.forgetting, self.R, *self.frozen], dtype=np.float64)
         cfg_i.setflags(write=False)
