@@ -17,8 +17,10 @@ plant step) for the controller and from the oracles stepped on the same plant an
 Sections
 --------
 * **estimators on the random family** (one row per name: ``"ELS"`` and the 16 paper names, each
-  with the controller's default settings for it): ``--plants`` second-order plants, poles up to
-  magnitude 1.15 (real or complex), ``|b_i|`` in ``[0.1, 4]``, no zero within 0.1 of a pole;
+  with the controller's default settings for it, and O-RLS and KF-MILS once more with the
+  paper's regressor ``x_hat(t|t-1)``, ``estimator_options={"regressor": "predicted"}``):
+  ``--plants`` second-order plants, poles up to magnitude 1.15 (real or complex), ``|b_i|`` in
+  ``[0.1, 4]``, no zero within 0.1 of a pole;
   the plants lost among those ``KnownModelController`` holds (and how many of them are
   open-loop unstable), the bounded fraction, median and 90th percentile of the episode ratio
   over the oracle. For the default estimator also the plants lost and the change detector's
@@ -58,9 +60,10 @@ from stcgym.envs.canonical import companion_A
 NOISE = 0.05
 BOUND = 10.0
 CATALOGUE = ("stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4")
-#: The controller's default estimator, then the paper's 16 names.
+#: The controller's default estimator, then the paper's 16 names, then the mission's two with
+#: the paper's own regressor (``x_hat(t|t-1)``) for comparison.
 DEFAULT = "ELS"
-NAMES = (DEFAULT, *ALGORITHMS)
+NAMES = (DEFAULT, *ALGORITHMS, "O-RLS:predicted", "KF-MILS:predicted")
 
 
 NDArray = np.ndarray
@@ -135,7 +138,20 @@ def _ratio(c: NDArray, o: NDArray) -> float:
 
 
 def _estimator_kw(name: str) -> dict[str, Any]:
-    return {} if name == DEFAULT else {"estimator": name}
+    """Controller keywords of a row: ``"ELS"`` (the default), a paper name, or
+    ``"NAME:predicted"`` (the paper's name with the paper's own regressor)."""
+    if name == DEFAULT:
+        return {}
+    est, _, regressor = name.partition(":")
+    kw: dict[str, Any] = {"estimator": est}
+    if regressor:
+        kw["estimator_options"] = {"regressor": regressor}
+    return kw
+
+
+def _label(name: str) -> str:
+    est, _, regressor = name.partition(":")
+    return f"`{est}`" + (f", {regressor} regressor (the paper's)" if regressor else "")
 
 
 def catalogue(seeds: int, steps: int, names: tuple[str, ...]) -> dict[str, Any]:
@@ -312,7 +328,7 @@ def table(result: dict[str, Any], names: tuple[str, ...]) -> str:
         head += ["after the jump"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name in names:
-        cells = [f"`{name}`"]
+        cells = [_label(name)]
         if fam:
             f = fam[name]
             cells += [
@@ -339,7 +355,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--plants", type=int, default=1000)
     ap.add_argument("--steps", type=int, default=1000)
-    ap.add_argument("--names", nargs="+", default=list(NAMES), help="estimator names")
+    ap.add_argument(
+        "--names",
+        nargs="+",
+        default=list(NAMES),
+        help="estimator names (NAME:predicted: with the paper's regressor)",
+    )
     ap.add_argument("--skip-catalogue", action="store_true")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
