@@ -13,7 +13,8 @@ structure exploited, no health checks): the compiled lane functions of
   with the innovation computed from ``theta(t-1)``;
 * open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
 * ``filtered=True``: the regressor from ``x_hat(t|t) = x_hat(t) + g (y(t) - x1_hat(t))``,
-  ``g = P1 c^T / (R + c P1 c^T)`` (KF) or ``c^T`` (O, which then propagates ``x_hat(t|t)``);
+  ``g = P1 c^T / (R + c P1 c^T)`` (KF) or ``A^{n-1} e_n`` (O, which then propagates
+  ``x_hat(t|t)``);
 * regressors (9)/(57) (observer form) and (153) (observability form), zero before ``t = 1``.
 """
 
@@ -105,7 +106,10 @@ class ReferenceEstimator:
         c = np.eye(n)[0]
         x_reg = x  # the state estimate the regressor is built from
         if self.filtered:  # x_hat(t|t) = x_hat(t) + g (y(t) - c x_hat(t))
-            g = self.P1 @ c / (self.R + c @ self.P1 @ c) if self.state == "KF" else c
+            if self.state == "KF":
+                g = self.P1 @ c / (self.R + c @ self.P1 @ c)
+            else:  # deadbeat: c g = 1 and A (I - g c) nilpotent
+                g = np.linalg.matrix_power(A, n - 1) @ np.eye(n)[n - 1]
             x_reg = x + g * (self.y - x[0])
         if self.state == "KF":
             s = self.R + c @ self.P1 @ c

@@ -217,14 +217,16 @@ def test_filtered_open_loop_observer_is_least_squares_on_measured_outputs():
     np.testing.assert_allclose(th, np.r_[A_TRUE, B_TRUE], atol=0.05)
 
 
-def test_filtered_open_loop_observer_is_deadbeat_on_an_unstable_model():
+@pytest.mark.parametrize("form", FORMS)
+def test_filtered_open_loop_observer_is_deadbeat_on_an_unstable_model(form):
     """The paper's open-loop observer of an unstable model diverges whatever the data; the
-    output injection of ``regressor="filtered"`` keeps the state estimate bounded."""
+    output injection of ``regressor="filtered"`` keeps the state estimate bounded (in the
+    observability form too, where ``g = c^T`` would leave the eigenvalue ``-a_1 = 2.3``)."""
     a_unstable = np.array([-2.3, 1.32])  # poles 1.2, 1.1
-    kw = {"theta0": np.r_[a_unstable, 0.5, 0.2], "enabled": False}  # a model that cannot move
+    kw = {"theta0": np.r_[a_unstable, 0.5, 0.2], "enabled": False, "form": form}  # fixed model
     paper = make_estimator("O-RLS", 2, **kw)
     filt = make_estimator("O-RLS", 2, regressor="filtered", **kw)
-    u, y = data(T=200, seed=1)
+    u, y = data(T=200, seed=1, form=form)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for k in range(len(u)):

@@ -61,8 +61,10 @@ estimate settles on a wrong model or the state estimate diverges with an unstabl
 loses about a quarter of a random family of second-order plants with O-RLS or KF-MILS.
 
 ``regressor="filtered"`` takes the measured ``y(t)`` into the state estimate before it enters
-the regressor (the filter-error / stabilised output-error idea of output injection, Maine &
-Iliff 1981; Ding & Zhuang 2014 run least squares on input-output data for the same models):
+the regressor (the output injection of the filter-error method, R. E. Maine & K. W. Iliff,
+SIAM J. Appl. Math. 41(3), 1981; R. Ding & L. Zhuang, "Parameter and state estimator for
+state space models", 2014, eliminate the states and run least squares on input-output data for
+the same canonical models):
 ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` replaces ``x_hat(t)`` in (9)/(57)/(76) or
 (153), where
 
@@ -71,12 +73,14 @@ Iliff 1981; Ding & Zhuang 2014 run least squares on input-output data for the sa
   (80) computes. While the model is uncertain (large ``P1``, e.g. with the controller's
   process noise) ``x1_hat(t|t)`` follows ``y``; once it is good it follows the model, which
   removes the noise from the regressor (no equation-error bias).
-* **open-loop observer**: ``g = c^T`` (the observer has no noise model: ``x1_hat(t|t) = y(t)``)
-  and the state is propagated from it, ``x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)``: the
-  closed-loop observer (50) with ``K(t) = A_hat(t) c^T``, which for the observer form makes
-  ``A_hat - K c`` nilpotent (deadbeat) whatever ``theta_hat``, so the state estimate cannot
-  diverge with an unstable model. In the observer form ``phi_hat`` then holds the measured
-  outputs: equation-error least squares, consistent only for white equation noise.
+* **open-loop observer**: the observer has no noise model, so it trusts ``y`` completely:
+  ``g = A_hat^{n-1} e_n`` (``e_1`` in the observer form), for which ``c g = 1``, i.e.
+  ``x1_hat(t|t) = y(t)``, and the state is propagated from it,
+  ``x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)``: the closed-loop observer (50) with
+  ``K(t) = A_hat(t) g``, for which ``A_hat - K c`` is nilpotent (deadbeat) whatever
+  ``theta_hat``, so the state estimate cannot diverge with an unstable model. In the observer
+  form ``phi_hat`` then holds the measured outputs: equation-error least squares, consistent
+  only for white equation noise.
 
 The default ``"predicted"`` is the paper's algorithm (tested against a dense reference of its
 formulas); the self-tuning controller uses ``"filtered"``.
@@ -491,7 +495,7 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
     status = 0
     filtered = cfg_i[C_FILTERED] != 0
     if filtered:
-        _corrected_state(rec, off, cfg_f, cfg_i, x, y, x_reg)
+        _corrected_state(rec, off, cfg_f, cfg_i, A, x, y, x_reg, x_next)
     if state == STATE_KF:
         P1 = view2d(rec, _o(cfg_i, off, P1_), n, n)
         Q = view2d(rec, _o(cfg_i, off, Q_), n, n)
@@ -530,11 +534,21 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
 
 @lane
 def _corrected_state(
-    rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, x: NDArray, y: float, x_reg: NDArray
+    rec: NDArray,
+    off: int,
+    cfg_f: NDArray,
+    cfg_i: NDArray,
+    A: NDArray,
+    x: NDArray,
+    y: float,
+    x_reg: NDArray,
+    tmp: NDArray,
 ) -> None:
     """The measurement-corrected state ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` of the
     ``regressor="filtered"`` option: ``g = P1 c^T / (R + c P1 c^T)`` for the Kalman filter (its
-    filtered estimate), ``g = c^T`` for the observer (``x1_hat(t|t) = y(t)``)."""
+    filtered estimate), ``g = A_hat^{n-1} e_n`` for the observer (``c g = 1``, so
+    ``x1_hat(t|t) = y(t)``, and ``A_hat (I - g c)`` is nilpotent: ``g = e_1`` in the observer
+    form). ``tmp`` (n) is scratch."""
     n = cfg_i[C_N]
     innov = y - x[0]
     if cfg_i[C_STATE] == STATE_KF:
@@ -542,10 +556,19 @@ def _corrected_state(
         s = cfg_f[F_R] + P1[0, 0]
         for i in range(n):
             x_reg[i] = x[i] + P1[i, 0] / s * innov
-    else:
+        return
+    for i in range(n):  # g = A^{n-1} e_n, built in x_reg
+        x_reg[i] = 1.0 if i == n - 1 else 0.0
+    for _ in range(n - 1):
         for i in range(n):
-            x_reg[i] = x[i]
-        x_reg[0] = y
+            acc = 0.0
+            for j in range(n):
+                acc += A[i, j] * x_reg[j]
+            tmp[i] = acc
+        for i in range(n):
+            x_reg[i] = tmp[i]
+    for i in range(n):
+        x_reg[i] = x[i] + x_reg[i] * innov
 
 
 @lane
