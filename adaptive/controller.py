@@ -42,6 +42,7 @@ injection, i.e. least squares on measured outputs, which an open-loop unstable p
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from numbers import Integral, Real
 from typing import Any
@@ -306,7 +307,8 @@ class SelfTuningController:
     n
         Plant order.
     estimator
-        ``"ELS"`` (default) or a paper name (``"O-RLS"``, ``"KF-MILS"``, ...).
+        ``"ELS"`` (default) or a paper name (``"O-RLS"``, ``"KF-MILS"``, ...; the SG, MISG and
+        D- rules warn that they do not hold the loop on many plants).
     design
         ``"pole_placement"`` (Ackermann on the integral-augmented model, ``poles``) or ``"lq"``
         (one Riccati iteration per step, weights ``law.lq_weights``).
@@ -404,9 +406,20 @@ class SelfTuningController:
             from stcgym.adaptive.kernels.estimator import EstimatorSpec, parse_name
 
             try:
-                state, _, rule = parse_name(estimator)
+                state, decomposed, rule = parse_name(estimator)
             except ValueError as exc:
                 raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
+            if decomposed or rule in ("SG", "MISG"):
+                warnings.warn(
+                    f"estimator {estimator!r} does not hold the loop on a sizeable share of "
+                    "ordinary plants: the stochastic-gradient rules (SG, MISG) adapt too slowly "
+                    "for a cold start, and the decomposition rules (D-) update a and b as if "
+                    "their regressors were uncorrelated, which feedback makes them not "
+                    "(benchmarks/startup.py measures every name); 'KF-MILS', 'KF-RLS' or the "
+                    "default 'ELS' hold it",
+                    UserWarning,
+                    stacklevel=2,
+                )
             kw: dict[str, Any] = {
                 "p0": self.p0, "form": self.form, "forgetting": eo.forgetting,
                 "theta0": np.zeros(2 * n),

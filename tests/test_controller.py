@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import math
 import pickle
+import warnings
 
 import control
 import gymnasium as gym
@@ -305,6 +306,19 @@ def test_paper_regressor_stays_available_in_the_loop() -> None:
         )
         lost[regressor] = int(rollout(ctl, theta, T, reference=ref, z=z).diverged.sum())
     assert lost["filtered"] == 0 and lost["predicted"] >= 5, lost
+
+
+@pytest.mark.parametrize("estimator", ["O-SG", "KF-MISG", "O-D-RLS", "KF-D-MILS"])
+def test_estimators_that_do_not_hold_the_loop_warn(estimator: str) -> None:
+    with pytest.warns(UserWarning, match="does not hold the loop"):
+        SelfTuningController(2, estimator=estimator)
+
+
+@pytest.mark.parametrize("estimator", ["ELS", "O-RLS", "KF-MILS", "kf-rls", "O-MILS"])
+def test_estimators_that_hold_the_loop_do_not_warn(estimator: str) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        SelfTuningController(2, estimator=estimator)
 
 
 @pytest.mark.parametrize("estimator", ["O-RLS", "KF-MILS"])
