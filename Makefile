@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip
 STAMP := $(VENV)/.stcgym-installed
 
-.PHONY: install bench bench-full test lint perf clean clean-cache
+.PHONY: install bench bench-full test test-explore lint perf clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +37,11 @@ test: install
 		echo "equality tests again under OPENBLAS_CORETYPE=Prescott:"; \
 		OPENBLAS_CORETYPE=Prescott MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -q -m equality; \
 	fi
+
+# Property tests with fresh random examples (and more of them): `make test` draws the same
+# examples every run (tests/conftest.py), this target looks for new counter-examples.
+test-explore: install
+	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -q --hypothesis-profile=explore
 
 perf: install
 	$(BIN)/python benchmarks/perf.py

@@ -512,7 +512,10 @@ class SelfTuningController:
     def _lane_ints(self, value: Any, name: str) -> NDArray:
         if isinstance(value, (Integral,)) and not isinstance(value, bool):
             return (int(value) + np.arange(self.B)).astype(np.int64)
-        arr = np.asarray(value)
+        try:
+            arr = np.asarray(value)
+        except (ValueError, TypeError):  # ragged nested sequences
+            arr = np.empty(0)
         if arr.ndim != 1 or arr.size != self.B or arr.dtype.kind not in "iu":
             raise ValueError(
                 f"{name} must be an int or {self.B} ints (one per lane), got {value!r}"

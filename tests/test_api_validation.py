@@ -52,6 +52,13 @@ def test_controller_settings_raise_naming_the_setting_or_work(key: str, value) -
     assert u.shape == (1,) and np.all(np.isfinite(u))
 
 
+@pytest.mark.parametrize("value", [[[], [0.0]], [[0.1], [0.2, 0.3]], [[0.5, 0.5], [0.5]]])
+def test_ragged_seed_is_rejected_naming_the_setting(value) -> None:
+    # a ragged nested list made numpy raise its own "inhomogeneous shape" error
+    with pytest.raises(ValueError, match="seed must be"):
+        SelfTuningController(2, seed=value)
+
+
 @SLOW
 @given(obs=MALFORMED)
 def test_controller_predict_rejects_bad_observations_without_changing_state(obs) -> None:
