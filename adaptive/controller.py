@@ -479,8 +479,11 @@ class SelfTuningController:
             eoff = est_lay.offsets(("theta", "S", "phi", "scratch")) + base
             ci[kc.K_ELS : kc.K_ELS + 4] = eoff
             init[eoff[1] : eoff[1] + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
+            # read-only like the paper estimators' config: one compiled signature for both
             self._ecf = np.zeros(1)
             self._eci = np.zeros(1, dtype=np.int64)
+            self._ecf.setflags(write=False)
+            self._eci.setflags(write=False)
         else:
             spec = self._spec
             ci[kc.K_EST] = kc.PAPER
