@@ -292,6 +292,28 @@ def test_paper_estimators_hold_unstable2_and_track_stable2_like_the_oracle(
     assert res.cost[:, 1:].sum() < stable_ratio * oracle[:, 1:].sum()  # steps 100-1000
 
 
+def test_paper_estimators_on_an_observability_form_plant() -> None:
+    # the estimator identifies the observer-form transfer function and reports theta in the
+    # plant's form; the observability-form regressor (153) lost the loop on unstable2
+    from stcgym.envs.canonical import observer_to_observability_b
+
+    spec = PLANTS["unstable2"]
+    theta = np.r_[spec.a, observer_to_observability_b(np.array(spec.a), np.array(spec.b))]
+    T, B = 600, 8
+    ref = np.array([1.0 if (k % 100) < 50 else -1.0 for k in range(T + 1)])
+    z = np.random.default_rng(4).standard_normal((B, T + 1))
+    costs = {}
+    for est in ("ELS", "KF-MILS"):
+        ctl = SelfTuningController(2, num_envs=B, seed=0, estimator=est, form="observability")
+        res = rollout(ctl, np.tile(theta, (B, 1)), T, reference=ref, z=z)
+        assert not res.diverged.any(), est
+        np.testing.assert_allclose(ctl.theta.mean(axis=0), theta, atol=0.05)
+        costs[est] = res.cost.sum()
+    assert costs["KF-MILS"] < 1.15 * costs["ELS"], costs
+    with pytest.raises(ValueError, match="estimation_form"):
+        SelfTuningController(2, estimator="KF-MILS", estimator_options={"estimation_form": "x"})
+
+
 def test_paper_regressor_stays_available_in_the_loop() -> None:
     # regressor="predicted" is the paper's estimator exactly (the former behaviour): it is
     # accepted and runs, and it is what the closed-loop default improves on
