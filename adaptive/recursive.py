@@ -843,9 +843,10 @@ def make_estimator(
         paper's ``x_hat(t)`` of (46)/(66). ``"filtered"`` (not in the paper; for closed-loop
         use, where the self-tuning controller takes it): the measurement-corrected
         ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` with the Kalman gain
-        ``g = P1 c^T / (R + c P1 c^T)`` (``KF``), or ``g = c^T`` with the state propagated from
-        ``x_hat(t|t)`` (``O``: the closed-loop observer (50) with ``K = A_hat c^T``, deadbeat in
-        the observer form). Not for ``CO``. Details in
+        ``g = P1 c^T / (R + c P1 c^T)`` (``KF``), or ``g = A_hat^{n-1} e_n`` (``c g = 1``:
+        ``x1_hat(t|t) = y(t)``) with the state propagated from ``x_hat(t|t)`` (``O``: the
+        closed-loop observer (50) with the deadbeat gain ``K = A_hat g``). Not for ``CO``.
+        Details in
         :mod:`stcgym.adaptive.kernels.estimator`.
     num_envs : int, optional
         Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.

@@ -84,9 +84,9 @@ Lane functions (all ``@lane``; arrays are float64 unless noted)
     ``[xi, saturated (0/1), u_unsat]``); advances ``xi`` and returns the applied ``u``.
     ``action_bound = inf`` means no saturation; ``integral``/``anti_windup`` are booleans.
 ``filtered_state(x, P1, R, y, x_filt) -> float``
-    The current estimate ``x(t|t)`` of the seed paper's Kalman filter (eq. (66)-(72)) from
-    ``x(t|t-1)``, ``P1(t)`` and ``y(t)``; returns the innovation. The time update is
-    ``kalman_step`` of :mod:`stcgym.adaptive.kernels.state_estimation` (one Kalman filter).
+    The current estimate ``x(t|t)`` of the seed paper's Kalman filter (eq. (66)-(72)); written
+    in :mod:`stcgym.adaptive.kernels.state_estimation` beside its time update ``kalman_step``
+    (one Kalman filter, also used by the estimators' filtered regressor) and re-exported here.
 
 Known-model loop (the oracles of :mod:`stcgym.adaptive.oracles`): ``known_model_propose(f, off,
 n, s, y, r, filtered, integral, anti_windup, action_bound) -> int`` computes one step (Kalman
@@ -123,7 +123,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.records import view2d, view3d
-from stcgym.adaptive.kernels.state_estimation import is_schur_stable, kalman_step
+from stcgym.adaptive.kernels.state_estimation import (
+    filtered_state,
+    is_schur_stable,
+    kalman_step,
+)
 from stcgym.envs.compiled import lane, lanes, prange
 
 __all__ = [
@@ -923,21 +927,6 @@ def track(gain, law, x, y, r, excitation, action_bound, integral, anti_windup):
         if not (anti_windup and law[SATURATED] > 0.0 and (-gain[n] * err) * u > 0.0):
             law[XI] += err
     return u_sat
-
-
-# ------------------------------------------------------------------------------ Kalman filter
-@lane(inline=True)
-def filtered_state(x, P1, R, y, x_filt):
-    """The current estimate ``x(t|t) = x(t|t-1) + P1 c^T (y - c x(t|t-1)) / (R + c P1 c^T)`` of
-    the seed paper's Kalman filter (eq. (66)-(72), ``c = e_1``); returns the innovation. The
-    time update is :func:`stcgym.adaptive.kernels.state_estimation.kalman_step`, whose
-    prediction ``A x + b u + L1 (y - c x)`` equals ``A x(t|t) + b u``."""
-    n = x.size
-    s = R + P1[0, 0]
-    innov = y - x[0]
-    for i in range(n):
-        x_filt[i] = x[i] + P1[i, 0] / s * innov
-    return innov
 
 
 # ------------------------------------------------------------------------------ known-model loop

@@ -134,6 +134,7 @@ from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.state_estimation import (
     advance_regressor,
     companion_into,
+    filtered_state,
     is_schur_stable,
     kalman_step,
     observer_step,
@@ -508,12 +509,9 @@ def estimator_predict(rec: NDArray, off: int, cfg_f: NDArray, cfg_i: NDArray, u:
                 L1[i] = 0.0
             rec[_o(cfg_i, off, NKF)] += 1.0
             status |= ST_KF_RESET
-    elif filtered:  # O with output injection: x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)
+    else:  # filtered O: x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t), the injection is in x_reg
         K = rec[_o(cfg_i, off, K_) : _o(cfg_i, off, K_) + n]
-        observer_step(A, b, x_reg, u, y, K, False, x_next)
-    else:
-        K = rec[_o(cfg_i, off, K_) : _o(cfg_i, off, K_) + n]
-        observer_step(A, b, x, u, y, K, state == STATE_CO, x_next)
+        observer_step(A, b, x_reg if filtered else x, u, y, K, state == STATE_CO, x_next)
     phi = rec[_o(cfg_i, off, PHI) : _o(cfg_i, off, PHI) + d]
     xs = view2d(rec, _o(cfg_i, off, XS), n if observability else 0, n)
     advance_regressor(phi, xs, x_reg if filtered else x, u, n, observability)
@@ -550,13 +548,10 @@ def _corrected_state(
     ``x1_hat(t|t) = y(t)``, and ``A_hat (I - g c)`` is nilpotent: ``g = e_1`` in the observer
     form). ``tmp`` (n) is scratch."""
     n = cfg_i[C_N]
-    innov = y - x[0]
     if cfg_i[C_STATE] == STATE_KF:
-        P1 = view2d(rec, _o(cfg_i, off, P1_), n, n)
-        s = cfg_f[F_R] + P1[0, 0]
-        for i in range(n):
-            x_reg[i] = x[i] + P1[i, 0] / s * innov
+        filtered_state(x, view2d(rec, _o(cfg_i, off, P1_), n, n), cfg_f[F_R], y, x_reg)
         return
+    innov = y - x[0]
     for i in range(n):  # g = A^{n-1} e_n, built in x_reg
         x_reg[i] = 1.0 if i == n - 1 else 0.0
     for _ in range(n - 1):

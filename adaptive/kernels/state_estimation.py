@@ -22,6 +22,9 @@ Published interface (signatures fixed):
     ``work`` has ``>= 2 n^2`` entries. Returns 0, or 1 when ``s <= 0`` or ``P1(t+1)`` is not
     finite: then ``P1`` and ``L1`` are untouched, ``x_next = A x + b u`` and the caller resets
     ``P1`` (the estimator resets it to ``P1(1)``). Any dense ``A`` works (the LQG oracle).
+``filtered_state(x, P1, R, y, x_filt) -> float``
+    The filtered estimate ``x(t|t) = x(t|t-1) + P1 c^T (y - c x(t|t-1)) / (R + c P1 c^T)`` of
+    the same filter; returns the innovation ``y - c x(t|t-1)``.
 ``advance_regressor(phi, xs, x, u, n, observability) -> None``
     ``phi_hat(t) -> phi_hat(t+1)`` with ``x_hat(t)``, ``u(t)``: observer form (9)/(57)
     ``[-x1_hat(t), ..., -x1_hat(t-n+1), u(t), ..., u(t-n+1)]``; observability form (153)
@@ -45,6 +48,7 @@ from stcgym.envs.compiled import lane
 __all__ = [
     "advance_regressor",
     "companion_into",
+    "filtered_state",
     "is_schur_stable",
     "kalman_step",
     "observer_step",
@@ -146,6 +150,20 @@ def kalman_step(
         for j in range(n):
             P1[i, j] = Pn[i, j]
     return 0
+
+
+@lane(inline=True)
+def filtered_state(x, P1, R, y, x_filt):
+    """The current estimate ``x(t|t) = x(t|t-1) + P1 c^T (y - c x(t|t-1)) / (R + c P1 c^T)`` of
+    the seed paper's Kalman filter (eq. (66)-(72), ``c = e_1``); returns the innovation. The
+    time update is :func:`kalman_step`, whose
+    prediction ``A x + b u + L1 (y - c x)`` equals ``A x(t|t) + b u``."""
+    n = x.size
+    s = R + P1[0, 0]
+    innov = y - x[0]
+    for i in range(n):
+        x_filt[i] = x[i] + P1[i, 0] / s * innov
+    return innov
 
 
 @lane(inline=True)
