@@ -62,6 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.least_squares import (
+    DOWNDATE_TOL,
     factor_is_healthy,
     least_squares_downdate,
     least_squares_step,
@@ -76,11 +77,8 @@ __all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
 OnFailure = Literal["reset", "raise"]
 
 #: A finite-history sample is removed by a downdate only when every pivot of
-#: ``I - phi P phi^T`` exceeds this; otherwise the window is replayed. A downdate with pivot
-#: ``g`` loses about ``eps / g`` of relative accuracy, and the loss never decays (what is added
-#: and removed later is exact), so the shared kernel's own limit ``DOWNDATE_TOL = 1e-8`` would
-#: let errors of ``1e-8 .. 1e-5`` accumulate when dominant samples leave the window.
-WINDOW_DOWNDATE_TOL = 1e-4
+#: ``I - phi P phi^T`` exceeds this (the kernels' one limit); otherwise the window is replayed.
+WINDOW_DOWNDATE_TOL = DOWNDATE_TOL
 
 # lane status codes
 _OK = 0

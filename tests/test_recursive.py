@@ -385,6 +385,29 @@ def test_finite_history_is_least_squares_over_the_window(name):
         np.testing.assert_allclose(thetas[t - 1], expected, rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.parametrize("spike", [3e3, 3e4])
+def test_finite_history_stays_exact_when_dominant_samples_leave_the_window(spike):
+    """Three input spikes dominate the window while they are in it: removing one is an
+    ill-conditioned downdate (pivot ``1 - phi^T P phi`` about ``1e-7`` for ``3e3``, ``1e-9``
+    for ``3e4``). The estimate must still be least squares over the window (the independent
+    QR solution of the regularised window problem), with the window recomputed by replay."""
+    rng = np.random.default_rng(3)
+    T, W, p0 = 120, 10, 50.0
+    u = rng.standard_normal(T)
+    u[[20, 45, 70]] *= spike
+    X, y = simulate(A_TRUE, B_TRUE, "observer", u, noise_std=0.2, seed=3)
+    H = true_regressors(X, u, 2, "observer")
+    est = make_estimator("O-RLS", 2, p0=p0, window=W, x_init=X[:, 0])
+    thetas = run_with_true_state(est, X, u, y)
+    theta0 = np.full(4, 1.0 / p0)
+    for t in range(W + 1, T + 1):
+        rows = np.arange(t - W + 1, t + 1) - 1
+        stacked = np.vstack([H[rows], np.eye(4) / math.sqrt(p0)])
+        expected = np.linalg.lstsq(stacked, np.r_[y[rows], theta0 / math.sqrt(p0)], rcond=None)[0]
+        np.testing.assert_allclose(thetas[t - 1], expected, rtol=5e-7, err_msg=f"t = {t}")
+    assert est.health["n_window_recomputes"] > 0
+
+
 def test_mils_with_true_state_is_batch_least_squares_on_stacked_windows():
     rng = np.random.default_rng(8)
     T, p, p0 = 120, 4, 10.0

@@ -285,6 +285,7 @@ def _replay_window(rec: NDArray, off: int, cfg_i: NDArray, theta_w: NDArray) -> 
     W = cfg_i[C_W]
     dec = cfg_i[C_DEC] != 0
     rule = cfg_i[C_RULE]
+    count = int(rec[_o(cfg_i, off, COUNT)])  # read before the reset empties the window
     reset_covariance(rec, off, cfg_i)
     S = view2d(rec, _o(cfg_i, off, S_), d, d)
     work = rec[_o(cfg_i, off, WORK) :]
@@ -293,7 +294,6 @@ def _replay_window(rec: NDArray, off: int, cfg_i: NDArray, theta_w: NDArray) -> 
     th0 = rec[_o(cfg_i, off, THETA0) :]
     for i in range(d):
         theta_w[i] = th0[i]
-    count = int(rec[_o(cfg_i, off, COUNT)])
     hPhi = rec[_o(cfg_i, off, HPHI) :]
     hY = rec[_o(cfg_i, off, HY) :]
     first = count % W  # the oldest block (the newest was written just before)

@@ -76,8 +76,11 @@ OK = 0
 FAIL_COVARIANCE = 1
 FAIL_DOWNDATE = 2
 
-#: Smallest acceptable ``1 - phi^T P phi`` of a finite-history downdate (else recompute).
-DOWNDATE_TOL = 1e-8
+#: Smallest acceptable pivot ``1 - phi^T P phi`` of a finite-history downdate (else the window
+#: is recomputed by replay). A downdate with pivot ``g`` loses about ``eps / g`` of relative
+#: accuracy, and the loss never decays (what is added and removed later is exact), so a limit
+#: of ``1e-8`` lets errors of ``1e-8 .. 1e-5`` accumulate when dominant samples leave the window.
+DOWNDATE_TOL = 1e-4
 
 
 @lane
