@@ -278,6 +278,13 @@ class LawOptions:
         _real(w[2], "lq_weights[2] (rho)", lo=0.0, lo_open=True)
 
 
+def _frozen(values: Any) -> NDArray:
+    """A read-only ``float64`` copy: a configuration array of the lane functions."""
+    arr = np.array(values, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
 def _options(value: Any, cls: type, name: str) -> Any:
     if value is None:
         return cls()
@@ -421,7 +428,7 @@ class SelfTuningController:
         if self.estimator == "ELS":
             est_lay = extended_ls_layout(n, True)
             self._spec = None
-            est_size, d = est_lay.size, 3 * n
+            d = 3 * n
         else:
             from stcgym.adaptive.kernels.estimator import EstimatorSpec, parse_name
 
@@ -453,82 +460,85 @@ class SelfTuningController:
                 kw["measurement_noise"] = eo.kf_measurement_noise
             self._spec = EstimatorSpec.build(estimator, n, **kw)
             self.estimator = self._spec.name
-            est_size, d = self._spec.size, 2 * n
+            d = 2 * n
         # the estimator's record ends with its scratch ("scratch" / "work"), shared with the design
+        absent = dict.fromkeys(("theta", "S", "E", "Q_est", "phi", "scratch"), -1)
         if self._spec is None:
+            est_fields = {
+                **absent,
+                **{k: est_lay.offset(k) for k in ("theta", "S", "phi", "scratch")},
+            }
             est_scratch = est_lay.fields["scratch"][1][0]
         else:
-            est_scratch = self._spec.layout.fields["work"][1][0]
-        self._layout, self._off = kc.controller_layout(n, est_size, est_scratch, lq=design == "lq")
-        # -- configuration arrays
-        cf = np.zeros(kc.C_ALPHA + m)
-        cf[kc.C_ACTION_BOUND] = self.action_bound
-        cf[kc.C_PROBE] = self.startup.probe_amplitude
-        cf[kc.C_Q_GAIN] = eo.process_noise_gain
-        cf[kc.C_Q_FLOOR] = eo.process_noise_floor
-        cf[kc.C_R] = eo.measurement_noise
-        cf[kc.C_THRESHOLD] = cd.threshold
-        cf[kc.C_INFLATION] = cd.inflation
-        cf[kc.C_P0] = self.p0
-        cf[kc.C_LAMBDA] = eo.forgetting
-        cf[kc.C_EW_SHORT] = cd.short
-        cf[kc.C_EW_LONG] = cd.long
-        cf[kc.C_SAFE : kc.C_SAFE + 4] = self.safe_set.vector()
-        cf[kc.C_WEIGHTS : kc.C_WEIGHTS + 3] = lw.lq_weights
-        cf[kc.C_PROBE_OUTPUT] = self.startup.probe_output
-        cf[kc.C_ALPHA :] = characteristic_coefficients(self.poles)
-        ci = np.full(kc.N_KCFG, -1, dtype=np.int64)
-        ci[kc.K_N] = n
-        ci[kc.K_INTEGRAL] = int(lw.integral)
-        ci[kc.K_FEEDFORWARD] = int(lw.feedforward)
-        ci[kc.K_ANTI_WINDUP] = int(lw.anti_windup)
-        ci[kc.K_FILTERED] = int(lw.filtered)
+            spec = self._spec
+            est_lay = spec.layout
+            est_fields = {**absent, "theta": spec.offset("theta"), "E": spec.offset("E")}
+            if spec.least_squares:
+                est_fields["S"] = spec.offset("S")
+            if spec.state == "KF":
+                est_fields["Q_est"] = spec.offset("Q")
+            est_scratch = spec.layout.fields["work"][1][0]
+        self._layout, at = kc.controller_record(
+            n, est_lay, est_fields, est_scratch, lq=design == "lq"
+        )
+        self._at = at
         ps = self.startup.probe_steps
-        ci[kc.K_PROBE_STEPS] = 2 * n if ps is None else ps
+        probe_steps = 2 * n if ps is None else int(ps)
         pm = self.startup.max_probe_steps
-        ci[kc.K_PROBE_MAX] = max(5 * n if pm is None else pm, ci[kc.K_PROBE_STEPS])
-        ci[kc.K_DESIGN] = kc.LQ if design == "lq" else kc.POLE_PLACEMENT
-        ci[kc.K_DETECT] = int(cd.enabled)
-        ci[kc.K_HOLDOFF] = cd.holdoff
-        ci[kc.K_D] = d
-        base = int(self._off[kc.O_EST])
+        observability = self._estimation_form == "observability"
+        self._cfg = kc.ControllerConfig(
+            n=int(n),
+            d=int(d),
+            integral=bool(lw.integral),
+            feedforward=bool(lw.feedforward),
+            anti_windup=bool(lw.anti_windup),
+            filtered=bool(lw.filtered),
+            probe_steps=probe_steps,
+            probe_max=max(5 * n if pm is None else int(pm), probe_steps),
+            design=kc.LQ if design == "lq" else kc.POLE_PLACEMENT,
+            detect=bool(cd.enabled),
+            holdoff=int(cd.holdoff),
+            estimator=kc.ELS if self._spec is None else kc.PAPER,
+            # ELS estimates the observer-form transfer function
+            form=dz.OBSERVABILITY if observability else dz.OBSERVER,
+            action_bound=float(self.action_bound),
+            probe_amplitude=float(self.startup.probe_amplitude),
+            q_gain=float(eo.process_noise_gain),
+            q_floor=float(eo.process_noise_floor),
+            R=float(eo.measurement_noise),
+            threshold=float(cd.threshold),
+            inflation=float(cd.inflation),
+            p0=float(self.p0),
+            forgetting=float(eo.forgetting),
+            ew_short=float(cd.short),
+            ew_long=float(cd.long),
+            probe_output=float(self.startup.probe_output),
+            safe=_frozen(self.safe_set.vector()),
+            weights=_frozen(lw.lq_weights),
+            alpha=_frozen(characteristic_coefficients(self.poles)),
+        )
         init = self._layout.empty(1)[0]
         if self._spec is None:
-            ci[kc.K_EST] = kc.ELS
-            ci[kc.K_FORM] = dz.OBSERVER  # ELS estimates the observer-form transfer function
-            eoff = est_lay.offsets(("theta", "S", "phi", "scratch")) + base
-            ci[kc.K_ELS : kc.K_ELS + 4] = eoff
-            init[eoff[1] : eoff[1] + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
+            init[at.S : at.S + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
             # read-only like the paper estimators' config: one compiled signature for both
             self._ecf = np.zeros(1)
             self._eci = np.zeros(1, dtype=np.int64)
             self._ecf.setflags(write=False)
             self._eci.setflags(write=False)
         else:
-            spec = self._spec
-            ci[kc.K_EST] = kc.PAPER
-            observability = self._estimation_form == "observability"
-            ci[kc.K_FORM] = dz.OBSERVABILITY if observability else dz.OBSERVER
-            ci[kc.K_TH] = base + spec.offset("theta")
-            ci[kc.K_E] = base + spec.offset("E")
-            ci[kc.K_S] = base + spec.offset("S") if spec.least_squares else -1
-            ci[kc.K_EQ] = base + spec.offset("Q") if spec.state == "KF" else -1
-            init[base : base + spec.size] = spec.initial_record()
+            init[at.est : at.est + spec.size] = spec.initial_record()
             self._ecf = np.asarray(spec.cfg_f, dtype=np.float64)
             self._eci = np.asarray(spec.cfg_i, dtype=np.int64)
-        init[self._off[kc.O_P1] : self._off[kc.O_P1] + n * n] = np.eye(n).ravel()
+        init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
         if design == "lq":
             P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
-            o = self._off[kc.O_PLQ]
-            init[o : o + P_lq.size] = P_lq.ravel()
-        cf.setflags(write=False)
-        ci.setflags(write=False)
+            init[at.P_lq : at.P_lq + P_lq.size] = P_lq.ravel()
         init.setflags(write=False)
-        self._cf, self._ci, self._init = cf, ci, init
+        self._init = init
         self._F = np.empty((self.B, self._layout.size))
-        self._G = np.zeros((self.B, kc.N_INT), dtype=np.int64)
-        self._G[:, kc.I_SEED] = self.seeds
-        self._G[:, kc.I_EPISODE] = -1  # the first reset starts episode 0
+        self._G = np.zeros((self.B, len(kc.INTS)), dtype=np.int64)
+        self._G[:, kc.INTS.seed] = self.seeds
+        self._G[:, kc.INTS.episode] = -1  # the first reset starts episode 0
         self._u = np.zeros(self.B)
         self.reset()
 
@@ -572,11 +582,11 @@ class SelfTuningController:
         idx = np.arange(self.B) if lanes is None else self._lane_index(lanes)
         self._F[idx] = self._init
         G = self._G
-        episodes = G[idx, kc.I_EPISODE] + 1
+        episodes = G[idx, kc.INTS.episode] + 1
         G[idx] = 0
-        G[idx, kc.I_SEED] = self.seeds[idx]
-        G[idx, kc.I_EPISODE] = episodes
-        G[idx, kc.I_CLOSED_T] = -1
+        G[idx, kc.INTS.seed] = self.seeds[idx]
+        G[idx, kc.INTS.episode] = episodes
+        G[idx, kc.INTS.closed_t] = -1
 
     def predict(
         self,
@@ -604,7 +614,7 @@ class SelfTuningController:
             y, r = float(observation[0]), float(observation[1])
             if abs(y) <= OBSERVATION_LIMIT and abs(r) <= OBSERVATION_LIMIT:
                 u = kc.controller_step(
-                    self._F[0], self._G[0], self._off, self._cf, self._ci, self._ecf, self._eci,
+                    self._F[0], self._G[0], self._at, self._cfg, self._ecf, self._eci,
                     y, r,
                 )  # fmt: skip
                 self._u[0] = u
@@ -638,12 +648,12 @@ class SelfTuningController:
         u = self._u
         if self.B == 1:
             u[0] = kc.controller_step(
-                self._F[0], self._G[0], self._off, self._cf, self._ci, self._ecf, self._eci,
+                self._F[0], self._G[0], self._at, self._cfg, self._ecf, self._eci,
                 y[0], r[0],
             )  # fmt: skip
         else:
             kc.controllers_step(
-                self._F, self._G, self._off, self._cf, self._ci, self._ecf, self._eci, y, r, u
+                self._F, self._G, self._at, self._cfg, self._ecf, self._eci, y, r, u
             )
         if single:
             return u.copy(), state
@@ -657,7 +667,7 @@ class SelfTuningController:
     def theta(self) -> NDArray:
         """``theta_hat = [a_hat; b_hat]`` in the plant's canonical form (per lane if batched)."""
         n = self.n
-        o = int(self._ci[kc.K_ELS] if self._spec is None else self._ci[kc.K_TH])
+        o = self._at.theta
         th = self._F[:, o : o + 2 * n].copy()
         if self.form == "observability" and self._estimation_form == "observer":
             for i in range(self.B):
@@ -668,46 +678,47 @@ class SelfTuningController:
     @property
     def x_hat(self) -> NDArray:
         """The controller's state estimate ``x(t+1|t)`` (Kalman filter on the estimated model)."""
-        o = self._off[kc.O_X]
+        o = self._at.x
         return self._lanes_out(self._F[:, o : o + self.n])
 
     @property
     def K(self) -> NDArray:
         """Gain in use ``[K_x, k_i]`` (zeros before the first accepted design)."""
-        o = self._off[kc.O_GAIN]
+        o = self._at.gain
         m = self.n + int(self.law.integral)
         return self._lanes_out(self._F[:, o : o + m])
 
     @property
     def N(self) -> NDArray | float:
         """Reference feed-forward gain in use."""
-        o = self._off[kc.O_GAIN] + self.n + 1
+        o = self._at.gain + self.n + 1
         v = self._F[:, o].copy()
         return float(v[0]) if self.num_envs is None else v
 
     @property
     def t(self) -> int | NDArray:
         """Samples since the lane's last reset."""
-        v = self._G[:, kc.I_T].copy()
+        v = self._G[:, kc.INTS.t].copy()
         return int(v[0]) if self.num_envs is None else v
 
     @property
     def diagnostics(self) -> dict[str, Any]:
         """Counters and flags per lane (scalars for a single controller)."""
         G = self._G
-        has_gain = self._F[:, self._off[kc.O_GAIN] + self.n + 2] > 0
+        has_gain = self._F[:, self._at.gain + self.n + 2] > 0
+        ints = kc.INTS
         out = {
-            "t": G[:, kc.I_T],
-            "episode": G[:, kc.I_EPISODE],
+            "t": G[:, ints.t],
+            "episode": G[:, ints.episode],
             "has_gain": has_gain,
-            "closed_at": G[:, kc.I_CLOSED_T],
-            "n_rejected": G[:, kc.I_N_REJECTED],
-            "last_rejection": np.array([dz.STATUS_NAMES[c] for c in G[:, kc.I_LAST_REASON]]),
-            "n_alarms": G[:, kc.I_N_ALARMS],
-            "n_saturated": G[:, kc.I_N_SATURATED],
-            "n_probe": G[:, kc.I_N_PROBE],
-            "n_kf_resets": G[:, kc.I_N_KF_RESETS],
-            "estimator_status": G[:, kc.I_EST_STATUS],
+            "closed_at": G[:, ints.closed_t],
+            "n_rejected": G[:, ints.n_rejected],
+            "last_rejection": np.array([dz.STATUS_NAMES[c] for c in G[:, ints.last_reason]]),
+            "n_alarms": G[:, ints.n_alarms],
+            "n_saturated": G[:, ints.n_saturated],
+            "n_probe": G[:, ints.n_probe],
+            "n_kf_resets": G[:, ints.n_kf_resets],
+            "estimator_status": G[:, ints.est_status],
         }
         if self.num_envs is None:
             return {k: (v[0].item() if hasattr(v[0], "item") else v[0]) for k, v in out.items()}

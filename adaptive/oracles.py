@@ -156,7 +156,7 @@ class _KnownModelLoop(ABC):
         ):
             lay.add(name, shape)
         self._layout = lay
-        self._off = lay.offsets(_design.ORACLE_FIELDS)
+        self._at = lay.record(_design.OracleRecord)
         self.num_envs = num_envs
         lanes_ = a.shape[0]
         F = lay.empty(lanes_)
@@ -247,7 +247,7 @@ class _KnownModelLoop(ABC):
     @property
     def xi(self) -> float | NDArray:
         """Integral of the tracking error ``xi(t)`` (per lane when batched)."""
-        xi = self._layout.view(self._F, "law")[:, _design.XI].copy()
+        xi = self._layout.view(self._F, "law")[:, _design.LAW.xi].copy()
         return float(xi[0]) if self.num_envs is None else xi
 
     @property
@@ -381,15 +381,15 @@ class _KnownModelLoop(ABC):
         flags = (self.filtered, self.integral, self.anti_windup, bound)
         u = np.empty(B)
         if B == 1:  # one plant: the lane function itself (no thread-pool start-up)
-            if _design.known_model_propose(F[0], self._off, n, S[0], y[0], r[0], *flags):
+            if _design.known_model_propose(F[0], self._at, n, S[0], y[0], r[0], *flags):
                 return None
-            u[0] = _design.known_model_commit(F[0], self._off, n, S[0])
+            u[0] = _design.known_model_commit(F[0], self._at, n, S[0])
             return u
         status = np.zeros(B, dtype=np.int64)
-        _design.known_model_propose_lanes(F, self._off, n, S, y, r, *flags, status)
+        _design.known_model_propose_lanes(F, self._at, n, S, y, r, *flags, status)
         if status.any():
             return None
-        _design.known_model_commit_lanes(F, self._off, n, S, u)
+        _design.known_model_commit_lanes(F, self._at, n, S, u)
         return u
 
 

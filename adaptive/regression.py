@@ -60,7 +60,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.estimator import check_int
-from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.least_squares import (
     DOWNDATE_TOL,
     factor_is_healthy,
@@ -68,6 +67,7 @@ from stcgym.adaptive.kernels.least_squares import (
     least_squares_step,
     upper_factor,
 )
+from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.compiled import Layout, lane, lanes, prange

@@ -51,7 +51,6 @@ import numpy as np
 from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels.design import place_design, work_size
 from stcgym.adaptive.kernels.estimator import EstimatorSpec, run_lane
 from stcgym.adaptive.kernels.least_squares import least_squares_increment
@@ -285,8 +284,8 @@ def main(argv: list[str] | None = None) -> None:
 
     _layout_experiment(rng)
 
-    cf = SelfTuningController(2)._cf  # the default poles and safe set
-    alpha, safe = cf[kc.C_ALPHA : kc.C_ALPHA + 3], cf[kc.C_SAFE : kc.C_SAFE + 4]
+    cfg = SelfTuningController(2)._cfg  # the default poles and safe set
+    alpha, safe = cfg.alpha, cfg.safe
     gain, work = np.zeros(6), np.zeros(work_size(2))
     gen = _best_ns(lambda s: _place_generic(theta.copy(), alpha, safe, gain, work, s), steps)
     fixed = _best_ns(lambda s: _place_specialised(theta.copy(), alpha, safe, gain, work, s), steps)

@@ -8,9 +8,14 @@ controller in :mod:`stcgym.adaptive`):
   place and returns plain numbers (a status code, an output). It contains the paper's equations
   and nothing about batching.
 * A **lane record** holds all the floating-point state of one lane in one ``float64`` vector (and,
-  where needed, integer state in one ``int64`` vector). :class:`Layout` names its pieces: offsets
-  and shapes fixed once per configuration on the Python side and handed to the lane function as
-  an ``int64`` offsets array, so a lane function reads ``theta = f[off[THETA]:off[THETA] + d]``.
+  where needed, integer state in one ``int64`` vector). Its fields are declared once, as a
+  ``typing.NamedTuple`` class of ints; :class:`Layout` places them (offsets and shapes fixed
+  once per configuration on the Python side) and :meth:`Layout.record` returns the class's
+  instance holding the offsets, which the lane function takes as ``at`` and reads by name:
+  ``theta = f[at.theta : at.theta + d]``, ``ews = f[at.ews]``. The configuration of a lane
+  function is a ``NamedTuple`` too (int, float, bool fields and 1-D ``float64`` arrays:
+  ``cfg.n``, ``cfg.alpha``); numba types both by their field types, not their values or array
+  lengths, so one compiled function serves every order.
   A batch of ``B`` lanes is a C-contiguous ``(B, size)`` array whose row ``i`` is lane ``i``'s
   record; reset, copy, pickle and memory accounting are plain array operations.
 * A **batch loop** is decorated with :func:`lanes` and is nothing but
@@ -39,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 F = TypeVar("F", bound=Callable[..., Any])
+R = TypeVar("R", bound=tuple)
 
 #: Parallel range for batch loops (``numba.prange``; plain ``range`` without the JIT).
 prange = numba.prange
@@ -119,8 +125,21 @@ class Layout:
         return self.fields[name][0]
 
     def offsets(self, names: tuple[str, ...] | list[str]) -> NDArray[np.int64]:
-        """Offsets of ``names`` in that order: the array a lane function indexes by constant."""
+        """Offsets of ``names`` in that order, as an ``int64`` array."""
         return np.array([self.fields[n][0] for n in names], dtype=np.int64)
+
+    def record(self, fields: type[R], base: int = 0) -> R:
+        """The offsets of the fields of ``fields`` (a ``NamedTuple`` class of ints naming fields
+        of this layout), plus ``base`` where this record starts inside a larger one.
+
+        A lane function takes the instance and reads ``f[at.theta : at.theta + d]``: numba
+        types a named tuple of ints as one type whatever the values, so one compiled function
+        serves every order and every record placement.
+        """
+        missing = [name for name in fields._fields if name not in self.fields]
+        if missing:
+            raise ValueError(f"fields {missing} of {fields.__name__} are not in {self!r}")
+        return fields(*(int(base) + self.fields[name][0] for name in fields._fields))
 
     def empty(self, num_lanes: int) -> NDArray[np.float64]:
         """A zeroed ``(num_lanes, size)`` batch of records."""

@@ -303,9 +303,9 @@ def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> No
         K, ki if integral else 0.0, N, xi, x, y, r, e, bound, integral, anti_windup
     )
     assert u == pytest.approx(u_ref, rel=1e-12, abs=1e-12)
-    assert law[d.XI] == pytest.approx(xi_ref, rel=1e-12, abs=1e-12)
-    assert law[d.SATURATED] == float(sat_ref)
-    assert law[d.U_UNSAT] == pytest.approx(u_unsat, rel=1e-12, abs=1e-12)
+    assert law[d.LAW.xi] == pytest.approx(xi_ref, rel=1e-12, abs=1e-12)
+    assert law[d.LAW.saturated] == float(sat_ref)
+    assert law[d.LAW.u_unsat] == pytest.approx(u_unsat, rel=1e-12, abs=1e-12)
 
 
 def test_track_without_gain_applies_only_the_excitation() -> None:
@@ -313,7 +313,7 @@ def test_track_without_gain_applies_only_the_excitation() -> None:
     gain[:2] = [5.0, 5.0]  # never used while has_gain is 0
     law = np.array([0.7, 0.0, 0.0])
     assert d.track(gain, law, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True) == 0.25
-    assert law[d.XI] == 0.7  # the integrator waits for a gain
+    assert law[d.LAW.xi] == 0.7  # the integrator waits for a gain
     assert d.track(gain, law, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True) == 10.0
 
 

@@ -16,6 +16,7 @@ from reference_estimators import ReferenceEstimator
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
 from stcgym.adaptive.kernels import estimator as K
+from stcgym.adaptive.kernels.canonical import companion_into
 from stcgym.adaptive.kernels.least_squares import (
     OK,
     carlson_update,
@@ -23,7 +24,7 @@ from stcgym.adaptive.kernels.least_squares import (
     rank_one_update,
     upper_factor,
 )
-from stcgym.adaptive.kernels.state_estimation import companion_into, kalman_step
+from stcgym.adaptive.kernels.state_estimation import kalman_step
 from stcgym.envs.canonical import canonical_matrices, companion_A
 
 FORMS = ("observer", "observability")

@@ -36,96 +36,174 @@ Every step, in this order:
    shift. For the paper's KF estimators the same ``Q(t)`` is written into the estimator's own
    filter.
 
-Lane records: a ``float64`` record (layout :func:`controller_layout`) holding the estimator's
-sub-record first, and an ``int64`` record (indices ``I_*``) with the step counter, the episode,
-the seed and the counters.
+Lane records: a ``float64`` record (fields :class:`ControllerRecord`, placed by
+:func:`controller_record`) holding the estimator's record first, and an ``int64`` record (fields
+:class:`ControllerInts`, offsets :data:`INTS`) with the step counter, the episode, the seed and
+the counters; the configuration is a :class:`ControllerConfig`.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
-import numpy as np
+from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels import design as dz
+from stcgym.adaptive.kernels.canonical import model_matrices
 from stcgym.adaptive.kernels.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.kernels.extended_ls import extended_ls_push, extended_ls_update
+from stcgym.adaptive.kernels.law import LAW, LAW_SIZE, track
+from stcgym.adaptive.kernels.lq import lq_design
+from stcgym.adaptive.kernels.pole_placement import place_design
 from stcgym.adaptive.kernels.records import view2d
-from stcgym.adaptive.kernels.state_estimation import kalman_step
+from stcgym.adaptive.kernels.safe_set import OK, gain_size, work_size
+from stcgym.adaptive.kernels.state_estimation import filtered_state, kalman_step
 from stcgym.envs.compiled import Layout, lane, lanes, prange
 
 __all__ = [
-    "FLOAT_FIELDS",
-    "controller_layout",
+    "INTS",
+    "ControllerConfig",
+    "ControllerInts",
+    "ControllerRecord",
+    "controller_record",
     "controller_step",
     "controllers_step",
     "hash32",
     "probe_sign",
 ]
 
-#: Fields of the float lane record, in the order of the offsets array ``off``.
-FLOAT_FIELDS = (
-    "est", "x", "x_next", "P1", "Q", "L1", "xf", "gain", "law", "P_lq", "A", "b", "work", "misc",
-)  # fmt: skip
-(O_EST, O_X, O_XN, O_P1, O_Q, O_L1, O_XF, O_GAIN, O_LAW, O_PLQ, O_A, O_B, O_WORK,
- O_MISC) = range(14)  # fmt: skip
-# misc floats (relative to off[O_MISC]); M_YMAX: largest |y| seen while probing
-M_EWS, M_EWL, M_U, M_E, M_YMAX = range(5)
-N_MISC = 5
-# int record
-I_T, I_EPISODE, I_SEED, I_N_REJECTED, I_N_ALARMS, I_N_SATURATED = range(6)
-I_CLOSED_T, I_LAST_ALARM, I_LAST_REASON, I_N_PROBE, I_EST_STATUS, I_N_KF_RESETS = range(6, 12)
-N_INT = 12
-# float config (``cf``); ``alpha`` (m values) from C_ALPHA
-C_ACTION_BOUND, C_PROBE, C_Q_GAIN, C_Q_FLOOR, C_R, C_THRESHOLD, C_INFLATION = range(7)
-C_P0, C_LAMBDA, C_EW_SHORT, C_EW_LONG = range(7, 11)
-C_SAFE = 11  # 4 values: b_min, rcond_min, dc_rcond_min, gain_max
-C_WEIGHTS = 15  # 3 values: q_y, q_i, rho
-C_PROBE_OUTPUT = 18  # output level that scales the probe down and ends it early
-C_ALPHA = 19
-# int config (``ci``)
-K_N, K_INTEGRAL, K_FEEDFORWARD, K_ANTI_WINDUP, K_FILTERED, K_PROBE_STEPS = range(6)
-K_DESIGN, K_DETECT, K_HOLDOFF, K_EST, K_FORM, K_D = range(6, 12)
-K_TH, K_S, K_E, K_EQ = range(12, 16)  # paper estimator: offsets of theta, S, E, Q in the record
-K_ELS = 16  # ELS: offsets (absolute) of theta, S, phi, scratch: 4 values
-K_PROBE_MAX = 20  # longest probe (samples) while the output stays below the probe level
-N_KCFG = 21
-# estimator kinds and design kinds
+# estimator kinds and design kinds (values, not offsets)
 PAPER, ELS = 0, 1
 POLE_PLACEMENT, LQ = 0, 1
 
 
-def controller_layout(
-    n: int, est_size: int, est_scratch: int = 0, lq: bool = True
-) -> tuple[Layout, np.ndarray]:
-    """Float record of one lane (the estimator's record first) and its offsets array.
+class ControllerRecord(NamedTuple):
+    """Offsets of the fields of the controller's float lane record (:func:`controller_record`).
 
-    ``est_scratch``: the number of floats at the end of the estimator's record that are pure
-    scratch (its ``work`` field). The controller's own scratch (design and Kalman step) starts
-    there and only the part that does not fit is added: the estimator's steps and the design
-    never run at the same time, and sharing the scratch keeps a lane small (memory per plant
-    is what limits a sweep). ``lq=False`` leaves out the Riccati matrix of ``design="lq"``.
+    The estimator's record comes first (``est``); ``theta``, ``S``, ``E``, ``Q_est`` (paper
+    estimators) and ``phi``, ``scratch`` (ELS, with ``theta`` and ``S``: the fields the ELS
+    lane functions read) locate its fields the controller uses, ``-1`` where the estimator has
+    none. The scalar fields hold the controller's own state.
+    """
+
+    est: int  # start of the estimator's record
+    theta: int  # theta_hat (2n, the first 2n of ELS's 3n)
+    S: int  # upper factor of the estimator's P = S S^T (-1: SG/MISG)
+    E: int  # innovation E(p, t) of a paper estimator (-1: ELS)
+    Q_est: int  # process-noise covariance of a paper KF estimator (-1: none)
+    phi: int  # ELS regressor (-1: paper estimator)
+    scratch: int  # ELS scratch (-1: paper estimator)
+    work: int  # design and Kalman scratch f[work : work_end], shared with the estimator's
+    work_end: int
+    ews: int  # short EWMA of e(t)^2
+    ewl: int  # long EWMA of e(t)^2
+    u: int  # last applied input
+    e: int  # last innovation
+    ymax: int  # largest |y| seen while probing
+    x: int  # x(t+1|t) of the controller's Kalman filter (n)
+    x_next: int  # (n)
+    P1: int  # its covariance (n, n)
+    Q: int  # its process noise (n, n)
+    L1: int  # its gain (n)
+    xf: int  # x(t|t) (n)
+    gain: int  # gain record (n + 4)
+    law: int  # tracking-law state (3)
+    P_lq: int  # Riccati matrix of the LQ design (m, m; empty for pole placement)
+    A: int  # model in force (n, n)
+    b: int  # (n)
+
+
+class ControllerInts(NamedTuple):
+    """Fields of the controller's ``int64`` lane record."""
+
+    t: int  # samples since the last reset
+    episode: int
+    seed: int
+    n_rejected: int  # designs rejected by the safe set
+    n_alarms: int  # detected changes (covariance resets)
+    n_saturated: int
+    closed_t: int  # sample at which the loop closed (-1: still open)
+    last_alarm: int
+    last_reason: int  # status code of the last design
+    n_probe: int  # probe samples applied
+    est_status: int  # the estimator's status bits, or-ed
+    n_kf_resets: int
+
+
+#: Offsets of the int record's fields (``g[INTS.t]``); its length is ``len(INTS)``.
+INTS = ControllerInts(*range(len(ControllerInts._fields)))
+
+
+class ControllerConfig(NamedTuple):
+    """Configuration of :func:`controller_step` (built once by the Python controller)."""
+
+    n: int
+    d: int  # estimator's parameter count (2n, ELS 3n)
+    integral: bool
+    feedforward: bool
+    anti_windup: bool
+    filtered: bool  # the law acts on x(t|t) (else x(t|t-1))
+    probe_steps: int
+    probe_max: int  # longest probe (samples) while the output stays below probe_output
+    design: int  # POLE_PLACEMENT or LQ
+    detect: bool  # change detection on
+    holdoff: int
+    estimator: int  # PAPER or ELS
+    form: int  # canonical form of theta_hat (OBSERVER / OBSERVABILITY)
+    action_bound: float
+    probe_amplitude: float
+    q_gain: float  # process noise from the parameter covariance
+    q_floor: float
+    R: float  # measurement-noise variance of the controller's filter
+    threshold: float  # change detection: ews > threshold * ewl
+    inflation: float  # P <- inflation P on a detected change
+    p0: float  # ELS: P(0) = p0 I
+    forgetting: float  # ELS: lambda
+    ew_short: float  # EWMA rates of e^2
+    ew_long: float
+    probe_output: float  # output level that scales the probe down and ends it early
+    safe: NDArray  # [b_min, rcond_min, dc_rcond_min, gain_max]
+    weights: NDArray  # LQ [q_y, q_i, rho]
+    alpha: NDArray  # closed-loop characteristic polynomial (m)
+
+
+def controller_record(
+    n: int, est: Layout, est_fields: dict[str, int], est_scratch: int = 0, lq: bool = True
+) -> tuple[Layout, ControllerRecord]:
+    """Float record of one lane (the estimator's record ``est`` first) and its offsets.
+
+    ``est_fields``: offsets, inside ``est``, of ``theta``, ``S``, ``E``, ``Q_est``, ``phi``,
+    ``scratch`` (absent ones ``-1``). ``est_scratch``: the number of floats at the end of the
+    estimator's record that are pure scratch (its ``work`` field). The controller's own scratch
+    (design and Kalman step) starts there and only the part that does not fit is added: the
+    estimator's steps and the design never run at the same time, and sharing the scratch keeps
+    a lane small (memory per plant is what limits a sweep). ``lq=False`` leaves out the Riccati
+    matrix of ``design="lq"``.
     """
     m = n + 1
-    need = max(dz.work_size(n), 2 * n * n)
+    need = max(work_size(n), 2 * n * n)
     lay = Layout()
-    lay.add("est", (est_size,))
+    lay.add("est", (est.size,))
     lay.add("work", (max(need - est_scratch, 0),))  # continues the estimator's scratch
-    lay.add("misc", (N_MISC,))  # directly after "work": the scratch ends at off[O_MISC]
+    for name in ("ews", "ewl", "u", "e", "ymax"):  # directly after "work": the scratch end
+        lay.add(name)
     lay.add("x", (n,))
     lay.add("x_next", (n,))
     lay.add("P1", (n, n))
     lay.add("Q", (n, n))
     lay.add("L1", (n,))
     lay.add("xf", (n,))
-    lay.add("gain", (dz.gain_size(n),))
-    lay.add("law", (dz.LAW_SIZE,))
+    lay.add("gain", (gain_size(n),))
+    lay.add("law", (LAW_SIZE,))
     lay.add("P_lq", (m, m) if lq else (0,))
     lay.add("A", (n, n))
     lay.add("b", (n,))
-    off = lay.offsets(FLOAT_FIELDS)
-    off[O_WORK] -= min(est_scratch, need)  # the scratch is f[off[O_WORK] : off[O_MISC]]
-    return lay, off
+    base = lay.offset("est")
+    inside = {k: (base + v if v >= 0 else -1) for k, v in est_fields.items()}
+    own = {k: lay.offset(k) for k in ControllerRecord._fields if k in lay.fields}
+    own["work"] -= min(est_scratch, need)  # the scratch is f[work : work_end]
+    own["work_end"] = lay.offset("ews")
+    return lay, ControllerRecord(**own, **inside)
 
 
 # ---------------------------------------------------------------------------------- probe
@@ -150,32 +228,29 @@ def probe_sign(seed, episode, t):
 
 # ------------------------------------------------------------------------ parameter covariance
 @lane(inline=True)
-def covariance_entry(f, ci, i, j):
+def covariance_entry(f, at, d, i, j):
     """``P_ij = (S S^T)_ij`` of the estimator's square-root factor (0 for SG/MISG)."""
-    d = ci[K_D]
-    o = ci[K_ELS + 1] if ci[K_EST] == ELS else ci[K_S]
-    if o < 0:
+    if at.S < 0:
         return 0.0
+    S = view2d(f, at.S, d, d)
     acc = 0.0
     for k in range(max(i, j), d):  # S upper triangular
-        acc += f[o + i * d + k] * f[o + j * d + k]
+        acc += S[i, k] * S[j, k]
     return acc
 
 
 @lane(inline=True)
-def inflate_covariance(f, ci, factor):
+def inflate_covariance(f, at, d, factor):
     """``P <- factor P`` (covariance resetting on a detected change): ``S <- sqrt(factor) S``."""
-    d = ci[K_D]
-    o = ci[K_ELS + 1] if ci[K_EST] == ELS else ci[K_S]
-    if o < 0:
+    if at.S < 0:
         return
     scale = math.sqrt(factor)
     for i in range(d * d):
-        f[o + i] *= scale
+        f[at.S + i] *= scale
 
 
 @lane(inline=True)
-def process_noise(f, ci, n, y, u, q, q_floor, Q):
+def process_noise(f, at, d, n, y, u, q, q_floor, Q):
     """``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + q_floor I``.
 
     Row ``i`` of the one-step model error is ``-(a_i - a_hat_i) x_1 + (b_i - b_hat_i) u`` (observer
@@ -185,9 +260,11 @@ def process_noise(f, ci, n, y, u, q, q_floor, Q):
     for i in range(n):
         for j in range(i, n):
             v = q * (
-                y * y * covariance_entry(f, ci, i, j)
-                + u * u * covariance_entry(f, ci, n + i, n + j)
-                - y * u * (covariance_entry(f, ci, i, n + j) + covariance_entry(f, ci, j, n + i))
+                y * y * covariance_entry(f, at, d, i, j)
+                + u * u * covariance_entry(f, at, d, n + i, n + j)
+                - y
+                * u
+                * (covariance_entry(f, at, d, i, n + j) + covariance_entry(f, at, d, j, n + i))
             )
             if i == j:
                 v += q_floor
@@ -197,122 +274,119 @@ def process_noise(f, ci, n, y, u, q, q_floor, Q):
 
 # --------------------------------------------------------------------------------- the step
 @lane
-def controller_step(f, g, off, cf, ci, ecf, eci, y, r):
+def controller_step(f, g, at, cfg, ecf, eci, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
-    ``f``/``g``: the lane's float and int records; ``off``: offsets of :data:`FLOAT_FIELDS`;
-    ``cf``/``ci``: controller configuration; ``ecf``/``eci``: the paper estimator's
-    configuration (unused for ELS).
+    ``f``/``g``: the lane's float and int records (offsets ``at``, a :class:`ControllerRecord`,
+    and :data:`INTS`); ``cfg``: a :class:`ControllerConfig`; ``ecf``/``eci``: the paper
+    estimator's configuration (unused for ELS).
     """
-    n = ci[K_N]
-    d = ci[K_D]
-    integral = ci[K_INTEGRAL] != 0
-    m = n + ci[K_INTEGRAL]
-    t = g[I_T]
-    mi = off[O_MISC]
-    form = ci[K_FORM]
+    n = cfg.n
+    d = cfg.d
+    m = n + (1 if cfg.integral else 0)
+    t = g[INTS.t]
+    theta = f[at.theta : at.theta + 2 * n]
     # -- 1. estimator measurement step
-    if ci[K_EST] == ELS:
-        e, eps = extended_ls_update(f, ci[K_ELS : K_ELS + 4], d, y, cf[C_LAMBDA], cf[C_P0])
-        theta = f[ci[K_ELS] : ci[K_ELS] + 2 * n]
+    if cfg.estimator == ELS:
+        e, eps = extended_ls_update(f, at, d, y, cfg.forgetting, cfg.p0)
     else:
-        g[I_EST_STATUS] |= estimator_update(f, off[O_EST], ecf, eci, y)
-        e = f[ci[K_E]]
+        g[INTS.est_status] |= estimator_update(f, at.est, ecf, eci, y)
+        e = f[at.E]
         eps = e
-        theta = f[ci[K_TH] : ci[K_TH] + 2 * n]
-    f[mi + M_E] = e
+    f[at.e] = e
     # -- 2. change detection: covariance resetting on a jump of the innovation variance
     e2 = e * e
-    ewl_prev = f[mi + M_EWL]
-    f[mi + M_EWS] += cf[C_EW_SHORT] * (e2 - f[mi + M_EWS])
-    f[mi + M_EWL] += cf[C_EW_LONG] * (e2 - ewl_prev)
-    holdoff = ci[K_HOLDOFF]
+    ews = f[at.ews]
+    ewl_prev = f[at.ewl]
+    ews += cfg.ew_short * (e2 - ews)
+    f[at.ews] = ews
+    f[at.ewl] = ewl_prev + cfg.ew_long * (e2 - ewl_prev)
+    closed_t = g[INTS.closed_t]
     if (
-        ci[K_DETECT] != 0
-        and g[I_CLOSED_T] >= 0
-        and t - g[I_CLOSED_T] > holdoff
-        and t - g[I_LAST_ALARM] > holdoff
-        and f[mi + M_EWS] > cf[C_THRESHOLD] * ewl_prev
+        cfg.detect
+        and closed_t >= 0
+        and t - closed_t > cfg.holdoff
+        and t - g[INTS.last_alarm] > cfg.holdoff
+        and ews > cfg.threshold * ewl_prev
     ):
-        inflate_covariance(f, ci, cf[C_INFLATION])
-        g[I_N_ALARMS] += 1
-        g[I_LAST_ALARM] = t
+        inflate_covariance(f, at, d, cfg.inflation)
+        g[INTS.n_alarms] += 1
+        g[INTS.last_alarm] = t
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
-    gain = f[off[O_GAIN] : off[O_GAIN] + n + 4]
-    work = f[off[O_WORK] : off[O_MISC]]
-    safe = cf[C_SAFE : C_SAFE + 4]
-    if ci[K_DESIGN] == LQ:
-        P_lq = view2d(f, off[O_PLQ], m, m)
-        status = dz.lq_design(
-            theta, form, integral, ci[K_FEEDFORWARD] != 0, cf[C_WEIGHTS : C_WEIGHTS + 3], safe,
-            P_lq, gain, work,
+    gain = f[at.gain : at.gain + n + 4]
+    work = f[at.work : at.work_end]
+    if cfg.design == LQ:
+        P_lq = view2d(f, at.P_lq, m, m)
+        status = lq_design(
+            theta, cfg.form, cfg.integral, cfg.feedforward, cfg.weights, cfg.safe, P_lq, gain,
+            work,
         )  # fmt: skip
     else:
-        status = dz.place_design(
-            theta, form, integral, ci[K_FEEDFORWARD] != 0, cf[C_ALPHA : C_ALPHA + m], safe,
-            gain, work,
-        )  # fmt: skip
-    g[I_LAST_REASON] = status
-    if status != dz.OK:
-        g[I_N_REJECTED] += 1
+        status = place_design(
+            theta, cfg.form, cfg.integral, cfg.feedforward, cfg.alpha, cfg.safe, gain, work
+        )
+    g[INTS.last_reason] = status
+    if status != OK:
+        g[INTS.n_rejected] += 1
     # -- 4. state estimate x(t|t): Kalman filter on the estimated model
-    A = view2d(f, off[O_A], n, n)
-    b = f[off[O_B] : off[O_B] + n]
-    dz.model_matrices(theta, form, A, b)
-    x = f[off[O_X] : off[O_X] + n]
-    P1 = view2d(f, off[O_P1], n, n)
-    xf = f[off[O_XF] : off[O_XF] + n]
-    dz.filtered_state(x, P1, cf[C_R], y, xf)
+    A = view2d(f, at.A, n, n)
+    b = f[at.b : at.b + n]
+    model_matrices(theta, cfg.form, A, b)
+    x = f[at.x : at.x + n]
+    P1 = view2d(f, at.P1, n, n)
+    xf = f[at.xf : at.xf + n]
+    filtered_state(x, P1, cfg.R, y, xf)
     # -- 5. control: the probe while the loop is open, then the tracking law
-    bound = cf[C_ACTION_BOUND]
-    law = f[off[O_LAW] : off[O_LAW] + dz.LAW_SIZE]
-    level = cf[C_PROBE_OUTPUT]
-    open_loop = g[I_CLOSED_T] < 0
+    bound = cfg.action_bound
+    law = f[at.law : at.law + LAW_SIZE]
+    level = cfg.probe_output
+    open_loop = closed_t < 0
+    ymax = f[at.ymax]
     if open_loop:
-        f[mi + M_YMAX] = max(f[mi + M_YMAX], abs(y))
-    ymax = f[mi + M_YMAX]
-    probing = open_loop and (t < ci[K_PROBE_STEPS] or (t < ci[K_PROBE_MAX] and ymax < level))
+        ymax = max(ymax, abs(y))
+        f[at.ymax] = ymax
+    probing = open_loop and (t < cfg.probe_steps or (t < cfg.probe_max and ymax < level))
     if probing or gain[n + 2] <= 0.0:
         # the probe is scaled down once the output exceeds the probe level
-        amp = cf[C_PROBE] * (level / ymax if ymax > level else 1.0)
-        u = min(max(amp * probe_sign(g[I_SEED], g[I_EPISODE], t), -bound), bound)
-        g[I_N_PROBE] += 1
-        law[1] = 0.0
+        amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
+        u = min(max(amp * probe_sign(g[INTS.seed], g[INTS.episode], t), -bound), bound)
+        g[INTS.n_probe] += 1
+        law[LAW.saturated] = 0.0
     else:
-        if g[I_CLOSED_T] < 0:
-            g[I_CLOSED_T] = t
-        xc = xf if ci[K_FILTERED] != 0 else x
-        u = dz.track(gain, law, xc, y, r, 0.0, bound, integral, ci[K_ANTI_WINDUP] != 0)
-        if law[1] > 0.0:
-            g[I_N_SATURATED] += 1
-    f[mi + M_U] = u
+        if open_loop:
+            g[INTS.closed_t] = t
+        xc = xf if cfg.filtered else x
+        u = track(gain, law, xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup)
+        if law[LAW.saturated] > 0.0:
+            g[INTS.n_saturated] += 1
+    f[at.u] = u
     # -- 6. process noise, Kalman time update, estimator state step
-    Q = view2d(f, off[O_Q], n, n)
-    process_noise(f, ci, n, y, u, cf[C_Q_GAIN], cf[C_Q_FLOOR], Q)
-    xn = f[off[O_XN] : off[O_XN] + n]
-    L1 = f[off[O_L1] : off[O_L1] + n]
-    if kalman_step(A, b, P1, Q, cf[C_R], x, u, y, xn, L1, work) == 0:
+    Q = view2d(f, at.Q, n, n)
+    process_noise(f, at, d, n, y, u, cfg.q_gain, cfg.q_floor, Q)
+    x_next = f[at.x_next : at.x_next + n]
+    L1 = f[at.L1 : at.L1 + n]
+    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, L1, work) == 0:
         for i in range(n):
-            x[i] = xn[i]
+            x[i] = x_next[i]
     else:  # numerical trouble in the filter: back to x(1) = 0, P1(1) = I (counted)
-        g[I_N_KF_RESETS] += 1
+        g[INTS.n_kf_resets] += 1
         for i in range(n):
             x[i] = 0.0
             for j in range(n):
                 P1[i, j] = 1.0 if i == j else 0.0
-    if ci[K_EST] == ELS:
-        extended_ls_push(f, ci[K_ELS : K_ELS + 4], n, d, y, u, eps)
+    if cfg.estimator == ELS:
+        extended_ls_push(f, at, n, d, y, u, eps)
     else:
-        if ci[K_EQ] >= 0:  # the paper's Kalman filter gets the same process noise
+        if at.Q_est >= 0:  # the paper's Kalman filter gets the same process noise
             for i in range(n * n):
-                f[ci[K_EQ] + i] = f[off[O_Q] + i]
-        g[I_EST_STATUS] |= estimator_predict(f, off[O_EST], ecf, eci, u)
-    g[I_T] = t + 1
+                f[at.Q_est + i] = f[at.Q + i]
+        g[INTS.est_status] |= estimator_predict(f, at.est, ecf, eci, u)
+    g[INTS.t] = t + 1
     return u
 
 
 @lanes
-def controllers_step(F, G, off, cf, ci, ecf, eci, y, r, u):
+def controllers_step(F, G, at, cfg, ecf, eci, y, r, u):
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in prange(F.shape[0]):
-        u[i] = controller_step(F[i], G[i], off, cf, ci, ecf, eci, y[i], r[i])
+        u[i] = controller_step(F[i], G[i], at, cfg, ecf, eci, y[i], r[i])

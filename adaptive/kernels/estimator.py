@@ -121,6 +121,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.kernels.canonical import companion_into
 from stcgym.adaptive.kernels.least_squares import (
     block_trace_is_finite,
     carlson_update,
@@ -133,7 +134,6 @@ from stcgym.adaptive.kernels.least_squares import (
 from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.state_estimation import (
     advance_regressor,
-    companion_into,
     filtered_state,
     is_schur_stable,
     kalman_step,

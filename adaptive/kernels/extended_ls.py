@@ -23,24 +23,38 @@ estimates that are only as good as the current parameters, it needs no good init
 stays consistent when ``u`` is a feedback of ``y``. ``with_c = 0`` drops the ``c`` block: plain
 equation-error RLS (ARX), biased by output noise.
 
-The lane record (:func:`extended_ls_layout`): ``theta`` (``d``), ``S`` (``d x d``, the upper
-factor of ``P``), ``phi`` (``d``) and ``scratch`` (``3 d + 2``), ``d = 2n`` or ``3n``; the
-estimate is always in the observer canonical form (the controller designs on it; it converts to
-the env's form for display).
+The lane record (:class:`ExtendedLSRecord`, :func:`extended_ls_layout`): ``theta`` (``d``),
+``S`` (``d x d``, the upper factor of ``P``), ``phi`` (``d``) and ``scratch`` (``3 d + 2``),
+``d = 2n`` or ``3n``; the estimate is always in the observer canonical form (the controller
+designs on it; it converts to the env's form for display).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 from stcgym.adaptive.kernels.least_squares import OK, least_squares_step
 from stcgym.adaptive.kernels.records import view2d
 from stcgym.envs.compiled import Layout, lane
 
-__all__ = ["extended_ls_layout", "extended_ls_reset", "extended_ls_update", "extended_ls_push"]
+__all__ = [
+    "ExtendedLSRecord",
+    "extended_ls_layout",
+    "extended_ls_push",
+    "extended_ls_reset",
+    "extended_ls_update",
+]
 
-# offsets array indices (``S``: the upper-triangular factor of ``P = S S^T``)
-THETA, S, PHI, SCRATCH = 0, 1, 2, 3
+
+class ExtendedLSRecord(NamedTuple):
+    """Fields of the ELS lane record. The lane functions read any record ``at`` with these
+    fields (the controller's record locates them inside its own)."""
+
+    theta: int  # [a; b; c] (d)
+    S: int  # upper-triangular factor of P = S S^T (d, d)
+    phi: int  # regressor phi(t) (d)
+    scratch: int  # least_squares_step's work (3 d + 1) and y(t)
 
 
 def extended_ls_layout(n: int, with_c: bool) -> Layout:
@@ -55,17 +69,17 @@ def extended_ls_layout(n: int, with_c: bool) -> Layout:
 
 
 @lane(inline=True)
-def extended_ls_reset(f, off, d, p0):
+def extended_ls_reset(f, at, d, p0):
     """``theta(0) = 0``, ``P(0) = p0 I`` (``S = sqrt(p0) I``), ``phi(1) = 0`` (every signal zero
     before t = 1)."""
     for i in range(d):
-        f[off[THETA] + i] = 0.0
-        f[off[PHI] + i] = 0.0
-    extended_ls_restart(f, off, d, p0)
+        f[at.theta + i] = 0.0
+        f[at.phi + i] = 0.0
+    extended_ls_restart(f, at, d, p0)
 
 
 @lane(inline=True)
-def extended_ls_update(f, off, d, y, lam, p0):
+def extended_ls_update(f, at, d, y, lam, p0):
     """Measurement step with ``y(t)``: ``theta(t)``, ``P(t)``; returns ``(e(t), eps(t))``.
 
     A failed least-squares step (non-positive or non-finite denominator, unhealthy factor,
@@ -73,17 +87,17 @@ def extended_ls_update(f, off, d, y, lam, p0):
     innovation restarts ``P`` at ``p0 I`` and keeps ``theta`` (returns the prior residual for
     both).
     """
-    theta = f[off[THETA] : off[THETA] + d]
-    S_ = view2d(f, off[S], d, d)
-    Phi = view2d(f, off[PHI], 1, d)  # the regressor as the one row of Phi (p = 1)
-    work = f[off[SCRATCH] : off[SCRATCH] + 3 * d + 1]
-    Y = f[off[SCRATCH] + 3 * d + 1 : off[SCRATCH] + 3 * d + 2]  # y(t) as a 1-block, after it
+    theta = f[at.theta : at.theta + d]
+    S = view2d(f, at.S, d, d)
+    Phi = view2d(f, at.phi, 1, d)  # the regressor as the one row of Phi (p = 1)
+    work = f[at.scratch : at.scratch + 3 * d + 1]
+    Y = f[at.scratch + 3 * d + 1 : at.scratch + 3 * d + 2]  # y(t) as a 1-block, after it
     Y[0] = y
-    if not math.isfinite(y) or least_squares_step(theta, S_, Phi, Y, lam, work) != OK:
+    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, work) != OK:
         e = y
         for i in range(d):
             e -= Phi[0, i] * theta[i]
-        extended_ls_restart(f, off, d, p0)
+        extended_ls_restart(f, at, d, p0)
         return e, e
     e = work[2 * d]  # the innovation E(1, t) with theta(t-1), left there by the step
     eps = y
@@ -93,28 +107,29 @@ def extended_ls_update(f, off, d, y, lam, p0):
 
 
 @lane(inline=True)
-def extended_ls_restart(f, off, d, p0):
+def extended_ls_restart(f, at, d, p0):
     """``P = p0 I`` (numerical trouble; ``S = sqrt(p0) I``); a non-finite ``theta`` goes back to
     zero."""
-    o = off[S]
+    theta = f[at.theta : at.theta + d]
+    S = view2d(f, at.S, d, d)
     root = math.sqrt(p0)
     for i in range(d):
-        if not math.isfinite(f[off[THETA] + i]):
-            f[off[THETA] + i] = 0.0
+        if not math.isfinite(theta[i]):
+            theta[i] = 0.0
         for j in range(d):
-            f[o + i * d + j] = root if i == j else 0.0
+            S[i, j] = root if i == j else 0.0
 
 
 @lane(inline=True)
-def extended_ls_push(f, off, n, d, y, u, eps):
+def extended_ls_push(f, at, n, d, y, u, eps):
     """Shift ``y(t)``, ``u(t)``, ``eps(t)`` into the regressor: it becomes ``phi(t+1)``."""
-    ph = off[PHI]
+    phi = f[at.phi : at.phi + d]
     for k in range(n - 1, 0, -1):
-        f[ph + k] = f[ph + k - 1]
-        f[ph + n + k] = f[ph + n + k - 1]
-    f[ph] = -y
-    f[ph + n] = u
+        phi[k] = phi[k - 1]
+        phi[n + k] = phi[n + k - 1]
+    phi[0] = -y
+    phi[n] = u
     if d > 2 * n:
         for k in range(n - 1, 0, -1):
-            f[ph + 2 * n + k] = f[ph + 2 * n + k - 1]
-        f[ph + 2 * n] = eps
+            phi[2 * n + k] = phi[2 * n + k - 1]
+        phi[2 * n] = eps

@@ -1,12 +1,9 @@
 """State estimators driven by the current parameter estimates, as lane functions (Ding & Ma 2014,
 section 2), and the regressor shifts of both canonical forms.
 
-Published interface (signatures fixed):
+Published interface (signatures fixed; the model ``A_hat(t)``, ``b_hat(t)`` of ``theta_hat(t)``
+comes from :func:`stcgym.adaptive.kernels.canonical.companion_into`):
 
-``companion_into(theta, n, observability, A) -> None``
-    ``A_hat(t)`` of ``theta_hat(t) = [a; b]``: observer form (47) (first column ``-a``, ones on
-    the superdiagonal) or observability form (146) (ones on the superdiagonal, last row
-    ``[-a_n, ..., -a_1]``). ``b_hat(t)`` is ``theta[n:]`` (48)/(147).
 ``observer_step(A, b, x, u, y, K, closed, x_next) -> None``
     Open-loop observer (46)/(58): ``x_hat(t+1) = A x_hat(t) + b u(t)``; with ``closed`` the
     closed-loop observer (50) adds ``K [y(t) - c x_hat(t)]``, ``c = [1, 0, ..., 0]``.
@@ -47,28 +44,11 @@ from stcgym.envs.compiled import lane
 
 __all__ = [
     "advance_regressor",
-    "companion_into",
     "filtered_state",
     "is_schur_stable",
     "kalman_step",
     "observer_step",
 ]
-
-
-@lane(inline=True)
-def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> None:
-    """Write ``A_hat(t)`` of the canonical form into ``A`` (n, n); see the module docstring."""
-    for i in range(n):
-        for j in range(n):
-            A[i, j] = 0.0
-    for i in range(n - 1):
-        A[i, i + 1] = 1.0
-    if observability:
-        for j in range(n):
-            A[n - 1, j] = -theta[n - 1 - j]
-    else:
-        for i in range(n):
-            A[i, 0] = -theta[i]
 
 
 @lane(inline=True)

@@ -1,0 +1,351 @@
+"""The safe set every certainty-equivalence design passes, and the gain record it writes.
+
+Shared by pole placement (:mod:`.pole_placement`) and the LQ designs (:mod:`.lq`): the tests of
+the safe set in order (finite, ``b_min``, controllability, steady state, gain bound), the gain
+record written only on success, and the scratch layout of the designs.
+
+``gain[0:n] = K_x``, ``gain[n] = k_i`` (0 without integral action), ``gain[n + 1] = N``
+(reference feed-forward, 0 when off), ``gain[n + 2] = 1.0`` once a design has succeeded
+(``has_gain``; 0.0 = no gain yet, the law then applies only the excitation) and
+``gain[n + 3]`` the reciprocal condition number of the accepted design's controllability matrix.
+The design functions write ``gain`` **only on success**: a rejected model keeps the last good
+gain.
+
+Safe set ``safe`` (float64, length 4; :func:`safe_set` builds and validates it)
+------------------------------------------------------------------------------
+``[b_min, rcond_min, dc_rcond_min, gain_max]``, tested in this order, first failure reported:
+
+==== ================== ==============================================================
+code name               meaning
+==== ================== ==============================================================
+0    ``ok``             gain accepted and written
+1    ``nonfinite``      ``theta`` is not finite
+2    ``b_small``        ``max |b| < b_min``
+3    ``uncontrollable`` reciprocal 1-norm condition of the column-normalised controllability
+                        matrix of the (augmented) model ``<= max(rcond_min, 1e-14)``
+4    ``dc_singular``    feed-forward on and the steady-state (Rosenbrock) matrix
+                        ``[[A - I, b], [c, 0]]`` has rcond ``< max(dc_rcond_min, 1e-13)``
+                        (a zero at ``z = 1``: no steady state for a constant reference)
+5    ``gain_large``     ``max(|K|, |N|) > gain_max`` (or non-finite)
+6    ``not_stabilisable`` LQ: the Riccati iterate / doubling blew up (``> 1e150``) or the
+                        converged gain does not give a Schur-stable closed loop (Schur-Cohn
+                        test of its characteristic polynomial); the one-step
+                        variant re-initialises ``P`` to the state weight ``Q``
+7    ``not_converged``  LQ solve: no convergence within ``max_iter`` doubling steps
+==== ================== ==============================================================
+
+``STATUS_NAMES[code]`` gives the name (the reason strings of the former ``TrackingLaw.design``).
+
+Work array ``work``
+-------------------
+Scratch, float64, 1-D: ``work_size(n) = 5 (n+1)^2 + 9 (n+1)`` floats for ``place_design`` and
+``lq_design`` (72 at ``n = 2``), ``solve_work_size(n) = 13 (n+1)^2 + 9 (n+1)`` for ``lq_solve``
+(the solve-to-convergence variant, meant for a fresh model, not every step). Its content is
+irrelevant between calls; one per thread (or per lane) is enough, never shared by two lanes
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
+from stcgym.adaptive.kernels.linalg import all_finite, invert, norm1
+from stcgym.adaptive.kernels.records import view2d, view3d
+from stcgym.envs.compiled import lane
+
+__all__ = [
+    "MAT",
+    "N_MAT",
+    "N_MAT_SOLVE",
+    "N_VEC",
+    "STATUS_NAMES",
+    "VEC",
+    "controllability",
+    "finish",
+    "gain_size",
+    "prepare",
+    "safe_set",
+    "solve_work_size",
+    "split_work",
+    "steady_state",
+    "work_size",
+]
+
+# Status codes of a design (values, not offsets).
+OK = 0
+NONFINITE = 1
+B_SMALL = 2
+UNCONTROLLABLE = 3
+DC_SINGULAR = 4
+GAIN_LARGE = 5
+NOT_STABILISABLE = 6
+NOT_CONVERGED = 7
+STATUS_NAMES = (
+    "ok",
+    "nonfinite",
+    "b_small",
+    "uncontrollable",
+    "dc_singular",
+    "gain_large",
+    "not_stabilisable",
+    "not_converged",
+)
+
+# Safe-set vector entries.
+B_MIN, RCOND_MIN, DC_RCOND_MIN, GAIN_MAX = 0, 1, 2, 3
+#: Floors of the conditioning tests (below them a "solution" is rounding noise).
+RCOND_FLOOR = 1e-14
+DC_RCOND_FLOOR = 1e-13
+
+
+class MatrixSlots(NamedTuple):
+    """Matrix slots (each ``mm x mm``, ``mm = n + 1``) of the design scratch, by use."""
+
+    A: int  # the model
+    A_aug: int  # the (integral-augmented) model
+    m0: int
+    m1: int
+    m2: int
+    m3: int
+    m4: int
+    m5: int
+    m6: int
+    m7: int
+    m8: int
+    m9: int
+    m10: int
+
+
+class VectorSlots(NamedTuple):
+    """Vector slots (each ``mm``) of the design scratch, by use."""
+
+    b_aug: int
+    K: int
+    x_ss: int
+    v0: int
+    v1: int
+    v2: int
+    b: int
+    v4: int
+    v5: int
+
+
+#: Slot numbers of the scratch (``Ws[MAT.A_aug, :m, :m]``, ``Vs[VEC.K, :m]``).
+MAT = MatrixSlots(*range(len(MatrixSlots._fields)))
+VEC = VectorSlots(*range(len(VectorSlots._fields)))
+N_MAT = 5  # matrix slots every design needs (A .. m2)
+N_MAT_SOLVE = len(MatrixSlots._fields)  # matrix slots of the solve-to-convergence variants
+N_VEC = len(VectorSlots._fields)
+
+
+def gain_size(n: int) -> int:
+    """Length of the gain record: ``[K_x (n), k_i, N, has_gain, rcond]``."""
+    return int(n) + 4
+
+
+def work_size(n: int) -> int:
+    """Scratch length of ``place_design``, ``lq_design`` (and ``ackermann_gain``,
+    ``steady_state``) for order ``n``: ``5 (n+1)^2 + 9 (n+1)``."""
+    mm = int(n) + 1
+    return N_MAT * mm * mm + N_VEC * mm
+
+
+def solve_work_size(n: int) -> int:
+    """Scratch length of ``lq_solve`` (and ``dare``) for order ``n``: ``13 (n+1)^2 + 9 (n+1)``."""
+    mm = int(n) + 1
+    return N_MAT_SOLVE * mm * mm + N_VEC * mm
+
+
+def safe_set(
+    b_min: float = 0.0,
+    rcond_min: float = 0.0,
+    dc_rcond_min: float = 0.0,
+    gain_max: float = math.inf,
+) -> NDArray[np.float64]:
+    """Validated safe-set vector ``[b_min, rcond_min, dc_rcond_min, gain_max]``.
+
+    Raises ``ValueError`` naming the setting for anything but a finite ``b_min >= 0``,
+    ``0 <= rcond_min < 1``, ``0 <= dc_rcond_min < 1`` and ``gain_max > 0`` (``inf`` allowed):
+    ``gain_max <= 0`` would reject every design and leave the loop open for ever.
+    """
+    vals = {}
+    for name, value in (
+        ("b_min", b_min),
+        ("rcond_min", rcond_min),
+        ("dc_rcond_min", dc_rcond_min),
+        ("gain_max", gain_max),
+    ):
+        try:
+            vals[name] = float(value)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{name} must be a real number, got {value!r}") from exc
+    if not (math.isfinite(vals["b_min"]) and vals["b_min"] >= 0.0):
+        raise ValueError(f"b_min must be a finite number >= 0, got {b_min!r}")
+    for name in ("rcond_min", "dc_rcond_min"):
+        if not (0.0 <= vals[name] < 1.0):
+            raise ValueError(
+                f"{name} must lie in [0, 1) (a reciprocal condition), got {vals[name]}"
+            )
+    if not vals["gain_max"] > 0.0:  # also rejects nan
+        raise ValueError(
+            f"gain_max must be > 0 (inf for no limit), got {gain_max!r}: with gain_max <= 0 every "
+            "design is rejected and the loop never closes"
+        )
+    return np.array(
+        [vals["b_min"], vals["rcond_min"], vals["dc_rcond_min"], vals["gain_max"]],
+        dtype=np.float64,
+    )
+
+
+@lane(inline=True)
+def split_work(work, mm, n_mat):
+    """The scratch as ``Ws`` ``(n_mat, mm, mm)`` and ``Vs`` ``(9, mm)`` views (every slot after
+    that a cheap basic slice ``Ws[slot, :m, :m]``). A scratch shorter than that would corrupt
+    the result, so it is an error. Inlined into its caller: a lane function compiled without
+    NRT may return views only where numba inlines it."""
+    if work.size < n_mat * mm * mm + N_VEC * mm:
+        raise ValueError("work array too short: see work_size(n) / solve_work_size(n)")
+    return view3d(work, 0, n_mat, mm, mm), view2d(work, n_mat * mm * mm, N_VEC, mm)
+
+
+@lane(inline=True)
+def controllability(A, b, Ws, Vs):
+    """Invert the column-normalised controllability matrix ``Ctrb / norms``.
+
+    Leaves ``Cn^{-1}`` in matrix slot ``MAT.m2`` and the column norms in vector slot ``VEC.v0``;
+    returns the reciprocal 1-norm condition of ``Cn`` (0.0 when singular or non-finite).
+    """
+    m = A.shape[0]
+    C = Ws[MAT.m0, :m, :m]
+    T = Ws[MAT.m1, :m, :m]
+    Cinv = Ws[MAT.m2, :m, :m]
+    norms = Vs[VEC.v0, :m]
+    v = Vs[VEC.v1, :m]
+    w = Vs[VEC.v2, :m]
+    for i in range(m):
+        v[i] = b[i]
+    for k in range(m):
+        s = 0.0
+        for i in range(m):
+            C[i, k] = v[i]
+            s += v[i] * v[i]
+        norms[k] = math.sqrt(s)
+        for i in range(m):
+            acc = 0.0
+            for j in range(m):
+                acc += A[i, j] * v[j]
+            w[i] = acc
+        for i in range(m):
+            v[i] = w[i]
+    for k in range(m):
+        if not (norms[k] > 0.0 and math.isfinite(norms[k])):
+            return 0.0
+    for i in range(m):
+        for k in range(m):
+            C[i, k] /= norms[k]
+            T[i, k] = C[i, k]
+    if not invert(T, Cinv):
+        return 0.0
+    rcond = 1.0 / (norm1(C) * norm1(Cinv))
+    if not math.isfinite(rcond):
+        return 0.0
+    return rcond
+
+
+@lane(inline=True)
+def _steady_state(A, b, x_ss, Ws):
+    n = A.shape[0]
+    M = Ws[MAT.m0, : n + 1, : n + 1]
+    Minv = Ws[MAT.m1, : n + 1, : n + 1]
+    T = Ws[MAT.m2, : n + 1, : n + 1]
+    for i in range(n + 1):
+        for j in range(n + 1):
+            M[i, j] = 0.0
+    for i in range(n):
+        for j in range(n):
+            M[i, j] = A[i, j] - (1.0 if i == j else 0.0)
+        M[i, n] = b[i]
+    M[n, 0] = 1.0
+    for i in range(n + 1):
+        for j in range(n + 1):
+            T[i, j] = M[i, j]
+    if not invert(T, Minv) or not all_finite(Minv):
+        for i in range(n):
+            x_ss[i] = 0.0
+        return 0.0, 0.0
+    for i in range(n):
+        x_ss[i] = Minv[i, n]
+    rcond = 1.0 / (norm1(M) * norm1(Minv))
+    return Minv[n, n], rcond
+
+
+@lane
+def steady_state(A, b, x_ss, work):
+    """Steady state of ``x = A x + b u``, ``y = x_1 = 1``: writes ``x_ss``, returns
+    ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] = [0; 1]``
+    (regular exactly when the model has no zero at ``z = 1``; works with an integrator in ``A``).
+    ``rcond = 0``: singular (``x_ss = 0``, ``u_ss = 0``)."""
+    mm = A.shape[0] + 1
+    Ws, _ = split_work(work, mm, N_MAT)
+    return _steady_state(A, b, x_ss, Ws)
+
+
+@lane(inline=True)
+def prepare(theta, form, integral, safe, Ws, Vs):
+    """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
+    builds ``A``, ``b`` and ``(A_aug, b_aug)`` in the work and leaves ``Ctrb^{-1}`` there.
+    Returns ``(status, rcond)``."""
+    n = theta.size // 2
+    if not all_finite(theta):
+        return NONFINITE, 0.0
+    bmax = 0.0
+    for i in range(n):
+        bmax = max(bmax, abs(theta[n + i]))
+    if bmax < safe[B_MIN]:
+        return B_SMALL, 0.0
+    m = n + (1 if integral else 0)
+    A = Ws[MAT.A, :n, :n]
+    Ad = Ws[MAT.A_aug, :m, :m]
+    b = Vs[VEC.b, :n]
+    bd = Vs[VEC.b_aug, :m]
+    model_matrices(theta, form, A, b)
+    augment_integral(A, b, integral, Ad, bd)
+    rcond = controllability(Ad, bd, Ws, Vs)
+    if not rcond > max(safe[RCOND_MIN], RCOND_FLOOR):
+        return UNCONTROLLABLE, rcond
+    return OK, rcond
+
+
+@lane(inline=True)
+def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
+    """Feed-forward from the steady state, the gain bound, and the commit of ``gain``."""
+    n = theta.size // 2
+    A = Ws[MAT.A, :n, :n]
+    b = Vs[VEC.b, :n]
+    x_ss = Vs[VEC.x_ss, :n]
+    N = 0.0
+    if feedforward:
+        u_ss, dc_rcond = _steady_state(A, b, x_ss, Ws)
+        if not dc_rcond >= max(safe[DC_RCOND_MIN], DC_RCOND_FLOOR):
+            return DC_SINGULAR
+        N = u_ss
+        for i in range(n):
+            N += K[i] * x_ss[i]
+    m = n + (1 if integral else 0)
+    kmax = abs(N)
+    for i in range(m):
+        if abs(K[i]) > kmax or not math.isfinite(K[i]):
+            kmax = abs(K[i]) if math.isfinite(K[i]) else math.inf
+    if not (kmax <= safe[GAIN_MAX] and math.isfinite(N)):
+        return GAIN_LARGE
+    for i in range(n):
+        gain[i] = K[i]
+    gain[n] = K[n] if integral else 0.0
+    gain[n + 1] = N
+    gain[n + 2] = 1.0
+    gain[n + 3] = rcond
+    return OK
