@@ -54,7 +54,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels import design as dz
-from stcgym.adaptive.kernels.estimator import REGRESSORS, check_int
+from stcgym.adaptive.kernels.estimator import REGRESSORS, EstimatorSpec, check_int
 from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import episode_starts, validate_observation
@@ -430,7 +430,7 @@ class SelfTuningController:
             self._spec = None
             d = 3 * n
         else:
-            from stcgym.adaptive.kernels.estimator import EstimatorSpec, parse_name
+            from stcgym.adaptive.kernels.estimator import parse_name
 
             try:
                 state, decomposed, rule = parse_name(estimator)
@@ -520,15 +520,13 @@ class SelfTuningController:
         init = self._layout.empty(1)[0]
         if self._spec is None:
             init[at.S : at.S + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
-            # read-only like the paper estimators' config: one compiled signature for both
-            self._ecf = np.zeros(1)
-            self._eci = np.zeros(1, dtype=np.int64)
-            self._ecf.setflags(write=False)
-            self._eci.setflags(write=False)
+            # the paper estimator's arguments as placeholders of the same types (never read):
+            # one compiled controller step serves both kinds
+            placeholder = EstimatorSpec.build("O-RLS", n)
+            self._est_at, self._est_cfg = placeholder.at, placeholder.config
         else:
             init[at.est : at.est + spec.size] = spec.initial_record()
-            self._ecf = np.asarray(spec.cfg_f, dtype=np.float64)
-            self._eci = np.asarray(spec.cfg_i, dtype=np.int64)
+            self._est_at, self._est_cfg = spec.record(at.est), spec.config
         init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
         if design == "lq":
             P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
@@ -614,7 +612,7 @@ class SelfTuningController:
             y, r = float(observation[0]), float(observation[1])
             if abs(y) <= OBSERVATION_LIMIT and abs(r) <= OBSERVATION_LIMIT:
                 u = kc.controller_step(
-                    self._F[0], self._G[0], self._at, self._cfg, self._ecf, self._eci,
+                    self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
                     y, r,
                 )  # fmt: skip
                 self._u[0] = u
@@ -648,12 +646,12 @@ class SelfTuningController:
         u = self._u
         if self.B == 1:
             u[0] = kc.controller_step(
-                self._F[0], self._G[0], self._at, self._cfg, self._ecf, self._eci,
+                self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
                 y[0], r[0],
             )  # fmt: skip
         else:
             kc.controllers_step(
-                self._F, self._G, self._at, self._cfg, self._ecf, self._eci, y, r, u
+                self._F, self._G, self._at, self._cfg, self._est_at, self._est_cfg, y, r, u
             )
         if single:
             return u.copy(), state

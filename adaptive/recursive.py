@@ -323,9 +323,8 @@ class RecursiveEstimator:
     def reset_covariance(self, lanes: Any = None) -> None:
         """``P <- P(0)`` (``r <- r(0)``) and an empty finite-history window; ``theta_hat`` and
         the state estimate are kept (the documented safe action, also on a change alarm)."""
-        cfg_i = self.spec.cfg_i
         for i in lane_indices(lanes, self._B):
-            _k.reset_covariance(self._rec[i], 0, cfg_i)
+            _k.reset_covariance(self._rec[i], self.spec.at, self.spec.config)
 
     def restart(self, theta: ArrayLike, P: ArrayLike | None = None, lanes: Any = None) -> None:
         """Restart the parameter estimate at ``theta`` with covariance ``P`` (RLS/MILS; only
@@ -348,7 +347,11 @@ class RecursiveEstimator:
         saved = self._rec[idx].copy()
         for j, i in enumerate(idx):
             ok = _k.estimator_restart(
-                self._rec[i], 0, self.spec.cfg_i, np.ascontiguousarray(th[j]), Pm[j].copy()
+                self._rec[i],
+                self.spec.at,
+                self.spec.config,
+                np.ascontiguousarray(th[j]),
+                Pm[j].copy(),
             )
             if not ok:
                 self._rec[idx] = saved
@@ -382,13 +385,13 @@ class RecursiveEstimator:
         snapshot = rec.copy() if spec.on_failure == "raise" else None
         if self.num_envs is None:
             y = _scalar(y_t, "y(t)")
-            status = _k.estimator_update(self._lane0, 0, spec.cfg_f, spec.cfg_i, y)
+            status = _k.estimator_update(self._lane0, spec.at, spec.config, y)
             if status:
                 self._status[0] = status
                 self._report(self._status, snapshot)
             return self._lane0[self._theta_slice].copy()
         y_arr = _lane_vector(y_t, self._B, "y(t)")
-        _k.update_lanes(rec, spec.cfg_f, spec.cfg_i, y_arr, self._status)
+        _k.update_lanes(rec, spec.at, spec.config, y_arr, self._status)
         if self._status.any():
             self._report(self._status, snapshot)
         return rec[:, self._theta_slice].copy()
@@ -426,14 +429,14 @@ class RecursiveEstimator:
         if gains is not None:
             self._field("K")[...] = gains
         if self.num_envs is None:
-            status = _k.estimator_predict(self._lane0, 0, spec.cfg_f, spec.cfg_i, u)
+            status = _k.estimator_predict(self._lane0, spec.at, spec.config, u)
             if known is not None:
                 self._lane0[self._x_slice] = known[0]
             if status:
                 self._status[0] = status
                 self._report(self._status, snapshot)
             return self._lane0[self._x_slice].copy()
-        _k.predict_lanes(rec, spec.cfg_f, spec.cfg_i, u, self._status)
+        _k.predict_lanes(rec, spec.at, spec.config, u, self._status)
         if known is not None:
             rec[:, self._x_slice] = known
         if self._status.any():
@@ -478,7 +481,7 @@ class RecursiveEstimator:
         snapshot = self._rec.copy() if raising else None
         stop = (_k.ST_RESET | _k.ST_STATE_RESET) if raising else 0
         spec = self.spec
-        done = _k.run_lane(self._rec[0], spec.cfg_f, spec.cfg_i, u_arr, y_arr, thetas, status, stop)
+        done = _k.run_lane(self._rec[0], spec.at, spec.config, u_arr, y_arr, thetas, status, stop)
         events = status[:done]
         if events.any():
             self._report(events, snapshot, times=True)

@@ -61,7 +61,7 @@ class RolloutResult:
 
 
 @lane
-def rollout_lane(f, g, at, cfg, ecf, eci, x, theta, theta_after, jump_at, form, bound,
+def rollout_lane(f, g, at, cfg, est_at, est_cfg, x, theta, theta_after, jump_at, form, bound,
                  sigma_v, z, r, rho, y_bound, window, cost, y_tr, u_tr, traces):  # fmt: skip
     """``T = r.size - 1`` closed-loop steps of one lane; returns ``(steps_run, diverged)``."""
     T = r.shape[0] - 1
@@ -70,7 +70,7 @@ def rollout_lane(f, g, at, cfg, ecf, eci, x, theta, theta_after, jump_at, form, 
     if traces:
         y_tr[0] = y
     for k in range(T):
-        u_raw = controller_step(f, g, at, cfg, ecf, eci, y, r[k])
+        u_raw = controller_step(f, g, at, cfg, est_at, est_cfg, y, r[k])
         th = theta_after if k >= jump_at else theta
         reward, _, diverged, u, _, y = canonical_plant_step(
             x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form
@@ -85,13 +85,13 @@ def rollout_lane(f, g, at, cfg, ecf, eci, x, theta, theta_after, jump_at, form, 
 
 
 @lanes
-def rollout_lanes(F, G, at, cfg, ecf, eci, X, Theta, Theta_after, jump_at, form, bound,
+def rollout_lanes(F, G, at, cfg, est_at, est_cfg, X, Theta, Theta_after, jump_at, form, bound,
                   sigma_v, Z, R, rho, y_bound, window, Cost, Y, U, traces, steps_run,
                   diverged):  # fmt: skip
     """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
     for i in prange(F.shape[0]):
         steps_run[i], diverged[i] = rollout_lane(
-            F[i], G[i], at, cfg, ecf, eci, X[i], Theta[i], Theta_after[i], jump_at, form,
+            F[i], G[i], at, cfg, est_at, est_cfg, X[i], Theta[i], Theta_after[i], jump_at, form,
             bound, sigma_v, Z[i], R[i], rho, y_bound, window, Cost[i], Y[i], U[i], traces,
         )  # fmt: skip
 
@@ -154,7 +154,7 @@ def rollout(
     form = 1 if controller.form == "observability" else 0
     c = controller
     rollout_lanes(
-        c._F, c._G, c._at, c._cfg, c._ecf, c._eci, X, th, th_after, jump_at, form,
+        c._F, c._G, c._at, c._cfg, c._est_at, c._est_cfg, X, th, th_after, jump_at, form,
         c.action_bound, float(noise_std), Z, R, float(control_cost), float(y_bound), window,
         cost, Y, U, bool(traces), steps_run, diverged,
     )  # fmt: skip

@@ -89,18 +89,18 @@ def _measure(
 
     t_single = _best(single_loop) / T
     rec = est.spec.initial_record().copy()
-    cf, ci = est.spec.cfg_f, est.spec.cfg_i
+    at, cfg = est.spec.at, est.spec.config
 
     def lane_loop() -> None:
         for k in range(T):
-            K.estimator_update(rec, 0, cf, ci, y[k])
-            K.estimator_predict(rec, 0, cf, ci, u[k])
+            K.estimator_update(rec, at, cfg, y[k])
+            K.estimator_predict(rec, at, cfg, u[k])
 
     t_lane = _best(lane_loop) / T
     thetas = np.empty((T, 4))
     status = np.zeros(T, dtype=np.int64)
     rec2 = est.spec.initial_record().copy()
-    t_run = _best(lambda: K.run_lane(rec2, cf, ci, u, y, thetas, status, 0)) / T
+    t_run = _best(lambda: K.run_lane(rec2, at, cfg, u, y, thetas, status, 0)) / T
 
     def batch_loop() -> None:
         for k in range(20):

@@ -270,7 +270,7 @@ def main(argv: list[str] | None = None) -> None:
 
     def estimate(s: int) -> None:
         rec = spec.initial_record()
-        run_lane(rec, spec.cfg_f, spec.cfg_i, u_in[:s], y_ol[:s], thetas, status, 0)
+        run_lane(rec, spec.at, spec.config, u_in[:s], y_ol[:s], thetas, status, 0)
 
     row("KF-MILS estimator, update + predict (p = 5, d = 4)", _best_ns(estimate, steps))
 

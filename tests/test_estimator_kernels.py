@@ -401,8 +401,8 @@ def test_restart_reset_covariance_and_the_controller_interface():
     spec = est.spec
     rec = np.zeros(7 + spec.size)  # embedded at an offset in a caller's record
     rec[7:] = spec.initial_record()
-    st = K.estimator_update(rec, 7, spec.cfg_f, spec.cfg_i, 1.0)
-    K.estimator_predict(rec, 7, spec.cfg_f, spec.cfg_i, 0.5)
+    st = K.estimator_update(rec, spec.record(7), spec.config, 1.0)
+    K.estimator_predict(rec, spec.record(7), spec.config, 0.5)
     ref = make_estimator("KF-D-RLS", 2, p0=10.0, process_noise=0.01)
     ref.update(1.0)
     ref.predict(0.5)

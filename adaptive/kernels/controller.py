@@ -274,7 +274,7 @@ def process_noise(f, at, d, n, y, u, q, q_floor, Q):
 
 # --------------------------------------------------------------------------------- the step
 @lane
-def controller_step(f, g, at, cfg, ecf, eci, y, r):
+def controller_step(f, g, at, cfg, est_at, est_cfg, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
     ``f``/``g``: the lane's float and int records (offsets ``at``, a :class:`ControllerRecord`,
@@ -290,7 +290,7 @@ def controller_step(f, g, at, cfg, ecf, eci, y, r):
     if cfg.estimator == ELS:
         e, eps = extended_ls_update(f, at, d, y, cfg.forgetting, cfg.p0)
     else:
-        g[INTS.est_status] |= estimator_update(f, at.est, ecf, eci, y)
+        g[INTS.est_status] |= estimator_update(f, est_at, est_cfg, y)
         e = f[at.E]
         eps = e
     f[at.e] = e
@@ -380,13 +380,13 @@ def controller_step(f, g, at, cfg, ecf, eci, y, r):
         if at.Q_est >= 0:  # the paper's Kalman filter gets the same process noise
             for i in range(n * n):
                 f[at.Q_est + i] = f[at.Q + i]
-        g[INTS.est_status] |= estimator_predict(f, at.est, ecf, eci, u)
+        g[INTS.est_status] |= estimator_predict(f, est_at, est_cfg, u)
     g[INTS.t] = t + 1
     return u
 
 
 @lanes
-def controllers_step(F, G, at, cfg, ecf, eci, y, r, u):
+def controllers_step(F, G, at, cfg, est_at, est_cfg, y, r, u):
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in prange(F.shape[0]):
-        u[i] = controller_step(F[i], G[i], at, cfg, ecf, eci, y[i], r[i])
+        u[i] = controller_step(F[i], G[i], at, cfg, est_at, est_cfg, y[i], r[i])

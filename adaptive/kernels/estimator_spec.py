@@ -1,0 +1,515 @@
+"""The estimators' configuration on the Python side: names, validation, the record and the config.
+
+``spec = EstimatorSpec.build(name, n, **make_estimator_keywords)`` validates one estimator
+configuration exactly like :func:`stcgym.adaptive.make_estimator` (which builds one itself) and
+gives
+
+* ``spec.layout`` -- the :class:`~stcgym.envs.compiled.Layout` of the estimator's record
+  (fields :class:`EstimatorRecord`); ``spec.size`` floats per lane;
+* ``spec.at`` -- the offsets of its fields in a record of its own, ``spec.record(base)`` the
+  same inside a larger lane record starting at ``base``;
+* ``spec.config`` -- the :class:`EstimatorConfig` every lane function takes;
+* ``spec.initial_record()`` -- one lane's record at ``t = 0`` (shape ``(size,)``);
+* ``spec.offset(name)`` -- the offset of a field, e.g. ``"theta"`` (2n), ``"x_hat"`` (n),
+  ``"S"`` (2n x 2n, row-major: the upper-triangular factor of ``P = S S^T``; block-diagonal
+  ``diag(S_a, S_b)`` for D- rules; absent (size 0) for SG/MISG), ``"P1"`` (n x n), ``"Q"``
+  (n x n, the KF process-noise covariance, may be overwritten before every state step),
+  ``"E"`` (p, the innovation ``E(p, t)``), ``"r"`` (2, SG/MISG normalisers).
+
+The lane functions themselves are in :mod:`stcgym.adaptive.kernels.estimator`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from numbers import Integral, Real
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.adaptive.kernels.least_squares import upper_factor
+from stcgym.envs.canonical import as_finite_vector, check_form
+from stcgym.envs.compiled import Layout
+
+__all__ = [
+    "ALGORITHMS",
+    "FIELDS",
+    "REGRESSORS",
+    "RULES",
+    "STATE_ESTIMATORS",
+    "EstimatorConfig",
+    "EstimatorRecord",
+    "EstimatorSpec",
+    "check_covariance",
+    "check_int",
+    "check_positive",
+    "parse_name",
+    "upper_cholesky",
+]
+
+RULES: tuple[str, ...] = ("SG", "MISG", "RLS", "MILS")
+STATE_ESTIMATORS: tuple[str, ...] = ("O", "KF", "CO")
+#: Which state estimate the regressor ``phi_hat`` is built from (see :meth:`EstimatorSpec.build`).
+REGRESSORS: tuple[str, ...] = ("predicted", "filtered")
+#: The 16 algorithms of the paper (``CO-...`` variants are accepted as well).
+ALGORITHMS: tuple[str, ...] = tuple(
+    f"{s}-{d}{r}" for d in ("", "D-") for r in RULES for s in ("O", "KF")
+)
+
+# Rule and state-estimator codes of the configuration (values, not offsets).
+RULE_SG, RULE_MISG, RULE_RLS, RULE_MILS = range(4)
+STATE_O, STATE_CO, STATE_KF = range(3)
+#: Frozen-signal defaults (see :mod:`.estimator`; calibrated in ``stcgym.adaptive.recursive``).
+FROZEN_RATE = 1e-3
+FROZEN_RATIO = 0.05
+FROZEN_GAIN = 1e-3
+
+
+class EstimatorRecord(NamedTuple):
+    """Fields of the estimator's lane record (offsets; sizes set by :class:`EstimatorSpec`)."""
+
+    theta: int  # theta_hat(t) (2n)
+    S: int  # upper factor of P = S S^T (2n, 2n; empty for SG/MISG)
+    S0: int  # the factor of P(0), for the safe reset
+    r: int  # SG/MISG normalisers (2; empty for RLS/MILS)
+    r0: int  # r(0)
+    x_hat: int  # the state estimate x_hat(t) (n)
+    x_init: int  # x_hat(1), for the state reset
+    xs: int  # the last n state estimates (observability-form regressor (153))
+    phi: int  # the regressor phi_hat(t+1) (2n)
+    Phi: int  # the stacked Phi(p, t) (p, 2n)
+    Y: int  # the stacked Y(p, t) (p)
+    E: int  # the innovation E(p, t) (p)
+    y: int  # the last y(t)
+    K: int  # closed-loop observer gain (CO)
+    P1: int  # Kalman covariance (KF)
+    P1_init: int  # P1(1)
+    Q: int  # Kalman process noise (KF)
+    L1: int  # Kalman gain (KF)
+    theta0: int  # theta(0) (finite window)
+    hist_Phi: int  # the window's blocks (W, p, 2n)
+    hist_Y: int  # (W, p)
+    t: int  # time
+    phase: int  # 1 between update and predict
+    enabled: int  # adaptation switch
+    n_resets: int
+    n_state_resets: int
+    n_kf_resets: int
+    n_projections: int
+    n_window_recomputes: int
+    count: int  # blocks added to the window
+    ewma_e2: int  # frozen signal: running means of e^2, y^2 and the gain q
+    ewma_y2: int
+    ewma_q: int
+    frozen: int
+    work: int  # scratch
+
+
+#: Record fields in layout order.
+FIELDS: tuple[str, ...] = EstimatorRecord._fields
+
+
+class EstimatorConfig(NamedTuple):
+    """Configuration of the estimator's lane functions."""
+
+    n: int
+    p: int  # innovation length
+    rule: int  # RULE_SG .. RULE_MILS
+    decomposed: bool  # D- rule (a and b halves)
+    state: int  # STATE_O, STATE_CO or STATE_KF
+    observability: bool  # observability canonical form (else observer form)
+    window: int  # finite history W (0: none)
+    check_every: int  # factor health check every so many steps (0: never)
+    stacked_r: bool  # MISG: one normaliser over the stacked window
+    project_stable: bool  # reject updates to an unstable A_hat
+    filtered: bool  # the regressor takes the measurement-corrected x_hat(t|t)
+    forgetting: float  # lambda
+    R: float  # Kalman measurement-noise variance
+    frozen_rate: float
+    frozen_ratio: float
+    frozen_gain: float
+
+
+def parse_name(name: str) -> tuple[str, bool, str]:
+    """Split a paper name into ``(state estimator, decomposed, rule)``.
+
+    ``"KF-D-MILS" -> ("KF", True, "MILS")``; case-insensitive; the state estimator is one of
+    ``O``, ``KF``, ``CO`` (closed-loop observer, needs ``observer_gain``).
+    """
+    if not isinstance(name, str):
+        raise ValueError(f"name must be a string such as 'KF-D-MILS', got {name!r}")
+    parts = name.strip().upper().split("-")
+    ok = (
+        len(parts) in (2, 3)
+        and parts[0] in STATE_ESTIMATORS
+        and parts[-1] in RULES
+        and (len(parts) == 2 or parts[1] == "D")
+    )
+    if not ok:
+        raise ValueError(
+            f"unknown algorithm {name!r}; expected '<state>-[D-]<rule>' with state in "
+            f"{STATE_ESTIMATORS} and rule in {RULES}, e.g. one of {ALGORITHMS}"
+        )
+    return parts[0], len(parts) == 3, parts[-1]
+
+
+def check_int(value: Any, name: str, minimum: int) -> int:
+    """An integer ``>= minimum`` (booleans rejected), else ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_positive(value: Any, name: str) -> float:
+    """A finite positive real number, else ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise ValueError(f"{name} must be a finite positive real number, got {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name} must be a finite positive real number, got {value!r}")
+    return v
+
+
+def check_covariance(value: Any, dim: int, name: str, *, allow_singular: bool = False) -> NDArray:
+    """A ``dim x dim`` covariance from a scalar, a vector (diagonal) or a matrix."""
+    expected = (
+        f"{name} must be a positive {'or zero ' if allow_singular else ''}scalar, a vector of "
+        f"length {dim} or a symmetric positive {'semi' if allow_singular else ''}definite "
+        f"{dim}x{dim} matrix"
+    )
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{expected}, got {value!r}") from exc
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{expected}; it is not finite: {value!r}")
+    if arr.ndim == 0 or (arr.ndim == 1 and arr.size == dim):
+        diag = np.broadcast_to(arr, (dim,))
+        if np.any(diag < 0) or (not allow_singular and np.any(diag <= 0)):
+            raise ValueError(f"{expected}, got {value!r}")
+        return np.diag(diag).astype(float)
+    if arr.shape != (dim, dim):
+        raise ValueError(f"{expected}, got shape {arr.shape}")
+    scale = max(float(np.abs(arr).max()), 1e-300)
+    if not np.allclose(arr, arr.T, rtol=0.0, atol=1e-12 * scale):
+        raise ValueError(f"{expected}; it is not symmetric")
+    M = 0.5 * (arr + arr.T)
+    lam_min = float(np.linalg.eigvalsh(M).min())
+    if lam_min < -1e-12 * scale or (not allow_singular and lam_min <= 0.0):
+        raise ValueError(f"{expected}; its smallest eigenvalue is {lam_min:g}")
+    return M
+
+
+def upper_cholesky(P: NDArray) -> NDArray:
+    """Upper-triangular ``S`` with ``S S^T = P`` (``P`` symmetric positive definite)."""
+    S = np.zeros_like(P)
+    if not upper_factor(np.ascontiguousarray(P, dtype=float), S):
+        raise ValueError("P is not symmetric positive definite")
+    return S
+
+
+@dataclass(frozen=True, eq=False)
+class EstimatorSpec:
+    """One validated estimator configuration: record layout, config arrays, initial record.
+
+    Build it with :meth:`build` (the keywords of :func:`stcgym.adaptive.make_estimator`).
+    ``theta0``, ``P0``, ``x_init``, ``P1_init``, ``Q`` are the per-lane initial values written
+    by :meth:`initial_record`. ``observer_gain`` may be a callable (evaluated by the Python
+    class before every state step); the lane functions read the gain ``K`` from the record.
+    """
+
+    name: str
+    n: int
+    p: int
+    form: str
+    state: str
+    rule: str
+    decomposed: bool
+    forgetting: float
+    window: int | None
+    stacked_r: bool
+    project_stable: bool
+    pd_check_every: int
+    on_failure: str
+    enabled: bool
+    theta0: NDArray = field(repr=False)
+    P0: NDArray | None = field(repr=False)
+    r0: float = 1.0
+    x_init: NDArray = field(default=None, repr=False)  # type: ignore[assignment]
+    P1_init: NDArray | None = field(default=None, repr=False)
+    Q: NDArray | None = field(default=None, repr=False)
+    R: float = 1.0
+    observer_gain: Any = field(default=None, repr=False)
+    frozen: tuple[float, float, float] = (FROZEN_RATE, FROZEN_RATIO, FROZEN_GAIN)
+    regressor: str = "predicted"
+
+    # ---- construction ---------------------------------------------------------------------
+    @classmethod
+    def build(
+        cls,
+        name: str,
+        n: int,
+        *,
+        p: int = 1,
+        p0: float = 1e6,
+        form: str = "observer",
+        forgetting: float = 1.0,
+        window: int | None = None,
+        theta0: ArrayLike | None = None,
+        P0: ArrayLike | None = None,
+        r0: float | None = None,
+        stacked_r: bool = False,
+        x_init: ArrayLike | None = None,
+        P1_init: ArrayLike | None = None,
+        process_noise: ArrayLike | None = None,
+        measurement_noise: float | None = None,
+        observer_gain: Any = None,
+        enabled: bool = True,
+        on_failure: str = "reset",
+        pd_check_every: int = 1,
+        project_stable: bool = False,
+        frozen_ratio: float = FROZEN_RATIO,
+        regressor: str = "predicted",
+    ) -> EstimatorSpec:
+        """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument)."""
+        state, decomposed, rule = parse_name(name)
+        n = check_int(n, "n", 1)
+        p = check_int(p, "p", 1)
+        if rule in ("SG", "RLS") and p != 1:
+            raise ValueError(
+                f"p (innovation length) applies to MISG/MILS; {rule} has p = 1, got p={p}"
+            )
+        p0 = check_positive(p0, "p0")
+        form = check_form(form)
+        lam = forgetting
+        if isinstance(lam, bool) or not isinstance(lam, Real) or not (0.0 < float(lam) <= 1.0):
+            raise ValueError(f"forgetting (lambda) must be a real number in (0, 1], got {lam!r}")
+        lam = float(lam)
+        least_squares = rule in ("RLS", "MILS")
+        if window is not None:
+            window = check_int(window, "window", 1)
+            if not least_squares:
+                raise ValueError("window (finite history) applies to RLS/MILS rules only")
+            if lam != 1.0:
+                raise ValueError("window and forgetting < 1 are mutually exclusive")
+        d = 2 * n
+        theta0_arr = (
+            np.full(d, 1.0 / p0) if theta0 is None else as_finite_vector(theta0, "theta0", length=d)
+        )
+        if P0 is not None and not least_squares:
+            raise ValueError(f"P0 applies to RLS/MILS rules only, not {rule}")
+        if r0 is not None and least_squares:
+            raise ValueError(f"r0 applies to SG/MISG rules only, not {rule}")
+        if stacked_r and least_squares:
+            raise ValueError(f"stacked_r applies to SG/MISG rules only, not {rule}")
+        P0_mat = None
+        if least_squares:
+            P0_mat = p0 * np.eye(d) if P0 is None else check_covariance(P0, d, "P0")
+            if decomposed and (np.any(P0_mat[:n, n:] != 0.0) or np.any(P0_mat[n:, :n] != 0.0)):
+                raise ValueError(
+                    "P0 must be block-diagonal diag(P_a, P_b) for D- rules (separate a and b "
+                    "covariances)"
+                )
+        r0_val = 1.0 if r0 is None else check_positive(r0, "r0")
+        x_init_arr = (
+            np.full(n, 1.0 / p0) if x_init is None else as_finite_vector(x_init, "x_init", length=n)
+        )
+        kf = {
+            "P1_init": P1_init,
+            "process_noise": process_noise,
+            "measurement_noise": measurement_noise,
+        }
+        P1 = Q = None
+        R = 1.0
+        gain: Any = None
+        if state == "KF":
+            if observer_gain is not None:
+                raise ValueError("observer_gain applies to O/CO state estimators, not KF")
+            P1 = np.eye(n) if P1_init is None else check_covariance(P1_init, n, "P1_init")
+            Q = (
+                np.zeros((n, n))
+                if process_noise is None
+                else check_covariance(process_noise, n, "process_noise", allow_singular=True)
+            )
+            if measurement_noise is not None:
+                R = check_positive(measurement_noise, "measurement_noise")
+        else:
+            given = [k for k, v in kf.items() if v is not None]
+            if given:
+                raise ValueError(f"{', '.join(given)} apply to KF state estimators only")
+            if state == "CO" and observer_gain is None:
+                raise ValueError("CO (closed-loop observer) needs observer_gain=K (or a callable)")
+            if observer_gain is not None:
+                state = "CO"
+                if callable(observer_gain):
+                    gain = observer_gain
+                else:
+                    K = np.asarray(observer_gain, dtype=float)
+                    if K.shape != (n,) or not np.all(np.isfinite(K)):
+                        raise ValueError(
+                            f"observer_gain must be a finite vector of length n={n} or a "
+                            f"callable (a_hat, b_hat) -> K, got {observer_gain!r}"
+                        )
+                    gain = K.copy()
+        if on_failure not in ("reset", "raise"):
+            raise ValueError(f"on_failure must be 'reset' or 'raise', got {on_failure!r}")
+        pd_check_every = check_int(pd_check_every, "pd_check_every", 0)
+        if (
+            isinstance(frozen_ratio, bool)
+            or not isinstance(frozen_ratio, Real)
+            or not (float(frozen_ratio) > 0.0)
+        ):
+            raise ValueError(
+                f"frozen_ratio must be a positive real number (math.inf disables the frozen "
+                f"signal), got {frozen_ratio!r}"
+            )
+        if regressor not in REGRESSORS:
+            raise ValueError(f"regressor must be one of {REGRESSORS}, got {regressor!r}")
+        if regressor == "filtered" and state == "CO":
+            raise ValueError(
+                "regressor='filtered' applies to the open-loop observer (O) and the Kalman filter "
+                "(KF); the closed-loop observer (CO, observer_gain) has its own output injection"
+            )
+        canonical = f"{state}-{'D-' if decomposed else ''}{rule}"
+        return cls(
+            name=canonical,
+            n=n,
+            p=p,
+            form=form,
+            state=state,
+            rule=rule,
+            decomposed=decomposed,
+            forgetting=lam,
+            window=window,
+            stacked_r=bool(stacked_r),
+            project_stable=bool(project_stable),
+            pd_check_every=pd_check_every,
+            on_failure=on_failure,
+            enabled=bool(enabled),
+            theta0=theta0_arr,
+            P0=P0_mat,
+            r0=r0_val,
+            x_init=x_init_arr,
+            P1_init=P1,
+            Q=Q,
+            R=R,
+            observer_gain=gain,
+            frozen=(FROZEN_RATE, float(frozen_ratio), FROZEN_GAIN),
+            regressor=regressor,
+        )
+
+    def __post_init__(self) -> None:
+        n, p, d = self.n, self.p, 2 * self.n
+        ls = self.rule in ("RLS", "MILS")
+        W = self.window or 0
+        kf = self.state == "KF"
+        shapes: dict[str, tuple[int, ...]] = {
+            "theta": (d,),
+            "S": (d, d) if ls else (0,),
+            "S0": (d, d) if ls else (0,),
+            "r": (0,) if ls else (2,),
+            "r0": (0,) if ls else (2,),
+            "x_hat": (n,),
+            "x_init": (n,),
+            "xs": (n, n) if self.form == "observability" else (0,),
+            "phi": (d,),
+            "Phi": (p, d),
+            "Y": (p,),
+            "E": (p,),
+            "K": (n,) if self.state == "CO" else (0,),
+            "P1": (n, n) if kf else (0,),
+            "P1_init": (n, n) if kf else (0,),
+            "Q": (n, n) if kf else (0,),
+            "L1": (n,) if kf else (0,),
+            "theta0": (d,) if W else (0,),
+            "hist_Phi": (W, p, d) if W else (0,),
+            "hist_Y": (W, p) if W else (0,),
+            # delta, K, w (2d), theta_prev / replay; E, E_old; saved S; A, x_next, 2 n^2 (KF)
+            # x_hat(t|t) of the filtered regressor (n)
+            "work": (5 * d + 2 * p + d * d + 3 * n * n + 2 * n,),
+        }
+        layout = Layout()
+        for name in FIELDS:
+            layout.add(name, shapes.get(name, ()))
+        config = EstimatorConfig(
+            n=n,
+            p=p,
+            rule=RULES.index(self.rule),
+            decomposed=bool(self.decomposed),
+            state={"O": STATE_O, "CO": STATE_CO, "KF": STATE_KF}[self.state],
+            observability=self.form == "observability",
+            window=W,
+            check_every=int(self.pd_check_every),
+            stacked_r=bool(self.stacked_r),
+            project_stable=bool(self.project_stable),
+            filtered=self.regressor == "filtered",
+            forgetting=float(self.forgetting),
+            R=float(self.R),
+            frozen_rate=float(self.frozen[0]),
+            frozen_ratio=float(self.frozen[1]),
+            frozen_gain=float(self.frozen[2]),
+        )
+        object.__setattr__(self, "layout", layout)
+        object.__setattr__(self, "config", config)
+        object.__setattr__(self, "at", layout.record(EstimatorRecord))
+
+    # ---- the record -----------------------------------------------------------------------
+    layout: Layout = field(init=False, repr=False)
+    #: the lane functions' configuration
+    config: EstimatorConfig = field(init=False, repr=False)
+    #: offsets of the record's fields in a lane record of its own
+    at: EstimatorRecord = field(init=False, repr=False)
+
+    @property
+    def size(self) -> int:
+        """Floats per lane record."""
+        return self.layout.size
+
+    @property
+    def least_squares(self) -> bool:
+        return self.rule in ("RLS", "MILS")
+
+    def offset(self, name: str) -> int:
+        """Offset of the field ``name`` relative to the start of the estimator record."""
+        return self.layout.offset(name)
+
+    def record(self, base: int = 0) -> EstimatorRecord:
+        """Offsets of the record's fields when it starts at ``base`` of a larger lane record
+        (the self-tuning controller embeds it at the start of its own)."""
+        return self.layout.record(EstimatorRecord, base)
+
+    def initial_record(self, theta0: NDArray | None = None, P0: NDArray | None = None) -> NDArray:
+        """One lane's record at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
+        optionally with this lane's own ``theta0`` / ``P0``."""
+        lay = self.layout
+        rec = lay.empty(1)
+        th0 = self.theta0 if theta0 is None else theta0
+        lay.view(rec, "theta")[0] = th0
+        if self.window:
+            lay.view(rec, "theta0")[0] = th0
+        if self.least_squares:
+            P = self.P0 if P0 is None else P0
+            n = self.n
+            if self.decomposed:
+                S0 = np.zeros_like(P)
+                S0[:n, :n] = upper_cholesky(P[:n, :n])
+                S0[n:, n:] = upper_cholesky(P[n:, n:])
+            else:
+                S0 = upper_cholesky(P)
+            lay.view(rec, "S")[0] = S0
+            lay.view(rec, "S0")[0] = S0
+        else:
+            lay.view(rec, "r")[0] = self.r0
+            lay.view(rec, "r0")[0] = self.r0
+        lay.view(rec, "x_hat")[0] = self.x_init
+        lay.view(rec, "x_init")[0] = self.x_init
+        if self.state == "KF":
+            lay.view(rec, "P1")[0] = self.P1_init
+            lay.view(rec, "P1_init")[0] = self.P1_init
+            lay.view(rec, "Q")[0] = self.Q
+        if self.state == "CO" and not callable(self.observer_gain):
+            lay.view(rec, "K")[0] = self.observer_gain
+        lay.view(rec, "enabled")[0] = float(self.enabled)
+        return rec[0]
