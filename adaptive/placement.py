@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.kernels import design as _design
 
 __all__ = [
@@ -175,13 +176,11 @@ def augment_integral(A: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
     eigenvalues of ``A_aug - b_aug K_aug`` gives zero steady-state error to constant references
     (and input disturbances) whatever the model error, as long as the true loop stays stable.
     """
+    A = np.ascontiguousarray(A, dtype=float)
     n = A.shape[0]
-    Aa = np.zeros((n + 1, n + 1))
-    Aa[:n, :n] = A
-    Aa[n, 0] = -1.0
-    Aa[n, n] = 1.0
-    ba = np.zeros(n + 1)
-    ba[:n] = b
+    Aa = np.empty((n + 1, n + 1))
+    ba = np.empty(n + 1)
+    _canonical.augment_integral(A, np.ascontiguousarray(b, dtype=float), True, Aa, ba)
     return Aa, ba
 
 

@@ -21,12 +21,26 @@ from stcgym.envs.canonical import companion_A
 FORMS = {"observer": d.OBSERVER, "observability": d.OBSERVABILITY}
 
 
+def _augmented(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``[[A, 0], [-c, 1]]``, ``[b; 0]`` written out with ``np.block`` (the reference)."""
+    n = A.shape[0]
+    return np.block([[A, np.zeros((n, 1))], [-np.eye(1, n), np.ones((1, 1))]]), np.r_[b, 0.0]
+
+
+def test_integral_augmentation_is_the_block_model() -> None:
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 5):
+        A, b = rng.standard_normal((n, n)), rng.standard_normal(n)
+        for got, ref in zip(augment_integral(A, b), _augmented(A, b), strict=True):
+            np.testing.assert_array_equal(got, ref)
+
+
 def _plant(rng: np.random.Generator, n: int, form: str) -> tuple[np.ndarray, np.ndarray]:
     """Random ``theta = [a; b]`` whose augmented model is well controllable, and its ``A``."""
     while True:
         theta = np.r_[rng.uniform(-1.2, 1.2, n), rng.uniform(-1.0, 1.0, n)]
         A = companion_A(theta[:n], form)
-        Aa, ba = augment_integral(A, theta[n:])
+        Aa, ba = _augmented(A, theta[n:])
         C = controllability_matrix(Aa, ba)
         if np.linalg.cond(C / np.linalg.norm(C, axis=0)) < 1e5:
             return theta, A
@@ -36,7 +50,7 @@ def _models(theta: np.ndarray, form: str, integral: bool) -> tuple[np.ndarray, .
     n = theta.size // 2
     A = companion_A(theta[:n], form)
     b = theta[n:].copy()
-    Ad, bd = augment_integral(A, b) if integral else (A, b)
+    Ad, bd = _augmented(A, b) if integral else (A, b)
     return A, b, Ad, bd
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 import pytest
@@ -10,7 +12,7 @@ from hypothesis import strategies as st
 
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable
-from stcgym.envs.compiled import lane
+from stcgym.envs.compiled import Layout, lane
 
 
 @lane
@@ -91,3 +93,37 @@ def test_a_lane_function_that_allocates_does_not_compile():
         return np.zeros(n).sum() + n
 
     assert allowed(3) == 3.0
+
+
+class _Pair(NamedTuple):
+    S: int
+    theta: int
+
+
+@lane
+def _read_by_name(f, at, d):
+    """``sum(theta) + 100 * S[d - 1, d - 1]`` read through the record's field names."""
+    theta = f[at.theta : at.theta + d]
+    S = view2d(f, at.S, d, d)
+    acc = 0.0
+    for i in range(d):
+        acc += theta[i]
+    return acc + 100.0 * S[d - 1, d - 1]
+
+
+@pytest.mark.parametrize("base", [0, 3])
+def test_named_record_reads_the_fields_the_layout_places(base):
+    lay = Layout()
+    lay.add("scratch", (2,))
+    lay.add("theta", (3,))
+    lay.add("S", (3, 3))
+    at = lay.record(_Pair, base)
+    assert at == _Pair(S=base + 5, theta=base + 2)
+    rec = np.zeros((1, base + lay.size))
+    lay.view(rec[:, base:], "theta")[0] = [1.0, 2.0, 4.0]
+    lay.view(rec[:, base:], "S")[0] = np.diag([7.0, 8.0, 9.0])
+    assert _read_by_name(rec[0], at, 3) == 907.0
+    only_S = Layout()
+    only_S.add("S", (1, 1))
+    with pytest.raises(ValueError, match=r"\['theta'\] of _Pair"):
+        only_S.record(_Pair)

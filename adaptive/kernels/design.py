@@ -59,12 +59,14 @@ from stcgym.adaptive.kernels.pole_placement import (
 )
 from stcgym.adaptive.kernels.safe_set import (
     B_SMALL,
+    DC_RCOND_FLOOR,
     DC_SINGULAR,
     GAIN_LARGE,
     NONFINITE,
     NOT_CONVERGED,
     NOT_STABILISABLE,
     OK,
+    RCOND_FLOOR,
     STATUS_NAMES,
     UNCONTROLLABLE,
     gain_size,
@@ -77,6 +79,7 @@ from stcgym.adaptive.kernels.state_estimation import filtered_state
 
 __all__ = [
     "B_SMALL",
+    "DC_RCOND_FLOOR",
     "DC_SINGULAR",
     "DEFAULT_LQ_WEIGHTS",
     "GAIN_LARGE",
@@ -89,6 +92,7 @@ __all__ = [
     "OBSERVER",
     "OK",
     "P_MAX",
+    "RCOND_FLOOR",
     "STATUS_NAMES",
     "UNCONTROLLABLE",
     "LawState",
