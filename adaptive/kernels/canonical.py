@@ -42,9 +42,7 @@ def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> N
     """Write ``A_hat(t)`` of ``theta_hat(t)`` into ``A`` (n, n); see the module docstring."""
     for i in range(n):
         for j in range(n):
-            A[i, j] = 0.0
-    for i in range(n - 1):
-        A[i, i + 1] = 1.0
+            A[i, j] = 1.0 if j == i + 1 else 0.0
     if observability:
         for j in range(n):
             A[n - 1, j] = -theta[n - 1 - j]

@@ -207,7 +207,7 @@ def _innovation(theta: NDArray, Phi: NDArray, Y: NDArray, p: int, E: NDArray) ->
         E[k] = acc
 
 
-@lane
+@lane(inline=True)
 def _rule_increment(
     rec: NDArray,
     at: EstimatorRecord,
@@ -338,11 +338,10 @@ def _slide_window(
     return 0
 
 
-@lane
-def _gain(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, phi: NDArray) -> float:
+@lane(inline=True)
+def _gain(S: NDArray, phi: NDArray) -> float:
     """``q = phi^T P phi = ||S^T phi||^2`` (over both halves for D- rules)."""
-    d = 2 * cfg.n
-    S = view2d(rec, at.S, d, d)
+    d = phi.shape[0]
     q = 0.0
     for j in range(d):
         acc = 0.0
@@ -382,7 +381,7 @@ def estimator_update(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, y:
     delta, K, w = work[:d], work[d : 2 * d], work[2 * d : 4 * d]
     theta_prev = work[4 * d : 5 * d]
     least_squares = cfg.rule >= RULE_RLS
-    q = _gain(rec, at, cfg, phi) if least_squares else 0.0
+    q = _gain(view2d(rec, at.S, d, d), phi) if least_squares else 0.0
     ok = _rule_increment(rec, at, cfg, Phi, E, delta, K, w)
     if ok and cfg.window > 0:
         status |= _slide_window(rec, at, cfg, theta, Phi, Y, delta)
@@ -418,7 +417,7 @@ def estimator_update(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, y:
     return status
 
 
-@lane
+@lane(inline=True)
 def _frozen_signal(
     rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, e: float, y: float, q: float, t: float
 ) -> int:
