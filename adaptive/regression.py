@@ -54,7 +54,7 @@ from __future__ import annotations
 import math
 import warnings
 from numbers import Real
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -91,8 +91,22 @@ _RECOMPUTED = 2  # finite history recomputed from the stored window
 # function of :mod:`stcgym.adaptive.kernels.least_squares`)
 # --------------------------------------------------------------------------------------------
 
-# offsets array indices (the order of the fields in RecursiveLeastSquares' layout)
-_THETA, _S, _E, _YHAT, _K, _T, _NRESET, _NRECOMP, _COUNT, _HPHI, _HY, _WORK = range(12)
+
+class RLSRecord(NamedTuple):
+    """Fields of a :class:`RecursiveLeastSquares` lane record (offsets, in layout order)."""
+
+    theta: int  # (d,)
+    S: int  # (d, d) upper factor of P = S S^T
+    innovation: int  # (p,) e(t)
+    y_hat: int  # (p,) prediction with theta(t-1)
+    K: int  # (d, p) gain
+    t: int
+    n_resets: int
+    n_recomputes: int
+    count: int  # samples in the window
+    hist_Phi: int  # (W, p, d)
+    hist_Y: int  # (W, p)
+    work: int  # scratch: no allocation inside the lane function
 
 
 def work_size(d: int, p: int) -> int:
@@ -170,9 +184,7 @@ def _gain(K, S, Phi, g):  # pragma: no cover - compiled
 
 
 @lane
-def rls_step(
-    rec, off, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure
-):  # pragma: no cover
+def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):  # pragma: no cover
     """One step of :class:`RecursiveLeastSquares` on one lane record; returns a status code.
 
     ``Phi`` (p, d), ``Y`` (p,). The rule is :func:`least_squares_step` (square-root RLS/MILS
@@ -184,11 +196,11 @@ def rls_step(
     was.
     """
     p, d = Phi.shape
-    theta = rec[off[_THETA] : off[_THETA] + d]
-    S = view2d(rec, off[_S], d, d)
-    hPhi = view3d(rec, off[_HPHI], window, p, d)
-    hY = view2d(rec, off[_HY], window, p)
-    o = off[_WORK]  # scratch: no allocation inside the lane function
+    theta = rec[at.theta : at.theta + d]
+    S = view2d(rec, at.S, d, d)
+    hPhi = view3d(rec, at.hist_Phi, window, p, d)
+    hY = view2d(rec, at.hist_Y, window, p)
+    o = at.work
     th = rec[o : o + d]
     Sn = view2d(rec, o + d, d, d)
     work = rec[o + d + d * d : o + 4 * d + p + 2 * d * d]
@@ -209,7 +221,7 @@ def rls_step(
         copy_vector(theta, th)
         copy_matrix(S, Sn)
         ok = least_squares_step(th, Sn, Phi, Y, lam, work) == LS_OK
-        count = int(rec[off[_COUNT]])
+        count = int(rec[at.count])
         slot = count % window if window > 0 else 0
         if ok and window > 0 and count >= window:
             if not (
@@ -231,8 +243,8 @@ def rls_step(
             if not reset_on_failure:
                 return _FAILED
             copy_matrix(S0, S)
-            rec[off[_COUNT]] = 0.0
-            rec[off[_NRESET]] += 1.0
+            rec[at.count] = 0.0
+            rec[at.n_resets] += 1.0
             status = _FAILED
         else:
             copy_vector(th, theta)
@@ -240,20 +252,20 @@ def rls_step(
             if window > 0:
                 copy_matrix(Phi, hPhi[slot])
                 copy_vector(Y, hY[slot])
-                rec[off[_COUNT]] = count + 1.0
+                rec[at.count] = count + 1.0
             if status == _RECOMPUTED:
-                rec[off[_NRECOMP]] += 1.0
-        _gain(view2d(rec, off[_K], d, p), S, Phi, th)
+                rec[at.n_recomputes] += 1.0
+        _gain(view2d(rec, at.K, d, p), S, Phi, th)
     for r in range(p):
-        rec[off[_YHAT] + r] = y_pred[r]
-        rec[off[_E] + r] = Y[r] - y_pred[r]
-    rec[off[_T]] += 1.0
+        rec[at.y_hat + r] = y_pred[r]
+        rec[at.innovation + r] = Y[r] - y_pred[r]
+    rec[at.t] += 1.0
     return status
 
 
 @lane
 def rls_run(
-    rec, off, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
+    rec, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
 ):  # pragma: no cover
     """``T`` steps of :func:`rls_step` on one lane: ``out[t] = theta(t)``.
 
@@ -261,31 +273,28 @@ def rls_run(
     the first failure (that step not applied).
     """
     d = Phis.shape[2]
-    off_theta = off[_THETA]
     failures = 0
     first = -1
     for t in range(Phis.shape[0]):
-        status = rls_step(
-            rec, off, Phis[t], Ys[t], theta0, S0, lam, window, adapt, reset_on_failure
-        )
+        status = rls_step(rec, at, Phis[t], Ys[t], theta0, S0, lam, window, adapt, reset_on_failure)
         if status == _FAILED:
             failures += 1
             if first < 0:
                 first = t
             if not reset_on_failure:
                 return failures, first
-        copy_vector(rec[off_theta : off_theta + d], out[t])
+        copy_vector(rec[at.theta : at.theta + d], out[t])
     return failures, first
 
 
 @lanes
 def rls_run_lanes(
-    F, off, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out, failures, first
+    F, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out, failures, first
 ):  # pragma: no cover
     """:func:`rls_run` on every lane."""
     for i in prange(F.shape[0]):
         failures[i], first[i] = rls_run(
-            F[i], off, Phis[i], Ys[i], theta0, S0, lam, window, adapt, reset_on_failure, out[i]
+            F[i], at, Phis[i], Ys[i], theta0, S0, lam, window, adapt, reset_on_failure, out[i]
         )
 
 
@@ -431,7 +440,7 @@ class RecursiveLeastSquares:
 
         W = self._window
         lay = Layout()
-        for name, shape in (  # the order of the _THETA, _S, ... indices of the lane function
+        for name, shape in (  # the fields of RLSRecord
             ("theta", d),
             ("S", (d, d)),
             ("innovation", p),
@@ -447,7 +456,7 @@ class RecursiveLeastSquares:
         ):
             lay.add(name, shape)
         self._layout = lay
-        self._off = lay.offsets(list(lay.fields))
+        self._at = lay.record(RLSRecord)
         self._F = lay.empty(B)
         # views of every field (shape (B, ...)); self._F is only ever written in place
         self._fields = {name: lay.view(self._F, name) for name in lay.fields}
@@ -529,7 +538,7 @@ class RecursiveLeastSquares:
             failures = np.zeros(B, dtype=np.int64)
             rls_run_lanes(
                 self._F,
-                self._off,
+                self._at,
                 Phi[:, None],
                 Y[:, None],
                 *self._args(),
@@ -542,7 +551,7 @@ class RecursiveLeastSquares:
         else:  # the same lane function, called directly (no thread pool for one lane)
             fails, _ = rls_run(
                 self._F[0],
-                self._off,
+                self._at,
                 Phi[None],
                 Y[None],
                 *self._args(),
@@ -581,7 +590,7 @@ class RecursiveLeastSquares:
         if self._batched:
             rls_run_lanes(
                 self._F,
-                self._off,
+                self._at,
                 Phis,
                 Ys,
                 *self._args(),
@@ -592,7 +601,7 @@ class RecursiveLeastSquares:
             )
         else:  # one lane: the lane function itself
             failures[0], first[0] = rls_run(
-                self._F[0], self._off, Phis[0], Ys[0], *self._args(), self._reset_on_failure, out[0]
+                self._F[0], self._at, Phis[0], Ys[0], *self._args(), self._reset_on_failure, out[0]
             )
         failed = np.flatnonzero(failures)
         if failed.size:
