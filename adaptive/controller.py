@@ -59,6 +59,7 @@ from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import episode_starts, validate_observation
 from stcgym.envs.canonical import check_form, observer_to_observability_b
+from stcgym.envs.compiled import FixedTypes
 
 __all__ = [
     "DEFAULT_POLE",
@@ -75,6 +76,10 @@ __all__ = [
 DEFAULT_POLE = 0.5
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
+
+# the controller step with its argument types looked up once (they never change: see FixedTypes)
+_controller_step = FixedTypes(kc.controller_step)
+_controllers_step = FixedTypes(kc.controllers_step)
 #: Estimator names besides the paper's: extended least squares on the ARMAX form.
 EXTRA_ESTIMATORS = ("ELS",)
 #: Default ``P(0) = p0 I`` of extended least squares and of the paper's ``O-`` estimators.
@@ -611,7 +616,7 @@ class SelfTuningController:
             # including a non-finite or too large value, takes the validating path below
             y, r = float(observation[0]), float(observation[1])
             if abs(y) <= OBSERVATION_LIMIT and abs(r) <= OBSERVATION_LIMIT:
-                u = kc.controller_step(
+                u = _controller_step(
                     self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
                     y, r,
                 )  # fmt: skip
@@ -645,12 +650,12 @@ class SelfTuningController:
         r = np.ascontiguousarray(obs[:, 1])
         u = self._u
         if self.B == 1:
-            u[0] = kc.controller_step(
+            u[0] = _controller_step(
                 self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
                 y[0], r[0],
             )  # fmt: skip
         else:
-            kc.controllers_step(
+            _controllers_step(
                 self._F, self._G, self._at, self._cfg, self._est_at, self._est_cfg, y, r, u
             )
         if single:

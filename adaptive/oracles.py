@@ -43,9 +43,13 @@ from stcgym.adaptive.kernels.state_estimation import kalman_step
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import episode_starts, validate_observation
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.compiled import Layout
+from stcgym.envs.compiled import FixedTypes, Layout
 
 __all__ = ["KalmanObserver", "KnownModelController", "LQGController"]
+
+# the single-plant step with its argument types looked up once (see FixedTypes)
+_known_model_propose = FixedTypes(_design.known_model_propose)
+_known_model_commit = FixedTypes(_design.known_model_commit)
 
 #: Default closed-loop pole of the known-model controller (as the regulator's).
 DEFAULT_POLE = 0.5
@@ -378,12 +382,12 @@ class _KnownModelLoop(ABC):
         B, n = F.shape[0], self.n
         S = np.empty((B, _design.oracle_scratch_size(n)))
         bound = math.inf if self.action_bound is None else self.action_bound
-        flags = (self.filtered, self.integral, self.anti_windup, bound)
+        flags = (bool(self.filtered), bool(self.integral), bool(self.anti_windup), float(bound))
         u = np.empty(B)
         if B == 1:  # one plant: the lane function itself (no thread-pool start-up)
-            if _design.known_model_propose(F[0], self._at, n, S[0], y[0], r[0], *flags):
+            if _known_model_propose(F[0], self._at, n, S[0], float(y[0]), float(r[0]), *flags):
                 return None
-            u[0] = _design.known_model_commit(F[0], self._at, n, S[0])
+            u[0] = _known_model_commit(F[0], self._at, n, S[0])
             return u
         status = np.zeros(B, dtype=np.int64)
         _design.known_model_propose_lanes(F, self._at, n, S, y, r, *flags, status)

@@ -105,6 +105,7 @@ from stcgym.adaptive.kernels.estimator import (
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable as _schur_lane
 from stcgym.envs.canonical import as_finite_vector
+from stcgym.envs.compiled import FixedTypes
 
 __all__ = [
     "ALGORITHMS",
@@ -133,6 +134,12 @@ def is_schur_stable(a: ArrayLike) -> bool:
     (Schur-Cohn step-down recursion; the lane function the estimator's projection uses)."""
     arr = np.asarray(a, dtype=float).reshape(-1)
     return bool(_schur_lane(arr, arr.size, np.empty(arr.size)))
+
+
+# the single-lane steps with their argument types looked up once (a float64 record row, the
+# spec's named tuples, a float: see FixedTypes)
+_estimator_update = FixedTypes(_k.estimator_update)
+_estimator_predict = FixedTypes(_k.estimator_predict)
 
 
 def _scalar(value: Any, name: str) -> float:
@@ -385,7 +392,7 @@ class RecursiveEstimator:
         snapshot = rec.copy() if spec.on_failure == "raise" else None
         if self.num_envs is None:
             y = _scalar(y_t, "y(t)")
-            status = _k.estimator_update(self._lane0, spec.at, spec.config, y)
+            status = _estimator_update(self._lane0, spec.at, spec.config, y)
             if status:
                 self._status[0] = status
                 self._report(self._status, snapshot)
@@ -429,7 +436,7 @@ class RecursiveEstimator:
         if gains is not None:
             self._field("K")[...] = gains
         if self.num_envs is None:
-            status = _k.estimator_predict(self._lane0, spec.at, spec.config, u)
+            status = _estimator_predict(self._lane0, spec.at, spec.config, u)
             if known is not None:
                 self._lane0[self._x_slice] = known[0]
             if status:

@@ -98,6 +98,36 @@ def lanes(fn: F | None = None, *, allocates: bool = False) -> Any:
     return _jit(fn, allocates, parallel=True)
 
 
+class FixedTypes:
+    """Call a lane function with arguments whose types never change, without numba's typing of
+    every argument on every call.
+
+    numba types each argument of each call to pick the compiled overload; for the named-tuple
+    records and configurations that costs about 8 us a call (their types are rebuilt field by
+    field), several lane steps. A Python class whose calls always pass the same argument types
+    (float64 records, the same named-tuple classes, float or float64 scalars) looks the
+    overload up once, on the first call (``Dispatcher.compile`` of those types: numba's
+    on-disk cache or a compile), and calls it directly afterwards. Without the JIT
+    (``NUMBA_DISABLE_JIT=1``) it calls the Python function.
+    """
+
+    __slots__ = ("entry", "fn")
+
+    def __init__(self, fn: Callable[..., Any]) -> None:
+        self.fn = fn
+        self.entry: Callable[..., Any] | None = None
+
+    def __call__(self, *args: Any) -> Any:
+        entry = self.entry
+        if entry is None:
+            if not hasattr(self.fn, "compile"):  # the JIT is disabled: plain Python
+                entry = self.fn
+            else:
+                entry = self.fn.compile(tuple(numba.typeof(a) for a in args))
+            self.entry = entry
+        return entry(*args)
+
+
 class Layout:
     """Named pieces of a lane record: ``name -> (offset, shape)`` in one ``float64`` vector.
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable
-from stcgym.envs.compiled import Layout, lane
+from stcgym.envs.compiled import FixedTypes, Layout, lane
 
 
 @lane
@@ -127,3 +127,17 @@ def test_named_record_reads_the_fields_the_layout_places(base):
     only_S.add("S", (1, 1))
     with pytest.raises(ValueError, match=r"\['theta'\] of _Pair"):
         only_S.record(_Pair)
+
+
+def test_fixed_types_calls_the_same_compiled_code():
+    lay = Layout()
+    lay.add("theta", (2,))
+    lay.add("S", (2, 2))
+    at = lay.record(_Pair)
+    rec = np.arange(lay.size, dtype=float)
+    step = FixedTypes(_read_by_name)
+    assert step.entry is None
+    assert step(rec, at, 2) == _read_by_name(rec, at, 2) == 0.0 + 1.0 + 100.0 * 5.0
+    assert step.entry is not None
+    rec[1] = 7.0  # the looked-up overload reads the current values
+    assert step(rec, at, 2) == 507.0
