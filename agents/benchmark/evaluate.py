@@ -1,6 +1,6 @@
 """One evaluation loop for every controller, and the metrics the bench reports.
 
-Every controller (an SB3 model behind :class:`~stcgym.agents.sb3.SB3Policy`, the self-tuning
+Every controller (an SB3 model behind :class:`~stcgym.agents.rl.sb3.SB3Policy`, the self-tuning
 controller, the known-model oracles) is driven through the shared policy protocol
 (:mod:`stcgym.adaptive.policy`): ``policy.reset()``, then
 ``policy.predict(obs, episode_start=..., deterministic=True)`` on the *raw* observation
@@ -22,10 +22,10 @@ r(k+1))^2 + rho u(k)^2``:
 * ``bounded``: the episode did not diverge (``|y|`` stayed below the environment's ``y_bound``);
 * ``overshoot_pct``, ``settling_steps``: step response at the reference steps of the steady
   window, ``startup_settling_steps`` at the first reference step (step 0), see
-  :func:`stcgym.agents.response.step_response`;
+  :func:`stcgym.agents.benchmark.response.step_response`;
 * the metrics relative to the oracle on the same episode (cost ratios, adaptation and
-  re-convergence steps, :mod:`stcgym.agents.response`) need the oracle's run and are computed
-  by the bench from ``Episode.cost``.
+  re-convergence steps, :mod:`stcgym.agents.benchmark.response`) need the oracle's run and
+  are computed by the bench from ``Episode.cost``.
 * ``step_us``: wall time of one ``predict`` call, microseconds (mean over the episode).
 
 A diverged episode ends early; it is charged its last step's cost for every step it did not
@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.policy import reset_policy
-from stcgym.agents.response import step_response
+from stcgym.agents.benchmark.response import step_response
 from stcgym.envs.catalogue import PlantSpec, get_plant
 
 __all__ = [
