@@ -232,6 +232,15 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
         (["--hp", "ppo.policy_kwargs.bogus=1"], "SB3 rejects"),
         (["--family-test", "stable2"], "held-out"),
         (["--jump", "stable2:stable4"], "same order"),
+        # a jump is checked even when the jump scenario is not run
+        (
+            ["--scenarios", "nominal", "--agents", "stc", "--jump", "stable2:stable4"],
+            "--jump 'stable2:stable4'",
+        ),
+        (["--scenarios", "nominal", "--agents", "stc", "--jump", "stable2:"], "BEFORE:AFTER"),
+        (["--jump", "stable2:"], "BEFORE:AFTER"),
+        (["--jump", ":stable2"], "BEFORE:AFTER"),
+        (["--jump", "stable2:bogus"], "--jump 'stable2:bogus'"),
         (["--scenarios", "nominal,weird"], "scenarios"),
         (["--scenarios", "nominal", "--agents", "rppo,stc"], "family and jump"),
         (["--jobs", "0"], "--jobs"),

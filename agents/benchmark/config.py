@@ -302,12 +302,13 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
         raise ValueError(
             f"{recurrent} are evaluated on the family and jump scenarios only; add one of them"
         )
-    if "jump" in cfg.scenarios:
-        if not cfg.jumps:
-            raise ValueError("the jump scenario needs at least one --jump")
-        for spec in cfg.jumps:
-            _, before, _ = parse_jump(spec)
-            if recurrent and get_plant(before).n != get_plant(cfg.family_train[0]).n:
+    if "jump" in cfg.scenarios and not cfg.jumps:
+        raise ValueError("the jump scenario needs at least one --jump")
+    # every --jump is checked, also when the jump scenario is not among --scenarios
+    for spec in cfg.jumps:
+        _, before, _ = parse_jump(spec)
+        if "jump" in cfg.scenarios and recurrent:
+            if get_plant(before).n != get_plant(cfg.family_train[0]).n:
                 raise ValueError(f"--jump {spec!r}: recurrent agents need the family's order")
     for name in (
         "train_seeds",

@@ -9,29 +9,43 @@ from typing import TYPE_CHECKING
 
 from stcgym.agents.benchmark.evaluate import EnvSpec
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS
-from stcgym.envs.catalogue import TIMEVARYING2_AFTER, get_plant
+from stcgym.envs.catalogue import TIMEVARYING2_AFTER, get_plant, plant_names
 
 if TYPE_CHECKING:
     from stcgym.agents.benchmark.config import BenchConfig
 
-__all__ = ["Scenario", "make_scenarios", "parse_jump", "training_envs"]
+__all__ = ["JUMP_FORM", "Scenario", "make_scenarios", "parse_jump", "training_envs"]
+
+#: What ``--jump`` accepts, as its error messages say.
+JUMP_FORM = "'timevarying2' or 'BEFORE:AFTER' (two catalogue plants of the same order)"
 
 
 def parse_jump(spec: str) -> tuple[str, str, tuple[float, ...]]:
-    """``"timevarying2"`` or ``"A:B"`` -> ``(label, pre-jump plant, post-jump theta)``."""
+    """``"timevarying2"`` or ``"A:B"`` -> ``(label, pre-jump plant, post-jump theta)``.
+
+    Raises ``ValueError`` naming ``--jump`` and the expected form for anything else: a missing
+    plant name, an unknown one, two plants of different orders or the same plant twice.
+    """
     s = spec.strip().lower()
     if s == "timevarying2":
         return s, "stable2", tuple(TIMEVARYING2_AFTER[0] + TIMEVARYING2_AFTER[1])
-    if ":" not in s:
+    before, colon, after = (part.strip() for part in s.partition(":"))
+    if not (colon and before and after):
+        raise ValueError(f"--jump must be {JUMP_FORM}, got {spec!r}")
+    unknown = [p for p in (before, after) if p not in plant_names()]
+    if unknown:
         raise ValueError(
-            f"--jump must be 'timevarying2' or 'BEFORE:AFTER' plant names, got {spec!r}"
+            f"--jump {spec!r}: unknown plant(s) {unknown}; expected {JUMP_FORM} from "
+            f"{plant_names()}"
         )
-    before, after = (p.strip() for p in s.split(":", 1))
-    a, b = get_plant(before), get_plant(after)  # raises on unknown names
+    a, b = get_plant(before), get_plant(after)
     if a.n != b.n:
-        raise ValueError(f"--jump {spec!r}: both plants must have the same order")
+        raise ValueError(
+            f"--jump {spec!r}: both plants must have the same order ({before} has {a.n}, "
+            f"{after} has {b.n}); expected {JUMP_FORM}"
+        )
     if before == after:
-        raise ValueError(f"--jump {spec!r}: the plant must change")
+        raise ValueError(f"--jump {spec!r}: the plant must change; expected {JUMP_FORM}")
     return f"{before}>{after}", before, tuple(b.theta)
 
 
