@@ -11,6 +11,9 @@
   run (config, scenarios, plan, runner), interval statistics, report and plots;
 * :mod:`stcgym.agents.sweeps`: ``stcgym sweep``: random plant families
   (:mod:`~stcgym.agents.sweeps.families`) and the classical controllers swept over them;
+* :mod:`stcgym.agents.closed_loop`: the one closed-loop driver behind every cost the benchmark
+  and the sweeps report (the compiled rollout where it applies, ``predict`` otherwise) and its
+  divergence rule;
 * :mod:`stcgym.agents.controllers`: the registry of classical controllers (self-tuning
   variants, oracles) the benchmark runs;
 * :mod:`stcgym.agents.executors`: the task executor (local processes or Ray) that runs the

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.agents.closed_loop import LoopResult, run_closed_loop
 from stcgym.agents.sweeps.families import FamilySpec, Plant, draw_plant, plant_features
 from stcgym.envs.signals import NEVER, Schedule
 
@@ -21,7 +21,6 @@ __all__ = [
     "CONTROLLER_KINDS",
     "RECONVERGE_TOL",
     "LaneJumps",
-    "LoopResult",
     "closed_loop",
     "make_controller",
     "simulate_chunk",
@@ -31,15 +30,6 @@ CONTROLLER_KINDS: tuple[str, ...] = ("stc", "oracle", "lqg")
 #: A window counts as adapted / re-converged when its cost is within this factor of the oracle's.
 RECONVERGE_TOL = 1.2
 ENV_ID = "stcgym/ObserverCanonical-v0"
-
-
-@dataclass
-class LoopResult:
-    """Per-lane cost trace ``(B, T)`` (diverged lanes charged their last cost) and outcome."""
-
-    cost: NDArray
-    diverged: NDArray
-    steps_run: NDArray
 
 
 def make_controller(
@@ -63,11 +53,6 @@ def make_controller(
         raise ValueError("the lqg oracle needs noise_std > 0 in the family (its Kalman filter)")
     opts.setdefault("noise_std", family["noise_std"])
     return LQGController(a, b, **lanes, **opts)
-
-
-def _actions(ctl: Any, obs: NDArray) -> NDArray:
-    action, _ = ctl.predict(obs)
-    return np.asarray(action, dtype=float).reshape(-1, 1)
 
 
 class LaneJumps(Schedule):
@@ -122,33 +107,29 @@ def closed_loop(
 
     The public route: the native vector env (per-lane ``a``, ``b``, the family's jump as a
     per-lane schedule, reset with one seed per lane) and the batched controller
-    (``num_envs=B``). Lane ``i`` is the single env with the same plant and schedule reset with
-    ``seed=lane_seeds[i]``, driven by the single controller. The oracle is told the new
-    parameters at the jump (under drift: every step).
+    (``num_envs=B``), driven by :func:`~stcgym.agents.closed_loop.run_closed_loop` (the compiled
+    rollout for the self-tuning controller; costs under its divergence rule). Lane ``i`` is the
+    single env with the same plant and schedule reset with ``seed=lane_seeds[i]``, driven by
+    the single controller. The oracle is told the new parameters at the jump (under drift:
+    every step).
     """
-    B, T, J = len(plants), family.steps, family.jump_step
+    J = family.jump_step
     ctl = make_controller(kw, family, plants)
     env = _vector_env(family, plants)
     obs, _ = env.reset(seed=[int(s) for s in lane_seeds])
-    cost = np.zeros((B, T))
-    alive = np.ones(B, dtype=bool)
-    steps_run = np.full(B, T, dtype=np.int64)
-    oracle = kw["kind"] == "oracle"
-    drift = family["drift"] is not None and family["drift"]["std"] > 0
-    for k in range(T):
-        if oracle and k == J:
-            ctl.set_model(np.array([p.a_after for p in plants]), [p.b_after for p in plants])
-        elif oracle and drift and k > 0:
-            _tell_oracles(ctl, env.params)
-        obs, reward, terminated, _, _ = env.step(_actions(ctl, obs))
-        # A diverged lane is charged its last cost for the steps it did not live (its env
-        # lane restarts; what it does next is not scored).
-        cost[:, k] = np.where(alive, -reward, cost[:, k - 1] if k else 0.0)
-        died = alive & terminated
-        steps_run[died] = k + 1
-        alive &= ~terminated
+    before_step = None
+    if kw["kind"] == "oracle":
+        drift = family["drift"] is not None and family["drift"]["std"] > 0
+
+        def before_step(k: int) -> None:
+            if k == J:
+                ctl.set_model(np.array([p.a_after for p in plants]), [p.b_after for p in plants])
+            elif drift and k > 0:
+                _tell_oracles(ctl, env.params)
+
+    result = run_closed_loop(ctl, env, obs, family.steps, before_step=before_step)
     env.close()
-    return LoopResult(cost, ~alive, steps_run)
+    return result
 
 
 def _tell_oracles(ctl: Any, params: NDArray) -> None:
