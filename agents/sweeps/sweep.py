@@ -31,7 +31,7 @@ Tasks and lanes
 ---------------
 Lane ``k`` is plant ``k // S`` with seed ``seeds[k % S]`` (``S`` seeds); a task is a run of
 ``chunk_size`` (default 10^4) consecutive lanes, simulated together on the batched closed loop
-(:func:`closed_loop`) for every controller. Lane noise comes from
+(:func:`stcgym.agents.sweeps.chunk.closed_loop`) for every controller. Lane noise comes from
 ``SeedSequence([family seed, plant, seed])``, so a lane's numbers do not depend on the chunking,
 the executor or the number of workers. Tasks go through :mod:`stcgym.agents.executors`; each
 finished task's rows are saved atomically as ``tasks/<task id>.json`` by the driver, and the
@@ -48,7 +48,8 @@ controller, seed) with the plant features of
 * ``cost`` (mean of ``(y - r)^2 + rho u^2`` over the episode), ``cost_start``,
   ``cost_steady``, ``cost_post_jump`` over the windows of
   :func:`stcgym.agents.benchmark.evaluate.default_windows`; a diverged run is charged its
-  last cost for the steps it did not live, as in ``stcgym bench``;
+  last cost for the steps it did not live (the rule of
+  :func:`stcgym.agents.closed_loop.run_closed_loop`, as in ``stcgym bench``);
 * ``ratio`` = ``cost`` / the oracle's ``cost`` on the same plant and seed, ``steady_ratio`` the
   same for ``cost_steady``;
 * ``adapt_steps``: steps from the start until the cost over every following window of one
