@@ -6,6 +6,16 @@ divergence test, reward) and the controller step of :mod:`stcgym.adaptive.kernel
 run fused in one compiled loop per lane, lanes in a ``prange``. A lane stops at its first
 divergence (``|y| > y_bound``), like an env episode that terminates.
 
+Divergence rule
+---------------
+Every closed-loop cost in stcgym (``stcgym bench``, ``stcgym sweep``, the benchmark scripts,
+this rollout) is scored by one rule, :func:`charge_divergence`: a lane that diverges at step
+``k`` (``|y| > y_bound``, the env terminates) is flagged ``diverged`` and charged its last
+per-step cost, the one of step ``k``, for every step ``k + 1 .. T - 1`` it did not live. That
+cost is at least about ``(y_bound - |r|)^2`` per step, so a diverged run never looks better than
+one that stayed bounded at any sensible cost, every figure stays finite, and the episode's mean
+or sum is over all ``T`` steps whatever happened.
+
 API
 ---
 ``rollout(controller, theta, steps, *, reference, noise_std=0.05, seed=0, z=None,
@@ -28,8 +38,8 @@ control_cost=0.01, y_bound=100.0, x0=None, window=None, traces=False, jump=None)
   (default: one window, the whole episode), shape ``(B, ceil(T / window))``.
 * ``traces=True``: also ``y`` (measured, ``(B, T + 1)``) and ``u`` (applied, ``(B, T)``).
 
-``RolloutResult``: ``cost`` (window sums; a diverged lane is charged its cost up to the
-divergence and ``diverged[i]`` is set), ``diverged`` ``(B,)`` bool, ``steps_run`` ``(B,)``, and
+``RolloutResult``: ``step_cost`` ``(B, T)`` (per step, a diverged lane charged by the rule
+above), ``cost`` (its window sums), ``diverged`` ``(B,)`` bool, ``steps_run`` ``(B,)``, and
 ``y``/``u`` (or ``None``). For one plant (``num_envs=None``) the leading lane axis is kept
 (``B = 1``).
 """
@@ -46,7 +56,7 @@ from stcgym.adaptive.kernels.controller import controller_step
 from stcgym.envs.compiled import lane, lanes, prange
 from stcgym.envs.dynamics import canonical_plant_step
 
-__all__ = ["RolloutResult", "rollout"]
+__all__ = ["RolloutResult", "charge_divergence", "rollout"]
 
 
 @dataclass
@@ -58,6 +68,30 @@ class RolloutResult:
     steps_run: NDArray
     y: NDArray | None = None
     u: NDArray | None = None
+    step_cost: NDArray | None = None
+
+
+def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
+    """Apply the divergence rule (module docstring) to per-step costs, in place.
+
+    Parameters
+    ----------
+    cost
+        Per-step costs ``(B, T)``; row ``i`` is valid for its first ``steps_run[i]`` steps.
+    steps_run
+        Steps each lane lived, ``(B,)``; ``steps_run[i] < T`` means lane ``i`` diverged at
+        step ``steps_run[i] - 1``.
+
+    Returns
+    -------
+    NDArray
+        ``cost``, each diverged lane's steps from ``steps_run[i]`` on set to its last cost.
+    """
+    T = cost.shape[1]
+    for i in np.flatnonzero(np.asarray(steps_run) < T):
+        last = int(steps_run[i]) - 1
+        cost[i, last + 1 :] = cost[i, last]
+    return cost
 
 
 @lane
@@ -146,16 +180,21 @@ def rollout(
     window = steps if window is None else int(window)
     if window < 1:
         raise ValueError(f"window must be a positive integer, got {window!r}")
-    cost = np.zeros((B, -(-steps // window)))
+    step_cost = np.zeros((B, steps))
     Y = np.zeros((B, steps + 1)) if traces else np.zeros((B, 0))
     U = np.zeros((B, steps)) if traces else np.zeros((B, 0))
     steps_run = np.zeros(B, dtype=np.int64)
     diverged = np.zeros(B, dtype=bool)
     form = 1 if controller.form == "observability" else 0
     c = controller
+    # the compiled loop sums over windows of 1 step: the rule needs each lane's last cost
     rollout_lanes(
         c._F, c._G, c._at, c._cfg, c._est_at, c._est_cfg, X, th, th_after, jump_at, form,
-        c.action_bound, float(noise_std), Z, R, float(control_cost), float(y_bound), window,
-        cost, Y, U, bool(traces), steps_run, diverged,
+        c.action_bound, float(noise_std), Z, R, float(control_cost), float(y_bound), 1,
+        step_cost, Y, U, bool(traces), steps_run, diverged,
     )  # fmt: skip
-    return RolloutResult(cost, diverged, steps_run, Y if traces else None, U if traces else None)
+    charge_divergence(step_cost, steps_run)
+    cost = np.add.reduceat(step_cost, np.arange(0, steps, window), axis=1)
+    return RolloutResult(
+        cost, diverged, steps_run, Y if traces else None, U if traces else None, step_cost
+    )

@@ -1,26 +1,38 @@
-"""RL agents, the evaluation harness and the ``stcgym bench`` command.
+"""Everything around the controllers: RL baselines, the benchmark, sweeps and the command.
 
-* :mod:`stcgym.agents.wrappers`: the RL observation (a window of past ``y``, ``r``, ``u``) and
-  the training reward;
-* :mod:`stcgym.agents.configs`: one hyperparameter config per algorithm (PPO, SAC, TD3, A2C,
-  RecurrentPPO) and the rules every value is checked against;
-* :mod:`stcgym.agents.sb3`: training, saving/loading, and :class:`SB3Policy`, the adapter that
-  puts a trained model (recurrent ones included) behind the shared policy protocol;
-* :mod:`stcgym.agents.evaluate`: one evaluation loop for every controller, and the metrics;
-* :mod:`stcgym.agents.response`: settling to the oracle's cost, re-convergence after a jump,
-  step-response figures;
-* :mod:`stcgym.agents.statistics`: IQM, median and probability of improvement with
-  stratified-bootstrap intervals (rliable);
-* :mod:`stcgym.agents.training`: one RL training job as a picklable task for the executor;
-* :mod:`stcgym.agents.bench` / :mod:`stcgym.agents.report` / :mod:`stcgym.agents.plots` /
-  :mod:`stcgym.agents.cli`: ``stcgym bench``.
+* :mod:`stcgym.agents.rl`: RL agents: the observation window and training reward
+  (:mod:`~stcgym.agents.rl.wrappers`), one hyperparameter config per algorithm
+  (:mod:`~stcgym.agents.rl.configs`), training, saving/loading and :class:`SB3Policy`
+  (:mod:`~stcgym.agents.rl.sb3`), one training job as a task (:mod:`~stcgym.agents.rl.training`)
+  and the Stable-Baselines3 ``VecEnv`` adapter of the native vector envs
+  (:mod:`~stcgym.agents.rl.vec_env`);
+* :mod:`stcgym.agents.benchmark`: ``stcgym bench``: the evaluation harness and its metrics
+  (:mod:`~stcgym.agents.benchmark.evaluate`, :mod:`~stcgym.agents.benchmark.response`), the
+  run (config, scenarios, plan, runner), interval statistics, report and plots;
+* :mod:`stcgym.agents.sweeps`: ``stcgym sweep``: random plant families
+  (:mod:`~stcgym.agents.sweeps.families`) and the classical controllers swept over them;
+* :mod:`stcgym.agents.closed_loop`: the one closed-loop driver behind every cost the benchmark
+  and the sweeps report (the compiled rollout where it applies, ``predict`` otherwise) and its
+  divergence rule;
+* :mod:`stcgym.agents.controllers`: the registry of classical controllers (self-tuning
+  variants, oracles) the benchmark runs;
+* :mod:`stcgym.agents.executors`: the task executor (local processes or Ray) that runs the
+  bench's RL jobs and the sweeps' chunks, resumable;
+* :mod:`stcgym.agents.cli`: the ``stcgym`` command (``bench``, ``eval``, ``sweep``).
 
 Stable-Baselines3 and torch are imported only when an agent is trained or loaded.
 """
 
-from stcgym.agents.configs import AlgoConfig, apply_overrides, default_config
-from stcgym.agents.evaluate import EnvSpec, Episode, EvalResult, evaluate, run_episode, summarize
-from stcgym.agents.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
+from stcgym.agents.benchmark.evaluate import (
+    EnvSpec,
+    Episode,
+    EvalResult,
+    evaluate,
+    run_episode,
+    summarize,
+)
+from stcgym.agents.rl.configs import AlgoConfig, apply_overrides, default_config
+from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
 __all__ = [
     "AlgoConfig",
@@ -45,7 +57,7 @@ __all__ = [
 def __getattr__(name: str):
     # SB3 pulls torch in (seconds); load it only when asked for.
     if name in ("SB3Policy", "load_agent", "train_agent"):
-        from stcgym.agents import sb3
+        from stcgym.agents.rl import sb3
 
         return getattr(sb3, name)
     raise AttributeError(f"module 'stcgym.agents' has no attribute {name!r}")

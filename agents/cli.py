@@ -9,7 +9,7 @@
 ``stcgym eval MODEL_DIR``
     Re-evaluate a saved RL agent (a ``models/*`` folder of a bench run).
 ``stcgym sweep FAMILY``
-    Classical controllers over a random plant family (:mod:`stcgym.agents.sweep`).
+    Classical controllers over a random plant family (:mod:`stcgym.agents.sweeps`).
 
 Every option is checked before any work starts (hyperparameters against each algorithm's
 rules and SB3's own constructor); errors print one line and exit with status 2. Ctrl-C keeps
@@ -26,9 +26,10 @@ __all__ = ["main", "build_parser"]
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
-    from stcgym.agents.bench import CONTROLLERS, FULL, QUICK, BenchConfig
-    from stcgym.agents.configs import ALGORITHMS
+    from stcgym.agents.benchmark.config import FULL, QUICK, BenchConfig
+    from stcgym.agents.controllers import CONTROLLERS
     from stcgym.agents.executors import EXECUTORS
+    from stcgym.agents.rl.configs import ALGORITHMS
     from stcgym.envs.catalogue import plant_names
 
     p = sub.add_parser(
@@ -80,7 +81,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--train-steps",
         help="RL training budget in env steps: N for every agent, or ppo=N,sac=M (defaults: "
-        "each algorithm's quick_steps / full_steps in agents/configs.py)",
+        "each algorithm's quick_steps / full_steps in agents/rl/configs.py)",
     )
     p.add_argument("--train-seeds", type=int, help="RL training seeds per agent (quick 3, full 5)")
     p.add_argument(
@@ -166,29 +167,21 @@ def _eval_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from stcgym.agents.sweeps.cli import add_sweep_subcommand
+
     parser = argparse.ArgumentParser(
         prog="stcgym", description="stcgym: self-tuning control vs RL benchmark"
     )
     sub = parser.add_subparsers(dest="command", required=True)
     _bench_parser(sub)
     _eval_parser(sub)
-    try:
-        from stcgym.agents.sweep import add_sweep_subcommand
-    except ImportError:  # pragma: no cover  (sweep is part of the package)
-        pass
-    else:
-        add_sweep_subcommand(sub)
+    add_sweep_subcommand(sub)
     return parser
 
 
 def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
-    from stcgym.agents.bench import (
-        _duration,
-        build_config,
-        check_runnable,
-        estimate_seconds,
-        run_bench,
-    )
+    from stcgym.agents.benchmark import build_config, check_runnable, estimate_seconds, run_bench
+    from stcgym.agents.benchmark.plan import format_duration
 
     cfg = build_config(
         quick=not args.full,
@@ -220,7 +213,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
     )
     check_runnable(cfg)
     print(
-        f"stcgym bench: {cfg.mode} mode, estimated {_duration(estimate_seconds(cfg))} on "
+        f"stcgym bench: {cfg.mode} mode, estimated {format_duration(estimate_seconds(cfg))} on "
         f"{cfg.jobs} worker(s); results in {cfg.run_dir}",
         file=sys.stderr,
     )
@@ -235,7 +228,7 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
     import math
     from pathlib import Path
 
-    from stcgym.agents.bench import BenchInputError
+    from stcgym.agents.benchmark.config import BenchInputError
     from stcgym.envs.catalogue import get_plant, plant_names
 
     if args.seeds < 1:
@@ -271,10 +264,10 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
 def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
-    from stcgym.agents.evaluate import EnvSpec, evaluate, summarize
+    from stcgym.agents.benchmark.evaluate import EnvSpec, evaluate, summarize
 
     _check_eval_args(args)
-    from stcgym.agents.sb3 import load_agent
+    from stcgym.agents.rl.sb3 import load_agent
 
     agent = load_agent(args.model_dir)
     spec = agent.train_spec
@@ -303,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "sweep":
         return args.handler(args)
-    from stcgym.agents.bench import BenchInputError
+    from stcgym.agents.benchmark.config import BenchInputError
 
     try:
         if args.command == "bench":

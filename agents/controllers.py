@@ -1,9 +1,9 @@
 """The classical controllers of ``stcgym bench``, behind one registry.
 
-``CONTROLLERS[name].build(cfg, scenario)`` gives a policy factory ``factory(plant, seed)`` (the
-protocol of :func:`stcgym.agents.evaluate.evaluate`): ``stc`` (the self-tuning controller with
-its defaults and the episode's seed), ``stc_lq`` (the same with the self-tuning LQ design,
-``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``),
+``CONTROLLERS[name].build(cfg, scenario)`` gives a policy factory ``factory(plant, seed)``
+(the protocol of :func:`stcgym.agents.benchmark.evaluate.evaluate`): ``stc`` (the self-tuning
+controller with its defaults and the episode's seed), ``stc_lq`` (the same with the self-tuning
+LQ design, ``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``),
 ``stc_kfmils`` (the same as ``stc`` on the paper's KF-MILS estimator, ``estimator="KF-MILS"``,
 with the closed-loop settings the controller chooses for it), ``oracle`` (the known-model
 controller, told the new parameters at a jump) and ``lqg`` (LQG on the true pre-jump
@@ -12,14 +12,13 @@ parameters). Tests may register more.
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-__all__ = ["CONTROLLERS", "ControllerInfo", "stc_takes_seed"]
+__all__ = ["CONTROLLERS", "ControllerInfo"]
 
 
 class _SwitchingOracle:
@@ -62,26 +61,14 @@ class ControllerInfo:
     description: str = ""
 
 
-def _accepts_seed(cls: type) -> bool:
-    return "seed" in inspect.signature(cls).parameters
-
-
-def stc_takes_seed() -> bool:
-    """Whether :class:`~stcgym.adaptive.SelfTuningController` takes a ``seed`` (its probe)."""
-    from stcgym.adaptive import SelfTuningController
-
-    return _accepts_seed(SelfTuningController)
-
-
 def _self_tuning(cfg: Any, **options: Any) -> Callable[[Any, int], Any]:
     """The self-tuning controller with its defaults and ``options`` (episode-seeded)."""
     from stcgym.adaptive import SelfTuningController
 
-    seeded = stc_takes_seed()
-
     def factory(plant: Any, seed: int) -> Any:
-        kw = {"seed": int(seed)} if seeded else {}
-        return SelfTuningController(plant.n, action_bound=cfg.action_bound, **options, **kw)
+        return SelfTuningController(
+            plant.n, action_bound=cfg.action_bound, seed=int(seed), **options
+        )
 
     return factory
 

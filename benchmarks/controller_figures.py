@@ -41,6 +41,7 @@ import numpy as np
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.controller import SelfTuningController
 from stcgym.adaptive.oracles import KnownModelController, LQGController
+from stcgym.agents.closed_loop import run_closed_loop
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import canonical_matrices
 
@@ -58,7 +59,8 @@ ACTION_BOUND = 10.0
 
 
 def run_episode(policy: Any, plant: str, seed: int, steps: int, oracle: bool = False) -> dict:
-    """One closed-loop episode; returns per-step costs and whether it stayed bounded."""
+    """One closed-loop episode (the closed-loop driver); per-step costs, diverged runs charged
+    by its rule, and whether it stayed bounded."""
     env = gym.make(
         "stcgym/ObserverCanonical-v0",
         plant=plant,
@@ -67,17 +69,20 @@ def run_episode(policy: Any, plant: str, seed: int, steps: int, oracle: bool = F
         max_episode_steps=steps,
     )
     obs, info = env.reset(seed=seed)
-    policy.reset()
-    cost = np.full(steps, np.nan)
-    for k in range(steps):
-        if oracle and not np.allclose(info["theta"], np.r_[policy.a, policy.b]):
+    latest = [info]
+
+    def tell_oracle(k: int) -> None:
+        info = latest[0]
+        if not np.allclose(info["theta"], np.r_[policy.a, policy.b]):
             policy.set_model(info["a"], info["b"])  # the oracle knows the new parameters
-        action, _ = policy.predict(obs)
-        obs, reward, terminated, _, info = env.step(action)
-        cost[k] = -reward
-        if terminated:
-            return {"bounded": False, "cost": cost}
-    return {"bounded": True, "cost": cost}
+
+    def keep_info(k: int, action: Any, obs: Any, info: dict) -> None:
+        latest[0] = info
+
+    loop = run_closed_loop(
+        policy, env, obs, steps, before_step=tell_oracle if oracle else None, on_step=keep_info
+    )
+    return {"bounded": not loop.diverged[0], "cost": loop.cost[0]}
 
 
 def _one_seed(plant: str, seed: int, steps: int) -> dict[str, Any]:

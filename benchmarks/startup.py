@@ -9,7 +9,9 @@ Usage::
 Setting: ``stcgym/ObserverCanonical-v0``, square-wave reference of period 100, output noise std
 0.05, ``action_bound`` 10, ``control_cost`` 0.01. Cost of step ``k`` is the env's ``-reward``;
 episode cost is the sum over the episode, start included; a diverged episode (``|y| > 100``)
-counts as unbounded. Every episode and every lane gets its own controller seed.
+is flagged and charged its last per-step cost for every step it did not live (the divergence
+rule of :func:`stcgym.adaptive.rollout.charge_divergence`, the same as ``stcgym bench`` and
+``stcgym sweep``). Every episode and every lane gets its own controller seed.
 
 Costs come from the compiled rollout (:func:`stcgym.adaptive.rollout.rollout`, the env's own
 plant step) for the controller and from the oracles stepped on the same plant and noise.
@@ -53,7 +55,7 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import ALGORITHMS, KnownModelController, LQGController, SelfTuningController
-from stcgym.adaptive.rollout import rollout
+from stcgym.adaptive.rollout import charge_divergence, rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import companion_A
 
@@ -76,10 +78,10 @@ def oracle_costs(
     z: NDArray,
     steps: int,
     jump: tuple[int, NDArray] | None = None,
-) -> NDArray:
+) -> tuple[NDArray, NDArray]:
     """Per-step costs ``(B, steps)`` of one known-model oracle per lane on the env's plant step
-    (numpy), output noise ``NOISE * z``; ``inf`` from a divergence on. With ``jump`` the plant
-    and the oracles switch to the new parameters at that step."""
+    (numpy), output noise ``NOISE * z``, and the lanes that diverged (charged by the divergence
+    rule). With ``jump`` the plant and the oracles switch to the new parameters at that step."""
     B, n = thetas.shape[0], thetas.shape[1] // 2
     A = np.array([companion_A(th[:n]) for th in thetas])
     b = thetas[:, n:].copy()
@@ -88,6 +90,7 @@ def oracle_costs(
     x = np.zeros((B, n))
     cost = np.zeros((B, steps))
     alive = np.ones(B, dtype=bool)
+    steps_run = np.full(B, steps)
     for k in range(steps):
         if jump is not None and k == jump[0]:
             th2 = np.broadcast_to(jump[1], thetas.shape)
@@ -101,24 +104,23 @@ def oracle_costs(
         u = np.clip(u, -BOUND, BOUND)
         x = np.einsum("bij,bj->bi", A, x) + b * u[:, None]
         x[~alive] = 0.0
-        alive &= np.abs(x[:, 0] + NOISE * z[:, k + 1]) <= 100.0
-        c = (x[:, 0] - SQUARE[k + 1]) ** 2 + 0.01 * u**2
-        cost[:, k] = np.where(alive, c, np.inf)
-    return cost
+        cost[alive, k] = ((x[:, 0] - SQUARE[k + 1]) ** 2 + 0.01 * u**2)[alive]
+        died = alive & (np.abs(x[:, 0] + NOISE * z[:, k + 1]) > 100.0)
+        steps_run[died] = k + 1
+        alive &= ~died
+    return charge_divergence(cost, steps_run), ~alive
 
 
 def stc_costs(thetas: NDArray, z: NDArray, steps: int, seed0: int, jump=None, **kw: Any) -> tuple:
-    """Per-step costs of ``SelfTuningController`` (compiled rollout, one lane per plant)."""
+    """Per-step costs of ``SelfTuningController`` (compiled rollout, one lane per plant), the
+    lanes that diverged, and the controller."""
     B, n = thetas.shape[0], thetas.shape[1] // 2
     ctl = SelfTuningController(n, num_envs=B, seed=seed0 + np.arange(B), action_bound=BOUND, **kw)
     res = rollout(
         ctl, thetas, steps, reference=SQUARE[: steps + 1], noise_std=NOISE, z=z, window=1,
         jump=jump,
     )  # fmt: skip
-    cost = res.cost.copy()
-    for i in np.flatnonzero(res.diverged):
-        cost[i, res.steps_run[i] - 1 :] = np.inf
-    return cost, ctl
+    return res.step_cost, res.diverged, ctl
 
 
 def settle_step(c: NDArray, o: NDArray, window: int = 100, tol: float = 1.2) -> int:
@@ -131,9 +133,8 @@ def settle_step(c: NDArray, o: NDArray, window: int = 100, tol: float = 1.2) -> 
     return len(c)
 
 
-def _ratio(c: NDArray, o: NDArray) -> float:
-    """Ratio of seed-averaged episode costs (``inf`` when a lane the oracle holds diverged)."""
-    held = np.isfinite(o).all(1)
+def _ratio(c: NDArray, o: NDArray, held: NDArray) -> float:
+    """Ratio of seed-averaged episode costs over the lanes the oracle ``held``."""
     return float(c[held].sum(1).mean() / o[held].sum(1).mean())
 
 
@@ -174,11 +175,12 @@ def catalogue(seeds: int, steps: int, names: tuple[str, ...]) -> dict[str, Any]:
             ("lq", {"design": "lq"}, lqg),
             *[(est, _estimator_kw(est), orc) for est in names if est != DEFAULT],
         ):
-            c, _ = stc_costs(th, z, steps, 1000 * j, **kw)
-            entry = {"ratio": _ratio(c, ref), "bounded": float(np.isfinite(c).all(1).mean())}
+            c, diverged, _ = stc_costs(th, z, steps, 1000 * j, **kw)
+            ref, held = ref[0], ~ref[1]
+            entry = {"ratio": _ratio(c, ref, held), "bounded": float(1 - diverged.mean())}
             if name in ("default", "lq"):
                 entry["start_ratio"] = float(c[:, :100].sum(1).mean() / ref[:, :100].sum(1).mean())
-                entry["steady_ratio"] = _ratio(c[:, 100:], ref[:, 100:])
+                entry["steady_ratio"] = _ratio(c[:, 100:], ref[:, 100:], held)
                 entry["settle"] = settle_step(c.mean(0), ref.mean(0))
             row[name] = entry
         row[DEFAULT] = row["default"]
@@ -218,13 +220,13 @@ def jump(seeds: int, names: tuple[str, ...]) -> dict[str, Any]:
         *_, info = env.step(np.zeros(1))
     after = np.asarray(info["theta"], dtype=float)
     z = np.random.default_rng(7).standard_normal((seeds, 1501))
-    o = oracle_costs(
+    o, _ = oracle_costs(
         [KnownModelController(spec.a, spec.b) for _ in range(seeds)], th, z, 1500, (1000, after)
     )
     w = slice(1000, 1500)
     out: dict[str, Any] = {}
     for name in names:
-        c, ctl = stc_costs(th, z, 1500, 0, jump=(1000, after), **_estimator_kw(name))
+        c, _, ctl = stc_costs(th, z, 1500, 0, jump=(1000, after), **_estimator_kw(name))
         out[name] = {
             "post_jump_ratio": float(c[:, w].sum(1).mean() / o[:, w].sum(1).mean()),
             "alarms_per_lane": float(np.mean(ctl.diagnostics["n_alarms"])),
@@ -261,14 +263,16 @@ def family(count: int, steps: int, names: tuple[str, ...], seed: int = 0) -> dic
     plants = random_plants(count, rng)
     th = np.array([np.r_[a, b] for a, b in plants])
     z = rng.standard_normal((count, steps + 1))
-    c_orc = oracle_costs([KnownModelController(a, b) for a, b in plants], th, z, steps)
-    held = np.isfinite(c_orc).all(1)
+    c_orc, orc_diverged = oracle_costs(
+        [KnownModelController(a, b) for a, b in plants], th, z, steps
+    )
+    held = ~orc_diverged
     unstable = np.array([np.max(np.abs(np.roots(np.r_[1.0, a]))) >= 1.0 for a, _ in plants])
     out: dict[str, Any] = {"plants": count, "oracle_held": int(held.sum()),
                            "oracle_held_unstable": int((held & unstable).sum())}  # fmt: skip
     for name in names:
-        c_stc, ctl = stc_costs(th, z, steps, 10_000, **_estimator_kw(name))
-        ok = np.isfinite(c_stc).all(1)
+        c_stc, diverged, ctl = stc_costs(th, z, steps, 10_000, **_estimator_kw(name))
+        ok = ~diverged
         ratio = c_stc.sum(1)[held & ok] / c_orc.sum(1)[held & ok]
         after = c_stc[:, 100:].sum(1)[held & ok] / c_orc[:, 100:].sum(1)[held & ok]
         lost = held & ~ok

@@ -20,8 +20,7 @@ and the vector env repeats the single env's per-episode RNG split exactly: the l
 Only the children an episode actually uses are built (a child is ``SeedSequence(entropy,
 spawn_key=(j,))``, identical to ``spawn(5)[j]``), and noise is drawn per lane in blocks whose size
 only sets memory use: a numpy ``Generator`` gives the same normals whether drawn in one block of
-512 or in smaller pieces. (``exact=`` of earlier versions is accepted with a
-``DeprecationWarning`` and ignored: every lane is exact now.)
+512 or in smaller pieces.
 
 Reset seeds follow :class:`gymnasium.vector.SyncVectorEnv`: ``seed=s`` gives lane ``i`` the seed
 ``s + i``; a list gives one seed per lane; ``None`` keeps each lane's generator (fresh entropy on
@@ -33,8 +32,9 @@ Autoreset
 ``NEXT_STEP`` by default: after a lane ends, the next ``step`` ignores that lane's action, resets
 it (next episode of the lane's generator) and returns its first observation with reward 0 and
 both flags false. ``SAME_STEP`` resets in the same call and reports ``infos["final_obs"]`` /
-``infos["final_info"]`` (what :class:`SB3VecEnv` needs); ``DISABLED`` leaves resets to the caller
-(``reset(options={"reset_mask": mask})``). ``max_episode_steps`` truncates like ``TimeLimit``.
+``infos["final_info"]`` (what Stable-Baselines3 needs: :class:`stcgym.agents.rl.vec_env.SB3VecEnv`
+switches to it); ``DISABLED`` leaves resets to the caller (``reset(options={"reset_mask":
+mask})``). ``max_episode_steps`` truncates like ``TimeLimit``.
 An autoreset starts the lane's next episode like ``env.reset()`` without options, as
 ``SyncVectorEnv`` does: parameters given through ``reset(options=...)`` last one episode (a
 ``UserWarning`` says so the first time such a lane autoresets); give per-lane ``a``/``b`` to the
@@ -86,7 +86,6 @@ __all__ = [
     "ObserverCanonicalVectorEnv",
     "ObservabilityCanonicalVectorEnv",
     "StateSpaceVectorEnv",
-    "SB3VecEnv",
     "episode_streams",
 ]
 
@@ -188,9 +187,6 @@ class LinearPlantVectorEnv(VectorEnv):
         at once (16 to 512). Results do not depend on it.
     info_keys
         Keys of ``infos`` to return (default all of the single env's; ``()`` for none).
-    exact
-        Deprecated and ignored (every lane equals its single env bit for bit); passing it warns
-        with a ``DeprecationWarning``.
     **kwargs
         The single environment's arguments (``single_cls``); one prototype single env is built
         from them to validate them and to hold the shared configuration.
@@ -210,17 +206,9 @@ class LinearPlantVectorEnv(VectorEnv):
         autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP,
         noise_buffer_bytes: int = NOISE_BUFFER_BYTES,
         info_keys: Sequence[str] | None = None,
-        exact: bool | None = None,
         render_mode: str | None = None,
         **kwargs: Any,
     ) -> None:
-        if exact is not None:
-            warnings.warn(
-                "exact= is deprecated and ignored: every lane runs the single env's compiled "
-                "plant step and equals it bit for bit",
-                DeprecationWarning,
-                stacklevel=2,
-            )
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)):
             raise TypeError(f"num_envs must be a positive integer, got {num_envs!r}")
         if num_envs < 1:
@@ -941,93 +929,3 @@ def _lane_matrix(
     if key not in options:
         return np.broadcast_to(default, (num_envs, *shape))
     return _per_lane(options[key], num_envs, shape, f"options['{key}']")
-
-
-# ---------------------------------------------------------------------------------------------
-# Stable-Baselines3 adapter
-# ---------------------------------------------------------------------------------------------
-def SB3VecEnv(venv: LinearPlantVectorEnv, *, full_info: bool = False) -> Any:  # noqa: N802
-    """Wrap a native vector env as a Stable-Baselines3 ``VecEnv`` (SB3 is imported lazily).
-
-    The native env is switched to ``SAME_STEP`` autoreset, which is SB3's convention: a finished
-    lane is reset within the step, with its last observation in ``info["terminal_observation"]``
-    and ``info["TimeLimit.truncated"]`` set on time-outs. Seeds given to ``seed()`` and options
-    given to ``set_options()`` apply at the next ``reset()``, as in SB3. ``full_info=True``
-    also copies every info key into the per-lane dicts (slow for many lanes). Rewards are
-    float32, like SB3's ``DummyVecEnv``.
-    """
-    return _sb3_class()(venv, full_info=full_info)
-
-
-_SB3_CLASS: type | None = None
-
-
-def _sb3_class() -> type:
-    """Build the adapter class on first use, so that SB3 stays an optional dependency."""
-    global _SB3_CLASS
-    if _SB3_CLASS is not None:
-        return _SB3_CLASS
-    from stable_baselines3.common.vec_env import VecEnv
-
-    class _SB3VecEnv(VecEnv):
-        def __init__(self, venv: LinearPlantVectorEnv, *, full_info: bool = False) -> None:
-            venv = venv.unwrapped if hasattr(venv, "unwrapped") else venv
-            if not isinstance(venv, LinearPlantVectorEnv):
-                raise TypeError(f"expected a stcgym vector env, got {type(venv).__name__}")
-            venv.autoreset_mode = AutoresetMode.SAME_STEP
-            venv.metadata = {**venv.metadata, "autoreset_mode": AutoresetMode.SAME_STEP}
-            self.venv, self.full_info = venv, full_info
-            self._actions: NDArray | None = None
-            super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
-
-        def reset(self) -> NDArray:
-            seeds = None if all(s is None for s in self._seeds) else self._seeds
-            options = self._options[0] if self._options and self._options[0] else None
-            if any(o != self._options[0] for o in self._options):
-                raise ValueError("per-lane options differ; give them as per-lane arrays instead")
-            obs, infos = self.venv.reset(seed=seeds, options=options)
-            self.reset_infos = self._lane_infos(infos, np.ones(self.num_envs, dtype=bool))
-            self._reset_seeds()
-            self._reset_options()
-            return obs
-
-        def step_async(self, actions: NDArray) -> None:
-            self._actions = np.asarray(actions, dtype=float).reshape(self.num_envs, -1)
-
-        def step_wait(self) -> tuple[NDArray, NDArray, NDArray, list[dict[str, Any]]]:
-            obs, rewards, terminated, truncated, infos = self.venv.step(self._actions)
-            dones = terminated | truncated
-            lane_infos = self._lane_infos(infos, np.zeros(self.num_envs, dtype=bool))
-            for i in np.flatnonzero(dones):
-                lane_infos[i]["terminal_observation"] = infos["final_obs"][i]
-                lane_infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-            return obs, rewards.astype(np.float32), dones, lane_infos
-
-        def _lane_infos(self, infos: dict[str, Any], _: NDArray) -> list[dict[str, Any]]:
-            if not self.full_info:
-                return [{} for _ in range(self.num_envs)]
-            keys = [
-                k for k in infos if not k.startswith("_") and k not in ("final_obs", "final_info")
-            ]
-            return [{k: infos[k][i] for k in keys} for i in range(self.num_envs)]
-
-        def close(self) -> None:
-            self.venv.close()
-
-        def get_attr(self, attr_name: str, indices: Any = None) -> list[Any]:
-            return [getattr(self.venv, attr_name) for _ in self._get_indices(indices)]
-
-        def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
-            setattr(self.venv, attr_name, value)
-
-        def env_method(
-            self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any
-        ) -> list[Any]:
-            fn = getattr(self.venv, method_name)
-            return [fn(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
-
-        def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
-            return [False for _ in self._get_indices(indices)]
-
-    _SB3_CLASS = _SB3VecEnv
-    return _SB3_CLASS

@@ -10,20 +10,20 @@ import numpy as np
 import pytest
 
 import stcgym.envs  # noqa: F401  (registers the env ids)
-from stcgym.agents.configs import (
-    DEFAULT_CONFIGS,
-    apply_overrides,
-    default_config,
-    parse_override,
-)
-from stcgym.agents.evaluate import (
+from stcgym.agents.benchmark.evaluate import (
     EnvSpec,
     default_windows,
     evaluate,
     run_episode,
     summarize,
 )
-from stcgym.agents.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
+from stcgym.agents.rl.configs import (
+    DEFAULT_CONFIGS,
+    apply_overrides,
+    default_config,
+    parse_override,
+)
+from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
 
 class LinearFeedback:
@@ -147,7 +147,7 @@ def test_training_reward_charges_divergence_and_squashes():
 # ------------------------------------------------------------------------------ adapter
 def test_sb3_adapter_rebuilds_the_training_features():
     """The adapter, fed raw [y, r], gives the model exactly what HistoryWindow gave it."""
-    from stcgym.agents.sb3 import SB3Policy
+    from stcgym.agents.rl.sb3 import SB3Policy
 
     cfg = WindowConfig(window=4)
     model_w, model_a = FakeModel(), FakeModel()
@@ -167,7 +167,7 @@ def test_sb3_adapter_rebuilds_the_training_features():
 
 
 def test_sb3_adapter_batch_lanes_are_independent():
-    from stcgym.agents.sb3 import SB3Policy
+    from stcgym.agents.rl.sb3 import SB3Policy
 
     cfg = WindowConfig(window=3)
     rng = np.random.default_rng(0)
@@ -186,7 +186,7 @@ def test_sb3_adapter_batch_lanes_are_independent():
 
 
 def test_train_save_load_roundtrip(tmp_path):
-    from stcgym.agents.sb3 import load_agent, train_agent
+    from stcgym.agents.rl.sb3 import load_agent, train_agent
 
     cfg = default_config("ppo")
     apply_overrides({"ppo": cfg}, ["ppo.n_steps=32", "ppo.batch_size=32", "ppo.n_envs=2"])
@@ -208,7 +208,7 @@ def test_train_save_load_roundtrip(tmp_path):
 
 # ------------------------------------------------------------------------------ configs
 def test_configs_are_valid_constructor_arguments():
-    from stcgym.agents.configs import algorithm_class
+    from stcgym.agents.rl.configs import algorithm_class
 
     env = HistoryWindow(_env())
     for algo, cfg in DEFAULT_CONFIGS.items():
@@ -363,7 +363,7 @@ def test_hyperparameter_values_are_checked(override, message):
 
 
 def test_sb3_rejects_what_the_rules_cannot_see():
-    from stcgym.agents.sb3 import check_trainable
+    from stcgym.agents.rl.sb3 import check_trainable
 
     cfg = default_config("ppo")
     apply_overrides({"ppo": cfg}, ["ppo.policy_kwargs.no_such_kwarg=1"])
@@ -373,7 +373,7 @@ def test_sb3_rejects_what_the_rules_cannot_see():
 
 
 def test_recurrent_agent_carries_its_state_and_reloads(tmp_path):
-    from stcgym.agents.sb3 import load_agent, train_agent
+    from stcgym.agents.rl.sb3 import load_agent, train_agent
 
     cfg = default_config("rppo")
     apply_overrides({"rppo": cfg}, ["rppo.n_steps=16", "rppo.batch_size=32", "rppo.n_envs=2"])

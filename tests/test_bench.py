@@ -9,18 +9,12 @@ import json
 
 import pytest
 
-from stcgym.agents import bench as bench_mod
-from stcgym.agents.bench import (
-    CONTROLLERS,
-    FULL,
-    METRIC_COLUMNS,
-    QUICK,
-    BenchConfig,
-    ControllerInfo,
-    build_config,
-    make_scenarios,
-)
+import stcgym.agents.benchmark as benchmark
+from stcgym.agents.benchmark import METRIC_COLUMNS, BenchConfig, build_config, make_scenarios
+from stcgym.agents.benchmark import runner as runner_mod
+from stcgym.agents.benchmark.config import FULL, QUICK
 from stcgym.agents.cli import main
+from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 
 # A few hundred training steps, 2 training seeds, short episodes: the whole pipeline in seconds.
 TINY = [
@@ -238,6 +232,15 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
         (["--hp", "ppo.policy_kwargs.bogus=1"], "SB3 rejects"),
         (["--family-test", "stable2"], "held-out"),
         (["--jump", "stable2:stable4"], "same order"),
+        # a jump is checked even when the jump scenario is not run
+        (
+            ["--scenarios", "nominal", "--agents", "stc", "--jump", "stable2:stable4"],
+            "--jump 'stable2:stable4'",
+        ),
+        (["--scenarios", "nominal", "--agents", "stc", "--jump", "stable2:"], "BEFORE:AFTER"),
+        (["--jump", "stable2:"], "BEFORE:AFTER"),
+        (["--jump", ":stable2"], "BEFORE:AFTER"),
+        (["--jump", "stable2:bogus"], "--jump 'stable2:bogus'"),
         (["--scenarios", "nominal,weird"], "scenarios"),
         (["--scenarios", "nominal", "--agents", "rppo,stc"], "family and jump"),
         (["--jobs", "0"], "--jobs"),
@@ -248,8 +251,8 @@ def test_bad_input_fails_before_any_work(tmp_path, monkeypatch, capsys, extra, m
     def no_work(*args, **kwargs):  # pragma: no cover - must not be reached
         raise AssertionError("work started")
 
-    monkeypatch.setattr("stcgym.agents.sb3.train_agent", no_work)
-    monkeypatch.setattr(bench_mod, "evaluate", no_work)
+    monkeypatch.setattr("stcgym.agents.rl.sb3.train_agent", no_work)
+    monkeypatch.setattr(runner_mod, "evaluate", no_work)
     rc = main(["bench", *TINY, "--out", str(tmp_path), "--run", "bad", *extra])
     assert rc == 2
     err = capsys.readouterr().err
@@ -264,7 +267,7 @@ def test_bare_bench_runs_the_quick_preset_that_help_describes(monkeypatch, capsy
         seen["cfg"] = cfg
         raise KeyboardInterrupt  # stop right there
 
-    monkeypatch.setattr(bench_mod, "run_bench", fake_run)
+    monkeypatch.setattr(benchmark, "run_bench", fake_run)
     assert main(["bench", "--out", "/nonexistent-never-written"]) == 130
     cfg = seen["cfg"]
     assert cfg.mode == "quick" and cfg.train_seeds >= 3
@@ -304,7 +307,7 @@ def test_stc_kfmils_is_stc_on_the_kf_mils_estimator_in_every_scenario(tmp_path):
         assert list(ctl.seeds) == list(ref.seeds) == [7]
         assert list(ctl.poles) == list(ref.poles)
 
-    bench_mod.run_bench(cfg, log=lambda msg: None)
+    runner_mod.run_bench(cfg, log=lambda msg: None)
     _, rows = _rows(tmp_path / "kf" / "metrics.csv")
     scenarios = {r["scenario"] for r in rows}
     assert len(scenarios) == 4
@@ -364,7 +367,7 @@ def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
         bootstrap_reps=50,
     )
     with pytest.raises(KeyboardInterrupt):
-        bench_mod.run_bench(cfg, log=lambda msg: None)
+        runner_mod.run_bench(cfg, log=lambda msg: None)
     header, rows = _rows(tmp_path / "int" / "metrics.csv")
     assert header == METRIC_COLUMNS
     # Scenario 1: oracle and boom on 2 seeds; scenario 2: oracle, then boom blows up.

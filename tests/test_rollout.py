@@ -53,8 +53,22 @@ def test_batch_rollout_lanes_equal_single_rollouts() -> None:
 
 def test_open_loop_unstable_plant_diverges_and_stops() -> None:
     ctl = SelfTuningController(2, safe_set={"gain_max": 1e-9})  # never closes the loop
-    res = rollout(ctl, PLANTS["unstable2"].theta, T, reference=REF, y_bound=5.0)
+    res = rollout(ctl, PLANTS["unstable2"].theta, T, reference=REF, y_bound=5.0, window=100)
     assert res.diverged[0] and res.steps_run[0] < T
+
+
+def test_a_diverged_lane_is_charged_its_last_cost_to_the_end() -> None:
+    """The divergence rule: the last per-step cost for every step not lived, in every window."""
+    ctl = SelfTuningController(2, num_envs=2, safe_set={"gain_max": 1e-9})  # never closes
+    theta = np.array([PLANTS["unstable2"].theta, PLANTS["stable2"].theta])
+    res = rollout(ctl, theta, T, reference=REF, y_bound=5.0, window=100)
+    assert list(res.diverged) == [True, False] and res.steps_run[1] == T
+    last = res.steps_run[0] - 1
+    assert last < 100 and res.cost[0, 2] > 0  # charged for windows it did not live
+    np.testing.assert_array_equal(res.step_cost[0, last:], res.step_cost[0, last])
+    assert res.step_cost[0, last] > (5.0 - 1.0) ** 2 / 2  # |y| > y_bound, |r| = 1
+    np.testing.assert_allclose(res.cost, res.step_cost.reshape(2, 3, 100).sum(axis=2), rtol=1e-12)
+    assert res.cost[0, 2] == pytest.approx(100 * res.step_cost[0, last], rel=1e-12)
 
 
 def test_rollout_bad_arguments() -> None:

@@ -13,18 +13,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import stcgym.agents.sweep as sweep
+import stcgym.agents.sweeps.chunk as chunk
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import KnownModelController, LQGController
-from stcgym.agents.families import draw_plant, load_family, plant_features
-from stcgym.agents.sweep import (
-    SweepConfig,
-    SweepError,
-    closed_loop,
-    main,
-    parse_controller,
-    run_sweep,
-)
+from stcgym.agents.sweeps import SweepConfig, SweepError, run_sweep
+from stcgym.agents.sweeps.chunk import closed_loop
+from stcgym.agents.sweeps.cli import main, parse_controller
+from stcgym.agents.sweeps.families import draw_plant, load_family, plant_features
 from stcgym.envs.signals import Jumps, RandomWalk
 
 FAMILY = {
@@ -101,7 +96,7 @@ def test_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
     spec = {**FAMILY, "count": 4, "steps": 200, "jump": None}
     (tmp_path / "fam.json").write_text(json.dumps(spec))
     args = ["--seeds", "2", "--chunk", "1", "--jobs", "1", "--no-plot", "--quiet"]
-    cmd = [sys.executable, "-m", "stcgym.agents.sweep", str(tmp_path / "fam.json"), *args]
+    cmd = [sys.executable, "-m", "stcgym.agents.sweeps.cli", str(tmp_path / "fam.json"), *args]
     proc = subprocess.Popen([*cmd, "--out", str(tmp_path), "--run", "killed"])
     tasks = tmp_path / "killed" / "tasks"
     deadline = time.monotonic() + 600  # a cold numba cache compiles first
@@ -130,21 +125,21 @@ def test_killed_sweep_resumes_to_the_uninterrupted_table(tmp_path):
 
 
 def test_a_failed_task_keeps_the_others_and_resume_retries_it(reference_run, tmp_path, monkeypatch):
-    real = sweep.closed_loop
+    real = chunk.closed_loop
 
     def flaky(kw, family, plants, lane_seeds):
         if any(p.index == 1 for p in plants):
             raise RuntimeError("simulated crash on plant 1")
         return real(kw, family, plants, lane_seeds)
 
-    monkeypatch.setattr(sweep, "closed_loop", flaky)
+    monkeypatch.setattr(chunk, "closed_loop", flaky)
     part = run_sweep(tiny_config(), out=tmp_path, run="r", jobs=1, progress=False, plot=False)
     assert len(part.failures) == 1 and part.failures[0]["lanes"] == [2, 4]
     assert "simulated crash on plant 1" in part.failures[0]["error"]
     assert json.loads((part.run_dir / "failures.json").read_text()) == part.failures
     assert sorted(set(part.table["plant"])) == [0, 2]
 
-    monkeypatch.setattr(sweep, "closed_loop", real)
+    monkeypatch.setattr(chunk, "closed_loop", real)
     again = run_sweep(resume=part.run_dir, progress=False, plot=False)
     assert not again.failures and not (part.run_dir / "failures.json").exists()
     assert again.table_path.read_bytes() == reference_run.table_path.read_bytes()

@@ -12,7 +12,6 @@ from stcgym.envs.signals import Jumps, Ramp, RandomWalk
 from stcgym.envs.vector import (
     ObservabilityCanonicalVectorEnv,
     ObserverCanonicalVectorEnv,
-    SB3VecEnv,
     StateSpaceVectorEnv,
 )
 
@@ -113,14 +112,6 @@ def test_vector_env_equals_single_envs(vcls, kwargs, options):
             np.testing.assert_array_equal(vout[1], [s[1] for s in souts])
             assert np.array_equal(vout[2], [s[2] for s in souts])
             assert np.array_equal(vout[3], [s[3] for s in souts])
-
-
-def test_exact_is_deprecated_and_ignored():
-    with pytest.warns(DeprecationWarning, match="exact"):
-        venv = ObserverCanonicalVectorEnv(num_envs=2, exact=True)
-    o1, _ = venv.reset(seed=3)
-    o2, _ = ObserverCanonicalVectorEnv(num_envs=2).reset(seed=3)
-    np.testing.assert_array_equal(o1, o2)
 
 
 def test_per_lane_parameters_and_options():
@@ -227,6 +218,8 @@ def test_sb3_adapter_trains_ppo():
     pytest.importorskip("stable_baselines3")
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecEnv
+
+    from stcgym.agents.rl.vec_env import SB3VecEnv
 
     venv = ObserverCanonicalVectorEnv(num_envs=8, max_episode_steps=40, noise_std=0.05)
     vec = SB3VecEnv(venv)

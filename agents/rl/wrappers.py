@@ -17,7 +17,7 @@ squashed policies work best on a unit box).
 
 The same feature construction is needed at evaluation time, when the harness hands every
 controller the raw environment observation: :class:`HistoryBuffer` holds it and is shared by the
-wrapper (training) and :class:`stcgym.agents.sb3.SB3Policy` (evaluation), so the two cannot drift
+wrapper (training) and :class:`stcgym.agents.rl.sb3.SB3Policy` (evaluation), so the two cannot drift
 apart.
 """
 

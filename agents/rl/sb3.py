@@ -1,8 +1,8 @@
 """Stable-Baselines3 agents: training, saving/loading and the policy-protocol adapter.
 
 Training (:func:`train_agent`) runs on ``n_envs`` copies of the scenario's environment behind
-:class:`~stcgym.agents.wrappers.HistoryWindow` (the observation window) and
-:class:`~stcgym.agents.wrappers.TrainingReward` (compressed per-step cost; a diverged episode
+:class:`~stcgym.agents.rl.wrappers.HistoryWindow` (the observation window) and
+:class:`~stcgym.agents.rl.wrappers.TrainingReward` (compressed per-step cost; a diverged episode
 pays for the steps it did not live), each with a SB3 ``Monitor`` on the raw environment
 (``monitor/*.monitor.csv``: raw episode returns). A callback evaluates the deterministic
 policy at log-spaced training steps through the bench's own evaluation loop, so the learning
@@ -12,7 +12,7 @@ through the same code; :class:`SB3Policy` carries their LSTM state.
 
 A saved agent is a folder with ``model.zip`` (SB3) and ``agent.json`` (algorithm, config, seed,
 window, training environment, steps, wall time, learning curve); :func:`load_agent` returns an
-:class:`SB3Policy` ready for :func:`stcgym.agents.evaluate.evaluate`.
+:class:`SB3Policy` ready for :func:`stcgym.agents.benchmark.evaluate.evaluate`.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.agents.configs import AlgoConfig, algorithm_class
-from stcgym.agents.evaluate import EnvSpec, run_episode
-from stcgym.agents.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
+from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
+from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
+from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
 __all__ = [
     "SB3Policy",
@@ -265,7 +265,7 @@ def build_model(
 def check_trainable(algo: str, config: AlgoConfig, train_spec: EnvSpec) -> None:
     """Build (and discard) the model of ``config``, so SB3's own checks run before any work.
 
-    Catches what the value rules of :mod:`stcgym.agents.configs` cannot see, such as a
+    Catches what the value rules of :mod:`stcgym.agents.rl.configs` cannot see, such as a
     ``policy_kwargs`` entry the policy class does not take. Raises ``ValueError``. The replay
     buffer is built with at most 1000 entries (its size was checked already).
     """
@@ -309,7 +309,7 @@ def train_agent(
     algo
         ``"ppo"``, ``"sac"``, ``"td3"``, ``"a2c"`` or ``"rppo"`` (sb3-contrib RecurrentPPO).
     config
-        Its :class:`~stcgym.agents.configs.AlgoConfig`.
+        Its :class:`~stcgym.agents.rl.configs.AlgoConfig`.
     train_spec
         Training environment (a single plant, or a family drawn per episode).
     steps

@@ -1,9 +1,10 @@
 """One evaluation loop for every controller, and the metrics the bench reports.
 
-Every controller (an SB3 model behind :class:`~stcgym.agents.sb3.SB3Policy`, the self-tuning
+Every controller (an SB3 model behind :class:`~stcgym.agents.rl.sb3.SB3Policy`, the self-tuning
 controller, the known-model oracles) is driven through the shared policy protocol
-(:mod:`stcgym.adaptive.policy`): ``policy.reset()``, then
-``policy.predict(obs, episode_start=..., deterministic=True)`` on the *raw* observation
+(:mod:`stcgym.adaptive.policy`) by the closed-loop driver
+(:func:`stcgym.agents.closed_loop.run_closed_loop`): ``policy.reset()``, then
+``policy.predict(obs, deterministic=True)`` on the *raw* observation
 ``[y(k), r(k)]`` of the environment. For a given :class:`EnvSpec` and seed the environment is built
 afresh and reset with ``reset(seed=seed)``, so every controller in a comparison meets the same
 plant, the same output noise and the same reference.
@@ -22,15 +23,16 @@ r(k+1))^2 + rho u(k)^2``:
 * ``bounded``: the episode did not diverge (``|y|`` stayed below the environment's ``y_bound``);
 * ``overshoot_pct``, ``settling_steps``: step response at the reference steps of the steady
   window, ``startup_settling_steps`` at the first reference step (step 0), see
-  :func:`stcgym.agents.response.step_response`;
+  :func:`stcgym.agents.benchmark.response.step_response`;
 * the metrics relative to the oracle on the same episode (cost ratios, adaptation and
-  re-convergence steps, :mod:`stcgym.agents.response`) need the oracle's run and are computed
-  by the bench from ``Episode.cost``.
+  re-convergence steps, :mod:`stcgym.agents.benchmark.response`) need the oracle's run and
+  are computed by the bench from ``Episode.cost``.
 * ``step_us``: wall time of one ``predict`` call, microseconds (mean over the episode).
 
-A diverged episode ends early; it is charged its last step's cost for every step it did not
-live (that cost is at least ``y_bound^2``), so failed runs rank worst in every statistic and all
-numbers stay finite.
+The loop is :func:`stcgym.agents.closed_loop.run_closed_loop`: a diverged episode ends early
+and is charged by its divergence rule (:func:`stcgym.adaptive.rollout.charge_divergence`: its
+last step's cost for every step it did not live), so failed runs rank worst in every statistic
+and all numbers stay finite.
 
 Statistics over seeds (:func:`summarize`): median, inter-quartile range, CVaR of the worst
 quarter (mean of the ``ceil(n/4)`` largest values) and failure rate.
@@ -39,7 +41,6 @@ quarter (mean of the ``ceil(n/4)`` largest values) and failure rate.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -48,8 +49,8 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.policy import reset_policy
-from stcgym.agents.response import step_response
+from stcgym.agents.benchmark.response import step_response
+from stcgym.agents.closed_loop import run_closed_loop
 from stcgym.envs.catalogue import PlantSpec, get_plant
 
 __all__ = [
@@ -220,48 +221,42 @@ def run_episode(
     name = drawn.name if drawn is not None else "?"
     if not hasattr(policy, "predict"):
         policy = policy(drawn, int(seed))
-    reset_policy(policy)
     T = spec.steps
-    y, r, u, cost = np.zeros(T + 1), np.zeros(T + 1), np.zeros(T), np.zeros(T)
+    y, r, u = np.zeros(T + 1), np.zeros(T + 1), np.zeros(T)
     y[0], r[0] = info["y_clean"], obs[1]
-    wall, k, diverged, n_clipped = 0.0, 0, False, 0
+    n_clipped = 0
     theta = theta_hat = None
     if record_theta:
         theta = np.full((T + 1, len(info["theta"])), np.nan)
         theta_hat = np.full((T, len(info["theta"])), np.nan)
         theta[0] = info["theta"]
-    for k in range(T):  # noqa: B007  (k is the number of steps run when the loop breaks)
-        t0 = time.perf_counter()
-        action, _ = policy.predict(obs, episode_start=np.array([k == 0]), deterministic=True)
-        wall += time.perf_counter() - t0
-        action = np.asarray(action, dtype=float).reshape(1)
-        obs, reward, terminated, truncated, info = env.step(action)
+
+    def record(k: int, action: NDArray, obs: NDArray, info: dict[str, Any]) -> None:
+        nonlocal n_clipped
         u[k] = np.clip(action[0], -spec.action_bound, spec.action_bound)
-        y[k + 1], r[k + 1], cost[k] = info["y_clean"], obs[1], -reward
+        y[k + 1], r[k + 1] = info["y_clean"], obs[1]
         n_clipped = int(info["n_clipped"])
         if record_theta:
             theta[k + 1] = info["theta"]
             est = getattr(policy, "theta", None)
             if est is not None and np.size(est) == theta.shape[1]:
                 theta_hat[k] = np.ravel(est)
-        if terminated:
-            diverged = bool(info.get("diverged", True))
-            cost[k + 1 :] = cost[k]  # the charge of a failed run, see the module docstring
-            y[k + 2 :], r[k + 2 :] = np.nan, np.nan
-            break
+
+    loop = run_closed_loop(policy, env, obs, T, on_step=record)
     env.close()
-    steps_run = k + 1
+    steps_run = int(loop.steps_run[0])
+    y[steps_run + 1 :], r[steps_run + 1 :] = np.nan, np.nan
     return Episode(
         int(seed),
         name,
         y,
         r,
         u,
-        cost,
+        loop.cost[0],
         steps_run,
-        diverged,
+        bool(loop.diverged[0]),
         n_clipped,
-        1e6 * wall / steps_run,
+        1e6 * loop.predict_s / steps_run,
         theta,
         theta_hat,
     )

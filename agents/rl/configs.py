@@ -435,7 +435,7 @@ def validate_config(cfg: AlgoConfig) -> None:
     Beyond single values: PPO-family rollouts need ``n_steps * n_envs > 1`` and PPO's
     minibatches ``batch_size > 1`` (SB3 asserts both only when the model is built).
     """
-    from stcgym.agents.wrappers import WindowConfig
+    from stcgym.agents.rl.wrappers import WindowConfig
 
     name = cfg.algo
     for key, (check, expected) in FIELD_RULES.items():

@@ -13,8 +13,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from stcgym.agents.configs import AlgoConfig
-from stcgym.agents.evaluate import EnvSpec, evaluate
+from stcgym.agents.benchmark.evaluate import EnvSpec, evaluate
+from stcgym.agents.rl.configs import AlgoConfig
 
 __all__ = ["train_and_evaluate", "training_task"]
 
@@ -63,7 +63,7 @@ def training_task(
 
 def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
     """Train the agent of ``task`` and evaluate it on the task's scenarios (worker side)."""
-    from stcgym.agents.sb3 import train_agent
+    from stcgym.agents.rl.sb3 import train_agent
 
     agent = train_agent(
         task["algo"],

@@ -1,7 +1,7 @@
 """``report.md`` of a bench run: the headline with confidence intervals, then the details.
 
 The headline answers three questions per scenario, each as a point estimate with a 95 %
-stratified-bootstrap interval (:mod:`stcgym.agents.statistics`, i.e. ``rliable``):
+stratified-bootstrap interval (:mod:`stcgym.agents.benchmark.statistics`, i.e. ``rliable``):
 
 1. where does each controller end up: steady-state cost / the oracle's on the same episode
    (interquartile mean, IQM);
@@ -26,9 +26,13 @@ from typing import Any
 
 import numpy as np
 
+from stcgym.agents.benchmark.evaluate import default_windows, summarize
+from stcgym.agents.benchmark.statistics import (
+    Estimate,
+    interval_estimates,
+    probability_of_improvement,
+)
 from stcgym.agents.controllers import CONTROLLERS
-from stcgym.agents.evaluate import default_windows, summarize
-from stcgym.agents.statistics import Estimate, interval_estimates, probability_of_improvement
 
 __all__ = ["aggregate", "headline", "write_report"]
 
@@ -447,7 +451,8 @@ def write_report(
         f"post-jump {wj.post_jump[0]}-{wj.post_jump[1]}.",
         "- Steps to <= 1.2x and re-converge: the first step from which on the cost over every "
         "following reference period stays within 1.2x of the oracle's on the same episode "
-        "(`stcgym.agents.response.settling_step`); never reaching it reads `never`, not 0.",
+        "(`stcgym.agents.benchmark.response.settling_step`); never reaching it reads `never`, "
+        "not 0.",
         "- CVaR25: mean episode cost of the worst quarter of runs. `div.`: diverged runs "
         "(charged their last cost until the end).",
         "- Data steps: environment steps of RL training plus the steps an online learner adapts "

@@ -1,0 +1,544 @@
+"""The ``stcgym bench`` run: classical controllers, reference runs, RL jobs, ``metrics.csv``.
+
+See :mod:`stcgym.agents.benchmark` for the scenarios, controllers and outputs.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
+from stcgym.agents.benchmark.evaluate import EnvSpec, Episode, evaluate, run_episode
+from stcgym.agents.benchmark.plan import (
+    SECONDS_PER_EVAL_STEP,
+    JobProgress,
+    estimate_seconds,
+    format_duration,
+    job_weights,
+    rl_tasks,
+)
+from stcgym.agents.benchmark.response import curve_settling_step, settling_step
+from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
+from stcgym.agents.controllers import CONTROLLERS
+from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
+
+__all__ = [
+    "METRIC_COLUMNS",
+    "TOLERANCE",
+    "BenchResult",
+    "check_runnable",
+    "prepare_run_dir",
+    "run_bench",
+]
+
+#: Columns of ``metrics.csv``, in order.
+METRIC_COLUMNS = [
+    "scenario",
+    "kind",
+    "plant",
+    "controller",
+    "family",
+    "seed",
+    "train_seed",
+    "controller_seed",
+    "cost",
+    "cost_ratio",
+    "cost_start",
+    "cost_steady",
+    "steady_ratio",
+    "steps_to_oracle",
+    "cost_post_jump",
+    "post_jump_ratio",
+    "reconverge_steps",
+    "effort",
+    "bounded",
+    "steps_run",
+    "clip_frac",
+    "overshoot_pct",
+    "settling_steps",
+    "startup_settling_steps",
+    "data_steps",
+    "train_steps",
+    "train_wall_s",
+    "step_us",
+]
+
+#: Allowed cost ratio to the oracle in ``steps_to_oracle`` and ``reconverge_steps``.
+TOLERANCE = 1.2
+
+
+class MetricsWriter:
+    """Append rows to ``metrics.csv``, flushed to disk one by one."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.rows: list[dict[str, Any]] = []
+        new = not path.exists() or path.stat().st_size == 0
+        self._fh = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
+        self._csv = csv.DictWriter(self._fh, METRIC_COLUMNS, extrasaction="ignore")
+        if new:
+            self._csv.writeheader()
+            self._flush()
+
+    def _flush(self) -> None:
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def write(self, row: dict[str, Any]) -> None:
+        self._csv.writerow({k: _fmt(row.get(k, "")) for k in METRIC_COLUMNS})
+        self._flush()
+        self.rows.append(row)
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+def _fmt(v: Any) -> Any:
+    if isinstance(v, float):
+        return "" if math.isnan(v) else f"{v:.6g}"
+    return v
+
+
+def _check_writable(folder: Path) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / ".write-test"
+        probe.write_text("ok")
+        probe.unlink()
+    except OSError as exc:
+        raise BenchInputError(f"output folder {folder} cannot be written: {exc}") from exc
+
+
+def _check_dependencies(cfg: BenchConfig) -> None:
+    missing = []
+    if cfg.rl_agents:
+        mods = ["stable_baselines3", "torch", "rliable"]
+        if any(a in RECURRENT_ALGORITHMS for a in cfg.rl_agents):
+            mods.append("sb3_contrib")
+        if cfg.tensorboard_log:
+            mods.append("tensorboard")
+        if cfg.progress:
+            mods += ["tqdm", "rich"]
+        for mod in mods:
+            try:
+                __import__(mod)
+            except ImportError:
+                missing.append(f"{mod} (pip install 'stcgym[rl]')")
+    else:
+        try:
+            __import__("rliable")
+        except ImportError:
+            missing.append("rliable for the confidence intervals (pip install 'stcgym[rl]')")
+    if cfg.executor == "ray":
+        try:
+            __import__("ray")
+        except ImportError:
+            missing.append("ray for --executor ray (pip install 'stcgym[ray]')")
+    if cfg.plots:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            missing.append("matplotlib for the plots (pip install 'stcgym[plot]' or --no-plots)")
+    if missing:
+        raise BenchInputError("missing dependencies: " + "; ".join(missing))
+
+
+def check_runnable(cfg: BenchConfig) -> None:
+    """The checks that need more than the config: dependencies, and every agent's model built
+    once by SB3 itself. Raises :class:`BenchInputError`."""
+    _check_dependencies(cfg)
+    if cfg.rl_agents:
+        _check_trainable(cfg, training_envs(cfg, make_scenarios(cfg)))
+
+
+def _check_trainable(cfg: BenchConfig, envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> None:
+    """Build every agent's model once (and drop it): SB3's own checks run before any work."""
+    from stcgym.agents.rl.sb3 import check_trainable
+
+    for algo in cfg.rl_agents:
+        key = "family" if algo in RECURRENT_ALGORITHMS else next(iter(envs))
+        try:
+            check_trainable(algo, AlgoConfig.from_dict(cfg.algo_configs[algo]), envs[key][0])
+        except ValueError as exc:
+            raise BenchInputError(str(exc)) from exc
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for mod in ("numpy", "gymnasium", "control", "stable_baselines3", "torch"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except ImportError:
+            pass
+    return out
+
+
+@dataclass
+class BenchResult:
+    """What :func:`run_bench` produced (also on disk under ``run_dir``)."""
+
+    run_dir: Path
+    rows: list[dict[str, Any]]
+    curves: list[dict[str, Any]]
+    wall_s: float
+
+
+@dataclass
+class Collected:
+    """What the plots and the report need besides the rows (kept in the driver's memory)."""
+
+    #: (scenario, controller) -> Episode of the first evaluation seed (first training seed)
+    traces: dict[tuple[str, str], Episode] = field(default_factory=dict)
+    #: (scenario, controller) -> per-step costs of every episode of the first training seed
+    costs: dict[tuple[str, str], list[np.ndarray]] = field(default_factory=dict)
+    #: learning-curve rows (train_env, algo, train_seed, steps, cost, cost_to_oracle)
+    curves: list[dict[str, Any]] = field(default_factory=list)
+    #: train_env -> controller -> mean cost on the learning-curve episodes
+    reference_lines: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: train_env -> (window end steps, stc cost / oracle cost per window, one row per episode)
+    adaptation: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+
+def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False) -> Path:
+    """Create ``<out>/<run>``; refuse to mix two runs in one folder."""
+    run_dir = cfg.run_dir
+    _check_writable(Path(cfg.out))
+    if (run_dir / "metrics.csv").exists() and not overwrite:
+        raise BenchInputError(
+            f"{run_dir} already holds a run; pick another --run or pass --overwrite"
+        )
+    _check_writable(run_dir)
+    if overwrite:
+        for name in ("metrics.csv", "learning_curves.csv", "report.md"):
+            (run_dir / name).unlink(missing_ok=True)
+    return run_dir
+
+
+def run_bench(
+    cfg: BenchConfig,
+    *,
+    overwrite: bool = False,
+    log: Callable[[str], None] | None = None,
+    argv: Sequence[str] | None = None,
+    checked: bool = False,
+) -> BenchResult:
+    """Run the bench described by a validated ``cfg`` (see :func:`build_config`).
+
+    All checks (names, budgets, hyperparameters against SB3, dependencies, output folder)
+    happen before anything is evaluated or trained (``checked=True``: :func:`check_runnable`
+    has been called already). Rows are appended to ``metrics.csv`` as
+    episodes finish; on ``KeyboardInterrupt`` (or any error) the finished rows stay, a partial
+    ``report.md`` is written and the exception is re-raised.
+    """
+    from stcgym.agents.benchmark.report import write_report
+    from stcgym.agents.executors import write_atomic
+
+    t_start = time.perf_counter()
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    if not checked:
+        check_runnable(cfg)
+    scenarios = make_scenarios(cfg)
+    envs = training_envs(cfg, scenarios)
+    run_dir = prepare_run_dir(cfg, overwrite)
+    config_doc = {
+        "bench": cfg.to_dict(),
+        "scenarios": [
+            {
+                "name": s.name,
+                "kind": s.kind,
+                "plant": s.plant,
+                "train_env": s.train_key,
+                "env": s.env.to_dict(),
+            }
+            for s in scenarios
+        ],
+        "argv": list(argv) if argv is not None else None,
+        "versions": _versions(),
+        "started": _dt.datetime.now().isoformat(timespec="seconds"),
+    }
+    write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
+    writer = MetricsWriter(run_dir / "metrics.csv")
+    state = _RunState(cfg, run_dir, writer, log, t_start)
+
+    def report(interrupted: bool) -> None:
+        write_report(
+            run_dir,
+            cfg,
+            scenarios,
+            writer.rows,
+            state.data,
+            time.perf_counter() - t_start,
+            interrupted=interrupted,
+        )
+
+    try:
+        state.run(scenarios, envs)
+    except BaseException as exc:  # Ctrl-C or a crash: keep what is finished, then re-raise
+        writer.close()
+        what = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed ({exc!r})"
+        log(f"{what}: {len(writer.rows)} finished rows kept in {run_dir / 'metrics.csv'}")
+        try:
+            report(True)
+        except Exception as report_exc:  # never mask the original error
+            log(f"could not write the partial report: {report_exc!r}")
+        raise
+    writer.close()
+    if cfg.plots:
+        from stcgym.agents.benchmark.plots import write_plots
+
+        t0 = time.perf_counter()
+        write_plots(run_dir, cfg, scenarios, writer.rows, state.data)
+        state.log(f"plots written ({time.perf_counter() - t0:.0f} s)")
+    t0 = time.perf_counter()
+    report(False)
+    state.log(f"report written ({time.perf_counter() - t0:.0f} s)")
+    wall = time.perf_counter() - t_start
+    log(f"done in {format_duration(wall)}: {run_dir}")
+    return BenchResult(run_dir, writer.rows, state.data.curves, wall)
+
+
+class _RunState:
+    """The bench's driver: classical controllers, reference runs, then the RL jobs."""
+
+    def __init__(self, cfg, run_dir, writer, log, t0) -> None:
+        self.cfg, self.run_dir, self.writer, self._log, self.t0 = cfg, run_dir, writer, log, t0
+        self.data = Collected()
+        # (scenario, seed) -> the oracle's episode costs and metrics (the reference of ratios)
+        self.oracle: dict[tuple[str, int], tuple[np.ndarray, dict[str, float]]] = {}
+        self.scenarios: dict[str, Scenario] = {}
+
+    def log(self, msg: str) -> None:
+        self._log(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
+
+    # -- rows ------------------------------------------------------------------------------
+    def _row(
+        self,
+        sc: Scenario,
+        controller: str,
+        seed: int,
+        cost: np.ndarray,
+        metrics: dict[str, float],
+        extra: dict[str, Any],
+    ) -> dict[str, Any]:
+        """One ``metrics.csv`` row, with the ratios to the oracle on the same episode."""
+        T = len(cost)
+        J = sc.env.jump_step
+        span = sc.env.period
+        ref_cost, ref = self.oracle.get((sc.name, seed), (None, None))
+        row = {
+            "scenario": sc.name,
+            "kind": sc.kind,
+            "plant": sc.plant if sc.jump_to is None else sc.name.split(":", 1)[1],
+            "controller": controller,
+            "seed": seed,
+            **metrics,
+            **extra,
+        }
+        if ref is not None:
+            row["cost_ratio"] = _ratio(metrics["cost"], ref["cost"])
+            row["steady_ratio"] = _ratio(metrics["cost_steady"], ref["cost_steady"])
+            if J is not None:
+                row["post_jump_ratio"] = _ratio(metrics["cost_post_jump"], ref["cost_post_jump"])
+                row["reconverge_steps"] = settling_step(
+                    cost, ref_cost, span=span, start=J, tol=TOLERANCE
+                )
+            if "steps_to_oracle" not in extra:
+                row["steps_to_oracle"] = settling_step(
+                    cost, ref_cost, span=span, stop=J or T, tol=TOLERANCE
+                )
+        return row
+
+    def _write(self, row: dict[str, Any], ep_cost: np.ndarray, first_model: bool) -> None:
+        self.writer.write(row)
+        if first_model:
+            self.data.costs.setdefault((row["scenario"], row["controller"]), []).append(ep_cost)
+
+    # -- classical -------------------------------------------------------------------------
+    def _classical(self, sc: Scenario, name: str) -> None:
+        cfg = self.cfg
+        info = CONTROLLERS[name]
+        # the self-tuning controllers (random probe) take the episode's seed
+        seeded = info.kind == "adaptive"
+
+        def on_episode(ep: Episode, metrics: dict[str, float]) -> None:
+            if name == "oracle":
+                self.oracle[(sc.name, ep.seed)] = (ep.cost, metrics)
+            extra = {
+                "family": info.kind,
+                "train_seed": "",
+                "controller_seed": ep.seed if seeded else "",
+                "train_steps": 0,
+                "train_wall_s": 0.0,
+                # online learners adapt on the whole episode; the oracles know the model
+                "data_steps": ep.steps_run if info.online else 0,
+            }
+            self._write(self._row(sc, name, ep.seed, ep.cost, metrics, extra), ep.cost, True)
+            if ep.seed == cfg.eval_seeds[0]:
+                self.data.traces[(sc.name, name)] = ep
+
+        evaluate(
+            info.build(cfg, sc),
+            sc.env,
+            cfg.eval_seeds,
+            plant=sc.plant,
+            on_episode=on_episode,
+            record_theta=info.kind == "adaptive",
+        )
+
+    def _references(self, key: str, curve_spec: EnvSpec, progress: JobProgress) -> None:
+        """Classical controllers on the learning-curve episodes: the levels RL is compared to,
+        and the self-tuning controller's per-window cost against its adaptation steps."""
+        cfg = self.cfg
+        seeds = [10_000 + i for i in range(cfg.curve_seeds)]
+        sc = Scenario(key, "curve", curve_spec, curve_spec.plants[0], key)
+        runs: dict[str, list[np.ndarray]] = {}
+        for name in cfg.classical:
+            factory = CONTROLLERS[name].build(cfg, sc)
+            runs[name] = [
+                run_episode(factory, curve_spec, s, plant=p).cost
+                for p in curve_spec.plants
+                for s in seeds
+            ]
+        self.data.reference_lines[key] = {n: float(np.mean(c)) for n, c in runs.items()}
+        if "stc" in runs:
+            w = max(1, curve_spec.period // 2)  # one reference step per window
+            T = curve_spec.steps
+            ends = np.arange(w, T + 1, w)
+            ratios = np.array(
+                [
+                    [_ratio(float(c[e - w : e].sum()), float(o[e - w : e].sum())) for e in ends]
+                    for c, o in zip(runs["stc"], runs["oracle"], strict=True)
+                ]
+            )
+            self.data.adaptation[key] = (ends, ratios)
+        progress.finish(("reference", key), f"reference runs on {key}")
+
+    # -- RL --------------------------------------------------------------------------------
+    def _collect(self, task: dict[str, Any], result: dict[str, Any]) -> None:
+        key, algo, ts = task["train_key"], result["algo"], result["seed"]
+        oracle_level = self.data.reference_lines.get(key, {}).get("oracle")
+        for s, c in result["curve"]:
+            self.data.curves.append(
+                {
+                    "train_env": key,
+                    "algo": algo,
+                    "train_seed": ts,
+                    "steps": s,
+                    "cost": c,
+                    "cost_to_oracle": _ratio(c, oracle_level) if oracle_level else math.nan,
+                }
+            )
+        self._write_curves()
+        to_oracle = (
+            curve_settling_step(result["curve"], oracle_level, TOLERANCE)
+            if oracle_level
+            else math.nan
+        )
+        for ep in result["episodes"]:
+            sc = self.scenarios[ep["scenario"]]
+            cost = np.asarray(ep["cost"], dtype=float)
+            extra = {
+                "family": "rl",
+                "train_seed": ts,
+                "controller_seed": ts,
+                "train_steps": result["steps"],
+                "train_wall_s": result["wall_s"],
+                "data_steps": result["steps"],
+                "steps_to_oracle": to_oracle,
+            }
+            row = self._row(sc, algo, ep["seed"], cost, ep["metrics"], extra)
+            self._write(row, cost, ts == 0)
+            if ep["trace"] is not None:
+                tr = ep["trace"]
+                self.data.traces[(sc.name, algo)] = Episode(
+                    ep["seed"],
+                    ep["plant"],
+                    np.asarray(tr["y"], dtype=float),
+                    np.asarray(tr["r"], dtype=float),
+                    np.asarray(tr["u"], dtype=float),
+                    cost,
+                    int(ep["metrics"]["steps_run"]),
+                    not ep["metrics"]["bounded"],
+                    0,
+                    ep["metrics"]["step_us"],
+                )
+
+    def run(self, scenarios: list[Scenario], envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> None:
+        from stcgym.agents.executors import run_tasks
+
+        cfg = self.cfg
+        self.scenarios = {sc.name: sc for sc in scenarios}
+        planned = rl_tasks(cfg, scenarios, envs, {}, self.run_dir)
+        weights = job_weights(cfg, scenarios, planned)
+        for key, (_, curve_spec) in envs.items():
+            weights[("reference", key)] = (
+                len(cfg.classical)
+                * cfg.curve_seeds
+                * len(curve_spec.plants)
+                * curve_spec.steps
+                * SECONDS_PER_EVAL_STEP
+            )
+        progress = JobProgress(weights, self.log, cfg.jobs)
+        workers = "worker" if cfg.jobs == 1 else "workers"
+        self.log(
+            f"{len(weights)} jobs ({len(planned)} RL trainings on {cfg.jobs} {workers}), "
+            f"estimated {format_duration(estimate_seconds(cfg))}"
+        )
+        for sc in scenarios:
+            for name in cfg.classical:
+                self._classical(sc, name)
+            progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
+        for key, (_, curve_spec) in envs.items():
+            self._references(key, curve_spec, progress)
+        if not planned:
+            return
+        refs = {k: v["oracle"] for k, v in self.data.reference_lines.items()}
+        tasks = rl_tasks(cfg, scenarios, envs, refs, self.run_dir)
+        from stcgym.agents.rl.training import train_and_evaluate
+
+        failures = []
+        for out in run_tasks(
+            train_and_evaluate,
+            tasks,
+            executor=cfg.executor,
+            jobs=cfg.jobs,
+            address=cfg.address,
+            threads=1,
+        ):
+            name = out.task["name"]
+            if out.error is not None:
+                failures.append(name)
+                self.log(f"RL job {name} FAILED:\n{out.error}")
+            else:
+                self._collect(out.task, out.result)
+            progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
+        if failures:
+            raise RuntimeError(f"{len(failures)} RL job(s) failed: {', '.join(failures)}")
+
+    def _write_curves(self) -> None:
+        from stcgym.agents.executors import write_atomic
+
+        cols = ["train_env", "algo", "train_seed", "steps", "cost", "cost_to_oracle"]
+        lines = [",".join(cols)]
+        for row in self.data.curves:
+            lines.append(",".join(str(_fmt(row[c])) for c in cols))
+        write_atomic(self.run_dir / "learning_curves.csv", "\n".join(lines) + "\n")
+
+
+def _ratio(x: float, ref: float | None) -> float:
+    if ref is None or not math.isfinite(x) or not ref > 0:
+        return math.nan if ref is None or math.isnan(x) else math.inf
+    return x / ref
