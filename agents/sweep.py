@@ -22,10 +22,11 @@ Controllers
 as keywords), ``oracle`` (:class:`~stcgym.adaptive.KnownModelController`: the regulator's
 design on the true parameters, told the new ones at a jump and, under drift, every step) or
 ``lqg`` (:class:`~stcgym.adaptive.LQGController` for the family's cost on the true *initial*
-parameters, as in ``stcgym bench``). ``action_bound`` defaults to the family's, LQG's
-``control_cost``/``noise_std`` to the family's. A controller named ``oracle`` (kind oracle,
-defaults) is always run: the ratios are to it. Every controller is built once on plant 0 before
-any work starts, so bad keywords fail at once.
+parameters, as in ``stcgym bench``). ``action_bound`` defaults to the family's; LQG's
+``noise_std`` to the family's and its ``law`` to no integral action with the family's cost as
+LQ weights (``law.integral``, ``law.lq_weights`` override them). A controller named
+``oracle`` (kind oracle, defaults) is always run: the ratios are to it. Every controller is
+built once on plant 0 before any work starts, so bad keywords fail at once.
 
 Tasks and lanes
 ---------------
@@ -241,7 +242,13 @@ def _make_controller(
 ) -> Any:
     """The batched controller of ``kw`` for the lanes ``plants`` (the oracles get each lane's
     true parameters); ``batched=False``: one controller on ``plants[0]``, to check keywords."""
-    from stcgym.adaptive import KnownModelController, LQGController, SelfTuningController
+    from stcgym.adaptive import (
+        KnownModelController,
+        LawOptions,
+        LQGController,
+        SelfTuningController,
+    )
+    from stcgym.adaptive.options import cost_weights
 
     opts = {k: v for k, v in kw.items() if k != "kind"}
     opts.setdefault("action_bound", family["action_bound"])
@@ -252,7 +259,12 @@ def _make_controller(
     b = np.array([p.b for p in plants]) if batched else plants[0].b
     if kw["kind"] == "oracle":
         return KnownModelController(a, b, **lanes, **opts)
-    opts.setdefault("control_cost", family["control_cost"] or 1e-6)
+    # as in stcgym bench: no integral action, the family's cost as the LQ weights
+    if not isinstance(opts.get("law"), LawOptions):
+        law = dict(opts.get("law") or {})
+        law.setdefault("integral", False)
+        law.setdefault("lq_weights", cost_weights(family["control_cost"] or 1e-6))
+        opts["law"] = law
     if family["noise_std"] <= 0 and "noise_std" not in opts:
         raise ValueError("the lqg oracle needs noise_std > 0 in the family (its Kalman filter)")
     opts.setdefault("noise_std", family["noise_std"])
