@@ -21,28 +21,37 @@ regulator's tracking law :func:`~stcgym.adaptive.kernels.design.track`, the Kalm
   the reference feed-forward of the steady state, and the steady-state Kalman filter (the same
   Riccati solver on the dual problem) used as a current estimator ``x(t|t)``.
 
-Both implement the SB3 policy protocol (:mod:`stcgym.adaptive.policy`) for one plant
-(``num_envs=None``; a batch of observations then runs freshly reset copies, one per row) or for
-``num_envs=B`` plants with their own true parameters (``a``, ``b`` of shape ``(B, n)``), stepped
-together by a ``prange`` over lanes. A lane record holds all the state, so the oracles pickle
-and deep-copy with identical continuation, and a step whose result would not be finite is
-rejected as a whole: no lane changes.
+Both take the regulator's common settings with the same names and defaults (``law``, a
+:class:`~stcgym.adaptive.options.LawOptions`: integral action, feed-forward, anti-windup,
+filtered state, LQ weights; ``action_bound``, ``form``, ``num_envs``, ``env``; ``poles`` for the
+pole-placement oracle). They apply no safe set: they know the model, so only the design's
+numerical floors (an uncontrollable model, a zero at ``z = 1``) reject it, with a
+``ValueError``.
+
+Both are :class:`~stcgym.adaptive.policy.LanePolicy` policies (SB3's ``predict``) for one plant
+(``num_envs=None``) or for ``num_envs=B`` plants with their own true parameters (``a``, ``b`` of
+shape ``(B, n)``), stepped together by a ``prange`` over lanes. A lane record holds all the
+state, so the oracles pickle and deep-copy with identical continuation, and a step whose result
+would not be finite is rejected as a whole: no lane changes.
 """
 
 from __future__ import annotations
 
 import math
-from abc import ABC, abstractmethod
+from abc import abstractmethod
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import design as _design
+from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.kernels.state_estimation import kalman_step
+from stcgym.adaptive.options import DEFAULT_POLE, LawOptions, option_group, plant_settings
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
-from stcgym.adaptive.policy import episode_starts, validate_observation
-from stcgym.envs.canonical import as_finite_vector, check_form
+from stcgym.adaptive.policy import LanePolicy
+from stcgym.adaptive.recursive import lane_indices
+from stcgym.envs.canonical import as_finite_vector
 from stcgym.envs.compiled import FixedTypes, Layout
 
 __all__ = ["KalmanObserver", "KnownModelController", "LQGController"]
@@ -51,8 +60,8 @@ __all__ = ["KalmanObserver", "KnownModelController", "LQGController"]
 _known_model_propose = FixedTypes(_design.known_model_propose)
 _known_model_commit = FixedTypes(_design.known_model_commit)
 
-#: Default closed-loop pole of the known-model controller (as the regulator's).
-DEFAULT_POLE = 0.5
+#: The oracles know the model: no safe set, only the design's numerical floors reject it.
+_NO_SAFE_SET = _design.safe_set()
 #: Largest accepted noise level, weight or covariance scale: squares and products of settings
 #: beyond it overflow in the filter and design, so such a value is an input error, not a setting.
 MAX_SETTING = 1e100
@@ -81,14 +90,6 @@ def _check_nonnegative(value: Any, name: str) -> float:
     if not (0 <= v <= MAX_SETTING):
         raise ValueError(f"{name} must be a number in [0, {MAX_SETTING:g}], got {value!r}")
     return v
-
-
-def _check_num_envs(num_envs: Any) -> int | None:
-    if num_envs is None:
-        return None
-    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-        raise ValueError(f"num_envs must be None or a positive integer, got {num_envs!r}")
-    return int(num_envs)
 
 
 def _lane_parameters(
@@ -125,19 +126,30 @@ def _lane_parameters(
     return a_l, b_l
 
 
-class _KnownModelLoop(ABC):
-    """Lane records and the SB3-style ``predict`` shared by the two oracles.
+class _KnownModelLoop(LanePolicy):
+    """Lane records and the lane step shared by the two oracles.
 
-    Subclasses set ``n``, ``form``, the flags and call :meth:`_build` with per-lane models,
-    designs and filter settings; the state lives in ``self._F`` (``(lanes, size)``, one row per
-    plant) and, for ``num_envs=None``, in ``self._rows`` (the copies serving a batch of
-    observations).
+    Subclasses call :meth:`_settings` (the common settings and the true parameters), set their
+    own, then :meth:`_build` with the per-lane models; the state lives in ``self._F``
+    (``(lanes, size)``, one row per plant).
     """
 
-    #: Length of one observation: the envs observe ``[y(t), r(t)]``.
-    obs_dim: int = 2
+    def _settings(
+        self, a: ArrayLike, b: ArrayLike, num_envs: Any, action_bound: Any, form: Any, env: Any,
+        law: Any,
+    ) -> tuple[NDArray, NDArray]:  # fmt: skip
+        """Set ``n``, ``num_envs``, ``action_bound``, ``form`` and ``law``; return ``a``, ``b``
+        as ``(lanes, n)``."""
+        num = None if num_envs is None else check_int(num_envs, "num_envs", 1)
+        a_l, b_l = _lane_parameters(a, b, 1 if num is None else num, batched=num is not None)
+        self.n = a_l.shape[1]
+        self.num_envs, self.action_bound, self.form = plant_settings(
+            self.n, num_envs=num, action_bound=action_bound, form=form, env=env
+        )
+        self.law = option_group(law, LawOptions, "law")
+        return a_l, b_l
 
-    def _build(self, num_envs: int | None, a: NDArray, b: NDArray) -> None:
+    def _build(self, a: NDArray, b: NDArray) -> None:
         n = self.n
         lay = Layout()
         for name, shape in (
@@ -155,18 +167,17 @@ class _KnownModelLoop(ABC):
             # initial values restored by reset()
             ("A0", (n, n)),
             ("b0", (n,)),
+            ("Q0", (n, n)),
             ("P0", (n, n)),
             ("gain0", (_design.gain_size(n),)),
         ):
             lay.add(name, shape)
         self._layout = lay
         self._at = lay.record(_design.OracleRecord)
-        self.num_envs = num_envs
-        lanes_ = a.shape[0]
-        F = lay.empty(lanes_)
+        F = lay.empty(a.shape[0])
         self._F = F
         lay.view(F, "R")[:] = self.R
-        lay.view(F, "Q")[:] = self._process_noise(b)
+        lay.view(F, "Q0")[:] = self._process_noise(b)
         gains = self._design_lanes(a, b, "a, b")
         A = self._model_matrices(a, b)
         lay.view(F, "A0")[:] = A
@@ -175,7 +186,6 @@ class _KnownModelLoop(ABC):
         lay.view(F, "P0")[:] = self._initial_covariance(a, b)
         self._a, self._b = a.copy(), b.copy()
         self._a0, self._b0 = a.copy(), b.copy()
-        self._rows: NDArray | None = None
         self._reset_records(F)
 
     # -- hooks -----------------------------------------------------------------------------
@@ -223,7 +233,7 @@ class _KnownModelLoop(ABC):
 
     def _reset_records(self, F: NDArray, rows: NDArray | slice = slice(None)) -> None:
         lay = self._layout
-        for src, dst in (("A0", "A"), ("b0", "b"), ("P0", "P"), ("gain0", "gain")):
+        for src, dst in (("A0", "A"), ("b0", "b"), ("Q0", "Q"), ("P0", "P"), ("gain0", "gain")):
             lay.view(F, dst)[rows] = lay.view(F, src)[rows]
         for name in ("x", "x_filt", "innov", "law", "t"):
             lay.view(F, name)[rows] = 0.0
@@ -262,7 +272,7 @@ class _KnownModelLoop(ABC):
     @property
     def K(self) -> NDArray:
         """State-feedback gain ``[K_x, k_i]`` (``k_i`` only with integral action)."""
-        m = self.n + int(self.integral)
+        m = self.n + int(self.law.integral)
         return self._lane0(self._layout.view(self._F, "gain")[:, :m])
 
     @property
@@ -275,10 +285,11 @@ class _KnownModelLoop(ABC):
         """Switch to new true parameters (e.g. at a scheduled jump); the state estimate is kept.
 
         ``a``, ``b``: shape ``(n,)`` for every selected lane, or one row per selected lane.
-        ``lanes`` (batched only): a boolean mask of ``num_envs`` entries or lane indices.
-        Raises ``ValueError`` (nothing changed) when a model cannot be designed on.
+        ``lanes``: a boolean mask of one entry per lane or lane indices (default all). A reset
+        restores the initial model. Raises ``ValueError`` (nothing changed) when a model cannot
+        be designed on.
         """
-        idx = self._lane_index(lanes)
+        idx = lane_indices(lanes, self.num_lanes)
         a_l, b_l = _lane_parameters(a, b, idx.size)
         if a_l.shape[1] != self.n:
             raise ValueError(f"new parameters must have order {self.n}, got {a_l.shape[1]}")
@@ -289,100 +300,52 @@ class _KnownModelLoop(ABC):
             "gain": self._design_lanes(a_l, b_l, "set_model"),
         }
         new.update(self._model_extras(a_l, b_l))
-        targets = [(self._F, idx)]
-        if self._rows is not None:  # the copies serving a batch of observations
-            targets.append((self._rows, slice(None)))
-        for F, rows in targets:
-            for name, value in new.items():
-                self._layout.view(F, name)[rows] = value
+        for name, value in new.items():
+            self._layout.view(self._F, name)[idx] = value
         self._a[idx], self._b[idx] = a_l, b_l
 
     def _model_extras(self, a: NDArray, b: NDArray) -> dict[str, NDArray]:
         """Hook: other record fields a new model changes (the LQG filter's noise and P)."""
         return {}
 
-    def _lane_index(self, lanes: ArrayLike | None) -> NDArray:
-        B = self._F.shape[0]
-        if lanes is None:
-            return np.arange(B)
-        if self.num_envs is None:
-            raise ValueError("lanes is only for batched oracles (num_envs=B)")
-        arr = np.asarray(lanes)
-        if arr.dtype == bool:
-            if arr.shape != (B,):
-                raise ValueError(
-                    f"lanes as a mask must have one bool per lane ({B}), got shape {arr.shape}"
-                )
-            return np.flatnonzero(arr)
-        if arr.ndim > 1 or not np.issubdtype(arr.dtype, np.integer):
-            raise ValueError(f"lanes must be a boolean mask or integer lane indices, got {lanes!r}")
-        arr = arr.reshape(-1).astype(np.int64)
-        if arr.size and (arr.min() < 0 or arr.max() >= B):
-            raise ValueError(f"lanes must lie in [0, {B}), got {arr.tolist()}")
-        return arr
-
-    # -- protocol --------------------------------------------------------------------------
-    def reset(self, lanes: ArrayLike | None = None) -> None:
-        """Forget the episode (initial model restored, filter and integrator zeroed).
-
-        ``lanes`` (batched only): reset just those lanes (mask or indices).
-        """
-        idx = self._lane_index(lanes)
+    # -- the policy's hooks ----------------------------------------------------------------
+    def _reset_lanes(self, idx: NDArray) -> None:
+        """Forget the episode on the lanes ``idx``: initial model restored (``A``, ``b``, the
+        filter's ``Q`` and ``P``, the gain), state estimate and integrator zeroed."""
         self._reset_records(self._F, idx)
-        if lanes is None:
-            self._rows = None
-            self._a[:], self._b[:] = self._a0, self._b0
-        else:
-            self._a[idx], self._b[idx] = self._a0[idx], self._b0[idx]
+        self._a[idx], self._b[idx] = self._a0[idx], self._b0[idx]
 
-    def predict(
-        self,
-        observation: ArrayLike,
-        state: Any = None,
-        episode_start: ArrayLike | bool | None = None,
-        deterministic: bool = True,
-    ) -> tuple[NDArray, Any]:
-        """SB3-style step: ``(actions, state)``; actions ``(1,)`` for one observation
-        ``[y, r]``, ``(B, 1)`` for ``B`` observations. ``episode_start`` (a bool or one per
-        observation) resets those lanes first. Everything is validated, and the whole step
-        computed, before any state changes: a rejected call leaves the oracle as it was.
-        """
-        obs, single = validate_observation(observation, self.obs_dim)
-        batch = obs.shape[0]
-        if self.num_envs is not None and batch != self.num_envs:
-            raise ValueError(
-                f"observation must have one row per lane: expected {self.num_envs} "
-                f"observations, got {batch}"
-            )
-        starts = episode_starts(episode_start, batch)
-        if self.num_envs is None and not single:
-            if self._rows is None or self._rows.shape[0] != batch:
-                # one freshly reset copy of the single plant's record per observation row
-                fresh = self._F.copy()
-                self._reset_records(fresh)
-                self._rows = np.repeat(fresh, batch, axis=0)
-            F = self._rows
-        else:
-            F = self._F
-        saved = F[starts].copy() if starts.any() else None
-        if saved is not None:
-            self._reset_records(F, np.flatnonzero(starts))
+    def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
+        """The whole step is computed before anything is committed: a step whose state would
+        not be finite raises ``ValueError`` and leaves every lane (episode starts included) as
+        it was."""
+        F = self._F
+        saved = None
+        if starts is not None:
+            idx = np.flatnonzero(starts)
+            saved = (F[idx].copy(), self._a[idx].copy(), self._b[idx].copy())
+            self._reset_lanes(idx)
         u = self._step(F, obs[:, 0].copy(), obs[:, 1].copy())
         if u is None:
             if saved is not None:
-                F[starts] = saved
+                F[idx], self._a[idx], self._b[idx] = saved
             raise ValueError(
                 "observation drives the oracle's state estimate to non-finite values "
-                f"(got {obs[0] if single else obs}); the state was left unchanged"
+                f"(got {obs}); the state was left unchanged"
             )
-        return (u if single else u[:, None]), state
+        return u
 
     def _step(self, F: NDArray, y: NDArray, r: NDArray) -> NDArray | None:
         """Propose the step of every lane, commit only if all are finite (else ``None``)."""
         B, n = F.shape[0], self.n
         S = np.empty((B, _design.oracle_scratch_size(n)))
-        bound = math.inf if self.action_bound is None else self.action_bound
-        flags = (bool(self.filtered), bool(self.integral), bool(self.anti_windup), float(bound))
+        law = self.law
+        flags = (
+            bool(law.filtered),
+            bool(law.integral),
+            bool(law.anti_windup),
+            float(self.action_bound),
+        )
         u = np.empty(B)
         if B == 1:  # one plant: the lane function itself (no thread-pool start-up)
             if _known_model_propose(F[0], self._at, n, S[0], float(y[0]), float(r[0]), *flags):
@@ -405,19 +368,15 @@ class KnownModelController(_KnownModelLoop):
     a, b
         True plant parameters ``theta = [a; b]`` in the canonical ``form``: shape ``(n,)``, or
         ``(num_envs, n)`` for one plant per lane.
-    poles, integral, feedforward, action_bound, anti_windup
-        As for :class:`~stcgym.adaptive.controller.SelfTuningController`, whose defaults they
-        share (poles all at 0.5, integral action and feed-forward on, ``action_bound`` 10 as the
-        envs); pass the regulator's values to compare like with like.
-    form
-        ``"observer"`` (default) or ``"observability"``.
-    filtered
-        Control on ``x(t|t)`` (default, as the regulator) instead of ``x(t|t-1)``.
+    poles, law, action_bound, form, num_envs, env
+        As for :class:`~stcgym.adaptive.controller.SelfTuningController`, with the same
+        defaults: poles all at 0.5, ``LawOptions()`` (integral action, feed-forward, anti-windup,
+        control on ``x(t|t)``; its LQ weights are not used), the env's ``action_bound`` else 10,
+        the env's ``form`` else ``"observer"``. Pass the regulator's values to compare like with
+        like.
     process_noise, measurement_noise, P0
         Kalman filter tuning; the defaults are the paper's filter (``Q = 0``, ``R = 1``,
         ``P1(1) = I``).
-    num_envs
-        ``None`` (one plant) or the number of lanes ``B``.
 
     Raises
     ------
@@ -431,38 +390,27 @@ class KnownModelController(_KnownModelLoop):
         a: ArrayLike,
         b: ArrayLike,
         *,
-        poles: ArrayLike | None = None,
-        integral: bool = True,
-        feedforward: bool = True,
-        action_bound: float | None = 10.0,
-        anti_windup: bool = True,
-        form: str = "observer",
-        filtered: bool = True,
+        poles: ArrayLike = DEFAULT_POLE,
+        law: LawOptions | dict | None = None,
+        action_bound: float | None = None,
+        form: str | None = None,
+        num_envs: int | None = None,
+        env: Any = None,
         process_noise: float = 0.0,
         measurement_noise: float = 1.0,
         P0: float = 1.0,
-        num_envs: int | None = None,
     ) -> None:
-        super().__init__()
-        num = _check_num_envs(num_envs)
-        a_l, b_l = _lane_parameters(a, b, 1 if num is None else num, batched=num is not None)
-        self.n = a_l.shape[1]
-        self.form = check_form(form)
-        self.integral = bool(integral)
-        self.feedforward = bool(feedforward)
-        self.anti_windup = bool(anti_windup)
-        self.filtered = bool(filtered)
-        self.action_bound = _check_positive(action_bound, "action_bound", allow_none=True)
-        self.poles = check_poles(DEFAULT_POLE if poles is None else poles, self.n + self.integral)
+        a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
+        self.poles = check_poles(poles, self.n + int(self.law.integral))
         self._alpha = characteristic_coefficients(self.poles)
         self._q = _check_nonnegative(process_noise, "process_noise")
         self.R = _check_positive(measurement_noise, "measurement_noise")
         self._P0 = _check_positive(P0, "P0")
-        self._safe = _design.safe_set()
-        self._build(num, a_l, b_l)
+        self._build(a_l, b_l)
 
     def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
-        args = (self._form_code, self.integral, self.feedforward, self._alpha, self._safe)
+        law = self.law
+        args = (self._form_code, law.integral, law.feedforward, self._alpha, _NO_SAFE_SET)
         if thetas.shape[0] == 1:
             work = np.zeros(_design.work_size(self.n))
             status[0] = _design.place_design(thetas[0], *args, gains[0], work)
@@ -482,33 +430,32 @@ class KnownModelController(_KnownModelLoop):
 class LQGController(_KnownModelLoop):
     """LQG tracking controller on the known model.
 
-    Minimises ``sum (y - r)^2 + rho u^2`` for a constant reference:
+    Minimises ``sum q_y (y - r)^2 + rho u^2`` for a constant reference:
     ``u = N r - K_x x(t|t) - k_i xi`` with ``N = u_ss + K_x x_ss`` (the model's steady state for a
-    unit output) and ``K`` the LQ gain for ``Q = c^T c``, ``R = rho``; with ``integral=True`` the
-    integral of ``r - y`` joins the state with weight ``integral_weight``. Both gains come from
-    :func:`~stcgym.adaptive.kernels.design.lq_solve` (doubling to convergence; tested against
-    python-control's ``dlqr``). The state comes from the steady-state Kalman filter for process
-    noise ``input_noise_std^2 b b^T + process_noise_floor I`` (a small input-disturbance model
-    keeps the filter alive on stable plants) and measurement variance ``noise_std^2``, used as a
-    current estimator ``x(t|t)``: the filter starts at (and stays on) the stabilising solution
-    of the dual Riccati equation.
+    unit output) and ``K`` the LQ gain for ``Q = q_y c^T c``, ``R = rho``; with integral action
+    the integral of ``r - y`` joins the state with weight ``q_i``. ``[q_y, q_i, rho]`` are
+    ``law.lq_weights`` (default the envs' cost with ``control_cost = 0.01`` and ``q_i = 1e-4``;
+    :func:`~stcgym.adaptive.options.cost_weights` gives them for another ``control_cost``). Both
+    gains come from :func:`~stcgym.adaptive.kernels.design.lq_solve` (doubling to convergence;
+    tested against python-control's ``dlqr``). The state comes from the steady-state Kalman
+    filter for process noise ``input_noise_std^2 b b^T + process_noise_floor I`` (a small
+    input-disturbance model keeps the filter alive on stable plants) and measurement variance
+    ``noise_std^2``, used as a current estimator ``x(t|t)``: the filter starts at (and stays on)
+    the stabilising solution of the dual Riccati equation.
 
     Parameters
     ----------
     a, b
-        True parameters, ``(n,)`` or ``(num_envs, n)``. ``form`` as elsewhere.
-    control_cost
-        ``rho``, the weight of ``u^2`` (match the env's ``control_cost``); must be > 0.
+        True parameters, ``(n,)`` or ``(num_envs, n)``.
+    law, action_bound, form, num_envs, env
+        As for :class:`~stcgym.adaptive.controller.SelfTuningController`, with the same
+        defaults (``LawOptions()``: integral action with ``q_i = 1e-4``, feed-forward,
+        anti-windup, control on ``x(t|t)``; the env's ``action_bound`` else 10). Without
+        integral action (``law=LawOptions(integral=False)``) this is the optimal linear
+        controller for the env's cost: the oracle knows the model, so the feed-forward is exact.
     noise_std, input_noise_std, process_noise_floor
         Noise model of the Kalman filter (output noise std > 0, input-disturbance std and floor
         >= 0).
-    integral, integral_weight
-        Optional integral state and its weight in the LQ cost (off by default: the oracle knows
-        the model, so the feed-forward is exact).
-    action_bound
-        Saturation (default 10 as the envs), with conditional integration as anti-windup.
-    num_envs
-        ``None`` (one plant) or the number of lanes ``B``.
 
     Raises
     ------
@@ -523,26 +470,16 @@ class LQGController(_KnownModelLoop):
         a: ArrayLike,
         b: ArrayLike,
         *,
-        control_cost: float = 1e-2,
+        law: LawOptions | dict | None = None,
+        action_bound: float | None = None,
+        form: str | None = None,
+        num_envs: int | None = None,
+        env: Any = None,
         noise_std: float = 0.05,
         input_noise_std: float = 0.01,
         process_noise_floor: float = 1e-8,
-        integral: bool = False,
-        integral_weight: float = 1e-2,
-        action_bound: float | None = 10.0,
-        form: str = "observer",
-        num_envs: int | None = None,
     ) -> None:
-        super().__init__()
-        num = _check_num_envs(num_envs)
-        a_l, b_l = _lane_parameters(a, b, 1 if num is None else num, batched=num is not None)
-        self.n = a_l.shape[1]
-        self.form = check_form(form)
-        self.integral = bool(integral)
-        self.feedforward = True
-        self.anti_windup = True
-        self.filtered = True
-        self.control_cost = _check_positive(control_cost, "control_cost (rho)")
+        a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
         # its square is the filter's measurement variance: keep that in range too
         self.noise_std = _check_positive(noise_std, "noise_std", limit=math.sqrt(MAX_SETTING))
         self.input_noise_std = _check_nonnegative(input_noise_std, "input_noise_std")
@@ -552,19 +489,15 @@ class LQGController(_KnownModelLoop):
                 f"got {input_noise_std!r}"
             )
         self.process_noise_floor = _check_nonnegative(process_noise_floor, "process_noise_floor")
-        self.integral_weight = (
-            _check_positive(integral_weight, "integral_weight") if self.integral else 0.0
-        )
-        self.action_bound = _check_positive(action_bound, "action_bound", allow_none=True)
         self.R = self.noise_std**2
-        self._weights = np.array([1.0, self.integral_weight, self.control_cost])
-        self._safe = _design.safe_set()
-        self._build(num, a_l, b_l)
+        self._weights = np.array(self.law.lq_weights, dtype=float)
+        self._build(a_l, b_l)
 
     def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
-        m = self.n + int(self.integral)
+        law = self.law
+        m = self.n + int(law.integral)
         Ps = np.zeros((thetas.shape[0], m, m))
-        args = (self._form_code, self.integral, True, self._weights, self._safe)
+        args = (self._form_code, law.integral, law.feedforward, self._weights, _NO_SAFE_SET)
         if thetas.shape[0] == 1:
             work = np.zeros(_design.solve_work_size(self.n))
             status[0] = _design.lq_solve(thetas[0], *args, Ps[0], gains[0], work, 1e-12, 64)
@@ -575,7 +508,8 @@ class LQGController(_KnownModelLoop):
         if status in (_design.UNCONTROLLABLE, _design.NOT_STABILISABLE, _design.NOT_CONVERGED):
             return (
                 f"the plant cannot be stabilised by an LQ design ({_design.STATUS_NAMES[status]}: "
-                "a mode the input cannot reach, e.g. a pole cancelled by a zero)"
+                "a mode the input cannot reach, e.g. a pole cancelled by a zero, or with "
+                "integral action a zero at z = 1)"
             )
         if status == _design.DC_SINGULAR:
             return "the model has a zero (or pole/zero cancellation) at z = 1: no tracking"

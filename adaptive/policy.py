@@ -1,6 +1,6 @@
-"""A minimal policy protocol shared by the classical controllers and the RL agents.
+"""The policy protocol shared by the classical controllers and the RL agents, and its base class.
 
-It is the calling convention of Stable-Baselines3 models,
+The protocol is the calling convention of Stable-Baselines3 models,
 
     action, state = policy.predict(obs, state=None, episode_start=None, deterministic=True)
 
@@ -9,22 +9,45 @@ known-model oracles alike. SB3 models satisfy :class:`Policy` structurally (``is
 through :class:`typing.runtime_checkable`) except for ``reset``; :func:`reset_policy` copes with
 both.
 
-Every controller of stcgym keeps its lanes in arrays itself (one lane record per plant, see
-:mod:`stcgym.envs.compiled`): a single observation of shape ``(obs_dim,)`` gives an action of
-shape ``(1,)``, a batch ``(B, obs_dim)`` gives ``(B, 1)``; ``episode_start`` (a bool or ``B``
-bools, as SB3's ``evaluate_policy`` passes it) resets those lanes first; the recurrent
-``state`` is returned unchanged; every observation is validated before any lane is touched.
-:func:`validate_observation` and :func:`episode_starts` are the shared checks.
+:class:`LanePolicy` writes ``predict`` once for every policy of stcgym. Such a policy keeps one
+lane per plant (``num_envs=None``: one plant; ``num_envs=B``: ``B`` plants, see
+:mod:`stcgym.envs.compiled`):
+
+* ``num_envs=None`` takes one observation of shape ``(obs_dim,)`` and gives an action of shape
+  ``(1,)``; ``num_envs=B`` takes ``(B, obs_dim)`` and gives ``(B, 1)``. Any other shape, a batch
+  given to a single policy included, is a ``ValueError`` naming ``observation`` and the shape
+  expected.
+* ``episode_start`` (a bool or one per lane, as SB3's ``evaluate_policy`` passes it) starts a
+  new episode on those lanes first.
+* The recurrent ``state`` argument is returned unchanged: a policy keeps its own state per lane
+  (the SB3 adapter its LSTM state).
+* Everything is validated before any lane is touched: a rejected call changes nothing.
+
+A subclass sets ``num_envs`` and implements two hooks: :meth:`LanePolicy._act` (the step of
+every lane on a validated ``(lanes, obs_dim)`` batch) and :meth:`LanePolicy._reset_lanes`
+(a new episode on some lanes). :meth:`LanePolicy.reset` validates its ``lanes`` argument and
+calls the latter.
 """
 
 from __future__ import annotations
 
+import math
+import sys
+from abc import ABC, abstractmethod
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Policy", "episode_starts", "reset_policy", "validate_observation"]
+from stcgym.adaptive.recursive import lane_indices
+
+__all__ = [
+    "LanePolicy",
+    "Policy",
+    "episode_starts",
+    "reset_policy",
+    "validate_observation",
+]
 
 
 @runtime_checkable
@@ -64,18 +87,21 @@ def validate_observation(observation: ArrayLike, obs_dim: int) -> tuple[NDArray,
         )
     if not np.all(np.isfinite(obs)):
         raise ValueError(
-            f"observation must be finite, got {obs[0] if single else obs}; the controller state "
-            "was left unchanged"
+            f"observation must be finite, got {obs[0] if single else obs}; the policy was left "
+            "unchanged"
         )
     return obs, single
 
 
 def episode_starts(episode_start: ArrayLike | bool | None, batch: int) -> NDArray:
     """``episode_start`` as ``batch`` bools (one bool is broadcast); ``ValueError`` naming it
-    when its length is neither 1 nor ``batch``."""
+    when it is not boolean (0/1 integers pass) or its length is neither 1 nor ``batch``."""
     if episode_start is None:
         return np.zeros(batch, dtype=bool)
-    starts = np.asarray(episode_start, dtype=bool).reshape(-1)
+    es = np.asarray(episode_start)
+    if es.dtype != bool and not (es.dtype.kind in "iu" and np.all((es == 0) | (es == 1))):
+        raise ValueError(f"episode_start must be booleans, got {episode_start!r}")
+    starts = es.astype(bool).reshape(-1)
     if starts.size == 1:
         return np.full(batch, bool(starts[0]))
     if starts.size != batch:
@@ -84,3 +110,112 @@ def episode_starts(episode_start: ArrayLike | bool | None, batch: int) -> NDArra
             f"got {starts.size}"
         )
     return starts
+
+
+_FLOAT64 = np.dtype(np.float64)
+_FLOAT_MAX = sys.float_info.max
+
+
+class LanePolicy(ABC):
+    """SB3's ``predict`` and ``reset`` for a policy of one plant or of ``num_envs`` plants.
+
+    Subclasses set :attr:`num_envs` and implement :meth:`_act` and :meth:`_reset_lanes`; see the
+    module docstring for the calling convention.
+    """
+
+    #: Length of one observation: the envs observe ``[y(t), r(t)]``.
+    obs_dim: int = 2
+    #: Largest accepted observation magnitude (a policy whose step would overflow sets it).
+    observation_limit: float = math.inf
+    #: ``None`` (one plant) or the number of lanes ``B``.
+    num_envs: int | None = None
+
+    @property
+    def num_lanes(self) -> int:
+        """Lanes held: 1 for a single plant, else ``num_envs``."""
+        return 1 if self.num_envs is None else self.num_envs
+
+    def predict(
+        self,
+        observation: ArrayLike,
+        state: Any = None,
+        episode_start: ArrayLike | bool | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray, Any]:
+        """SB3's calling convention: the actions for ``observation`` (one row per lane).
+
+        Parameters
+        ----------
+        observation
+            ``[y(t), r(t)]``: shape ``(obs_dim,)`` for ``num_envs=None``, ``(num_envs,
+            obs_dim)`` otherwise; finite, magnitude at most :attr:`observation_limit`.
+        state
+            Returned unchanged (the policy keeps its own state per lane).
+        episode_start
+            A bool or one bool per lane: those lanes start a new episode first.
+        deterministic
+            Passed on to the policy's step (the classical controllers ignore it).
+
+        Returns
+        -------
+        actions, state
+            ``(1,)`` for a single plant, ``(num_envs, 1)`` for lanes; ``state`` as given.
+
+        Raises
+        ------
+        ValueError
+            A malformed ``observation`` or ``episode_start``, or a step the policy rejects; the
+            policy is left unchanged.
+        """
+        if (
+            episode_start is None
+            and self.num_envs is None
+            and type(observation) is np.ndarray
+            and observation.dtype is _FLOAT64
+            and observation.shape == (self.obs_dim,)
+        ):
+            # the common single-plant call; a non-finite or too large value (the comparison
+            # fails for nan and inf) takes the validating path below
+            bound = min(self.observation_limit, _FLOAT_MAX)
+            if all([-bound <= v <= bound for v in observation.tolist()]):
+                return self._act(observation[None, :], None, deterministic), state
+        obs, single = self._observations(observation)
+        starts = episode_starts(episode_start, self.num_lanes)
+        actions = self._act(obs, starts if starts.any() else None, deterministic)
+        return (actions.reshape(1) if single else actions.reshape(-1, 1)), state
+
+    def reset(self, lanes: ArrayLike | None = None) -> None:
+        """Start a new episode on every lane, or on ``lanes`` (indices or a boolean mask)."""
+        self._reset_lanes(lane_indices(lanes, self.num_lanes))
+
+    def _observations(self, observation: ArrayLike) -> tuple[NDArray, bool]:
+        """The validated ``(lanes, obs_dim)`` batch and whether a single observation was given."""
+        obs, single = validate_observation(observation, self.obs_dim)
+        if single != (self.num_envs is None) or obs.shape[0] != self.num_lanes:
+            expected = (
+                f"({self.obs_dim},)"
+                if self.num_envs is None
+                else f"({self.num_envs}, {self.obs_dim}), one row per lane"
+            )
+            raise ValueError(
+                f"observation must have shape {expected} for num_envs={self.num_envs}, got "
+                f"shape {np.shape(observation)}"
+            )
+        too_large = np.abs(obs) > self.observation_limit
+        if too_large.any():
+            raise ValueError(
+                f"observation magnitude must be <= {self.observation_limit:g}, got "
+                f"{obs[too_large.any(axis=1)][0]}; the policy was left unchanged"
+            )
+        return obs, single
+
+    @abstractmethod
+    def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
+        """Step every lane: ``obs`` is a validated ``(lanes, obs_dim)`` batch, ``starts`` a
+        boolean mask of the lanes that start an episode first (``None``: none). Returns a new
+        array of one action per lane, shape ``(lanes,)``; a step that fails raises
+        ``ValueError`` and changes nothing."""
+
+    @abstractmethod
+    def _reset_lanes(self, idx: NDArray) -> None:
+        """Start a new episode on the lanes ``idx`` (validated int64 indices)."""

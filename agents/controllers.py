@@ -84,10 +84,10 @@ def _stc_kfmils(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
 
 def _stc_lq(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
     from stcgym.adaptive import LawOptions, SelfTuningController
-    from stcgym.adaptive.kernels.design import DEFAULT_LQ_WEIGHTS
+    from stcgym.adaptive.options import cost_weights
 
     # the LQ weights are the bench's own cost, as LQGController's (q_i keeps the integrator)
-    law = LawOptions(lq_weights=(1.0, DEFAULT_LQ_WEIGHTS[1], float(cfg.control_cost)))
+    law = LawOptions(lq_weights=cost_weights(cfg.control_cost))
 
     def factory(plant: Any, seed: int) -> Any:
         return SelfTuningController(
@@ -110,14 +110,14 @@ def _oracle(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
 
 
 def _lqg(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
-    from stcgym.adaptive import LQGController
+    from stcgym.adaptive import LawOptions, LQGController
+    from stcgym.adaptive.options import cost_weights
 
+    # LQG without integral action: the optimal linear controller for the bench's cost on the
+    # known model (its published figures are of this design)
+    law = LawOptions(integral=False, lq_weights=cost_weights(cfg.control_cost))
     return lambda plant, seed: LQGController(
-        plant.a,
-        plant.b,
-        control_cost=cfg.control_cost,
-        noise_std=cfg.noise_std,
-        action_bound=cfg.action_bound,
+        plant.a, plant.b, law=law, noise_std=cfg.noise_std, action_bound=cfg.action_bound
     )
 
 

@@ -172,7 +172,7 @@ def test_sb3_adapter_batch_lanes_are_independent():
     cfg = WindowConfig(window=3)
     rng = np.random.default_rng(0)
     obs = rng.normal(size=(5, 2, 2))
-    batch = SB3Policy(FakeModel(), cfg, 10.0)
+    batch = SB3Policy(FakeModel(), cfg, 10.0, num_envs=2)
     singles = [SB3Policy(FakeModel(), cfg, 10.0) for _ in range(2)]
     for k in range(5):
         ub, _ = batch.predict(obs[k], episode_start=np.array([k == 0, k in (0, 3)]))

@@ -14,12 +14,16 @@ import pytest
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.controller import SelfTuningController
+from stcgym.adaptive.options import LawOptions
 from stcgym.adaptive.oracles import KnownModelController, LQGController
 from stcgym.adaptive.rollout import rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import companion_A
 
 A_S2, B_S2 = (-1.5, 0.7), (1.0, 0.5)  # stable2
+
+#: LQG without integral action: the optimal linear controller for the env's cost
+NO_INTEGRAL = LawOptions(integral=False)
 
 
 def _env(plant: str = "stable2", steps: int = 400, **kw: object) -> gym.Env:
@@ -201,7 +205,7 @@ def _lqg_window_costs(
     A, bv = companion_A(np.array(a)), np.array(b)
     out = np.zeros((z.shape[0], T // 100))
     for i in range(z.shape[0]):
-        lqg = KnownModelController(a, b) if known_model else LQGController(a, b, noise_std=0.05)
+        lqg = KnownModelController(a, b) if known_model else LQGController(a, b, law=NO_INTEGRAL)
         x, y = np.zeros(2), 0.05 * z[i, 0]
         for k in range(T):
             u = float(np.clip(lqg.predict(np.array([y, ref[k]]))[0][0], -10, 10))
@@ -461,6 +465,16 @@ def test_bad_construction(kwargs: dict, match: str) -> None:
         SelfTuningController(2, **kwargs)
 
 
+def test_zero_integrator_weight_with_integral_action_is_rejected() -> None:
+    # with q_i = 0 the LQ design gives the integrator no gain (k_i = 0): no offset-free tracking
+    with pytest.raises(ValueError, match=r"lq_weights\[1\] \(q_i\) must be > 0 with integral"):
+        LawOptions(lq_weights=(1.0, 0.0, 0.01))
+    with pytest.raises(ValueError, match="q_i"):
+        SelfTuningController(2, design="lq", law={"lq_weights": (1.0, 0.0, 0.01)})
+    ctl = SelfTuningController(2, design="lq", law={"integral": False, "lq_weights": (1, 0, 0.01)})
+    assert ctl.K.shape == (2,)
+
+
 def test_env_mismatch_is_rejected() -> None:
     with pytest.raises(ValueError, match="plant order"):
         SelfTuningController(3, env=_env())
@@ -504,7 +518,7 @@ def test_oracles_track_without_offset_and_lqg_is_cheaper() -> None:
     costs = {}
     for name, pol in (
         ("pp", KnownModelController(A_S2, B_S2, action_bound=10.0)),
-        ("lqg", LQGController(A_S2, B_S2, control_cost=0.01, action_bound=10.0)),
+        ("lqg", LQGController(A_S2, B_S2, law=NO_INTEGRAL, action_bound=10.0)),
     ):
         res = _episode(pol, env, 0)
         assert res["bounded"]

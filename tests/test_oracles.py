@@ -8,11 +8,15 @@ import copy
 import pickle
 
 import control
+import gymnasium as gym
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import stcgym.envs  # noqa: F401  (registers the envs)
+from stcgym.adaptive.controller import SelfTuningController
+from stcgym.adaptive.options import DEFAULT_ACTION_BOUND, LawOptions
 from stcgym.adaptive.oracles import KalmanObserver, KnownModelController, LQGController
 from stcgym.adaptive.policy import Policy
 from stcgym.envs.canonical import companion_A, observer_to_observability_b
@@ -68,8 +72,9 @@ def test_known_model_controller_matches_numpy_loop(
     if form == "observability":  # the same plant: b as Markov parameters
         b = tuple(observer_to_observability_b(a, b))
     orc = KnownModelController(
-        a, b, poles=[0.3, 0.5, 0.6], action_bound=2.0, form=form, filtered=filtered
-    )
+        a, b, poles=[0.3, 0.5, 0.6], action_bound=2.0, form=form,
+        law=LawOptions(filtered=filtered),
+    )  # fmt: skip
     A, bv = companion_A(np.array(a), form), np.array(b)
     Aa = np.block([[A, np.zeros((2, 1))], [np.array([[-1.0, 0.0, 1.0]])]])
     K = np.ravel(control.acker(Aa, np.r_[bv, 0.0][:, None], [0.3, 0.5, 0.6]))
@@ -89,10 +94,8 @@ def test_known_model_controller_matches_numpy_loop(
 @pytest.mark.parametrize("integral", [False, True])
 def test_lqg_controller_matches_dlqr_dlqe_loop(integral: bool) -> None:
     rho, noise, w_in, floor, q_i = 0.02, 0.05, 0.01, 1e-8, 0.03
-    orc = LQGController(
-        A_U2, B_U2, control_cost=rho, noise_std=noise, integral=integral, integral_weight=q_i,
-        action_bound=3.0,
-    )  # fmt: skip
+    law = LawOptions(integral=integral, lq_weights=(1.0, q_i, rho))
+    orc = LQGController(A_U2, B_U2, law=law, noise_std=noise, action_bound=3.0)
     A, b = companion_A(np.array(A_U2)), np.array(B_U2)
     if integral:
         Aa = np.block([[A, np.zeros((2, 1))], [np.array([[-1.0, 0.0, 1.0]])]])
@@ -147,15 +150,14 @@ def test_batched_lanes_equal_single_plants(cls: type) -> None:
     np.testing.assert_array_equal(batch.K, np.stack([s.K for s in singles]))
 
 
-def test_single_oracle_serves_a_batch_of_observations_with_fresh_copies() -> None:
-    orc = KnownModelController(A_S2, B_S2)
-    orc.predict(np.array([0.3, 1.0]))  # the single plant's own state must not leak into rows
-    obs = _observations(50, 4, lanes=3)
-    fresh = [KnownModelController(A_S2, B_S2) for _ in range(3)]
-    for o in obs:
-        u = orc.predict(o)[0]
-        ref = [f.predict(o[i])[0][0] for i, f in enumerate(fresh)]
-        np.testing.assert_array_equal(u[:, 0], ref)
+@pytest.mark.parametrize("cls", [KnownModelController, LQGController])
+def test_single_oracle_rejects_a_batch_of_observations(cls: type) -> None:
+    orc = cls(A_S2, B_S2)
+    orc.predict(np.array([0.3, 1.0]))
+    before = _state(orc)
+    with pytest.raises(ValueError, match=r"observation must have shape \(2,\) for num_envs=None"):
+        orc.predict(_observations(1, 4, lanes=3)[0])
+    assert _state(orc) == before
     assert orc.t == 1
 
 
@@ -189,14 +191,58 @@ def test_lqg_set_model_redesigns_filter_and_gain() -> None:
     )
 
 
+@pytest.mark.parametrize("restart", ["reset", "episode_start"])
+def test_lqg_reset_after_set_model_restores_the_initial_filter(restart: str) -> None:
+    # set_model writes the new model's process noise Q (input noise along the new b); a new
+    # episode restores the initial model, so it must restore the initial Q with it
+    orc = LQGController([A_S2, A_S2], [B_S2, B_S2], num_envs=2)
+    fresh = LQGController(A_S2, B_S2)
+    obs = _observations(40, 8, lanes=2)
+    orc.predict(obs[0])
+    orc.set_model(A_U2, B_U2, lanes=[1])
+    if restart == "reset":
+        orc.reset(lanes=[1])
+        starts = [False, False]
+    else:
+        starts = [False, True]
+    got = [orc.predict(o, episode_start=starts if k == 0 else None)[0][1, 0]
+           for k, o in enumerate(obs)]  # fmt: skip
+    np.testing.assert_array_equal(got, [fresh.predict(o[1])[0][0] for o in obs])
+    np.testing.assert_array_equal(orc.a[1], A_S2)
+
+
+def test_oracles_share_the_controllers_settings_and_defaults() -> None:
+    env = gym.make("stcgym/ObservabilityCanonical-v0", plant="stable2", action_bound=4.0)
+    a, b = env.unwrapped.a, env.unwrapped.b
+    ctl = SelfTuningController(2, env=env)
+    for orc in (KnownModelController(a, b, env=env), LQGController(a, b, env=env)):
+        assert orc.law == ctl.law == LawOptions()
+        assert orc.action_bound == ctl.action_bound == 4.0
+        assert orc.form == ctl.form == "observability"
+        assert orc.K.shape == (3,)  # integral action on, as the controller's
+    np.testing.assert_array_equal(KnownModelController(a, b, env=env).poles, ctl.poles)
+    plain = (KnownModelController(A_S2, B_S2), LQGController(A_S2, B_S2), SelfTuningController(2))
+    assert {p.action_bound for p in plain} == {DEFAULT_ACTION_BOUND}
+    assert {p.form for p in plain} == {"observer"}
+    with pytest.raises(ValueError, match="exceeds the env's action_bound"):
+        KnownModelController(a, b, env=env, action_bound=5.0)
+    venv = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, plant="stable2")
+    with pytest.raises(ValueError, match="num_envs"):
+        LQGController([A_S2, A_S2], [B_S2, B_S2], num_envs=2, env=venv)
+    venv.close()
+    with pytest.raises(ValueError, match="plant order"):
+        KnownModelController([-0.5], [1.0], env=env)
+    env.close()
+
+
 # ------------------------------------------------------------------------------ lifecycle
 @pytest.mark.parametrize(
     "make",
     [
         lambda: KnownModelController(A_S2, B_S2),
-        lambda: LQGController(A_U2, B_U2, integral=True),
+        lambda: LQGController(A_U2, B_U2),
         lambda: KnownModelController([A_S2, A_U2], [B_S2, B_U2], num_envs=2),
-        lambda: LQGController([A_S2, A_U2], [B_S2, B_U2], num_envs=2),
+        lambda: LQGController([A_S2, A_U2], [B_S2, B_U2], num_envs=2, law={"integral": False}),
     ],
 )
 @pytest.mark.parametrize("clone", [pickle.loads, copy.deepcopy])
@@ -215,7 +261,7 @@ def test_pickle_and_deepcopy_continue_identically(make, clone) -> None:
 
 
 def _state(orc) -> bytes:
-    return pickle.dumps((orc._F, orc._rows, orc._a, orc._b))
+    return pickle.dumps((orc._F, orc._a, orc._b))
 
 
 @pytest.mark.parametrize(
@@ -274,7 +320,7 @@ def test_batched_bad_input_names_the_argument() -> None:
         orc.set_model(A_S2, B_S2, lanes=[-1])
     assert _state(orc) == before
     with pytest.raises(ValueError, match="lanes"):
-        KnownModelController(A_S2, B_S2).reset(lanes=[0])
+        KnownModelController(A_S2, B_S2).reset(lanes=[1])
 
 
 @pytest.mark.parametrize(
@@ -290,10 +336,12 @@ def test_batched_bad_input_names_the_argument() -> None:
         (KnownModelController, {"num_envs": 0}, "num_envs"),
         (KnownModelController, {"num_envs": 1.5}, "num_envs"),
         (KnownModelController, {"num_envs": True}, "num_envs"),
-        (LQGController, {"control_cost": 0.0}, "control_cost"),
+        (LQGController, {"law": {"lq_weights": (1.0, 1e-4, 0.0)}}, "rho"),
         (LQGController, {"noise_std": -0.1}, "noise_std"),
         (LQGController, {"input_noise_std": np.nan}, "input_noise_std"),
-        (LQGController, {"integral": True, "integral_weight": 0.0}, "integral_weight"),
+        (LQGController, {"law": {"lq_weights": (1.0, 0.0, 0.01)}}, "q_i"),
+        (KnownModelController, {"law": {"integral": 1}}, "integral"),
+        (KnownModelController, {"law": "pid"}, "law"),
         (LQGController, {"action_bound": 0.0}, "action_bound"),
     ],
 )
@@ -331,9 +379,8 @@ def test_bad_parameters() -> None:
             "P0",
             "measurement_noise",
             "process_noise",
-            "control_cost",
+            "law",
             "noise_std",
-            "integral_weight",
             "num_envs",
             "a",
             "b",
@@ -342,9 +389,8 @@ def test_bad_parameters() -> None:
 )
 def test_malformed_settings_raise_value_error_or_work(value, key: str) -> None:
     """Property: a malformed setting is a ValueError naming it, or a working oracle."""
-    lqg_keys = {"control_cost", "noise_std", "integral_weight"}
-    cls = LQGController if key in lqg_keys else KnownModelController
-    kwargs = {"integral": True} if key == "integral_weight" else {}
+    cls = LQGController if key in ("law", "noise_std") else KnownModelController
+    kwargs: dict = {}
     args = {"a": A_S2, "b": B_S2}
     if key in args:
         args[key] = value

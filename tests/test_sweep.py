@@ -15,7 +15,8 @@ import pytest
 
 import stcgym.agents.sweeps.chunk as chunk
 import stcgym.envs  # noqa: F401
-from stcgym.adaptive import KnownModelController, LQGController
+from stcgym.adaptive import KnownModelController, LawOptions, LQGController
+from stcgym.adaptive.options import cost_weights
 from stcgym.agents.sweeps import SweepConfig, SweepError, run_sweep
 from stcgym.agents.sweeps.chunk import closed_loop
 from stcgym.agents.sweeps.cli import main, parse_controller
@@ -177,9 +178,8 @@ def test_closed_loop_lanes_equal_single_episodes_run_by_hand(kind, change):
         if kind == "oracle":
             ctl = KnownModelController(p.a, p.b, action_bound=fam["action_bound"])
         else:
-            ctl = LQGController(
-                p.a, p.b, control_cost=fam["control_cost"], noise_std=fam["noise_std"]
-            )
+            law = LawOptions(integral=False, lq_weights=cost_weights(fam["control_cost"]))
+            ctl = LQGController(p.a, p.b, law=law, noise_std=fam["noise_std"])
         obs, info = env.reset(seed=seed)
         cost, diverged = [], False
         for k in range(T):

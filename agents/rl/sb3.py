@@ -26,8 +26,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
+from stcgym.adaptive.kernels.estimator import check_int
+from stcgym.adaptive.policy import LanePolicy
 from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
@@ -44,76 +46,65 @@ __all__ = [
 ]
 
 
-class SB3Policy:
+class SB3Policy(LanePolicy):
     """An SB3 model behind the shared policy protocol, fed with raw ``[y, r]`` observations.
 
-    The model was trained on :class:`~stcgym.agents.wrappers.HistoryWindow` features; this
+    The model was trained on :class:`~stcgym.agents.rl.wrappers.HistoryWindow` features; this
     adapter rebuilds them itself from the raw observations it is given and the actions it
-    returned (a :class:`~stcgym.agents.wrappers.HistoryBuffer` per batch lane), and rescales the
-    model's ``[-1, 1]`` action to ``[-action_bound, action_bound]``. ``episode_start`` (or
-    :meth:`reset`) starts a new window.
+    returned (a :class:`~stcgym.agents.rl.wrappers.HistoryBuffer` with one window per lane), and
+    rescales the model's ``[-1, 1]`` action to ``[-action_bound, action_bound]``.
+    ``episode_start`` (or :meth:`reset`) starts a new window on those lanes, and a new LSTM
+    state for a recurrent model (sb3-contrib ``RecurrentPPO``), which the adapter carries from
+    call to call. ``predict`` is :class:`~stcgym.adaptive.policy.LanePolicy`'s.
 
     Parameters
     ----------
     model
         A trained SB3 model (``predict`` on the window features).
     window
-        The :class:`~stcgym.agents.wrappers.WindowConfig` the model was trained with.
+        The :class:`~stcgym.agents.rl.wrappers.WindowConfig` the model was trained with.
     action_bound
         The environment's action bound.
+    num_envs
+        ``None`` for one env (``predict`` on ``(2,)`` gives ``(1,)``), or ``B`` lanes
+        (``predict`` on ``(B, 2)`` gives ``(B, 1)``).
     """
 
-    def __init__(self, model: Any, window: WindowConfig, action_bound: float) -> None:
+    def __init__(
+        self, model: Any, window: WindowConfig, action_bound: float, num_envs: int | None = None
+    ) -> None:
         self.model, self.window, self.action_bound = model, window, float(action_bound)
-        self._buf: HistoryBuffer | None = None
-        # A recurrent model (sb3-contrib RecurrentPPO) carries its LSTM state from call to call.
+        self.num_envs = None if num_envs is None else check_int(num_envs, "num_envs", 1)
         self.recurrent = type(model).__name__ == "RecurrentPPO"
+        self._buf = HistoryBuffer(window, self.action_bound, self.num_lanes)
         self._lstm: Any = None
+        # lanes whose next observation starts an episode (every lane before the first call)
+        self._fresh = np.ones(self.num_lanes, dtype=bool)
 
-    def reset(self) -> None:
-        """Forget the window and the recurrent state (the next observation starts an episode)."""
-        self._buf = None
-        self._lstm = None
+    def _reset_lanes(self, idx: NDArray) -> None:
+        """The next observation of the lanes ``idx`` starts a new window and LSTM state."""
+        self._fresh[idx] = True
 
-    def predict(
-        self,
-        observation: ArrayLike,
-        state: Any = None,
-        episode_start: ArrayLike | bool | None = None,
-        deterministic: bool = True,
-    ) -> tuple[NDArray, Any]:
-        """SB3-style step on ``[y, r]`` (shape ``(2,)``) or a batch ``(B, 2)``."""
-        obs = np.asarray(observation, dtype=float)
-        single = obs.ndim == 1
-        obs = obs.reshape(-1, 2)
-        batch = obs.shape[0]
-        if not np.all(np.isfinite(obs)):
-            raise ValueError(f"observation must be finite, got {observation!r}")
-        starts = (
-            np.zeros(batch, bool)
-            if episode_start is None
-            else np.broadcast_to(np.asarray(episode_start, bool).reshape(-1), (batch,))
-        )
-        if self._buf is None or self._buf.batch != batch:
-            self._buf = HistoryBuffer(self.window, self.action_bound, batch)
-            starts = np.ones(batch, bool)
-            self._lstm = None
+    def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
+        starts = self._fresh.copy() if starts is None else starts | self._fresh
         if np.any(starts):
             self._buf.start(obs, starts)
         if not np.all(starts):
             self._buf.push_obs(obs, ~starts)
+        self._fresh[:] = False
         if self.recurrent:
             a, self._lstm = self.model.predict(
                 self._buf.features(),
                 state=self._lstm,
-                episode_start=starts.copy(),
+                episode_start=starts,
                 deterministic=deterministic,
             )
         else:
             a, _ = self.model.predict(self._buf.features(), deterministic=deterministic)
-        u = np.clip(np.asarray(a, dtype=float).reshape(batch), -1.0, 1.0) * self.action_bound
+        u = np.clip(np.asarray(a, dtype=float).reshape(self.num_lanes), -1.0, 1.0)
+        u *= self.action_bound
         self._buf.push_action(u)
-        return (u.reshape(1) if single else u.reshape(batch, 1)), state
+        return u
 
 
 @dataclass

@@ -37,7 +37,13 @@ def make_controller(
 ) -> Any:
     """The batched controller of ``kw`` for the lanes ``plants`` (the oracles get each lane's
     true parameters); ``batched=False``: one controller on ``plants[0]``, to check keywords."""
-    from stcgym.adaptive import KnownModelController, LQGController, SelfTuningController
+    from stcgym.adaptive import (
+        KnownModelController,
+        LawOptions,
+        LQGController,
+        SelfTuningController,
+    )
+    from stcgym.adaptive.options import cost_weights
 
     opts = {k: v for k, v in kw.items() if k != "kind"}
     opts.setdefault("action_bound", family["action_bound"])
@@ -48,7 +54,12 @@ def make_controller(
     b = np.array([p.b for p in plants]) if batched else plants[0].b
     if kw["kind"] == "oracle":
         return KnownModelController(a, b, **lanes, **opts)
-    opts.setdefault("control_cost", family["control_cost"] or 1e-6)
+    # as in stcgym bench: no integral action, the family's cost as the LQ weights
+    if not isinstance(opts.get("law"), LawOptions):
+        law = dict(opts.get("law") or {})
+        law.setdefault("integral", False)
+        law.setdefault("lq_weights", cost_weights(family["control_cost"] or 1e-6))
+        opts["law"] = law
     if family["noise_std"] <= 0 and "noise_std" not in opts:
         raise ValueError("the lqg oracle needs noise_std > 0 in the family (its Kalman filter)")
     opts.setdefault("noise_std", family["noise_std"])

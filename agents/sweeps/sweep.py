@@ -22,10 +22,11 @@ Controllers
 as keywords), ``oracle`` (:class:`~stcgym.adaptive.KnownModelController`: the regulator's
 design on the true parameters, told the new ones at a jump and, under drift, every step) or
 ``lqg`` (:class:`~stcgym.adaptive.LQGController` for the family's cost on the true *initial*
-parameters, as in ``stcgym bench``). ``action_bound`` defaults to the family's, LQG's
-``control_cost``/``noise_std`` to the family's. A controller named ``oracle`` (kind oracle,
-defaults) is always run: the ratios are to it. Every controller is built once on plant 0 before
-any work starts, so bad keywords fail at once.
+parameters, as in ``stcgym bench``). ``action_bound`` defaults to the family's; LQG's
+``noise_std`` to the family's and its ``law`` to no integral action with the family's cost as
+LQ weights (``law.integral``, ``law.lq_weights`` override them). A controller named
+``oracle`` (kind oracle, defaults) is always run: the ratios are to it. Every controller is
+built once on plant 0 before any work starts, so bad keywords fail at once.
 
 Tasks and lanes
 ---------------
