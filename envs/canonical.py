@@ -20,29 +20,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.envs.validation import finite_vector as as_finite_vector
+
 Form = Literal["observer", "observability"]
 FORMS: tuple[str, ...] = ("observer", "observability")
-
-
-def as_finite_vector(value: ArrayLike, name: str, *, length: int | None = None) -> NDArray:
-    """Return ``value`` as a 1-D float array, or raise naming ``name`` and the expected form."""
-    try:
-        raw = np.asarray(value)
-        if raw.dtype.kind in "cUSV" or np.iscomplexobj(raw):  # no silent loss of an imaginary part
-            raise TypeError
-        arr = np.asarray(raw, dtype=float)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f"{name} must be a sequence of real numbers, got {value!r}") from exc
-    arr = np.atleast_1d(arr)
-    if arr.ndim != 1:
-        raise ValueError(f"{name} must be one-dimensional, got shape {arr.shape}")
-    if arr.size == 0:
-        raise ValueError(f"{name} must not be empty")
-    if length is not None and arr.size != length:
-        raise ValueError(f"{name} must have length {length}, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {arr}")
-    return arr
 
 
 def check_form(form: str) -> str:

@@ -37,13 +37,10 @@ Pieces (lane functions; arrays are float64 and C-contiguous, modified in place w
 
 ``clip_input(u_raw, bound) -> (u, clipped)`` / ``clip_action(u_raw, bound, u) -> clipped``
     ``u = clip(u_raw, -bound, bound)`` for one value / element by element.
-``canonical_transition(x, a, b, u, form)``
-    ``x <- A(a) x + b u`` in place (``u`` a float; ``form`` 0 observer, 1 observability).
 ``shift_transition(x, a, a0, b, b0, u, form)``
-    The same with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` read in place (no array views: e.g.
+    ``x <- A(a) x + b u`` in place with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` read in place
+    (``u`` a float; ``form`` 0 observer, 1 observability; no array views: e.g.
     ``shift_transition(x, theta, 0, theta, n, u, form)`` for ``theta = [a; b]``).
-``canonical_step(x, a, b, u, w, form)``
-    ``x <- A(a) x + b u + w`` in place (``w`` the scaled process noise, length ``n``).
 ``canonical_output(x) -> float``
     ``y_clean = c x = x[0]`` (``D = 0`` in both canonical forms).
 ``add_noise(x, sigma, z)``
@@ -117,8 +114,7 @@ __all__ = [
     "FORM_CODES",
     "REWARD_FLOOR",
     "clip_action",
-    "canonical_transition",
-    "canonical_step",
+    "shift_transition",
     "canonical_output",
     "add_noise",
     "state_space_transition",
@@ -222,25 +218,11 @@ def shift_transition(x, a, a0, b, b0, u, form):
 
 
 @lane
-def canonical_transition(x, a, b, u, form):
-    """``x <- A(a) x + b u`` in place; ``form`` 0: observer (eq. (1)), 1: observability (146)."""
-    shift_transition(x, a, 0, b, 0, u, form)
-
-
-@lane
 def add_noise(x, sigma, z):
     """``x <- x + sigma z`` in place (untouched when ``sigma == 0``)."""
     if sigma != 0.0:
         for i in range(x.shape[0]):
             x[i] += sigma * z[i]
-
-
-@lane
-def canonical_step(x, a, b, u, w, form):
-    """``x <- A(a) x + b u + w`` in place (``w``: process noise already scaled, length ``n``)."""
-    shift_transition(x, a, 0, b, 0, u, form)
-    for i in range(x.shape[0]):
-        x[i] += w[i]
 
 
 @lane
