@@ -66,7 +66,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import finite_array
+from stcgym.envs.validation import finite_array, integer, matrix
 
 __all__ = [
     "AffineStateSpace",
@@ -90,19 +90,6 @@ class NotLinearInParameters(ValueError):
 # --------------------------------------------------------------------------------------------
 # Validation
 # --------------------------------------------------------------------------------------------
-
-
-def _matrix(value: ArrayLike, name: str, rows: int | None, cols: int | None) -> NDArray:
-    arr = finite_array(value, name)
-    if arr.ndim == 1 and cols == 1 and rows in (None, arr.size):
-        arr = arr.reshape(-1, 1)  # a column given as a flat vector
-    if arr.ndim != 2 or (rows is not None and arr.shape[0] != rows):
-        raise ValueError(
-            f"{name} must be a matrix with {rows or 'any number of'} rows, got shape {arr.shape}"
-        )
-    if cols is not None and arr.shape[1] != cols:
-        raise ValueError(f"{name} must have {cols} columns, got shape {arr.shape}")
-    return arr
 
 
 def _terms(value: ArrayLike | None, name: str, shape: tuple[int, int]) -> NDArray | None:
@@ -355,14 +342,14 @@ class AffineStateSpace:
         *,
         names: Sequence[str] | None = None,
     ) -> None:
-        self.Phi0 = _matrix(Phi0, "Phi0", None, None)
+        self.Phi0 = matrix(Phi0, "Phi0", (None, None))
         n = self.Phi0.shape[0]
         if self.Phi0.shape != (n, n):
             raise ValueError(f"Phi0 must be square (n x n), got shape {self.Phi0.shape}")
         G0 = finite_array(Gamma0, "Gamma0")
-        self.Gamma0 = _matrix(G0.reshape(-1, 1) if G0.ndim == 1 else G0, "Gamma0", n, None)
+        self.Gamma0 = matrix(G0.reshape(-1, 1) if G0.ndim == 1 else G0, "Gamma0", (n, None))
         H_arr = finite_array(H, "H")
-        self.H = _matrix(H_arr.reshape(1, -1) if H_arr.ndim == 1 else H_arr, "H", None, n)
+        self.H = matrix(H_arr.reshape(1, -1) if H_arr.ndim == 1 else H_arr, "H", (None, n))
         m = self.Gamma0.shape[1]
         dPhi = _terms(Phi_terms, "Phi_terms", (n, n))
         dGamma = _terms(Gamma_terms, "Gamma_terms", (n, m))
@@ -411,9 +398,7 @@ class AffineStateSpace:
         affine at a few random ``theta`` (and on every pair ``e_i + e_j``), and a
         :class:`NotLinearInParameters` naming ``Phi`` or ``Gamma`` is raised when it is not.
         """
-        q = int(num_params)
-        if q != num_params or q < 1:
-            raise ValueError(f"num_params must be a positive integer, got {num_params!r}")
+        q = integer(num_params, "num_params")
 
         def sample(fn: Callable | ArrayLike, name: str, theta: NDArray) -> NDArray:
             value = fn(theta.copy()) if callable(fn) else fn

@@ -132,9 +132,10 @@ def matrix(value: ArrayLike, name: str, shape: tuple[int | None, int | None]) ->
         arr = arr.reshape(-1, 1)
     if arr.ndim != 2:
         raise ValueError(f"{name} must be a 2-D matrix, got shape {arr.shape}")
+    expected = "(" + ", ".join("any" if w is None else str(w) for w in shape) + ")"
     for got, want, what in zip(arr.shape, shape, ("rows", "columns"), strict=True):
         if want is not None and got != want:
-            raise ValueError(f"{name} must have {want} {what} (shape {shape}), got {arr.shape}")
+            raise ValueError(f"{name} must have {want} {what} (shape {expected}), got {arr.shape}")
         if want is None and got == 0:
             raise ValueError(f"{name} must have at least one of its {what}, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
