@@ -103,7 +103,13 @@ from stcgym.adaptive.kernels.estimator import (
     parse_name,
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable as _schur_lane
-from stcgym.envs.validation import finite_vector, lane_indices, lane_vector, real_number
+from stcgym.envs.validation import (
+    finite_vector,
+    integer,
+    lane_indices,
+    lane_vector,
+    real_number,
+)
 
 __all__ = [
     "ALGORITHMS",
@@ -776,13 +782,7 @@ def make_estimator(
     theta0, P0 = options.get("theta0"), options.get("P0")
     lane_theta0 = lane_P0 = None
     if num_envs is not None:
-        if (
-            isinstance(num_envs, bool)
-            or not isinstance(num_envs, (int, np.integer))
-            or (num_envs < 1)
-        ):
-            raise ValueError(f"num_envs must be a positive integer or None, got {num_envs!r}")
-        B = int(num_envs)
+        B = num_envs = integer(num_envs, "num_envs")
         d = 2 * int(n) if isinstance(n, (int, np.integer)) else 0
         if theta0 is not None and np.ndim(theta0) == 2:
             lane_theta0 = np.array(theta0, dtype=float)
@@ -800,12 +800,7 @@ def make_estimator(
         n_ = spec.n
         if np.any(lane_P0[:, :n_, n_:] != 0.0) or np.any(lane_P0[:, n_:, :n_] != 0.0):
             raise ValueError("per-lane P0 must be block-diagonal diag(P_a, P_b) for D- rules")
-    return RecursiveEstimator(
-        spec,
-        None if num_envs is None else int(num_envs),
-        lane_theta0=lane_theta0,
-        lane_P0=lane_P0,
-    )
+    return RecursiveEstimator(spec, num_envs, lane_theta0=lane_theta0, lane_P0=lane_P0)
 
 
 # One source of truth for the keywords: make_estimator takes EstimatorSpec.build's (which

@@ -366,7 +366,7 @@ def test_batched_bad_input_names_the_argument():
         est.enabled = [True, False]
     with pytest.raises(ValueError, match="per-lane theta0"):
         make_estimator("O-RLS", 2, num_envs=4, theta0=np.zeros((3, 4)))
-    with pytest.raises(ValueError, match="num_envs must be a positive integer"):
+    with pytest.raises(ValueError, match="num_envs must be an integer >= 1"):
         make_estimator("O-RLS", 2, num_envs=0)
     est.predict(np.zeros(4))
     est.reset(lanes=np.array([True, False, True, False]))
