@@ -42,7 +42,7 @@ from stcgym.adaptive import flops as _flops
 from stcgym.adaptive.kernels.state_estimation import state_trajectory
 from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.canonical import check_form, companion_A
-from stcgym.envs.validation import finite_vector, integer, non_negative, positive
+from stcgym.envs.validation import integer, non_negative, positive, vector_pair
 
 __all__ = ["ITERATIVE_NAMES", "IterativeResult", "NumericalHealthError", "fit_iterative"]
 
@@ -315,11 +315,8 @@ def fit_iterative(
     canonical = rule if state_est is None else f"{state_est}-{rule}"
     form = check_form(form)
     n = integer(n, "n")
-    u_arr = finite_vector(u, "u")
-    y_arr = finite_vector(y, "y")
+    u_arr, y_arr = vector_pair(u, y, ("u", "y"), " L")
     L = u_arr.size
-    if y_arr.size != L:
-        raise ValueError(f"u and y must have the same length L, got {L} and {y_arr.size}")
     if L <= 2 * n:
         raise ValueError(f"need L > 2n = {2 * n} samples for 2n = {2 * n} parameters, got L={L}")
     iterations = integer(iterations, "iterations")

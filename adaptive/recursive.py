@@ -109,6 +109,7 @@ from stcgym.envs.validation import (
     lane_indices,
     lane_vector,
     real_number,
+    vector_pair,
 )
 
 __all__ = [
@@ -415,13 +416,7 @@ class RecursiveEstimator:
         """
         if self.num_envs is not None or callable(self.spec.observer_gain):
             return self._run_steps(u, y)
-        u_arr = finite_vector(u, "u")
-        y_arr = finite_vector(y, "y")
-        if u_arr.size != y_arr.size:
-            raise ValueError(
-                f"u and y must have the same length (u[k], y[k] = u(t), y(t), t = k + 1), "
-                f"got len(u)={u_arr.size}, len(y)={y_arr.size}"
-            )
+        u_arr, y_arr = vector_pair(u, y, ("u", "y"), " (u[k], y[k] = u(t), y(t), t = k + 1)")
         if self._rec[0, self.spec.offset("phase")] != 0.0:
             raise RuntimeError(f"{self.name}: run() called between update() and predict()")
         T = u_arr.size

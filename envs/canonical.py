@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.envs.validation import finite_vector as as_finite_vector
+from stcgym.envs.validation import vector_pair
 
 Form = Literal["observer", "observability"]
 FORMS: tuple[str, ...] = ("observer", "observability")
@@ -45,14 +46,7 @@ def split_theta(theta: ArrayLike) -> tuple[NDArray, NDArray]:
 
 def check_ab(a: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
     """Validate the parameter pair ``(a, b)``: finite, non-empty, equal lengths ``n``."""
-    a_arr = as_finite_vector(a, "a")
-    b_arr = as_finite_vector(b, "b")
-    if a_arr.size != b_arr.size:
-        raise ValueError(
-            f"a and b must have the same length n (theta = [a1..an, b1..bn]), "
-            f"got len(a)={a_arr.size}, len(b)={b_arr.size}"
-        )
-    return a_arr, b_arr
+    return vector_pair(a, b, ("a", "b"), " n (theta = [a1..an, b1..bn])")
 
 
 def companion_A(a: NDArray, form: str = "observer") -> NDArray:

@@ -62,6 +62,14 @@ NEVER = int(np.iinfo(np.int64).max)
 _LANE0 = np.zeros(1, dtype=np.int64)
 
 
+def _repr(obj: object) -> str:
+    """``Class(field=value, ...)`` of the public settings (not the per-lane state)."""
+    fields = ", ".join(
+        f"{k}={v!r}" for k, v in vars(obj).items() if not k.startswith("_") and k != "num_lanes"
+    )
+    return f"{type(obj).__name__}({fields})"
+
+
 def _lanes(lanes: ArrayLike | None, num_lanes: int) -> NDArray[np.int64]:
     return np.arange(num_lanes) if lanes is None else np.asarray(lanes, dtype=np.int64)
 
@@ -104,12 +112,7 @@ class Reference:
         return float(self.values(np.array([k], dtype=np.int64), _LANE0)[0])
 
     def __repr__(self) -> str:
-        fields = ", ".join(
-            f"{k}={v!r}"
-            for k, v in vars(self).items()
-            if not k.startswith("_") and k != "num_lanes"
-        )
-        return f"{type(self).__name__}({fields})"
+        return _repr(self)
 
 
 class SquareWave(Reference):
@@ -408,12 +411,7 @@ class Schedule:
         return self.values(np.array([k], dtype=np.int64), _LANE0)[0]
 
     def __repr__(self) -> str:
-        fields = ", ".join(
-            f"{k}={v!r}"
-            for k, v in vars(self).items()
-            if not k.startswith("_") and k != "num_lanes"
-        )
-        return f"{type(self).__name__}({fields})"
+        return _repr(self)
 
 
 class Constant(Schedule):

@@ -28,6 +28,7 @@ __all__ = [
     "real_array",
     "finite_array",
     "finite_vector",
+    "vector_pair",
     "matrix",
     "square_matrix",
     "lane_indices",
@@ -120,6 +121,20 @@ def finite_vector(value: ArrayLike, name: str, *, length: int | None = None) -> 
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite, got {arr}")
     return arr
+
+
+def vector_pair(
+    first: ArrayLike, second: ArrayLike, names: tuple[str, str], meaning: str = ""
+) -> tuple[NDArray, NDArray]:
+    """Two :func:`finite_vector` s of the same length (``meaning`` says what pairs them)."""
+    x = finite_vector(first, names[0])
+    y = finite_vector(second, names[1])
+    if x.size != y.size:
+        raise ValueError(
+            f"{names[0]} and {names[1]} must have the same length{meaning}, got "
+            f"len({names[0]})={x.size}, len({names[1]})={y.size}"
+        )
+    return x, y
 
 
 def matrix(value: ArrayLike, name: str, shape: tuple[int | None, int | None]) -> NDArray:

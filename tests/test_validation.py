@@ -105,3 +105,12 @@ def test_lane_selections():
         v.lane_vector([0.0, np.nan], 2, "y")
     with pytest.raises(ValueError, match=r"y must have shape \(2,\)"):
         v.lane_vector([0.0, 1.0, 2.0], 2, "y")
+
+
+def test_vector_pairs_must_have_the_same_length():
+    u, y = v.vector_pair([1, 2], [3.0, 4.0], ("u", "y"))
+    np.testing.assert_array_equal(np.c_[u, y], [[1.0, 3.0], [2.0, 4.0]])
+    with pytest.raises(ValueError, match=r"u and y must have the same length L, got len\(u\)=2"):
+        v.vector_pair([1, 2], [3.0], ("u", "y"), " L")
+    with pytest.raises(ValueError, match="y must be finite"):
+        v.vector_pair([1, 2], [3.0, np.nan], ("u", "y"))
