@@ -85,6 +85,7 @@ white input)
 from __future__ import annotations
 
 import inspect
+import math
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -143,7 +144,10 @@ def is_schur_stable(a: ArrayLike) -> bool:
 
 def _scalar(value: Any, name: str) -> float:
     """A finite real scalar: a number, or a 0-d or one-element array of one (``y(t)``, ``u(t)``)."""
-    if isinstance(value, (list, tuple, np.ndarray)) and np.size(value) == 1:
+    kind = type(value)
+    if kind is float and math.isfinite(value):  # every step's call: no more work than this
+        return value
+    if (kind is np.ndarray or kind is list or kind is tuple) and np.size(value) == 1:
         value = np.asarray(value).reshape(())
     return real_number(value, name)
 

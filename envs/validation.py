@@ -54,10 +54,12 @@ def real_number(value: Any, name: str) -> float:
     ValueError
         Not finite (NaN, inf, an integer beyond the float range).
     """
-    if isinstance(value, np.ndarray) and value.shape == ():
-        value = value[()]
-    if isinstance(value, (str, bytes, bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a finite real number, got {value!r}")
+    kind = type(value)
+    if kind is not float and kind is not np.float64 and kind is not int:  # not the common case
+        if kind is np.ndarray and value.shape == ():
+            value = value[()]
+        if isinstance(value, (str, bytes, bool, np.bool_)) or not isinstance(value, numbers.Real):
+            raise TypeError(f"{name} must be a finite real number, got {value!r}")
     try:
         v = float(value)
     except OverflowError as exc:
