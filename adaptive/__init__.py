@@ -5,7 +5,8 @@ plain or model-decomposition D-), iterative batch estimators (``fit_iterative``:
 D-LSI with an observer or a Kalman filter), multichannel estimators (``MatrixRLS``,
 ``StateMatrixEstimator``), closed-form pole placement, the self-tuning pole-placement controller
 and the known-model oracles, all behind one SB3-style policy protocol; batched (``num_envs``)
-versions of the estimators and the controller for many plants at numpy speed.
+versions of the estimators and the controller for many plants, compiled lane functions whose
+single plant equals its lane of a batch bit for bit.
 """
 
 from __future__ import annotations

@@ -7,11 +7,13 @@ order, ``p`` the innovation length and ``L`` the batch length.
 
 from __future__ import annotations
 
+from stcgym.envs.validation import integer
+
 
 def _positive(**values: int) -> None:
+    """Check that every size (``n``, ``p``, ``L``) is an integer ``>= 1``."""
     for name, v in values.items():
-        if int(v) != v or v < 1:
-            raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        integer(v, name)
 
 
 def o_rls(n: int) -> int:
@@ -48,9 +50,14 @@ def lsi(n: int, L: int) -> int:
 
 
 def d_lsi(n: int, L: int) -> int:
-    """D-LSI per iteration, table 6: ``4n^3 + 4n^2 L + 8n L - 2n^2 - 4n``."""
+    """D-LSI per iteration, the sum of table 6's rows: ``4n^3 + 4n^2 L + 8n L - 4n``.
+
+    Table 6's printed total is ``2n^2`` lower (its additions carry ``-4n^2`` where the rows give
+    ``-2n^2``); table 8 (KF-D-LSI), which repeats those rows, agrees with the rows, so every
+    D-LSI count here uses the rows.
+    """
     _positive(n=n, L=L)
-    return 4 * n**3 + 4 * n**2 * L + 8 * n * L - 2 * n**2 - 4 * n
+    return 4 * n**3 + 4 * n**2 * L + 8 * n * L - 4 * n
 
 
 def o_lsi(n: int, L: int) -> int:
@@ -189,9 +196,7 @@ def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:
 # Same accounting as tables 5-8: multiplications + additions of the parameter update and of the
 # state re-estimation over t = 1..L; building the regressors (copies and sign changes) is free,
 # a matrix inverse of size k costs k^3 + (k^3 - k^2) and products are not symmetry-exploited.
-# The rows of table 6 add up to 4n^3 + 4n^2 L + 8nL - 4n (its printed addition total carries
-# -4n^2 instead of -2n^2); table 8, which repeats those rows, agrees with the rows. ``d_lsi``
-# above keeps the printed total; the derived counts below that build on D-LSI say which they use.
+# D-LSI is table 6 by its rows (see ``d_lsi``), as table 8 is.
 
 
 def observer_states(n: int, L: int) -> int:
@@ -261,7 +266,7 @@ def kf_lsi(n: int, L: int) -> int:
 
 
 def o_d_lsi(n: int, L: int) -> int:
-    """O-D-LSI per iteration: ``d_lsi`` (table 6 as printed) ``+ observer_states``."""
+    """O-D-LSI per iteration: ``d_lsi`` (table 6's rows) ``+ observer_states``."""
     return d_lsi(n, L) + observer_states(n, L)
 
 

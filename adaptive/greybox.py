@@ -66,6 +66,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.envs.validation import finite_array, integer, matrix
+
 __all__ = [
     "AffineStateSpace",
     "GreyBoxRegression",
@@ -90,34 +92,11 @@ class NotLinearInParameters(ValueError):
 # --------------------------------------------------------------------------------------------
 
 
-def _finite_array(value: ArrayLike, name: str) -> NDArray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be an array of real numbers, got {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite (no NaN or inf)")
-    return arr
-
-
-def _matrix(value: ArrayLike, name: str, rows: int | None, cols: int | None) -> NDArray:
-    arr = _finite_array(value, name)
-    if arr.ndim == 1 and cols == 1 and rows in (None, arr.size):
-        arr = arr.reshape(-1, 1)  # a column given as a flat vector
-    if arr.ndim != 2 or (rows is not None and arr.shape[0] != rows):
-        raise ValueError(
-            f"{name} must be a matrix with {rows or 'any number of'} rows, got shape {arr.shape}"
-        )
-    if cols is not None and arr.shape[1] != cols:
-        raise ValueError(f"{name} must have {cols} columns, got shape {arr.shape}")
-    return arr
-
-
 def _terms(value: ArrayLike | None, name: str, shape: tuple[int, int]) -> NDArray | None:
     """``q`` matrices of ``shape`` stacked as ``(q, *shape)``; ``None`` stays ``None``."""
     if value is None:
         return None
-    arr = _finite_array(value, name)
+    arr = finite_array(value, name)
     if arr.ndim == 2 and arr.shape == shape and shape[1] != 1:
         raise ValueError(
             f"{name} must be a sequence of matrices (one per parameter), shape (q, {shape[0]}, "
@@ -234,8 +213,8 @@ class GreyBoxRegression:
             :class:`~stcgym.adaptive.regression.RecursiveLeastSquares` takes.
         z : ndarray, shape (T - order,) or (T - order, p)
         """
-        u_arr = _finite_array(u, "u")
-        y_arr = _finite_array(y, "y")
+        u_arr = finite_array(u, "u")
+        y_arr = finite_array(y, "y")
         m = self.num_inputs
         p_meas = self._measured_outputs
         if u_arr.ndim == 1 and m == 1:
@@ -363,14 +342,14 @@ class AffineStateSpace:
         *,
         names: Sequence[str] | None = None,
     ) -> None:
-        self.Phi0 = _matrix(Phi0, "Phi0", None, None)
+        self.Phi0 = matrix(Phi0, "Phi0", (None, None))
         n = self.Phi0.shape[0]
         if self.Phi0.shape != (n, n):
             raise ValueError(f"Phi0 must be square (n x n), got shape {self.Phi0.shape}")
-        G0 = _finite_array(Gamma0, "Gamma0")
-        self.Gamma0 = _matrix(G0.reshape(-1, 1) if G0.ndim == 1 else G0, "Gamma0", n, None)
-        H_arr = _finite_array(H, "H")
-        self.H = _matrix(H_arr.reshape(1, -1) if H_arr.ndim == 1 else H_arr, "H", None, n)
+        G0 = finite_array(Gamma0, "Gamma0")
+        self.Gamma0 = matrix(G0.reshape(-1, 1) if G0.ndim == 1 else G0, "Gamma0", (n, None))
+        H_arr = finite_array(H, "H")
+        self.H = matrix(H_arr.reshape(1, -1) if H_arr.ndim == 1 else H_arr, "H", (None, n))
         m = self.Gamma0.shape[1]
         dPhi = _terms(Phi_terms, "Phi_terms", (n, n))
         dGamma = _terms(Gamma_terms, "Gamma_terms", (n, m))
@@ -419,13 +398,11 @@ class AffineStateSpace:
         affine at a few random ``theta`` (and on every pair ``e_i + e_j``), and a
         :class:`NotLinearInParameters` naming ``Phi`` or ``Gamma`` is raised when it is not.
         """
-        q = int(num_params)
-        if q != num_params or q < 1:
-            raise ValueError(f"num_params must be a positive integer, got {num_params!r}")
+        q = integer(num_params, "num_params")
 
         def sample(fn: Callable | ArrayLike, name: str, theta: NDArray) -> NDArray:
             value = fn(theta.copy()) if callable(fn) else fn
-            arr = _finite_array(value, f"{name}(theta)")
+            arr = finite_array(value, f"{name}(theta)")
             return arr.reshape(-1, 1) if name == "Gamma" and arr.ndim == 1 else arr
 
         eye = np.eye(q)
@@ -463,7 +440,7 @@ class AffineStateSpace:
 
     def matrices(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
         """``(Phi(theta), Gamma(theta))``, e.g. for ``stcgym/StateSpace-v0`` (``A``, ``B``)."""
-        th = _finite_array(theta, "theta").reshape(-1)
+        th = finite_array(theta, "theta").reshape(-1)
         if th.size != self.num_params:
             raise ValueError(f"theta must hold {self.num_params} values, got {th.size}")
         return (

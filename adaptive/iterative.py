@@ -41,7 +41,8 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive import flops as _flops
 from stcgym.adaptive.kernels.state_estimation import state_trajectory
 from stcgym.adaptive.recursive import NumericalHealthError
-from stcgym.envs.canonical import as_finite_vector, check_form, companion_A
+from stcgym.envs.canonical import check_form, companion_A
+from stcgym.envs.validation import integer, non_negative, positive, vector_pair
 
 __all__ = ["ITERATIVE_NAMES", "IterativeResult", "NumericalHealthError", "fit_iterative"]
 
@@ -128,23 +129,6 @@ def _parse_name(name: str) -> tuple[str | None, str]:
     )
 
 
-def _positive_int(value: int, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
-
-
-def _positive_float(value: float, name: str, *, allow_zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a real number, got {value!r}") from exc
-    if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name} must be finite and {bound}, got {value!r}")
-    return v
-
-
 def _lagged(v: NDArray, lag: int) -> NDArray:
     """``v(t - lag)`` for ``t = 1..L`` with zeros for ``t - lag <= 0``."""
     out = np.zeros_like(v)
@@ -174,10 +158,16 @@ def _lstsq(M: NDArray, rhs: NDArray) -> tuple[NDArray, bool]:
     """``(M^T M)^{-1} M^T rhs`` via an orthogonal solver; minimum-norm if rank deficient.
 
     ``lstsq`` is used instead of forming and inverting ``M^T M`` because it squares neither the
-    condition number nor fails on singular ``M^T M`` (e.g. ``u = 0`` makes ``Psi = 0``).
+    condition number nor fails on singular ``M^T M`` (e.g. ``u = 0`` makes ``Psi = 0``). The
+    columns are equilibrated first (``M D^{-1}``, ``D`` their norms; solve; ``D^{-1}``): the
+    rank decision compares singular values with the largest one, so state columns 1e14 times
+    the input columns would otherwise count as rank-deficient and lose the input block. A zero
+    column keeps scale 1 and stays a rank deficiency (minimum-norm in the scaled columns).
     """
-    sol, _, rank, _ = np.linalg.lstsq(M, rhs, rcond=None)
-    return sol, bool(rank < M.shape[1])
+    norms = np.linalg.norm(M, axis=0)
+    scale = np.where(norms > 0.0, norms, 1.0)
+    sol, _, rank, _ = np.linalg.lstsq(M / scale, rhs, rcond=None)
+    return sol / scale, bool(rank < M.shape[1])
 
 
 def _lambda_max(M: NDArray) -> float:
@@ -324,19 +314,16 @@ def fit_iterative(
     state_est, rule = _parse_name(name)
     canonical = rule if state_est is None else f"{state_est}-{rule}"
     form = check_form(form)
-    n = _positive_int(n, "n")
-    u_arr = as_finite_vector(u, "u")
-    y_arr = as_finite_vector(y, "y")
+    n = integer(n, "n")
+    u_arr, y_arr = vector_pair(u, y, ("u", "y"), " L")
     L = u_arr.size
-    if y_arr.size != L:
-        raise ValueError(f"u and y must have the same length L, got {L} and {y_arr.size}")
     if L <= 2 * n:
         raise ValueError(f"need L > 2n = {2 * n} samples for 2n = {2 * n} parameters, got L={L}")
-    iterations = _positive_int(iterations, "iterations")
-    tol = _positive_float(tol, "tol", allow_zero=True)
-    p0 = _positive_float(p0, "p0")
-    kalman_q = _positive_float(kalman_q, "kalman_q", allow_zero=True)
-    kalman_r = _positive_float(kalman_r, "kalman_r")
+    iterations = integer(iterations, "iterations")
+    tol = non_negative(tol, "tol")
+    p0 = positive(p0, "p0")
+    kalman_q = non_negative(kalman_q, "kalman_q")
+    kalman_r = positive(kalman_r, "kalman_r")
     mu_a, mu_b = _parse_mu(mu, rule)
 
     if state_est is None:
@@ -429,6 +416,6 @@ def _parse_mu(mu: float | tuple[float, float] | None, rule: str) -> tuple[float 
             raise ValueError(
                 "mu must be a positive float (GI) or a float or pair (mu_a, mu_b) (D-GI)"
             )
-        return _positive_float(mu[0], "mu_a"), _positive_float(mu[1], "mu_b")
-    m = _positive_float(mu, "mu")
+        return positive(mu[0], "mu_a"), positive(mu[1], "mu_b")
+    m = positive(mu, "mu")
     return m, m

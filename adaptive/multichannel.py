@@ -11,76 +11,45 @@ Two recursive estimators of a matrix of parameters:
   regressors collected so far do not span ``R^{m+N}`` the minimum-norm recursion (17)-(18) gives
   ``C = X Z^+``; afterwards ordinary RLS (20)-(21).
 
-Numerical health: ``P`` is kept symmetric (Joseph-form update) and checked for finiteness and
-positive definiteness (Cholesky) after every update. Joseph form keeps ``P`` positive definite
-under round-off as long as its condition number stays well below ``1/eps ~ 1e16``; strong
-covariance wind-up (``lambda < 1`` without excitation for hundreds of steps, ``P`` growing like
-``lambda^-t``) can exceed that, and is then detected. A failed check either raises
-:class:`NumericalHealthError` (default) or, with ``on_unhealthy="reset"``, discards the offending
-sample and resets ``P`` to its initial value (covariance resetting) with a ``RuntimeWarning``.
-Updates are atomic: when an exception is raised the estimator state is unchanged.
+Numerical health: the RLS recursion is the shared square-root least-squares step of
+:mod:`stcgym.adaptive.kernels.least_squares` (Carlson's update of ``P = S S^T``), so ``P`` stays
+symmetric positive definite by construction, with the one health check of that module plus a
+finite ``trace(P)`` (covariance wind-up under ``lambda < 1`` without excitation). The policy is
+the estimators' common one: ``on_failure="reset"`` (default) discards the sample, resets ``P``
+to ``P0``, keeps the last ``Theta``, counts the event in ``n_resets`` and warns;
+``on_failure="raise"`` raises :class:`NumericalHealthError` and leaves the estimator unchanged.
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.kernels.least_squares import (
+    FAIL_COVARIANCE,
+    OK,
+    block_trace_is_finite,
+    factor_is_healthy,
+    least_squares_increment,
+    upper_factor,
+)
 from stcgym.adaptive.recursive import NumericalHealthError
+from stcgym.envs.compiled import lane
+from stcgym.envs.validation import finite_vector, forgetting_factor, integer, matrix
 
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
-OnUnhealthy = Literal["raise", "reset"]
+OnFailure = Literal["reset", "raise"]
 
 
-def _positive_int(value: int, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
-
-
-def _forgetting(value: float) -> float:
-    try:
-        lam = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"forgetting must be a real number in (0, 1], got {value!r}") from exc
-    if not (0.0 < lam <= 1.0):  # also rejects NaN
-        raise ValueError(f"forgetting must lie in (0, 1], got {value!r}")
-    return lam
-
-
-def _on_unhealthy(value: str) -> OnUnhealthy:
-    if value not in ("raise", "reset"):
-        raise ValueError(f"on_unhealthy must be 'raise' or 'reset', got {value!r}")
+def _on_failure(value: str) -> OnFailure:
+    if value not in ("reset", "raise"):
+        raise ValueError(f"on_failure must be 'reset' or 'raise', got {value!r}")
     return value  # type: ignore[return-value]
-
-
-def _vector(value: ArrayLike, name: str, length: int) -> NDArray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a real vector of length {length}, got {value!r}") from exc
-    arr = np.atleast_1d(arr)
-    if arr.ndim != 1 or arr.size != length:
-        raise ValueError(f"{name} must be a vector of length {length}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {arr}")
-    return arr
-
-
-def _matrix(value: ArrayLike, name: str, shape: tuple[int, int]) -> NDArray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a real {shape[0]}x{shape[1]} matrix") from exc
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
-    return arr
 
 
 def _is_spd(P: NDArray) -> bool:
@@ -89,6 +58,42 @@ def _is_spd(P: NDArray) -> bool:
     except np.linalg.LinAlgError:
         return False
     return True
+
+
+@lane
+def matrix_rls_step(theta, S, x, y, lam, work):
+    """One step of appendix 2's recursion (P.6)-(P.8) on ``P = S S^T``; returns a status.
+
+    ``theta`` ``(d, q)``, ``S`` ``(d, d)`` upper triangular, ``x`` ``(1, d)`` the regressor,
+    ``y`` ``(q,)``, ``work`` of length ``>= 3 d + q``. Every output channel ``j`` shares the gain
+    ``K = P x / (lam + x^T P x)`` (``work[:d]`` on return) and the factor update, so
+    ``theta[:, j] += K e_j`` with the innovation ``e = y - theta^T x``. Returns ``OK``, or
+    ``FAIL_COVARIANCE`` (``theta`` untouched, ``S`` to be reset by the caller) when the factor
+    is unhealthy, ``trace(P)`` or an increment is not finite.
+    """
+    d, q = theta.shape
+    K = work[:d]
+    delta = work[d : 2 * d]
+    w = work[2 * d : 3 * d]
+    E = work[3 * d : 3 * d + q]
+    for j in range(q):
+        acc = y[j]
+        for i in range(d):
+            acc -= x[0, i] * theta[i, j]
+        E[j] = acc
+    alpha = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w)
+    healthy = factor_is_healthy(S, 0, d) and block_trace_is_finite(S, 0, d)
+    if not (alpha > 0.0 and math.isfinite(alpha) and healthy):
+        return FAIL_COVARIANCE
+    for i in range(d):
+        K[i] /= alpha
+        for j in range(q):
+            if not math.isfinite(K[i] * E[j]):
+                return FAIL_COVARIANCE
+    for i in range(d):
+        for j in range(q):
+            theta[i, j] += K[i] * E[j]
+    return OK
 
 
 class MatrixRLS:
@@ -100,10 +105,10 @@ class MatrixRLS:
         Theta(N+1) = Theta(N) + K(N+1) (y^T - x^T Theta(N))
         P(N+1)     = (I - K(N+1) x^T) P(N) / lambda
 
-    ``lambda = 1`` is the paper's algorithm. With a symmetric ``P0`` the estimate after ``N``
-    samples is the regularised least-squares solution
+    ``lambda = 1`` is the paper's algorithm. The estimate after ``N`` samples is the regularised
+    least-squares solution of the normal equation
     ``(lambda^N P0^{-1} + sum_i lambda^{N-i} x_i x_i^T) Theta = lambda^N P0^{-1} Theta0
-    + sum_i lambda^{N-i} x_i y_i^T``.
+    + sum_i lambda^{N-i} x_i y_i^T``, ``P(N)`` the inverse of its matrix.
 
     Parameters
     ----------
@@ -113,22 +118,24 @@ class MatrixRLS:
         Initial covariance: ``None`` gives ``p0 * I``; a positive scalar ``s`` gives ``s * I``;
         or an ``n_inputs x n_inputs`` matrix. A symmetric matrix must be positive definite. A
         *non-symmetric* matrix is accepted "as printed" so that the paper's example
-        ``P0 = [[0.5, 0.4], [0.5, 1]]`` can be reproduced: the recursion is then run exactly in
-        the paper's form (no symmetrisation, no Joseph form). By the Sherman-Morrison identity
-        (valid for any invertible matrix) ``P(N) = (P0^{-1} + X^T X)^{-1}`` still holds, and so
-        does the regularised normal equation above, but a non-symmetric prior weight
-        ``P0^{-1}`` does not correspond to any quadratic criterion; its influence decays like
-        ``1/N``. Its symmetric part must be positive definite (so ``1 + x^T P0 x > 0``).
+        ``P0 = [[0.5, 0.4], [0.5, 1]]`` can be reproduced; its symmetric part must be positive
+        definite (so ``1 + x^T P0 x > 0``). By the Sherman-Morrison identity (valid for any
+        invertible matrix) the paper's recursion still gives the normal equation above, with a
+        non-symmetric prior weight ``M0 = P0^{-1}`` that corresponds to no quadratic criterion
+        (its influence decays like ``1/N``). The recursion runs on the symmetric part ``Ms`` of
+        ``M0`` (square-root step from ``Ps(0) = Ms^{-1}``); ``Theta`` and ``P`` add the skew part
+        ``Mk`` back in closed form: ``P = (I + lambda^N Ps Mk)^{-1} Ps`` and
+        ``Theta = (I + lambda^N Ps Mk)^{-1} (Theta_s + lambda^N Ps Mk Theta0)``.
     theta0
         Initial estimate (default zeros), shape ``(n_inputs, n_outputs)``.
     forgetting
         ``lambda`` in ``(0, 1]``.
     p0
         Scale of the default ``P0`` (paper convention ``p0 = 1e6``).
-    on_unhealthy
-        ``"raise"`` (default): raise :class:`NumericalHealthError` when ``P`` or ``Theta`` becomes
-        non-finite or ``P`` loses positive definiteness. ``"reset"``: discard that sample, reset
-        ``P`` to ``P0`` and warn.
+    on_failure
+        ``"reset"`` (default): when ``P`` loses positive definiteness or ``P``, the gain or
+        ``Theta`` overflows, discard that sample, reset ``P`` to ``P0``, keep ``Theta`` and warn.
+        ``"raise"``: raise :class:`NumericalHealthError`, the estimator unchanged.
 
     Attributes
     ----------
@@ -137,7 +144,7 @@ class MatrixRLS:
     K : ndarray, shape (n_inputs,) -- gain of the last update (zeros before the first).
     t : int -- number of samples processed (including discarded ones).
     n_resets : int -- number of covariance resets performed.
-    symmetric : bool -- whether ``P`` is kept symmetric (False only for a non-symmetric ``P0``).
+    symmetric : bool -- whether ``P`` is symmetric (False only for a non-symmetric ``P0``).
     """
 
     def __init__(
@@ -149,12 +156,12 @@ class MatrixRLS:
         theta0: ArrayLike | None = None,
         forgetting: float = 1.0,
         p0: float = 1e6,
-        on_unhealthy: OnUnhealthy = "raise",
+        on_failure: OnFailure = "reset",
     ) -> None:
-        self.n_inputs = _positive_int(n_inputs, "n_inputs")
-        self.n_outputs = _positive_int(n_outputs, "n_outputs")
-        self.forgetting = _forgetting(forgetting)
-        self.on_unhealthy = _on_unhealthy(on_unhealthy)
+        self.n_inputs = integer(n_inputs, "n_inputs")
+        self.n_outputs = integer(n_outputs, "n_outputs")
+        self.forgetting = forgetting_factor(forgetting)
+        self.on_failure = _on_failure(on_failure)
         n = self.n_inputs
         if P0 is None or np.ndim(P0) == 0:
             scale = float(p0 if P0 is None else P0)  # type: ignore[arg-type]
@@ -163,30 +170,60 @@ class MatrixRLS:
                 raise ValueError(f"{label} must be a positive finite number, got {scale!r}")
             P = scale * np.eye(n)
         else:
-            P = _matrix(P0, "P0", (n, n))
+            P = matrix(P0, "P0", (n, n))
         self.symmetric = bool(np.allclose(P, P.T, rtol=1e-12, atol=0.0))
         if self.symmetric:
-            P = 0.5 * (P + P.T)
-            if not _is_spd(P):
-                raise ValueError("P0 must be symmetric positive definite")
+            P_s = 0.5 * (P + P.T)
+            self._skew = np.zeros((n, n))
+        elif not _is_spd(0.5 * (P + P.T)):
+            raise ValueError("the symmetric part of a non-symmetric P0 must be positive definite")
         else:
-            if not _is_spd(0.5 * (P + P.T)):
-                raise ValueError(
-                    "the symmetric part of a non-symmetric P0 must be positive definite"
-                )
-        self._P0 = P.copy()
-        self.P = P
-        if theta0 is None:
-            self.theta = np.zeros((n, self.n_outputs))
-        else:
-            self.theta = _matrix(theta0, "theta0", (n, self.n_outputs))
+            M0 = np.linalg.inv(P)
+            self._skew = 0.5 * (M0 - M0.T)
+            P_s = np.linalg.inv(0.5 * (M0 + M0.T))
+            P_s = 0.5 * (P_s + P_s.T)
+        self._S0 = np.zeros((n, n))
+        if not upper_factor(np.ascontiguousarray(P_s), self._S0):
+            raise ValueError("P0 must be symmetric positive definite")
+        self._S = self._S0.copy()
+        shape = (n, self.n_outputs)
+        theta = np.zeros(shape) if theta0 is None else matrix(theta0, "theta0", shape)
+        self._theta_s = np.ascontiguousarray(theta, dtype=float)
+        self._prior = self._theta_s.copy()  # Theta0, moved to the kept estimate by a reset
+        self._decay = 1.0  # lambda^N since the start or the last reset
+        self._work = np.zeros(3 * n + self.n_outputs)
         self.K = np.zeros(n)
         self.t = 0
         self.n_resets = 0
 
+    # ------------------------------------------------------------------ estimate
+    def _skew_correction(self) -> tuple[NDArray, NDArray]:
+        """``(I + lambda^N Ps Mk, lambda^N Ps Mk)`` for a non-symmetric ``P0``."""
+        Ps = self._S @ self._S.T
+        PsMk = self._decay * (Ps @ self._skew)
+        return np.eye(self.n_inputs) + PsMk, PsMk
+
+    @property
+    def P(self) -> NDArray:
+        """``P(N)``, shape ``(n_inputs, n_inputs)`` (a copy)."""
+        Ps = self._S @ self._S.T
+        Ps = 0.5 * Ps + 0.5 * Ps.T  # (Ps + Ps.T) / 2 could overflow near the float limit
+        if self.symmetric:
+            return Ps
+        M, _ = self._skew_correction()
+        return np.linalg.solve(M, Ps)
+
+    @property
+    def theta(self) -> NDArray:
+        """``Theta(N)``, shape ``(n_inputs, n_outputs)`` (a copy)."""
+        if self.symmetric:
+            return self._theta_s.copy()
+        M, PsMk = self._skew_correction()
+        return np.linalg.solve(M, self._theta_s + PsMk @ self._prior)
+
     def predict(self, x: ArrayLike) -> NDArray:
         """Model output ``x^T Theta`` (shape ``(n_outputs,)``)."""
-        return _vector(x, "x", self.n_inputs) @ self.theta
+        return finite_vector(x, "x", length=self.n_inputs) @ self.theta
 
     def update(self, x: ArrayLike, y: ArrayLike) -> NDArray:
         """Process one sample ``(x, y)`` and return a copy of the new ``Theta``.
@@ -196,53 +233,39 @@ class MatrixRLS:
         x : array_like, shape (n_inputs,)
         y : array_like, shape (n_outputs,) -- a scalar is accepted when ``n_outputs == 1``.
         """
-        x = _vector(x, "x", self.n_inputs)
-        y = _vector(y, "y", self.n_outputs)
+        x = finite_vector(x, "x", length=self.n_inputs)
+        y = finite_vector(y, "y", length=self.n_outputs)
         t = self.t + 1
         lam = self.forgetting
-        P = self.P
-        with np.errstate(over="ignore", invalid="ignore"):
-            Px = P @ x
-            den = lam + x @ Px
-            K = Px / den
-            e = y - x @ self.theta  # innovation row vector, one entry per output channel
-            theta = self.theta + np.outer(K, e)
-            if self.symmetric:
-                # Joseph form: algebraically equal to (I - K x^T) P / lambda but a sum of two
-                # symmetric PSD terms, so round-off cannot make P indefinite.
-                M = np.eye(self.n_inputs) - np.outer(K, x)
-                P_new = (M @ P @ M.T + lam * np.outer(K, K)) / lam
-                P_new = 0.5 * (P_new + P_new.T)
-            else:
-                # the paper's form (P.8) exactly, to reproduce its non-symmetric example
-                P_new = (P - np.outer(K, x @ P)) / lam
-        problem = self._check(den, P_new, theta)
-        if problem is not None and self.on_unhealthy == "raise":
-            raise NumericalHealthError(f"MatrixRLS update {t}: {problem}; state left unchanged")
+        if not self.symmetric:  # the paper's gain, with its non-symmetric P(N)
+            with np.errstate(over="ignore", invalid="ignore"):
+                Px = self.P @ x
+                K = Px / (lam + x @ Px)
+        saved_S = self._S.copy()
+        status = matrix_rls_step(self._theta_s, self._S, x[None, :], y, lam, self._work)
         self.t = t
-        if problem is None:
-            self.P, self.theta, self.K = P_new, theta, K
-        else:
-            self.P = self._P0.copy()
-            self.n_resets += 1
-            warnings.warn(
-                f"MatrixRLS update {self.t}: {problem}; sample discarded and P reset to P0",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-        return self.theta.copy()
-
-    def _check(self, den: float, P_new: NDArray, theta: NDArray) -> str | None:
-        if not np.isfinite(den) or den <= 0:
-            return f"gain denominator lambda + x^T P x = {den!r} is not positive"
-        if not np.all(np.isfinite(P_new)):
-            return "P overflowed (non-finite entries)"
-        if not np.all(np.isfinite(theta)):
-            return "Theta overflowed (non-finite entries)"
-        S = P_new if self.symmetric else 0.5 * (P_new + P_new.T)
-        if not _is_spd(S):
-            return "P lost positive definiteness"
-        return None
+        if status == OK:
+            self._decay *= lam
+            self.K = self._work[: self.n_inputs].copy() if self.symmetric else K
+            return self.theta
+        problem = "P lost positive definiteness or P, the gain or Theta overflowed"
+        if self.on_failure == "raise":
+            self._S[...] = saved_S
+            self.t = t - 1
+            raise NumericalHealthError(f"MatrixRLS update {t}: {problem}; state left unchanged")
+        self._S[...] = saved_S  # Theta as before this sample, then the restart at P0
+        kept = self.theta
+        self._S[...] = self._S0
+        self._theta_s[...] = kept
+        self._prior[...] = kept
+        self._decay = 1.0
+        self.n_resets += 1
+        warnings.warn(
+            f"MatrixRLS update {t}: {problem}; sample discarded and P reset to P0, Theta kept",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return kept.copy()
 
 
 class StateMatrixEstimator:
@@ -283,8 +306,9 @@ class StateMatrixEstimator:
         the solution closest to ``C0`` instead of the minimum-norm one.
     dependence_tol
         Relative threshold on ``z^T R z / z^T z`` below which a regressor counts as dependent.
-    on_unhealthy
-        As for :class:`MatrixRLS`.
+    on_failure
+        As for :class:`MatrixRLS`, in the RLS phase. The minimum-norm phase has no covariance to
+        reset: an overflow there raises :class:`NumericalHealthError` (estimator unchanged).
     """
 
     def __init__(
@@ -295,20 +319,20 @@ class StateMatrixEstimator:
         forgetting: float = 1.0,
         C0: ArrayLike | None = None,
         dependence_tol: float = 1e-9,
-        on_unhealthy: OnUnhealthy = "raise",
+        on_failure: OnFailure = "reset",
     ) -> None:
-        self.m = _positive_int(m, "m")
+        self.m = integer(m, "m")
         if isinstance(N, bool) or not isinstance(N, (int, np.integer)) or N < 0:
             raise ValueError(f"N (number of inputs) must be an integer >= 0, got {N!r}")
         self.N = int(N)
-        self.forgetting = _forgetting(forgetting)
-        self.on_unhealthy = _on_unhealthy(on_unhealthy)
+        self.forgetting = forgetting_factor(forgetting)
+        self.on_failure = _on_failure(on_failure)
         tol = float(dependence_tol)
         if not (0.0 < tol < 1.0):
             raise ValueError(f"dependence_tol must lie in (0, 1), got {dependence_tol!r}")
         self.dependence_tol = tol
         q = self.m + self.N
-        self._C = np.zeros((self.m, q)) if C0 is None else _matrix(C0, "C0", (self.m, q))
+        self._C = np.zeros((self.m, q)) if C0 is None else matrix(C0, "C0", (self.m, q))
         self.R: NDArray | None = np.eye(q)  # projector of the minimum-norm phase
         self._S = np.zeros((q, q))  # weighted Gram matrix sum lambda^{t-i} z z^T
         self.rank = 0
@@ -344,14 +368,14 @@ class StateMatrixEstimator:
     # ------------------------------------------------------------------ update
     def update(self, x_t: ArrayLike, u_t: ArrayLike, x_next: ArrayLike) -> NDArray:
         """Process ``(x(t), u(t), x(t+1))`` and return the new ``C = [A B]``."""
-        x_t = _vector(x_t, "x_t", self.m)
+        x_t = finite_vector(x_t, "x_t", length=self.m)
         if self.N:
-            u_t = _vector(u_t, "u_t", self.N)
+            u_t = finite_vector(u_t, "u_t", length=self.N)
         elif np.size(u_t):
             raise ValueError(f"u_t must be empty when N = 0, got {u_t!r}")
         else:
             u_t = np.zeros(0)
-        x_next = _vector(x_next, "x_next", self.m)
+        x_next = finite_vector(x_next, "x_next", length=self.m)
         z = np.concatenate([x_t, u_t])
         self.t += 1
         if self._rls is not None:
@@ -401,6 +425,6 @@ class StateMatrixEstimator:
             P0=P,
             theta0=self._C.T,
             forgetting=self.forgetting,
-            on_unhealthy=self.on_unhealthy,
+            on_failure=self.on_failure,
         )
         self.R = None

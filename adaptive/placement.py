@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.kernels import design as _design
+from stcgym.envs.validation import finite_vector, matrix, square_matrix
 
 __all__ = [
     "UncontrollableError",
@@ -45,6 +46,17 @@ __all__ = [
 
 class UncontrollableError(np.linalg.LinAlgError):
     """Raised when ``(A, b)`` is uncontrollable or too close to it for a meaningful gain."""
+
+
+def _single_input_model(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
+    """``(A, b)`` as a finite square ``m x m`` matrix and a finite vector of length ``m``.
+
+    The compiled loops index ``A`` by ``b``'s length, so a non-square ``A`` must stop here.
+    """
+    A = square_matrix(A, "A")
+    m = A.shape[0]
+    b = finite_vector(np.reshape(b, -1), "b", length=m)
+    return A, b
 
 
 def check_poles(poles: ArrayLike, m: int, *, name: str = "poles") -> NDArray:
@@ -109,7 +121,7 @@ def controllability_matrix(A: NDArray, b: NDArray) -> NDArray:
 
 
 def ackermann(
-    A: NDArray, b: NDArray, alpha: NDArray, *, rcond_min: float = 0.0
+    A: ArrayLike, b: ArrayLike, alpha: ArrayLike, *, rcond_min: float = 0.0
 ) -> tuple[NDArray, float]:
     """State-feedback gain ``K`` (1-D, length ``m``) with ``eig(A - b K)`` = roots of ``alpha``.
 
@@ -133,13 +145,14 @@ def ackermann(
 
     Raises
     ------
+    ValueError
+        ``A`` not a finite square matrix, ``b`` or ``alpha`` not finite of length ``m``.
     UncontrollableError
         ``rcond < rcond_min`` or the controllability matrix is exactly singular / non-finite.
     """
-    A = np.ascontiguousarray(A, dtype=float)
+    A, b = _single_input_model(A, b)
     m = A.shape[0]
-    b = np.ascontiguousarray(b, dtype=float).reshape(m)
-    alpha = np.ascontiguousarray(alpha, dtype=float).reshape(m)
+    alpha = finite_vector(np.reshape(alpha, -1), "alpha", length=m)
     K = np.zeros(m)
     rcond = float(_design.ackermann_gain(A, b, alpha, K, np.zeros(_design.work_size(m - 1))))
     if not rcond > max(rcond_min, _design.RCOND_FLOOR):
@@ -156,19 +169,13 @@ def place_poles(A: ArrayLike, b: ArrayLike, poles: ArrayLike, *, rcond_min: floa
     closed-form (the lane function :func:`stcgym.adaptive.kernels.design.ackermann_gain`); raises
     :class:`UncontrollableError` for an uncontrollable pair.
     """
-    A = np.asarray(A, dtype=float)
-    if A.ndim != 2 or A.shape[0] != A.shape[1]:
-        raise ValueError(f"A must be square, got shape {A.shape}")
-    m = A.shape[0]
-    b = np.asarray(b, dtype=float).reshape(-1)
-    if b.size != m:
-        raise ValueError(f"b must have {m} entries (single input), got {b.size}")
-    p = check_poles(poles, m)
+    A, b = _single_input_model(A, b)
+    p = check_poles(poles, A.shape[0])
     K, _ = ackermann(A, b, characteristic_coefficients(p), rcond_min=rcond_min)
     return K
 
 
-def augment_integral(A: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
+def augment_integral(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
     """Model augmented with the integral of the tracking error, for ``c = [1, 0, ..., 0]``.
 
     ``xi(t+1) = xi(t) + r(t) - y(t)`` with ``y = c x``, so ``z = [x; xi]`` obeys
@@ -176,15 +183,15 @@ def augment_integral(A: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
     eigenvalues of ``A_aug - b_aug K_aug`` gives zero steady-state error to constant references
     (and input disturbances) whatever the model error, as long as the true loop stays stable.
     """
-    A = np.ascontiguousarray(A, dtype=float)
+    A, b = _single_input_model(A, b)
     n = A.shape[0]
     Aa = np.empty((n + 1, n + 1))
     ba = np.empty(n + 1)
-    _canonical.augment_integral(A, np.ascontiguousarray(b, dtype=float), True, Aa, ba)
+    _canonical.augment_integral(np.ascontiguousarray(A), np.ascontiguousarray(b), True, Aa, ba)
     return Aa, ba
 
 
-def steady_state_gains(A: NDArray, b: NDArray) -> tuple[NDArray, float, float]:
+def steady_state_gains(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, float, float]:
     """Steady state of ``x = A x + b u``, ``y = x_1`` for a unit output: ``x_ss``, ``u_ss``.
 
     Solves the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] = [0; 1]``, which is regular
@@ -196,10 +203,14 @@ def steady_state_gains(A: NDArray, b: NDArray) -> tuple[NDArray, float, float]:
     x_ss, u_ss, rcond
         Steady state per unit reference and the reciprocal 1-norm condition estimate of the
         Rosenbrock matrix (small means the DC gain is nearly zero: no feed-forward possible).
+
+    Raises
+    ------
+    ValueError
+        ``A`` not a finite square matrix or ``b`` not finite of length ``n``.
     """
-    A = np.ascontiguousarray(A, dtype=float)
+    A, b = _single_input_model(A, b)
     n = A.shape[0]
-    b = np.ascontiguousarray(b, dtype=float).reshape(n)
     x_ss = np.zeros(n)
     u_ss, rcond = _design.steady_state(A, b, x_ss, np.zeros(_design.work_size(n)))
     return x_ss, float(u_ss), float(rcond)
@@ -236,19 +247,9 @@ def lq_gain(
         No stabilising solution: ``(A, b)`` not stabilisable or ``(A, Q)`` not detectable
         (the doubling diverges or the closed loop is not stable), or no convergence.
     """
-    A = np.ascontiguousarray(A, dtype=float)
-    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
-        raise ValueError(f"A must be a non-empty square matrix, got shape {A.shape}")
+    A, b = _single_input_model(A, b)
     m = A.shape[0]
-    b = np.ascontiguousarray(b, dtype=float).reshape(-1)
-    if b.size != m:
-        raise ValueError(f"b must have {m} entries (single input), got {b.size}")
-    Q = np.ascontiguousarray(Q, dtype=float)
-    if Q.shape != (m, m):
-        raise ValueError(f"Q must have shape ({m}, {m}), got {Q.shape}")
-    for name, arr in (("A", A), ("b", b), ("Q", Q)):
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name} must be finite")
+    Q = matrix(Q, "Q", (m, m))
     if not np.allclose(Q, Q.T) or np.linalg.eigvalsh(0.5 * (Q + Q.T)).min() < -1e-12 * max(
         1.0, np.abs(Q).max()
     ):

@@ -84,6 +84,7 @@ white input)
 
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
 from collections.abc import Callable
@@ -96,7 +97,6 @@ from stcgym.adaptive import flops as _flops
 from stcgym.adaptive.kernels import estimator as _k
 from stcgym.adaptive.kernels.estimator import (
     ALGORITHMS,
-    FROZEN_RATIO,
     RULES,
     STATE_ESTIMATORS,
     EstimatorSpec,
@@ -104,8 +104,15 @@ from stcgym.adaptive.kernels.estimator import (
     parse_name,
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable as _schur_lane
-from stcgym.envs.canonical import as_finite_vector
 from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.validation import (
+    finite_vector,
+    integer,
+    lane_indices,
+    lane_vector,
+    real_number,
+    vector_pair,
+)
 
 __all__ = [
     "ALGORITHMS",
@@ -143,62 +150,13 @@ _estimator_predict = FixedTypes(_k.estimator_predict)
 
 
 def _scalar(value: Any, name: str) -> float:
-    """A finite real scalar (Python number, numpy scalar, 0-d or 1-element array)."""
-    if type(value) is float or type(value) is int or type(value) is np.float64:
-        v = float(value)
-    else:
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name} must be a finite real scalar, got {value!r}") from exc
-        if arr.size != 1:
-            raise ValueError(f"{name} must be a finite real scalar, got shape {arr.shape}")
-        v = float(arr.reshape(-1)[0])
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be a finite real scalar, got {value!r}")
-    return v
-
-
-def _lane_vector(value: Any, B: int, name: str) -> NDArray:
-    """A finite float vector of one value per lane (a scalar is broadcast)."""
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric (one value per lane), got {value!r}") from exc
-    if arr.ndim == 0:
-        arr = np.full(B, float(arr))
-    if arr.ndim == 2 and arr.shape[1] == 1:
-        arr = arr[:, 0]
-    if arr.shape != (B,):
-        raise ValueError(f"{name} must have shape ({B},) (one value per lane), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        bad = np.flatnonzero(~np.isfinite(arr))[:5]
-        raise ValueError(f"{name} must be finite; lanes {bad.tolist()} are not")
-    return arr
-
-
-def lane_indices(lanes: Any, B: int, name: str = "lanes") -> NDArray:
-    """Validated lane selection: ``None`` (all), integer indices in ``[0, B)`` or a boolean mask
-    of length ``B``; a ``ValueError`` naming ``name`` otherwise."""
-    if lanes is None:
-        return np.arange(B)
-    arr = np.asarray(lanes)
-    if arr.dtype == bool:
-        if arr.shape != (B,):
-            raise ValueError(
-                f"{name} as a boolean mask must have shape ({B},) (one flag per lane), got "
-                f"shape {arr.shape}"
-            )
-        return np.flatnonzero(arr)
-    arr = np.atleast_1d(arr)
-    if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(
-            f"{name} must be lane indices (integers in [0, {B})) or a boolean mask of length "
-            f"{B}, got {lanes!r}"
-        )
-    if arr.size and (arr.min() < 0 or arr.max() >= B):
-        raise ValueError(f"{name} must be integers in [0, {B}), got {arr.tolist()}")
-    return arr.astype(np.int64)
+    """A finite real scalar: a number, or a 0-d or one-element array of one (``y(t)``, ``u(t)``)."""
+    kind = type(value)
+    if kind is float and math.isfinite(value):  # every step's call: no more work than this
+        return value
+    if (kind is np.ndarray or kind is list or kind is tuple) and np.size(value) == 1:
+        value = np.asarray(value).reshape(())
+    return real_number(value, name)
 
 
 class RecursiveEstimator:
@@ -397,7 +355,7 @@ class RecursiveEstimator:
                 self._status[0] = status
                 self._report(self._status, snapshot)
             return self._lane0[self._theta_slice].copy()
-        y_arr = _lane_vector(y_t, self._B, "y(t)")
+        y_arr = lane_vector(y_t, self._B, "y(t)")
         _k.update_lanes(rec, spec.at, spec.config, y_arr, self._status)
         if self._status.any():
             self._report(self._status, snapshot)
@@ -421,11 +379,11 @@ class RecursiveEstimator:
         if self.num_envs is None:
             u = _scalar(u_t, "u(t)")
         else:
-            u = _lane_vector(u_t, B, "u(t)")
+            u = lane_vector(u_t, B, "u(t)")
         known = None
         if x_next is not None:
             if self.num_envs is None:
-                known = as_finite_vector(x_next, "x_next", length=self.n)[None, :]
+                known = finite_vector(x_next, "x_next", length=self.n)[None, :]
             else:
                 known = np.asarray(x_next, dtype=float)
                 if known.shape != (B, self.n) or not np.all(np.isfinite(known)):
@@ -472,13 +430,7 @@ class RecursiveEstimator:
         """
         if self.num_envs is not None or callable(self.spec.observer_gain):
             return self._run_steps(u, y)
-        u_arr = as_finite_vector(u, "u")
-        y_arr = as_finite_vector(y, "y")
-        if u_arr.size != y_arr.size:
-            raise ValueError(
-                f"u and y must have the same length (u[k], y[k] = u(t), y(t), t = k + 1), "
-                f"got len(u)={u_arr.size}, len(y)={y_arr.size}"
-            )
+        u_arr, y_arr = vector_pair(u, y, ("u", "y"), " (u[k], y[k] = u(t), y(t), t = k + 1)")
         if self._rec[0, self.spec.offset("phase")] != 0.0:
             raise RuntimeError(f"{self.name}: run() called between update() and predict()")
         T = u_arr.size
@@ -498,7 +450,7 @@ class RecursiveEstimator:
         u_arr = np.asarray(u, dtype=float)
         y_arr = np.asarray(y, dtype=float)
         if self.num_envs is None:
-            u_arr, y_arr = as_finite_vector(u, "u"), as_finite_vector(y, "y")
+            u_arr, y_arr = finite_vector(u, "u"), finite_vector(y, "y")
         if u_arr.shape != y_arr.shape or u_arr.ndim != (1 if self.num_envs is None else 2):
             raise ValueError(
                 f"u and y must have the same shape ((T,) single, (T, B) batch), got "
@@ -651,12 +603,6 @@ class RecursiveEstimator:
         self._field("Q")[...] = Qm
 
     @property
-    def state_estimator(self) -> RecursiveEstimator | None:
-        """The Kalman filter's settings (``P1``, ``R``, ``Q``) for KF estimators (this object),
-        else ``None``; kept for callers that read ``est.state_estimator.P1``."""
-        return self if self.spec.state == "KF" else None
-
-    @property
     def innovation(self) -> NDArray:
         """``E(p, t)`` of the last update (length ``p``; ``e(t)`` for SG/RLS)."""
         return self._out(self._field("E"))
@@ -766,31 +712,7 @@ class RecursiveEstimator:
 
 
 def make_estimator(
-    name: str,
-    n: int,
-    *,
-    p: int = 1,
-    p0: float = 1e6,
-    form: str = "observer",
-    forgetting: float = 1.0,
-    window: int | None = None,
-    theta0: ArrayLike | None = None,
-    P0: ArrayLike | None = None,
-    r0: float | None = None,
-    stacked_r: bool = False,
-    x_init: ArrayLike | None = None,
-    P1_init: ArrayLike | None = None,
-    process_noise: ArrayLike | None = None,
-    measurement_noise: float | None = None,
-    observer_gain: ArrayLike | Callable[[NDArray, NDArray], NDArray] | None = None,
-    enabled: bool = True,
-    on_failure: str = "reset",
-    pd_check_every: int = 1,
-    project_stable: bool = False,
-    frozen_ratio: float = FROZEN_RATIO,
-    regressor: str = "predicted",
-    num_envs: int | None = None,
-    **removed: Any,
+    name: str, n: int, *, num_envs: int | None = None, **options: Any
 ) -> RecursiveEstimator:
     """Build one of the paper's recursive estimators by name, for one plant or ``num_envs``.
 
@@ -865,65 +787,40 @@ def make_estimator(
     -------
     RecursiveEstimator
     """
-    if removed:
-        if "mode" in removed:
-            raise TypeError(
-                "make_estimator() no longer takes mode=: there is one implementation (compiled "
-                "lane functions), and a single estimator equals its lane of a batch bit for bit"
-            )
-        raise TypeError(f"make_estimator() got unexpected keyword arguments {sorted(removed)}")
+    _BUILD_SIGNATURE.bind(name, n, **options)  # a TypeError naming an unknown keyword
+    theta0, P0 = options.get("theta0"), options.get("P0")
     lane_theta0 = lane_P0 = None
     if num_envs is not None:
-        if (
-            isinstance(num_envs, bool)
-            or not isinstance(num_envs, (int, np.integer))
-            or (num_envs < 1)
-        ):
-            raise ValueError(f"num_envs must be a positive integer or None, got {num_envs!r}")
-        B = int(num_envs)
+        B = num_envs = integer(num_envs, "num_envs")
         d = 2 * int(n) if isinstance(n, (int, np.integer)) else 0
         if theta0 is not None and np.ndim(theta0) == 2:
             lane_theta0 = np.array(theta0, dtype=float)
             if lane_theta0.shape != (B, d) or not np.all(np.isfinite(lane_theta0)):
                 raise ValueError(f"per-lane theta0 must be finite with shape ({B}, {d})")
-            theta0 = lane_theta0[0]
+            options["theta0"] = lane_theta0[0]
         if P0 is not None and np.ndim(P0) == 3:
             P0_arr = np.asarray(P0, dtype=float)
             if P0_arr.shape != (B, d, d):
                 raise ValueError(f"per-lane P0 must have shape ({B}, {d}, {d})")
             lane_P0 = np.array([check_covariance(M, d, "P0") for M in P0_arr])
-            P0 = lane_P0[0]
-    spec = EstimatorSpec.build(
-        name,
-        n,
-        p=p,
-        p0=p0,
-        form=form,
-        forgetting=forgetting,
-        window=window,
-        theta0=theta0,
-        P0=P0,
-        r0=r0,
-        stacked_r=stacked_r,
-        x_init=x_init,
-        P1_init=P1_init,
-        process_noise=process_noise,
-        measurement_noise=measurement_noise,
-        observer_gain=observer_gain,
-        enabled=enabled,
-        on_failure=on_failure,
-        pd_check_every=pd_check_every,
-        project_stable=project_stable,
-        frozen_ratio=frozen_ratio,
-        regressor=regressor,
-    )
+            options["P0"] = lane_P0[0]
+    spec = EstimatorSpec.build(name, n, **options)
     if lane_P0 is not None and spec.decomposed:
         n_ = spec.n
         if np.any(lane_P0[:, :n_, n_:] != 0.0) or np.any(lane_P0[:, n_:, :n_] != 0.0):
             raise ValueError("per-lane P0 must be block-diagonal diag(P_a, P_b) for D- rules")
-    return RecursiveEstimator(
-        spec,
-        None if num_envs is None else int(num_envs),
-        lane_theta0=lane_theta0,
-        lane_P0=lane_P0,
-    )
+    return RecursiveEstimator(spec, num_envs, lane_theta0=lane_theta0, lane_P0=lane_P0)
+
+
+# One source of truth for the keywords: make_estimator takes EstimatorSpec.build's (which
+# validates them) plus num_envs; help() and inspect show that combined signature.
+_BUILD_SIGNATURE = inspect.signature(EstimatorSpec.build)
+make_estimator.__signature__ = _BUILD_SIGNATURE.replace(  # type: ignore[attr-defined]
+    parameters=[
+        *_BUILD_SIGNATURE.parameters.values(),
+        inspect.Parameter(
+            "num_envs", inspect.Parameter.KEYWORD_ONLY, default=None, annotation="int | None"
+        ),
+    ],
+    return_annotation="RecursiveEstimator",
+)

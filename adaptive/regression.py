@@ -53,24 +53,23 @@ from __future__ import annotations
 
 import math
 import warnings
-from numbers import Real
 from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.kernels.estimator import check_int
+from stcgym.adaptive.kernels.estimator import check_covariance, upper_cholesky
 from stcgym.adaptive.kernels.least_squares import (
     DOWNDATE_TOL,
     factor_is_healthy,
     least_squares_downdate,
     least_squares_step,
-    upper_factor,
 )
 from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.compiled import Layout, lane, lanes, prange
+from stcgym.envs.validation import forgetting_factor, integer, lane_indices, real_array
 
 __all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
 
@@ -303,62 +302,25 @@ def rls_run_lanes(
 # --------------------------------------------------------------------------------------------
 
 
-def _forgetting(value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise ValueError(f"forgetting must be a real number in (0, 1], got {value!r}")
-    lam = float(value)
-    if not 0.0 < lam <= 1.0:  # also rejects NaN
-        raise ValueError(f"forgetting must lie in (0, 1], got {value!r}")
-    return lam
-
-
 def _initial_covariance(value: ArrayLike, d: int) -> tuple[NDArray, NDArray]:
-    """``(P0, S0)`` with ``S0`` upper triangular, ``S0 S0^T = P0``; ``P0 = 0`` gives zeros."""
-    expected = (
-        f"P0 must be a positive scalar, a vector of {d} positive values or a symmetric positive "
-        f"definite {d}x{d} matrix (or exactly 0: theta never adapts)"
-    )
+    """``(P0, S0)`` with ``S0`` upper triangular, ``S0 S0^T = P0``; ``P0 = 0`` gives zeros.
+
+    Exactly zero (a scalar, ``d`` values or a ``d x d`` matrix) means "theta never adapts";
+    anything else is a covariance as the recursive estimators take it.
+    """
     try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{expected}, got {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{expected}; it is not finite")
-    if arr.ndim == 0 or (arr.ndim == 1 and arr.size == d):
-        diag = np.broadcast_to(arr, (d,)).astype(float)
-        if not (np.all(diag > 0) or np.all(diag == 0)):
-            raise ValueError(f"{expected}, got {value!r}")
-        return np.diag(diag), np.diag(np.sqrt(diag))
-    if arr.shape != (d, d):
-        raise ValueError(f"{expected}, got shape {arr.shape}")
-    if not np.any(arr):
-        return arr, np.zeros((d, d))
-    scale = float(np.abs(arr).max())
-    if not np.allclose(arr, arr.T, rtol=0.0, atol=1e-12 * scale):
-        raise ValueError(f"{expected}; it is not symmetric")
-    P0 = 0.5 * (arr + arr.T)
-    S0 = np.zeros((d, d))
-    if not upper_factor(P0, S0):
-        lam_min = float(np.linalg.eigvalsh(P0).min())
-        raise ValueError(f"{expected}; its smallest eigenvalue is {lam_min:g}")
-    return P0, S0
+        zero = np.shape(value) in ((), (d,), (d, d)) and not np.any(np.asarray(value, float))
+    except (TypeError, ValueError):
+        zero = False  # not numbers: check_covariance names the expected form
+    if zero:
+        return np.zeros((d, d)), np.zeros((d, d))
+    P0 = check_covariance(value, d, "P0")
+    return P0, upper_cholesky(P0)
 
 
 # --------------------------------------------------------------------------------------------
 # Public class
 # --------------------------------------------------------------------------------------------
-
-
-def _real_array(value: ArrayLike, name: str) -> NDArray:
-    """``value`` as a float64 array; a ValueError naming ``name`` for text, objects, ragged
-    nesting or complex numbers (numpy would drop an imaginary part with only a warning)."""
-    try:
-        raw = np.asarray(value)
-        if np.iscomplexobj(raw):
-            raise TypeError("complex")
-        return np.asarray(raw, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be real numbers, got {value!r}") from exc
 
 
 class RecursiveLeastSquares:
@@ -412,10 +374,10 @@ class RecursiveLeastSquares:
         on_failure: OnFailure = "reset",
         num_envs: int | None = None,
     ) -> None:
-        d = check_int(num_params, "num_params", 1)
-        p = check_int(num_outputs, "num_outputs", 1)
+        d = integer(num_params, "num_params", 1)
+        p = integer(num_outputs, "num_outputs", 1)
         self._d, self._p = d, p
-        self._lam = _forgetting(forgetting)
+        self._lam = forgetting_factor(forgetting)
         self._P0, self._S0 = _initial_covariance(P0, d)
         self._frozen = not np.any(self._P0)  # P0 = 0: the gain is zero for ever
         if theta0 is None:
@@ -425,7 +387,7 @@ class RecursiveLeastSquares:
             if th.size != d or not np.all(np.isfinite(th)):
                 raise ValueError(f"theta0 must be a finite vector of length {d}, got {theta0!r}")
             self._theta0 = th
-        self._window = 0 if window is None else check_int(window, "window", 1)
+        self._window = 0 if window is None else integer(window, "window", 1)
         if self._window:
             if self._lam != 1.0:
                 raise ValueError("window (finite history) and forgetting < 1 are exclusive")
@@ -435,7 +397,7 @@ class RecursiveLeastSquares:
             raise ValueError(f"on_failure must be 'reset' or 'raise', got {on_failure!r}")
         self._reset_on_failure = on_failure == "reset"
         self._batched = num_envs is not None
-        B = 1 if num_envs is None else check_int(num_envs, "num_envs", 1)
+        B = 1 if num_envs is None else integer(num_envs, "num_envs", 1)
         self.enabled = enabled
 
         W = self._window
@@ -467,34 +429,18 @@ class RecursiveLeastSquares:
     # ---------------------------------------------------------------- lifecycle
     def reset(self, lanes: ArrayLike | None = None) -> None:
         """Back to ``theta0``, ``P0``, ``t = 0`` (all lanes, or the given lane indices / mask)."""
-        idx = self._lane_index(lanes)
+        idx = lane_indices(lanes, self._F.shape[0])
         rec = self._F[idx]
         rec[...] = 0.0
         self._layout.view(rec, "theta")[...] = self._theta0
         self._layout.view(rec, "S")[...] = self._S0
         self._F[idx] = rec
 
-    def _lane_index(self, lanes: ArrayLike | None) -> NDArray:
-        B = self._F.shape[0]
-        if lanes is None:
-            return np.arange(B)
-        idx = np.asarray(lanes)
-        if idx.dtype == bool:
-            if idx.shape != (B,):
-                raise ValueError(f"lanes as a mask must have shape ({B},), got {idx.shape}")
-            return np.flatnonzero(idx)
-        if not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError(f"lanes must be lane indices or a boolean mask, got {lanes!r}")
-        idx = idx.reshape(-1)
-        if idx.size and (idx.min() < 0 or idx.max() >= B):
-            raise ValueError(f"lanes must lie in 0..{B - 1}, got {lanes!r}")
-        return idx
-
     # ---------------------------------------------------------------- data checks
     def _regressor(self, phi: ArrayLike, lead: tuple[int, ...]) -> NDArray:
         """``phi`` as ``lead + (p, d)`` float64, C-contiguous; ValueError naming it otherwise."""
         d, p = self._d, self._p
-        arr = _real_array(phi, "phi")
+        arr = real_array(phi, "phi")
         if p == 1 and arr.shape == lead + (d,):
             arr = arr[..., None, :]
         if arr.shape != lead + (p, d):
@@ -509,7 +455,7 @@ class RecursiveLeastSquares:
 
     def _output(self, y: ArrayLike, lead: tuple[int, ...]) -> NDArray:
         p = self._p
-        arr = _real_array(y, "y")
+        arr = real_array(y, "y")
         if p == 1 and arr.shape == lead:
             arr = arr[..., None]
         if arr.shape != lead + (p,):

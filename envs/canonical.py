@@ -20,29 +20,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.envs.validation import finite_vector as as_finite_vector
+from stcgym.envs.validation import vector_pair
+
 Form = Literal["observer", "observability"]
 FORMS: tuple[str, ...] = ("observer", "observability")
-
-
-def as_finite_vector(value: ArrayLike, name: str, *, length: int | None = None) -> NDArray:
-    """Return ``value`` as a 1-D float array, or raise naming ``name`` and the expected form."""
-    try:
-        raw = np.asarray(value)
-        if raw.dtype.kind in "cUSV" or np.iscomplexobj(raw):  # no silent loss of an imaginary part
-            raise TypeError
-        arr = np.asarray(raw, dtype=float)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ValueError(f"{name} must be a sequence of real numbers, got {value!r}") from exc
-    arr = np.atleast_1d(arr)
-    if arr.ndim != 1:
-        raise ValueError(f"{name} must be one-dimensional, got shape {arr.shape}")
-    if arr.size == 0:
-        raise ValueError(f"{name} must not be empty")
-    if length is not None and arr.size != length:
-        raise ValueError(f"{name} must have length {length}, got {arr.size}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {arr}")
-    return arr
 
 
 def check_form(form: str) -> str:
@@ -64,14 +46,7 @@ def split_theta(theta: ArrayLike) -> tuple[NDArray, NDArray]:
 
 def check_ab(a: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
     """Validate the parameter pair ``(a, b)``: finite, non-empty, equal lengths ``n``."""
-    a_arr = as_finite_vector(a, "a")
-    b_arr = as_finite_vector(b, "b")
-    if a_arr.size != b_arr.size:
-        raise ValueError(
-            f"a and b must have the same length n (theta = [a1..an, b1..bn]), "
-            f"got len(a)={a_arr.size}, len(b)={b_arr.size}"
-        )
-    return a_arr, b_arr
+    return vector_pair(a, b, ("a", "b"), " n (theta = [a1..an, b1..bn])")
 
 
 def companion_A(a: NDArray, form: str = "observer") -> NDArray:
@@ -79,6 +54,10 @@ def companion_A(a: NDArray, form: str = "observer") -> NDArray:
 
     Observer form, eq. (1): first column ``-a``, ones on the superdiagonal.
     Observability form, eq. (146): ones on the superdiagonal, last row ``[-a_n .. -a_1]``.
+
+    This is the numpy face used by every module outside the lane functions; compiled code
+    fills the same matrix with ``stcgym.adaptive.kernels.state_estimation.companion_into`` or
+    applies it without forming it (``stcgym.envs.dynamics.shift_transition``).
     """
     a = np.asarray(a, dtype=float)
     n = a.size

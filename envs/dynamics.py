@@ -37,13 +37,10 @@ Pieces (lane functions; arrays are float64 and C-contiguous, modified in place w
 
 ``clip_input(u_raw, bound) -> (u, clipped)`` / ``clip_action(u_raw, bound, u) -> clipped``
     ``u = clip(u_raw, -bound, bound)`` for one value / element by element.
-``canonical_transition(x, a, b, u, form)``
-    ``x <- A(a) x + b u`` in place (``u`` a float; ``form`` 0 observer, 1 observability).
 ``shift_transition(x, a, a0, b, b0, u, form)``
-    The same with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` read in place (no array views: e.g.
+    ``x <- A(a) x + b u`` in place with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` read in place
+    (``u`` a float; ``form`` 0 observer, 1 observability; no array views: e.g.
     ``shift_transition(x, theta, 0, theta, n, u, form)`` for ``theta = [a; b]``).
-``canonical_step(x, a, b, u, w, form)``
-    ``x <- A(a) x + b u + w`` in place (``w`` the scaled process noise, length ``n``).
 ``canonical_output(x) -> float``
     ``y_clean = c x = x[0]`` (``D = 0`` in both canonical forms).
 ``add_noise(x, sigma, z)``
@@ -82,8 +79,8 @@ row per lane; outputs ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` 
 last scratch argument ``TMP`` of shape ``(B, n)``), and at reset :func:`canonical_outputs` /
 :func:`state_outputs` for lanes ``idx``. Each batch loop uses all cores from
 :data:`PARALLEL_MIN_LANES` lanes on and one thread below (``.compiled`` is the numba function
-itself). Lane functions take as few array views as possible: a view costs a reference-count
-update, which is most of the cost of a small plant's step.
+itself). Lane functions take as few array views as possible: each view passed to a call is a
+dozen machine words, a noticeable share of a small plant's step.
 
 Reference values and parameters for a rollout
 ---------------------------------------------
@@ -117,8 +114,7 @@ __all__ = [
     "FORM_CODES",
     "REWARD_FLOOR",
     "clip_action",
-    "canonical_transition",
-    "canonical_step",
+    "shift_transition",
     "canonical_output",
     "add_noise",
     "state_space_transition",
@@ -136,10 +132,14 @@ __all__ = [
     "PARALLEL_MIN_LANES",
 ]
 
-#: Batches smaller than this run their loop on the calling thread. Every array view a lane
-#: takes updates its parent's reference count atomically, so threads stepping lanes of the same
-#: arrays contend for that counter: measured on 2 cores, 2 threads were no faster than one at
-#: 1e5 lanes (150 vs 161 ns per lane) and up to 10x slower on a loaded machine.
+#: Batches smaller than this run their loop on the calling thread. The lane functions take no
+#: reference counts (no NRT), so threads no longer contend for a counter; what remains is the
+#: cost of waking and joining the pool's threads, which a plant step (about 30 ns per lane)
+#: only pays back for huge batches. Measured with ``python benchmarks/perf.py --plant-threads``
+#: on 2 cores shared with other jobs (load average about 5), ns per lane, 1 thread vs 2:
+#: B = 64: 111 vs 697; 1024: 47 vs 266; 16384: 32 vs 90; 65536: 30 vs 142-182;
+#: 262144: 27 vs 42; 1048576: 30 vs 35. One thread won at every size up to 2^20, so the
+#: threshold stays at 2^20; re-measure on a machine with more (idle) cores before lowering it.
 PARALLEL_MIN_LANES = 1 << 20
 
 
@@ -222,25 +222,11 @@ def shift_transition(x, a, a0, b, b0, u, form):
 
 
 @lane
-def canonical_transition(x, a, b, u, form):
-    """``x <- A(a) x + b u`` in place; ``form`` 0: observer (eq. (1)), 1: observability (146)."""
-    shift_transition(x, a, 0, b, 0, u, form)
-
-
-@lane
 def add_noise(x, sigma, z):
     """``x <- x + sigma z`` in place (untouched when ``sigma == 0``)."""
     if sigma != 0.0:
         for i in range(x.shape[0]):
             x[i] += sigma * z[i]
-
-
-@lane
-def canonical_step(x, a, b, u, w, form):
-    """``x <- A(a) x + b u + w`` in place (``w``: process noise already scaled, length ``n``)."""
-    shift_transition(x, a, 0, b, 0, u, form)
-    for i in range(x.shape[0]):
-        x[i] += w[i]
 
 
 @lane

@@ -35,7 +35,6 @@ Every env pickles and deep-copies; the copy continues exactly like the original.
 from __future__ import annotations
 
 import dataclasses
-import numbers
 from collections.abc import Sequence
 from typing import Any
 
@@ -54,6 +53,7 @@ from stcgym.envs.canonical import (
 )
 from stcgym.envs.catalogue import PlantSpec, get_plant
 from stcgym.envs.signals import Jumps, Reference, Schedule, make_references, make_schedule
+from stcgym.envs.validation import matrix, non_negative, positive, real_array
 
 __all__ = [
     "LinearPlantEnv",
@@ -74,62 +74,6 @@ DEFAULT_STATE_SPACE = {
     "A": ((0.9, 0.1), (0.0, 0.8)),
     "B": ((1.0, 0.0), (0.5, 1.0)),
 }
-
-
-def _number(value: Any, name: str) -> float:
-    """``value`` as a float, or ``TypeError`` naming ``name`` (strings, arrays, None ...)."""
-    if isinstance(value, np.ndarray) and value.shape == ():
-        value = value[()]
-    if isinstance(value, (str, bytes, bool)) or not isinstance(value, (numbers.Real, np.number)):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    try:
-        return float(value)
-    except OverflowError as exc:  # an int beyond the float range
-        raise ValueError(f"{name} must be a finite number, got {value!r}") from exc
-
-
-def _non_negative(value: Any, name: str) -> float:
-    v = _number(value, name)
-    if not np.isfinite(v) or v < 0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-    return v
-
-
-def _positive(value: Any, name: str) -> float:
-    v = _number(value, name)
-    if not np.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return v
-
-
-def _real_array(value: Any, name: str) -> NDArray:
-    """``value`` as a float array; ``ValueError`` naming ``name`` for ragged, complex or text."""
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError, OverflowError) as exc:  # ragged nested sequences
-        raise ValueError(f"{name} must be a rectangular array of real numbers") from exc
-    if arr.dtype.kind == "c":
-        raise ValueError(f"{name} must be real, got complex values {value!r}")
-    if arr.dtype.kind not in "biuf":
-        raise ValueError(f"{name} must be an array of real numbers, got {value!r}")
-    return arr.astype(float)
-
-
-def _matrix(value: ArrayLike, name: str, shape: tuple[int | None, int | None]) -> NDArray:
-    """2-D finite float matrix with the given shape (``None`` = any size, at least 1)."""
-    arr = _real_array(value, name)
-    if arr.ndim == 1 and shape[1] == 1:
-        arr = arr.reshape(-1, 1)
-    if arr.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D matrix, got shape {arr.shape}")
-    for got, want, what in zip(arr.shape, shape, ("rows", "columns"), strict=True):
-        if want is not None and got != want:
-            raise ValueError(f"{name} must have {want} {what} (shape {shape}), got {arr.shape}")
-        if want is None and got == 0:
-            raise ValueError(f"{name} must have at least one of its {what}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
-    return np.ascontiguousarray(arr)
 
 
 class _NormalStream:
@@ -187,11 +131,11 @@ class LinearPlantEnv(gym.Env):
     ) -> None:
         super().__init__()
         self.n_states, self.n_inputs, self.n_outputs = n_states, n_inputs, n_outputs
-        self.noise_std = _non_negative(noise_std, "noise_std")
-        self.process_noise_std = _non_negative(process_noise_std, "process_noise_std")
-        self.control_cost = _non_negative(control_cost, "control_cost")
-        self.action_bound = _positive(action_bound, "action_bound")
-        self.y_bound = _positive(y_bound, "y_bound")
+        self.noise_std = non_negative(noise_std, "noise_std")
+        self.process_noise_std = non_negative(process_noise_std, "process_noise_std")
+        self.control_cost = non_negative(control_cost, "control_cost")
+        self.action_bound = positive(action_bound, "action_bound")
+        self.y_bound = positive(y_bound, "y_bound")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -258,7 +202,7 @@ class LinearPlantEnv(gym.Env):
         self._x = self._check_state(value, "x")
 
     def _check_state(self, value: ArrayLike, name: str) -> NDArray:
-        x = _real_array(value, name).ravel()
+        x = real_array(value, name).ravel()
         if x.shape != (self.n_states,) or not np.all(np.isfinite(x)):
             raise ValueError(f"{name} must be a finite vector of length {self.n_states}")
         return np.ascontiguousarray(x)
@@ -309,7 +253,7 @@ class LinearPlantEnv(gym.Env):
         if "initial_state" in options:
             x0 = self._check_state(options["initial_state"], "options['initial_state']")
         elif "initial_state_std" in options:
-            std = _non_negative(options["initial_state_std"], "options['initial_state_std']")
+            std = non_negative(options["initial_state_std"], "options['initial_state_std']")
 
         super().reset(seed=seed)
         children = np.random.SeedSequence(int(self.np_random.integers(2**63))).spawn(5)
@@ -343,7 +287,7 @@ class LinearPlantEnv(gym.Env):
         return np.concatenate((self._y, r)), self._info()
 
     def _action(self, action: ArrayLike) -> NDArray:
-        u = _real_array(action, "action")
+        u = real_array(action, "action")
         if u.size != self.n_inputs or u.ndim > 1 and u.shape != (self.n_inputs,):
             raise ValueError(
                 f"action must have shape ({self.n_inputs},) (a scalar is accepted when there is "
@@ -633,7 +577,7 @@ class StateSpaceEnv(LinearPlantEnv):
         import control
 
         if dt is not None:
-            dt = _positive(dt, "dt")
+            dt = positive(dt, "dt")
         if canonical is not None and canonical not in ("reachable", "observable", "modal"):
             raise ValueError(
                 f"canonical must be None, 'reachable', 'observable' or 'modal', got {canonical!r}"
@@ -657,22 +601,22 @@ class StateSpaceEnv(LinearPlantEnv):
             A_, B_ = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
             C_, D_ = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
             self.dt = sysd.dt
-            A_, B_ = _matrix(A_, "sys.A", (None, None)), _matrix(B_, "sys.B", (A_.shape[0], None))
+            A_, B_ = matrix(A_, "sys.A", (None, None)), matrix(B_, "sys.B", (A_.shape[0], None))
         else:
             if A is None and B is None:
                 A, B = DEFAULT_STATE_SPACE["A"], DEFAULT_STATE_SPACE["B"]
             if A is None or B is None:
                 raise ValueError("StateSpaceEnv needs both matrices A and B (or sys=...)")
-            A_ = _matrix(A, "A", (None, None))
+            A_ = matrix(A, "A", (None, None))
             if A_.shape[0] != A_.shape[1]:
                 raise ValueError(f"A must be square (n x n), got shape {A_.shape}")
             n = A_.shape[0]
-            B_ = _matrix(B, "B", (n, None))
-            C_ = np.eye(n) if C is None else _matrix(C, "C", (None, n))
+            B_ = matrix(B, "B", (n, None))
+            C_ = np.eye(n) if C is None else matrix(C, "C", (None, n))
             D_ = (
                 np.zeros((C_.shape[0], B_.shape[1]))
                 if D is None
-                else _matrix(D, "D", (C_.shape[0], B_.shape[1]))
+                else matrix(D, "D", (C_.shape[0], B_.shape[1]))
             )
             self.dt = True if dt is None else dt
             if canonical is not None:
@@ -697,8 +641,8 @@ class StateSpaceEnv(LinearPlantEnv):
         if "A" not in options and "B" not in options:
             return None
         n, m = self.B_nominal.shape
-        A = _matrix(options["A"], "options['A']", (n, n)) if "A" in options else self.A_nominal
-        B = _matrix(options["B"], "options['B']", (n, m)) if "B" in options else self.B_nominal
+        A = matrix(options["A"], "options['A']", (n, n)) if "A" in options else self.A_nominal
+        B = matrix(options["B"], "options['B']", (n, m)) if "B" in options else self.B_nominal
         return np.hstack((A, B))
 
     def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:
@@ -756,7 +700,7 @@ class MultichannelStaticEnv(LinearPlantEnv):
     def __init__(
         self, theta: ArrayLike = ((1.0, 2.0), (0.0, 1.0)), *, noise_std: float = 0.1, **kwargs: Any
     ) -> None:
-        self._theta0 = _matrix(theta, "theta", (None, None))
+        self._theta0 = matrix(theta, "theta", (None, None))
         n_in, n_out = self._theta0.shape
         if "process_noise_std" in kwargs or "initial_state" in kwargs:
             raise ValueError("a static object has no state: no process noise or initial state")
@@ -765,7 +709,7 @@ class MultichannelStaticEnv(LinearPlantEnv):
 
     def _parse_options(self, options: dict[str, Any]) -> NDArray | None:
         if "theta" in options:
-            return _matrix(options["theta"], "options['theta']", self._theta0.shape)
+            return matrix(options["theta"], "options['theta']", self._theta0.shape)
         return None
 
     def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:

@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.envs.validation import finite_array, integer, real_number
+
 __all__ = [
     "NEVER",
     "Reference",
@@ -60,23 +62,12 @@ NEVER = int(np.iinfo(np.int64).max)
 _LANE0 = np.zeros(1, dtype=np.int64)
 
 
-def _finite(value: Any, name: str) -> float:
-    if isinstance(value, (str, bytes)) or not isinstance(value, (numbers.Real, np.number)):
-        raise TypeError(f"{name} must be a finite real number, got {value!r}")
-    try:
-        v = float(value)
-    except OverflowError as exc:  # an int beyond the float range
-        raise ValueError(f"{name} must be a finite number, got {value!r}") from exc
-    if not np.isfinite(v):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    return v
-
-
-def _positive_int(value: Any, name: str) -> int:
-    v = _finite(value, name)
-    if int(v) != v or v < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(v)
+def _repr(obj: object) -> str:
+    """``Class(field=value, ...)`` of the public settings (not the per-lane state)."""
+    fields = ", ".join(
+        f"{k}={v!r}" for k, v in vars(obj).items() if not k.startswith("_") and k != "num_lanes"
+    )
+    return f"{type(obj).__name__}({fields})"
 
 
 def _lanes(lanes: ArrayLike | None, num_lanes: int) -> NDArray[np.int64]:
@@ -121,12 +112,7 @@ class Reference:
         return float(self.values(np.array([k], dtype=np.int64), _LANE0)[0])
 
     def __repr__(self) -> str:
-        fields = ", ".join(
-            f"{k}={v!r}"
-            for k, v in vars(self).items()
-            if not k.startswith("_") and k != "num_lanes"
-        )
-        return f"{type(self).__name__}({fields})"
+        return _repr(self)
 
 
 class SquareWave(Reference):
@@ -137,11 +123,11 @@ class SquareWave(Reference):
     """
 
     def __init__(self, period: int = 100, amplitude: float = 1.0, offset: float = 0.0) -> None:
-        self.period = _positive_int(period, "period")
+        self.period = integer(period, "period")
         if self.period < 2:
             raise ValueError(f"period must be at least 2 steps, got {period}")
-        self.amplitude = _finite(amplitude, "amplitude")
-        self.offset = _finite(offset, "offset")
+        self.amplitude = real_number(amplitude, "amplitude")
+        self.offset = real_number(offset, "offset")
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         first_half = (k % self.period) < self.period / 2
@@ -152,12 +138,12 @@ class Step(Reference):
     """``r(k) = initial`` before step ``at``, ``amplitude`` from then on."""
 
     def __init__(self, amplitude: float = 1.0, at: int = 0, initial: float = 0.0) -> None:
-        self.amplitude = _finite(amplitude, "amplitude")
-        at_ = _finite(at, "at")
+        self.amplitude = real_number(amplitude, "amplitude")
+        at_ = real_number(at, "at")
         if int(at_) != at_ or at_ < 0:
             raise ValueError(f"at must be a non-negative integer step, got {at!r}")
         self.at = int(at_)
-        self.initial = _finite(initial, "initial")
+        self.initial = real_number(initial, "initial")
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         return np.where(k >= self.at, self.amplitude, self.initial)
@@ -169,12 +155,12 @@ class Sine(Reference):
     def __init__(
         self, period: float = 100.0, amplitude: float = 1.0, phase: float = 0.0, offset: float = 0.0
     ) -> None:
-        self.period = _finite(period, "period")
+        self.period = real_number(period, "period")
         if self.period <= 0:
             raise ValueError(f"period must be positive, got {period}")
-        self.amplitude = _finite(amplitude, "amplitude")
-        self.phase = _finite(phase, "phase")
-        self.offset = _finite(offset, "offset")
+        self.amplitude = real_number(amplitude, "amplitude")
+        self.phase = real_number(phase, "phase")
+        self.offset = real_number(offset, "offset")
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         return self.offset + self.amplitude * np.sin(2 * np.pi * k / self.period + self.phase)
@@ -192,9 +178,9 @@ class PRBS(Reference):
     _CHUNK = 64
 
     def __init__(self, amplitude: float = 1.0, hold: int = 10, offset: float = 0.0) -> None:
-        self.amplitude = _finite(amplitude, "amplitude")
-        self.hold = _positive_int(hold, "hold")
-        self.offset = _finite(offset, "offset")
+        self.amplitude = real_number(amplitude, "amplitude")
+        self.hold = integer(hold, "hold")
+        self.offset = real_number(offset, "offset")
         self.allocate(1)
         self.reset_lanes(_LANE0, [np.random.default_rng(0)])
 
@@ -350,7 +336,7 @@ def make_reference(spec: Any = "square", **kwargs: Any) -> Reference:
     if callable(spec):
         return CallableReference(spec)
     if isinstance(spec, (numbers.Real, np.number)) and not isinstance(spec, bool):
-        value = _finite(spec, "reference")
+        value = real_number(spec, "reference")
         return Step(amplitude=value, at=0, initial=value)
     if isinstance(spec, (Sequence, np.ndarray)) and not isinstance(spec, bytes):
         return ArrayReference(spec)
@@ -425,12 +411,7 @@ class Schedule:
         return self.values(np.array([k], dtype=np.int64), _LANE0)[0]
 
     def __repr__(self) -> str:
-        fields = ", ".join(
-            f"{k}={v!r}"
-            for k, v in vars(self).items()
-            if not k.startswith("_") and k != "num_lanes"
-        )
-        return f"{type(self).__name__}({fields})"
+        return _repr(self)
 
 
 class Constant(Schedule):
@@ -445,16 +426,11 @@ class Constant(Schedule):
 
 
 def _check_shape(value: ArrayLike, like: tuple[int, ...], name: str) -> NDArray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be an array of numbers of shape {like}") from exc
+    arr = finite_array(value, name)
     if arr.shape != like:
         raise ValueError(
             f"{name} must have the shape of the plant parameters {like}, got {arr.shape}"
         )
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
     return arr
 
 
@@ -516,7 +492,7 @@ class Ramp(Schedule):
     """Slow linear drift from the nominal parameters to ``target`` over steps start..stop."""
 
     def __init__(self, target: ArrayLike, start: int, stop: int) -> None:
-        s0, s1 = _finite(start, "start"), _finite(stop, "stop")
+        s0, s1 = real_number(start, "start"), real_number(stop, "stop")
         if int(s0) != s0 or int(s1) != s1 or not 0 <= s0 < s1:
             raise ValueError(
                 f"need integer steps 0 <= start < stop, got start={start}, stop={stop}"
@@ -551,10 +527,10 @@ class RandomWalk(Schedule):
     """
 
     def __init__(self, std: float, start: int = 0, mask: ArrayLike | None = None) -> None:
-        self.std = _finite(std, "std")
+        self.std = real_number(std, "std")
         if self.std < 0:
             raise ValueError(f"std must be non-negative, got {std}")
-        s0 = _finite(start, "start")
+        s0 = real_number(start, "start")
         if int(s0) != s0 or s0 < 0:
             raise ValueError(f"start must be a non-negative integer step, got {start!r}")
         self.start = int(s0)

@@ -75,10 +75,10 @@ from stcgym.envs.plants import (
     ObservabilityCanonicalEnv,
     ObserverCanonicalEnv,
     StateSpaceEnv,
-    _non_negative,
-    _real_array,
 )
 from stcgym.envs.signals import NEVER, Schedule
+from stcgym.envs.validation import non_negative as _non_negative
+from stcgym.envs.validation import real_array as _real_array
 
 __all__ = [
     "LinearPlantVectorEnv",

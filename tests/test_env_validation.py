@@ -222,18 +222,23 @@ def _continuations(env, other, steps=30, vector=False):
             np.testing.assert_array_equal(v1, v2)
 
 
+def _clones_continue_like_the_original(env, steps=30):
+    """Each clone (pickled, deep-copied) made from ``env`` as it is then steps like ``env``."""
+    for make_clone in (lambda e: pickle.loads(pickle.dumps(e)), copy.deepcopy):
+        _continuations(env, make_clone(env), steps=steps)
+
+
 @pytest.mark.parametrize(("env_id", "kwargs"), COPY_CASES)
 def test_single_envs_pickle_and_deepcopy_with_identical_continuation(env_id, kwargs):
     env = gym.make(env_id, **kwargs)
     env.reset(seed=2)
     for _ in range(7):
         env.step(env.action_space.sample())
-    for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
-        twin = copy.deepcopy(env)
-        _continuations(twin, clone)
-        _, info = clone.reset(seed=5)
-        _, info2 = twin.reset(seed=5)
-        np.testing.assert_array_equal(info["x"], info2["x"])
+    _clones_continue_like_the_original(env)
+    clone = copy.deepcopy(env)
+    _, info = clone.reset(seed=5)
+    _, info2 = env.reset(seed=5)
+    np.testing.assert_array_equal(info["x"], info2["x"])
 
 
 @pytest.mark.parametrize(
@@ -248,8 +253,24 @@ def test_vector_envs_pickle_and_deepcopy_with_identical_continuation(vcls, kwarg
     venv.reset(seed=0)
     for _ in range(3):
         venv.step(venv.action_space.sample())
-    for clone in (pickle.loads(pickle.dumps(venv)), copy.deepcopy(venv)):
-        _continuations(copy.deepcopy(venv), clone, steps=12, vector=True)
+    _clones_continue_like_the_original(venv, steps=12)
+
+
+def test_the_copy_check_catches_a_copy_that_loses_the_state(monkeypatch):
+    """A copy that restarts its plant from x = 0 (the same for every copy) must be caught."""
+    env = gym.make(OC, plant="stable2", noise_std=0.1)
+    env.reset(seed=2)
+    for _ in range(7):
+        env.step(np.array([1.0]))
+    cls = type(env.unwrapped)
+
+    def lossy_setstate(self, state):
+        self.__dict__.update(state)
+        self.__dict__["_x"] = np.zeros_like(state["_x"])
+
+    monkeypatch.setattr(cls, "__setstate__", lossy_setstate, raising=False)
+    with pytest.raises(AssertionError):
+        _clones_continue_like_the_original(env)
 
 
 def test_make_vec_state_space_from_sys_pickles():

@@ -433,3 +433,40 @@ def test_schedules_give_each_lane_its_single_lane_values(schedule):
             if nxt[i] > k[i] + 1 and nxt[i] < k[i] + 50:
                 np.testing.assert_array_equal(singles[i](int(nxt[i]) - 1), want[i])
         k = k + np.array([1, 2, 1])
+
+
+# ------------------------------------------------------------------- threaded batch loops
+@pytest.mark.equality
+@pytest.mark.parametrize(
+    ("env_id", "kwargs"),
+    [
+        ("stcgym/ObserverCanonical-v0", {"plant": ["stable2", "unstable2"], "noise_std": 0.1}),
+        ("stcgym/ObservabilityCanonical-v0", {"plant": "stable4", "process_noise_std": 0.02}),
+        ("stcgym/StateSpace-v0", {"noise_std": 0.1, "process_noise_std": 0.01}),
+    ],
+)
+def test_a_batch_above_the_parallel_threshold_equals_the_single_envs(monkeypatch, env_id, kwargs):
+    """Batches of at least PARALLEL_MIN_LANES lanes run the prange on every core: each lane
+    must still be its single env bit for bit (the threshold lowered to 1 to get there)."""
+    from stcgym.envs import dynamics
+
+    monkeypatch.setattr(dynamics, "PARALLEL_MIN_LANES", 1)
+    B, seeds = 5, [11, 12, 13, 14, 15]
+    venv = gym.make_vec(env_id, num_envs=B, vectorization_mode="vector_entry_point", **kwargs)
+    envs = [gym.make(env_id, **kwargs) for _ in range(B)]
+    obs, _ = venv.reset(seed=seeds)
+    for i, (env, seed) in enumerate(zip(envs, seeds, strict=True)):
+        np.testing.assert_array_equal(obs[i], env.reset(seed=seed)[0])
+    rng = np.random.default_rng(0)
+    ended = np.zeros(B, dtype=bool)
+    for _ in range(40):
+        actions = rng.uniform(-2, 2, size=(B, *envs[0].action_space.shape))
+        obs, reward, terminated, truncated, _ = venv.step(actions)
+        for i, env in enumerate(envs):
+            if ended[i]:  # the vector env resets an ended lane on its next step
+                o, r, term, trunc = env.reset()[0], 0.0, False, False
+            else:
+                o, r, term, trunc, _ = env.step(actions[i])
+            np.testing.assert_array_equal(obs[i], o)
+            assert reward[i] == r and terminated[i] == term
+            ended[i] = term or trunc

@@ -214,7 +214,7 @@ def test_parameters_in_a_fixed_combination_are_not_identifiable():
     [
         ({"Phi0": [[0, 1, 2], [0, 0, 1]]}, "Phi0 must be square"),
         ({"Phi0": [[0, np.nan], [0, 0]]}, "Phi0 must be finite"),
-        ({"Gamma0": [0, 1, 2]}, "Gamma0 must be a matrix with 2 rows"),
+        ({"Gamma0": [0, 1, 2]}, r"Gamma0 must have 2 rows \(shape \(2, any\)\)"),
         ({"H": [1, 0, 0]}, "H must have 2 columns"),
         ({"Phi_terms": [[[0, 1, 0], [0, 0, 1]]]}, r"Phi_terms must have shape \(q, 2, 2\)"),
         ({"Phi_terms": [[0, 0], [0, 1]]}, "Phi_terms must be a sequence of matrices"),

@@ -164,6 +164,33 @@ def test_steady_state_gains_integrator_and_zero_at_one() -> None:
     assert rcond0 < 1e-12
 
 
+@pytest.mark.parametrize(
+    "design",
+    [
+        lambda A, b: ackermann(A, b, np.zeros(b.size)),
+        lambda A, b: steady_state_gains(A, b),
+        lambda A, b: augment_integral(A, b),
+        lambda A, b: place_poles(A, b, 0.5),
+    ],
+    ids=["ackermann", "steady_state_gains", "augment_integral", "place_poles"],
+)
+@pytest.mark.parametrize("shape", [(2, 3), (3, 2), (1, 4), (4,)])
+def test_a_non_square_A_is_rejected_naming_A(design, shape) -> None:
+    """The compiled loops size everything from b: a non-square A would be read out of bounds."""
+    A = np.full(shape, 0.1)
+    b = np.ones(min(shape))
+    with pytest.raises(ValueError, match="A must be a non-empty square matrix"):
+        design(A, b)
+
+
+def test_a_b_of_the_wrong_length_is_rejected_naming_b() -> None:
+    A = companion_A(np.array([-1.5, 0.7]))
+    with pytest.raises(ValueError, match="b must have length 2"):
+        ackermann(A, np.ones(3), np.zeros(2))
+    with pytest.raises(ValueError, match="b must have length 2"):
+        steady_state_gains(A, np.ones(1))
+
+
 # ----------------------------------------------------------------------------- LQ (lq_gain)
 def _output_weight(m: int, n: int, q_i: float = 0.0) -> np.ndarray:
     Q = np.zeros((m, m))
@@ -214,9 +241,9 @@ def test_lq_gain_rejects_unstabilisable_and_bad_input() -> None:
         lq_gain(A, np.array([1.0, 0.5]), np.eye(2), 0.0)
     with pytest.raises(ValueError, match="Q"):
         lq_gain(A, np.array([1.0, 0.5]), -np.eye(2), 1.0)
-    with pytest.raises(ValueError, match="Q must have shape"):
+    with pytest.raises(ValueError, match=r"Q must have 2 rows \(shape \(2, 2\)\)"):
         lq_gain(A, np.array([1.0, 0.5]), np.eye(3), 1.0)
-    with pytest.raises(ValueError, match="b must have 2"):
+    with pytest.raises(ValueError, match="b must have length 2"):
         lq_gain(A, np.array([1.0]), np.eye(2), 1.0)
 
 

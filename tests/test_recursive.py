@@ -171,13 +171,14 @@ def test_bad_data_and_call_order():
     est = make_estimator("KF-MILS", 2, p=3)
     with pytest.raises(RuntimeError, match="predict.. must follow update"):
         est.predict(1.0)
-    for bad in (np.nan, np.inf, "a", [1.0, 2.0]):
-        with pytest.raises(ValueError, match=r"y\(t\) must be a finite real scalar"):
+    bad_values = ((np.nan, ValueError), (np.inf, ValueError), ("a", TypeError), ([1, 2], TypeError))
+    for bad, error in bad_values:
+        with pytest.raises(error, match=r"y\(t\) must be a finite real number"):
             est.update(bad)
     est.update(np.float32(0.5))  # numpy scalars and 1-element arrays are fine
     with pytest.raises(RuntimeError, match="update.. called twice"):
         est.update(1.0)
-    with pytest.raises(ValueError, match=r"u\(t\) must be a finite real scalar"):
+    with pytest.raises(ValueError, match=r"u\(t\) must be a finite real number"):
         est.predict(-np.inf)
     with pytest.raises(ValueError, match="x_next must have length 2"):
         est.predict(1.0, x_next=[1.0])

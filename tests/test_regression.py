@@ -309,9 +309,9 @@ def test_bad_data_names_the_argument_and_changes_nothing():
             est.update(phi, y)
     with pytest.raises(ValueError, match=r"y must have shape \(3, 4\)"):
         est.run(np.zeros((3, 4, 2)), np.zeros((3, 5)))
-    with pytest.raises(ValueError, match="lanes must lie in 0..2"):
+    with pytest.raises(ValueError, match=r"lanes must be integers in \[0, 3\)"):
         est.reset(lanes=[3])
-    with pytest.raises(ValueError, match=r"lanes as a mask must have shape \(3,\)"):
+    with pytest.raises(ValueError, match=r"lanes as a boolean mask must have shape \(3,\)"):
         est.reset(lanes=[True, False])
     np.testing.assert_array_equal(est.theta, snapshot[0])
     np.testing.assert_array_equal(est.P, snapshot[1])

@@ -1,0 +1,116 @@
+"""The shared argument checks (stcgym.envs.validation): what they accept, and exceptions that
+name the argument and the expected form."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stcgym.envs import validation as v
+
+
+@pytest.mark.parametrize("value", [3, np.int64(3), np.uint8(3)])
+def test_integer_accepts_python_and_numpy_integers(value):
+    assert v.integer(value, "n") == 3 and type(v.integer(value, "n")) is int
+
+
+@pytest.mark.parametrize("value", [0, -1, True, 2.0, "2", None, [2], np.array(2)])
+def test_integer_rejects_everything_else_naming_the_argument(value):
+    with pytest.raises(ValueError, match=r"^n must be an integer >= 1, got"):
+        v.integer(value, "n")
+
+
+@pytest.mark.parametrize("value", [1.5, -2, np.float32(0.25), np.array(3.0)])
+def test_real_number_accepts_finite_real_scalars(value):
+    assert v.real_number(value, "x") == float(value)
+
+
+@pytest.mark.parametrize("value", ["1", None, [1.0], True, np.bool_(True), 1j, np.ones(2)])
+def test_a_scalar_of_the_wrong_kind_is_a_type_error(value):
+    with pytest.raises(TypeError, match=r"^x must be a finite real number"):
+        v.real_number(value, "x")
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf, 10**400])
+def test_a_non_finite_scalar_is_a_value_error(value):
+    with pytest.raises(ValueError, match=r"^x must be a finite real number"):
+        v.real_number(value, "x")
+
+
+def test_sign_checks():
+    assert v.non_negative(0.0, "s") == 0.0 and v.positive(1e-300, "s") == 1e-300
+    with pytest.raises(ValueError, match="s must be a finite number >= 0"):
+        v.non_negative(-1e-300, "s")
+    with pytest.raises(ValueError, match="s must be a finite number > 0"):
+        v.positive(0.0, "s")
+
+
+@pytest.mark.parametrize("value", [0.0, -0.1, 1.0000001, np.nan, True, "0.9"])
+def test_forgetting_factor_lies_in_the_half_open_unit_interval(value):
+    with pytest.raises(ValueError, match=r"lam must lie in \(0, 1\]"):
+        v.forgetting_factor(value, "lam")
+    assert v.forgetting_factor(1, "lam") == 1.0
+
+
+@pytest.mark.parametrize(
+    ("value", "match"),
+    [
+        ([[1.0], [1.0, 2.0]], "u must be a rectangular array"),
+        ([1.0, 2j], "u must be real"),
+        (["a"], "u must be an array of real numbers"),
+        ([[1.0, 2.0]], "u must be one-dimensional"),
+        ([], "u must not be empty"),
+        ([1.0, 2.0], "u must have length 3"),
+        ([1.0, np.nan, 0.0], "u must be finite"),
+    ],
+)
+def test_finite_vector_names_what_is_wrong(value, match):
+    with pytest.raises(ValueError, match=match):
+        v.finite_vector(value, "u", length=3)
+
+
+def test_finite_vector_returns_a_new_float_array():
+    src = np.array([1, 2, 3])
+    out = v.finite_vector(src, "u")
+    assert out.dtype == np.float64 and not np.shares_memory(out, src)
+    np.testing.assert_array_equal(v.finite_vector(2.5, "u"), [2.5])
+
+
+def test_matrices():
+    np.testing.assert_array_equal(v.matrix([1.0, 2.0], "b", (2, 1)), [[1.0], [2.0]])
+    with pytest.raises(ValueError, match=r"B must have 2 rows \(shape \(2, any\)\)"):
+        v.matrix(np.ones((3, 1)), "B", (2, None))
+    with pytest.raises(ValueError, match="C must have at least one of its rows"):
+        v.matrix(np.ones((0, 2)), "C", (None, 2))
+    for bad in (np.ones((2, 3)), np.ones(3), np.ones((0, 0))):
+        with pytest.raises(ValueError, match="A must be a non-empty square matrix"):
+            v.square_matrix(bad, "A")
+    with pytest.raises(ValueError, match="A must be finite"):
+        v.square_matrix([[1.0, np.inf], [0.0, 1.0]], "A")
+
+
+def test_lane_selections():
+    np.testing.assert_array_equal(v.lane_indices(None, 3), [0, 1, 2])
+    np.testing.assert_array_equal(v.lane_indices([True, False, True], 3), [0, 2])
+    np.testing.assert_array_equal(v.lane_indices(np.int64(2), 3), [2])
+    with pytest.raises(ValueError, match=r"lanes must be integers in \[0, 3\)"):
+        v.lane_indices([3], 3)
+    with pytest.raises(ValueError, match=r"lanes as a boolean mask must have shape \(3,\)"):
+        v.lane_indices([True], 3)
+    with pytest.raises(ValueError, match="lanes must be lane indices"):
+        v.lane_indices([0.5], 3)
+    np.testing.assert_array_equal(v.lane_vector(2.0, 3, "y"), [2.0, 2.0, 2.0])
+    np.testing.assert_array_equal(v.lane_vector([[1.0], [2.0]], 2, "y"), [1.0, 2.0])
+    with pytest.raises(ValueError, match=r"y must be finite; lanes \[1\] are not"):
+        v.lane_vector([0.0, np.nan], 2, "y")
+    with pytest.raises(ValueError, match=r"y must have shape \(2,\)"):
+        v.lane_vector([0.0, 1.0, 2.0], 2, "y")
+
+
+def test_vector_pairs_must_have_the_same_length():
+    u, y = v.vector_pair([1, 2], [3.0, 4.0], ("u", "y"))
+    np.testing.assert_array_equal(np.c_[u, y], [[1.0, 3.0], [2.0, 4.0]])
+    with pytest.raises(ValueError, match=r"u and y must have the same length L, got len\(u\)=2"):
+        v.vector_pair([1, 2], [3.0], ("u", "y"), " L")
+    with pytest.raises(ValueError, match="y must be finite"):
+        v.vector_pair([1, 2], [3.0, np.nan], ("u", "y"))
