@@ -1,0 +1,65 @@
+"""Sphinx configuration of the stcgym documentation (``make docs``).
+
+The build needs no network: no intersphinx inventories, no remote assets; the theme (furo) is a
+package dependency of the ``docs`` extra. Warnings are errors (``-W`` in the Makefile).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the local extension below
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+project = "stcgym"
+author = "the stcgym developers"
+copyright = "2026, the stcgym developers"
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.viewcode",
+    "numpydoc",
+    "sphinx_gallery.gen_gallery",
+    "sphinx_copybutton",
+]
+
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+root_doc = "index"
+exclude_patterns = ["_build", "gallery/*.ipynb", "gallery/*.py", "gallery/*.md5", "**.codeobj.json"]
+
+# MyST: ::: fences, definition lists, heading anchors for links between pages. The pages
+# and docstrings write equations as code (`theta += P phi e`): no maths renderer, no remote
+# script.
+myst_enable_extensions = ["colon_fence", "deflist"]
+myst_heading_anchors = 3
+
+# API reference: one page per public name, generated from the docstrings at build time
+autosummary_generate = True
+autosummary_imported_members = True
+autodoc_default_options = {"members": True, "inherited-members": False, "show-inheritance": True}
+autodoc_typehints = "none"  # numpydoc's Parameters sections carry the types
+autoclass_content = "class"
+numpydoc_show_class_members = False
+numpydoc_class_members_toctree = False
+numpydoc_validation_checks: set[str] = set()
+
+sphinx_gallery_conf = {
+    "examples_dirs": str(ROOT / "examples"),
+    "gallery_dirs": "gallery",
+    "filename_pattern": r"/plot_",
+    "download_all_examples": False,
+    "remove_config_comments": True,
+    "within_subsection_order": "FileNameSortKey",
+    "show_memory": False,
+    "abort_on_example_error": True,
+}
+
+html_theme = "furo"
+html_title = "stcgym"
+html_static_path: list[str] = []
+html_show_sourcelink = False
