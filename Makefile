@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip
 STAMP := $(VENV)/.stcgym-installed
 
-.PHONY: install bench bench-full test test-explore lint perf clean clean-cache
+.PHONY: install bench bench-full test test-explore lint perf docs clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -46,6 +46,10 @@ test-explore: install
 perf: install
 	$(BIN)/python benchmarks/perf.py
 
+# The documentation site, warnings as errors; the gallery executes every examples/plot_*.py.
+docs: install
+	cd docs && MPLBACKEND=Agg ../$(BIN)/python -m sphinx -W --keep-going -b html . _build/html
+
 lint: install
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
@@ -54,4 +58,4 @@ clean-cache:
 	find envs adaptive agents -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 clean: clean-cache
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis docs/_build docs/generated docs/gallery docs/sg_execution_times.rst

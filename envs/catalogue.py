@@ -46,26 +46,32 @@ class PlantSpec:
 
     @property
     def n(self) -> int:
+        """Plant order."""
         return len(self.a)
 
     @property
     def theta(self) -> NDArray:
+        """``[a1, ..., an, b1, ..., bn]`` as a float array."""
         return np.array(self.a + self.b, dtype=float)
 
     @property
     def poles(self) -> NDArray:
+        """Poles: the roots of the polynomial ``[1, a1, ..., an]`` (highest power first)."""
         return np.roots(np.concatenate(([1.0], self.a)))
 
     @property
     def zeros(self) -> NDArray:
+        """Zeros: the roots of the polynomial ``[b1, ..., bn]`` (highest power first)."""
         return np.roots(np.array(self.b, dtype=float))
 
     @property
     def stable(self) -> bool:
+        """Every pole strictly inside the unit circle."""
         return bool(np.all(np.abs(self.poles) < 1.0))
 
     @property
     def minimum_phase(self) -> bool:
+        """Every zero strictly inside the unit circle."""
         return bool(np.all(np.abs(self.zeros) < 1.0))
 
     @property

@@ -299,6 +299,28 @@ class LinearPlantEnv(gym.Env):
         return u
 
     def step(self, action: ArrayLike) -> tuple[NDArray, float, bool, bool, dict[str, Any]]:
+        """Apply ``u(k) = action`` (clipped to ``action_bound``) and advance to ``k + 1``.
+
+        Parameters
+        ----------
+        action
+            ``u(k)``, shape ``(n_inputs,)``, finite.
+
+        Returns
+        -------
+        observation, reward, terminated, truncated, info
+            ``[y(k+1), r(k+1)]``; ``-(||y_clean - r||^2 + rho ||u||^2)``; ``True`` when
+            ``|y|`` left ``y_bound`` (``info["diverged"]``); always ``False`` (the time limit
+            is the ``TimeLimit`` wrapper's); the true state ``x``, ``y_clean``, the parameters
+            in force and ``t``.
+
+        Raises
+        ------
+        ValueError
+            A malformed action, before anything changes.
+        RuntimeError
+            ``step`` before ``reset``.
+        """
         if not hasattr(self, "_v"):
             raise RuntimeError("call reset() before step()")
         u_raw = self._action(action)
@@ -491,10 +513,13 @@ class CanonicalPlantEnv(LinearPlantEnv):
 
     @property
     def a(self) -> NDArray:
+        """The plant's ``[a1, ..., an]`` in force (a copy), eq. (1)-(5)."""
         return self.params[: self.n_states].copy()
 
     @property
     def b(self) -> NDArray:
+        """The plant's ``[b1, ..., bn]`` in force (a copy): observer-form numerator
+        coefficients, or Markov parameters in the observability form (146)-(147)."""
         return self.params[self.n_states :].copy()
 
     def _info(self) -> dict[str, Any]:

@@ -398,6 +398,8 @@ class Schedule:
 
     @property
     def time_varying(self) -> bool:
+        """Whether the parameters may change within an episode (``False`` lets a loop skip
+        :meth:`values` after the reset)."""
         return True
 
     # single-lane convenience (lane 0 of a one-lane schedule)
