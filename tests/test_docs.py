@@ -1,5 +1,6 @@
-"""The documentation: every public name listed in the API reference, every Python snippet of the README and of the pages runs as written, and the site builds without a
-warning (the gallery's scripts run in ``tests/test_examples.py``)."""
+"""The documentation: every public name listed in the API reference, every Python snippet of
+the README and of the pages runs as written, and the site builds without a warning (the
+gallery's scripts run in ``tests/test_examples.py``)."""
 
 from __future__ import annotations
 
