@@ -9,8 +9,8 @@ controller sees only ``[y, r]`` and learns the plant within the episode.
 
 The training budget here is tiny, so that the example runs in seconds: **it does not train
 PPO to convergence**, and the numbers below say nothing about what PPO reaches with a real
-budget. The benchmark (``stcgym bench``, see the benchmark page of this documentation)
-trains PPO, SAC and RecurrentPPO with several seeds and long budgets and reports the
+budget. The benchmark (``stcgym bench``, see :doc:`the benchmark page </benchmark>`)
+trains PPO, SAC and RecurrentPPO with several seeds and longer budgets and reports the
 comparison with confidence intervals.
 """
 
@@ -31,7 +31,7 @@ from stcgym.agents import EnvSpec, default_config, run_episode, train_agent
 spec = EnvSpec(plants=("stable2",), steps=300, noise_std=0.05, period=100)
 config = default_config("ppo")
 agent = train_agent(
-    "ppo", config, spec, steps=6144, seed=0, curve_points=3, curve_seeds=(10_000,), progress=False
+    "ppo", config, spec, steps=4096, seed=0, curve_points=3, curve_seeds=(10_000,), progress=False
 )
 print(f"PPO: {agent.steps} environment steps in {agent.wall_s:.1f} s")
 for step, cost in agent.curve:

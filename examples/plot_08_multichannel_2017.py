@@ -33,25 +33,33 @@ PAPER = {100: [0.9505, 1.935, 0.02, 1.034], 200: [0.9791, 1.962, 0.01646, 1.025]
 PAPER_K100 = [-0.01028, -0.01047]
 
 
-def experiment(seed, P0=P0):
-    """One run: Theta(N) for N = 1..500 (flattened rows) and the gain K at N = 100."""
+def record(seed):
+    """One run of the object: the measured outputs ``y(k+1)`` for ``k = 0..N-1``."""
     env = gym.make("stcgym/MultichannelStatic-v0", reference="zero", max_episode_steps=N)
     env.reset(seed=seed)
+    Y = np.empty((N, 2))
+    for k in range(N):
+        obs, *_ = env.step(X[k])  # obs = [y(k+1) (2 values), r(k+1) (2 values)]
+        Y[k] = obs[:2]
+    env.close()
+    return Y
+
+
+def estimate(Y, P0=P0):
+    """``Theta(N)`` for ``N = 1..500`` (rows flattened) and the gain ``K`` at ``N = 100``."""
     est = MatrixRLS(2, 2, P0=P0)
     history = np.empty((N, 4))
     for k in range(N):
-        obs, *_ = env.step(X[k])  # obs = [y(k+1) (2 values), r(k+1) (2 values)]
-        est.update(X[k], obs[:2])
+        est.update(X[k], Y[k])
         history[k] = est.theta.ravel()
         if k + 1 == 100:
             K100 = est.K.copy()
-    env.close()
     return history, K100
 
 
 theta_true = gym.make("stcgym/MultichannelStatic-v0").unwrapped.theta
 print(f"true Theta = {theta_true.tolist()}")
-history, K100 = experiment(seed=0)
+history, K100 = estimate(record(seed=0))
 for n in (100, 200, 500):
     print(f"N = {n}: Theta = {np.round(history[n - 1], 4).tolist()}")
 print(f"gain at N = 100: K = {np.round(K100, 5).tolist()} (paper {PAPER_K100})")
@@ -65,8 +73,9 @@ print(f"gain at N = 100: K = {np.round(K100, 5).tolist()} (paper {PAPER_K100})")
 # The lines ``(paper - mean) / std`` say how many standard deviations of a single run the
 # paper's values lie from the mean of the runs.
 seeds = range(50)
-runs = np.array([experiment(s)[0] for s in seeds])
-flat = np.array([experiment(s, P0=1e6 * np.eye(2))[0] for s in seeds])
+records = [record(s) for s in seeds]
+runs = np.array([estimate(Y)[0] for Y in records])
+flat = np.array([estimate(Y, P0=1e6 * np.eye(2))[0] for Y in records])
 names = ["theta11", "theta12", "theta21", "theta22"]
 for n, paper in PAPER.items():
     mean, std = runs[:, n - 1].mean(axis=0), runs[:, n - 1].std(axis=0, ddof=1)
