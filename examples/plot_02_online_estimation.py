@@ -48,8 +48,9 @@ print(f"true theta = {theta_true}, pole radius {np.abs(get_plant('stable2').pole
 # Two estimators over the record
 # ------------------------------
 # ``run`` passes over the whole record in one compiled call and returns ``theta_hat(t)``
-# for every ``t``. The paper's default ``p0 = 1e6`` can freeze least squares on a wrong
-# model when the data are raw; ``p0 = 100`` is the robust choice.
+# for every ``t``. Both start from ``p0 = 100`` (``theta_hat(0) = 1/p0``,
+# ``P(0) = p0 I``): the paper's ``p0 = 1e6`` can freeze least squares on a wrong model when
+# the data are raw (see the estimators page).
 #
 # A third run uses an option that is not in the paper, ``regressor="filtered"``: the
 # regressor is built from the measurement-corrected state (for the observer, the measured

@@ -91,6 +91,8 @@ runs = {
 }
 after = runs["informed oracle"]["theta"][-1]
 print(f"after the jump:  a = {after[:2]}, b = {after[2:]}")
+poles_before, poles_after = get_plant("stable2").poles, np.roots([1.0, *after[:2]])
+print(f"open-loop poles before {np.round(poles_before, 3)}, after {np.round(poles_after, 3)}")
 oracle_cost = runs["informed oracle"]["cost"]
 
 

@@ -14,7 +14,8 @@ does from the command line; here a tiny family runs from Python, on one process.
 # ----------
 # A family spec is data (a dict here, a YAML or JSON file for the command). Plant ``i`` is
 # drawn from ``SeedSequence([seed, i])``, so the same spec gives the same plants anywhere.
-# A fifth of these plants are open-loop unstable and a fifth non-minimum phase.
+# Each plant is open-loop unstable with probability 0.2 and non-minimum phase with
+# probability 0.2 (``unstable_share``, ``nonminimum_phase_share``).
 import tempfile
 
 import matplotlib.pyplot as plt
@@ -63,8 +64,10 @@ for name, rows in table.groupby("controller", sort=False):
         f"90th percentile {np.percentile(ratio, 90):.3f}"
     )
 stc = table[table["controller"] == "stc"]
+n_unstable, n_nmp = int(stc["unstable"].sum()), int(stc["nonminimum_phase"].sum())
+print(f"{n_unstable} of {len(stc)} plants open-loop unstable, {n_nmp} non-minimum phase")
 lost = stc[stc["bounded"] == 0]
-print(f"stc loses {len(lost)} plants, {int(lost['unstable'].sum())} of them open-loop unstable")
+print(f"stc loses {len(lost)} plant(s), {int(lost['unstable'].sum())} of them open-loop unstable")
 
 # %%
 # The robustness map
