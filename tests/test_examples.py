@@ -1,0 +1,102 @@
+"""The examples gallery (``examples/plot_*.py``) runs, so a broken example fails the suite.
+
+Each script runs in a fresh interpreter (``MPLBACKEND=Agg``, a temporary working directory,
+the script's own folder not on the path) exactly as a user would run it, must exit with
+status 0 and must leave at least one matplotlib figure open at its end (what sphinx-gallery
+puts on the page). The scripts also have to be valid sphinx-gallery scripts: a docstring
+whose first line is a title underlined with ``=``, then ``# %%`` cells. The timeout only
+guards against a hang; it covers numba compiling the kernels from an empty cache.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+SCRIPTS = sorted(EXAMPLES.glob("plot_*.py"))
+#: Generous: one example compiles numba kernels for minutes on 2 cores from an empty cache.
+TIMEOUT_S = 900
+#: Optional packages an example needs beyond stcgym[plot] (the test is skipped without them).
+REQUIRES = {
+    "plot_06_sweep.py": ("pandas",),
+    "plot_07_ppo_vs_self_tuning.py": ("stable_baselines3", "torch"),
+}
+
+# Runs the script as ``__main__`` and reports how many figures it left open.
+_RUNNER = textwrap.dedent(
+    """
+    import runpy, sys
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    runpy.run_path(sys.argv[1], run_name="__main__")
+    print(f"open figures: {len(plt.get_fignums())}")
+    sys.exit(0 if plt.get_fignums() else 3)
+    """
+)
+
+
+def run_example(script: Path, cwd: Path, timeout: float = TIMEOUT_S) -> subprocess.CompletedProcess:
+    """Run ``script`` in a fresh interpreter in ``cwd``; the completed process (text output)."""
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    return subprocess.run(
+        [sys.executable, "-c", _RUNNER, str(script)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def _param(script: Path) -> object:
+    missing = [m for m in REQUIRES.get(script.name, ()) if importlib.util.find_spec(m) is None]
+    marks = pytest.mark.skipif(bool(missing), reason=f"needs {', '.join(missing)}")
+    return pytest.param(script, id=script.stem, marks=marks)
+
+
+def test_the_gallery_has_its_examples():
+    assert len(SCRIPTS) >= 8, [s.name for s in SCRIPTS]
+    assert set(REQUIRES) <= {s.name for s in SCRIPTS}, "REQUIRES names a script that is gone"
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=[s.stem for s in SCRIPTS])
+def test_example_is_a_sphinx_gallery_script(script):
+    source = script.read_text()
+    doc = ast.get_docstring(ast.parse(source), clean=False)
+    assert doc is not None, f"{script.name}: no module docstring (the gallery's title and text)"
+    lines = doc.strip().splitlines()
+    title, underline = lines[0], lines[1] if len(lines) > 1 else ""
+    assert title.strip() and set(underline.strip()) == {"="}, f"{script.name}: title + '===='"
+    assert len(underline.strip()) >= len(title.strip()), f"{script.name}: underline too short"
+    assert any(line.strip() for line in lines[2:]), f"{script.name}: no text under the title"
+    assert source.count("\n# %%") >= 2, f"{script.name}: cells are separated by '# %%'"
+
+
+@pytest.mark.parametrize("script", [_param(s) for s in SCRIPTS])
+def test_example_runs(script, tmp_path):
+    pytest.importorskip("matplotlib")
+    proc = run_example(script, tmp_path)
+    output = f"{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
+    assert proc.returncode == 0, f"{script.name} failed (exit {proc.returncode})\n{output}"
+    assert list(tmp_path.iterdir()) == [], f"{script.name} left files in its working directory"
+
+
+def test_a_failing_or_figureless_example_is_caught(tmp_path):
+    pytest.importorskip("matplotlib")
+    broken = tmp_path / "plot_broken.py"
+    broken.write_text('"""\nBroken\n======\n\nRaises.\n"""\nraise RuntimeError("boom")\n')
+    proc = run_example(broken, tmp_path)
+    assert proc.returncode != 0 and "boom" in proc.stderr
+    silent = tmp_path / "plot_silent.py"
+    silent.write_text('"""\nSilent\n======\n\nNo figure.\n"""\nprint("hello")\n')
+    proc = run_example(silent, tmp_path)
+    assert proc.returncode == 3 and "open figures: 0" in proc.stdout
