@@ -57,6 +57,8 @@ sphinx_gallery_conf = {
     "within_subsection_order": "FileNameSortKey",
     "show_memory": False,
     "abort_on_example_error": True,
+    # its timing pages load jQuery, DataTables and Bootstrap from CDNs: no remote assets here
+    "write_computation_times": False,
 }
 
 html_theme = "furo"
