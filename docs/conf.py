@@ -30,7 +30,14 @@ extensions = [
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
-exclude_patterns = ["_build", "sg_execution_times.rst", "gallery/*.ipynb", "gallery/*.py", "gallery/*.md5", "**.codeobj.json"]
+exclude_patterns = [
+    "_build",
+    "sg_execution_times.rst",
+    "gallery/*.ipynb",
+    "gallery/*.py",
+    "gallery/*.md5",
+    "**.codeobj.json",
+]
 
 # MyST: ::: fences, definition lists, heading anchors for links between pages. The pages
 # and docstrings write equations as code (`theta += P phi e`): no maths renderer, no remote
