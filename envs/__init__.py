@@ -56,8 +56,10 @@ from stcgym.envs.signals import (
     make_schedule,
 )
 
+#: ``max_episode_steps`` of every registered id (``gym.make(..., max_episode_steps=T)`` overrides).
 DEFAULT_MAX_EPISODE_STEPS = 1000
 
+#: The registered environment ids and their entry points (``"module:Class"``).
 ENV_IDS = {
     "stcgym/ObserverCanonical-v0": "stcgym.envs.plants:ObserverCanonicalEnv",
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.plants:ObservabilityCanonicalEnv",
@@ -65,8 +67,9 @@ ENV_IDS = {
     "stcgym/MultichannelStatic-v0": "stcgym.envs.plants:MultichannelStaticEnv",
 }
 
-# ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")`` builds these: all
-# lanes in numpy arrays, no Python loop per lane (the multichannel static object has none).
+#: The native vector envs: ``gym.make_vec(id, num_envs=B)`` builds these by default (also with
+#: ``vectorization_mode="vector_entry_point"``): all lanes in numpy arrays, stepped by one
+#: compiled loop (the multichannel static object has none).
 VECTOR_ENTRY_POINTS = {
     "stcgym/ObserverCanonical-v0": "stcgym.envs.vector:ObserverCanonicalVectorEnv",
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.vector:ObservabilityCanonicalVectorEnv",

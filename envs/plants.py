@@ -391,8 +391,8 @@ class LinearPlantEnv(gym.Env):
 
         Parameters
         ----------
-        action
-            ``u(k)``, shape ``(n_inputs,)``, finite.
+        action : array_like, shape (n_inputs,)
+            ``u(k)``, finite real numbers (a scalar when there is one input).
 
         Returns
         -------

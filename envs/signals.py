@@ -652,7 +652,7 @@ class Schedule:
         ----------
         lanes : ndarray of int
             Indices of the lanes that start an episode.
-        nominal : ndarray, shape (len(lanes), *shape)
+        nominal : ndarray, shape (len(lanes), ...)
             Each lane's nominal parameter array.
         rngs : sequence of numpy.random.Generator or None
             One generator per entry of ``lanes`` (random schedules draw from it).
@@ -681,8 +681,8 @@ class Schedule:
 
         Returns
         -------
-        ndarray, shape (len(lanes), *shape)
-            A new array.
+        ndarray, shape (len(lanes), ...)
+            One parameter array per entry of ``lanes`` (a new array).
         """
         return self._nominal[_lanes(lanes, self.num_lanes)].copy()
 
