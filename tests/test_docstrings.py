@@ -9,9 +9,10 @@ import inspect
 
 import pytest
 
-#: The packages whose public names must all carry a docstring. ``stcgym.adaptive`` and
-#: ``stcgym.agents`` join the list once every name of theirs has one.
-CHECKED_PACKAGES = ("stcgym.envs",)
+#: The packages (and the vector envs' module, public through ``gym.make_vec``) whose public
+#: names must all carry a docstring. ``stcgym.adaptive`` and ``stcgym.agents`` join the list
+#: once every name of theirs has one.
+CHECKED_PACKAGES = ("stcgym.envs", "stcgym.envs.vector")
 
 
 def _public_names(package: str) -> list[tuple[str, object]]:

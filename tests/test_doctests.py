@@ -1,6 +1,6 @@
 """The ``Examples`` of the public API run as written: every public name of ``stcgym.envs``,
-``stcgym.adaptive`` and ``stcgym.agents`` (each package's ``__all__``) and every public method
-and property of its classes, with the standard :mod:`doctest` module.
+``stcgym.adaptive``, ``stcgym.agents`` and ``stcgym.envs.vector`` (each one's ``__all__``) and
+every public method and property of its classes, with the standard :mod:`doctest` module.
 
 Each example runs in a fresh namespace holding only ``np`` (numpy), so it imports what it uses,
 as a user's script would. ``ELLIPSIS`` and ``NORMALIZE_WHITESPACE`` are on.
@@ -15,7 +15,9 @@ import inspect
 import numpy as np
 import pytest
 
-PACKAGES = ("stcgym.envs", "stcgym.adaptive", "stcgym.agents")
+#: The public packages, and the vector envs' module: those classes are public through
+#: ``gym.make_vec`` rather than through the package's ``__all__``.
+MODULES = ("stcgym.envs", "stcgym.adaptive", "stcgym.agents", "stcgym.envs.vector")
 OPTIONFLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 #: Examples known not to run in a fresh namespace: each one uses a name it does not import.
 #: Strict: the entry must go once the example imports what it uses.
@@ -44,7 +46,7 @@ def _members(obj: object) -> list[tuple[str, object]]:
 def _documented_objects() -> list[tuple[str, object]]:
     """``(qualified name, object)`` of every public name and member, each object once."""
     out, seen = [], set()
-    for package in PACKAGES:
+    for package in MODULES:
         module = importlib.import_module(package)
         for name in module.__all__:
             obj = getattr(module, name)
@@ -92,6 +94,7 @@ def test_the_collection_finds_the_examples_of_classes_functions_and_members():
     assert "stcgym.adaptive.RecursiveLeastSquares" in names  # a class
     assert "stcgym.envs.get_plant" in names  # a function
     assert "stcgym.envs.PlantSpec.dc_gain" in names  # a property
+    assert "stcgym.envs.vector.ObserverCanonicalVectorEnv" in names  # a vector env
 
 
 def test_a_wrong_expected_output_fails():
