@@ -451,6 +451,10 @@ _LANE0 = np.zeros(1, dtype=np.int64)
 class CanonicalPlantEnv(LinearPlantEnv):
     """SISO plant in a canonical form with parameters ``theta = [a1..an, b1..bn]``.
 
+    The base of :class:`ObserverCanonicalEnv` (Ding & Ma 2014, eq. (1)-(5)) and
+    :class:`ObservabilityCanonicalEnv` (eq. (146)-(147)), which fix ``form``; the matrices are
+    :func:`~stcgym.envs.canonical.canonical_matrices` of the parameters in force.
+
     Parameters
     ----------
     plant : str or list of str, optional
