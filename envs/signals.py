@@ -179,8 +179,8 @@ class SquareWave(Reference):
     Parameters
     ----------
     period : int, default 100
-        Steps per period, an integer ``>= 2`` (an odd period gives the first half the extra
-        step's half: ``k % period < period / 2``).
+        Steps per period, an integer ``>= 2`` (the high half is ``k % period < period / 2``,
+        so an odd period gives it the extra step).
     amplitude, offset : float, default 1.0 and 0.0
         Finite real numbers.
 
@@ -863,6 +863,8 @@ class Ramp(Schedule):
     ValueError
         ``start``/``stop`` not integers with ``0 <= start < stop``; ``target`` not finite, or
         (at reset) not of the parameters' shape.
+    TypeError
+        ``start`` or ``stop`` not a real number.
 
     Examples
     --------
