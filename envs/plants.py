@@ -715,6 +715,16 @@ class ObserverCanonicalEnv(CanonicalPlantEnv):
     + an)``. See :class:`CanonicalPlantEnv` for the parameters, ``reset`` options and ``info``.
     Registered as ``stcgym/ObserverCanonical-v0``.
 
+    Parameters
+    ----------
+    plant, a, b, schedule, **kwargs
+        As :class:`CanonicalPlantEnv`; ``b`` holds the numerator coefficients.
+
+    Raises
+    ------
+    ValueError, TypeError
+        As :class:`CanonicalPlantEnv`.
+
     Examples
     --------
     >>> import gymnasium as gym
@@ -742,6 +752,17 @@ class ObservabilityCanonicalEnv(CanonicalPlantEnv):
     ``A`` is a shift with last row ``[-a_n, ..., -a_1]``, ``B = b`` (the first ``n`` Markov
     parameters), ``C = [1, 0, ..., 0]``. See :class:`CanonicalPlantEnv` for the parameters,
     ``reset`` options and ``info``. Registered as ``stcgym/ObservabilityCanonical-v0``.
+
+    Parameters
+    ----------
+    plant, a, b, schedule, **kwargs
+        As :class:`CanonicalPlantEnv`; ``b`` holds the Markov parameters ``h_1..h_n`` (a
+        catalogue ``plant`` is converted).
+
+    Raises
+    ------
+    ValueError, TypeError
+        As :class:`CanonicalPlantEnv`.
 
     Examples
     --------

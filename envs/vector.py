@@ -850,6 +850,15 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     names (``plant=[...]``) every lane draws its own plant each episode, as the single env does.
     ``plant_index`` gives each lane's catalogue index in that list (``-1``: user parameters).
 
+    Parameters
+    ----------
+    num_envs, max_episode_steps, autoreset_mode, noise_buffer_bytes, info_keys
+        As :class:`LinearPlantVectorEnv`.
+    a, b : array_like, shape (n,) or (num_envs, n), optional
+        One plant for every lane, or (both two-dimensional) one row per lane.
+    **kwargs
+        The other arguments of :class:`~stcgym.envs.plants.CanonicalPlantEnv`.
+
     Raises
     ------
     ValueError
@@ -1018,8 +1027,12 @@ def _lane_rows(arr: NDArray, num_envs: int, width: int, name: str) -> NDArray:
 class ObserverCanonicalVectorEnv(CanonicalPlantVectorEnv):
     """Vector version of :class:`~stcgym.envs.plants.ObserverCanonicalEnv` (eq. (1)-(5)).
 
-    What ``gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=B, **kwargs)`` builds; the
-    arguments are those of :class:`CanonicalPlantVectorEnv`.
+    What ``gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=B, **kwargs)`` builds.
+
+    Parameters
+    ----------
+    num_envs, **kwargs
+        As :class:`CanonicalPlantVectorEnv`.
 
     Examples
     --------
@@ -1043,9 +1056,12 @@ class ObserverCanonicalVectorEnv(CanonicalPlantVectorEnv):
 class ObservabilityCanonicalVectorEnv(CanonicalPlantVectorEnv):
     """Vector version of :class:`~stcgym.envs.plants.ObservabilityCanonicalEnv` (eq. (146)-(147)).
 
-    What ``gym.make_vec("stcgym/ObservabilityCanonical-v0", num_envs=B, **kwargs)`` builds; the
-    arguments are those of :class:`CanonicalPlantVectorEnv` (per-lane ``b`` in Markov
-    parameters).
+    What ``gym.make_vec("stcgym/ObservabilityCanonical-v0", num_envs=B, **kwargs)`` builds.
+
+    Parameters
+    ----------
+    num_envs, **kwargs
+        As :class:`CanonicalPlantVectorEnv`; ``b`` (per lane or shared) holds Markov parameters.
 
     Examples
     --------
@@ -1066,8 +1082,14 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
 
     All lanes share the matrices unless ``reset(options=...)`` sets ``"A"``/``"B"`` (also per
     lane, shape ``(num_envs, n, n)`` / ``(num_envs, n, m)``) or a schedule varies them. What
-    ``gym.make_vec("stcgym/StateSpace-v0", num_envs=B, **kwargs)`` builds; the keyword
-    arguments are those of :class:`~stcgym.envs.plants.StateSpaceEnv`.
+    ``gym.make_vec("stcgym/StateSpace-v0", num_envs=B, **kwargs)`` builds.
+
+    Parameters
+    ----------
+    num_envs, max_episode_steps, autoreset_mode, noise_buffer_bytes, info_keys
+        As :class:`LinearPlantVectorEnv`.
+    **kwargs
+        The arguments of :class:`~stcgym.envs.plants.StateSpaceEnv` (shared by every lane).
 
     Examples
     --------
