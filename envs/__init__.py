@@ -22,15 +22,16 @@ from __future__ import annotations
 
 import gymnasium as gym
 
+from stcgym.envs import catalogue as _catalogue
+from stcgym.envs import plants as _plants
 from stcgym.envs.canonical import (
     canonical_matrices,
     companion_A,
     observer_to_observability_b,
     transfer_function_coefficients,
 )
-from stcgym.envs.catalogue import PLANTS, PlantSpec, get_plant, plant_names
+from stcgym.envs.catalogue import PlantSpec, get_plant, plant_names
 from stcgym.envs.plants import (
-    DEFAULT_STATE_SPACE,
     CanonicalPlantEnv,
     LinearPlantEnv,
     MultichannelStaticEnv,
@@ -56,8 +57,23 @@ from stcgym.envs.signals import (
     make_schedule,
 )
 
+# The public data names are bound here with their doc comments: the API reference reads a data
+# name's text from the module that exports it.
+
+#: The catalogue plants, :class:`PlantSpec` by name (``stable2``, ``lightly_damped2``,
+#: ``unstable2``, ``nonminphase2``, ``integrator2``, ``stable4``, ``timevarying2``; see
+#: :mod:`stcgym.envs.catalogue` for their poles, zeros and gains). :func:`get_plant` looks a name
+#: up case-insensitively with a clear error.
+PLANTS: dict[str, PlantSpec] = _catalogue.PLANTS
+
+#: The plant of ``gym.make("stcgym/StateSpace-v0")`` without matrices: a stable, coupled
+#: two-state, two-input plant (eigenvalues 0.9 and 0.8) with measured state (``C = I``, ``D = 0``).
+DEFAULT_STATE_SPACE: dict[str, tuple] = _plants.DEFAULT_STATE_SPACE
+
+#: ``max_episode_steps`` of every registered id (``gym.make(..., max_episode_steps=T)`` overrides).
 DEFAULT_MAX_EPISODE_STEPS = 1000
 
+#: The registered environment ids and their entry points (``"module:Class"``).
 ENV_IDS = {
     "stcgym/ObserverCanonical-v0": "stcgym.envs.plants:ObserverCanonicalEnv",
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.plants:ObservabilityCanonicalEnv",
@@ -65,8 +81,9 @@ ENV_IDS = {
     "stcgym/MultichannelStatic-v0": "stcgym.envs.plants:MultichannelStaticEnv",
 }
 
-# ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")`` builds these: all
-# lanes in numpy arrays, no Python loop per lane (the multichannel static object has none).
+#: The native vector envs: ``gym.make_vec(id, num_envs=B)`` builds these by default (also with
+#: ``vectorization_mode="vector_entry_point"``): all lanes in numpy arrays, stepped by one
+#: compiled loop (the multichannel static object has none).
 VECTOR_ENTRY_POINTS = {
     "stcgym/ObserverCanonical-v0": "stcgym.envs.vector:ObserverCanonicalVectorEnv",
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.vector:ObservabilityCanonicalVectorEnv",

@@ -58,6 +58,35 @@ def companion_A(a: NDArray, form: str = "observer") -> NDArray:
     This is the numpy face used by every module outside the lane functions; compiled code
     fills the same matrix with ``stcgym.adaptive.kernels.state_estimation.companion_into`` or
     applies it without forming it (``stcgym.envs.dynamics.shift_transition``).
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Denominator coefficients ``[a1, ..., an]`` of ``z^n + a1 z^{n-1} + ... + an``. Taken as
+        given (converted to float, not checked for finiteness): :func:`canonical_matrices` is
+        the validating entry point.
+    form : {"observer", "observability"}, default "observer"
+        The canonical form (case-insensitive).
+
+    Returns
+    -------
+    A : ndarray, shape (n, n)
+        A new float array.
+
+    Raises
+    ------
+    ValueError
+        ``form`` is not one of the two names.
+
+    Examples
+    --------
+    >>> from stcgym.envs import companion_A
+    >>> companion_A([-1.5, 0.7])
+    array([[ 1.5,  1. ],
+           [-0.7,  0. ]])
+    >>> companion_A([-1.5, 0.7], form="observability")
+    array([[ 0. ,  1. ],
+           [-0.7,  1.5]])
     """
     a = np.asarray(a, dtype=float)
     n = a.size
@@ -74,7 +103,42 @@ def canonical_matrices(
 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """Return ``(A, B, C, D)`` of the SISO canonical plant with parameters ``a``, ``b``.
 
-    ``B`` is the column ``b``, ``C = [1, 0, ..., 0]`` and ``D = 0`` (eq. (2), (147)).
+    ``A`` is :func:`companion_A` of ``a``, ``B`` the column ``b``, ``C = [1, 0, ..., 0]`` and
+    ``D = 0``: the observer canonical form of Ding & Ma (2014) eq. (1)-(2), or the
+    observability canonical form eq. (146)-(147).
+
+    Parameters
+    ----------
+    a, b : array_like, shape (n,)
+        ``theta = [a1..an, b1..bn]``: denominator coefficients, and the numerator coefficients
+        (observer form) or the first ``n`` Markov parameters (observability form). Finite,
+        non-empty, equal lengths.
+    form : {"observer", "observability"}, default "observer"
+        The canonical form (case-insensitive).
+
+    Returns
+    -------
+    A : ndarray, shape (n, n)
+    B : ndarray, shape (n, 1)
+    C : ndarray, shape (1, n)
+    D : ndarray, shape (1, 1)
+        New float arrays.
+
+    Raises
+    ------
+    ValueError
+        ``a`` or ``b`` empty, not finite, not one-dimensional or of different lengths (the
+        message names the argument); ``form`` unknown.
+
+    Examples
+    --------
+    >>> from stcgym.envs import canonical_matrices
+    >>> A, B, C, D = canonical_matrices([-1.5, 0.7], [1.0, 0.5])
+    >>> A
+    array([[ 1.5,  1. ],
+           [-0.7,  0. ]])
+    >>> B.ravel(), C, D
+    (array([1. , 0.5]), array([[1., 0.]]), array([[0.]]))
     """
     a_arr, b_arr = check_ab(a, b)
     n = a_arr.size
@@ -96,6 +160,37 @@ def transfer_function_coefficients(
     ``h_1..h_n`` and the numerator is ``beta = T b`` with ``T`` the lower-triangular Toeplitz
     matrix of ``[1, a1, ..., a_{n-1}]`` (from ``B(z) = A(z) H(z)`` truncated to its polynomial
     part).
+
+    Parameters
+    ----------
+    a, b : array_like, shape (n,)
+        The canonical form's parameters (finite, non-empty, equal lengths).
+    form : {"observer", "observability"}, default "observer"
+        The canonical form ``b`` belongs to.
+
+    Returns
+    -------
+    num : ndarray, shape (n,)
+        Numerator coefficients ``[beta_1, ..., beta_n]`` of ``beta_1 z^{n-1} + ... + beta_n``.
+    den : ndarray, shape (n + 1,)
+        Denominator coefficients ``[1, a1, ..., an]``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`canonical_matrices`.
+
+    See Also
+    --------
+    observer_to_observability_b : the inverse map of the observability form's numerator.
+
+    Examples
+    --------
+    The observability form's Markov parameters ``[1, 2]`` of ``stable2`` give back its numerator:
+
+    >>> from stcgym.envs import transfer_function_coefficients
+    >>> transfer_function_coefficients([-1.5, 0.7], [1.0, 2.0], form="observability")
+    (array([1. , 0.5]), array([ 1. , -1.5,  0.7]))
     """
     a_arr, b_arr = check_ab(a, b)
     den = np.concatenate(([1.0], a_arr))
@@ -112,8 +207,32 @@ def transfer_function_coefficients(
 def observer_to_observability_b(a: ArrayLike, beta: ArrayLike) -> NDArray:
     """Markov parameters ``h_1..h_n`` of ``beta(z) / (z^n + a1 z^{n-1} + ...)``.
 
-    Converts observer-form ``b`` (numerator coefficients) into observability-form ``b`` for the
-    same transfer function.
+    Converts observer-form ``b`` (numerator coefficients, eq. (1)-(5)) into observability-form
+    ``b`` (eq. (146)-(147)) for the same transfer function, by the recursion
+    ``h_k = beta_k - sum_{i<k} a_i h_{k-i}``: the first ``n`` impulse-response samples.
+
+    Parameters
+    ----------
+    a : array_like, shape (n,)
+        Denominator coefficients ``[a1, ..., an]``.
+    beta : array_like, shape (n,)
+        Numerator coefficients ``[beta_1, ..., beta_n]`` (the observer form's ``b``).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``[h_1, ..., h_n]``.
+
+    Raises
+    ------
+    ValueError
+        ``a`` or ``beta`` empty, not finite or of different lengths.
+
+    Examples
+    --------
+    >>> from stcgym.envs import observer_to_observability_b
+    >>> observer_to_observability_b([-1.5, 0.7], [1.0, 0.5])
+    array([1., 2.])
     """
     a_arr, beta_arr = check_ab(a, beta)
     n = a_arr.size

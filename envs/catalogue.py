@@ -36,7 +36,50 @@ __all__ = ["PlantSpec", "PLANTS", "get_plant", "plant_names"]
 
 @dataclass(frozen=True)
 class PlantSpec:
-    """A catalogue plant: observer-form ``a``, ``b`` and an optional parameter schedule."""
+    """A catalogue plant: observer-form ``a``, ``b`` and an optional parameter schedule.
+
+    The plant is ``(b1 z^{n-1} + ... + bn) / (z^n + a1 z^{n-1} + ... + an)``, sample time 1,
+    with ``theta = [a; b]`` of the observer canonical form, Ding & Ma (2014) eq. (1)-(5).
+    Instances are frozen (hashable, comparable by value; ``schedule`` is left out of the
+    comparison). The fields are stored as given, without checks: build plants of your own with
+    finite tuples of equal length ``n``.
+
+    Parameters
+    ----------
+    name : str
+        The catalogue key (lower case).
+    a : tuple of float, length n
+        Denominator coefficients ``[a1, ..., an]``.
+    b : tuple of float, length n
+        Numerator coefficients ``[b1, ..., bn]``.
+    description : str
+        One sentence for listings.
+    schedule : callable () -> Schedule, optional
+        Builds a fresh copy of the plant's own parameter schedule (acting on observer-form
+        ``theta``); ``None`` (default) for a time-invariant plant. A module-level function, so
+        that environments holding the spec pickle.
+
+    See Also
+    --------
+    get_plant, plant_names, PLANTS
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import get_plant
+    >>> plant = get_plant("unstable2")
+    >>> plant.a, plant.b, plant.n
+    ((-1.7, 0.66), (0.5, 0.3), 2)
+    >>> np.round(plant.poles, 3), plant.stable, plant.minimum_phase
+    (array([1.1, 0.6]), False, True)
+
+    A plant of your own, for the ``a``/``b`` arguments of an environment:
+
+    >>> from stcgym.envs import PlantSpec
+    >>> first_order = PlantSpec("first_order", a=(-0.5,), b=(1.0,), description="lag")
+    >>> first_order.theta, first_order.dc_gain
+    (array([-0.5,  1. ]), 2.0)
+    """
 
     name: str
     a: tuple[float, ...]
@@ -46,7 +89,7 @@ class PlantSpec:
 
     @property
     def n(self) -> int:
-        """Plant order."""
+        """Plant order ``n = len(a)``."""
         return len(self.a)
 
     @property
@@ -76,7 +119,15 @@ class PlantSpec:
 
     @property
     def dc_gain(self) -> float:
-        """``B(1) / A(1)``; ``inf`` for a pole at ``z = 1``."""
+        """Steady-state gain ``B(1) / A(1) = sum(b) / (1 + sum(a))``; ``inf`` for a pole at
+        ``z = 1`` (``|1 + sum(a)| <= 1e-12``).
+
+        Examples
+        --------
+        >>> from stcgym.envs import get_plant
+        >>> round(get_plant("stable2").dc_gain, 6), get_plant("integrator2").dc_gain
+        (7.5, inf)
+        """
         den = 1.0 + sum(self.a)
         return float(sum(self.b) / den) if abs(den) > 1e-12 else float("inf")
 
@@ -92,6 +143,8 @@ def _timevarying2_schedule() -> Schedule:
     return Jumps({TIMEVARYING2_JUMP_STEP: np.array(TIMEVARYING2_AFTER[0] + TIMEVARYING2_AFTER[1])})
 
 
+#: The catalogue: :class:`PlantSpec` by name (see the table above); :func:`get_plant` looks a
+#: name up case-insensitively with a clear error.
 PLANTS: dict[str, PlantSpec] = {
     p.name: p
     for p in (
@@ -143,12 +196,54 @@ PLANTS: dict[str, PlantSpec] = {
 
 
 def plant_names() -> list[str]:
-    """Names of the catalogue plants."""
+    """Names of the catalogue plants, in catalogue order.
+
+    Returns
+    -------
+    list of str
+        A new list (the keys of :data:`PLANTS`).
+
+    Examples
+    --------
+    >>> from stcgym.envs import plant_names
+    >>> plant_names()
+    ['stable2', 'lightly_damped2', 'unstable2', 'nonminphase2', 'integrator2', 'stable4',
+     'timevarying2']
+    """
     return list(PLANTS)
 
 
 def get_plant(name: str) -> PlantSpec:
-    """Look a plant up by name, raising ``ValueError`` that lists the valid names."""
+    """Look a catalogue plant up by name.
+
+    Parameters
+    ----------
+    name : str
+        A catalogue name (case-insensitive), one of :func:`plant_names`.
+
+    Returns
+    -------
+    PlantSpec
+        The catalogue entry (shared and frozen).
+
+    Raises
+    ------
+    TypeError
+        ``name`` is not a string.
+    ValueError
+        ``name`` is not in the catalogue; the message lists the valid names.
+
+    Examples
+    --------
+    >>> from stcgym.envs import get_plant
+    >>> plant = get_plant("Stable2")
+    >>> plant.name, plant.theta
+    ('stable2', array([-1.5,  0.7,  1. ,  0.5]))
+    >>> get_plant("stable3")
+    Traceback (most recent call last):
+        ...
+    ValueError: plant must be one of ['stable2', ...], got 'stable3'
+    """
     if not isinstance(name, str):
         raise TypeError(f"plant must be a catalogue name (one of {plant_names()}), got {name!r}")
     key = name.lower()

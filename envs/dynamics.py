@@ -133,7 +133,7 @@ __all__ = [
 ]
 
 #: Batches smaller than this run their loop on the calling thread. The lane functions take no
-#: reference counts (no NRT), so threads no longer contend for a counter; what remains is the
+#: reference counts (no NRT), so threads do not contend for a counter; what remains is the
 #: cost of waking and joining the pool's threads, which a plant step (about 30 ns per lane)
 #: only pays back for huge batches. Measured with ``python benchmarks/perf.py --plant-threads``
 #: on 2 cores shared with other jobs (load average about 5), ns per lane, 1 thread vs 2:

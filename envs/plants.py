@@ -107,6 +107,59 @@ class LinearPlantEnv(gym.Env):
     (``m`` real values) in ``[-action_bound, action_bound]``; larger actions are clipped and
     counted (``info["clipped"]``, ``info["n_clipped"]``); non-finite, complex, non-numeric or
     wrongly shaped actions raise ``ValueError`` and leave the env as it was.
+
+    Parameters
+    ----------
+    n_states, n_inputs, n_outputs : int
+        Dimensions ``n``, ``m``, ``p`` (set by the subclass from its plant).
+    reference : reference spec, default "square"
+        What :func:`~stcgym.envs.signals.make_reference` accepts (a name, a number, an array, a
+        callable ``k -> r``, a dict, a :class:`~stcgym.envs.signals.Reference`), used for every
+        output; or a list with one spec per output. Default a unit square wave of period 100.
+    schedule : schedule spec, optional
+        What :func:`~stcgym.envs.signals.make_schedule` accepts; acts on the subclass's
+        parameter array. ``None``: time-invariant.
+    noise_std : float, default 0.0
+        Standard deviation of the white Gaussian output noise ``v`` (``>= 0``).
+    process_noise_std : float, default 0.0
+        Standard deviation of the white Gaussian process noise ``w``, each state (``>= 0``).
+    action_bound : float, default 10.0
+        Actions are clipped to ``[-action_bound, action_bound]`` (``> 0``).
+    control_cost : float, default 0.01
+        ``rho`` in the reward (``>= 0``).
+    y_bound : float, default 100.0
+        Divergence bound on ``|y|`` (``> 0``): an output beyond it terminates the episode.
+    initial_state : array_like, shape (n,), optional
+        ``x(0)`` of every episode unless ``reset`` options say otherwise; zero by default.
+    render_mode : {None, "rgb_array"}, default None
+        ``"rgb_array"``: :meth:`render` draws the episode's traces (needs matplotlib).
+
+    Raises
+    ------
+    ValueError
+        A number out of range or not finite, an unknown ``render_mode``, an ``initial_state``
+        of the wrong length or not finite, a reference or schedule spec that is rejected.
+    TypeError
+        A number that is not a real number; a reference or schedule of an unknown kind.
+
+    Examples
+    --------
+    Every stcgym env is a ``LinearPlantEnv``; the reset options of the base class set the
+    initial state:
+
+    >>> import gymnasium as gym
+    >>> import stcgym.envs
+    >>> from stcgym.envs import LinearPlantEnv
+    >>> env = gym.make("stcgym/ObserverCanonical-v0", plant="stable2")
+    >>> isinstance(env.unwrapped, LinearPlantEnv)
+    True
+    >>> obs, info = env.reset(seed=0, options={"initial_state": [1.0, 0.0]})
+    >>> obs, info["x"]  # [y(0), r(0)] with y(0) = C x(0)
+    (array([1., 1.]), array([1., 0.]))
+    >>> env.reset(options={"intial_state": [1.0, 0.0]})
+    Traceback (most recent call last):
+        ...
+    ValueError: unknown reset option(s) ['intial_state'] for ObserverCanonicalEnv; ...
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -188,13 +241,26 @@ class LinearPlantEnv(gym.Env):
 
     @property
     def theta(self) -> NDArray:
-        """The parameter array in force now (a copy): ``[a; b]``, ``[A B]`` or ``Theta``."""
+        """The parameter array in force now (a copy): ``[a; b]``, ``[A B]`` or ``Theta``.
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> env = gym.make("stcgym/ObserverCanonical-v0", plant="unstable2")
+        >>> env.unwrapped.theta
+        array([-1.7 ,  0.66,  0.5 ,  0.3 ])
+        """
         return np.array(self.params, copy=True)
 
     # ---------------------------------------------------------------- helpers
     @property
     def x(self) -> NDArray:
-        """True state ``x(k)``."""
+        """True state ``x(k)``, shape ``(n_states,)``.
+
+        Settable between steps (a finite vector of length ``n_states``, copied; anything else
+        raises ``ValueError`` and leaves the state as it was).
+        """
         return self._x
 
     @x.setter
@@ -243,6 +309,28 @@ class LinearPlantEnv(gym.Env):
         ``options`` (all optional): ``"initial_state"`` (vector), ``"initial_state_std"`` (draw
         ``x(0) ~ N(0, std^2 I)``), and parameter overrides documented by each subclass. Unknown
         keys (a typo such as ``"intial_state"``) raise ``ValueError`` before anything changes.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Seeds ``np_random``; the episode's noise, reference, schedule and draws come from
+            independent child streams of it. ``None`` continues the current generator.
+        options : dict, optional
+            Keys from :attr:`reset_options`; they apply to this episode only.
+
+        Returns
+        -------
+        observation : ndarray
+            ``[y(0), r(0)]``.
+        info : dict
+            As :meth:`step` returns it, for step 0.
+
+        Raises
+        ------
+        TypeError
+            ``options`` is not a dict.
+        ValueError
+            An unknown key, or a value the key does not accept (naming the key).
         """
         if options is not None and not isinstance(options, dict):
             raise TypeError(f"options must be a dict or None, got {options!r}")
@@ -303,8 +391,8 @@ class LinearPlantEnv(gym.Env):
 
         Parameters
         ----------
-        action
-            ``u(k)``, shape ``(n_inputs,)``, finite.
+        action : array_like, shape (n_inputs,)
+            ``u(k)``, finite real numbers (a scalar when there is one input).
 
         Returns
         -------
@@ -341,7 +429,14 @@ class LinearPlantEnv(gym.Env):
         return np.concatenate((y, r)), float(reward), self._diverged, False, self._info()
 
     def render(self) -> NDArray | None:
-        """``rgb_array``: a picture of the episode so far (y, r and u traces)."""
+        """A picture of the episode so far (``y``, ``r`` and ``u`` traces), needs matplotlib.
+
+        Returns
+        -------
+        ndarray of uint8, shape (height, width, 3) or None
+            The RGB image with ``render_mode="rgb_array"``; ``None`` (and a logged warning)
+            without a render mode.
+        """
         if self.render_mode is None:
             gym.logger.warn("render() called without render_mode='rgb_array'; returning None")
             return None
@@ -356,42 +451,74 @@ _LANE0 = np.zeros(1, dtype=np.int64)
 class CanonicalPlantEnv(LinearPlantEnv):
     """SISO plant in a canonical form with parameters ``theta = [a1..an, b1..bn]``.
 
+    The base of :class:`ObserverCanonicalEnv` (Ding & Ma 2014, eq. (1)-(5)) and
+    :class:`ObservabilityCanonicalEnv` (eq. (146)-(147)), which fix ``form``; the matrices are
+    :func:`~stcgym.envs.canonical.canonical_matrices` of the parameters in force.
+
     Parameters
     ----------
-    plant
+    plant : str or list of str, optional
         Catalogue name (see :mod:`stcgym.envs.catalogue`), or a list of names to draw one per
-        episode (plant-family training). Default ``"stable2"`` when neither ``plant`` nor
-        ``a``/``b`` is given.
-    a, b
-        Parameters of this env's canonical form (equal lengths ``n``). In the observability form
-        ``b`` holds Markov parameters; catalogue plants are converted automatically.
-    noise_std
-        Standard deviation of the white Gaussian output noise ``v``.
-    process_noise_std
-        Standard deviation of the white Gaussian process noise ``w`` (each state).
-    action_bound
+        episode (plant-family training; the names must share one order ``n``). Default
+        ``"stable2"`` when neither ``plant`` nor ``a``/``b`` is given.
+    a, b : array_like, shape (n,), optional
+        Parameters of this env's canonical form (finite, equal lengths ``n``; both or neither,
+        and not with ``plant``). In the observability form ``b`` holds Markov parameters;
+        catalogue plants are converted automatically.
+    noise_std : float, default 0.0
+        Standard deviation of the white Gaussian output noise ``v`` (``>= 0``).
+    process_noise_std : float, default 0.0
+        Standard deviation of the white Gaussian process noise ``w`` (each state, ``>= 0``).
+    action_bound : float, default 10.0
         Actions are clipped to ``[-action_bound, action_bound]`` (``> 0``).
-    control_cost
-        ``rho`` in the reward ``-((y - r)^2 + rho u^2)``.
-    reference
+    control_cost : float, default 0.01
+        ``rho`` in the reward ``-((y - r)^2 + rho u^2)`` (``>= 0``).
+    reference : reference spec, default "square"
         See :func:`stcgym.envs.signals.make_reference`; default a unit square wave of period 100.
-    schedule
+    schedule : schedule spec, optional
         Parameter schedule acting on ``theta`` (this form's parameters): ``None``,
         :class:`~stcgym.envs.signals.Jumps`, :class:`~stcgym.envs.signals.Ramp`,
         :class:`~stcgym.envs.signals.RandomWalk` or ``{step: theta}``. Catalogue plants with a
         schedule of their own (``timevarying2``) use it unless one is given.
-    y_bound
+    y_bound : float, default 100.0
         Divergence bound on ``|y|`` (``> 0``; terminates the episode).
-    initial_state
+    initial_state : array_like, shape (n,), optional
         ``x(0)``; zero by default.
-    render_mode
-        ``None`` or ``"rgb_array"``.
+    render_mode : {None, "rgb_array"}, default None
+        See :class:`LinearPlantEnv`.
 
     ``reset(options=...)`` also accepts ``"plant"`` (a catalogue name), ``"a"`` and ``"b"``, or
-    ``"theta"`` to set this episode's parameters. ``info`` carries the true state ``"x"``, the
-    noise-free output ``"y_clean"``, the true parameters in force ``"theta"`` (also ``"a"``,
-    ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the current
-    :class:`~stcgym.envs.catalogue.PlantSpec` (``None`` for user parameters).
+    ``"theta"`` to set this episode's parameters (of the env's order ``n``). ``info`` carries the
+    true state ``"x"``, the noise-free output ``"y_clean"``, the true parameters in force
+    ``"theta"`` (also ``"a"``, ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the
+    current :class:`~stcgym.envs.catalogue.PlantSpec` (``None`` for user parameters).
+
+    Raises
+    ------
+    ValueError
+        ``plant`` with ``a``/``b``; ``a`` without ``b``; an unknown catalogue name; a family of
+        plants of different orders; ``a``, ``b`` empty, not finite or of unequal lengths; any
+        value :class:`LinearPlantEnv` rejects.
+    TypeError
+        ``plant`` neither a name nor a list of names; a value of the wrong kind.
+
+    Examples
+    --------
+    A family of two catalogue plants, one drawn per episode from the reset's seed:
+
+    >>> import gymnasium as gym
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/ObserverCanonical-v0", plant=["stable2", "unstable2"])
+    >>> [env.reset(seed=seed)[1]["theta"].tolist() for seed in (0, 1)]
+    [[-1.5, 0.7, 1.0, 0.5], [-1.7, 0.66, 0.5, 0.3]]
+    >>> env.unwrapped.plant.name
+    'unstable2'
+
+    Parameters of your own, and a change of plant for one episode:
+
+    >>> env = gym.make("stcgym/ObserverCanonical-v0", a=[-0.9], b=[1.0])
+    >>> env.reset(seed=0, options={"theta": [-0.5, 2.0]})[1]["theta"]
+    array([-0.5,  2. ])
     """
 
     form = "observer"
@@ -441,15 +568,59 @@ class CanonicalPlantEnv(LinearPlantEnv):
 
     # -------------------------------------------------------------- parameters
     def theta_of(self, spec: PlantSpec) -> NDArray:
-        """``theta = [a; b]`` of a catalogue plant in this env's canonical form."""
+        """``theta = [a; b]`` of a catalogue plant in this env's canonical form.
+
+        Parameters
+        ----------
+        spec : PlantSpec
+            A catalogue plant (observer-form ``a``, ``b``).
+
+        Returns
+        -------
+        ndarray, shape (2n,)
+            ``[a; b]`` with ``b`` converted to Markov parameters in the observability form
+            (:func:`~stcgym.envs.canonical.observer_to_observability_b`).
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> from stcgym.envs import get_plant
+        >>> env = gym.make("stcgym/ObservabilityCanonical-v0")
+        >>> env.unwrapped.theta_of(get_plant("stable2"))
+        array([-1.5,  0.7,  1. ,  2. ])
+        """
         a, b = np.array(spec.a), np.array(spec.b)
         if self.form == "observability":
             b = observer_to_observability_b(a, b)
         return np.concatenate((a, b))
 
     def catalogue_schedule(self, spec: PlantSpec) -> Schedule | None:
-        """A fresh copy of a catalogue plant's own parameter schedule in this env's form
-        (``None`` for a time-invariant plant)."""
+        """A fresh copy of a catalogue plant's own parameter schedule in this env's form.
+
+        Parameters
+        ----------
+        spec : PlantSpec
+            A catalogue plant.
+
+        Returns
+        -------
+        Schedule or None
+            The plant's schedule with its parameter arrays in this env's form (a
+            :class:`~stcgym.envs.signals.Jumps` is converted to Markov parameters in the
+            observability form); ``None`` for a time-invariant plant.
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> from stcgym.envs import get_plant
+        >>> env = gym.make("stcgym/ObserverCanonical-v0")
+        >>> env.unwrapped.catalogue_schedule(get_plant("timevarying2"))
+        Jumps(changes=[(1000, array([-1.2 ,  0.52,  0.9 ,  0.3 ]))])
+        >>> env.unwrapped.catalogue_schedule(get_plant("stable2")) is None
+        True
+        """
         if spec.schedule is None:
             return None
         sched = spec.schedule()
@@ -513,7 +684,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
 
     @property
     def a(self) -> NDArray:
-        """The plant's ``[a1, ..., an]`` in force (a copy), eq. (1)-(5)."""
+        """The plant's ``[a1, ..., an]`` in force (a copy), eq. (1)-(5) or (146)-(147)."""
         return self.params[: self.n_states].copy()
 
     @property
@@ -541,7 +712,35 @@ class ObserverCanonicalEnv(CanonicalPlantEnv):
 
     ``A`` has ``-a`` in its first column and ones on the superdiagonal, ``B = b``,
     ``C = [1, 0, ..., 0]``; transfer function ``(b1 z^{n-1} + ... + bn) / (z^n + a1 z^{n-1} + ...
-    + an)``. See :class:`CanonicalPlantEnv` for the parameters.
+    + an)``. See :class:`CanonicalPlantEnv` for the parameters, ``reset`` options and ``info``.
+    Registered as ``stcgym/ObserverCanonical-v0``.
+
+    Parameters
+    ----------
+    plant, a, b, schedule, **kwargs
+        As :class:`CanonicalPlantEnv`; ``b`` holds the numerator coefficients.
+
+    Raises
+    ------
+    ValueError, TypeError
+        As :class:`CanonicalPlantEnv`.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/ObserverCanonical-v0", plant="unstable2")
+    >>> env.observation_space, env.action_space
+    (Box(-inf, inf, (2,), float64), Box(-10.0, 10.0, (1,), float64))
+    >>> obs, info = env.reset(seed=0)
+    >>> obs  # [y(0), r(0)]: zero state, square-wave reference
+    array([0., 1.])
+    >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0]))
+    >>> obs, round(reward, 6), terminated, truncated  # y(1) = b1 u(0); -((y - r)^2 + 0.01 u^2)
+    (array([0.5, 1. ]), -0.26, False, False)
+    >>> info["theta"], info["x"]
+    (array([-1.7 ,  0.66,  0.5 ,  0.3 ]), array([0.5, 0.3]))
     """
 
     form = "observer"
@@ -551,7 +750,39 @@ class ObservabilityCanonicalEnv(CanonicalPlantEnv):
     """SISO plant in observability canonical form, Ding & Ma (2014) eq. (146)-(147).
 
     ``A`` is a shift with last row ``[-a_n, ..., -a_1]``, ``B = b`` (the first ``n`` Markov
-    parameters), ``C = [1, 0, ..., 0]``. See :class:`CanonicalPlantEnv` for the parameters.
+    parameters), ``C = [1, 0, ..., 0]``. See :class:`CanonicalPlantEnv` for the parameters,
+    ``reset`` options and ``info``. Registered as ``stcgym/ObservabilityCanonical-v0``.
+
+    Parameters
+    ----------
+    plant, a, b, schedule, **kwargs
+        As :class:`CanonicalPlantEnv`; ``b`` holds the Markov parameters ``h_1..h_n`` (a
+        catalogue ``plant`` is converted).
+
+    Raises
+    ------
+    ValueError, TypeError
+        As :class:`CanonicalPlantEnv`.
+
+    Examples
+    --------
+    A catalogue name gives the same transfer function in both forms: ``b`` becomes the Markov
+    parameters, and the outputs agree.
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/ObservabilityCanonical-v0", plant="stable2", reference="zero")
+    >>> twin = gym.make("stcgym/ObserverCanonical-v0", plant="stable2", reference="zero")
+    >>> env.unwrapped.b, twin.unwrapped.b
+    (array([1., 2.]), array([1. , 0.5]))
+    >>> _, _ = env.reset(seed=0), twin.reset(seed=0)
+    >>> y, y_twin = [], []
+    >>> for u in (1.0, 0.0, -1.0, 0.5):
+    ...     y.append(env.step(np.array([u]))[0][0])
+    ...     y_twin.append(twin.step(np.array([u]))[0][0])
+    >>> np.round(y, 6), bool(np.allclose(y, y_twin))
+    (array([1.  , 2.  , 1.3 , 0.55]), True)
     """
 
     form = "observability"
@@ -562,27 +793,64 @@ class StateSpaceEnv(LinearPlantEnv):
 
     Parameters
     ----------
-    A, B, C, D
-        Matrices (``C`` defaults to the identity: the measured-state plant of Kunik et al.
-        2001; ``D`` to zero). Or give ``sys`` instead. With neither, the documented default
+    A, B, C, D : array_like, optional
+        Matrices, finite: ``A`` square ``(n, n)``, ``B`` ``(n, m)``, ``C`` ``(p, n)``, ``D``
+        ``(p, m)``. ``C`` defaults to the identity (the measured-state plant of Kunik et al.
+        2001), ``D`` to zero. Or give ``sys`` instead. With neither, the documented default
         plant :data:`DEFAULT_STATE_SPACE` (two states, two inputs, measured state).
-    sys
+    sys : python-control system, optional
         Any python-control ``StateSpace`` or ``TransferFunction`` (or anything ``control.ss``
         accepts). A continuous system is discretised with ``control.sample_system(sys, dt,
         "zoh")``, so ``dt`` is then required.
-    dt
-        Sample time for discretising a continuous ``sys``.
-    canonical
-        ``None`` or a python-control canonical form name (``"reachable"``, ``"observable"``,
-        ``"modal"``), applied with ``control.canonical_form`` after discretisation.
-    schedule
+    dt : float, optional
+        Sample time (``> 0``) for discretising a continuous ``sys``; with matrices, recorded in
+        :attr:`sys` (default ``True``: discrete, unspecified sample time).
+    canonical : {None, "reachable", "observable", "modal"}, default None
+        A python-control canonical form, applied with ``control.canonical_form`` after
+        discretisation (SISO plants only).
+    schedule : schedule spec, optional
         Acts on the stacked matrix ``[A B]`` (shape ``(n, n + m)``).
+    **kwargs
+        Other keyword arguments as in :class:`LinearPlantEnv`; ``reference`` may be one spec
+        for every output or a list with one per output.
 
-    Other keyword arguments as in :class:`LinearPlantEnv`; ``reference`` may be one spec for
-    every output or a list with one per output. ``reset(options=...)`` accepts ``"A"`` and
-    ``"B"`` to override this episode's matrices. ``env.unwrapped.sys`` is the discrete
-    python-control system of the nominal plant (built on request: the env itself holds only
-    arrays, so it pickles).
+    ``reset(options=...)`` accepts ``"A"`` and ``"B"`` to override this episode's matrices.
+    ``info`` carries ``"x"``, ``"y_clean"``, ``"params"`` (``[A B]`` in force) and ``"t"``.
+    ``env.unwrapped.sys`` is the discrete python-control system of the nominal plant (built on
+    request: the env itself holds only arrays, so it pickles). Registered as
+    ``stcgym/StateSpace-v0``.
+
+    Raises
+    ------
+    ValueError
+        Matrices of wrong or inconsistent shapes or not finite (naming the matrix); ``sys``
+        together with matrices; only one of ``A``, ``B``; a continuous ``sys`` without ``dt``;
+        ``dt <= 0``; an unknown ``canonical``, or one python-control cannot apply to this plant;
+        any value :class:`LinearPlantEnv` rejects.
+    TypeError
+        ``sys`` that ``control.ss`` does not accept; a value of the wrong kind.
+
+    Examples
+    --------
+    The default plant (measured state, square-wave reference on both outputs):
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/StateSpace-v0")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs  # [y(0), r(0)], two outputs each
+    array([0., 0., 1., 1.])
+    >>> obs, reward, *_ = env.step(np.array([1.0, 0.0]))
+    >>> obs  # y(1) = C x(1) = B u(0)
+    array([1. , 0.5, 1. , 1. ])
+
+    A continuous first-order lag ``1 / (s + 1)`` from python-control, sampled at ``dt = 0.1``:
+
+    >>> import control
+    >>> env = gym.make("stcgym/StateSpace-v0", sys=control.tf([1.0], [1.0, 1.0]), dt=0.1)
+    >>> np.round(env.unwrapped.A, 6), np.round(env.unwrapped.B, 6)
+    (array([[0.904837]]), array([[0.095163]]))
     """
 
     reset_options = LinearPlantEnv.reset_options | {"A", "B"}
@@ -657,7 +925,16 @@ class StateSpaceEnv(LinearPlantEnv):
 
     @property
     def sys(self) -> Any:
-        """The discrete python-control system of the nominal plant."""
+        """The discrete python-control system of the nominal plant (a new object per call).
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> sys = gym.make("stcgym/StateSpace-v0").unwrapped.sys
+        >>> sys.nstates, sys.ninputs, sys.noutputs, sys.isdtime()
+        (2, 2, 2, True)
+        """
         import control
 
         return control.ss(self.A_nominal, self.B_nominal, self.C, self.D, self.dt)
@@ -717,7 +994,44 @@ class MultichannelStaticEnv(LinearPlantEnv):
     the state-space plant with no state and ``D = Theta^T``, so the timing convention of the
     module holds. Default ``Theta = [[1, 2], [0, 1]]`` and ``noise_std = 0.1`` (variance 0.01), the
     seed's worked example. ``schedule`` acts on ``Theta``; ``reset(options={"theta": ...})``
-    overrides it for one episode. The reward tracks the vector reference.
+    overrides it for one episode. The reward tracks the vector reference. Registered as
+    ``stcgym/MultichannelStatic-v0`` (no vector env).
+
+    Parameters
+    ----------
+    theta : array_like, shape (n_inputs, n_outputs), default ((1, 2), (0, 1))
+        ``Theta``, finite; row ``i`` holds input ``i``'s gains to every output.
+    noise_std : float, default 0.1
+        Standard deviation of the white Gaussian output noise ``v`` (``>= 0``).
+    **kwargs
+        ``reference``, ``schedule``, ``action_bound``, ``control_cost``, ``y_bound``,
+        ``render_mode`` as in :class:`LinearPlantEnv`; ``reference`` may be a list with one
+        spec per output.
+
+    ``info`` carries ``"theta"`` (``Theta`` in force), ``"y_clean"``, ``"t"`` and an empty
+    ``"x"``.
+
+    Raises
+    ------
+    ValueError
+        ``theta`` not a finite 2-D matrix; ``process_noise_std`` or ``initial_state`` given (the
+        object has no state); any value :class:`LinearPlantEnv` rejects.
+    TypeError
+        A value of the wrong kind.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/MultichannelStatic-v0", noise_std=0.0, reference="zero")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0, 1.0]))
+    >>> obs  # [y(1), r(1)] with y(1) = Theta^T u(0)
+    array([1., 3., 0., 0.])
+    >>> info["theta"]
+    array([[1., 2.],
+           [0., 1.]])
     """
 
     reset_options = frozenset({"theta"})

@@ -82,26 +82,80 @@ class Reference:
 
     Subclasses implement :meth:`values`; random ones also :meth:`allocate` and
     :meth:`reset_lanes` and set ``random = True`` (a vector env then hands every lane a
-    generator at reset; deterministic references are never asked to draw).
+    generator at reset; deterministic references are never asked to draw). An environment
+    copies the reference it is given, so one object may configure many environments.
+
+    Examples
+    --------
+    A reference of your own needs only :meth:`values`, vectorised over ``k``:
+
+    >>> import numpy as np
+    >>> from stcgym.envs import Reference
+    >>> class Staircase(Reference):
+    ...     def values(self, k, lanes=None):
+    ...         return (np.asarray(k) // 10).astype(float)
+    >>> Staircase()(25)
+    2.0
+
+    The lane interface, as a vector env uses it (here three lanes at different steps):
+
+    >>> from stcgym.envs import SquareWave
+    >>> ref = SquareWave(period=4)
+    >>> ref.allocate(3)
+    >>> ref.values(np.array([0, 2, 3]))
+    array([ 1., -1., -1.])
     """
 
     #: Whether :meth:`reset_lanes` uses its generators.
     random = False
 
     def allocate(self, num_lanes: int) -> None:
-        """Allocate per-lane state for ``num_lanes`` lanes (deterministic references: none)."""
+        """Allocate per-lane state for ``num_lanes`` lanes (deterministic references: none).
+
+        Parameters
+        ----------
+        num_lanes : int
+            Number of lanes ``B``; lane indices are ``0 .. B-1``.
+        """
         self.num_lanes = int(num_lanes)
 
     def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
-        """Start a new episode in ``lanes`` (random references draw from ``rngs``)."""
+        """Start a new episode in ``lanes`` (random references draw from ``rngs``).
+
+        Parameters
+        ----------
+        lanes : ndarray of int
+            Indices of the lanes that start an episode.
+        rngs : sequence of numpy.random.Generator or None
+            One generator per entry of ``lanes`` (``None`` for a deterministic reference).
+        """
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
-        """``r(k[j])`` of lane ``lanes[j]`` (all lanes when ``None``), float array like ``k``."""
+        """``r(k[j])`` of lane ``lanes[j]``.
+
+        Parameters
+        ----------
+        k : ndarray of int
+            One step index per entry of ``lanes``.
+        lanes : ndarray of int, optional
+            Lane indices; ``None`` means all lanes ``0 .. B-1`` (then ``len(k) == B``).
+
+        Returns
+        -------
+        ndarray of float
+            Same shape as ``k``.
+        """
         raise NotImplementedError  # pragma: no cover - abstract
 
     # single-lane convenience (lane 0 of a one-lane reference)
     def reset(self, rng: np.random.Generator) -> None:
-        """Start a new episode of a one-lane reference."""
+        """Start a new episode of a one-lane reference (lane 0; allocates it if needed).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The episode's generator (used by random references only).
+        """
         if getattr(self, "num_lanes", None) != 1:
             self.allocate(1)
         self.reset_lanes(_LANE0, [rng])
@@ -119,7 +173,30 @@ class SquareWave(Reference):
     """Square wave ("meander", the seeds' test signal) between ``offset +- amplitude``.
 
     ``r(k) = offset + amplitude`` during the first half of each period, ``offset - amplitude``
-    during the second half (the seeds use unit amplitude, zero offset).
+    during the second half (the seeds use unit amplitude, zero offset). The environments'
+    default reference (``reference="square"``).
+
+    Parameters
+    ----------
+    period : int, default 100
+        Steps per period, an integer ``>= 2`` (the high half is ``k % period < period / 2``,
+        so an odd period gives it the extra step).
+    amplitude, offset : float, default 1.0 and 0.0
+        Finite real numbers.
+
+    Raises
+    ------
+    ValueError
+        ``period`` not an integer ``>= 2``; ``amplitude`` or ``offset`` not finite.
+    TypeError
+        ``amplitude`` or ``offset`` not a real number.
+
+    Examples
+    --------
+    >>> from stcgym.envs import SquareWave
+    >>> ref = SquareWave(period=4, amplitude=2.0)
+    >>> [ref(k) for k in range(6)]
+    [2.0, 2.0, -2.0, -2.0, 2.0, 2.0]
     """
 
     def __init__(self, period: int = 100, amplitude: float = 1.0, offset: float = 0.0) -> None:
@@ -135,7 +212,31 @@ class SquareWave(Reference):
 
 
 class Step(Reference):
-    """``r(k) = initial`` before step ``at``, ``amplitude`` from then on."""
+    """Step reference: ``r(k) = initial`` before step ``at``, ``amplitude`` from then on.
+
+    Parameters
+    ----------
+    amplitude : float, default 1.0
+        The value from step ``at`` on.
+    at : int, default 0
+        The step of the change, a non-negative integer (an integral float is accepted).
+    initial : float, default 0.0
+        The value before ``at``.
+
+    Raises
+    ------
+    ValueError
+        ``at`` negative or not integral; a value not finite.
+    TypeError
+        A value that is not a real number.
+
+    Examples
+    --------
+    >>> from stcgym.envs import Step
+    >>> ref = Step(2.0, at=3)
+    >>> [ref(k) for k in range(5)]
+    [0.0, 0.0, 0.0, 2.0, 2.0]
+    """
 
     def __init__(self, amplitude: float = 1.0, at: int = 0, initial: float = 0.0) -> None:
         self.amplitude = real_number(amplitude, "amplitude")
@@ -150,7 +251,30 @@ class Step(Reference):
 
 
 class Sine(Reference):
-    """``r(k) = offset + amplitude * sin(2 pi k / period + phase)``."""
+    """Sine reference: ``r(k) = offset + amplitude * sin(2 pi k / period + phase)``.
+
+    Parameters
+    ----------
+    period : float, default 100.0
+        Steps per period, ``> 0`` (need not be an integer).
+    amplitude, phase, offset : float, default 1.0, 0.0, 0.0
+        Finite real numbers; ``phase`` in radians.
+
+    Raises
+    ------
+    ValueError
+        ``period <= 0``; a value not finite.
+    TypeError
+        A value that is not a real number.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import Sine
+    >>> ref = Sine(period=4, amplitude=2.0, offset=1.0)
+    >>> np.round([ref(k) for k in range(4)], 6)
+    array([ 1.,  3.,  1., -1.])
+    """
 
     def __init__(
         self, period: float = 100.0, amplitude: float = 1.0, phase: float = 0.0, offset: float = 0.0
@@ -167,11 +291,42 @@ class Sine(Reference):
 
 
 class PRBS(Reference):
-    """Pseudo-random binary sequence: ``+-amplitude`` held for ``hold`` steps per bit.
+    """Pseudo-random binary sequence: ``offset +- amplitude`` held for ``hold`` steps per bit.
 
     Each lane draws its bits from its own episode generator, 64 bits at a time as it reaches
     them, so the sequence changes with the seed, is identical for equal seeds, and a lane of a
-    vector env draws exactly the bits of the single env with the same seed.
+    vector env draws exactly the bits of the single env with the same seed. Before its first
+    :meth:`reset` the reference holds the bits of generator seed 0.
+
+    Parameters
+    ----------
+    amplitude : float, default 1.0
+        Half the distance between the two levels.
+    hold : int, default 10
+        Steps per bit, an integer ``>= 1``.
+    offset : float, default 0.0
+        The middle of the two levels.
+
+    Raises
+    ------
+    ValueError
+        ``hold`` not an integer ``>= 1``; a value not finite.
+    TypeError
+        ``amplitude`` or ``offset`` not a real number.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import PRBS
+    >>> ref = PRBS(amplitude=0.5, hold=2)
+    >>> ref.reset(np.random.default_rng(7))
+    >>> r = np.array([ref(k) for k in range(8)])
+    >>> sorted(set(r.tolist())), bool(np.all(r[0::2] == r[1::2]))  # each bit held 2 steps
+    ([-0.5, 0.5], True)
+    >>> again = PRBS(amplitude=0.5, hold=2)
+    >>> again.reset(np.random.default_rng(7))
+    >>> bool(np.all(r == [again(k) for k in range(8)]))  # equal seeds, equal bits
+    True
     """
 
     random = True
@@ -225,14 +380,43 @@ class PRBS(Reference):
 
 
 class Zero(Reference):
-    """Regulation: ``r(k) = 0``."""
+    """Regulation: ``r(k) = 0`` (``reference="zero"`` or ``reference=None``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import Zero
+    >>> Zero().values(np.array([0, 5, 10]))
+    array([0., 0., 0.])
+    """
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         return np.zeros(np.shape(k))
 
 
 class ArrayReference(Reference):
-    """A user array; the last value is held after the array ends."""
+    """A user array: ``r(k) = values[k]``, the last value held after the array ends.
+
+    Parameters
+    ----------
+    values : array_like
+        Finite real numbers, at least one (flattened to 1-D). ``make_reference`` builds this
+        from a list or array.
+
+    Raises
+    ------
+    TypeError
+        ``values`` is not numeric.
+    ValueError
+        ``values`` is empty or not finite.
+
+    Examples
+    --------
+    >>> from stcgym.envs import ArrayReference
+    >>> ref = ArrayReference([0.0, 1.0, 2.0])
+    >>> [ref(k) for k in range(5)]
+    [0.0, 1.0, 2.0, 2.0, 2.0]
+    """
 
     def __init__(self, values: ArrayLike) -> None:
         try:
@@ -258,7 +442,30 @@ class CallableReference(Reference):
 
     Called once per lane and step, so prefer the built-in references for large vector envs. A
     result that is not a finite number raises ``ValueError`` naming the reference, before the
-    environment's state changes.
+    environment's state changes. An environment deep-copies its reference: keep ``fn`` free of
+    state that must be shared.
+
+    Parameters
+    ----------
+    fn : callable (int) -> float
+        Called with the step index ``k``; returns a finite real number (a one-element array
+        is accepted).
+
+    Raises
+    ------
+    ValueError
+        When called: ``fn`` returned something other than a finite real number.
+
+    Examples
+    --------
+    >>> from stcgym.envs import CallableReference
+    >>> ref = CallableReference(lambda k: 0.5 * k)
+    >>> ref(4)
+    2.0
+    >>> CallableReference(lambda k: "high")(0)
+    Traceback (most recent call last):
+        ...
+    ValueError: reference callable must return a finite real number, got 'high' at step 0
     """
 
     def __init__(self, fn: Callable[[int], float]) -> None:
@@ -296,16 +503,40 @@ def make_reference(spec: Any = "square", **kwargs: Any) -> Reference:
 
     Parameters
     ----------
-    spec
+    spec : Reference, str, dict, float, array_like, callable or None, default "square"
         A :class:`Reference` (copied, so that envs never share per-lane state); a name
-        (``"square"``/``"meander"``, ``"step"``, ``"sine"``, ``"prbs"``, ``"zero"``) with keyword
-        arguments for it; a dict ``{"kind": name, ...}``; a number (constant reference); a 1-D
-        array (held at its last value); or a callable ``k -> r``.
+        (``"square"``/``"meander"``, ``"step"``, ``"sine"``, ``"prbs"``, ``"zero"``,
+        case-insensitive) with keyword arguments for it; a dict ``{"kind": name, ...}``; a
+        number (constant reference); a 1-D array (:class:`ArrayReference`, held at its last
+        value); a callable ``k -> r`` (:class:`CallableReference`); ``None`` (:class:`Zero`).
+    **kwargs
+        Arguments of the named reference's class (:class:`SquareWave`, :class:`Step`,
+        :class:`Sine`, :class:`PRBS`).
+
+    Returns
+    -------
+    Reference
+        A new object.
 
     Raises
     ------
     ValueError, TypeError
-        Naming ``reference`` (or the offending parameter) and the expected form.
+        Naming ``reference`` (or the offending parameter) and the expected form: an unknown
+        name, a dict without ``"kind"``, an argument the named class does not take or rejects.
+
+    Examples
+    --------
+    >>> from stcgym.envs import make_reference
+    >>> make_reference("sine", period=50)
+    Sine(period=50.0, amplitude=1.0, phase=0.0, offset=0.0)
+    >>> make_reference({"kind": "step", "at": 10})
+    Step(amplitude=1.0, at=10, initial=0.0)
+    >>> make_reference(0.5)(7)  # a constant
+    0.5
+    >>> make_reference("triangle")
+    Traceback (most recent call last):
+        ...
+    ValueError: reference must be one of ['meander', 'prbs', 'sine', 'square', 'step', 'zero'], ...
     """
     if isinstance(spec, Reference):
         return copy.deepcopy(spec)
@@ -370,18 +601,68 @@ class Schedule:
     The value for step ``k`` governs the transition from ``k`` to ``k + 1``. The base class holds
     each lane's nominal parameters (``_nominal``, shape ``(B, *shape)``) and returns them;
     subclasses override :meth:`values` (and :meth:`reset_lanes` if they keep more per-lane
-    state) and :meth:`next_change`.
+    state) and :meth:`next_change`. The parameter array is the environment's: ``theta = [a; b]``
+    of a canonical plant, ``[A B]`` of a state-space plant, ``Theta`` of the static object.
+
+    Examples
+    --------
+    A schedule of your own: the gain ``b`` of a first-order plant halves at step 5.
+
+    >>> import numpy as np
+    >>> from stcgym.envs import Schedule
+    >>> class HalveGain(Schedule):
+    ...     def values(self, k, lanes=None):
+    ...         theta = super().values(k, lanes)  # nominal, one row per lane
+    ...         theta[np.asarray(k) >= 5, 1] *= 0.5
+    ...         return theta
+    >>> schedule = HalveGain()
+    >>> schedule.reset(np.array([-0.9, 1.0]), np.random.default_rng(0))
+    >>> schedule(4), schedule(5)
+    (array([-0.9,  1. ]), array([-0.9,  0.5]))
+
+    Passed as ``schedule=`` to an environment, it acts on the episode's parameters:
+
+    >>> import gymnasium as gym
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/ObserverCanonical-v0", a=[-0.9], b=[1.0], schedule=HalveGain())
+    >>> _ = env.reset(seed=0)
+    >>> for _ in range(5):
+    ...     _, _, _, _, info = env.step(np.array([0.0]))
+    >>> info["theta"]
+    array([-0.9,  0.5])
     """
 
     def allocate(self, num_lanes: int) -> None:
-        """Prepare per-lane state for ``num_lanes`` lanes (allocated at the first reset)."""
+        """Prepare per-lane state for ``num_lanes`` lanes (allocated at the first reset).
+
+        Parameters
+        ----------
+        num_lanes : int
+            Number of lanes ``B``.
+        """
         self.num_lanes = int(num_lanes)
         self._nominal: NDArray | None = None
 
     def reset_lanes(
         self, lanes: NDArray, nominal: NDArray, rngs: Sequence[np.random.Generator | None]
     ) -> None:
-        """New episode in ``lanes`` with nominal parameters ``nominal`` (one row per lane)."""
+        """New episode in ``lanes`` with nominal parameters ``nominal`` (one row per lane).
+
+        Parameters
+        ----------
+        lanes : ndarray of int
+            Indices of the lanes that start an episode.
+        nominal : ndarray, shape (len(lanes), ...)
+            Each lane's nominal parameter array.
+        rngs : sequence of numpy.random.Generator or None
+            One generator per entry of ``lanes`` (random schedules draw from it).
+
+        Raises
+        ------
+        ValueError
+            A subclass's parameters do not match the shape of ``nominal`` (e.g. a
+            :class:`Jumps` array for another plant order).
+        """
         nominal = np.asarray(nominal, dtype=float)
         shape = nominal.shape[1:]
         if self._nominal is None or self._nominal.shape[1:] != shape:
@@ -389,11 +670,38 @@ class Schedule:
         self._nominal[lanes] = nominal
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
-        """Parameters in force at step ``k[j]`` for lane ``lanes[j]``: ``(len, *shape)``."""
+        """Parameters in force at step ``k[j]`` for lane ``lanes[j]``.
+
+        Parameters
+        ----------
+        k : ndarray of int
+            One step index per entry of ``lanes``; never decreasing within a lane's episode.
+        lanes : ndarray of int, optional
+            Lane indices; ``None`` means all lanes.
+
+        Returns
+        -------
+        ndarray, shape (len(lanes), ...)
+            One parameter array per entry of ``lanes`` (a new array).
+        """
         return self._nominal[_lanes(lanes, self.num_lanes)].copy()
 
     def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
-        """First step after ``k[j]`` at which lane ``lanes[j]`` may get other parameters."""
+        """First step after ``k[j]`` at which lane ``lanes[j]`` may get other parameters.
+
+        Parameters
+        ----------
+        k : ndarray of int
+            One step index per entry of ``lanes``.
+        lanes : ndarray of int, optional
+            Lane indices; ``None`` means all lanes.
+
+        Returns
+        -------
+        ndarray of int64
+            Like ``k``; :data:`NEVER` for a lane whose parameters stay as they are. The base
+            class answers ``k + 1`` (a change may come at any step).
+        """
         return np.asarray(k, dtype=np.int64) + 1
 
     @property
@@ -404,7 +712,15 @@ class Schedule:
 
     # single-lane convenience (lane 0 of a one-lane schedule)
     def reset(self, nominal: NDArray, rng: np.random.Generator) -> None:
-        """Start a new episode of a one-lane schedule with nominal parameters ``nominal``."""
+        """Start a new episode of a one-lane schedule with nominal parameters ``nominal``.
+
+        Parameters
+        ----------
+        nominal : array_like
+            The episode's nominal parameter array.
+        rng : numpy.random.Generator
+            The episode's generator (used by random schedules only).
+        """
         if getattr(self, "num_lanes", None) != 1:
             self.allocate(1)
         self.reset_lanes(_LANE0, np.asarray(nominal, dtype=float)[None], [rng])
@@ -417,7 +733,17 @@ class Schedule:
 
 
 class Constant(Schedule):
-    """Time-invariant plant: the nominal parameters throughout."""
+    """Time-invariant plant: the nominal parameters throughout (``schedule=None``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import Constant
+    >>> schedule = Constant()
+    >>> schedule.reset(np.array([-0.9, 1.0]), np.random.default_rng(0))
+    >>> schedule(1000), schedule.time_varying
+    (array([-0.9,  1. ]), False)
+    """
 
     def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         return np.full(np.shape(k), NEVER, dtype=np.int64)
@@ -440,6 +766,34 @@ class Jumps(Schedule):
     """Abrupt parameter changes: ``{step: new_parameters}`` (or a sequence of pairs).
 
     From step ``k_i`` on, the plant uses the ``i``-th array (same shape as the nominal one).
+    ``make_schedule`` builds this from a dict.
+
+    Parameters
+    ----------
+    changes : mapping of int to array_like, or sequence of (int, array_like)
+        At least one pair; steps are non-negative integers (sorted here), arrays finite. Their
+        shape is checked against the nominal parameters at each reset.
+
+    Raises
+    ------
+    TypeError
+        ``changes`` is neither a mapping nor a sequence of pairs.
+    ValueError
+        No pair; a step that is not a non-negative integer; an array not finite; at reset, an
+        array whose shape differs from the nominal parameters'.
+
+    Examples
+    --------
+    The catalogue's ``timevarying2``: ``stable2`` until step 1000, then new parameters.
+
+    >>> import numpy as np
+    >>> from stcgym.envs import Jumps
+    >>> schedule = Jumps({1000: [-1.2, 0.52, 0.9, 0.3]})
+    >>> schedule.reset(np.array([-1.5, 0.7, 1.0, 0.5]), np.random.default_rng(0))
+    >>> schedule(999), schedule(1000)
+    (array([-1.5,  0.7,  1. ,  0.5]), array([-1.2 ,  0.52,  0.9 ,  0.3 ]))
+    >>> int(schedule.next_change(np.array([0]))[0])
+    1000
     """
 
     def __init__(self, changes: Mapping[int, ArrayLike] | Sequence[tuple[int, ArrayLike]]):
@@ -491,7 +845,39 @@ class Jumps(Schedule):
 
 
 class Ramp(Schedule):
-    """Slow linear drift from the nominal parameters to ``target`` over steps start..stop."""
+    """Slow linear drift from the nominal parameters to ``target`` over steps start..stop.
+
+    ``theta(k) = nominal + s(k) (target - nominal)`` with ``s(k) = (k - start) / (stop -
+    start)`` clipped to ``[0, 1]``: the nominal parameters up to ``start``, ``target`` from
+    ``stop`` on.
+
+    Parameters
+    ----------
+    target : array_like
+        Finite; the shape of the plant's parameter array (checked at each reset).
+    start, stop : int
+        Integer steps with ``0 <= start < stop``.
+
+    Raises
+    ------
+    ValueError
+        ``start``/``stop`` not integers with ``0 <= start < stop``; ``target`` not finite, or
+        (at reset) not of the parameters' shape.
+    TypeError
+        ``start`` or ``stop`` not a real number.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import Ramp
+    >>> schedule = Ramp(target=[-0.5, 2.0], start=10, stop=14)
+    >>> schedule.reset(np.array([-0.9, 1.0]), np.random.default_rng(0))
+    >>> np.array([schedule(k) for k in (10, 12, 14, 20)])
+    array([[-0.9,  1. ],
+           [-0.7,  1.5],
+           [-0.5,  2. ],
+           [-0.5,  2. ]])
+    """
 
     def __init__(self, target: ArrayLike, start: int, stop: int) -> None:
         s0, s1 = real_number(start, "start"), real_number(stop, "stop")
@@ -526,6 +912,37 @@ class RandomWalk(Schedule):
     ``mask`` (boolean, the parameters' shape) selects which entries drift; by default all. Each
     lane walks with its own generator. The walk can make a plant unstable; the environment's
     divergence bound ends such an episode.
+
+    Parameters
+    ----------
+    std : float
+        Standard deviation of one step's increment, ``>= 0``.
+    start : int, default 0
+        The last step with the nominal parameters (a non-negative integer).
+    mask : array_like of bool, optional
+        Which entries drift (the parameters' shape, checked at each reset); ``None``: all.
+
+    Raises
+    ------
+    ValueError
+        ``std`` negative or not finite; ``start`` not a non-negative integer; at reset, a
+        ``mask`` of the wrong shape.
+    TypeError
+        ``std`` or ``start`` not a real number.
+
+    Examples
+    --------
+    Only ``b`` drifts, from step 10 on; the same generator gives the same walk:
+
+    >>> import numpy as np
+    >>> from stcgym.envs import RandomWalk
+    >>> schedule = RandomWalk(std=0.01, start=10, mask=[False, True])
+    >>> schedule.reset(np.array([-0.9, 1.0]), np.random.default_rng(1))
+    >>> schedule(10)
+    array([-0.9,  1. ])
+    >>> theta = schedule(500)
+    >>> float(theta[0]), bool(theta[1] != 1.0)
+    (-0.9, True)
     """
 
     def __init__(self, std: float, start: int = 0, mask: ArrayLike | None = None) -> None:
@@ -576,6 +993,32 @@ def make_schedule(spec: Any) -> Schedule:
     """Build a :class:`Schedule` from ``None``/``"constant"``, a Schedule, or ``{step: params}``.
 
     A given Schedule is copied, so that envs never share per-lane state.
+
+    Parameters
+    ----------
+    spec : Schedule, dict, "constant" or None
+        ``None`` or ``"constant"`` (case-insensitive): :class:`Constant`; a :class:`Schedule`:
+        a deep copy; a dict ``{step: parameters}``: :class:`Jumps`.
+
+    Returns
+    -------
+    Schedule
+        A new object.
+
+    Raises
+    ------
+    TypeError
+        Any other ``spec``.
+    ValueError
+        A dict that :class:`Jumps` rejects.
+
+    Examples
+    --------
+    >>> from stcgym.envs import make_schedule
+    >>> make_schedule(None)
+    Constant()
+    >>> make_schedule({100: [-1.2, 0.9]})
+    Jumps(changes=[(100, array([-1.2,  0.9]))])
     """
     if spec is None or (isinstance(spec, str) and spec.lower() == "constant"):
         return Constant()

@@ -104,6 +104,27 @@ def episode_streams(entropy: int, which: Sequence[int]) -> list[np.random.Genera
     ``default_rng(c)`` for ``c in SeedSequence(entropy).spawn(5)`` (output noise, process noise,
     reference, schedule, draws). Child ``j`` is ``SeedSequence(entropy, spawn_key=(j,))``, so a
     subset costs only what it uses.
+
+    Parameters
+    ----------
+    entropy : int
+        The episode's entropy (a non-negative integer).
+    which : sequence of int
+        Child indices, each in ``0 .. 4``.
+
+    Returns
+    -------
+    list of numpy.random.Generator
+        One per entry of ``which``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs.vector import episode_streams
+    >>> (noise,) = episode_streams(123, [0])
+    >>> spawned = np.random.default_rng(np.random.SeedSequence(123).spawn(5)[0])
+    >>> bool(noise.standard_normal() == spawned.standard_normal())
+    True
     """
     return [np.random.default_rng(np.random.SeedSequence(entropy, spawn_key=(j,))) for j in which]
 
@@ -193,6 +214,34 @@ class LinearPlantVectorEnv(VectorEnv):
 
     Public state (leading axis = lane): ``x``, ``t``, ``params``, ``y_clean``, ``n_clipped``;
     :attr:`memory_per_lane` in bytes.
+
+    Raises
+    ------
+    TypeError
+        ``num_envs`` not an integer; a single-env argument of the wrong kind.
+    ValueError
+        ``num_envs < 1``; ``max_episode_steps`` not a positive integer; an unknown
+        ``autoreset_mode``; a ``render_mode`` (vector envs do not render); ``noise_buffer_bytes``
+        negative; any argument the single environment rejects.
+
+    Examples
+    --------
+    Lane ``i`` of a vector env reset with ``seed=s`` is the single env reset with ``s + i``,
+    bit for bit (here with output noise):
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> kwargs = dict(plant="unstable2", reference="zero", noise_std=0.1)
+    >>> envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, **kwargs)
+    >>> single = gym.make("stcgym/ObserverCanonical-v0", **kwargs)
+    >>> obs, infos = envs.reset(seed=0)
+    >>> obs_2, info_2 = single.reset(seed=2)
+    >>> u = np.array([[1.0], [0.5], [-1.0]])
+    >>> obs, rewards, terminated, truncated, infos = envs.step(u)
+    >>> obs_2, reward_2, *_ = single.step(u[2])
+    >>> bool(np.array_equal(obs[2], obs_2)), bool(rewards[2] == reward_2)
+    (True, True)
     """
 
     single_cls: type[LinearPlantEnv] = LinearPlantEnv
@@ -459,7 +508,33 @@ class LinearPlantVectorEnv(VectorEnv):
         seed: int | Sequence[int | None] | None = None,
         options: dict[str, Any] | None = None,
     ) -> tuple[NDArray, dict[str, Any]]:
-        """Reset all lanes, or those of ``options["reset_mask"]``; see the module docstring."""
+        """Reset all lanes, or those of ``options["reset_mask"]``; see the module docstring.
+
+        Parameters
+        ----------
+        seed : int, list of int or None, optional
+            ``s``: lane ``i`` gets seed ``s + i``; a list: one seed (or ``None``) per lane;
+            ``None``: each lane continues its generator.
+        options : dict, optional
+            The single environment's reset options (one value for every lane being reset, or
+            a leading axis of length ``num_envs`` for parameter options), and
+            ``"reset_mask"``: a bool array of shape ``(num_envs,)`` selecting the lanes to reset
+            (not at the first reset).
+
+        Returns
+        -------
+        observations : ndarray, shape (num_envs, 2 p)
+        infos : dict
+            Gymnasium vector infos (one array per key and a ``"_key"`` mask).
+
+        Raises
+        ------
+        TypeError
+            ``options`` not a dict; ``seed`` of the wrong kind.
+        ValueError
+            A list of seeds of the wrong length or with a negative entry; a bad
+            ``reset_mask``; an option the single env rejects or of the wrong per-lane shape.
+        """
         B = self.num_envs
         if options is not None and not isinstance(options, dict):
             raise TypeError(f"options must be a dict or None, got {options!r}")
@@ -542,7 +617,30 @@ class LinearPlantVectorEnv(VectorEnv):
         return np.ascontiguousarray(u)
 
     def step(self, actions: ArrayLike) -> tuple[NDArray, NDArray, NDArray, NDArray, dict[str, Any]]:
-        """Advance every lane one step; see the module docstring for autoreset and infos."""
+        """Advance every lane one step; see the module docstring for autoreset and infos.
+
+        Parameters
+        ----------
+        actions : array_like, shape (num_envs, m)
+            One finite action per lane (shape ``(num_envs,)`` when ``m == 1``); the actions of
+            lanes being autoreset are ignored.
+
+        Returns
+        -------
+        observations : ndarray, shape (num_envs, 2 p)
+        rewards, terminated, truncated : ndarray, shape (num_envs,)
+        infos : dict
+            Gymnasium vector infos; with ``autoreset_mode="SameStep"`` also ``"final_obs"``
+            and ``"final_info"`` of the lanes that ended.
+
+        Raises
+        ------
+        ValueError
+            Actions of the wrong shape or not finite, before any lane changes.
+        RuntimeError
+            ``step`` before ``reset``; with ``autoreset_mode="Disabled"``, a step while an
+            ended lane has not been reset.
+        """
         mode = self.autoreset_mode
         if not self._started:
             raise RuntimeError("call reset() before step()")
@@ -608,6 +706,32 @@ class LinearPlantVectorEnv(VectorEnv):
         when that noise is off), and ``"params"``: ``None`` for constant plants, else
         ``(B, T, *param_shape)`` with the parameters in force at step ``t + j``. Feeding these
         to the lane functions of :mod:`stcgym.envs.dynamics` reproduces the env bit for bit.
+
+        Parameters
+        ----------
+        steps : int
+            ``T >= 1``.
+
+        Returns
+        -------
+        dict
+            ``"r"``, ``"z_v"``, ``"z_w"``, ``"params"`` as above.
+
+        Raises
+        ------
+        ValueError
+            ``steps`` not a positive integer.
+        RuntimeError
+            Before the first ``reset``.
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, noise_std=0.1)
+        >>> _ = envs.reset(seed=0)
+        >>> {key: None if v is None else v.shape for key, v in envs.lookahead(4).items()}
+        {'r': (3, 4, 1), 'z_v': (3, 4, 1), 'z_w': (3, 4, 2), 'params': None}
         """
         if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
             raise ValueError(f"steps must be a positive integer, got {steps!r}")
@@ -669,7 +793,17 @@ class LinearPlantVectorEnv(VectorEnv):
     # ------------------------------------------------------------------ misc
     @property
     def memory_per_lane(self) -> float:
-        """Bytes of lane state (arrays and noise buffers) per lane, Python objects excluded."""
+        """Bytes of lane state (arrays and noise buffers) per lane, Python objects excluded.
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=1000, noise_std=0.1)
+        >>> _ = envs.reset(seed=0)
+        >>> envs.memory_per_lane < 10_000
+        True
+        """
         arrays = [
             self.x,
             self.t,
@@ -715,6 +849,40 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     ``b`` may also have shape ``(num_envs, n)`` (one plant per lane). With a list of catalogue
     names (``plant=[...]``) every lane draws its own plant each episode, as the single env does.
     ``plant_index`` gives each lane's catalogue index in that list (``-1``: user parameters).
+
+    Parameters
+    ----------
+    num_envs, max_episode_steps, autoreset_mode, noise_buffer_bytes, info_keys
+        As :class:`LinearPlantVectorEnv`.
+    a, b : array_like, shape (n,) or (num_envs, n), optional
+        One plant for every lane, or (both two-dimensional) one row per lane.
+    **kwargs
+        The other arguments of :class:`~stcgym.envs.plants.CanonicalPlantEnv`.
+
+    Raises
+    ------
+    ValueError
+        Per-lane ``a`` and ``b`` of different shapes, without ``num_envs`` rows, or not finite;
+        anything :class:`LinearPlantVectorEnv` rejects.
+
+    Examples
+    --------
+    One first-order plant per lane:
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> envs = gym.make_vec(
+    ...     "stcgym/ObserverCanonical-v0", num_envs=2, a=[[-0.5], [0.5]], b=[[1.0], [2.0]],
+    ...     reference="zero",
+    ... )
+    >>> _ = envs.reset(seed=0)
+    >>> envs.theta
+    array([[-0.5,  1. ],
+           [ 0.5,  2. ]])
+    >>> obs, *_ = envs.step(np.array([1.0, 1.0]))
+    >>> obs[:, 0]  # y(1) = b u(0) per lane
+    array([1., 2.])
     """
 
     single_cls: type[CanonicalPlantEnv] = CanonicalPlantEnv
@@ -748,7 +916,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
 
     @property
     def theta(self) -> NDArray:
-        """Parameters ``[a; b]`` in force, one row per lane (a copy)."""
+        """Parameters ``[a; b]`` in force, one row per lane (a copy), shape ``(B, 2n)``."""
         return self.params.copy()
 
     @property
@@ -857,13 +1025,54 @@ def _lane_rows(arr: NDArray, num_envs: int, width: int, name: str) -> NDArray:
 
 
 class ObserverCanonicalVectorEnv(CanonicalPlantVectorEnv):
-    """Vector version of :class:`~stcgym.envs.plants.ObserverCanonicalEnv` (eq. (1)-(5))."""
+    """Vector version of :class:`~stcgym.envs.plants.ObserverCanonicalEnv` (eq. (1)-(5)).
+
+    What ``gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=B, **kwargs)`` builds.
+
+    Parameters
+    ----------
+    num_envs, **kwargs
+        As :class:`CanonicalPlantVectorEnv`.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, plant="unstable2")
+    >>> type(envs).__name__
+    'ObserverCanonicalVectorEnv'
+    >>> envs.observation_space, envs.action_space
+    (Box(-inf, inf, (3, 2), float64), Box(-10.0, 10.0, (3, 1), float64))
+    >>> obs, infos = envs.reset(seed=0)
+    >>> obs, rewards, terminated, truncated, infos = envs.step(np.array([1.0, 0.5, -1.0]))
+    >>> obs[:, 0], np.round(rewards, 4)  # y(1) = b1 u(0) = 0.5 u(0); r(1) = 1
+    (array([ 0.5 ,  0.25, -0.5 ]), array([-0.26 , -0.565, -2.26 ]))
+    """
 
     single_cls = ObserverCanonicalEnv
 
 
 class ObservabilityCanonicalVectorEnv(CanonicalPlantVectorEnv):
-    """Vector version of :class:`~stcgym.envs.plants.ObservabilityCanonicalEnv` (eq. (146))."""
+    """Vector version of :class:`~stcgym.envs.plants.ObservabilityCanonicalEnv` (eq. (146)-(147)).
+
+    What ``gym.make_vec("stcgym/ObservabilityCanonical-v0", num_envs=B, **kwargs)`` builds.
+
+    Parameters
+    ----------
+    num_envs, **kwargs
+        As :class:`CanonicalPlantVectorEnv`; ``b`` (per lane or shared) holds Markov parameters.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import stcgym.envs
+    >>> envs = gym.make_vec("stcgym/ObservabilityCanonical-v0", num_envs=2, plant="stable2")
+    >>> _ = envs.reset(seed=0)
+    >>> envs.theta  # b as Markov parameters, every lane
+    array([[-1.5,  0.7,  1. ,  2. ],
+           [-1.5,  0.7,  1. ,  2. ]])
+    """
 
     single_cls = ObservabilityCanonicalEnv
 
@@ -872,7 +1081,29 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
     """Vector version of :class:`~stcgym.envs.plants.StateSpaceEnv`; ``params`` is ``[A B]``.
 
     All lanes share the matrices unless ``reset(options=...)`` sets ``"A"``/``"B"`` (also per
-    lane, shape ``(num_envs, n, n)`` / ``(num_envs, n, m)``) or a schedule varies them.
+    lane, shape ``(num_envs, n, n)`` / ``(num_envs, n, m)``) or a schedule varies them. What
+    ``gym.make_vec("stcgym/StateSpace-v0", num_envs=B, **kwargs)`` builds.
+
+    Parameters
+    ----------
+    num_envs, max_episode_steps, autoreset_mode, noise_buffer_bytes, info_keys
+        As :class:`LinearPlantVectorEnv`.
+    **kwargs
+        The arguments of :class:`~stcgym.envs.plants.StateSpaceEnv` (shared by every lane).
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> envs = gym.make_vec("stcgym/StateSpace-v0", num_envs=2)
+    >>> obs, infos = envs.reset(seed=0, options={"B": np.eye(2)})
+    >>> obs, *_ = envs.step(np.array([[1.0, 0.0], [0.0, 1.0]]))
+    >>> obs[:, :2]  # y(1) = x(1) = B u(0) per lane
+    array([[1., 0.],
+           [0., 1.]])
+    >>> infos["params"].shape  # [A B] per lane
+    (2, 2, 4)
     """
 
     single_cls = StateSpaceEnv
