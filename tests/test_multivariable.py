@@ -26,7 +26,7 @@ from stcgym.adaptive.kernels.state_matrix import (
     state_matrix_update,
 )
 from stcgym.adaptive.multichannel import StateMatrixEstimator
-from stcgym.envs import MIMO_PLANTS, get_mimo_plant
+from stcgym.envs import MIMO_PLANTS, Jumps, get_mimo_plant
 
 # ------------------------------------------------------------------ plants
 
@@ -268,6 +268,35 @@ def test_reset_starts_a_new_probe_sequence():
     second = np.array([ctl.predict(obs)[0] for _ in range(4)])
     assert np.all(np.abs(first) == 0.5) and not np.array_equal(first, second)
     assert ctl.t == 4 and ctl.diagnostics["episode"] == 1
+
+
+def _jump_costs(change_detection):
+    A0, B0 = np.array([[0.9, 0.1], [0.0, 0.8]]), np.array([[1.0, 0.0], [0.5, 1.0]])
+    A1, B1 = np.array([[1.05, 0.1], [0.0, 0.8]]), np.array([[0.4, 0.0], [0.5, 1.0]])
+    env = gym.make("stcgym/StateSpace-v0", A=A0, B=B0, noise_std=0.02, max_episode_steps=1000,
+                   schedule=Jumps({500: np.hstack((A1, B1))}))  # fmt: skip
+    ctl = MultivariableSelfTuningController(env=env, seed=3, change_detection=change_detection)
+    before, after = LQRController(A0, B0, env=env), LQRController(A1, B1, env=env)
+    costs = {}
+    for name in ("stc", "informed"):
+        obs, _ = env.reset(seed=0)
+        c = []
+        for k in range(1000):
+            policy = ctl if name == "stc" else (before if k < 500 else after)
+            obs, reward, terminated, *_ = env.step(policy.predict(obs)[0])
+            c.append(-reward)
+            assert not terminated
+        costs[name] = np.array(c)
+    return costs["stc"][700:].sum() / costs["informed"][700:].sum(), ctl.diagnostics["n_alarms"]
+
+
+def test_change_detection_follows_a_jump():
+    # [A B] jumps at step 500 (the plant becomes open-loop unstable, one input weaker); the
+    # informed oracle switches to the LQR of the new plant at the jump
+    ratio, alarms = _jump_costs(None)
+    assert alarms >= 1 and ratio < 1.03
+    ratio_off, alarms_off = _jump_costs({"enabled": False})
+    assert alarms_off == 0 and ratio_off > 1.05
 
 
 # ------------------------------------------------------------------ bad input
