@@ -179,6 +179,25 @@ def test_feedforward_reaches_the_cheapest_equilibrium(seed):
     np.testing.assert_allclose(np.concatenate((x_cl, u_cl)), N @ c, rtol=1e-8, atol=1e-10)
 
 
+def test_oracle_lanes_take_their_own_matrices():
+    rng = np.random.default_rng(7)
+    plants = [_random_plant(rng, 3, 2, unstable=i == 1) for i in range(3)]
+    As = np.stack([A for A, _ in plants])
+    Bs = np.stack([B for _, B in plants])
+    batch = LQRController(As, Bs, num_envs=3)
+    obs = rng.standard_normal((3, 6))
+    u = batch.predict(obs)[0]
+    assert u.shape == (3, 2) and batch.K.shape == (3, 2, 3)
+    for i, (A, B) in enumerate(plants):
+        single = LQRController(A, B)
+        np.testing.assert_array_equal(single.K, batch.K[i])
+        expected = np.clip(-single.K @ obs[i, :3] + single.F @ obs[i, 3:], -10, 10)
+        np.testing.assert_allclose(single.predict(obs[i])[0], expected, rtol=1e-12)
+        np.testing.assert_allclose(u[i], expected, rtol=1e-12)
+    with pytest.raises(ValueError, match="per-lane A and B"):
+        LQRController(As, Bs, num_envs=2)
+
+
 def test_stability_test_by_squaring():
     work = np.zeros(mimo_lq.design_work_size(2, 1))
     assert mimo_lq.schur_stable(np.array([[0.999, 1e3], [0.0, 0.5]]), work)
