@@ -16,7 +16,7 @@ and writes ``u(t)``. Every step, in this order:
    only inside the **safe set** (finite, ``max |B_hat| >= b_min``, ``A_hat - B_hat K`` Schur
    stable, an equilibrium for every reference, ``max |K|, |F| <= gain_max``), else the last good
    gain stays;
-4. **control**: for the first ``probe_steps`` samples (default ``2 (n + m)``), and until a
+4. **control**: for the first ``probe_steps`` samples (default ``n + m + 1``), and until a
    design has been accepted, a zero-mean probe ``+-a`` on every input with signs hashed from
    ``(seed, episode, t, input)`` and ``a = probe_amplitude min(1, probe_output / max |x|)``;
    it runs on up to ``max_probe_steps`` (default ``5 (n + m)``) while ``max |x| <
