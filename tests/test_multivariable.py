@@ -14,6 +14,8 @@ import control
 import gymnasium as gym
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.linalg import null_space
 
 import stcgym.envs  # noqa: F401  (registers the envs)
@@ -107,6 +109,28 @@ def test_estimator_equals_batch_least_squares(forgetting):
     expected = np.linalg.lstsq(w * Z, w * X[1:], rcond=None)[0].T
     np.testing.assert_allclose(C, expected, rtol=1e-8, atol=1e-10)
     assert rec[at.rank] == q
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    n=st.integers(1, 4),
+    m=st.integers(1, 3),
+    extra=st.integers(0, 30),
+    forgetting=st.sampled_from([1.0, 0.99, 0.9]),
+    seed=st.integers(0, 2**31),
+)
+def test_estimator_property_batch_least_squares(n, m, extra, forgetting, seed):
+    # any dimensions, any record length past the switch: the weighted batch estimate
+    rng = np.random.default_rng(seed)
+    T = n + m + extra
+    X = rng.standard_normal((T + 1, n))
+    U = rng.standard_normal((T, m))
+    lay, at, rec = _estimator(n, m)
+    C = _feed(lay, at, rec, n, m, X, U, forgetting)
+    Z = np.hstack((X[:-1], U))
+    w = np.sqrt(forgetting ** np.arange(T - 1, -1, -1))[:, None]
+    expected = np.linalg.lstsq(w * Z, w * X[1:], rcond=None)[0].T
+    np.testing.assert_allclose(C, expected, rtol=1e-7, atol=1e-8)
 
 
 def test_estimator_counts_dependent_regressors_in_the_switch():
