@@ -22,7 +22,9 @@ from stcgym.adaptive.controller import (
 )
 from stcgym.adaptive.greybox import AffineStateSpace, GreyBoxRegression, NotLinearInParameters
 from stcgym.adaptive.iterative import ITERATIVE_NAMES, IterativeResult, fit_iterative
+from stcgym.adaptive.lqr import LQRController
 from stcgym.adaptive.multichannel import MatrixRLS, StateMatrixEstimator
+from stcgym.adaptive.multivariable import MultivariableSelfTuningController
 from stcgym.adaptive.oracles import KalmanObserver, KnownModelController, LQGController
 from stcgym.adaptive.placement import (
     UncontrollableError,
@@ -59,11 +61,13 @@ __all__ = [
     "KalmanObserver",
     "KnownModelController",
     "LQGController",
+    "LQRController",
     "MatrixRLS",
     "NumericalHealthError",
     "Policy",
     "RecursiveEstimator",
     "SelfTuningController",
+    "MultivariableSelfTuningController",
     "StateMatrixEstimator",
     "UncontrollableError",
     "ackermann",

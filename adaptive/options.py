@@ -287,7 +287,8 @@ def env_settings(env: Any) -> tuple[int | None, float | None, str | None, int | 
     if n_inputs != 1 or n_outputs != 1:
         raise ValueError(
             f"the controllers are single-input single-output; the env has "
-            f"{n_inputs} inputs and {n_outputs} outputs"
+            f"{n_inputs} inputs and {n_outputs} outputs (a plant with measured state takes "
+            f"stcgym.adaptive.MultivariableSelfTuningController and LQRController)"
         )
     n = getattr(base, "n_states", None)
     bound = getattr(base, "action_bound", None)

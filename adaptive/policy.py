@@ -14,7 +14,8 @@ lane per plant (``num_envs=None``: one plant; ``num_envs=B``: ``B`` plants, see
 :mod:`stcgym.envs.compiled`):
 
 * ``num_envs=None`` takes one observation of shape ``(obs_dim,)`` and gives an action of shape
-  ``(1,)``; ``num_envs=B`` takes ``(B, obs_dim)`` and gives ``(B, 1)``. Any other shape, a batch
+  ``(action_dim,)``; ``num_envs=B`` takes ``(B, obs_dim)`` and gives ``(B, action_dim)``
+  (``action_dim = 1`` for the single-input controllers). Any other shape, a batch
   given to a single policy included, is a ``ValueError`` naming ``observation`` and the shape
   expected.
 * ``episode_start`` (a bool or one per lane, as SB3's ``evaluate_policy`` passes it) starts a
@@ -125,6 +126,8 @@ class LanePolicy(ABC):
 
     #: Length of one observation: the envs observe ``[y(t), r(t)]``.
     obs_dim: int = 2
+    #: Length of one action (the number of plant inputs).
+    action_dim: int = 1
     #: Largest accepted observation magnitude (a policy whose step would overflow sets it).
     observation_limit: float = math.inf
     #: ``None`` (one plant) or the number of lanes ``B``.
@@ -159,7 +162,8 @@ class LanePolicy(ABC):
         Returns
         -------
         actions, state
-            ``(1,)`` for a single plant, ``(num_envs, 1)`` for lanes; ``state`` as given.
+            ``(action_dim,)`` for a single plant, ``(num_envs, action_dim)`` for lanes;
+            ``state`` as given.
 
         Raises
         ------
@@ -182,7 +186,8 @@ class LanePolicy(ABC):
         obs, single = self._observations(observation)
         starts = episode_starts(episode_start, self.num_lanes)
         actions = self._act(obs, starts if starts.any() else None, deterministic)
-        return (actions.reshape(1) if single else actions.reshape(-1, 1)), state
+        dim = self.action_dim
+        return (actions.reshape(dim) if single else actions.reshape(-1, dim)), state
 
     def reset(self, lanes: ArrayLike | None = None) -> None:
         """Start a new episode on every lane, or on ``lanes`` (indices or a boolean mask)."""
@@ -213,7 +218,9 @@ class LanePolicy(ABC):
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """Step every lane: ``obs`` is a validated ``(lanes, obs_dim)`` batch, ``starts`` a
         boolean mask of the lanes that start an episode first (``None``: none). Returns a new
-        array of one action per lane, shape ``(lanes,)``; a step that fails raises
+        array of the actions of every lane, ``lanes * action_dim`` values (shape ``(lanes,)``
+        or ``(lanes, action_dim)``; a single plant's fast path returns it as it is, so a policy
+        of ``action_dim > 1`` returns ``(action_dim,)`` there); a step that fails raises
         ``ValueError`` and changes nothing."""
 
     @abstractmethod

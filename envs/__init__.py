@@ -31,6 +31,7 @@ from stcgym.envs.canonical import (
     transfer_function_coefficients,
 )
 from stcgym.envs.catalogue import PlantSpec, get_plant, plant_names
+from stcgym.envs.mimo_plants import MIMO_PLANTS, MimoPlantSpec, get_mimo_plant, mimo_plant_names
 from stcgym.envs.plants import (
     CanonicalPlantEnv,
     LinearPlantEnv,
@@ -116,6 +117,8 @@ __all__ = [
     "Constant",
     "Jumps",
     "LinearPlantEnv",
+    "MIMO_PLANTS",
+    "MimoPlantSpec",
     "MultichannelStaticEnv",
     "ObservabilityCanonicalEnv",
     "ObserverCanonicalEnv",
@@ -131,10 +134,12 @@ __all__ = [
     "Zero",
     "canonical_matrices",
     "companion_A",
+    "get_mimo_plant",
     "get_plant",
     "make_reference",
     "make_schedule",
     "observer_to_observability_b",
+    "mimo_plant_names",
     "plant_names",
     "transfer_function_coefficients",
 ]

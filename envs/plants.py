@@ -52,6 +52,7 @@ from stcgym.envs.canonical import (
     split_theta,
 )
 from stcgym.envs.catalogue import PlantSpec, get_plant
+from stcgym.envs.mimo_plants import get_mimo_plant
 from stcgym.envs.signals import Jumps, Reference, Schedule, make_references, make_schedule
 from stcgym.envs.validation import matrix, non_negative, positive, real_array
 
@@ -798,6 +799,10 @@ class StateSpaceEnv(LinearPlantEnv):
         ``(p, m)``. ``C`` defaults to the identity (the measured-state plant of Kunik et al.
         2001), ``D`` to zero. Or give ``sys`` instead. With neither, the documented default
         plant :data:`DEFAULT_STATE_SPACE` (two states, two inputs, measured state).
+    plant : str, optional
+        A name of the MIMO catalogue (:data:`stcgym.envs.mimo_plants.MIMO_PLANTS`: its
+        zero-order-hold ``A``, ``B``, measured state; ``dt`` its sample time), instead of the
+        matrices or ``sys``.
     sys : python-control system, optional
         Any python-control ``StateSpace`` or ``TransferFunction`` (or anything ``control.ss``
         accepts). A continuous system is discretised with ``control.sample_system(sys, dt,
@@ -862,6 +867,7 @@ class StateSpaceEnv(LinearPlantEnv):
         C: ArrayLike | None = None,
         D: ArrayLike | None = None,
         *,
+        plant: str | None = None,
         sys: Any = None,
         dt: float | None = None,
         canonical: str | None = None,
@@ -875,6 +881,12 @@ class StateSpaceEnv(LinearPlantEnv):
             raise ValueError(
                 f"canonical must be None, 'reachable', 'observable' or 'modal', got {canonical!r}"
             )
+        self.mimo_plant = None if plant is None else get_mimo_plant(plant)
+        if self.mimo_plant is not None:
+            if sys is not None or any(v is not None for v in (A, B, C, D, dt)):
+                raise ValueError("give either plant (a MIMO catalogue name) or A, B (C, D), sys")
+            A, B = self.mimo_plant.discrete()
+            dt = self.mimo_plant.dt
         if sys is not None:
             if A is not None or B is not None or C is not None or D is not None:
                 raise ValueError("give either sys or the matrices A, B (C, D), not both")

@@ -1,0 +1,137 @@
+"""Known-model oracle of the multivariable self-tuning controller: LQR on the true ``(A, B)``.
+
+:class:`LQRController` applies ``u = sat(-K x + F r)`` with the LQ gain ``K`` of the true model
+(the stabilising solution of the discrete algebraic Riccati equation, solved by the same
+compiled doubling routine as the self-tuning controller's fresh-model design:
+:func:`stcgym.adaptive.kernels.mimo_lq.dare_solve`) and the same feed-forward ``F`` to the
+cheapest equilibrium (:func:`~stcgym.adaptive.kernels.mimo_lq.steady_state_feedforward`), with
+the same weights (default the env's cost) and the same ``predict``/``reset`` protocol.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.adaptive.kernels import mimo_lq as lq
+from stcgym.adaptive.kernels.safe_set import STATUS_NAMES
+from stcgym.adaptive.multivariable import (
+    OBSERVATION_LIMIT,
+    lq_weight_matrices,
+    resolve_dimensions,
+)
+from stcgym.adaptive.policy import LanePolicy
+from stcgym.envs.validation import matrix
+
+__all__ = ["LQRController", "lqr_design"]
+
+
+def lqr_design(A: ArrayLike, B: ArrayLike, Q: ArrayLike, R: ArrayLike) -> tuple[NDArray, NDArray]:
+    """``(K, F)`` of the infinite-horizon LQ problem on ``(A, B)`` with weights ``Q``, ``R``.
+
+    Raises ``ValueError`` when ``(A, B)`` is not stabilisable for these weights or has no
+    equilibrium for some reference (an uncontrollable mode at ``z = 1``).
+    """
+    A = np.ascontiguousarray(A, dtype=float)
+    B = np.ascontiguousarray(B, dtype=float)
+    Q = np.ascontiguousarray(Q, dtype=float)
+    R = np.ascontiguousarray(R, dtype=float)
+    n, m = B.shape
+    work = np.zeros(lq.design_work_size(n, m))
+    P = np.zeros((n, n))
+    K = np.zeros((m, n))
+    status = lq.dare_solve(A, B, Q, R, P, K, work, 1e-12, 64)
+    if status != 0:
+        raise ValueError(
+            f"(A, B) has no stabilising LQ gain for these weights ({STATUS_NAMES[status]})"
+        )
+    F = np.zeros((m, n))
+    if not lq.steady_state_feedforward(A, B, Q, R, K, F, work):
+        raise ValueError("(A, B) has no equilibrium for some reference (a mode at z = 1)")
+    return K, F
+
+
+class LQRController(LanePolicy):
+    """LQR with feed-forward tracking on the true model (module docstring).
+
+    Parameters
+    ----------
+    A, B
+        True matrices, ``(n, n)`` and ``(n, m)``, or one per lane ``(B, n, n)``, ``(B, n, m)``.
+    env, num_envs, Q, R, action_bound
+        As for :class:`~stcgym.adaptive.MultivariableSelfTuningController`.
+
+    Attributes
+    ----------
+    K, F : ndarray -- ``(m, n)`` (``(B, m, n)`` for lanes).
+    """
+
+    observation_limit = OBSERVATION_LIMIT
+
+    def __init__(
+        self,
+        A: ArrayLike,
+        B: ArrayLike,
+        *,
+        env: Any = None,
+        num_envs: int | None = None,
+        Q: ArrayLike | float | None = None,
+        R: ArrayLike | float | None = None,
+        action_bound: float | None = None,
+    ) -> None:
+        A_arr = np.asarray(A, dtype=float)
+        B_arr = np.asarray(B, dtype=float)
+        if A_arr.ndim not in (2, 3) or B_arr.ndim != A_arr.ndim:
+            raise ValueError(
+                f"A and B must be (n, n) and (n, m), or (lanes, n, n) and (lanes, n, m), got "
+                f"shapes {A_arr.shape} and {B_arr.shape}"
+            )
+        n, m = B_arr.shape[-2:]
+        n, m, self.num_envs, self.action_bound, cost = resolve_dimensions(
+            n, m, num_envs, action_bound, env
+        )
+        self.n_states, self.n_inputs = n, m
+        self.obs_dim, self.action_dim = 2 * n, m
+        lanes = self.num_lanes
+        if A_arr.ndim == 2:
+            A_arr = np.broadcast_to(matrix(A_arr, "A", (n, n)), (lanes, n, n))
+            B_arr = np.broadcast_to(matrix(B_arr, "B", (n, m)), (lanes, n, m))
+        elif A_arr.shape != (lanes, n, n) or B_arr.shape != (lanes, n, m):
+            raise ValueError(
+                f"per-lane A and B must have shapes ({lanes}, {n}, {n}) and ({lanes}, {n}, "
+                f"{m}), got {A_arr.shape} and {B_arr.shape}"
+            )
+        if not (np.all(np.isfinite(A_arr)) and np.all(np.isfinite(B_arr))):
+            raise ValueError("A and B must be finite")
+        self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
+        self._K = np.zeros((lanes, m, n))
+        self._F = np.zeros((lanes, m, n))
+        for i in range(lanes):
+            self._K[i], self._F[i] = lqr_design(A_arr[i], B_arr[i], self.Q, self.R)
+        self._u = np.zeros((lanes, m))
+
+    def _reset_lanes(self, idx: NDArray) -> None:
+        """The oracle has no state."""
+
+    def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
+        n = self.n_states
+        X = np.ascontiguousarray(obs[:, :n])
+        Rr = np.ascontiguousarray(obs[:, n:])
+        lq.feedback_laws(self._K, self._F, X, Rr, float(self.action_bound), self._u)
+        return self._u[0].copy() if self.num_envs is None else self._u.copy()
+
+    @property
+    def K(self) -> NDArray:
+        """LQ gain, ``(m, n)`` (``(B, m, n)`` for lanes)."""
+        return self._K[0].copy() if self.num_envs is None else self._K.copy()
+
+    @property
+    def F(self) -> NDArray:
+        """Reference feed-forward, shapes as :attr:`K`."""
+        return self._F[0].copy() if self.num_envs is None else self._F.copy()
+
+    def __repr__(self) -> str:
+        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
+        return f"LQRController(n_states={self.n_states}, n_inputs={self.n_inputs}{lanes})"
