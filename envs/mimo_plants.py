@@ -44,7 +44,21 @@ __all__ = ["MIMO_PLANTS", "MimoPlantSpec", "get_mimo_plant", "mimo_plant_names"]
 
 @dataclass(frozen=True)
 class MimoPlantSpec:
-    """A catalogue plant: continuous ``(A_c, B_c)``, its sample time and source."""
+    """A MIMO catalogue plant: continuous ``(A_c, B_c)``, its sample time and source.
+
+    ``gym.make("stcgym/StateSpace-v0", plant=name)`` runs its zero-order-hold discretisation
+    (:meth:`discrete`) with measured state (``C = I``).
+
+    Examples
+    --------
+    >>> from stcgym.envs import get_mimo_plant
+    >>> plant = get_mimo_plant("he1")
+    >>> plant.n_states, plant.n_inputs, plant.dt, plant.stable
+    (4, 2, 0.1, False)
+    >>> A, B = plant.discrete()
+    >>> A.shape, B.shape
+    ((4, 4), (4, 2))
+    """
 
     name: str
     A_c: tuple[tuple[float, ...], ...]
@@ -54,10 +68,12 @@ class MimoPlantSpec:
 
     @property
     def n_states(self) -> int:
+        """Number of states ``n``."""
         return len(self.A_c)
 
     @property
     def n_inputs(self) -> int:
+        """Number of inputs ``m``."""
         return len(self.B_c[0])
 
     def discrete(self) -> tuple[NDArray, NDArray]:
@@ -72,6 +88,7 @@ class MimoPlantSpec:
 
     @property
     def stable(self) -> bool:
+        """Every eigenvalue of the discrete ``A`` strictly inside the unit circle."""
         return bool(np.all(np.abs(self.poles) < 1.0))
 
 
@@ -151,12 +168,33 @@ MIMO_PLANTS: dict[str, MimoPlantSpec] = {
 
 
 def mimo_plant_names() -> list[str]:
-    """Names of the MIMO catalogue plants."""
+    """Names of the MIMO catalogue plants.
+
+    Examples
+    --------
+    >>> from stcgym.envs import mimo_plant_names
+    >>> mimo_plant_names()
+    ['quadruple_tank', 'he1', 'ac1']
+    """
     return list(MIMO_PLANTS)
 
 
 def get_mimo_plant(name: str) -> MimoPlantSpec:
-    """Look a MIMO plant up by name, raising ``ValueError`` that lists the valid names."""
+    """The MIMO catalogue plant ``name`` (case-insensitive).
+
+    Raises
+    ------
+    TypeError
+        ``name`` is not a string.
+    ValueError
+        An unknown name; the message lists the valid ones.
+
+    Examples
+    --------
+    >>> from stcgym.envs import get_mimo_plant
+    >>> get_mimo_plant("quadruple_tank").n_inputs
+    2
+    """
     if not isinstance(name, str):
         raise TypeError(
             f"plant must be a MIMO catalogue name (one of {mimo_plant_names()}), got {name!r}"
