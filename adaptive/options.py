@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from stcgym.adaptive.kernels import design as dz
 from stcgym.adaptive.kernels.estimator import REGRESSORS
 from stcgym.envs.canonical import check_form
-from stcgym.envs.validation import forgetting_factor, integer, one_of, real_in
+from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
 
 __all__ = [
     "DEFAULT_ACTION_BOUND",
@@ -181,8 +181,7 @@ class ChangeDetection:
     long: float = 0.01
 
     def __post_init__(self) -> None:
-        if not isinstance(self.enabled, (bool, np.bool_)):
-            raise ValueError(f"enabled must be a bool, got {self.enabled!r}")
+        flag(self.enabled, "enabled")
         real_in(self.threshold, "threshold", lo=1.0, lo_open=True)
         integer(self.holdoff, "holdoff", 0)
         real_in(self.inflation, "inflation", lo=1.0)
@@ -217,8 +216,7 @@ class LawOptions:
 
     def __post_init__(self) -> None:
         for name in ("integral", "feedforward", "anti_windup", "filtered"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+            flag(getattr(self, name), name)
         w = tuple(self.lq_weights)
         if len(w) != 3:
             raise ValueError(f"lq_weights must be (q_y, q_i, rho), got {self.lq_weights!r}")

@@ -462,16 +462,10 @@ class LQGController(_KnownModelLoop):
         process_noise_floor: float = 1e-8,
     ) -> None:
         a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
-        # its square is the filter's measurement variance: keep that in range too
-        self.noise_std = _setting(
-            noise_std, "noise_std", lo=1.0 / math.sqrt(MAX_SETTING), hi=math.sqrt(MAX_SETTING)
-        )
-        self.input_noise_std = _setting(input_noise_std, "input_noise_std", lo=0.0)
-        if self.input_noise_std > math.sqrt(MAX_SETTING):
-            raise ValueError(
-                f"input_noise_std must be at most {math.sqrt(MAX_SETTING):g}, "
-                f"got {input_noise_std!r}"
-            )
+        # their squares are covariances of the filter: keep those in range too
+        root = math.sqrt(MAX_SETTING)
+        self.noise_std = _setting(noise_std, "noise_std", lo=1.0 / root, hi=root)
+        self.input_noise_std = _setting(input_noise_std, "input_noise_std", lo=0.0, hi=root)
         self.process_noise_floor = _setting(process_noise_floor, "process_noise_floor", lo=0.0)
         self.R = self.noise_std**2
         self._weights = np.array(self.law.lq_weights, dtype=float)

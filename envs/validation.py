@@ -27,6 +27,7 @@ __all__ = [
     "non_negative",
     "positive",
     "forgetting_factor",
+    "flag",
     "one_of",
     "real_array",
     "finite_array",
@@ -123,6 +124,13 @@ def positive(value: Any, name: str) -> float:
     if v <= 0.0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
     return v
+
+
+def flag(value: Any, name: str) -> bool:
+    """A switch: a Python or numpy bool (not ``0``/``1``), else a ``ValueError`` naming ``name``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be a bool, got {value!r}")
+    return bool(value)
 
 
 def one_of(value: Any, name: str, choices: tuple[str, ...]) -> str:

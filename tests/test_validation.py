@@ -174,3 +174,10 @@ def test_covariance_from_a_scalar_a_diagonal_or_a_matrix():
     )
     with pytest.raises(ValueError, match="Q must be a positive or zero scalar"):
         v.covariance(-1.0, 2, "Q", allow_singular=True)
+
+
+def test_flag_takes_only_bools():
+    assert v.flag(np.bool_(True), "integral") is True and v.flag(False, "integral") is False
+    for bad in (1, 0, "yes", None, np.array([True])):
+        with pytest.raises(ValueError, match="integral must be a bool, got"):
+            v.flag(bad, "integral")
