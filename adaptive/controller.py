@@ -54,7 +54,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels import design as dz
-from stcgym.adaptive.kernels.estimator import EstimatorSpec, check_int
+from stcgym.adaptive.kernels.estimator import EstimatorSpec
 from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
 from stcgym.adaptive.options import (
     DEFAULT_POLE,
@@ -70,6 +70,7 @@ from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import observer_to_observability_b
 from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.validation import integer
 
 __all__ = [
     "DEFAULT_POLE",
@@ -157,7 +158,7 @@ class SelfTuningController(LanePolicy):
         change_detection: ChangeDetection | dict | None = None,
         law: LawOptions | dict | None = None,
     ) -> None:
-        self.n = n = check_int(n, "n (plant order)", 1)
+        self.n = n = integer(n, "n (plant order)", 1)
         self.num_envs, self.action_bound, self.form = plant_settings(
             n, num_envs=num_envs, action_bound=action_bound, form=form, env=env
         )

@@ -66,7 +66,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import finite_array, integer, matrix
+from stcgym.envs.validation import finite_array, integer, matrix, one_of
 
 __all__ = [
     "AffineStateSpace",
@@ -469,8 +469,7 @@ class AffineStateSpace:
             identified from the regression (they do not enter it, or only in fixed
             combinations).
         """
-        if method not in ("auto", "state", "output"):
-            raise ValueError(f"method must be 'auto', 'state' or 'output', got {method!r}")
+        one_of(method, "method", ("auto", "state", "output"))
         invertible = self.H.shape[0] == self.n and np.linalg.cond(self.H) < _COND_MAX
         if method == "state" and not invertible:
             raise ValueError(

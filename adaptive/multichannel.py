@@ -39,17 +39,19 @@ from stcgym.adaptive.kernels.least_squares import (
 )
 from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.compiled import lane
-from stcgym.envs.validation import finite_vector, forgetting_factor, integer, matrix
+from stcgym.envs.validation import (
+    finite_vector,
+    forgetting_factor,
+    integer,
+    matrix,
+    one_of,
+    positive,
+    real_in,
+)
 
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
 OnFailure = Literal["reset", "raise"]
-
-
-def _on_failure(value: str) -> OnFailure:
-    if value not in ("reset", "raise"):
-        raise ValueError(f"on_failure must be 'reset' or 'raise', got {value!r}")
-    return value  # type: ignore[return-value]
 
 
 def _is_spd(P: NDArray) -> bool:
@@ -161,13 +163,10 @@ class MatrixRLS:
         self.n_inputs = integer(n_inputs, "n_inputs")
         self.n_outputs = integer(n_outputs, "n_outputs")
         self.forgetting = forgetting_factor(forgetting)
-        self.on_failure = _on_failure(on_failure)
+        self.on_failure = one_of(on_failure, "on_failure", ("reset", "raise"))  # type: ignore[assignment]
         n = self.n_inputs
         if P0 is None or np.ndim(P0) == 0:
-            scale = float(p0 if P0 is None else P0)  # type: ignore[arg-type]
-            label = "p0" if P0 is None else "P0"
-            if not np.isfinite(scale) or scale <= 0:
-                raise ValueError(f"{label} must be a positive finite number, got {scale!r}")
+            scale = positive(p0, "p0") if P0 is None else positive(P0, "P0")
             P = scale * np.eye(n)
         else:
             P = matrix(P0, "P0", (n, n))
@@ -322,15 +321,11 @@ class StateMatrixEstimator:
         on_failure: OnFailure = "reset",
     ) -> None:
         self.m = integer(m, "m")
-        if isinstance(N, bool) or not isinstance(N, (int, np.integer)) or N < 0:
-            raise ValueError(f"N (number of inputs) must be an integer >= 0, got {N!r}")
-        self.N = int(N)
+        self.N = integer(N, "N (number of inputs)", 0)
         self.forgetting = forgetting_factor(forgetting)
-        self.on_failure = _on_failure(on_failure)
-        tol = float(dependence_tol)
-        if not (0.0 < tol < 1.0):
-            raise ValueError(f"dependence_tol must lie in (0, 1), got {dependence_tol!r}")
-        self.dependence_tol = tol
+        self.on_failure = one_of(on_failure, "on_failure", ("reset", "raise"))  # type: ignore[assignment]
+        self.dependence_tol = real_in(dependence_tol, "dependence_tol", 0.0, 1.0,
+                                      lo_open=True, hi_open=True)  # fmt: skip
         q = self.m + self.N
         self._C = np.zeros((self.m, q)) if C0 is None else matrix(C0, "C0", (self.m, q))
         self.R: NDArray | None = np.eye(q)  # projector of the minimum-norm phase

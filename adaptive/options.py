@@ -14,17 +14,16 @@ construction; :func:`option_group` also accepts a dict of its fields.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from numbers import Real
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels import design as dz
-from stcgym.adaptive.kernels.estimator import REGRESSORS, check_int
+from stcgym.adaptive.kernels.estimator import REGRESSORS
 from stcgym.envs.canonical import check_form
+from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
 
 __all__ = [
     "DEFAULT_ACTION_BOUND",
@@ -34,7 +33,6 @@ __all__ = [
     "LawOptions",
     "SafeSet",
     "StartupOptions",
-    "check_real",
     "cost_weights",
     "env_settings",
     "option_group",
@@ -49,20 +47,6 @@ DEFAULT_ACTION_BOUND = 10.0
 P0_ELS = 300.0
 #: Default ``P(0) = p0 I`` of the paper's ``KF-`` estimators.
 P0_KF = 100.0
-
-
-def check_real(value: Any, name: str, *, lo: float = -math.inf, hi: float = math.inf,
-          lo_open: bool = False, hi_open: bool = False) -> float:  # fmt: skip
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    v = float(value)
-    ok = math.isfinite(v) or (v == math.inf and hi == math.inf and not hi_open)
-    ok = ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
-    if not ok:
-        lb = "(" if lo_open else "["
-        rb = ")" if hi_open else "]"
-        raise ValueError(f"{name} must lie in {lb}{lo}, {hi}{rb}, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -91,13 +75,10 @@ class EstimatorOptions:
       process noise is the controller's ``Q`` above. ``0.005`` (twice the variance of the
       benchmark's output noise): while ``P`` is large the filtered ``x1_hat(t|t)`` follows
       ``y``, once it is small it follows the model, so the regressor loses the noise that
-      biases least squares on measured outputs. Measured with ``benchmarks/startup.py``
-      (KF-MILS, worst catalogue plant over 20 seeds / p90 of 1000 random plants): ``R =
-      0.003`` 1.51 (stable4) / -, ``0.005`` 1.49 / 1.43, ``0.01`` 1.60 / 1.42, ``0.03`` 2.02
-      (lightly_damped2, 10 seeds) / -; ``R = 10`` (the controller's own) loses 24 of 300
-      random plants.
-    * ``p0 = 100`` for ``KF-`` (worst catalogue plant 1.52 with 300, 1.44 with 100); the
-      ``O-`` estimators keep 300 (with 100 they lose a plant of the random family).
+      biases least squares on measured outputs (chosen with ``benchmarks/startup.py``; the
+      controller's own ``R = 10`` loses random plants).
+    * ``p0 = 100`` for ``KF-``; the ``O-`` estimators keep 300 (with 100 they lose a plant of
+      the random family).
     * ``estimation_form``: the canonical form the estimator identifies. ``"observer"``
       (default): the plant's transfer function in the observer form (1)-(9), whatever the
       plant's form (the forms are interchangeable, section 4 of the paper; ``theta`` is
@@ -120,19 +101,15 @@ class EstimatorOptions:
 
     def __post_init__(self) -> None:
         if self.p0 is not None:
-            check_real(self.p0, "p0", lo=0.0, lo_open=True)
-        check_real(self.forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
-        check_int(self.p, "p", 1)
-        check_real(self.process_noise_gain, "process_noise_gain", lo=0.0)
-        check_real(self.process_noise_floor, "process_noise_floor", lo=0.0)
-        check_real(self.measurement_noise, "measurement_noise", lo=0.0, lo_open=True)
-        if self.regressor not in REGRESSORS:
-            raise ValueError(f"regressor must be one of {REGRESSORS}, got {self.regressor!r}")
-        check_real(self.kf_measurement_noise, "kf_measurement_noise", lo=0.0, lo_open=True)
-        if self.estimation_form not in ("observer", "plant"):
-            raise ValueError(
-                f"estimation_form must be 'observer' or 'plant', got {self.estimation_form!r}"
-            )
+            real_in(self.p0, "p0", lo=0.0, lo_open=True)
+        forgetting_factor(self.forgetting, "forgetting")
+        integer(self.p, "p", 1)
+        real_in(self.process_noise_gain, "process_noise_gain", lo=0.0)
+        real_in(self.process_noise_floor, "process_noise_floor", lo=0.0)
+        real_in(self.measurement_noise, "measurement_noise", lo=0.0, lo_open=True)
+        one_of(self.regressor, "regressor", REGRESSORS)
+        real_in(self.kf_measurement_noise, "kf_measurement_noise", lo=0.0, lo_open=True)
+        one_of(self.estimation_form, "estimation_form", ("observer", "plant"))
 
     def initial_covariance(self, estimator: str) -> float:
         """``p0`` for the (canonical) estimator name: the given value or the name's default."""
@@ -149,11 +126,10 @@ class StartupOptions:
     min(1, probe_output / y_max(t))`` with ``y_max(t)`` the largest ``|y|`` seen so far; the
     probe goes on past ``probe_steps`` while ``y_max < probe_output``, for at most
     ``max_probe_steps`` samples (``None``: ``5n``; ``0`` or ``probe_steps`` turns the extension
-    off). ``probe_output = inf`` with ``max_probe_steps = 0`` gives the former fixed probe,
+    off). ``probe_output = inf`` with ``max_probe_steps = 0`` gives a fixed probe,
     ``+-probe_amplitude`` for ``probe_steps`` samples. Defaults chosen with
-    ``benchmarks/startup.py``: scaling the probe down on high-gain plants takes the 90th
-    percentile of the random family's episode ratio from 1.79 to 1.44 (300 plants), and the
-    extension takes ``stable4`` from 1.82 to 1.41 (10 seeds).
+    ``benchmarks/startup.py`` (the scaled probe for high-gain plants, the extension for slow
+    ones such as ``stable4``).
     """
 
     probe_amplitude: float = 0.5
@@ -162,12 +138,12 @@ class StartupOptions:
     max_probe_steps: int | None = None
 
     def __post_init__(self) -> None:
-        check_real(self.probe_amplitude, "probe_amplitude", lo=0.0)
+        real_in(self.probe_amplitude, "probe_amplitude", lo=0.0)
         if self.probe_steps is not None:
-            check_int(self.probe_steps, "probe_steps", 0)
-        check_real(self.probe_output, "probe_output", lo=0.0, lo_open=True)
+            integer(self.probe_steps, "probe_steps", 0)
+        real_in(self.probe_output, "probe_output", lo=0.0, lo_open=True)
         if self.max_probe_steps is not None:
-            check_int(self.max_probe_steps, "max_probe_steps", 0)
+            integer(self.max_probe_steps, "max_probe_steps", 0)
 
 
 @dataclass(frozen=True)
@@ -185,6 +161,8 @@ class SafeSet:
         dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
     def vector(self) -> NDArray:
+        """The safe-set vector the design lane functions read (see :func:`~stcgym.adaptive.
+        kernels.safe_set.safe_set`)."""
         return dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
 
@@ -192,10 +170,8 @@ class SafeSet:
 class ChangeDetection:
     """Covariance resetting when the short EWMA of ``e^2`` (rate ``short``) exceeds
     ``threshold`` x the long one (rate ``long``), in closed loop, at most once per ``holdoff``
-    steps: ``P <- inflation P``. ``threshold = 5`` (was 10): the self-tuning LQ loop keeps the
-    innovation smaller after a parameter jump, and with 10 it missed the bench's jump on 5 of 8
-    seeds; with 5 there is still no false alarm on the 1000 random time-invariant plants of
-    ``benchmarks/startup.py``."""
+    steps: ``P <- inflation P``. ``threshold = 5`` catches the bench's parameter jump with no
+    false alarm on the 1000 random time-invariant plants of ``benchmarks/startup.py``."""
 
     enabled: bool = True
     threshold: float = 5.0
@@ -205,13 +181,12 @@ class ChangeDetection:
     long: float = 0.01
 
     def __post_init__(self) -> None:
-        if not isinstance(self.enabled, (bool, np.bool_)):
-            raise ValueError(f"enabled must be a bool, got {self.enabled!r}")
-        check_real(self.threshold, "threshold", lo=1.0, lo_open=True)
-        check_int(self.holdoff, "holdoff", 0)
-        check_real(self.inflation, "inflation", lo=1.0)
-        check_real(self.short, "short", lo=0.0, hi=1.0, lo_open=True)
-        check_real(self.long, "long", lo=0.0, hi=1.0, lo_open=True)
+        flag(self.enabled, "enabled")
+        real_in(self.threshold, "threshold", lo=1.0, lo_open=True)
+        integer(self.holdoff, "holdoff", 0)
+        real_in(self.inflation, "inflation", lo=1.0)
+        real_in(self.short, "short", lo=0.0, hi=1.0, lo_open=True)
+        real_in(self.long, "long", lo=0.0, hi=1.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -228,10 +203,9 @@ class LawOptions:
     :func:`cost_weights` gives them for another ``control_cost``), plus a small weight
     ``q_i = 1e-4`` on the integrator: it keeps the integrator detectable (offset-free tracking
     whatever the estimation bias, time constant of the order of 100 samples) while leaving the
-    loop close to the LQ loop without integrator. With ``q_i = 1e-2`` the self-tuning LQ loop's
-    steady-state cost was 1.04-1.21x that of LQG without integral action; with ``1e-4`` it is
-    1.01-1.04x. With integral action ``q_i`` must be > 0: with ``q_i = 0`` the integrator is
-    invisible to the cost and the LQ gain leaves it alone (``k_i = 0``).
+    loop close to the LQ loop without integrator (steady-state cost 1.01-1.04x that of LQG
+    without integral action). With integral action ``q_i`` must be > 0: with ``q_i = 0`` the
+    integrator is invisible to the cost and the LQ gain leaves it alone (``k_i = 0``).
     """
 
     integral: bool = True
@@ -242,14 +216,13 @@ class LawOptions:
 
     def __post_init__(self) -> None:
         for name in ("integral", "feedforward", "anti_windup", "filtered"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+            flag(getattr(self, name), name)
         w = tuple(self.lq_weights)
         if len(w) != 3:
             raise ValueError(f"lq_weights must be (q_y, q_i, rho), got {self.lq_weights!r}")
-        check_real(w[0], "lq_weights[0] (q_y)", lo=0.0, lo_open=True)
-        q_i = check_real(w[1], "lq_weights[1] (q_i)", lo=0.0)
-        check_real(w[2], "lq_weights[2] (rho)", lo=0.0, lo_open=True)
+        real_in(w[0], "lq_weights[0] (q_y)", lo=0.0, lo_open=True)
+        q_i = real_in(w[1], "lq_weights[1] (q_i)", lo=0.0)
+        real_in(w[2], "lq_weights[2] (rho)", lo=0.0, lo_open=True)
         if self.integral and q_i == 0.0:
             raise ValueError(
                 "lq_weights[1] (q_i) must be > 0 with integral action (with q_i = 0 the "
@@ -321,7 +294,7 @@ def plant_settings(
     if env_n is not None and env_n != n:
         raise ValueError(f"n={n} does not match the env's plant order n={env_n}")
     if num_envs is not None:
-        num_envs = check_int(num_envs, "num_envs", 1)
+        num_envs = integer(num_envs, "num_envs", 1)
     if env_num is not None and num_envs != env_num:
         raise ValueError(
             f"num_envs={num_envs} does not match the env's num_envs={env_num}: build the "
@@ -329,7 +302,7 @@ def plant_settings(
         )
     if action_bound is None:
         action_bound = env_bound if env_bound is not None else DEFAULT_ACTION_BOUND
-    bound = check_real(action_bound, "action_bound", lo=0.0, lo_open=True)
+    bound = real_in(action_bound, "action_bound", lo=0.0, lo_open=True)
     if env_bound is not None and bound > env_bound:
         raise ValueError(f"action_bound={bound} exceeds the env's action_bound={env_bound}")
     form = check_form((env_form or "observer") if form is None else form)

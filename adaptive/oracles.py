@@ -45,7 +45,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import design as _design
-from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.kernels.state_estimation import kalman_step
 from stcgym.adaptive.options import DEFAULT_POLE, LawOptions, option_group, plant_settings
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
@@ -53,6 +52,7 @@ from stcgym.adaptive.policy import LanePolicy
 from stcgym.adaptive.recursive import lane_indices
 from stcgym.envs.canonical import as_finite_vector
 from stcgym.envs.compiled import FixedTypes, Layout
+from stcgym.envs.validation import integer, real_in
 
 __all__ = ["KalmanObserver", "KnownModelController", "LQGController"]
 
@@ -67,29 +67,11 @@ _NO_SAFE_SET = _design.safe_set()
 MAX_SETTING = 1e100
 
 
-def _check_positive(
-    value: Any, name: str, *, allow_none: bool = False, limit: float = MAX_SETTING
-) -> float | None:
-    """A number in ``[1 / limit, limit]`` (``None`` passes when allowed)."""
-    if value is None and allow_none:
-        return None
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a positive number, got {value!r}") from exc
-    if not (1.0 / limit <= v <= limit):
-        raise ValueError(f"{name} must be a number in [{1.0 / limit:g}, {limit:g}], got {value!r}")
-    return v
-
-
-def _check_nonnegative(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a number >= 0, got {value!r}") from exc
-    if not (0 <= v <= MAX_SETTING):
-        raise ValueError(f"{name} must be a number in [0, {MAX_SETTING:g}], got {value!r}")
-    return v
+def _setting(
+    value: Any, name: str, *, lo: float = 1.0 / MAX_SETTING, hi: float = MAX_SETTING
+) -> float:
+    """A noise level, weight or covariance scale in ``[lo, hi]`` (see :data:`MAX_SETTING`)."""
+    return real_in(value, name, lo, hi)
 
 
 def _lane_parameters(
@@ -140,7 +122,7 @@ class _KnownModelLoop(LanePolicy):
     ) -> tuple[NDArray, NDArray]:  # fmt: skip
         """Set ``n``, ``num_envs``, ``action_bound``, ``form`` and ``law``; return ``a``, ``b``
         as ``(lanes, n)``."""
-        num = None if num_envs is None else check_int(num_envs, "num_envs", 1)
+        num = None if num_envs is None else integer(num_envs, "num_envs", 1)
         a_l, b_l = _lane_parameters(a, b, 1 if num is None else num, batched=num is not None)
         self.n = a_l.shape[1]
         self.num_envs, self.action_bound, self.form = plant_settings(
@@ -403,9 +385,9 @@ class KnownModelController(_KnownModelLoop):
         a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
         self.poles = check_poles(poles, self.n + int(self.law.integral))
         self._alpha = characteristic_coefficients(self.poles)
-        self._q = _check_nonnegative(process_noise, "process_noise")
-        self.R = _check_positive(measurement_noise, "measurement_noise")
-        self._P0 = _check_positive(P0, "P0")
+        self._q = _setting(process_noise, "process_noise", lo=0.0)
+        self.R = _setting(measurement_noise, "measurement_noise")
+        self._P0 = _setting(P0, "P0")
         self._build(a_l, b_l)
 
     def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
@@ -480,15 +462,11 @@ class LQGController(_KnownModelLoop):
         process_noise_floor: float = 1e-8,
     ) -> None:
         a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
-        # its square is the filter's measurement variance: keep that in range too
-        self.noise_std = _check_positive(noise_std, "noise_std", limit=math.sqrt(MAX_SETTING))
-        self.input_noise_std = _check_nonnegative(input_noise_std, "input_noise_std")
-        if self.input_noise_std > math.sqrt(MAX_SETTING):
-            raise ValueError(
-                f"input_noise_std must be at most {math.sqrt(MAX_SETTING):g}, "
-                f"got {input_noise_std!r}"
-            )
-        self.process_noise_floor = _check_nonnegative(process_noise_floor, "process_noise_floor")
+        # their squares are covariances of the filter: keep those in range too
+        root = math.sqrt(MAX_SETTING)
+        self.noise_std = _setting(noise_std, "noise_std", lo=1.0 / root, hi=root)
+        self.input_noise_std = _setting(input_noise_std, "input_noise_std", lo=0.0, hi=root)
+        self.process_noise_floor = _setting(process_noise_floor, "process_noise_floor", lo=0.0)
         self.R = self.noise_std**2
         self._weights = np.array(self.law.lq_weights, dtype=float)
         self._build(a_l, b_l)
@@ -607,8 +585,8 @@ class KalmanObserver:
                 f"process_noise must be a finite number or an ({self.n}, {self.n}) matrix"
             )
         self.Q = np.ascontiguousarray(Q)
-        self.R = float(_check_positive(measurement_noise, "measurement_noise"))
-        self.P0 = float(_check_positive(P0, "P0"))
+        self.R = _setting(measurement_noise, "measurement_noise")
+        self.P0 = _setting(P0, "P0")
         self.reset()
 
     def set_model(self, A: ArrayLike, b: ArrayLike) -> None:

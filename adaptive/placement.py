@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.kernels import design as _design
-from stcgym.envs.validation import finite_vector, matrix, square_matrix
+from stcgym.envs.validation import finite_vector, matrix, positive, square_matrix
 
 __all__ = [
     "UncontrollableError",
@@ -254,9 +254,7 @@ def lq_gain(
         1.0, np.abs(Q).max()
     ):
         raise ValueError("Q must be symmetric positive semidefinite")
-    R = float(R)
-    if not (R > 0 and np.isfinite(R)):
-        raise ValueError(f"R (input weight) must be a finite number > 0, got {R}")
+    R = positive(R, "R (input weight)")
     P = np.zeros((m, m))
     K = np.zeros(m)
     char_A = np.ascontiguousarray(np.real(np.poly(A))[1:])  # det(zI - A), for the stability test

@@ -100,12 +100,12 @@ from stcgym.adaptive.kernels.estimator import (
     RULES,
     STATE_ESTIMATORS,
     EstimatorSpec,
-    check_covariance,
     parse_name,
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable as _schur_lane
 from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import (
+    covariance,
     finite_vector,
     integer,
     lane_indices,
@@ -802,7 +802,7 @@ def make_estimator(
             P0_arr = np.asarray(P0, dtype=float)
             if P0_arr.shape != (B, d, d):
                 raise ValueError(f"per-lane P0 must have shape ({B}, {d}, {d})")
-            lane_P0 = np.array([check_covariance(M, d, "P0") for M in P0_arr])
+            lane_P0 = np.array([covariance(M, d, "P0") for M in P0_arr])
             options["P0"] = lane_P0[0]
     spec = EstimatorSpec.build(name, n, **options)
     if lane_P0 is not None and spec.decomposed:

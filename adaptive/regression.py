@@ -58,7 +58,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.kernels.estimator import check_covariance, upper_cholesky
+from stcgym.adaptive.kernels.estimator import upper_cholesky
 from stcgym.adaptive.kernels.least_squares import (
     DOWNDATE_TOL,
     factor_is_healthy,
@@ -69,7 +69,14 @@ from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.compiled import Layout, lane, lanes, prange
-from stcgym.envs.validation import forgetting_factor, integer, lane_indices, real_array
+from stcgym.envs.validation import (
+    covariance,
+    forgetting_factor,
+    integer,
+    lane_indices,
+    one_of,
+    real_array,
+)
 
 __all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
 
@@ -311,10 +318,10 @@ def _initial_covariance(value: ArrayLike, d: int) -> tuple[NDArray, NDArray]:
     try:
         zero = np.shape(value) in ((), (d,), (d, d)) and not np.any(np.asarray(value, float))
     except (TypeError, ValueError):
-        zero = False  # not numbers: check_covariance names the expected form
+        zero = False  # not numbers: covariance names the expected form
     if zero:
         return np.zeros((d, d)), np.zeros((d, d))
-    P0 = check_covariance(value, d, "P0")
+    P0 = covariance(value, d, "P0")
     return P0, upper_cholesky(P0)
 
 
@@ -393,8 +400,7 @@ class RecursiveLeastSquares:
                 raise ValueError("window (finite history) and forgetting < 1 are exclusive")
             if self._frozen:
                 raise ValueError("window (finite history) needs a positive definite P0, got 0")
-        if on_failure not in ("reset", "raise"):
-            raise ValueError(f"on_failure must be 'reset' or 'raise', got {on_failure!r}")
+        one_of(on_failure, "on_failure", ("reset", "raise"))
         self._reset_on_failure = on_failure == "reset"
         self._batched = num_envs is not None
         B = 1 if num_envs is None else integer(num_envs, "num_envs", 1)

@@ -55,6 +55,7 @@ from stcgym.adaptive.controller import SelfTuningController
 from stcgym.adaptive.kernels.controller import controller_step
 from stcgym.envs.compiled import lane, lanes, prange
 from stcgym.envs.dynamics import canonical_plant_step
+from stcgym.envs.validation import integer, non_negative
 
 __all__ = ["RolloutResult", "charge_divergence", "rollout"]
 
@@ -160,8 +161,7 @@ def rollout(
     """Run ``steps`` closed-loop steps of ``controller`` on canonical plants (module docstring)."""
     if not isinstance(controller, SelfTuningController):
         raise ValueError(f"controller must be a SelfTuningController, got {controller!r}")
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    steps = integer(steps, "steps")
     B, n = controller.B, controller.n
     th = _per_lane(theta, B, 2 * n, "theta")
     if jump is None:
@@ -171,8 +171,7 @@ def rollout(
         th_after = _per_lane(jump[1], B, 2 * n, "jump theta")
     R = _per_lane(reference, B, steps + 1, "reference")
     X = _per_lane(np.zeros(n) if x0 is None else x0, B, n, "x0").copy()
-    if not (np.isfinite(noise_std) and noise_std >= 0):
-        raise ValueError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
+    noise_std = non_negative(noise_std, "noise_std")
     if z is None:
         Z = np.random.default_rng(seed).standard_normal((B, steps + 1))
     else:

@@ -6,7 +6,8 @@ leaves everything as it was. The convention:
 * a scalar that is not a real number at all (text, ``None``, a sequence, a bool) is a
   :class:`TypeError`; a real number out of range or not finite is a :class:`ValueError`;
 * an integer argument rejects every non-integer (bool and ``2.0`` included) with a
-  :class:`ValueError` saying ``"<name> must be an integer >= <minimum>"``;
+  :class:`ValueError` saying ``"<name> must be an integer >= <minimum>"``; a setting in an
+  interval (:func:`real_in`, :func:`forgetting_factor`) rejects anything else the same way;
 * an array argument (ragged, complex, text, wrong shape, not finite) is a :class:`ValueError`.
 """
 
@@ -22,15 +23,19 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "integer",
     "real_number",
+    "real_in",
     "non_negative",
     "positive",
     "forgetting_factor",
+    "flag",
+    "one_of",
     "real_array",
     "finite_array",
     "finite_vector",
     "vector_pair",
     "matrix",
     "square_matrix",
+    "covariance",
     "lane_indices",
     "lane_vector",
 ]
@@ -44,6 +49,20 @@ def integer(value: Any, name: str, minimum: int = 1) -> int:
     return int(value)
 
 
+def _real(value: Any, name: str) -> float:
+    """``value`` as a float (possibly not finite); a :class:`TypeError` if not a real number."""
+    kind = type(value)
+    if kind is not float and kind is not np.float64 and kind is not int:  # not the common case
+        if kind is np.ndarray and value.shape == ():
+            value = value[()]
+        if isinstance(value, (str, bytes, bool, np.bool_)) or not isinstance(value, numbers.Real):
+            raise TypeError(f"{name} must be a finite real number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond the float range
+        return math.nan
+
+
 def real_number(value: Any, name: str) -> float:
     """``value`` as a finite float: a Python or numpy real number, or a 0-d array of one.
 
@@ -54,19 +73,41 @@ def real_number(value: Any, name: str) -> float:
     ValueError
         Not finite (NaN, inf, an integer beyond the float range).
     """
-    kind = type(value)
-    if kind is not float and kind is not np.float64 and kind is not int:  # not the common case
-        if kind is np.ndarray and value.shape == ():
-            value = value[()]
-        if isinstance(value, (str, bytes, bool, np.bool_)) or not isinstance(value, numbers.Real):
-            raise TypeError(f"{name} must be a finite real number, got {value!r}")
-    try:
-        v = float(value)
-    except OverflowError as exc:
-        raise ValueError(f"{name} must be a finite real number, got {value!r}") from exc
+    v = _real(value, name)
     if not math.isfinite(v):
         raise ValueError(f"{name} must be a finite real number, got {value!r}")
     return v
+
+
+def real_in(
+    value: Any,
+    name: str,
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+) -> float:
+    """A setting: a real number in the interval from ``lo`` to ``hi`` (ends closed unless open).
+
+    ``math.inf`` passes only where the interval is ``[.., inf]`` (a setting that ``inf``
+    switches off); NaN never passes. Like :func:`integer`, anything else, a value of the wrong
+    kind included, is a ``ValueError``: ``"<name> must lie in (lo, hi], got ..."``.
+    """
+    try:
+        v = _real(value, name)
+    except TypeError:
+        v = math.nan
+    ok = math.isfinite(v) or (v == math.inf and hi == math.inf and not hi_open)
+    if not (ok and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
+        interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        raise ValueError(f"{name} must lie in {interval}, got {value!r}")
+    return v
+
+
+def forgetting_factor(value: Any, name: str = "forgetting") -> float:
+    """A forgetting factor ``lambda`` in ``(0, 1]`` (see :func:`real_in`)."""
+    return real_in(value, name, 0.0, 1.0, lo_open=True)
 
 
 def non_negative(value: Any, name: str) -> float:
@@ -83,6 +124,21 @@ def positive(value: Any, name: str) -> float:
     if v <= 0.0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
     return v
+
+
+def flag(value: Any, name: str) -> bool:
+    """A switch: a Python or numpy bool (not ``0``/``1``), else a ``ValueError`` naming ``name``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be a bool, got {value!r}")
+    return bool(value)
+
+
+def one_of(value: Any, name: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of the strings ``choices``, else a ``ValueError`` naming ``name``
+    and the choices."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+    return value
 
 
 # ------------------------------------------------------------------------------------ arrays
@@ -170,6 +226,42 @@ def square_matrix(value: ArrayLike, name: str) -> NDArray:
     return np.ascontiguousarray(arr)
 
 
+def covariance(value: Any, dim: int, name: str, *, allow_singular: bool = False) -> NDArray:
+    """A ``dim x dim`` covariance from a scalar, a vector (its diagonal) or a matrix.
+
+    The matrix must be symmetric (to ``1e-12`` of its largest entry; the result is its
+    symmetric part) and positive definite (semidefinite with ``allow_singular``); a scalar or
+    vector must be positive (``>= 0`` with ``allow_singular``). Else a ``ValueError`` naming
+    ``name`` and the expected form.
+    """
+    semi = "semi" if allow_singular else ""
+    expected = (
+        f"{name} must be a positive {'or zero ' if allow_singular else ''}scalar, a vector of "
+        f"length {dim} or a symmetric positive {semi}definite {dim}x{dim} matrix"
+    )
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{expected}, got {value!r}") from exc
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{expected}; it is not finite: {value!r}")
+    if arr.ndim == 0 or (arr.ndim == 1 and arr.size == dim):
+        diag = np.broadcast_to(arr, (dim,))
+        if np.any(diag < 0) or (not allow_singular and np.any(diag <= 0)):
+            raise ValueError(f"{expected}, got {value!r}")
+        return np.diag(diag).astype(float)
+    if arr.shape != (dim, dim):
+        raise ValueError(f"{expected}, got shape {arr.shape}")
+    scale = max(float(np.abs(arr).max()), 1e-300)
+    if not np.allclose(arr, arr.T, rtol=0.0, atol=1e-12 * scale):
+        raise ValueError(f"{expected}; it is not symmetric")
+    M = 0.5 * (arr + arr.T)
+    lam_min = float(np.linalg.eigvalsh(M).min())
+    if lam_min < -1e-12 * scale or (not allow_singular and lam_min <= 0.0):
+        raise ValueError(f"{expected}; its smallest eigenvalue is {lam_min:g}")
+    return M
+
+
 # ------------------------------------------------------------------------------------- lanes
 def lane_indices(lanes: Any, B: int, name: str = "lanes") -> NDArray:
     """The selected lanes of a batch of ``B`` as ``int64`` indices.
@@ -213,13 +305,3 @@ def lane_vector(value: Any, B: int, name: str) -> NDArray:
         bad = np.flatnonzero(~np.isfinite(arr))[:5]
         raise ValueError(f"{name} must be finite; lanes {bad.tolist()} are not")
     return arr
-
-
-def forgetting_factor(value: Any, name: str = "forgetting") -> float:
-    """A forgetting factor ``lambda`` in ``(0, 1]`` (a real number; bools rejected)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must lie in (0, 1] (a real number), got {value!r}")
-    lam = float(value)
-    if not 0.0 < lam <= 1.0:  # also rejects NaN
-        raise ValueError(f"{name} must lie in (0, 1] (a real number), got {value!r}")
-    return lam

@@ -410,3 +410,14 @@ def test_kalman_covariance_lanes_match_dlqe(form: str) -> None:
         A = companion_A(t[:3], form)
         _, P_ref, _ = control.dlqe(A, np.eye(3), np.eye(1, 3), Wi, [[0.05**2]])
         np.testing.assert_allclose(P, P_ref, rtol=1e-7, atol=1e-12)
+
+
+def test_the_safe_set_and_weight_vectors_are_read_by_name() -> None:
+    """The one accessor of each vector gives its entries under the names the designs use."""
+    from stcgym.adaptive.kernels.lq import weight_fields
+    from stcgym.adaptive.kernels.safe_set import safe_bounds
+
+    safe = d.safe_set(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3, gain_max=4.0)
+    assert safe_bounds(safe) == d.SafeSetBounds(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3,
+                                                gain_max=4.0)  # fmt: skip
+    assert weight_fields(d.lq_weights(2.0, 0.5, 0.25)) == d.LQWeights(q_y=2.0, q_i=0.5, rho=0.25)

@@ -156,7 +156,7 @@ def test_matrix_rls_bad_input():
         MatrixRLS(2, 2, P0=[[1.0, 2.0], [2.0, 1.0]])
     with pytest.raises(ValueError, match="symmetric part"):
         MatrixRLS(2, 2, P0=[[1.0, 3.0], [0.0, -1.0]])
-    with pytest.raises(ValueError, match="P0 must be a positive"):
+    with pytest.raises(ValueError, match="P0 must be a finite number > 0"):
         MatrixRLS(2, 2, P0=-1.0)
     with pytest.raises(ValueError, match=r"theta0 must have 2 columns \(shape \(2, 2\)\)"):
         MatrixRLS(2, 2, theta0=np.zeros((2, 3)))

@@ -114,3 +114,70 @@ def test_vector_pairs_must_have_the_same_length():
         v.vector_pair([1, 2], [3.0], ("u", "y"), " L")
     with pytest.raises(ValueError, match="y must be finite"):
         v.vector_pair([1, 2], [3.0, np.nan], ("u", "y"))
+
+
+@pytest.mark.parametrize(
+    ("value", "kwargs", "ok"),
+    [
+        (0.0, {"lo": 0.0}, True),
+        (0.0, {"lo": 0.0, "lo_open": True}, False),
+        (1.0, {"hi": 1.0}, True),
+        (1.0, {"hi": 1.0, "hi_open": True}, False),
+        (np.inf, {"lo": 0.0}, True),  # [0, inf]: inf switches the setting off
+        (np.inf, {"lo": 0.0, "hi_open": True}, False),
+        (-np.inf, {}, False),
+        (np.nan, {}, False),
+        (np.float32(0.5), {"lo": 0.0, "hi": 1.0}, True),
+        (3, {"lo": 1.0}, True),
+    ],
+)
+def test_real_in_checks_each_end_of_the_interval(value, kwargs, ok):
+    if ok:
+        assert v.real_in(value, "s", **kwargs) == float(value)
+    else:
+        with pytest.raises(ValueError, match=r"^s must lie in [\[(]"):
+            v.real_in(value, "s", **kwargs)
+
+
+@pytest.mark.parametrize("value", ["1", None, [1.0], True, np.bool_(False), 1j, 10**400])
+def test_real_in_rejects_every_other_kind_as_a_value_error(value):
+    with pytest.raises(ValueError, match=r"^gain_max must lie in \(0, inf\], got"):
+        v.real_in(value, "gain_max", 0.0, lo_open=True)
+
+
+def test_one_of_names_the_choices():
+    assert v.one_of("raise", "on_failure", ("reset", "raise")) == "raise"
+    for bad in ("Raise", None, ["reset"], 1):
+        with pytest.raises(ValueError, match=r"on_failure must be one of \('reset', 'raise'\)"):
+            v.one_of(bad, "on_failure", ("reset", "raise"))
+
+
+def test_covariance_from_a_scalar_a_diagonal_or_a_matrix():
+    np.testing.assert_array_equal(v.covariance(2.0, 3, "P0"), 2.0 * np.eye(3))
+    np.testing.assert_array_equal(v.covariance([1.0, 2.0], 2, "P0"), np.diag([1.0, 2.0]))
+    M = np.array([[2.0, 0.5], [0.5, 1.0]])
+    M_rounded = M + np.array([[0.0, 1e-14], [0.0, 0.0]])  # symmetric to rounding
+    np.testing.assert_allclose(v.covariance(M_rounded, 2, "P0"), 0.5 * (M_rounded + M_rounded.T))
+    assert np.linalg.eigvalsh(v.covariance(M_rounded, 2, "P0")).min() > 0.0
+    expected = r"P0 must be a positive scalar, a vector of length 2 or a symmetric positive"
+    singular = [[1.0, 1.0], [1.0, 1.0]]
+    for bad in (0.0, [1.0, 0.0], [[1.0, 0.5], [0.0, 1.0]], singular, "x", [1.0] * 3):
+        with pytest.raises(ValueError, match=expected):
+            v.covariance(bad, 2, "P0")
+    with pytest.raises(ValueError, match="it is not finite"):
+        v.covariance([[1.0, np.nan], [np.nan, 1.0]], 2, "P0")
+    # a singular covariance only where allowed (a process noise, not an initial P)
+    np.testing.assert_array_equal(v.covariance([1.0, 0.0], 2, "Q", allow_singular=True),
+                                  np.diag([1.0, 0.0]))  # fmt: skip
+    np.testing.assert_array_equal(
+        v.covariance([[1.0, 1.0], [1.0, 1.0]], 2, "Q", allow_singular=True), np.ones((2, 2))
+    )
+    with pytest.raises(ValueError, match="Q must be a positive or zero scalar"):
+        v.covariance(-1.0, 2, "Q", allow_singular=True)
+
+
+def test_flag_takes_only_bools():
+    assert v.flag(np.bool_(True), "integral") is True and v.flag(False, "integral") is False
+    for bad in (1, 0, "yes", None, np.array([True])):
+        with pytest.raises(ValueError, match="integral must be a bool, got"):
+            v.flag(bad, "integral")

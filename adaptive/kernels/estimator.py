@@ -94,9 +94,9 @@ to huge values; the huge regressors collapse ``P`` before ``theta`` is right and
 ``2 / FROZEN_RATE`` steps, the mean gain is below ``FROZEN_GAIN = 1e-3`` (``theta`` absorbs at
 most 0.1 % of an innovation per step: ``P`` has collapsed) while the mean innovation power
 exceeds ``frozen_ratio`` (default ``FROZEN_RATIO = 0.05``) times the mean output power (the
-model explains less than 95 % of the output); it switches off below half that ratio. The
-residual-input cross-correlation was tried first and rejected: a frozen pseudo-linear
-regression's innovation is nearly uncorrelated with the last ``n`` inputs (|rho| ~ 0.01-0.04).
+model explains less than 95 % of the output); it switches off below half that ratio (a
+frozen pseudo-linear regression's innovation is nearly uncorrelated with the last ``n``
+inputs, so their cross-correlation would not show it).
 Measurement: ``benchmarks/estimators_perf.py --frozen``.
 """
 
@@ -122,9 +122,6 @@ from stcgym.adaptive.kernels.estimator_spec import (
     EstimatorConfig,
     EstimatorRecord,
     EstimatorSpec,
-    check_covariance,
-    check_int,
-    check_positive,
     parse_name,
     upper_cholesky,
 )
@@ -159,9 +156,6 @@ __all__ = [
     "EstimatorConfig",
     "EstimatorRecord",
     "EstimatorSpec",
-    "check_covariance",
-    "check_int",
-    "check_positive",
     "estimator_predict",
     "estimator_restart",
     "estimator_update",

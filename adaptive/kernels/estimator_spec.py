@@ -21,9 +21,7 @@ The lane functions themselves are in :mod:`stcgym.adaptive.kernels.estimator`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from numbers import Integral, Real
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -32,6 +30,14 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.kernels.least_squares import upper_factor
 from stcgym.envs.canonical import as_finite_vector, check_form
 from stcgym.envs.compiled import Layout
+from stcgym.envs.validation import (
+    covariance,
+    forgetting_factor,
+    integer,
+    one_of,
+    positive,
+    real_in,
+)
 
 __all__ = [
     "ALGORITHMS",
@@ -42,9 +48,6 @@ __all__ = [
     "EstimatorConfig",
     "EstimatorRecord",
     "EstimatorSpec",
-    "check_covariance",
-    "check_int",
-    "check_positive",
     "parse_name",
     "upper_cholesky",
 ]
@@ -155,53 +158,6 @@ def parse_name(name: str) -> tuple[str, bool, str]:
     return parts[0], len(parts) == 3, parts[-1]
 
 
-def check_int(value: Any, name: str, minimum: int) -> int:
-    """An integer ``>= minimum`` (booleans rejected), else ``ValueError`` naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def check_positive(value: Any, name: str) -> float:
-    """A finite positive real number, else ``ValueError`` naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise ValueError(f"{name} must be a finite positive real number, got {value!r}")
-    v = float(value)
-    if not (math.isfinite(v) and v > 0.0):
-        raise ValueError(f"{name} must be a finite positive real number, got {value!r}")
-    return v
-
-
-def check_covariance(value: Any, dim: int, name: str, *, allow_singular: bool = False) -> NDArray:
-    """A ``dim x dim`` covariance from a scalar, a vector (diagonal) or a matrix."""
-    expected = (
-        f"{name} must be a positive {'or zero ' if allow_singular else ''}scalar, a vector of "
-        f"length {dim} or a symmetric positive {'semi' if allow_singular else ''}definite "
-        f"{dim}x{dim} matrix"
-    )
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{expected}, got {value!r}") from exc
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{expected}; it is not finite: {value!r}")
-    if arr.ndim == 0 or (arr.ndim == 1 and arr.size == dim):
-        diag = np.broadcast_to(arr, (dim,))
-        if np.any(diag < 0) or (not allow_singular and np.any(diag <= 0)):
-            raise ValueError(f"{expected}, got {value!r}")
-        return np.diag(diag).astype(float)
-    if arr.shape != (dim, dim):
-        raise ValueError(f"{expected}, got shape {arr.shape}")
-    scale = max(float(np.abs(arr).max()), 1e-300)
-    if not np.allclose(arr, arr.T, rtol=0.0, atol=1e-12 * scale):
-        raise ValueError(f"{expected}; it is not symmetric")
-    M = 0.5 * (arr + arr.T)
-    lam_min = float(np.linalg.eigvalsh(M).min())
-    if lam_min < -1e-12 * scale or (not allow_singular and lam_min <= 0.0):
-        raise ValueError(f"{expected}; its smallest eigenvalue is {lam_min:g}")
-    return M
-
-
 def upper_cholesky(P: NDArray) -> NDArray:
     """Upper-triangular ``S`` with ``S S^T = P`` (``P`` symmetric positive definite)."""
     S = np.zeros_like(P)
@@ -275,21 +231,18 @@ class EstimatorSpec:
     ) -> EstimatorSpec:
         """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument)."""
         state, decomposed, rule = parse_name(name)
-        n = check_int(n, "n", 1)
-        p = check_int(p, "p", 1)
+        n = integer(n, "n", 1)
+        p = integer(p, "p", 1)
         if rule in ("SG", "RLS") and p != 1:
             raise ValueError(
                 f"p (innovation length) applies to MISG/MILS; {rule} has p = 1, got p={p}"
             )
-        p0 = check_positive(p0, "p0")
+        p0 = positive(p0, "p0")
         form = check_form(form)
-        lam = forgetting
-        if isinstance(lam, bool) or not isinstance(lam, Real) or not (0.0 < float(lam) <= 1.0):
-            raise ValueError(f"forgetting (lambda) must be a real number in (0, 1], got {lam!r}")
-        lam = float(lam)
+        lam = forgetting_factor(forgetting, "forgetting (lambda)")
         least_squares = rule in ("RLS", "MILS")
         if window is not None:
-            window = check_int(window, "window", 1)
+            window = integer(window, "window", 1)
             if not least_squares:
                 raise ValueError("window (finite history) applies to RLS/MILS rules only")
             if lam != 1.0:
@@ -306,13 +259,13 @@ class EstimatorSpec:
             raise ValueError(f"stacked_r applies to SG/MISG rules only, not {rule}")
         P0_mat = None
         if least_squares:
-            P0_mat = p0 * np.eye(d) if P0 is None else check_covariance(P0, d, "P0")
+            P0_mat = p0 * np.eye(d) if P0 is None else covariance(P0, d, "P0")
             if decomposed and (np.any(P0_mat[:n, n:] != 0.0) or np.any(P0_mat[n:, :n] != 0.0)):
                 raise ValueError(
                     "P0 must be block-diagonal diag(P_a, P_b) for D- rules (separate a and b "
                     "covariances)"
                 )
-        r0_val = 1.0 if r0 is None else check_positive(r0, "r0")
+        r0_val = 1.0 if r0 is None else positive(r0, "r0")
         x_init_arr = (
             np.full(n, 1.0 / p0) if x_init is None else as_finite_vector(x_init, "x_init", length=n)
         )
@@ -327,14 +280,14 @@ class EstimatorSpec:
         if state == "KF":
             if observer_gain is not None:
                 raise ValueError("observer_gain applies to O/CO state estimators, not KF")
-            P1 = np.eye(n) if P1_init is None else check_covariance(P1_init, n, "P1_init")
+            P1 = np.eye(n) if P1_init is None else covariance(P1_init, n, "P1_init")
             Q = (
                 np.zeros((n, n))
                 if process_noise is None
-                else check_covariance(process_noise, n, "process_noise", allow_singular=True)
+                else covariance(process_noise, n, "process_noise", allow_singular=True)
             )
             if measurement_noise is not None:
-                R = check_positive(measurement_noise, "measurement_noise")
+                R = positive(measurement_noise, "measurement_noise")
         else:
             given = [k for k, v in kf.items() if v is not None]
             if given:
@@ -353,20 +306,12 @@ class EstimatorSpec:
                             f"callable (a_hat, b_hat) -> K, got {observer_gain!r}"
                         )
                     gain = K.copy()
-        if on_failure not in ("reset", "raise"):
-            raise ValueError(f"on_failure must be 'reset' or 'raise', got {on_failure!r}")
-        pd_check_every = check_int(pd_check_every, "pd_check_every", 0)
-        if (
-            isinstance(frozen_ratio, bool)
-            or not isinstance(frozen_ratio, Real)
-            or not (float(frozen_ratio) > 0.0)
-        ):
-            raise ValueError(
-                f"frozen_ratio must be a positive real number (math.inf disables the frozen "
-                f"signal), got {frozen_ratio!r}"
-            )
-        if regressor not in REGRESSORS:
-            raise ValueError(f"regressor must be one of {REGRESSORS}, got {regressor!r}")
+        one_of(on_failure, "on_failure", ("reset", "raise"))
+        pd_check_every = integer(pd_check_every, "pd_check_every", 0)
+        frozen_ratio = real_in(
+            frozen_ratio, "frozen_ratio (math.inf: no frozen signal)", 0.0, lo_open=True
+        )
+        one_of(regressor, "regressor", REGRESSORS)
         if regressor == "filtered" and state == "CO":
             raise ValueError(
                 "regressor='filtered' applies to the open-loop observer (O) and the Kalman filter "

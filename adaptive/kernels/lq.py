@@ -1,17 +1,14 @@
 """Linear-quadratic designs on the (integral-augmented) model: lane functions.
 
-    model of ``theta``; ``N = u_ss + K_x x_ss`` from the steady state. Returns the status code.
 ``lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work) -> int``
     Self-tuning LQ: **one** Riccati iteration per call on the (augmented) model of ``theta``,
     warm-started from ``P`` (``m x m``, C-contiguous 2-D, updated in place); the gain is the LQ
-    gain of the updated ``P``. ``weights = [q_y, q_i, rho]``: state weight ``Q = q_y c^T c``
-    (+ ``q_i`` on the integrator), input weight ``rho``; defaults ``DEFAULT_LQ_WEIGHTS``
-    ``= [1, 1e-4, 1e-2]`` (the envs' cost ``(y - r)^2 + rho u^2`` with their default
-    ``control_cost = 0.01``, as the LQG oracle, and a small weight that keeps the integrator
-    detectable: with ``1e-2`` the self-tuning LQ loop cost 1.04-1.21x the oracle's in steady
-    state, with ``1e-4`` 1.01-1.04x).
-    :func:`lq_weights` validates them. Initialise ``P`` with :func:`lq_initial_P` (``= Q``) or a
-    converged solution; a ``P`` that is not finite on entry restarts from ``Q``.
+    gain of the updated ``P``. ``weights`` (``[q_y, q_i, rho]``, :class:`LQWeights`; built by
+    :func:`lq_weights`):
+    state weight ``Q = q_y c^T c`` (+ ``q_i`` on the integrator), input weight ``rho``;
+    defaults ``DEFAULT_LQ_WEIGHTS = (1, 1e-4, 1e-2)``, explained in
+    :class:`stcgym.adaptive.options.LawOptions`. Initialise ``P`` with :func:`lq_initial_P`
+    (``= Q``) or a converged solution; a ``P`` that is not finite on entry restarts from ``Q``.
 ``lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter)``
     ``-> int``: the same design solved to convergence (structured doubling, for a fresh model);
 ``dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter) -> int``
@@ -28,9 +25,10 @@ scratch). Status codes and the gain record: :mod:`.safe_set`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, matmul, max_abs
@@ -43,16 +41,19 @@ from stcgym.adaptive.kernels.safe_set import (
     NOT_STABILISABLE,
     OK,
     VEC,
+    design_start,
     finish,
-    prepare,
     split_work,
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable
 from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.validation import real_in
 
 __all__ = [
     "DEFAULT_LQ_WEIGHTS",
     "P_MAX",
+    "LQWeights",
+    "weight_fields",
     "dare",
     "kalman_covariance",
     "kalman_covariance_lanes",
@@ -63,9 +64,25 @@ __all__ = [
     "lq_weights",
 ]
 
-# LQ weights entries and defaults.
-Q_Y, Q_I, RHO = 0, 1, 2
+
+class LQWeights(NamedTuple):
+    """The entries of the LQ weight vector by name (:func:`weight_fields` reads them)."""
+
+    q_y: float  # output: Q = q_y c^T c
+    q_i: float  # integrator state (augmented model)
+    rho: float  # input
+
+
 DEFAULT_LQ_WEIGHTS = (1.0, 1e-4, 1e-2)
+
+
+@lane(inline=True)
+def weight_fields(weights):
+    """The weight vector ``weights`` (float64, length 3) as an :class:`LQWeights`: the one place
+    that knows the order of its entries (a vector, not the named tuple, is what the lane
+    functions take, for the reason given in :func:`.safe_set.safe_bounds`)."""
+    return LQWeights(weights[0], weights[1], weights[2])
+
 
 #: Riccati iterates above this are taken as diverging (a non-stabilisable model).
 P_MAX = 1e150
@@ -78,39 +95,29 @@ def lq_weights(
     *,
     integral: bool = True,
 ) -> NDArray[np.float64]:
-    """Validated LQ weights ``[q_y, q_i, rho]`` for :func:`lq_design` / :func:`lq_solve`.
+    """Validated LQ weight vector ``[q_y, q_i, rho]`` for :func:`lq_design` / :func:`lq_solve`.
 
     ``q_y`` (output) and ``rho`` (input) must be finite and > 0; ``q_i`` (integrator) > 0 with
     integral action (with ``q_i = 0`` the integrator is invisible to the cost, so no LQ gain
     stabilises it) and >= 0 without. Raises ``ValueError`` naming the weight.
     """
-    vals = []
-    for name, value, positive in (
-        ("q_y", q_y, True),
-        ("q_i", q_i, bool(integral)),
-        ("rho", rho, True),
-    ):
-        try:
-            v = float(value)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"LQ weight {name} must be a real number, got {value!r}") from exc
-        ok = (0.0 < v if positive else 0.0 <= v) and math.isfinite(v)
-        if not ok:
-            raise ValueError(
-                f"LQ weight {name} must be a finite number {'>' if positive else '>='} 0, "
-                f"got {value!r}"
-            )
-        vals.append(v)
-    return np.array(vals, dtype=np.float64)
+    weights = LQWeights(
+        real_in(q_y, "LQ weight q_y", 0.0, math.inf, lo_open=True, hi_open=True),
+        real_in(q_i, "LQ weight q_i", 0.0, math.inf, lo_open=bool(integral), hi_open=True),
+        real_in(rho, "LQ weight rho", 0.0, math.inf, lo_open=True, hi_open=True),
+    )
+    return np.array(weights, dtype=np.float64)
 
 
-def lq_initial_P(n: int, integral: bool, weights: NDArray) -> NDArray[np.float64]:
-    """Cold start of the one-step Riccati iteration: ``P = Q`` (``m x m``)."""
+def lq_initial_P(n: int, integral: bool, weights: ArrayLike) -> NDArray[np.float64]:
+    """Cold start of the one-step Riccati iteration: ``P = Q`` (``m x m``; ``weights`` any
+    sequence ``(q_y, q_i, rho)``)."""
+    w = LQWeights(*weights)
     m = int(n) + int(bool(integral))
     P = np.zeros((m, m))
-    P[0, 0] = weights[Q_Y]
+    P[0, 0] = w.q_y
     if integral:
-        P[n, n] = weights[Q_I]
+        P[n, n] = w.q_i
     return P
 
 
@@ -156,14 +163,18 @@ def _riccati_step(A, b, Q, rho, P, K, Acl, T):
 
 
 @lane(inline=True)
-def _weight_matrix(n, integral, weights, Q):
-    m = Q.shape[0]
+def _weight_matrix(n, integral, weights, Ws, m):
+    """The state weight ``Q = q_y c^T c (+ q_i on the integrator)``, ``m x m``, written into
+    matrix slot ``m2`` (the controllability scratch, dead once the safe set has passed)."""
+    w = weight_fields(weights)
+    Q = Ws[MAT.m2, :m, :m]
     for i in range(m):
         for j in range(m):
             Q[i, j] = 0.0
-    Q[0, 0] = weights[Q_Y]
+    Q[0, 0] = w.q_y
     if integral:
-        Q[n, n] = weights[Q_I]
+        Q[n, n] = w.q_i
+    return Q
 
 
 @lane
@@ -174,32 +185,25 @@ def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     finite on entry or blows up (``> P_MAX``: the model is not stabilisable) is re-initialised
     to ``Q`` and ``NOT_STABILISABLE`` returned.
     """
-    mm = theta.size // 2 + 1
-    Ws, Vs = split_work(work, mm, N_MAT)
-    status, rcond = prepare(theta, form, integral, safe, Ws, Vs)
+    status, rcond, Ws, Vs, Ad, bd, K = design_start(theta, form, integral, safe, work, N_MAT)
     if status != OK:
         return status
-    n = theta.size // 2
-    m = n + (1 if integral else 0)
-    Ad = Ws[MAT.A_aug, :m, :m]
-    bd = Vs[VEC.b_aug, :m]
-    # the controllability scratch is dead now: Q, A - b K and a product take its slots
-    Q = Ws[MAT.m2, :m, :m]
-    _weight_matrix(n, integral, weights, Q)
+    m = Ad.shape[0]
+    Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
     if not all_finite(P):
         for i in range(m):
             for j in range(m):
                 P[i, j] = Q[i, j]
-    K = Vs[VEC.K, :m]
     Acl = Ws[MAT.m0, :m, :m]
     T = Ws[MAT.m1, :m, :m]
-    _riccati_step(Ad, bd, Q, weights[RHO], P, K, Acl, T)
+    rho = weight_fields(weights).rho
+    _riccati_step(Ad, bd, Q, rho, P, K, Acl, T)
     if not (max_abs(P) <= P_MAX):
         for i in range(m):
             for j in range(m):
                 P[i, j] = Q[i, j]
         return NOT_STABILISABLE
-    _lq_gain(Ad, bd, weights[RHO], P, K)
+    _lq_gain(Ad, bd, rho, P, K)
     return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 
@@ -324,24 +328,17 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     Writes the Riccati solution into ``P`` and the gain into ``gain`` on ``OK``; both are left
     untouched otherwise.
     """
-    mm = theta.size // 2 + 1
-    Ws, Vs = split_work(work, mm, N_MAT_SOLVE)
-    status, rcond = prepare(theta, form, integral, safe, Ws, Vs)
+    status, rcond, Ws, Vs, Ad, bd, K = design_start(theta, form, integral, safe, work, N_MAT_SOLVE)
     if status != OK:
         return status
-    n = theta.size // 2
-    m = n + (1 if integral else 0)
-    Ad = Ws[MAT.A_aug, :m, :m]
-    bd = Vs[VEC.b_aug, :m]
-    Q = Ws[MAT.m2, :m, :m]
-    _weight_matrix(n, integral, weights, Q)
+    m = Ad.shape[0]
+    Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
     Psol = Ws[MAT.m10, :m, :m]
-    K = Vs[VEC.K, :m]
     # _dare uses slots m0, m1, m3..m9; Q lives in m2 and the solution in m10 until the
     # safe set has accepted the gain.
     char_A = Vs[VEC.v5, :m]
     augmented_characteristic(theta, integral, char_A)
-    status = _dare(Ad, bd, Q, weights[RHO], char_A, Psol, K, Ws, Vs, tol, max_iter)
+    status = _dare(Ad, bd, Q, weight_fields(weights).rho, char_A, Psol, K, Ws, Vs, tol, max_iter)
     if status != OK:
         return status
     status = finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)

@@ -23,8 +23,8 @@ from stcgym.adaptive.kernels.safe_set import (
     OK,
     VEC,
     controllability,
+    design_start,
     finish,
-    prepare,
     split_work,
 )
 from stcgym.envs.compiled import lane, lanes, prange
@@ -78,15 +78,10 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
 
     Returns the status code; ``gain`` is written only when it is ``OK`` (0).
     """
-    mm = theta.size // 2 + 1
-    Ws, Vs = split_work(work, mm, N_MAT)
-    status, rcond = prepare(theta, form, integral, safe, Ws, Vs)
+    status, rcond, Ws, Vs, Ad, _, K = design_start(theta, form, integral, safe, work, N_MAT)
     if status != OK:
         return status
-    n = theta.size // 2
-    m = n + (1 if integral else 0)
-    K = Vs[VEC.K, :m]
-    _ackermann_from_ctrb(Ws[MAT.A_aug, :m, :m], alpha, K, Ws, Vs)
+    _ackermann_from_ctrb(Ad, alpha, K, Ws, Vs)
     return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 

@@ -13,7 +13,8 @@ gain.
 
 Safe set ``safe`` (float64, length 4; :func:`safe_set` builds and validates it)
 ------------------------------------------------------------------------------
-``[b_min, rcond_min, dc_rcond_min, gain_max]``, tested in this order, first failure reported:
+``[b_min, rcond_min, dc_rcond_min, gain_max]`` (:class:`SafeSetBounds`, read by name through
+:func:`safe_bounds`), tested in this order, first failure reported:
 
 ==== ================== ==============================================================
 code name               meaning
@@ -34,7 +35,7 @@ code name               meaning
 7    ``not_converged``  LQ solve: no convergence within ``max_iter`` doubling steps
 ==== ================== ==============================================================
 
-``STATUS_NAMES[code]`` gives the name (the reason strings of the former ``TrackingLaw.design``).
+``STATUS_NAMES[code]`` gives the name.
 
 Work array ``work``
 -------------------
@@ -56,6 +57,7 @@ from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, norm1
 from stcgym.adaptive.kernels.records import view2d, view3d
 from stcgym.envs.compiled import lane
+from stcgym.envs.validation import real_in
 
 __all__ = [
     "MAT",
@@ -64,10 +66,12 @@ __all__ = [
     "N_VEC",
     "STATUS_NAMES",
     "VEC",
+    "SafeSetBounds",
     "controllability",
     "finish",
     "gain_size",
-    "prepare",
+    "design_start",
+    "safe_bounds",
     "safe_set",
     "solve_work_size",
     "split_work",
@@ -95,8 +99,6 @@ STATUS_NAMES = (
     "not_converged",
 )
 
-# Safe-set vector entries.
-B_MIN, RCOND_MIN, DC_RCOND_MIN, GAIN_MAX = 0, 1, 2, 3
 #: Floors of the conditioning tests (below them a "solution" is rounding noise).
 RCOND_FLOOR = 1e-14
 DC_RCOND_FLOOR = 1e-13
@@ -160,45 +162,47 @@ def solve_work_size(n: int) -> int:
     return N_MAT_SOLVE * mm * mm + N_VEC * mm
 
 
+class SafeSetBounds(NamedTuple):
+    """The entries of the safe-set vector by name (:func:`safe_bounds` reads them)."""
+
+    b_min: float  # max |b_hat| >= b_min
+    rcond_min: float  # reciprocal condition of the controllability matrix
+    dc_rcond_min: float  # reciprocal condition of the steady-state matrix
+    gain_max: float  # max(|K|, |N|) <= gain_max
+
+
+@lane(inline=True)
+def safe_bounds(safe):
+    """The safe-set vector ``safe`` (float64, length 4) as a :class:`SafeSetBounds`: the one
+    place that knows the order of its entries.
+
+    The lane functions take the vector, not the named tuple: a tuple of four floats inside a
+    configuration that a ``prange`` loop receives fails in numba's parallel lowering (it is
+    taken for an array argument), so the tuple is built inside the lane function.
+    """
+    return SafeSetBounds(safe[0], safe[1], safe[2], safe[3])
+
+
 def safe_set(
     b_min: float = 0.0,
     rcond_min: float = 0.0,
     dc_rcond_min: float = 0.0,
     gain_max: float = math.inf,
 ) -> NDArray[np.float64]:
-    """Validated safe-set vector ``[b_min, rcond_min, dc_rcond_min, gain_max]``.
+    """Validated safe-set vector ``[b_min, rcond_min, dc_rcond_min, gain_max]`` (the fields of
+    :class:`SafeSetBounds`, in that order).
 
     Raises ``ValueError`` naming the setting for anything but a finite ``b_min >= 0``,
     ``0 <= rcond_min < 1``, ``0 <= dc_rcond_min < 1`` and ``gain_max > 0`` (``inf`` allowed):
     ``gain_max <= 0`` would reject every design and leave the loop open for ever.
     """
-    vals = {}
-    for name, value in (
-        ("b_min", b_min),
-        ("rcond_min", rcond_min),
-        ("dc_rcond_min", dc_rcond_min),
-        ("gain_max", gain_max),
-    ):
-        try:
-            vals[name] = float(value)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name} must be a real number, got {value!r}") from exc
-    if not (math.isfinite(vals["b_min"]) and vals["b_min"] >= 0.0):
-        raise ValueError(f"b_min must be a finite number >= 0, got {b_min!r}")
-    for name in ("rcond_min", "dc_rcond_min"):
-        if not (0.0 <= vals[name] < 1.0):
-            raise ValueError(
-                f"{name} must lie in [0, 1) (a reciprocal condition), got {vals[name]}"
-            )
-    if not vals["gain_max"] > 0.0:  # also rejects nan
-        raise ValueError(
-            f"gain_max must be > 0 (inf for no limit), got {gain_max!r}: with gain_max <= 0 every "
-            "design is rejected and the loop never closes"
-        )
-    return np.array(
-        [vals["b_min"], vals["rcond_min"], vals["dc_rcond_min"], vals["gain_max"]],
-        dtype=np.float64,
+    bounds = SafeSetBounds(
+        real_in(b_min, "b_min", 0.0, math.inf, hi_open=True),
+        real_in(rcond_min, "rcond_min (a reciprocal condition)", 0.0, 1.0, hi_open=True),
+        real_in(dc_rcond_min, "dc_rcond_min (a reciprocal condition)", 0.0, 1.0, hi_open=True),
+        real_in(gain_max, "gain_max (inf: no limit)", 0.0, lo_open=True),
     )
+    return np.array(bounds, dtype=np.float64)
 
 
 @lane(inline=True)
@@ -295,17 +299,18 @@ def steady_state(A, b, x_ss, work):
 
 
 @lane(inline=True)
-def prepare(theta, form, integral, safe, Ws, Vs):
+def _prepare(theta, form, integral, safe, Ws, Vs):
     """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
     builds ``A``, ``b`` and ``(A_aug, b_aug)`` in the work and leaves ``Ctrb^{-1}`` there.
     Returns ``(status, rcond)``."""
     n = theta.size // 2
     if not all_finite(theta):
         return NONFINITE, 0.0
+    bounds = safe_bounds(safe)
     bmax = 0.0
     for i in range(n):
         bmax = max(bmax, abs(theta[n + i]))
-    if bmax < safe[B_MIN]:
+    if bmax < bounds.b_min:
         return B_SMALL, 0.0
     m = n + (1 if integral else 0)
     A = Ws[MAT.A, :n, :n]
@@ -315,22 +320,39 @@ def prepare(theta, form, integral, safe, Ws, Vs):
     model_matrices(theta, form, A, b)
     augment_integral(A, b, integral, Ad, bd)
     rcond = controllability(Ad, bd, Ws, Vs)
-    if not rcond > max(safe[RCOND_MIN], RCOND_FLOOR):
+    if not rcond > max(bounds.rcond_min, RCOND_FLOOR):
         return UNCONTROLLABLE, rcond
     return OK, rcond
+
+
+@lane(inline=True)
+def design_start(theta, form, integral, safe, work, n_mat):
+    """The start every design shares: the scratch split into ``n_mat`` matrix slots
+    (:func:`split_work`), the model of ``theta`` built and the safe-set tests passed in order
+    (finite, ``b_min``, controllability; ``Ctrb^{-1}`` left in the scratch).
+
+    Returns ``(status, rcond, Ws, Vs, A_aug, b_aug, K)``: the (integral-augmented) model and
+    the slot of the gain, each of size ``m = n + integral``; the design goes on only when
+    ``status == OK``.
+    """
+    Ws, Vs = split_work(work, theta.size // 2 + 1, n_mat)
+    status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
+    m = theta.size // 2 + (1 if integral else 0)
+    return status, rcond, Ws, Vs, Ws[MAT.A_aug, :m, :m], Vs[VEC.b_aug, :m], Vs[VEC.K, :m]
 
 
 @lane(inline=True)
 def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
     """Feed-forward from the steady state, the gain bound, and the commit of ``gain``."""
     n = theta.size // 2
+    bounds = safe_bounds(safe)
     A = Ws[MAT.A, :n, :n]
     b = Vs[VEC.b, :n]
     x_ss = Vs[VEC.x_ss, :n]
     N = 0.0
     if feedforward:
         u_ss, dc_rcond = _steady_state(A, b, x_ss, Ws)
-        if not dc_rcond >= max(safe[DC_RCOND_MIN], DC_RCOND_FLOOR):
+        if not dc_rcond >= max(bounds.dc_rcond_min, DC_RCOND_FLOOR):
             return DC_SINGULAR
         N = u_ss
         for i in range(n):
@@ -340,7 +362,7 @@ def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
     for i in range(m):
         if abs(K[i]) > kmax or not math.isfinite(K[i]):
             kmax = abs(K[i]) if math.isfinite(K[i]) else math.inf
-    if not (kmax <= safe[GAIN_MAX] and math.isfinite(N)):
+    if not (kmax <= bounds.gain_max and math.isfinite(N)):
         return GAIN_LARGE
     for i in range(n):
         gain[i] = K[i]

@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.estimator import check_int
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
+from stcgym.envs.validation import integer
 
 __all__ = [
     "SB3Policy",
@@ -74,7 +74,7 @@ class SB3Policy(LanePolicy):
         self, model: Any, window: WindowConfig, action_bound: float, num_envs: int | None = None
     ) -> None:
         self.model, self.window, self.action_bound = model, window, float(action_bound)
-        self.num_envs = None if num_envs is None else check_int(num_envs, "num_envs", 1)
+        self.num_envs = None if num_envs is None else integer(num_envs, "num_envs", 1)
         self.recurrent = type(model).__name__ == "RecurrentPPO"
         self._buf = HistoryBuffer(window, self.action_bound, self.num_lanes)
         self._lstm: Any = None
