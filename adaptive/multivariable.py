@@ -31,11 +31,11 @@ from stcgym.adaptive.options import (
     ChangeDetection,
     SafeSet,
     StartupOptions,
-    check_real,
     option_group,
 )
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.validation import integer, real_in
 
 __all__ = ["MultivariableSelfTuningController", "lq_weight_matrices", "mimo_env_settings"]
 
@@ -116,13 +116,12 @@ def resolve_dimensions(
 ) -> tuple[int, int, int | None, float, float]:
     """``(n, m, num_envs, action_bound, control_cost)`` from the arguments and the env, checked
     against each other (``ValueError`` naming the mismatch)."""
-    from stcgym.adaptive.kernels.estimator import check_int
 
     es = None if env is None else mimo_env_settings(env)
     if es is None and (n_states is None or n_inputs is None):
         raise ValueError("give env=... or both n_states and n_inputs")
-    n = es["n_states"] if n_states is None else check_int(n_states, "n_states", 1)
-    m = es["n_inputs"] if n_inputs is None else check_int(n_inputs, "n_inputs", 1)
+    n = es["n_states"] if n_states is None else integer(n_states, "n_states", 1)
+    m = es["n_inputs"] if n_inputs is None else integer(n_inputs, "n_inputs", 1)
     cost = 0.01
     if es is not None:
         if n != es["n_states"] or m != es["n_inputs"]:
@@ -138,11 +137,11 @@ def resolve_dimensions(
             )
         cost = es["control_cost"]
     if num_envs is not None:
-        num_envs = check_int(num_envs, "num_envs", 1)
+        num_envs = integer(num_envs, "num_envs", 1)
     env_bound = None if es is None else es["action_bound"]
     if action_bound is None:
         action_bound = 10.0 if env_bound is None else env_bound
-    bound = check_real(action_bound, "action_bound", lo=0.0, lo_open=True)
+    bound = real_in(action_bound, "action_bound", lo=0.0, lo_open=True)
     if env_bound is not None and bound > env_bound:
         raise ValueError(f"action_bound={bound} exceeds the env's action_bound={env_bound}")
     return n, m, num_envs, bound, cost
@@ -210,8 +209,8 @@ class MultivariableSelfTuningController(LanePolicy):
         self.obs_dim = 2 * n
         self.action_dim = m
         self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
-        self.forgetting = check_real(forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
-        self.dependence_tol = check_real(
+        self.forgetting = real_in(forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
+        self.dependence_tol = real_in(
             dependence_tol, "dependence_tol", lo=0.0, hi=1.0, lo_open=True, hi_open=True
         )
         self.startup = su = option_group(startup, StartupOptions, "startup")
