@@ -184,6 +184,7 @@ class GreyBoxRegression:
 
     @property
     def num_params(self) -> int:
+        """Number of unknown parameters ``d`` (the length of ``theta``)."""
         return self.y_coef.shape[0]
 
     @property
@@ -193,6 +194,7 @@ class GreyBoxRegression:
 
     @property
     def num_inputs(self) -> int:
+        """Number of plant inputs ``m``."""
         return self.u_coef0.shape[2]
 
     def build(self, u: ArrayLike, y: ArrayLike) -> tuple[NDArray, NDArray]:
@@ -324,6 +326,7 @@ class AffineStateSpace:
     --------
     The object of Voevoda & Troshina (2016), eq. (5)-(6):
 
+    >>> from stcgym.adaptive import AffineStateSpace
     >>> obj = AffineStateSpace(
     ...     Phi0=[[0, 1], [-0.3, 0]], Gamma0=[0, 1], H=[1, 0], Phi_terms=[[[0, 0], [0, 1]]]
     ... )
@@ -432,10 +435,12 @@ class AffineStateSpace:
     # ---------------------------------------------------------------- properties
     @property
     def num_params(self) -> int:
+        """Number of unknown parameters ``d`` (one ``Phi_terms`` / ``Gamma_terms`` matrix each)."""
         return self.Phi_terms.shape[0]
 
     @property
     def n(self) -> int:
+        """State dimension."""
         return self.Phi0.shape[0]
 
     def matrices(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:

@@ -321,16 +321,21 @@ class MultivariableSelfTuningController(LanePolicy):
 
     @property
     def A_hat(self) -> NDArray:
+        """The estimate ``A_hat`` ``(n, n)`` (per lane ``(B, n, n)``), the first ``n`` columns of
+        :attr:`theta`."""
         th = self.theta
         return th[..., : self.n_states]
 
     @property
     def B_hat(self) -> NDArray:
+        """The estimate ``B_hat`` ``(n, m)`` (per lane ``(B, n, m)``), the last ``m`` columns of
+        :attr:`theta`."""
         th = self.theta
         return th[..., self.n_states :]
 
     @property
     def t(self) -> int | NDArray:
+        """Samples since the lane's last reset."""
         v = self._G[:, km.MIMO_INTS.t].copy()
         return int(v[0]) if self.num_envs is None else v
 

@@ -590,6 +590,13 @@ class KalmanObserver:
         self.reset()
 
     def set_model(self, A: ArrayLike, b: ArrayLike) -> None:
+        """Filter with a new model ``A`` ``(n, n)``, ``b`` ``(n,)``; the estimate and ``P`` stay.
+
+        Raises
+        ------
+        ValueError
+            Wrong shapes or non-finite entries, before anything changes.
+        """
         A_arr = np.ascontiguousarray(A, dtype=float)
         b_arr = np.ascontiguousarray(b, dtype=float).reshape(-1)
         if A_arr.shape != (self.n, self.n) or b_arr.size != self.n:
@@ -599,6 +606,7 @@ class KalmanObserver:
         self.A, self.b = A_arr, b_arr
 
     def reset(self) -> None:
+        """Restart at ``x(1|0) = 0`` with ``P = P0 I``."""
         self.x = np.zeros(self.n)  # x(t|t-1)
         self.P = self.P0 * np.eye(self.n)
         self.x_filt = self.x.copy()

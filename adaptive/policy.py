@@ -61,7 +61,9 @@ class Policy(Protocol):
         state: Any = None,
         episode_start: Any = None,
         deterministic: bool = True,
-    ) -> tuple[NDArray, Any]: ...
+    ) -> tuple[NDArray, Any]:
+        """The actions for ``observation`` and the (recurrent) state, as SB3's models return."""
+        ...
 
 
 def reset_policy(policy: Any) -> None:

@@ -361,6 +361,7 @@ class RecursiveLeastSquares:
 
     Examples
     --------
+    >>> from stcgym.adaptive import RecursiveLeastSquares
     >>> est = RecursiveLeastSquares(2, P0=1e6)
     >>> for phi, y in [([1.0, 0.0], 2.0), ([0.0, 1.0], -1.0), ([1.0, 1.0], 1.0)]:
     ...     theta = est.update(phi, y)
@@ -646,18 +647,22 @@ class RecursiveLeastSquares:
 
     @property
     def num_params(self) -> int:
+        """Regressor length ``d`` (parameters per output)."""
         return self._d
 
     @property
     def num_outputs(self) -> int:
+        """Outputs ``p`` fitted with the one gain."""
         return self._p
 
     @property
     def num_envs(self) -> int | None:
+        """Lanes ``B`` of a batched estimator; ``None`` for a single one."""
         return self._F.shape[0] if self._batched else None
 
     @property
     def nbytes_per_lane(self) -> int:
+        """Bytes of one lane's record (the estimator's whole state)."""
         return self._layout.nbytes_per_lane
 
     def __repr__(self) -> str:

@@ -19,12 +19,6 @@ import pytest
 #: ``gym.make_vec`` rather than through the package's ``__all__``.
 MODULES = ("stcgym.envs", "stcgym.adaptive", "stcgym.agents", "stcgym.envs.vector")
 OPTIONFLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
-#: Examples known not to run in a fresh namespace: each one uses a name it does not import.
-#: Strict: the entry must go once the example imports what it uses.
-NOT_SELF_CONTAINED = {
-    "stcgym.adaptive.AffineStateSpace": "uses AffineStateSpace without importing it",
-    "stcgym.adaptive.RecursiveLeastSquares": "uses RecursiveLeastSquares without importing it",
-}
 
 
 def _members(obj: object) -> list[tuple[str, object]]:
@@ -73,14 +67,7 @@ def _doctests() -> list[tuple[str, doctest.DocTest]]:
 _TESTS = _doctests()
 
 
-def _param(qualname: str, test: doctest.DocTest) -> object:
-    marks = []
-    if qualname in NOT_SELF_CONTAINED:
-        marks = [pytest.mark.xfail(reason=NOT_SELF_CONTAINED[qualname], strict=True)]
-    return pytest.param(test, id=qualname, marks=marks)
-
-
-@pytest.mark.parametrize("test", [_param(q, t) for q, t in _TESTS])
+@pytest.mark.parametrize("test", [pytest.param(t, id=q) for q, t in _TESTS])
 def test_the_examples_run_as_written(test):
     test.globs = {"np": np}
     runner = doctest.DocTestRunner(optionflags=OPTIONFLAGS)

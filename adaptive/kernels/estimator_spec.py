@@ -414,6 +414,7 @@ class EstimatorSpec:
 
     @property
     def least_squares(self) -> bool:
+        """Whether the rule keeps a covariance ``P`` (RLS, MILS) rather than a normaliser ``r``."""
         return self.rule in ("RLS", "MILS")
 
     def offset(self, name: str) -> int:
