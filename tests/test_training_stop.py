@@ -133,3 +133,35 @@ def test_cap_below_one_interval_is_refused():
             plateau=PlateauRule(),
             eval_interval=ROLLOUT,
         )
+
+
+def _rl_rows(stops):
+    """metrics.csv rows of one RL agent: two evaluation seeds per training seed."""
+    return [
+        {
+            "train_seed": ts,
+            "train_stop": status,
+            "train_steps": steps,
+            "train_last_improvement": last,
+        }
+        for ts, (status, steps, last) in enumerate(stops)
+        for _ in range(2)
+    ]
+
+
+def test_report_says_how_training_ended_and_names_capped_agents():
+    from stcgym.agents.benchmark import report
+
+    mixed = report.training_stops(_rl_rows([("plateau", 51_200, 20_480), ("cap", 100_000, 92_160)]))
+    assert (mixed["seeds"], mixed["plateau"], mixed["cap"]) == (2, 1, 1)
+    assert report._training_cell({"training": mixed}) == (
+        "plateau 1/2, cap 1/2; last gain at 20.5k-92.2k"
+    )
+    converged = report.training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 3))
+    assert report._training_cell({"training": converged}) == "plateau 3/3; last gain at 10.2k"
+    hl = {"ppo": {"training": mixed}, "sac": {"training": converged}, "oracle": {}}
+    assert report._still_improving(hl, ["ppo", "sac", "oracle"]) == (
+        " (still improving at the training cap: ppo in 1/2 seeds)"
+    )
+    assert report._still_improving(hl, ["sac", "oracle"]) == ""
+    assert report._training_cell(hl["oracle"]) == "-"

@@ -150,6 +150,9 @@ class BenchConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown bench settings {unknown} (written by another version?)")
+        data = dict(data)
+        # written before the family had caps of its own: the single-plant caps applied
+        data.setdefault("family_train_steps", dict(data.get("train_steps", {})))
         return cls(**data)
 
 
