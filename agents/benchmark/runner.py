@@ -246,15 +246,16 @@ def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = Fa
     return run_dir
 
 
+#: Task keys that do not shape an RL job's result (where its files go, the progress bar).
+_NOT_RESULT = ("progress", "model_dir", "tensorboard_log")
+
+
 def job_id(task: dict[str, Any]) -> str:
     """The id a finished RL job is kept under: everything that shapes its result (not where
     its files go, nor the progress bar), so a resumed run finds it under another --jobs."""
     from stcgym.agents.executors import task_id
 
     return task_id({k: v for k, v in task.items() if k not in _NOT_RESULT})
-
-
-_NOT_RESULT = ("progress", "model_dir", "tensorboard_log")
 
 
 def run_bench(
