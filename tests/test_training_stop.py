@@ -164,4 +164,6 @@ def test_report_says_how_training_ended_and_names_capped_agents():
         " (still improving at the training cap: ppo in 1/2 seeds)"
     )
     assert report._still_improving(hl, ["sac", "oracle"]) == ""
+    assert report._converged(hl["sac"]) == " (trained to its plateau in 3/3 seeds)"
+    assert report._converged(hl["ppo"]) == report._converged(hl["oracle"]) == ""
     assert report._training_cell(hl["oracle"]) == "-"

@@ -222,6 +222,14 @@ def _still_improving(hl: dict[str, dict[str, Any]], agents: Sequence[str]) -> st
     return f" (still improving at the training cap: {', '.join(capped)})"
 
 
+def _converged(res: dict[str, Any]) -> str:
+    """``" (trained to its plateau in 3/3 seeds)"`` when every seed stopped at its plateau."""
+    t = res.get("training")
+    if not t or t["plateau"] != t["seeds"]:
+        return ""
+    return f" (trained to its plateau in {t['plateau']}/{t['seeds']} seeds)"
+
+
 def _step_cap(rs: Sequence[dict[str, Any]], key: str) -> float:
     if key == "steps_to_oracle" and rs[0]["family"] == "rl":
         return max(_float(r["train_steps"]) for r in rs)
@@ -314,7 +322,7 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
         parts.append(
             f"the best RL agent ({best}) ends at {_g(r['steady_ratio']['iqm'].value)}x and "
             + _reach(r, "steps_to_oracle", "gets within 1.2x", "training steps")
-            + _still_improving(hl, [best])
+            + (_still_improving(hl, [best]) or _converged(r))
         )
     if jump and stc is not None and "post_jump_ratio" in stc:
         parts.append(
