@@ -33,7 +33,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     from stcgym.agents.benchmark.config import FULL, QUICK, BenchConfig
     from stcgym.agents.controllers import CONTROLLERS
     from stcgym.agents.executors import EXECUTORS
-    from stcgym.agents.rl.configs import ALGORITHMS
+    from stcgym.agents.rl.configs import ALGORITHMS, DEFAULT_CONFIGS
     from stcgym.agents.rl.stopping import PlateauRule
     from stcgym.envs.catalogue import plant_names
 
@@ -124,7 +124,9 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "--eval-interval",
         type=int,
         help="env steps between the evaluations of the plateau rule, for every algorithm "
-        "(default: each algorithm's eval_interval, e.g. ppo 10240, sac 2000)",
+        "(default: each algorithm's eval_interval: "
+        + ", ".join(f"{a} {c.eval_interval}" for a, c in DEFAULT_CONFIGS.items())
+        + ")",
     )
     p.add_argument("--train-seeds", type=int, help="RL training seeds per agent (quick 3, full 5)")
     p.add_argument(
