@@ -167,3 +167,26 @@ def test_report_says_how_training_ended_and_names_capped_agents():
     assert report._converged(hl["sac"]) == " (trained to its plateau in 3/3 seeds)"
     assert report._converged(hl["ppo"]) == report._converged(hl["oracle"]) == ""
     assert report._training_cell(hl["oracle"]) == "-"
+
+
+def test_conclusions_say_where_rl_wins_and_qualify_wins_over_capped_agents():
+    from stcgym.agents.benchmark import report
+    from stcgym.agents.benchmark.statistics import Estimate
+
+    capped = report.training_stops(_rl_rows([("cap", 100_000, 92_160)] * 2))
+    converged = report.training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 2))
+    hl = {
+        "ppo": {"training": capped, "poi": Estimate(0.9, 0.8, 1.0)},  # stc wins
+        "sac": {"training": converged, "poi": Estimate(0.1, 0.0, 0.2)},  # sac wins
+        "lqg": {"poi": Estimate(0.2, 0.1, 0.3)},  # a classical controller is no RL agent
+    }
+    line = report._sentences("nominal:stable2", hl, jump=False)
+    parts = line.split("; ")
+    assert parts[0].endswith(
+        "stc has the lower episode cost more often than not against ppo "
+        "(still improving at the training cap: ppo in 2/2 seeds)"
+    )
+    assert parts[1] == (
+        "sac has the lower episode cost than stc more often than not "
+        "(sac trained to the plateau in every seed)."
+    )

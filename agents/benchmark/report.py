@@ -335,6 +335,19 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
             f"stc has the lower episode cost more often than not against {', '.join(better)}"
             + _still_improving(hl, better)
         )
+    # and where RL wins, said as plainly
+    rl_wins = [
+        c
+        for c, r in hl.items()
+        if "training" in r and r.get("poi") is not None and r["poi"].value < 0.5
+    ]
+    if rl_wins:
+        trained = [c for c in rl_wins if _converged(hl[c])]
+        parts.append(
+            f"{', '.join(rl_wins)} {'has' if len(rl_wins) == 1 else 'have'} the lower episode "
+            "cost than stc more often than not"
+            + (f" ({', '.join(trained)} trained to the plateau in every seed)" if trained else "")
+        )
     for ctl in variants:
         # against the RL agents only: a classical controller is never counted as one
         key = _SELF_TUNING[ctl]
