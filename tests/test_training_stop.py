@@ -161,7 +161,7 @@ def test_report_says_how_training_ended_and_names_capped_agents():
     assert report._training_cell({"training": converged}) == "plateau 3/3; last gain at 10.2k"
     hl = {"ppo": {"training": mixed}, "sac": {"training": converged}, "oracle": {}}
     assert report._still_improving(hl, ["ppo", "sac", "oracle"]) == (
-        " (still improving at the training cap: ppo in 1/2 seeds)"
+        " (at the training cap before a plateau: ppo in 1/2 seeds)"
     )
     assert report._still_improving(hl, ["sac", "oracle"]) == ""
     assert report._converged(hl["sac"]) == " (trained to its plateau in 3/3 seeds)"
@@ -184,7 +184,7 @@ def test_conclusions_say_where_rl_wins_and_qualify_wins_over_capped_agents():
     parts = line.split("; ")
     assert parts[0].endswith(
         "stc has the lower episode cost more often than not against ppo "
-        "(still improving at the training cap: ppo in 2/2 seeds)"
+        "(at the training cap before a plateau: ppo in 2/2 seeds)"
     )
     assert parts[1] == (
         "sac has the lower episode cost than stc more often than not "

@@ -5,7 +5,7 @@
   self-tuning controller's cost per reference half-period against its adaptation steps
   (median and quartiles over episodes), on the same axes; the oracle (1) and LQG as lines.
   Each training seed's curve ends in a marker: a dot where the plateau rule stopped it, a
-  cross where it reached its cap still improving.
+  cross where it reached its cap before a plateau.
 * ``theta_<scenario>.png``: the self-tuning controller's estimates theta_hat(t) against the
   true theta(t), one panel per parameter, jump marked.
 * ``traces_<scenario>.png``: small multiples, one row per controller on the same axes: y and r
@@ -132,7 +132,7 @@ def plot_data_efficiency(
             ax.fill_between(ends, q25, q75, color="k", alpha=0.15, lw=0)
         if any(k[0] == env for k in stops):
             ax.plot([], [], "o", color="grey", label="seed stopped at its plateau")
-            ax.plot([], [], "x", color="grey", label="seed at its cap, still improving")
+            ax.plot([], [], "x", color="grey", label="seed at its cap, before a plateau")
         ax.axhline(1.0, color="grey", lw=1.2, label="oracle")
         ax.axhline(1.2, color="grey", lw=0.8, ls=":", label="1.2x oracle")
         ref = reference_lines.get(env, {})

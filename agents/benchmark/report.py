@@ -20,7 +20,7 @@ Next to each RL agent's figures the report says how its training ended, per trai
 at the plateau of its learning curve or at the cap (:mod:`stcgym.agents.rl.stopping`), and at
 which step its cost last improved by more than the rule's minimum. A conclusion that a
 self-tuning controller beats an RL agent names, in the same sentence, the seeds of that agent
-that reached the cap still improving.
+that reached the cap before a plateau.
 """
 
 from __future__ import annotations
@@ -211,7 +211,8 @@ def _training_cell(res: dict[str, Any]) -> str:
 
 
 def _still_improving(hl: dict[str, dict[str, Any]], agents: Sequence[str]) -> str:
-    """``" (sac hit its training cap before the plateau in 3/3 seeds)"`` or ``""``."""
+    """``" (at the training cap before a plateau: sac in 3/3 seeds)"`` or ``""``: the seeds
+    that the cap stopped before the plateau rule could (an agent that may still improve)."""
     capped = [
         f"{c} in {hl[c]['training']['cap']}/{hl[c]['training']['seeds']} seeds"
         for c in agents
@@ -219,7 +220,7 @@ def _still_improving(hl: dict[str, dict[str, Any]], agents: Sequence[str]) -> st
     ]
     if not capped:
         return ""
-    return f" (still improving at the training cap: {', '.join(capped)})"
+    return f" (at the training cap before a plateau: {', '.join(capped)})"
 
 
 def _converged(res: dict[str, Any]) -> str:
@@ -522,7 +523,7 @@ def write_report(
         "(self-tuning LQ) or `stc_kfmils` (the self-tuning controller on the paper's KF-MILS "
         "estimator) has the lower episode cost than that controller on a random pair of runs. "
         f"RL training: every agent trains until {_rule(cfg)}; the column says how many "
-        "training seeds stopped at the plateau and how many at the cap (still improving), and "
+        "training seeds stopped at the plateau and how many at the cap (before a plateau), and "
         "at which training step the cost last gained more than the minimum.",
         "",
     ]

@@ -22,7 +22,7 @@ learning curve plateaus or it reaches the tier's cap.
 * quick: what fits three training seeds of PPO, SAC and RecurrentPPO on two training
   environments into the 10 minutes of ``make bench`` on 2 cores (SAC and TD3 make one gradient
   step per environment step, ~7 ms on one core, so they get the smallest budget); most agents
-  reach the cap still improving, which the report says.
+  reach the cap before a plateau, which the report says.
 * standard (about an hour on 2 cores): the single-plant caps are the Zoo's tuned
   ``n_timesteps`` for ``Pendulum-v1`` (``hyperparams/ppo.yml`` 1e5, ``sac.yml`` and
   ``td3.yml`` 2e4; A2C gets 4e5 instead of ``a2c.yml``'s 1e6); agents trained on the
@@ -30,7 +30,7 @@ learning curve plateaus or it reaches the tier's cap.
   1e5), RecurrentPPO the Zoo's budget of its closest entry, ``PendulumNoVel-v1`` in
   ``hyperparams/ppo_lstm.yml`` (1e5). The Zoo tuned these budgets to where the learning curve
   has levelled off on the pendulum; the plateau rule stops a run earlier when ours levels off
-  first, and the report says which runs hit the cap still improving.
+  first, and the report says which runs hit the cap before a plateau.
 * full: long caps for a day on 2 cores.
 
 ``eval_interval`` is a whole number of PPO / RecurrentPPO rollouts (``n_steps x n_envs``), so
