@@ -4,8 +4,12 @@
     The self-tuning controller, the known-model and LQG oracles and PPO, SAC and RecurrentPPO
     (3 training seeds each, trained on the spot through the task executor) on the nominal,
     plant-family and parameter-jump scenarios; under 10 minutes on 2 CPU cores.
-    ``stcgym bench --full`` is the long version (all catalogue plants, TD3 and A2C too, 5
-    training seeds, 20 evaluation seeds, 10x budgets: hours); it announces its estimated time.
+    ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds with the RL
+    Zoo's training budgets as caps; ``stcgym bench --full`` is the long version (all catalogue
+    plants, TD3 and A2C too, 5 training seeds, 20 evaluation seeds, long caps: about a day).
+    Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
+    and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
+    interrupted run without retraining its finished jobs.
 ``stcgym eval MODEL_DIR``
     Re-evaluate a saved RL agent (a ``models/*`` folder of a bench run).
 ``stcgym sweep FAMILY``
@@ -29,7 +33,8 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     from stcgym.agents.benchmark.config import FULL, QUICK, BenchConfig
     from stcgym.agents.controllers import CONTROLLERS
     from stcgym.agents.executors import EXECUTORS
-    from stcgym.agents.rl.configs import ALGORITHMS
+    from stcgym.agents.rl.configs import ALGORITHMS, DEFAULT_CONFIGS
+    from stcgym.agents.rl.stopping import PlateauRule
     from stcgym.envs.catalogue import plant_names
 
     p = sub.add_parser(
@@ -44,10 +49,24 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "--quick", action="store_true", help="the default: under 10 min on 2 CPU cores"
     )
     mode.add_argument(
+        "--standard",
+        action="store_true",
+        help="the quick scenarios and seeds, RL trained to the plateau with the RL Zoo's "
+        "Pendulum-v1 budgets as caps (family agents 1e5-3e5 steps): about an hour on 2 CPU "
+        "cores (the estimate is printed first)",
+    )
+    mode.add_argument(
         "--full",
         action="store_true",
-        help="all plants and agents, 5 training seeds, long budgets (hours; the estimate is "
-        "printed first)",
+        help="all plants and agents, 5 training seeds, long caps (about a day; the estimate "
+        "is printed first)",
+    )
+    p.add_argument(
+        "--resume",
+        metavar="RUN_DIR",
+        help="continue the run in RUN_DIR (after Ctrl-C or a kill) with its config.json: "
+        "finished RL jobs are read back, not retrained; takes --jobs, --executor, --address, "
+        "--no-plots and --progress only",
     )
     p.add_argument("--scenarios", help="comma list of nominal,family,jump (default: all)")
     p.add_argument(
@@ -78,10 +97,36 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         f"{','.join(QUICK['agents'])}; full: {','.join(FULL['agents'])}); the oracle is "
         "always evaluated",
     )
+    rule = PlateauRule()
     p.add_argument(
         "--train-steps",
-        help="RL training budget in env steps: N for every agent, or ppo=N,sac=M (defaults: "
-        "each algorithm's quick_steps / full_steps in agents/rl/configs.py)",
+        help="RL training cap in env steps: N for every agent, or ppo=N,sac=M (defaults: "
+        "each algorithm's quick_steps, standard_steps / standard_family_steps or full_steps "
+        "in agents/rl/configs.py); at least one evaluation interval",
+    )
+    p.add_argument(
+        "--patience",
+        type=int,
+        default=rule.patience,
+        # (argparse %-formats help texts)
+        help=f"plateau rule: {rule.describe('--eval-interval').replace('%', '%%')}; this is "
+        "the number of "
+        f"evaluations (>= 1, default {rule.patience})",
+    )
+    p.add_argument(
+        "--min-improvement",
+        type=float,
+        default=rule.min_improvement,
+        help="plateau rule: the relative gain on the best cost an evaluation must make, in "
+        f"[0, 1) (default {rule.min_improvement})",
+    )
+    p.add_argument(
+        "--eval-interval",
+        type=int,
+        help="env steps between the evaluations of the plateau rule, for every algorithm "
+        "(default: each algorithm's eval_interval: "
+        + ", ".join(f"{a} {c.eval_interval}" for a, c in DEFAULT_CONFIGS.items())
+        + ")",
     )
     p.add_argument("--train-seeds", type=int, help="RL training seeds per agent (quick 3, full 5)")
     p.add_argument(
@@ -117,7 +162,12 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         help="override a hyperparameter, e.g. ppo.learning_rate=3e-4 (repeatable; checked "
         "against the algorithm's rules)",
     )
-    p.add_argument("--curve-points", type=int, default=10, help="log-spaced learning-curve points")
+    p.add_argument(
+        "--curve-points",
+        type=int,
+        default=10,
+        help="log-spaced learning-curve points before the first evaluation interval",
+    )
     p.add_argument(
         "--jobs",
         type=int,
@@ -183,43 +233,103 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from stcgym.agents.benchmark import build_config, check_runnable, estimate_seconds, run_bench
     from stcgym.agents.benchmark.plan import format_duration
 
-    cfg = build_config(
-        quick=not args.full,
-        run=args.run,
-        out=args.out,
-        scenarios=args.scenarios,
-        plants=args.plants,
-        family_train=args.family_train,
-        family_test=args.family_test,
-        jumps=args.jumps,
-        agents=args.agents,
-        train_steps=args.train_steps,
-        train_seeds=args.train_seeds,
-        seeds=args.seeds,
-        first_seed=args.first_seed,
-        episode_steps=args.episode_steps,
-        train_episode_steps=args.train_episode_steps,
-        noise_std=args.noise,
-        train_y_bound=args.train_y_bound,
-        hp=args.hp,
-        curve_points=args.curve_points,
-        plots=not args.no_plots,
-        progress=args.progress,
-        jobs=args.jobs,
-        executor=args.executor,
-        address=args.address,
-        tensorboard_log=args.tensorboard_log,
-        bootstrap_reps=args.bootstrap_reps,
-    )
+    if args.resume is not None:
+        cfg = _resumed_config(args)
+    else:
+        cfg = build_config(
+            mode="standard" if args.standard else "full" if args.full else "quick",
+            run=args.run,
+            out=args.out,
+            scenarios=args.scenarios,
+            plants=args.plants,
+            family_train=args.family_train,
+            family_test=args.family_test,
+            jumps=args.jumps,
+            agents=args.agents,
+            train_steps=args.train_steps,
+            patience=args.patience,
+            min_improvement=args.min_improvement,
+            eval_interval=args.eval_interval,
+            train_seeds=args.train_seeds,
+            seeds=args.seeds,
+            first_seed=args.first_seed,
+            episode_steps=args.episode_steps,
+            train_episode_steps=args.train_episode_steps,
+            noise_std=args.noise,
+            train_y_bound=args.train_y_bound,
+            hp=args.hp,
+            curve_points=args.curve_points,
+            plots=not args.no_plots,
+            progress=args.progress,
+            jobs=args.jobs,
+            executor=args.executor,
+            address=args.address,
+            tensorboard_log=args.tensorboard_log,
+            bootstrap_reps=args.bootstrap_reps,
+        )
     check_runnable(cfg)
     print(
         f"stcgym bench: {cfg.mode} mode, estimated {format_duration(estimate_seconds(cfg))} on "
-        f"{cfg.jobs} worker(s); results in {cfg.run_dir}",
+        f"{cfg.jobs} worker(s) (every RL agent to its cap; the plateau rule can stop it "
+        f"earlier); results in {cfg.run_dir}",
         file=sys.stderr,
     )
-    result = run_bench(cfg, overwrite=args.overwrite, argv=list(argv), checked=True)
+    result = run_bench(
+        cfg,
+        overwrite=args.overwrite,
+        argv=list(argv),
+        checked=True,
+        resume=args.resume is not None,
+    )
     print(result.run_dir / "report.md")
     return 0
+
+
+#: The options ``--resume`` takes next to the run folder (the rest come from config.json).
+_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress")
+
+
+def _resumed_config(args: argparse.Namespace):
+    """The config of the run to resume: its ``config.json`` and the options it takes."""
+    import json
+    from pathlib import Path
+
+    from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
+    from stcgym.agents.executors import EXECUTORS
+
+    defaults = vars(build_parser().parse_args(["bench"]))
+    given = [
+        k
+        for k, v in vars(args).items()
+        if k not in ("resume", *_RESUME_OPTIONS) and v != defaults.get(k)
+    ]
+    if given:
+        names = ", ".join("--" + k.replace("_", "-") for k in given)
+        raise BenchInputError(f"--resume takes the settings of the run's config.json; drop {names}")
+    run_dir = Path(args.resume)
+    doc_file = run_dir / "config.json"
+    if not doc_file.is_file():
+        raise BenchInputError(f"--resume: {run_dir} holds no config.json (not a bench run)")
+    try:
+        cfg = BenchConfig.from_dict(json.loads(doc_file.read_text())["bench"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise BenchInputError(
+            f"--resume: {doc_file} is not a readable bench config: {exc}"
+        ) from None
+    cfg.out, cfg.run = str(run_dir.parent), run_dir.name
+    if args.jobs is not None:
+        if args.jobs < 1:
+            raise BenchInputError(f"--jobs must be a positive integer, got {args.jobs}")
+        cfg.jobs = args.jobs
+    if args.executor not in EXECUTORS:
+        raise BenchInputError(f"--executor must be one of {EXECUTORS}, got {args.executor!r}")
+    if args.address is not None and args.executor != "ray":
+        raise BenchInputError("--address needs --executor ray")
+    cfg.executor, cfg.address = args.executor, args.address
+    cfg.plots = cfg.plots and not args.no_plots
+    if args.progress is not None:
+        cfg.progress = args.progress
+    return cfg
 
 
 def _check_eval_args(args: argparse.Namespace) -> dict:

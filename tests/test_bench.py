@@ -13,6 +13,7 @@ import stcgym.agents.benchmark as benchmark
 from stcgym.agents.benchmark import METRIC_COLUMNS, BenchConfig, build_config, make_scenarios
 from stcgym.agents.benchmark import runner as runner_mod
 from stcgym.agents.benchmark.config import FULL, QUICK
+from stcgym.agents.benchmark.plan import rl_tasks
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 
@@ -20,6 +21,8 @@ from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 TINY = [
     "--train-steps",
     "300",
+    "--eval-interval",
+    "100",
     "--train-seeds",
     "2",
     "--seeds",
@@ -154,6 +157,23 @@ def test_end_to_end_writes_every_file(tiny_run):
     assert "the best RL agent (stc_kfmils)" not in report
     assert "training seed, evaluation seed" in report  # what the intervals cover
 
+    # how each RL agent's training ended, next to its figures: 300 steps are 3 evaluations
+    # of the rule, one too few for a plateau, so every run reached its cap
+    assert {r["train_stop"] for r in rows if r["family"] == "rl"} == {"cap"}
+    assert all(int(r["train_cap"]) == 300 for r in rows if r["family"] == "rl")
+    assert "RL training: stop (seeds); last > min. gain" in report
+    assert "| ppo | 4 |" in report and "cap 2/2; last gain at" in report
+    assert "has not improved on its best by more than 5 % in 3 consecutive" in report
+    # no win over an RL agent without saying, in the same sentence, that it was still improving
+    claims = [
+        part
+        for line in report.split("## Conclusions")[1].split("## Step response")[0].splitlines()
+        for part in line.split("; ")
+        if "more often than not against" in part
+        and any(f" {a}" in part.split(", not against")[0] for a in ("ppo", "rppo"))
+    ]
+    assert claims and all("at the training cap before a plateau" in c for c in claims)
+
     # progress over the whole run, and the learning curve through SB3's logger
     assert "job 1/" in log and "ETA" in log
     events = list(tb.rglob("events.out.tfevents.*"))
@@ -166,6 +186,79 @@ def test_saved_model_reloads_for_evaluation(tiny_run, capsys):
     assert (model / "agent.json").is_file()
     assert main(["eval", str(model), "--seeds", "2", "--episode-steps", "50"]) == 0
     assert "ppo (seed 0" in capsys.readouterr().out
+
+
+def test_eval_reproduces_the_bench_numbers_of_a_saved_agent(tiny_run, capsys):
+    run = tiny_run[0]
+    _, rows = _rows(run / "metrics.csv")
+    bench = {
+        r["seed"]: float(r["cost"])
+        for r in rows
+        if (r["scenario"], r["controller"], r["train_seed"]) == ("nominal:stable2", "ppo", "0")
+    }
+    assert len(bench) == 2
+    model = run / "models" / "nominal-stable2_ppo_s0"
+    assert main(["eval", str(model), "--seeds", "2", "--episode-steps", "120"]) == 0
+    out = capsys.readouterr().out
+    for seed, cost in bench.items():
+        assert f"seed {seed}: cost {cost:.4g} " in out
+
+
+def _sorted_numbers(path):
+    key = lambda r: (r["scenario"], r["controller"], r["seed"], r["train_seed"])  # noqa: E731
+    return sorted(_numbers(path), key=key)
+
+
+def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_path, monkeypatch):
+    import shutil
+
+    from stcgym.agents.rl import training
+
+    source = tiny_run[0]
+    run = tmp_path / "tiny"
+    shutil.copytree(source, run)
+    config = json.loads((run / "config.json").read_text())
+    config["bench"]["tensorboard_log"] = str(tmp_path / "tb")  # keep the fixture's logs apart
+    (run / "config.json").write_text(json.dumps(config))
+    jobs = sorted((run / "jobs").glob("*.json"))
+    assert len(jobs) == 6  # every RL training job kept its result
+    jobs[0].unlink()  # as if the run had been killed before this job finished
+    (run / "report.md").unlink()
+    trained = []
+    real = training.train_and_evaluate
+
+    def counting(task):
+        trained.append(task["name"])
+        return real(task)
+
+    monkeypatch.setattr(training, "train_and_evaluate", counting)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["bench", "--resume", str(run), "--no-plots"]) == 0
+    assert len(trained) == 1  # the finished jobs were not trained again
+    assert "5 finished RL jobs read back" in err.getvalue()
+    # the same table as the uninterrupted run (the retrained job reproduces its numbers)
+    assert _sorted_numbers(run / "metrics.csv") == _sorted_numbers(source / "metrics.csv")
+    assert (run / "report.md").is_file() and len(list((run / "jobs").glob("*.json"))) == 6
+    assert len(list((tmp_path / "tb").rglob("events.out.tfevents.*"))) == 1
+    resumed = json.loads((run / "config.json").read_text())
+    assert resumed["argv"] == config["argv"] and resumed["resumed"][0][:2] == ["bench", "--resume"]
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--seeds", "3"], "drop --seeds"),
+        (["--standard"], "drop --standard"),
+        (["--jobs", "0"], "--jobs must be a positive integer"),
+    ],
+)
+def test_resume_takes_the_run_settings(tiny_run, tmp_path, capsys, extra, message):
+    assert main(["bench", "--resume", str(tiny_run[0]), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+    assert main(["bench", "--resume", str(tmp_path / "none")]) == 2
+    assert "holds no config.json" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -245,6 +338,18 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
         (["--scenarios", "nominal", "--agents", "rppo,stc"], "family and jump"),
         (["--jobs", "0"], "--jobs"),
         (["--executor", "slurm"], "--executor"),
+        # a stopping rule that cannot be met
+        (["--train-steps", "99"], "below one evaluation interval"),
+        (["--eval-interval", "400"], "below one evaluation interval"),
+        (["--train-steps", "ppo=300,rppo=50"], "the rppo cap of 50 env steps is below"),
+        (["--hp", "ppo.eval_interval=1000"], "ppo.eval_interval = 1000"),
+        (["--hp", "ppo.eval_interval=0"], "ppo.eval_interval must be an integer >= 1"),
+        (["--eval-interval", "0"], "--eval-interval"),
+        (["--patience", "-1"], "--patience must be an integer >= 1"),
+        (["--patience", "0"], "--patience must be an integer >= 1"),
+        (["--min-improvement", "1.5"], "--min-improvement must be a number in [0, 1)"),
+        (["--min-improvement", "-0.05"], "--min-improvement"),
+        (["--min-improvement", "nan"], "--min-improvement"),
     ],
 )
 def test_bad_input_fails_before_any_work(tmp_path, monkeypatch, capsys, extra, message):
@@ -277,6 +382,43 @@ def test_bare_bench_runs_the_quick_preset_that_help_describes(monkeypatch, capsy
     help_text = " ".join(capsys.readouterr().out.split())
     assert f"quick default: {','.join(QUICK['agents'])}" in help_text
     assert "estimate is printed first" in help_text  # --full announces its time
+    # the stopping rule is stated in --help
+    assert "has not improved on its best by more than 5 % in 3 consecutive" in help_text
+
+
+def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
+    seen = {}
+
+    def fake_run(cfg, **kwargs):
+        seen["cfg"] = cfg
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(benchmark, "run_bench", fake_run)
+    assert main(["bench", "--standard", "--out", "/nonexistent-never-written"]) == 130
+    std, quick = seen["cfg"], build_config(run="q")
+    assert std.mode == "standard"
+    same = ("scenarios", "plants", "family_train", "family_test", "jumps", "agents", "seeds")
+    for name in (*same, "train_seeds", "first_seed", "episode_steps", "curve_seeds"):
+        assert getattr(std, name) == getattr(quick, name), name
+    # the RL Zoo's Pendulum-v1 n_timesteps as single-plant caps, 1e5-3e5 on the family
+    assert std.train_steps == {"ppo": 100_000, "sac": 20_000, "rppo": 100_000}
+    assert std.family_train_steps == {"ppo": 300_000, "sac": 100_000, "rppo": 100_000}
+    assert (std.patience, std.min_improvement) == (3, 0.05)
+    # each cap is bigger than the quick one, and a whole number of evaluation intervals
+    for algo, cap in std.train_steps.items():
+        assert cap > quick.train_steps[algo]
+    tasks = rl_tasks(std, make_scenarios(std), {}, {})
+    assert {(t["train_key"], t["algo"]): t["steps"] for t in tasks} == {
+        ("nominal:stable2", "ppo"): 100_000,
+        ("nominal:stable2", "sac"): 20_000,
+        ("family", "ppo"): 300_000,
+        ("family", "sac"): 100_000,
+        ("family", "rppo"): 100_000,
+    }
+    assert all(t["plateau"] == {"min_improvement": 0.05, "patience": 3} for t in tasks)
+    # about an hour on 2 cores at the caps, the quick tier under its 10 minutes
+    assert 45 * 60 <= benchmark.estimate_seconds(std) <= 75 * 60
+    assert 6 * 60 <= benchmark.estimate_seconds(quick) <= 10 * 60
 
 
 def test_stc_kfmils_is_stc_on_the_kf_mils_estimator_in_every_scenario(tmp_path):

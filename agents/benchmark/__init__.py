@@ -46,17 +46,27 @@ Controllers
 evaluated: every ratio is taken to it). ``lqg``: :class:`~stcgym.adaptive.LQGController`, the
 optimal linear controller for the bench's cost on the true (pre-jump) parameters.
 
+Tiers
+-----
+``quick`` (the default, about 10 minutes on 2 cores), ``standard`` (the same scenarios, seeds
+and statistics with the RL Zoo's tuned budgets as caps: about an hour) and ``full`` (every
+plant and agent, more seeds, long caps: about a day). In every tier each RL agent trains until
+its learning curve plateaus or it reaches its cap (:mod:`stcgym.agents.rl.stopping`), and the
+report says which, per scenario, agent and training seed.
+
 Execution
 ---------
 The classical controllers run in the driver first (seconds). Every RL training job (training
 env x agent x seed) is a JSON task (:mod:`stcgym.agents.rl.training`) run by the executor of
 :mod:`stcgym.agents.executors` (``jobs`` local processes, or Ray), longest first; the driver
-writes every result as the jobs finish and logs ``job k/N, ETA`` for the whole run.
+writes every result as the jobs finish and logs ``job k/N, ETA`` for the whole run. Each
+finished job's result is kept in ``jobs/<id>.json``: ``run_bench(cfg, resume=True)``
+(``stcgym bench --resume RUN_DIR``) reads those back instead of training them again.
 
 Output (``<out>/<run>/``): ``config.json`` (written first), ``metrics.csv`` (one row per
 controller x scenario x seed x training seed, appended and flushed row by row, so an
-interrupted run keeps every finished row), ``learning_curves.csv``, ``report.md``, PNG plots
-and ``models/``.
+interrupted run keeps every finished row), ``learning_curves.csv``, ``report.md``, PNG plots,
+``models/`` and ``jobs/``.
 """
 
 from stcgym.agents.benchmark.config import BenchConfig, BenchInputError, build_config

@@ -1,5 +1,12 @@
-"""The settings of a ``stcgym bench`` run: :class:`BenchConfig`, the quick and full presets,
-and the checks every value passes before any work starts (:func:`build_config`)."""
+"""The settings of a ``stcgym bench`` run: :class:`BenchConfig`, the quick, standard and full
+presets, and the checks every value passes before any work starts (:func:`build_config`).
+
+Every tier trains each RL agent until its learning curve plateaus or it reaches the tier's cap
+(:class:`~stcgym.agents.rl.stopping.PlateauRule`: ``patience`` evaluations, one every
+``eval_interval`` env steps of the algorithm, without a gain of more than ``min_improvement``);
+the tiers differ in their caps (``AlgoConfig.quick_steps``, ``standard_steps`` and
+``standard_family_steps``, ``full_steps``) and, for ``full``, in plants, agents and seeds.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +14,7 @@ import datetime as _dt
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -20,12 +27,15 @@ from stcgym.agents.rl.configs import (
     apply_overrides,
     default_config,
 )
+from stcgym.agents.rl.stopping import PlateauRule
 from stcgym.envs.catalogue import get_plant, plant_names
 
 __all__ = [
     "FULL",
+    "MODES",
     "QUICK",
     "SCENARIO_KINDS",
+    "STANDARD",
     "BenchConfig",
     "BenchInputError",
     "build_config",
@@ -64,7 +74,15 @@ class BenchConfig:
             "lqg",
         ]
     )
+    #: training cap per algorithm of the agents trained on one plant ...
     train_steps: dict[str, int] = field(default_factory=dict)
+    #: ... and of those trained on the randomised plant family
+    family_train_steps: dict[str, int] = field(default_factory=dict)
+    #: the plateau rule (stcgym.agents.rl.stopping.PlateauRule)
+    patience: int = 3
+    min_improvement: float = 0.05
+    #: --eval-interval: every algorithm's evaluation interval (None: each config's own)
+    eval_interval: int | None = None
     train_seeds: int = 3
     seeds: int = 5
     first_seed: int = 1000
@@ -114,8 +132,28 @@ class BenchConfig:
             **kw,
         )
 
+    @property
+    def plateau(self) -> PlateauRule:
+        return PlateauRule(self.min_improvement, self.patience)
+
+    def cap(self, algo: str, train_key: str) -> int:
+        """The training cap of ``algo``'s agents on the training env ``train_key``."""
+        return (self.family_train_steps if train_key == "family" else self.train_steps)[algo]
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> BenchConfig:
+        """The config of a ``config.json`` (``ValueError`` for keys this version lacks)."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown bench settings {unknown} (written by another version?)")
+        data = dict(data)
+        # written before the family had caps of its own: the single-plant caps applied
+        data.setdefault("family_train_steps", dict(data.get("train_steps", {})))
+        return cls(**data)
 
 
 QUICK = dict(
@@ -127,6 +165,8 @@ QUICK = dict(
     seeds=5,
     episode_steps=1000,
 )
+#: Same scenarios, seeds and statistics as quick; RL caps from the Zoo (about an hour on 2 cores).
+STANDARD = dict(QUICK, mode="standard")
 FULL = dict(
     mode="full",
     plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4"],
@@ -136,6 +176,7 @@ FULL = dict(
     seeds=20,
     episode_steps=2000,
 )
+MODES = {"quick": QUICK, "standard": STANDARD, "full": FULL}
 
 
 def _split(value: str | Sequence[str] | None) -> list[str] | None:
@@ -177,6 +218,7 @@ def parse_train_steps(value: str | int | dict | None, algos: Sequence[str]) -> d
 def build_config(
     *,
     quick: bool = True,
+    mode: str | None = None,
     run: str | None = None,
     out: str = "results",
     scenarios: str | Sequence[str] | None = None,
@@ -186,6 +228,9 @@ def build_config(
     jumps: str | Sequence[str] | None = None,
     agents: str | Sequence[str] | None = None,
     train_steps: str | int | dict | None = None,
+    patience: int = 3,
+    min_improvement: float = 0.05,
+    eval_interval: int | None = None,
     train_seeds: int | None = None,
     seeds: int | None = None,
     first_seed: int = 1000,
@@ -205,10 +250,14 @@ def build_config(
 ) -> BenchConfig:
     """Build and validate a :class:`BenchConfig` (raises :class:`BenchInputError`).
 
-    Defaults come from the quick or full preset; every list argument takes a comma-separated
-    string or a sequence. Nothing is trained or written here.
+    Defaults come from the preset ``mode`` (``"quick"``, ``"standard"`` or ``"full"``; without
+    it ``quick`` picks quick or full); every list argument takes a comma-separated string or a
+    sequence. Nothing is trained or written here.
     """
-    preset = QUICK if quick else FULL
+    mode = mode if mode is not None else ("quick" if quick else "full")
+    if mode not in MODES:
+        raise BenchInputError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
+    preset = MODES[mode]
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     cfg = BenchConfig(run=run or f"{stamp}-{preset['mode']}", out=str(out))
     for key, value in preset.items():
@@ -239,6 +288,7 @@ def build_config(
     cfg.executor, cfg.address = executor, address
     cfg.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
     cfg.bootstrap_reps = bootstrap_reps
+    cfg.patience, cfg.min_improvement, cfg.eval_interval = patience, min_improvement, eval_interval
     cfg.overrides = list(hp)
     try:
         validate(cfg, train_steps)
@@ -340,8 +390,14 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
         raise ValueError("--address needs --executor ray")
     if cfg.tensorboard_log is not None and not cfg.rl_agents:
         raise ValueError("--tensorboard-log needs at least one RL agent in --agents")
-    # Training budgets and configs: defaults of the mode, then --train-steps and --hp.
+    # Training caps and configs: defaults of the mode, then --eval-interval, --hp and
+    # --train-steps (which sets the cap on one plant and on the family alike).
+    PlateauRule(cfg.min_improvement, cfg.patience)  # ValueError naming the option
     configs = {a: default_config(a) for a in cfg.rl_agents}
+    if cfg.eval_interval is not None:
+        cfg.eval_interval = _positive_int(cfg.eval_interval, "--eval-interval")
+        for c in configs.values():
+            c.eval_interval = cfg.eval_interval
     apply_overrides(configs, cfg.overrides)
     for c in configs.values():
         validate_config(c)
@@ -349,8 +405,26 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     extra = sorted(set(given) - set(cfg.rl_agents))
     if extra and isinstance(train_steps, str) and "=" in train_steps:
         raise ValueError(f"--train-steps names {extra}, which are not among --agents")
-    cfg.train_steps = {
-        a: given.get(a, configs[a].quick_steps if cfg.mode == "quick" else configs[a].full_steps)
-        for a in cfg.rl_agents
-    }
+    single, family = _MODE_CAPS[cfg.mode]
+    cfg.train_steps = {a: given.get(a, getattr(configs[a], single)) for a in cfg.rl_agents}
+    cfg.family_train_steps = {a: given.get(a, getattr(configs[a], family)) for a in cfg.rl_agents}
+    for a in cfg.rl_agents:
+        caps = [cfg.family_train_steps[a]]
+        if a not in RECURRENT_ALGORITHMS:  # recurrent agents train on the family only
+            caps.append(cfg.train_steps[a])
+        interval = configs[a].eval_interval
+        if min(caps) < interval:
+            raise ValueError(
+                f"--train-steps: the {a} cap of {min(caps)} env steps is below one evaluation "
+                f"interval of the plateau rule ({a}.eval_interval = {interval}); raise the cap "
+                "or lower --eval-interval"
+            )
     cfg.algo_configs = {a: configs[a].to_dict() for a in cfg.rl_agents}
+
+
+#: The AlgoConfig fields of each mode's caps: (one plant, the plant family).
+_MODE_CAPS = {
+    "quick": ("quick_steps", "quick_steps"),
+    "standard": ("standard_steps", "standard_family_steps"),
+    "full": ("full_steps", "full_steps"),
+}

@@ -25,23 +25,31 @@ __all__ = [
 ]
 
 
-#: Rough CPU seconds per training env step on the 2-core development machine (torch on one
-#: thread, learning curve included); only the ETA and the announced estimate use them.
-SECONDS_PER_STEP = {"ppo": 2.0e-3, "a2c": 2.0e-3, "sac": 2.0e-2, "td3": 1.8e-2, "rppo": 1.7e-2}
+#: Rough CPU seconds per training env step on the 2-core development machine when nothing
+#: else runs (torch on one thread; PPO 30k, SAC 1.5k and RecurrentPPO 4k steps timed with
+#: start-up included); only the ETA and the announced estimate use them. With the other
+#: core busy too each takes 2-3x as long; the ETA rescales by the jobs already finished.
+SECONDS_PER_STEP = {"ppo": 2.0e-3, "a2c": 2.0e-3, "sac": 7.0e-3, "td3": 6.5e-3, "rppo": 5.5e-3}
 #: Seconds per evaluated controller step (python loop).
 SECONDS_PER_EVAL_STEP = 1.5e-4
 
 
 def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence[dict]) -> dict:
+    """Estimated seconds of every job, RL jobs at their cap (the plateau rule may stop them
+    earlier; the ETA then adapts)."""
+    from stcgym.agents.rl.sb3 import curve_checkpoints
+
     classical = cfg.seeds * cfg.episode_steps * SECONDS_PER_EVAL_STEP
-    curve = cfg.curve_points * cfg.curve_seeds * cfg.train_episode_steps * SECONDS_PER_EVAL_STEP
+    episode = cfg.curve_seeds * cfg.train_episode_steps * SECONDS_PER_EVAL_STEP
     out = {("classical", sc.name): classical * len(cfg.classical) for sc in scenarios}
     for t in tasks:
         plants = len(t["curve_env"]["plants"])
+        interval = t["config"]["eval_interval"]
+        curve = 1 + len(curve_checkpoints(t["steps"], cfg.curve_points, interval))
         evals = sum(len(e["seeds"]) for e in t["evaluations"]) * cfg.episode_steps
         out[("rl", t["name"])] = (
             t["steps"] * SECONDS_PER_STEP.get(t["algo"], 5e-3)
-            + curve * plants
+            + curve * episode * plants
             + evals * 2 * SECONDS_PER_EVAL_STEP
         )
     return out
@@ -77,6 +85,11 @@ class JobProgress:
         self.weights, self.log, self.jobs = dict(weights), log, max(1, int(jobs))
         self.done: dict[Any, float] = {}
         self.t0 = self._last = time.perf_counter()
+
+    def drop(self, key: Any) -> None:
+        """Take a job out of the plan (finished by an earlier run: ``--resume``)."""
+        self.weights.pop(key, None)
+        self._last = time.perf_counter()
 
     def finish(self, key: Any, what: str, seconds: float | None = None) -> None:
         now = time.perf_counter()
@@ -133,7 +146,8 @@ def rl_tasks(
                         algo=algo,
                         config=AlgoConfig.from_dict(cfg.algo_configs[algo]),
                         seed=ts,
-                        steps=cfg.train_steps[algo],
+                        steps=cfg.cap(algo, key),
+                        plateau=cfg.plateau,
                         train_key=key,
                         train_env=train_spec,
                         curve_env=curve_spec,

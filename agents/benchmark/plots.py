@@ -4,6 +4,8 @@
   curves (training steps; median over training seeds, one thin line per seed) and the
   self-tuning controller's cost per reference half-period against its adaptation steps
   (median and quartiles over episodes), on the same axes; the oracle (1) and LQG as lines.
+  Each training seed's curve ends in a marker: a dot where the plateau rule stopped it, a
+  cross where it reached its cap before a plateau.
 * ``theta_<scenario>.png``: the self-tuning controller's estimates theta_hat(t) against the
   true theta(t), one panel per parameter, jump marked.
 * ``traces_<scenario>.png``: small multiples, one row per controller on the same axes: y and r
@@ -93,8 +95,12 @@ def plot_data_efficiency(
     curves: Sequence[dict[str, Any]],
     adaptation: dict[str, tuple[np.ndarray, np.ndarray]],
     reference_lines: dict[str, dict[str, float]],
+    stops: dict[tuple[str, str, Any], dict[str, Any]] | None = None,
 ) -> None:
-    """Cost / oracle against env steps, one panel per training environment (module doc)."""
+    """Cost / oracle against env steps, one panel per training environment (module doc);
+    ``stops``: ``(train_env, algo, train_seed) -> {"status": "plateau" | "cap", ...}``."""
+    stops = stops or {}
+    marker = {"plateau": "o", "cap": "x"}
     plt = _plt()
     envs = list(dict.fromkeys([*adaptation, *(c["train_env"] for c in curves)]))
     fig, axes = plt.subplots(1, len(envs), figsize=(6 * len(envs), 4.5), squeeze=False)
@@ -110,6 +116,9 @@ def plot_data_efficiency(
                 )
                 xy = xy[xy[:, 0] > 0]  # step 0 has no place on a log axis
                 ax.plot(xy[:, 0], xy[:, 1], color=f"C{i}", lw=0.6, alpha=0.35)
+                status = stops.get((env, algo, s), {}).get("status")
+                if status in marker and len(xy):
+                    ax.plot(*xy[-1], marker[status], color=f"C{i}", ms=6, alpha=0.8)
                 per_seed.append(xy)
             n = min(len(xy) for xy in per_seed)
             if n:
@@ -121,6 +130,9 @@ def plot_data_efficiency(
             q25, med, q75 = np.nanpercentile(ratios, [25, 50, 75], axis=0)
             ax.plot(ends, med, "s-", ms=3, color="k", label="stc (adaptation steps)")
             ax.fill_between(ends, q25, q75, color="k", alpha=0.15, lw=0)
+        if any(k[0] == env for k in stops):
+            ax.plot([], [], "o", color="grey", label="seed stopped at its plateau")
+            ax.plot([], [], "x", color="grey", label="seed at its cap, before a plateau")
         ax.axhline(1.0, color="grey", lw=1.2, label="oracle")
         ax.axhline(1.2, color="grey", lw=0.8, ls=":", label="1.2x oracle")
         ref = reference_lines.get(env, {})
@@ -210,6 +222,8 @@ def write_plots(
                 paths.append(p)
     if data.curves or data.adaptation:
         p = Path(run_dir) / "data_efficiency.png"
-        plot_data_efficiency(p, data.curves, data.adaptation, data.reference_lines)
+        plot_data_efficiency(
+            p, data.curves, data.adaptation, data.reference_lines, getattr(data, "stops", {})
+        )
         paths.append(p)
     return paths

@@ -15,6 +15,12 @@ stratified-bootstrap interval (:mod:`stcgym.agents.benchmark.statistics`, i.e. `
 Whole-episode cost stays as a column, and the probability that each self-tuning controller
 (``stc``, ``stc_lq``, ``stc_kfmils``) has the lower cost (rliable's probability of improvement)
 is given against every other controller.
+
+Next to each RL agent's figures the report says how its training ended, per training seed:
+at the plateau of its learning curve or at the cap (:mod:`stcgym.agents.rl.stopping`), and at
+which step its cost last improved by more than the rule's minimum. A conclusion that a
+self-tuning controller beats an RL agent names, in the same sentence, the seeds of that agent
+that reached the cap before a plateau.
 """
 
 from __future__ import annotations
@@ -129,6 +135,8 @@ def headline(
             continue
         table = np.array([[_float(r.get(k)) for k in cols] for r in rs])
         info: dict[str, Any] = {"runs": len(rs), "failures": sum(not int(r["bounded"]) for r in rs)}
+        if rs[0]["family"] == "rl":
+            info["training"] = training_stops(rs)
         for j, k in enumerate(cols):
             v = table[:, j]
             if k in ("steps_to_oracle", "reconverge_steps"):
@@ -166,6 +174,63 @@ def headline(
     return out
 
 
+def training_stops(rs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """How the training runs behind the rows ``rs`` (one RL agent) ended, one per train seed:
+    ``{"seeds", "plateau", "cap", "steps", "last_improvement"}`` (step lists by seed)."""
+    per_seed = {r["train_seed"]: r for r in rs}
+    runs = [per_seed[k] for k in sorted(per_seed, key=str)]
+    status = [str(r.get("train_stop", "")) for r in runs]
+    return {
+        "seeds": len(runs),
+        "plateau": status.count("plateau"),
+        "cap": status.count("cap"),
+        "steps": [_float(r["train_steps"]) for r in runs],
+        "last_improvement": [_float(r.get("train_last_improvement")) for r in runs],
+    }
+
+
+def _steps_range(values: Sequence[float]) -> str:
+    v = [x for x in values if math.isfinite(x)]
+    if not v:
+        return "-"
+    lo, hi = _k(min(v)), _k(max(v))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _k(x: float) -> str:
+    return f"{x / 1000:.3g}k" if x >= 1000 else f"{x:.0f}"
+
+
+def _training_cell(res: dict[str, Any]) -> str:
+    """``"plateau 2/3, cap 1/3; last gain at 40k-100k"`` (``-`` for a classical controller)."""
+    t = res.get("training")
+    if t is None:
+        return "-"
+    parts = [f"{k} {t[k]}/{t['seeds']}" for k in ("plateau", "cap") if t[k]]
+    return f"{', '.join(parts) or '-'}; last gain at {_steps_range(t['last_improvement'])}"
+
+
+def _still_improving(hl: dict[str, dict[str, Any]], agents: Sequence[str]) -> str:
+    """``" (at the training cap before a plateau: sac in 3/3 seeds)"`` or ``""``: the seeds
+    that the cap stopped before the plateau rule could (an agent that may still improve)."""
+    capped = [
+        f"{c} in {hl[c]['training']['cap']}/{hl[c]['training']['seeds']} seeds"
+        for c in agents
+        if hl[c].get("training", {}).get("cap")
+    ]
+    if not capped:
+        return ""
+    return f" (at the training cap before a plateau: {', '.join(capped)})"
+
+
+def _converged(res: dict[str, Any]) -> str:
+    """``" (trained to its plateau in 3/3 seeds)"`` when every seed stopped at its plateau."""
+    t = res.get("training")
+    if not t or t["plateau"] != t["seeds"]:
+        return ""
+    return f" (trained to its plateau in {t['plateau']}/{t['seeds']} seeds)"
+
+
 def _step_cap(rs: Sequence[dict[str, Any]], key: str) -> float:
     if key == "steps_to_oracle" and rs[0]["family"] == "rl":
         return max(_float(r["train_steps"]) for r in rs)
@@ -199,6 +264,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
     if jump:
         cols += ["post-jump / oracle, IQM", "re-converge steps, median (recovered)"]
     cols += ["episode cost, IQM", *(f"P({name} cost lower)" for name in _SELF_TUNING)]
+    cols.append("RL training: stop (seeds); last > min. gain")
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c, res in hl.items():
         div = f" ({res['failures']})" if res["failures"] else ""
@@ -214,6 +280,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
         for key in _SELF_TUNING.values():
             p = res.get(key)
             cells.append(p.format(2) if p is not None else "-")
+        cells.append(_training_cell(res))
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -256,6 +323,7 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
         parts.append(
             f"the best RL agent ({best}) ends at {_g(r['steady_ratio']['iqm'].value)}x and "
             + _reach(r, "steps_to_oracle", "gets within 1.2x", "training steps")
+            + (_still_improving(hl, [best]) or _converged(r))
         )
     if jump and stc is not None and "post_jump_ratio" in stc:
         parts.append(
@@ -266,6 +334,20 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
     if better:
         parts.append(
             f"stc has the lower episode cost more often than not against {', '.join(better)}"
+            + _still_improving(hl, better)
+        )
+    # and where RL wins, said as plainly
+    rl_wins = [
+        c
+        for c, r in hl.items()
+        if "training" in r and r.get("poi") is not None and r["poi"].value < 0.5
+    ]
+    if rl_wins:
+        trained = [c for c in rl_wins if _converged(hl[c])]
+        parts.append(
+            f"{', '.join(rl_wins)} {'has' if len(rl_wins) == 1 else 'have'} the lower episode "
+            "cost than stc more often than not"
+            + (f" ({', '.join(trained)} trained to the plateau in every seed)" if trained else "")
         )
     for ctl in variants:
         # against the RL agents only: a classical controller is never counted as one
@@ -277,6 +359,7 @@ def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
             parts.append(
                 f"{ctl} has the lower episode cost more often than not against "
                 f"{', '.join(wins) or 'no RL agent'}"
+                + _still_improving(hl, wins)
                 + (f", not against {', '.join(losses)}" if losses else "")
             )
     return f"- `{name}`: " + "; ".join(parts) + "." if parts else ""
@@ -340,13 +423,26 @@ def _step_table(agg, names: Sequence[str], controllers: Sequence[str]) -> list[s
     return lines
 
 
-def _curve_table(curves: Sequence[dict[str, Any]], lines_ref: dict[str, dict[str, float]]):
+def _stop_text(stop: dict[str, Any] | None) -> str:
+    if not stop:
+        return "-"
+    where = "plateau at" if stop["status"] == "plateau" else "cap"
+    last = stop.get("last_improvement_step")
+    gain = "-" if last is None else _k(float(last))
+    return f"{where} {_k(float(stop['steps']))} (last gain {gain})"
+
+
+def _curve_table(
+    curves: Sequence[dict[str, Any]],
+    lines_ref: dict[str, dict[str, float]],
+    stops: dict[tuple[str, str, Any], dict[str, Any]],
+):
     if not curves:
         return []
     out = [
         "| training env | agent | final curve cost / oracle, per training seed | "
-        "classical on the same episodes |",
-        "|---|---|---|---|",
+        "training stop, per training seed | classical on the same episodes |",
+        "|---|---|---|---|---|",
     ]
     for env, algo in sorted({(c["train_env"], c["algo"]) for c in curves}):
         final: dict[Any, float] = {}
@@ -357,8 +453,28 @@ def _curve_table(curves: Sequence[dict[str, Any]], lines_ref: dict[str, dict[str
         oracle = ref.get("oracle")
         refs = ", ".join(f"{k} {_g(v / oracle) if oracle else _g(v)}" for k, v in ref.items())
         seeds = ", ".join(_g(final[s]) for s in sorted(final))
-        out.append(f"| `{env}` | {algo} | {seeds} | {refs} |")
+        ended = ", ".join(_stop_text(stops.get((env, algo, s))) for s in sorted(final))
+        out.append(f"| `{env}` | {algo} | {seeds} | {ended} | {refs} |")
     return out
+
+
+def _caps(cfg: Any) -> str:
+    family = getattr(cfg, "family_train_steps", {}) or {}
+    caps = []
+    for a, n in cfg.train_steps.items():
+        f = family.get(a, n)
+        caps.append(f"{a} {n}" if f == n else f"{a} {n} (on the family {f})")
+    return ", ".join(caps) or "-"
+
+
+def _rule(cfg: Any) -> str:
+    from stcgym.agents.rl.stopping import PlateauRule
+
+    intervals = ", ".join(
+        f"{a} {c.get('eval_interval')}" for a, c in getattr(cfg, "algo_configs", {}).items()
+    )
+    rule = PlateauRule(cfg.min_improvement, cfg.patience)
+    return rule.describe("eval_interval") + f" (eval_interval: {intervals or '-'})"
 
 
 def write_report(
@@ -380,7 +496,7 @@ def write_report(
     T = cfg.episode_steps
     w = default_windows(T)
     wj = default_windows(T, T // 2)
-    budgets = ", ".join(f"{a} {n}" for a, n in cfg.train_steps.items()) or "-"
+    budgets = _caps(cfg)
     out = [f"# stcgym bench: `{cfg.run}`", ""]
     if interrupted:
         out += ["**INTERRUPTED: partial results (the rows finished before the interrupt).**", ""]
@@ -388,7 +504,7 @@ def write_report(
         f"Mode `{cfg.mode}`; {cfg.seeds} evaluation seeds (from {cfg.first_seed}) x "
         f"{cfg.train_seeds} training seeds per RL agent; episodes of {T} steps; output noise "
         f"std {cfg.noise_std}; cost per step `(y - r)^2 + {cfg.control_cost} u^2` "
-        f"(the environments' reward); RL training budgets (env steps): {budgets}. Wall time "
+        f"(the environments' reward); RL training caps (env steps): {budgets}. Wall time "
         f"{wall_s:.0f} s on {cfg.jobs} worker(s). Exact configuration: `config.json`; per-run "
         "numbers: `metrics.csv`.",
         "",
@@ -405,7 +521,10 @@ def write_report(
         "there. P(stc cost lower), P(stc_lq cost lower), P(stc_kfmils cost lower): "
         "probability that `stc` (the self-tuning controller with its defaults), `stc_lq` "
         "(self-tuning LQ) or `stc_kfmils` (the self-tuning controller on the paper's KF-MILS "
-        "estimator) has the lower episode cost than that controller on a random pair of runs.",
+        "estimator) has the lower episode cost than that controller on a random pair of runs. "
+        f"RL training: every agent trains until {_rule(cfg)}; the column says how many "
+        "training seeds stopped at the plateau and how many at the cap (before a plateau), and "
+        "at which training step the cost last gained more than the minimum.",
         "",
     ]
     sentences = []
@@ -431,14 +550,17 @@ def write_report(
     ]
     for name in names:
         out += [f"### `{name}`", "", *_detail_table(agg, name, controllers), ""]
-    ct = _curve_table(data.curves, data.reference_lines)
+    ct = _curve_table(data.curves, data.reference_lines, getattr(data, "stops", {}))
     if ct:
         out += [
             "## Learning curves",
             "",
-            f"Deterministic policy at {cfg.curve_points} log-spaced points of the budget on "
-            f"{cfg.curve_seeds} fixed episodes per training plant of {cfg.train_episode_steps} "
-            "steps (`learning_curves.csv`, `data_efficiency.png`).",
+            f"Deterministic policy at {cfg.curve_points} log-spaced points up to the first "
+            "evaluation interval, then at every interval (the evaluations of the plateau "
+            f"rule), on {cfg.curve_seeds} fixed episodes per training plant of "
+            f"{cfg.train_episode_steps} steps (`learning_curves.csv`, `data_efficiency.png`). "
+            "Training stop: where training ended (at the plateau or the cap) and the step of "
+            "the last gain above the rule's minimum.",
             "",
             *ct,
             "",

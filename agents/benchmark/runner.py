@@ -72,6 +72,9 @@ METRIC_COLUMNS = [
     "startup_settling_steps",
     "data_steps",
     "train_steps",
+    "train_cap",
+    "train_stop",
+    "train_last_improvement",
     "train_wall_s",
     "step_us",
 ]
@@ -210,21 +213,49 @@ class Collected:
     reference_lines: dict[str, dict[str, float]] = field(default_factory=dict)
     #: train_env -> (window end steps, stc cost / oracle cost per window, one row per episode)
     adaptation: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    #: (train_env, algo, train_seed) -> how training ended (StopSummary.to_dict())
+    stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
 
 
-def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False) -> Path:
-    """Create ``<out>/<run>``; refuse to mix two runs in one folder."""
+#: Where each finished RL job's result is kept (what ``--resume`` reuses).
+JOBS_FOLDER = "jobs"
+
+
+def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = False) -> Path:
+    """Create ``<out>/<run>``; refuse to mix two runs in one folder.
+
+    ``overwrite`` starts the run afresh; ``resume`` keeps the finished RL jobs (``jobs/``) and
+    the trained agents, and rebuilds the tables and the report.
+    """
     run_dir = cfg.run_dir
     _check_writable(Path(cfg.out))
-    if (run_dir / "metrics.csv").exists() and not overwrite:
+    if resume and not (run_dir / "config.json").is_file():
+        raise BenchInputError(f"--resume: {run_dir} holds no config.json (not a bench run)")
+    if (run_dir / "metrics.csv").exists() and not (overwrite or resume):
         raise BenchInputError(
-            f"{run_dir} already holds a run; pick another --run or pass --overwrite"
+            f"{run_dir} already holds a run; pick another --run, pass --overwrite, or "
+            f"--resume {run_dir}"
         )
     _check_writable(run_dir)
-    if overwrite:
+    if overwrite or resume:
         for name in ("metrics.csv", "learning_curves.csv", "report.md"):
             (run_dir / name).unlink(missing_ok=True)
+    if overwrite:
+        for old in (run_dir / JOBS_FOLDER).glob("*.json"):
+            old.unlink()
     return run_dir
+
+
+#: Task keys that do not shape an RL job's result (where its files go, the progress bar).
+_NOT_RESULT = ("progress", "model_dir", "tensorboard_log")
+
+
+def job_id(task: dict[str, Any]) -> str:
+    """The id a finished RL job is kept under: everything that shapes its result (not where
+    its files go, nor the progress bar), so a resumed run finds it under another --jobs."""
+    from stcgym.agents.executors import task_id
+
+    return task_id({k: v for k, v in task.items() if k not in _NOT_RESULT})
 
 
 def run_bench(
@@ -234,6 +265,7 @@ def run_bench(
     log: Callable[[str], None] | None = None,
     argv: Sequence[str] | None = None,
     checked: bool = False,
+    resume: bool = False,
 ) -> BenchResult:
     """Run the bench described by a validated ``cfg`` (see :func:`build_config`).
 
@@ -242,6 +274,12 @@ def run_bench(
     has been called already). Rows are appended to ``metrics.csv`` as
     episodes finish; on ``KeyboardInterrupt`` (or any error) the finished rows stay, a partial
     ``report.md`` is written and the exception is re-raised.
+
+    Each finished RL job is kept in ``jobs/<id>.json``. ``resume=True`` continues the run in
+    ``cfg.run_dir`` (``cfg`` read back from its ``config.json``): the classical controllers
+    are evaluated again (deterministic, and cheap next to training), the finished RL jobs are
+    read back instead of retrained, and the rest are trained; the tables and the report are
+    rebuilt, so they equal those of an uninterrupted run.
     """
     from stcgym.agents.benchmark.report import write_report
     from stcgym.agents.executors import write_atomic
@@ -252,7 +290,7 @@ def run_bench(
         check_runnable(cfg)
     scenarios = make_scenarios(cfg)
     envs = training_envs(cfg, scenarios)
-    run_dir = prepare_run_dir(cfg, overwrite)
+    run_dir = prepare_run_dir(cfg, overwrite, resume)
     config_doc = {
         "bench": cfg.to_dict(),
         "scenarios": [
@@ -269,6 +307,11 @@ def run_bench(
         "versions": _versions(),
         "started": _dt.datetime.now().isoformat(timespec="seconds"),
     }
+    if resume:
+        first = json.loads((run_dir / "config.json").read_text())
+        config_doc["started"] = first.get("started")
+        config_doc["resumed"] = [*first.get("resumed", []), config_doc.pop("argv")]
+        config_doc["argv"] = first.get("argv")
     write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
     writer = MetricsWriter(run_dir / "metrics.csv")
     state = _RunState(cfg, run_dir, writer, log, t_start)
@@ -442,6 +485,7 @@ class _RunState:
                 }
             )
         self._write_curves()
+        stop = self.data.stops[(key, algo, ts)] = result["stop"]
         to_oracle = (
             curve_settling_step(result["curve"], oracle_level, TOLERANCE)
             if oracle_level
@@ -455,6 +499,9 @@ class _RunState:
                 "train_seed": ts,
                 "controller_seed": ts,
                 "train_steps": result["steps"],
+                "train_cap": stop["cap"],
+                "train_stop": stop["status"],
+                "train_last_improvement": stop["last_improvement_step"],
                 "train_wall_s": result["wall_s"],
                 "data_steps": result["steps"],
                 "steps_to_oracle": to_oracle,
@@ -507,12 +554,24 @@ class _RunState:
             return
         refs = {k: v["oracle"] for k, v in self.data.reference_lines.items()}
         tasks = rl_tasks(cfg, scenarios, envs, refs, self.run_dir)
+        from stcgym.agents.executors import ResultStore
         from stcgym.agents.rl.training import train_and_evaluate
 
+        store = ResultStore(self.run_dir / JOBS_FOLDER)
+        finished = store.done()
+        todo = []
+        for task in tasks:
+            if job_id(task) in finished:
+                self._collect(task, store.load(job_id(task)))
+                progress.drop(("rl", task["name"]))
+            else:
+                todo.append(task)
+        if len(todo) < len(tasks):
+            self.log(f"{len(tasks) - len(todo)} finished RL jobs read back from {store.folder}")
         failures = []
         for out in run_tasks(
             train_and_evaluate,
-            tasks,
+            todo,
             executor=cfg.executor,
             jobs=cfg.jobs,
             address=cfg.address,
@@ -523,6 +582,7 @@ class _RunState:
                 failures.append(name)
                 self.log(f"RL job {name} FAILED:\n{out.error}")
             else:
+                store.save(job_id(out.task), out.result)
                 self._collect(out.task, out.result)
             progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
         if failures:

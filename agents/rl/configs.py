@@ -14,12 +14,27 @@ Besides the keyword arguments of the Stable-Baselines3 constructor (``hyperparam
 holds the bench-level knobs the Zoo keeps next to them: the number of parallel training envs
 (``n_envs``), reward normalisation (``normalize_reward``, the Zoo's ``normalize``), a fixed
 ``reward_scale`` (off-policy learners), Gaussian exploration noise for TD3 (``noise_std``) and
-the default training budget of the quick and full bench (``quick_steps``, ``full_steps``). The
-quick budgets are what fits three training seeds of PPO, SAC and RecurrentPPO on two training
-environments into the 10 minutes of ``make bench`` on 2 cores (SAC and TD3 make one gradient
-step per environment step, ~10 ms on one core, so they get the smallest budget); they show
-where each agent is after that much data, which is the question of the data-efficiency plot,
-not where it would end up.
+the training caps of each bench tier (``quick_steps``, ``standard_steps`` and
+``standard_family_steps``, ``full_steps``) and the evaluation interval of the plateau rule
+(``eval_interval``, :mod:`stcgym.agents.rl.stopping`): every tier trains an agent until its
+learning curve plateaus or it reaches the tier's cap.
+
+* quick: what fits three training seeds of PPO, SAC and RecurrentPPO on two training
+  environments into the 10 minutes of ``make bench`` on 2 cores (SAC and TD3 make one gradient
+  step per environment step, ~7 ms on one core, so they get the smallest budget); most agents
+  reach the cap before a plateau, which the report says.
+* standard (about an hour on 2 cores): the single-plant caps are the Zoo's tuned
+  ``n_timesteps`` for ``Pendulum-v1`` (``hyperparams/ppo.yml`` 1e5, ``sac.yml`` and
+  ``td3.yml`` 2e4; A2C gets 4e5 instead of ``a2c.yml``'s 1e6); agents trained on the
+  randomised plant family get 3-5x more (``standard_family_steps``: PPO 3e5, SAC and TD3
+  1e5), RecurrentPPO the Zoo's budget of its closest entry, ``PendulumNoVel-v1`` in
+  ``hyperparams/ppo_lstm.yml`` (1e5). The Zoo tuned these budgets to where the learning curve
+  has levelled off on the pendulum; the plateau rule stops a run earlier when ours levels off
+  first, and the report says which runs hit the cap before a plateau.
+* full: long caps for a day on 2 cores.
+
+``eval_interval`` is a whole number of PPO / RecurrentPPO rollouts (``n_steps x n_envs``), so
+that each evaluation sees a freshly updated policy.
 
 Override anything from the command line with ``--hp ALGO.KEY=VALUE``; ``VALUE`` is read as a
 Python literal when it is one (``3e-4``, ``True``, ``[32, 32]``, ``{"net_arch": [32]}``) and as
@@ -108,7 +123,10 @@ class AlgoConfig:
     cost_squash: float | None = 1.0
     noise_std: float = 0.0
     quick_steps: int = 10_000
+    standard_steps: int = 100_000
+    standard_family_steps: int = 100_000
     full_steps: int = 100_000
+    eval_interval: int = 10_000
     policy: str = "MlpPolicy"
     window: dict[str, Any] = field(default_factory=dict)
 
@@ -139,8 +157,11 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         },
         n_envs=4,
         normalize_reward=True,
-        quick_steps=20_000,
+        quick_steps=40_960,
+        standard_steps=100_000,  # Zoo ppo.yml Pendulum-v1 n_timesteps
+        standard_family_steps=300_000,
         full_steps=400_000,
+        eval_interval=10_240,  # 5 rollouts of 4 x 512
     ),
     # Zoo Pendulum-v1: lr 1e-3, otherwise SB3 defaults (buffer 1e6, batch 256, tau 0.005).
     "sac": AlgoConfig(
@@ -155,8 +176,11 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
             "gradient_steps": 1,
             "policy_kwargs": dict(_NET),
         },
-        quick_steps=3_000,
+        quick_steps=6_000,
+        standard_steps=20_000,  # Zoo sac.yml Pendulum-v1 n_timesteps
+        standard_family_steps=100_000,
         full_steps=100_000,
+        eval_interval=2_000,
     ),
     # Zoo Pendulum-v1: normal action noise 0.1, lr 1e-3, batch 256, train_freq 1. Rewards
     # scaled by 0.1: at 1.0 the deterministic actor ran into the input bound early and stayed
@@ -180,8 +204,11 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         },
         reward_scale=0.1,
         noise_std=0.05,
-        quick_steps=3_000,
+        quick_steps=6_000,
+        standard_steps=20_000,  # Zoo td3.yml Pendulum-v1 n_timesteps
+        standard_family_steps=100_000,
         full_steps=100_000,
+        eval_interval=2_000,
     ),
     # Zoo Pendulum-v1 (A2C): n_envs 8, n_steps 8, gamma 0.9, RMSprop, gSDE, log_std_init -2.
     "a2c": AlgoConfig(
@@ -202,7 +229,11 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         n_envs=8,
         normalize_reward=True,
         quick_steps=40_000,
+        # the Zoo's 1e6 (a2c.yml Pendulum-v1) would take ~30 min per seed here: the full cap
+        standard_steps=400_000,
+        standard_family_steps=400_000,
         full_steps=400_000,
+        eval_interval=20_480,  # 320 rollouts of 8 x 8
     ),
     # sb3-contrib RecurrentPPO, after the Zoo's ppo_lstm entries for the velocity-free
     # Pendulum (n_envs 4, gamma 0.9, lr 1e-3, LSTM policy with a [64] head): an LSTM of 32
@@ -227,8 +258,11 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         },
         n_envs=4,
         normalize_reward=True,
-        quick_steps=8_000,
+        quick_steps=15_360,
+        standard_steps=100_000,  # Zoo ppo_lstm.yml PendulumNoVel-v1 n_timesteps
+        standard_family_steps=100_000,
         full_steps=300_000,
+        eval_interval=5_120,  # 5 rollouts of 4 x 256
         policy="MlpLstmPolicy",
         window={"window": 2},
     ),
@@ -413,7 +447,10 @@ FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "cost_squash": _OPT_POSITIVE,
     "noise_std": _NONNEG,
     "quick_steps": _COUNT,
+    "standard_steps": _COUNT,
+    "standard_family_steps": _COUNT,
     "full_steps": _COUNT,
+    "eval_interval": _COUNT,
     "policy": _rule(lambda v: isinstance(v, str) and bool(v), "a policy name such as MlpPolicy"),
     "window": _rule(lambda v: isinstance(v, dict), "a dict of WindowConfig fields"),
     "hyperparams": _rule(lambda v: isinstance(v, dict), "a dict"),

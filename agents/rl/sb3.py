@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
+from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker, StopSummary
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 from stcgym.envs.validation import integer
 
@@ -122,6 +123,8 @@ class TrainedAgent:
     path: Path | None = None
     #: training step of the kept checkpoint (``steps`` unless ``keep_best`` picked an earlier one)
     best_step: int | None = None
+    #: how training ended (with a plateau rule; ``None`` for a fixed budget)
+    stop: StopSummary | None = None
 
 
 def curve_cost(policy: Any, spec: EnvSpec, seeds: Sequence[int], plants: Sequence[str]) -> float:
@@ -139,16 +142,22 @@ def _progress_bar_wanted(progress: bool | None) -> bool:
     return sys.stderr.isatty()
 
 
-def curve_checkpoints(steps: int, points: int) -> list[int]:
-    """Training steps at which the learning curve is measured, log-spaced up to ``steps``.
+def curve_checkpoints(steps: int, points: int, eval_interval: int | None = None) -> list[int]:
+    """Training steps at which the learning curve is measured.
 
-    Log spacing puts as many points on 1e3-1e4 steps as on 1e4-1e5, which is what the
-    data-efficiency plot (log-x) needs; step 0 (the untrained policy) is always measured too.
+    Without ``eval_interval``: ``points`` log-spaced steps up to ``steps``. Log spacing puts as
+    many points on 1e3-1e4 steps as on 1e4-1e5, which is what the data-efficiency plot (log-x)
+    needs. With it: ``points`` log-spaced steps up to the first interval, then every
+    ``eval_interval`` steps up to ``steps`` (the evaluations of the plateau rule). Step 0 (the
+    untrained policy) is always measured too.
     """
     steps, points = int(steps), max(1, int(points))
-    first = max(1, min(1000, steps // (2 * points) or 1))
-    marks = np.unique(np.round(np.geomspace(first, steps, points)).astype(int))
-    return [int(m) for m in marks]
+    head = steps if eval_interval is None else min(steps, int(eval_interval))
+    first = max(1, min(1000, head // (2 * points) or 1))
+    marks = np.round(np.geomspace(first, head, points)).astype(int)
+    if eval_interval is not None:
+        marks = np.concatenate([marks, np.arange(head, steps + 1, int(eval_interval))])
+    return [int(m) for m in np.unique(marks)]
 
 
 def _make_callback(
@@ -158,50 +167,89 @@ def _make_callback(
     evaluate_curve: Any,
     keep_best: bool,
     reference: float | None,
+    plateau: PlateauRule | None = None,
+    eval_interval: int | None = None,
 ) -> Any:
+    """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own cost.
+
+    With ``plateau``, every evaluation at a multiple of ``eval_interval`` is passed to SB3's
+    ``StopTrainingOnNoModelImprovement`` (its ``callback_after_eval``), which stops training
+    after ``plateau.patience`` evaluations without a gain of ``plateau.min_improvement``.
+    """
     import copy
 
-    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.callbacks import (
+        EventCallback,
+        StopTrainingOnNoModelImprovement,
+    )
 
-    class _Curve(BaseCallback):
+    tracker = None if plateau is None else PlateauTracker(plateau)
+    after_eval = (
+        None
+        if plateau is None
+        else StopTrainingOnNoModelImprovement(max_no_improvement_evals=plateau.patience - 1)
+    )
+
+    class _Curve(EventCallback):
         # Recorded at the start of a rollout, i.e. right after the previous policy update (PPO
         # collects n_steps x n_envs before it learns; SAC/TD3 update after every rollout).
         def _on_training_start(self) -> None:
+            super()._on_training_start()
             self.best_cost, self.best_state, self.best_step = float("inf"), None, 0
+            self.tracker, self.stopped_at = tracker, None
+            self._continue = True
             self._marks = list(checkpoints)
             self._record()
+
+        @property
+        def best_mean_reward(self) -> float:
+            # what StopTrainingOnNoModelImprovement reads: only a gain above the minimum counts
+            return self.tracker.best_mean_reward
 
         def _record(self) -> None:
             cost = evaluate_curve(policy)
             curve.append((int(self.num_timesteps), cost))
+            rule_eval = False
             while self._marks and self._marks[0] <= self.num_timesteps:
-                self._marks.pop(0)
+                mark = self._marks.pop(0)
+                rule_eval |= eval_interval is not None and mark > 0 and mark % eval_interval == 0
             # Through SB3's logger: TensorBoard (--tensorboard-log) shows the curve next to
             # SB3's own training statistics.
             self.logger.record("eval/curve_cost", cost)
             if reference is not None and reference > 0:
                 self.logger.record("eval/cost_to_oracle", cost / reference)
+            if self.tracker is not None and rule_eval:
+                self.tracker.observe(self.num_timesteps, cost)
+                self._continue = self._on_event()
+                self.logger.record("eval/plateau_reference_cost", self.tracker.reference_cost)
+                self.logger.record(
+                    "eval/evals_without_improvement", after_eval.no_improvement_evals
+                )
+                if not self._continue:
+                    self.stopped_at = int(self.num_timesteps)
             self.logger.dump(self.num_timesteps)
             if keep_best and cost < self.best_cost:
                 self.best_cost, self.best_step = cost, int(self.num_timesteps)
                 self.best_state = copy.deepcopy(self.model.policy.state_dict())
 
         def _on_rollout_start(self) -> None:
-            if self._marks and self.num_timesteps >= self._marks[0]:
+            if self._continue and self._marks and self.num_timesteps >= self._marks[0]:
                 self._record()
 
         def _on_step(self) -> bool:
-            return True
+            # SB3 stops learn() when a callback's on_step returns False
+            return self._continue
 
         def _on_training_end(self) -> None:
-            if curve[-1][0] != self.num_timesteps:
+            # (after a stop the policy is the one just evaluated: no second evaluation)
+            if self.stopped_at is None and curve[-1][0] != self.num_timesteps:
                 self._record()
             if keep_best and self.best_state is not None and self.best_cost < curve[-1][1]:
                 self.model.policy.load_state_dict(self.best_state)
             else:
                 self.best_step = int(self.num_timesteps)
 
-    return _Curve()
+    return _Curve(after_eval)
 
 
 def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor_dir: Any) -> Any:
@@ -289,6 +337,8 @@ def train_agent(
     curve_points: int = 10,
     curve_reference: float | None = None,
     keep_best: bool = True,
+    plateau: PlateauRule | None = None,
+    eval_interval: int | None = None,
     progress: bool | None = None,
     tensorboard_log: str | Path | None = None,
     tb_log_name: str | None = None,
@@ -304,15 +354,16 @@ def train_agent(
     train_spec
         Training environment (a single plant, or a family drawn per episode).
     steps
-        Environment steps of training (``> 0``).
+        Environment steps of training (``> 0``): the budget, or the cap with ``plateau``.
     seed
         Seeds SB3 (network init, exploration) and the training environments.
     out_dir
         Where to save ``model.zip``, ``agent.json`` and the monitor logs (nothing saved when
         ``None``).
     curve_spec, curve_plants, curve_seeds, curve_points
-        Learning curve: at ``curve_points`` log-spaced training steps
-        (:func:`curve_checkpoints`) and at step 0 the deterministic policy runs one episode of
+        Learning curve: at ``curve_points`` log-spaced training steps (up to the first
+        ``eval_interval`` when given, then every ``eval_interval`` steps:
+        :func:`curve_checkpoints`) and at step 0 the deterministic policy runs one episode of
         ``curve_spec`` (default ``train_spec``) per seed and plant (default the training
         plants); the mean cost per step is recorded.
     curve_reference
@@ -331,6 +382,14 @@ def train_agent(
 
     if int(steps) != steps or steps < 1:
         raise ValueError(f"training steps must be a positive integer, got {steps!r}")
+    if plateau is not None:
+        if eval_interval is None or int(eval_interval) != eval_interval or eval_interval < 1:
+            raise ValueError(f"eval_interval must be a positive integer, got {eval_interval!r}")
+        if eval_interval > steps:
+            raise ValueError(
+                f"the cap of {steps} steps is below one evaluation interval ({eval_interval})"
+            )
+        eval_interval = int(eval_interval)
     # Small MLPs: one thread is faster than two fighting over a shared 2-core machine.
     torch.set_num_threads(1)
     window = WindowConfig(**config.window)
@@ -348,10 +407,12 @@ def train_agent(
     callback = _make_callback(
         curve,
         policy,
-        curve_checkpoints(int(steps), curve_points),
+        curve_checkpoints(int(steps), curve_points, eval_interval if plateau else None),
         lambda p: curve_cost(p, cspec, curve_seeds, cplants),
         keep_best,
         curve_reference,
+        plateau,
+        eval_interval,
     )
     t0 = time.perf_counter()
     model.learn(
@@ -364,8 +425,22 @@ def train_agent(
     vec.close()
     # PPO/A2C finish their last rollout, so the steps used can exceed the budget asked for.
     used = int(model.num_timesteps)
+    stop = None
+    if plateau is not None:
+        status = "cap" if callback.stopped_at is None else "plateau"
+        stop = callback.tracker.summary(status, used, int(steps), eval_interval)
     agent = TrainedAgent(
-        algo, policy, config, int(seed), train_spec, used, wall, curve, out, callback.best_step
+        algo,
+        policy,
+        config,
+        int(seed),
+        train_spec,
+        used,
+        wall,
+        curve,
+        out,
+        callback.best_step,
+        stop,
     )
     if out is not None:
         save_agent(agent, out)
@@ -388,6 +463,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "train_spec": agent.train_spec.to_dict(),
         "curve": [list(p) for p in agent.curve],
         "best_step": agent.best_step,
+        "stop": None if agent.stop is None else agent.stop.to_dict(),
     }
     (folder / "agent.json").write_text(json.dumps(meta, indent=2))
     return folder
@@ -416,4 +492,5 @@ def load_agent(folder: str | Path) -> TrainedAgent:
         [tuple(p) for p in meta["curve"]],
         folder,
         meta.get("best_step"),
+        None if meta.get("stop") is None else StopSummary(**meta["stop"]),
     )

@@ -4,8 +4,9 @@ A task is plain JSON data (:func:`training_task` builds it), so the bench hands 
 executor of :mod:`stcgym.agents.executors` (a local process pool or Ray) and resumable stores
 can key it by :func:`~stcgym.agents.executors.task_id`. :func:`train_and_evaluate` is the
 module-level function the workers call; it returns plain data (metrics and per-step costs of
-every evaluation episode, the learning curve, one trace per scenario for the plots). It writes
-only the agent's own model folder and TensorBoard run; the driver writes every result file.
+every evaluation episode, the learning curve, how training stopped, one trace per scenario for
+the plots). It writes only the agent's own model folder and TensorBoard run; the driver writes
+every result file.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 
 from stcgym.agents.benchmark.evaluate import EnvSpec, evaluate
 from stcgym.agents.rl.configs import AlgoConfig
+from stcgym.agents.rl.stopping import PlateauRule
 
 __all__ = ["train_and_evaluate", "training_task"]
 
@@ -25,6 +27,7 @@ def training_task(
     config: AlgoConfig,
     seed: int,
     steps: int,
+    plateau: PlateauRule,
     train_key: str,
     train_env: EnvSpec,
     curve_env: EnvSpec,
@@ -38,9 +41,11 @@ def training_task(
 ) -> dict[str, Any]:
     """The JSON task of one (training env, agent, seed).
 
-    ``evaluations`` are ``{"scenario", "env" (EnvSpec dict), "plant", "seeds", "trace_seed"}``:
-    the scenarios that use this agent, the evaluation seeds, and the seed whose traces come back
-    for the plots (``None``: none).
+    ``steps`` is the cap: training stops earlier at the plateau of the learning curve
+    (``plateau``, judged every ``config.eval_interval`` env steps). ``evaluations`` are
+    ``{"scenario", "env" (EnvSpec dict), "plant", "seeds", "trace_seed"}``: the scenarios that
+    use this agent, the evaluation seeds, and the seed whose traces come back for the plots
+    (``None``: none).
     """
     return {
         "name": f"{train_key.replace(':', '-')}_{algo}_s{seed}",
@@ -48,6 +53,7 @@ def training_task(
         "config": config.to_dict(),
         "seed": int(seed),
         "steps": int(steps),
+        "plateau": plateau.to_dict(),
         "train_key": train_key,
         "train_env": train_env.to_dict(),
         "curve_env": curve_env.to_dict(),
@@ -65,9 +71,10 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
     """Train the agent of ``task`` and evaluate it on the task's scenarios (worker side)."""
     from stcgym.agents.rl.sb3 import train_agent
 
+    config = AlgoConfig.from_dict(task["config"])
     agent = train_agent(
         task["algo"],
-        AlgoConfig.from_dict(task["config"]),
+        config,
         EnvSpec.from_dict(task["train_env"]),
         task["steps"],
         task["seed"],
@@ -76,6 +83,8 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
         curve_seeds=task["curve_seeds"],
         curve_points=task["curve_points"],
         curve_reference=task["curve_reference"],
+        plateau=PlateauRule(**task["plateau"]),
+        eval_interval=config.eval_interval,
         progress=task["progress"],
         tensorboard_log=task["tensorboard_log"],
         tb_log_name=task["name"],
@@ -103,6 +112,7 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
         "steps": agent.steps,
         "wall_s": agent.wall_s,
         "best_step": agent.best_step,
+        "stop": agent.stop.to_dict(),
         "curve": [[int(s), float(c)] for s, c in agent.curve],
         "episodes": episodes,
     }

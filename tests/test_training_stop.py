@@ -1,0 +1,192 @@
+"""The plateau rule: its bookkeeping, its wiring into SB3's training loop, its bad input."""
+
+from __future__ import annotations
+
+import pytest
+
+from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.agents.rl import sb3 as sb3_mod
+from stcgym.agents.rl.configs import default_config
+from stcgym.agents.rl.sb3 import curve_checkpoints, train_agent
+from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
+
+
+def _expected_stop(costs, min_improvement, patience):
+    """The rule written out by hand: (index of the stopping evaluation or None, index of the
+    last evaluation that improved)."""
+    reference, last, quiet = None, None, 0
+    for i, c in enumerate(costs):
+        if reference is None or c < reference * (1 - min_improvement):
+            reference, last, quiet = c, i, 0
+        else:
+            quiet += 1
+            if quiet == patience:
+                return i, last
+    return None, last
+
+
+# 9.6 is a 4 % gain on 10 (not enough), 9.4 a 6 % gain (enough); 9.0 is 4.3 % below 9.4, 8.9
+# 5.3 %; then 8.8, 8.7, 8.6 are three evaluations without a 5 % gain.
+COSTS = [10.0, 9.6, 9.4, 9.0, 8.9, 8.8, 8.7, 8.6, 1.0]
+
+
+def test_hand_worked_sequence():
+    assert _expected_stop(COSTS, 0.05, 3) == (7, 4)
+
+
+def test_tracker_moves_the_reference_only_on_a_gain_above_the_minimum():
+    tracker = PlateauTracker(PlateauRule(0.05, 3))
+    gains = [tracker.observe(100 * (i + 1), c) for i, c in enumerate(COSTS[:8])]
+    assert gains == [True, False, True, False, True, False, False, False]
+    assert tracker.reference_cost == 8.9 and tracker.last_improvement_step == 500
+    assert tracker.best_mean_reward == -8.9  # what SB3's StopTrainingOnNoModelImprovement reads
+    assert tracker.evaluations == 8
+
+
+def test_a_non_finite_cost_never_improves():
+    tracker = PlateauTracker(PlateauRule())
+    assert not tracker.observe(1, float("nan"))
+    assert tracker.observe(2, 5.0) and not tracker.observe(3, float("inf"))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"patience": 0}, "--patience must be an integer >= 1"),
+        ({"patience": -2}, "--patience must be an integer >= 1"),
+        ({"patience": 2.5}, "--patience must be an integer >= 1"),
+        ({"min_improvement": 1.0}, "--min-improvement must be a number in [0, 1)"),
+        ({"min_improvement": -0.1}, "--min-improvement must be a number in [0, 1)"),
+        ({"min_improvement": float("nan")}, "--min-improvement must be a number in [0, 1)"),
+    ],
+)
+def test_rule_rejects_values_it_cannot_meet(kwargs, message):
+    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace(")", r"\)")):
+        PlateauRule(**kwargs)
+
+
+def test_curve_checkpoints_log_spaced_then_every_interval():
+    marks = curve_checkpoints(1000, 3, 200)
+    assert marks[-5:] == [200, 400, 600, 800, 1000]
+    assert marks[0] < marks[1] < 200  # log-spaced points below the first interval
+    assert curve_checkpoints(1000, 3) == sorted(set(curve_checkpoints(1000, 3)))
+    assert curve_checkpoints(1000, 3)[-1] == 1000
+
+
+# PPO with 2 envs x 64 steps: one rollout = 128 env steps = one evaluation interval, so every
+# evaluation of the rule happens exactly at a multiple of 128.
+ROLLOUT = 128
+
+
+def _scripted(monkeypatch, costs):
+    """Replace the learning-curve cost by COSTS[k - 1] at evaluation k (step k x ROLLOUT)."""
+
+    def fake_curve_cost(policy, spec, seeds, plants):
+        step = policy.model.num_timesteps
+        return 50.0 if step == 0 else costs[min(step // ROLLOUT, len(costs)) - 1]
+
+    monkeypatch.setattr(sb3_mod, "curve_cost", fake_curve_cost)
+
+
+def _train(cap, rule):
+    config = default_config("ppo")
+    config.n_envs = 2
+    config.hyperparams.update(n_steps=64, batch_size=64, n_epochs=1)
+    spec = EnvSpec(("stable2",), steps=60)
+    return train_agent(
+        "ppo", config, spec, cap, 0, curve_points=1, plateau=rule, eval_interval=ROLLOUT
+    )
+
+
+def test_training_stops_at_the_plateau_through_sb3(monkeypatch):
+    _scripted(monkeypatch, COSTS)
+    agent = _train(30 * ROLLOUT, PlateauRule(0.05, 3))
+    stop_index, last = _expected_stop(COSTS, 0.05, 3)
+    stop = agent.stop
+    assert stop.status == "plateau"
+    assert stop.evaluations == stop_index + 1
+    assert stop.last_improvement_step == (last + 1) * ROLLOUT
+    assert stop.reference_cost == COSTS[last]
+    # the last evaluation is the one that stopped training; SB3 stops on the next env step
+    assert agent.curve[-1][0] == (stop_index + 1) * ROLLOUT
+    assert agent.steps == (stop_index + 1) * ROLLOUT + 2
+    assert stop.cap == 30 * ROLLOUT and "5 %" in stop.rule and "3 consecutive" in stop.rule
+
+
+def test_training_that_still_improves_runs_to_the_cap(monkeypatch):
+    _scripted(monkeypatch, COSTS)
+    agent = _train(5 * ROLLOUT, PlateauRule(0.05, 3))
+    assert agent.stop.status == "cap"
+    assert agent.steps >= 5 * ROLLOUT
+    assert agent.stop.evaluations == 5
+    assert agent.stop.last_improvement_step == 5 * ROLLOUT
+
+
+def test_cap_below_one_interval_is_refused():
+    with pytest.raises(ValueError, match="below one evaluation interval"):
+        train_agent(
+            "ppo",
+            default_config("ppo"),
+            EnvSpec(("stable2",), steps=60),
+            100,
+            0,
+            plateau=PlateauRule(),
+            eval_interval=ROLLOUT,
+        )
+
+
+def _rl_rows(stops):
+    """metrics.csv rows of one RL agent: two evaluation seeds per training seed."""
+    return [
+        {
+            "train_seed": ts,
+            "train_stop": status,
+            "train_steps": steps,
+            "train_last_improvement": last,
+        }
+        for ts, (status, steps, last) in enumerate(stops)
+        for _ in range(2)
+    ]
+
+
+def test_report_says_how_training_ended_and_names_capped_agents():
+    from stcgym.agents.benchmark import report
+
+    mixed = report.training_stops(_rl_rows([("plateau", 51_200, 20_480), ("cap", 100_000, 92_160)]))
+    assert (mixed["seeds"], mixed["plateau"], mixed["cap"]) == (2, 1, 1)
+    assert report._training_cell({"training": mixed}) == (
+        "plateau 1/2, cap 1/2; last gain at 20.5k-92.2k"
+    )
+    converged = report.training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 3))
+    assert report._training_cell({"training": converged}) == "plateau 3/3; last gain at 10.2k"
+    hl = {"ppo": {"training": mixed}, "sac": {"training": converged}, "oracle": {}}
+    assert report._still_improving(hl, ["ppo", "sac", "oracle"]) == (
+        " (at the training cap before a plateau: ppo in 1/2 seeds)"
+    )
+    assert report._still_improving(hl, ["sac", "oracle"]) == ""
+    assert report._converged(hl["sac"]) == " (trained to its plateau in 3/3 seeds)"
+    assert report._converged(hl["ppo"]) == report._converged(hl["oracle"]) == ""
+    assert report._training_cell(hl["oracle"]) == "-"
+
+
+def test_conclusions_say_where_rl_wins_and_qualify_wins_over_capped_agents():
+    from stcgym.agents.benchmark import report
+    from stcgym.agents.benchmark.statistics import Estimate
+
+    capped = report.training_stops(_rl_rows([("cap", 100_000, 92_160)] * 2))
+    converged = report.training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 2))
+    hl = {
+        "ppo": {"training": capped, "poi": Estimate(0.9, 0.8, 1.0)},  # stc wins
+        "sac": {"training": converged, "poi": Estimate(0.1, 0.0, 0.2)},  # sac wins
+        "lqg": {"poi": Estimate(0.2, 0.1, 0.3)},  # a classical controller is no RL agent
+    }
+    line = report._sentences("nominal:stable2", hl, jump=False)
+    parts = line.split("; ")
+    assert parts[0].endswith(
+        "stc has the lower episode cost more often than not against ppo "
+        "(at the training cap before a plateau: ppo in 2/2 seeds)"
+    )
+    assert parts[1] == (
+        "sac has the lower episode cost than stc more often than not "
+        "(sac trained to the plateau in every seed)."
+    )
