@@ -1,0 +1,327 @@
+"""The multi-input multi-output plants: any state-space system (matrices, a python-control
+system or a MIMO catalogue name) and the multichannel static object of Voevoda & Troshina (2017),
+on the common :class:`~stcgym.envs.linear_plant.LinearPlantEnv` (timing, reward, termination,
+randomness: see :mod:`stcgym.envs.linear_plant`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.envs import dynamics
+from stcgym.envs.linear_plant import _EMPTY, LinearPlantEnv
+from stcgym.envs.mimo_plants import get_mimo_plant
+from stcgym.envs.validation import matrix, positive
+
+__all__ = ["DEFAULT_STATE_SPACE", "MultichannelStaticEnv", "StateSpaceEnv"]
+
+#: The plant of ``gym.make("stcgym/StateSpace-v0")`` without matrices: a stable, coupled
+#: two-state, two-input plant (eigenvalues 0.9 and 0.8) with measured state (``C = I``, ``D = 0``).
+DEFAULT_STATE_SPACE = {
+    "A": ((0.9, 0.1), (0.0, 0.8)),
+    "B": ((1.0, 0.0), (0.5, 1.0)),
+}
+
+
+class StateSpaceEnv(LinearPlantEnv):
+    """MIMO discrete plant ``x(k+1) = A x + B u + w``, ``y = C x + D u + v``.
+
+    Parameters
+    ----------
+    A, B, C, D : array_like, optional
+        Matrices, finite: ``A`` square ``(n, n)``, ``B`` ``(n, m)``, ``C`` ``(p, n)``, ``D``
+        ``(p, m)``. ``C`` defaults to the identity (the measured-state plant of Kunik et al.
+        2001), ``D`` to zero. Or give ``sys`` instead. With neither, the documented default
+        plant :data:`DEFAULT_STATE_SPACE` (two states, two inputs, measured state).
+    plant : str, optional
+        A name of the MIMO catalogue (:data:`stcgym.envs.mimo_plants.MIMO_PLANTS`: its
+        zero-order-hold ``A``, ``B``, measured state; ``dt`` its sample time), instead of the
+        matrices or ``sys``.
+    sys : python-control system, optional
+        Any python-control ``StateSpace`` or ``TransferFunction`` (or anything ``control.ss``
+        accepts). A continuous system is discretised with ``control.sample_system(sys, dt,
+        "zoh")``, so ``dt`` is then required.
+    dt : float, optional
+        Sample time (``> 0``) for discretising a continuous ``sys``; with matrices, recorded in
+        :attr:`sys` (default ``True``: discrete, unspecified sample time).
+    canonical : {None, "reachable", "observable", "modal"}, default None
+        A python-control canonical form, applied with ``control.canonical_form`` after
+        discretisation (SISO plants only).
+    schedule : schedule spec, optional
+        Acts on the stacked matrix ``[A B]`` (shape ``(n, n + m)``).
+    **kwargs
+        Other keyword arguments as in :class:`LinearPlantEnv`; ``reference`` may be one spec
+        for every output or a list with one per output.
+
+    ``reset(options=...)`` accepts ``"A"`` and ``"B"`` to override this episode's matrices.
+    ``info`` carries ``"x"``, ``"y_clean"``, ``"params"`` (``[A B]`` in force) and ``"t"``.
+    ``env.unwrapped.sys`` is the discrete python-control system of the nominal plant (built on
+    request: the env itself holds only arrays, so it pickles). Registered as
+    ``stcgym/StateSpace-v0``.
+
+    Raises
+    ------
+    ValueError
+        Matrices of wrong or inconsistent shapes or not finite (naming the matrix); ``sys``
+        together with matrices; only one of ``A``, ``B``; a continuous ``sys`` without ``dt``;
+        ``dt <= 0``; an unknown ``canonical``, or one python-control cannot apply to this plant;
+        any value :class:`LinearPlantEnv` rejects.
+    TypeError
+        ``sys`` that ``control.ss`` does not accept; a value of the wrong kind.
+
+    Examples
+    --------
+    The default plant (measured state, square-wave reference on both outputs):
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/StateSpace-v0")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs  # [y(0), r(0)], two outputs each
+    array([0., 0., 1., 1.])
+    >>> obs, reward, *_ = env.step(np.array([1.0, 0.0]))
+    >>> obs  # y(1) = C x(1) = B u(0)
+    array([1. , 0.5, 1. , 1. ])
+
+    A continuous first-order lag ``1 / (s + 1)`` from python-control, sampled at ``dt = 0.1``:
+
+    >>> import control
+    >>> env = gym.make("stcgym/StateSpace-v0", sys=control.tf([1.0], [1.0, 1.0]), dt=0.1)
+    >>> np.round(env.unwrapped.A, 6), np.round(env.unwrapped.B, 6)
+    (array([[0.904837]]), array([[0.095163]]))
+    """
+
+    reset_options = LinearPlantEnv.reset_options | {"A", "B"}
+
+    def __init__(
+        self,
+        A: ArrayLike | None = None,
+        B: ArrayLike | None = None,
+        C: ArrayLike | None = None,
+        D: ArrayLike | None = None,
+        *,
+        plant: str | None = None,
+        sys: Any = None,
+        dt: float | None = None,
+        canonical: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        import control
+
+        if dt is not None:
+            dt = positive(dt, "dt")
+        if canonical is not None and canonical not in ("reachable", "observable", "modal"):
+            raise ValueError(
+                f"canonical must be None, 'reachable', 'observable' or 'modal', got {canonical!r}"
+            )
+        self.mimo_plant = None if plant is None else get_mimo_plant(plant)
+        if self.mimo_plant is not None:
+            if sys is not None or any(v is not None for v in (A, B, C, D, dt)):
+                raise ValueError("give either plant (a MIMO catalogue name) or A, B (C, D), sys")
+            A, B = self.mimo_plant.discrete()
+            dt = self.mimo_plant.dt
+        if sys is not None:
+            if A is not None or B is not None or C is not None or D is not None:
+                raise ValueError("give either sys or the matrices A, B (C, D), not both")
+            try:
+                sysd = control.ss(sys)
+            except Exception as exc:  # python-control raises many types for a bad system
+                raise TypeError(
+                    f"sys must be a python-control system (StateSpace, TransferFunction) or "
+                    f"anything control.ss accepts, got {sys!r}"
+                ) from exc
+            if sysd.isctime(strict=True):
+                if dt is None:
+                    raise ValueError("dt (> 0) is required to discretise a continuous sys")
+                sysd = control.sample_system(sysd, dt, method="zoh")
+            if canonical is not None:
+                sysd = _canonical_form(sysd, canonical)
+            A_, B_ = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
+            C_, D_ = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
+            self.dt = sysd.dt
+            A_, B_ = matrix(A_, "sys.A", (None, None)), matrix(B_, "sys.B", (A_.shape[0], None))
+        else:
+            if A is None and B is None:
+                A, B = DEFAULT_STATE_SPACE["A"], DEFAULT_STATE_SPACE["B"]
+            if A is None or B is None:
+                raise ValueError("StateSpaceEnv needs both matrices A and B (or sys=...)")
+            A_ = matrix(A, "A", (None, None))
+            if A_.shape[0] != A_.shape[1]:
+                raise ValueError(f"A must be square (n x n), got shape {A_.shape}")
+            n = A_.shape[0]
+            B_ = matrix(B, "B", (n, None))
+            C_ = np.eye(n) if C is None else matrix(C, "C", (None, n))
+            D_ = (
+                np.zeros((C_.shape[0], B_.shape[1]))
+                if D is None
+                else matrix(D, "D", (C_.shape[0], B_.shape[1]))
+            )
+            self.dt = True if dt is None else dt
+            if canonical is not None:
+                sysd = _canonical_form(control.ss(A_, B_, C_, D_, self.dt), canonical)
+                A_, B_ = np.asarray(sysd.A, float), np.asarray(sysd.B, float)
+                C_, D_ = np.asarray(sysd.C, float), np.asarray(sysd.D, float)
+        self.A_nominal, self.B_nominal = np.ascontiguousarray(A_), np.ascontiguousarray(B_)
+        self.C, self.D = np.ascontiguousarray(C_), np.ascontiguousarray(D_)
+        n, m = self.B_nominal.shape
+        self._tmp = np.zeros(n)
+        super().__init__(n_states=n, n_inputs=m, n_outputs=self.C.shape[0], **kwargs)
+        self._set_params(np.hstack((self.A_nominal, self.B_nominal)))
+
+    @property
+    def sys(self) -> Any:
+        """The discrete python-control system of the nominal plant (a new object per call).
+
+        Examples
+        --------
+        >>> import gymnasium as gym
+        >>> import stcgym.envs
+        >>> sys = gym.make("stcgym/StateSpace-v0").unwrapped.sys
+        >>> sys.nstates, sys.ninputs, sys.noutputs, sys.isdtime()
+        (2, 2, 2, True)
+        """
+        import control
+
+        return control.ss(self.A_nominal, self.B_nominal, self.C, self.D, self.dt)
+
+    def _parse_options(self, options: dict[str, Any]) -> NDArray | None:
+        if "A" not in options and "B" not in options:
+            return None
+        n, m = self.B_nominal.shape
+        A = matrix(options["A"], "options['A']", (n, n)) if "A" in options else self.A_nominal
+        B = matrix(options["B"], "options['B']", (n, m)) if "B" in options else self.B_nominal
+        return np.hstack((A, B))
+
+    def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:
+        return np.hstack((self.A_nominal, self.B_nominal)) if parsed is None else parsed
+
+    def _matrices(self, params: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        n = self.n_states
+        return params[:, :n], params[:, n:], self.C, self.D
+
+    def _plant_step(
+        self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
+    ) -> tuple[float, bool, bool]:
+        return dynamics.state_space_plant_step(
+            self._x, self.params, self.C, self.D, u_raw, self.action_bound,
+            self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
+            self.y_bound, self._u, self._y_clean, self._y, self._tmp,
+        )  # fmt: skip
+
+    def _reset_output(self) -> None:
+        dynamics.state_output(self._x, self.C, self._y_clean)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        spec = state.get("spec")
+        if spec is not None and "sys" in spec.kwargs:
+            # gym.make keeps its kwargs in env.spec; a python-control system holds a lambda.
+            # Re-specify the same plant by its discrete matrices.
+            kwargs = {k: v for k, v in spec.kwargs.items() if k not in ("sys", "canonical")}
+            kwargs.update(A=self.A_nominal, B=self.B_nominal, C=self.C, D=self.D, dt=self.dt)
+            state["spec"] = dataclasses.replace(spec, kwargs=kwargs)
+        return state
+
+
+def _canonical_form(sys: Any, form: str) -> Any:
+    import control
+
+    try:
+        return control.canonical_form(sys, form)[0]
+    except control.ControlNotImplemented as exc:
+        raise ValueError(f"canonical={form!r} needs a SISO plant (python-control): {exc}") from exc
+
+
+class MultichannelStaticEnv(LinearPlantEnv):
+    """Static multichannel object ``y^T = u^T Theta + v^T`` (Voevoda & Troshina 2017).
+
+    The action ``u(k)`` (``n_inputs`` values) produces ``y(k+1) = Theta^T u(k) + v(k+1)``; it is
+    the state-space plant with no state and ``D = Theta^T``, so the timing convention of the
+    module holds. Default ``Theta = [[1, 2], [0, 1]]`` and ``noise_std = 0.1`` (variance 0.01), the
+    seed's worked example. ``schedule`` acts on ``Theta``; ``reset(options={"theta": ...})``
+    overrides it for one episode. The reward tracks the vector reference. Registered as
+    ``stcgym/MultichannelStatic-v0`` (no vector env).
+
+    Parameters
+    ----------
+    theta : array_like, shape (n_inputs, n_outputs), default ((1, 2), (0, 1))
+        ``Theta``, finite; row ``i`` holds input ``i``'s gains to every output.
+    noise_std : float, default 0.1
+        Standard deviation of the white Gaussian output noise ``v`` (``>= 0``).
+    **kwargs
+        ``reference``, ``schedule``, ``action_bound``, ``control_cost``, ``y_bound``,
+        ``render_mode`` as in :class:`LinearPlantEnv`; ``reference`` may be a list with one
+        spec per output.
+
+    ``info`` carries ``"theta"`` (``Theta`` in force), ``"y_clean"``, ``"t"`` and an empty
+    ``"x"``.
+
+    Raises
+    ------
+    ValueError
+        ``theta`` not a finite 2-D matrix; ``process_noise_std`` or ``initial_state`` given (the
+        object has no state); any value :class:`LinearPlantEnv` rejects.
+    TypeError
+        A value of the wrong kind.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> env = gym.make("stcgym/MultichannelStatic-v0", noise_std=0.0, reference="zero")
+    >>> obs, info = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0, 1.0]))
+    >>> obs  # [y(1), r(1)] with y(1) = Theta^T u(0)
+    array([1., 3., 0., 0.])
+    >>> info["theta"]
+    array([[1., 2.],
+           [0., 1.]])
+    """
+
+    reset_options = frozenset({"theta"})
+
+    def __init__(
+        self, theta: ArrayLike = ((1.0, 2.0), (0.0, 1.0)), *, noise_std: float = 0.1, **kwargs: Any
+    ) -> None:
+        self._theta0 = matrix(theta, "theta", (None, None))
+        n_in, n_out = self._theta0.shape
+        if "process_noise_std" in kwargs or "initial_state" in kwargs:
+            raise ValueError("a static object has no state: no process noise or initial state")
+        super().__init__(n_states=0, n_inputs=n_in, n_outputs=n_out, noise_std=noise_std, **kwargs)
+        self._set_params(self._theta0.copy())
+
+    def _parse_options(self, options: dict[str, Any]) -> NDArray | None:
+        if "theta" in options:
+            return matrix(options["theta"], "options['theta']", self._theta0.shape)
+        return None
+
+    def _nominal_params(self, parsed: NDArray | None, rng: np.random.Generator) -> NDArray:
+        return self._theta0.copy() if parsed is None else parsed
+
+    def _matrices(self, params: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        n_in, n_out = params.shape
+        return np.zeros((0, 0)), np.zeros((0, n_in)), np.zeros((n_out, 0)), params.T
+
+    def _plant_step(
+        self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
+    ) -> tuple[float, bool, bool]:
+        # y(k+1) = Theta(k+1)^T u(k): the output is sampled after the parameters move on.
+        if self.schedule.time_varying:
+            self._set_params(self.schedule(self.t + 1))
+        return dynamics.static_plant_step(
+            self.params, u_raw, self.action_bound, self.noise_std, z_v, r, self.control_cost,
+            self.y_bound, self._u, self._y_clean, self._y, _EMPTY,
+        )  # fmt: skip
+
+    def _reset_output(self) -> None:
+        self._y_clean[:] = 0.0
+
+    def _info(self) -> dict[str, Any]:
+        info = super()._info()
+        info["theta"] = info.pop("params")
+        return info
