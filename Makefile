@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip
 STAMP := $(VENV)/.stcgym-installed
 
-.PHONY: install bench bench-full test test-explore lint perf docs clean clean-cache
+.PHONY: install bench bench-standard bench-full test test-explore lint perf docs clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,8 +24,11 @@ install: $(STAMP)
 bench: install
 	$(BIN)/stcgym bench --quick
 
+bench-standard: install
+	$(BIN)/stcgym bench --standard
+
 bench-full: install
-	$(BIN)/stcgym bench
+	$(BIN)/stcgym bench --full
 
 # The second run repeats the tests that compare two code paths (marker `equality`) under
 # another OpenBLAS kernel: OpenBLAS picks kernels by CPU, and a claim of equality that holds
