@@ -10,9 +10,8 @@ import inspect
 import pytest
 
 #: The packages (and the vector envs' module, public through ``gym.make_vec``) whose public
-#: names must all carry a docstring. ``stcgym.agents`` joins the list once every name of its
-#: has one.
-CHECKED_PACKAGES = ("stcgym.envs", "stcgym.envs.vector", "stcgym.adaptive")
+#: names must all carry a docstring.
+CHECKED_PACKAGES = ("stcgym.envs", "stcgym.envs.vector", "stcgym.adaptive", "stcgym.agents")
 
 
 def _public_names(package: str) -> list[tuple[str, object]]:

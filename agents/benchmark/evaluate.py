@@ -128,6 +128,7 @@ class EnvSpec:
 
     @property
     def order(self) -> int:
+        """Plant order ``n`` (of the first plant: a family has one order)."""
         return get_plant(self.plants[0]).n
 
     def make(self, **overrides: Any) -> gym.Env:
@@ -158,6 +159,7 @@ class EnvSpec:
         return cls(**d)
 
     def to_dict(self) -> dict[str, Any]:
+        """The spec as JSON data (:meth:`from_dict` reads it back)."""
         d = asdict(self)
         d["plants"] = list(self.plants)
         d["jump_to"] = None if self.jump_to is None else list(self.jump_to)

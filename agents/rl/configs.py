@@ -131,10 +131,12 @@ class AlgoConfig:
     window: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """The config as JSON data (a deep copy; :meth:`from_dict` reads it back)."""
         return copy.deepcopy(asdict(self))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> AlgoConfig:
+        """Inverse of :meth:`to_dict`."""
         return cls(**copy.deepcopy(data))
 
 

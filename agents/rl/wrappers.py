@@ -69,9 +69,11 @@ class WindowConfig:
 
     @property
     def n_features(self) -> int:
+        """Length of the observation the agent sees: ``window`` rows of y, r, u (and r - y)."""
         return self.window * (4 if self.include_error else 3)
 
     def to_dict(self) -> dict[str, Any]:
+        """The window's settings as JSON data."""
         return asdict(self)
 
 
