@@ -167,6 +167,12 @@ def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) 
     update) and the plant step stay calls, as inlining them made the KF-MILS step slower. The
     public entry points (``controller_step``, ``place_design``, ``estimator_update``...) stay
     separate functions.
+
+    Inlining costs compile time (numba rebuilds and retypes the helper at every call site: half
+    of the 18.6 s cold compile of ``place_design``), but not inlining costs more: every helper
+    then compiles on its own and each caller re-optimises the code of all the functions it
+    calls (numba links them into the caller's module); the first controller step took about 3x
+    longer to compile with no helper inlined (``benchmarks/README.md``, cold start).
     """
     return _jit(fn, allocates, parallel=False, inline=inline)
 
@@ -188,6 +194,11 @@ class FixedTypes:
     overload up once, on the first call (``Dispatcher.compile`` of those types: numba's
     on-disk cache or a compile), and calls it directly afterwards. Without the JIT
     (``NUMBA_DISABLE_JIT=1``) it calls the Python function.
+
+    The types are not checked again: an instance must only ever see one set of argument types
+    (a call with other types runs machine code compiled for the first ones). A function with
+    several compiled versions chosen by argument types (the controller step: ELS or a paper
+    estimator, pole placement or LQ) gets one instance per version.
     """
 
     __slots__ = ("entry", "fn")
