@@ -56,7 +56,8 @@ docs: install
 lint: install
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
-# numba's on-disk cache does not notice edits in other modules that a kernel inlines.
+# Empties the numba cache of the kernels by hand; an edited kernel source empties it on the next
+# import anyway (stcgym.envs.kernel_cache), so this is only needed to measure a cold start.
 clean-cache:
 	find envs adaptive agents -name '*.nbi' -delete -o -name '*.nbc' -delete
 

@@ -86,9 +86,11 @@ __all__ = [
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
 
-# the controller step with its argument types looked up once (they never change: see FixedTypes)
-_controller_step = FixedTypes(kc.controller_step)
-_controllers_step = FixedTypes(kc.controllers_step)
+# The controller step with its argument types looked up once (see FixedTypes), one lookup per
+# compiled version: (paper estimator, LQ design) -> step; the types differ between versions.
+_VERSIONS = [(paper, lq) for paper in (False, True) for lq in (False, True)]
+_controller_step = {v: FixedTypes(kc.controller_step) for v in _VERSIONS}
+_controllers_step = {v: FixedTypes(kc.controllers_step) for v in _VERSIONS}
 #: Estimator names besides the paper's: extended least squares on the ARMAX form.
 EXTRA_ESTIMATORS = ("ELS",)
 
@@ -257,10 +259,8 @@ class SelfTuningController(LanePolicy):
             filtered=bool(lw.filtered),
             probe_steps=probe_steps,
             probe_max=max(5 * n if pm is None else int(pm), probe_steps),
-            design=kc.LQ if design == "lq" else kc.POLE_PLACEMENT,
             detect=bool(cd.enabled),
             holdoff=int(cd.holdoff),
-            estimator=kc.ELS if self._spec is None else kc.PAPER,
             # ELS estimates the observer-form transfer function
             form=dz.OBSERVABILITY if observability else dz.OBSERVER,
             action_bound=float(self.action_bound),
@@ -276,20 +276,21 @@ class SelfTuningController(LanePolicy):
             ew_long=float(cd.long),
             probe_output=float(self.startup.probe_output),
             safe=_frozen(self.safe_set.vector()),
-            weights=_frozen(lw.lq_weights),
             alpha=_frozen(characteristic_coefficients(self.poles)),
         )
         init = self._layout.empty(1)[0]
         if self._spec is None:
             init[at.S : at.S + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
-            # the paper estimator's arguments as placeholders of the same types (never read):
-            # one compiled controller step serves both kinds
-            placeholder = EstimatorSpec.build("O-RLS", n)
-            self._est_at, self._est_cfg = placeholder.at, placeholder.config
+            # no paper estimator: the step compiled for ELS (kernels.controller, compile-time
+            # choices) contains none
+            self._est_at, self._est_cfg = None, None
         else:
             init[at.est : at.est + spec.size] = spec.initial_record()
             self._est_at, self._est_cfg = spec.record(at.est), spec.config
         init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
+        # the LQ weights, or None: the step compiled for pole placement contains no LQ design
+        self._lq_weights = _frozen(lw.lq_weights) if design == "lq" else None
+        self._version = (self._spec is not None, design == "lq")
         if design == "lq":
             P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
             init[at.P_lq : at.P_lq + P_lq.size] = P_lq.ravel()
@@ -339,16 +340,17 @@ class SelfTuningController(LanePolicy):
         u = self._u
         if self.B == 1:
             y, r = obs[0].tolist()  # Python floats: the cheapest arguments for numba's dispatch
-            u[0] = _controller_step(
+            u[0] = _controller_step[self._version](
                 self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
-                y, r,
+                self._lq_weights, y, r,
             )  # fmt: skip
         else:
             y = np.ascontiguousarray(obs[:, 0])
             r = np.ascontiguousarray(obs[:, 1])
-            _controllers_step(
-                self._F, self._G, self._at, self._cfg, self._est_at, self._est_cfg, y, r, u
-            )
+            _controllers_step[self._version](
+                self._F, self._G, self._at, self._cfg, self._est_at, self._est_cfg,
+                self._lq_weights, y, r, u,
+            )  # fmt: skip
         return u.copy()
 
     # ------------------------------------------------------------------ views

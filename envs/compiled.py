@@ -24,30 +24,103 @@ controller in :mod:`stcgym.adaptive`):
   construction**, on any CPU: the same compiled machine code runs on the same numbers (no BLAS,
   no LAPACK inside lane functions; small dense loops are written out).
 
-Compilation is lazy (first call) and cached on disk (``cache=True``, in ``__pycache__``), so
-importing stcgym compiles nothing and a second process starts fast. ``NUMBA_DISABLE_JIT=1``
-runs the very same source as plain Python (slow, but debuggable with pdb and coverage).
-
-Numba's cache checks only the source file of the function it caches: a lane function that
-inlines lane functions of *another* module keeps their old machine code after that module is
-edited. Developers who edit a kernel module run ``make clean-cache`` (installed packages and
-fresh clones have no stale cache).
+Compilation is lazy (first call) and cached on disk (``cache=True``), so importing stcgym
+compiles nothing and a second process starts fast. A compile that is still running after
+:data:`COMPILE_NOTICE_AFTER` seconds is announced once per process, on the ``stcgym`` logger
+(:class:`CompileNotice`). ``NUMBA_DISABLE_JIT=1`` runs the very same source as plain Python
+(slow, but debuggable with pdb and coverage). Where the cache lives and why an edited kernel
+never runs stale machine code: :mod:`stcgym.envs.kernel_cache`.
 """
 
 from __future__ import annotations
 
+import logging
+import threading
+import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numba
 import numpy as np
+from numba.core import event
 from numpy.typing import NDArray
+
+from stcgym.envs.kernel_cache import guard_cache
 
 F = TypeVar("F", bound=Callable[..., Any])
 R = TypeVar("R", bound=tuple)
 
 #: Parallel range for batch loops (``numba.prange``; plain ``range`` without the JIT).
 prange = numba.prange
+
+
+#: Seconds after which a compile of stcgym kernels still running is announced (once a process).
+COMPILE_NOTICE_AFTER = 1.0
+
+logger = logging.getLogger("stcgym")
+
+
+class CompileNotice(event.Listener):
+    """Say once, on ``logger``, that kernels are compiling when a compile takes over ``after`` s.
+
+    A listener of numba's ``numba:compile`` events (numba's event API, ``numba.core.event``):
+    when an outermost compile of a function that ``owns`` accepts starts, a timer is armed; if
+    the compile still runs after ``after`` seconds the timer logs one warning (the user sees it
+    while waiting), and a compile that ends later than ``after`` without it having fired logs
+    it at the end. After the first line the listener stays silent. Loads from numba's on-disk
+    cache are not compiles and say nothing.
+    """
+
+    def __init__(
+        self, after: float, owns: Callable[[Any], bool], log: logging.Logger = logger
+    ) -> None:
+        self.after = after
+        self.owns = owns
+        self.log = log
+        self.announced = False
+        self._depth = 0
+        self._started = 0.0
+        self._name = ""
+        self._timer: threading.Timer | None = None
+        self._lock = threading.Lock()
+
+    def on_start(self, ev: event.Event) -> None:
+        self._depth += 1
+        dispatcher = ev.data["dispatcher"]
+        if self._depth == 1 and not self.announced and self.owns(dispatcher):
+            self._name = dispatcher.py_func.__qualname__
+            self._started = time.perf_counter()
+            self._timer = threading.Timer(self.after, self._announce)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def on_end(self, ev: event.Event) -> None:
+        self._depth -= 1
+        if self._depth == 0 and self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+            if time.perf_counter() - self._started > self.after:
+                self._announce()
+
+    def _announce(self) -> None:
+        with self._lock:
+            if self.announced:
+                return
+            self.announced = True
+        self.log.warning(
+            "compiling stcgym kernels for %s (numba, first use in this environment); "
+            "cached after the first run",
+            self._name,
+        )
+
+
+def _is_stcgym_kernel(dispatcher: Any) -> bool:
+    return dispatcher.py_func.__module__.startswith("stcgym.")
+
+
+#: The installed notice (``NOTICE.after`` is :data:`COMPILE_NOTICE_AFTER`).
+NOTICE = CompileNotice(COMPILE_NOTICE_AFTER, _is_stcgym_kernel)
+event.register("numba:compile", NOTICE)
 
 
 def _jit(fn: F | None, allocates: bool, parallel: bool, inline: bool = False) -> Any:
@@ -58,7 +131,13 @@ def _jit(fn: F | None, allocates: bool, parallel: bool, inline: bool = False) ->
         options["parallel"] = True
     if not allocates:
         options["_nrt"] = False
-    decorate = numba.njit(**options)
+    jit = numba.njit(**options)
+
+    def decorate(f: F) -> Any:
+        dispatcher = jit(f)
+        guard_cache(dispatcher)
+        return dispatcher
+
     return decorate if fn is None else decorate(fn)
 
 
@@ -88,6 +167,12 @@ def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) 
     update) and the plant step stay calls, as inlining them made the KF-MILS step slower. The
     public entry points (``controller_step``, ``place_design``, ``estimator_update``...) stay
     separate functions.
+
+    Inlining costs compile time (numba rebuilds and retypes the helper at every call site: half
+    of the 18.6 s cold compile of ``place_design``), but not inlining costs more: every helper
+    then compiles on its own and each caller re-optimises the code of all the functions it
+    calls (numba links them into the caller's module); the first controller step took about 3x
+    longer to compile with no helper inlined (``benchmarks/README.md``, cold start).
     """
     return _jit(fn, allocates, parallel=False, inline=inline)
 
@@ -109,6 +194,11 @@ class FixedTypes:
     overload up once, on the first call (``Dispatcher.compile`` of those types: numba's
     on-disk cache or a compile), and calls it directly afterwards. Without the JIT
     (``NUMBA_DISABLE_JIT=1``) it calls the Python function.
+
+    The types are not checked again: an instance must only ever see one set of argument types
+    (a call with other types runs machine code compiled for the first ones). A function with
+    several compiled versions chosen by argument types (the controller step: ELS or a paper
+    estimator, pole placement or LQ) gets one instance per version.
     """
 
     __slots__ = ("entry", "fn")

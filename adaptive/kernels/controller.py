@@ -40,6 +40,15 @@ Lane records: a ``float64`` record (fields :class:`ControllerRecord`, placed by
 :func:`controller_record`) holding the estimator's record first, and an ``int64`` record (fields
 :class:`ControllerInts`, offsets :data:`INTS`) with the step counter, the episode, the seed and
 the counters; the configuration is a :class:`ControllerConfig`.
+
+Compile only what is used: the estimator family and the design are compile-time choices, made
+by the *types* of two arguments. ``est_cfg`` is the paper estimator's configuration or ``None``
+(extended least squares); ``lq_weights`` is the LQ weights array or ``None`` (pole placement).
+numba removes a branch ``if arg is None`` on an argument's type before it types the function
+(its dead-branch pruning), so each of the four combinations is a separate compiled version of
+the same :func:`controller_step` that contains only its own estimator and design; the first
+``predict`` of a controller compiles one of them, not every branch. Single plant and batch call
+the same version, so a single plant still equals its lane bit for bit.
 """
 
 from __future__ import annotations
@@ -71,10 +80,6 @@ __all__ = [
     "hash32",
     "probe_sign",
 ]
-
-# estimator kinds and design kinds (values, not offsets)
-PAPER, ELS = 0, 1
-POLE_PLACEMENT, LQ = 0, 1
 
 
 class ControllerRecord(NamedTuple):
@@ -145,10 +150,8 @@ class ControllerConfig(NamedTuple):
     filtered: bool  # the law acts on x(t|t) (else x(t|t-1))
     probe_steps: int
     probe_max: int  # longest probe (samples) while the output stays below probe_output
-    design: int  # POLE_PLACEMENT or LQ
     detect: bool  # change detection on
     holdoff: int
-    estimator: int  # PAPER or ELS
     form: int  # canonical form of theta_hat (OBSERVER / OBSERVABILITY)
     action_bound: float
     probe_amplitude: float
@@ -163,8 +166,7 @@ class ControllerConfig(NamedTuple):
     ew_long: float
     probe_output: float  # output level that scales the probe down and ends it early
     safe: NDArray  # [b_min, rcond_min, dc_rcond_min, gain_max]
-    weights: NDArray  # LQ [q_y, q_i, rho]
-    alpha: NDArray  # closed-loop characteristic polynomial (m)
+    alpha: NDArray  # closed-loop characteristic polynomial (m; pole placement)
 
 
 def controller_record(
@@ -274,12 +276,14 @@ def process_noise(f, at, d, n, y, u, q, q_floor, Q):
 
 # --------------------------------------------------------------------------------- the step
 @lane
-def controller_step(f, g, at, cfg, est_at, est_cfg, y, r):
+def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
     ``f``/``g``: the lane's float and int records (offsets ``at``, a :class:`ControllerRecord`,
-    and :data:`INTS`); ``cfg``: a :class:`ControllerConfig`; ``ecf``/``eci``: the paper
-    estimator's configuration (unused for ELS).
+    and :data:`INTS`); ``cfg``: a :class:`ControllerConfig`; ``est_at``/``est_cfg``: the paper
+    estimator's record offsets and configuration, both ``None`` for extended least squares;
+    ``lq_weights``: ``[q_y, q_i, rho]`` of the LQ design, ``None`` for pole placement. The two
+    ``is None`` tests are resolved at compile time (module docstring).
     """
     n = cfg.n
     d = cfg.d
@@ -287,7 +291,7 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, y, r):
     t = g[INTS.t]
     theta = f[at.theta : at.theta + 2 * n]
     # -- 1. estimator measurement step
-    if cfg.estimator == ELS:
+    if est_cfg is None:  # extended least squares
         e, eps = extended_ls_update(f, at, d, y, cfg.forgetting, cfg.p0)
     else:
         g[INTS.est_status] |= estimator_update(f, est_at, est_cfg, y)
@@ -315,16 +319,16 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, y, r):
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
     gain = f[at.gain : at.gain + n + 4]
     work = f[at.work : at.work_end]
-    if cfg.design == LQ:
-        P_lq = view2d(f, at.P_lq, m, m)
-        status = lq_design(
-            theta, cfg.form, cfg.integral, cfg.feedforward, cfg.weights, cfg.safe, P_lq, gain,
-            work,
-        )  # fmt: skip
-    else:
+    if lq_weights is None:
         status = place_design(
             theta, cfg.form, cfg.integral, cfg.feedforward, cfg.alpha, cfg.safe, gain, work
         )
+    else:
+        P_lq = view2d(f, at.P_lq, m, m)
+        status = lq_design(
+            theta, cfg.form, cfg.integral, cfg.feedforward, lq_weights, cfg.safe, P_lq, gain,
+            work,
+        )  # fmt: skip
     g[INTS.last_reason] = status
     if status != OK:
         g[INTS.n_rejected] += 1
@@ -374,7 +378,7 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, y, r):
             x[i] = 0.0
             for j in range(n):
                 P1[i, j] = 1.0 if i == j else 0.0
-    if cfg.estimator == ELS:
+    if est_cfg is None:
         extended_ls_push(f, at, n, d, y, u, eps)
     else:
         if at.Q_est >= 0:  # the paper's Kalman filter gets the same process noise
@@ -386,7 +390,7 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, y, r):
 
 
 @lanes
-def controllers_step(F, G, at, cfg, est_at, est_cfg, y, r, u):
+def controllers_step(F, G, at, cfg, est_at, est_cfg, lq_weights, y, r, u):
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in prange(F.shape[0]):
-        u[i] = controller_step(F[i], G[i], at, cfg, est_at, est_cfg, y[i], r[i])
+        u[i] = controller_step(F[i], G[i], at, cfg, est_at, est_cfg, lq_weights, y[i], r[i])
