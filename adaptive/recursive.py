@@ -133,6 +133,27 @@ class NumericalHealthError(FloatingPointError):
     Raised by the estimators when ``on_failure="raise"`` (the estimator is then left exactly
     as before the call); with the default ``"reset"`` they recover instead and emit a
     :class:`RuntimeWarning`.
+
+    Parameters
+    ----------
+    *args
+        The message (the algorithm, the time ``t`` and what failed).
+
+    Examples
+    --------
+    An output of ``1e300`` overflows ``P``; the estimator stays at ``t = 1``:
+
+    >>> from stcgym.adaptive import NumericalHealthError, make_estimator
+    >>> est = make_estimator("O-RLS", 2, on_failure="raise")
+    >>> _ = est.update(1e200)
+    >>> _ = est.predict(1e200)
+    >>> try:
+    ...     est.update(1e300)
+    ... except NumericalHealthError as exc:
+    ...     print(exc)
+    O-RLS at t=2: P(t) / r(t) overflowed or is not finite
+    >>> est.t
+    1
     """
 
 
@@ -166,6 +187,17 @@ class RecursiveEstimator:
     below has the shape given; a batch prepends the lane axis ``B`` (``theta`` ``(B, 2n)``,
     ``t`` ``(B,)``, ...).
 
+    Parameters
+    ----------
+    spec : EstimatorSpec
+        The validated configuration (:func:`make_estimator` builds it from keywords).
+    num_envs : int or None, default None
+        Number of lanes ``B``; ``None``: one plant.
+    lane_theta0 : ndarray, shape (B, 2n), optional
+        Per-lane ``theta_hat(0)``, overriding the spec's.
+    lane_P0 : ndarray, shape (B, 2n, 2n), optional
+        Per-lane ``P(0)``, overriding the spec's.
+
     Attributes (read-only unless stated)
     ------------------------------------
     spec : EstimatorSpec
@@ -193,6 +225,34 @@ class RecursiveEstimator:
     flops_per_step, flops_parameters, flops_state : int
         Paper conventions: ``O-RLS`` = table 1, ``KF-MILS`` = table 2, D-RLS / D-MILS
         ``flops_parameters`` = tables 3 / 4 (:mod:`stcgym.adaptive.flops`).
+
+    Examples
+    --------
+    O-RLS on recorded data of the plant ``y(t) = 1.2 y(t-1) - 0.5 y(t-2) + u(t-1) + 0.4 u(t-2)``
+    (``theta = [a1, a2, b1, b2] = [-1.2, 0.5, 1, 0.4]``), with the measurement-corrected
+    regressor:
+
+    >>> import numpy as np
+    >>> from scipy.signal import lfilter
+    >>> from stcgym.adaptive import make_estimator
+    >>> u = np.random.default_rng(0).standard_normal(50)
+    >>> y = lfilter([0.0, 1.0, 0.4], [1.0, -1.2, 0.5], u)
+    >>> est = make_estimator("O-RLS", 2, p0=100.0, regressor="filtered")
+    >>> thetas = est.run(u, y)
+    >>> thetas.shape, est.t
+    ((50, 4), 50)
+    >>> np.round(est.theta, 2)
+    array([-1.2,  0.5,  1. ,  0.4])
+
+    Step by step, as a controller uses it (:meth:`update` with ``y(t)``, then :meth:`predict`
+    with ``u(t)``):
+
+    >>> est.reset()
+    >>> for u_t, y_t in zip(u, y):
+    ...     theta = est.update(y_t)
+    ...     x_next = est.predict(u_t)
+    >>> np.allclose(theta, thetas[-1])
+    True
     """
 
     def __init__(
@@ -786,6 +846,28 @@ def make_estimator(
     Returns
     -------
     RecursiveEstimator
+        At ``t = 0``; ``num_envs`` lanes of it when ``num_envs`` is given.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``name``, or an option out of its range or of the wrong shape, naming it.
+    TypeError
+        An unknown keyword.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import make_estimator
+    >>> est = make_estimator("kf-mils", 2, p=3)
+    >>> est.name, est.n, est.p, est.form
+    ('KF-MILS', 2, 3, 'observer')
+    >>> batch = make_estimator("O-RLS", 2, num_envs=4)
+    >>> batch.theta.shape
+    (4, 4)
+    >>> make_estimator("O-RLS", 2, forgetting=2)
+    Traceback (most recent call last):
+    ...
+    ValueError: forgetting (lambda) must lie in (0, 1], got 2
     """
     _BUILD_SIGNATURE.bind(name, n, **options)  # a TypeError naming an unknown keyword
     theta0, P0 = options.get("theta0"), options.get("P0")
