@@ -359,6 +359,15 @@ class RecursiveLeastSquares:
     num_envs : int, optional
         Number of lanes ``B``; ``None`` for a single estimator (no leading axis).
 
+    Raises
+    ------
+    ValueError
+        On construction: ``num_params``, ``num_outputs``, ``window`` or ``num_envs`` not a
+        positive integer, ``P0`` neither ``0`` nor positive definite of size ``d``, ``theta0``
+        not a finite vector of length ``d``, ``forgetting`` outside ``(0, 1]``, ``window``
+        with ``forgetting < 1`` or with ``P0 = 0``, ``on_failure`` not ``"reset"`` or
+        ``"raise"``.
+
     Examples
     --------
     >>> from stcgym.adaptive import RecursiveLeastSquares
