@@ -147,6 +147,36 @@ class MatrixRLS:
     t : int -- number of samples processed (including discarded ones).
     n_resets : int -- number of covariance resets performed.
     symmetric : bool -- whether ``P`` is symmetric (False only for a non-symmetric ``P0``).
+
+    Raises
+    ------
+    ValueError
+        On construction: ``n_inputs`` or ``n_outputs`` not a positive integer, ``p0`` or a
+        scalar ``P0`` not positive, a matrix ``P0`` not ``n_inputs x n_inputs``, not positive
+        definite (a symmetric one) or with a symmetric part that is not (a non-symmetric
+        one), ``theta0`` of the wrong shape, ``forgetting`` outside ``(0, 1]``, an unknown
+        ``on_failure``.
+
+    Examples
+    --------
+    Three inputs, two outputs, slightly noisy data: with the paper's ``p0 = 1e6`` the
+    estimate is the batch least-squares one:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import MatrixRLS
+    >>> rng = np.random.default_rng(0)
+    >>> Theta = np.array([[1.0, -0.5], [2.0, 0.3], [0.0, 1.5]])
+    >>> X = rng.standard_normal((20, 3))
+    >>> Y = X @ Theta + 0.01 * rng.standard_normal((20, 2))
+    >>> est = MatrixRLS(3, 2)
+    >>> for x, y in zip(X, Y):
+    ...     theta = est.update(x, y)
+    >>> np.round(theta, 2)
+    array([[ 1.  , -0.5 ],
+           [ 2.  ,  0.3 ],
+           [ 0.  ,  1.51]])
+    >>> np.allclose(theta, np.linalg.lstsq(X, Y, rcond=None)[0], atol=1e-4)
+    True
     """
 
     def __init__(
@@ -308,6 +338,35 @@ class StateMatrixEstimator:
     on_failure
         As for :class:`MatrixRLS`, in the RLS phase. The minimum-norm phase has no covariance to
         reset: an overflow there raises :class:`NumericalHealthError` (estimator unchanged).
+
+    Raises
+    ------
+    ValueError
+        On construction: ``m`` not a positive integer, ``N`` not a non-negative one,
+        ``forgetting`` outside ``(0, 1]``, ``C0`` not ``m x (m + N)``, ``dependence_tol``
+        outside ``(0, 1)``, an unknown ``on_failure``.
+
+    Examples
+    --------
+    Two states, one input: three independent regressors ``z = [x; u]`` determine
+    ``[A B]`` exactly, and the estimator then switches to RLS:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import StateMatrixEstimator
+    >>> A = np.array([[0.9, 0.2], [0.0, 0.8]])
+    >>> B = np.array([[0.0], [1.0]])
+    >>> est = StateMatrixEstimator(2, 1)
+    >>> x = np.array([1.0, 0.0])
+    >>> for u in ([0.5], [-1.0], [0.3]):
+    ...     x_next = A @ x + B @ u
+    ...     C = est.update(x, u, x_next)
+    ...     print(est.phase, est.rank)
+    ...     x = x_next
+    minimum_norm 1
+    minimum_norm 2
+    rls 3
+    >>> np.allclose(est.A, A), np.allclose(est.B, B)
+    (True, True)
     """
 
     def __init__(
