@@ -106,7 +106,7 @@ class NotLinearInParameters(ValueError):
     >>> try:
     ...     obj.regression("output")
     ... except NotLinearInParameters as exc:
-    ...     print(str(exc)[:46])
+    ...     print(str(exc)[:45])
     the structure is not linear in the parameters
     >>> measured = AffineStateSpace(Phi0=np.zeros((2, 2)), Gamma0=[1, 0], H=np.eye(2),
     ...                             Phi_terms=[np.eye(2)])
