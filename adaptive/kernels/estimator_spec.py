@@ -140,6 +140,38 @@ def parse_name(name: str) -> tuple[str, bool, str]:
 
     ``"KF-D-MILS" -> ("KF", True, "MILS")``; case-insensitive; the state estimator is one of
     ``O``, ``KF``, ``CO`` (closed-loop observer, needs ``observer_gain``).
+
+    Parameters
+    ----------
+    name : str
+        ``"<state>-[D-]<rule>"``: state in :data:`STATE_ESTIMATORS`, rule in :data:`RULES`
+        (surrounding blanks ignored).
+
+    Returns
+    -------
+    state : str
+        ``"O"``, ``"KF"`` or ``"CO"``.
+    decomposed : bool
+        Whether the name has the ``D-`` (model decomposition) part.
+    rule : str
+        ``"SG"``, ``"MISG"``, ``"RLS"`` or ``"MILS"``.
+
+    Raises
+    ------
+    ValueError
+        ``name`` not a string of that form; the message lists the accepted names.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import parse_name
+    >>> parse_name("kf-d-mils")
+    ('KF', True, 'MILS')
+    >>> parse_name("O-RLS")
+    ('O', False, 'RLS')
+    >>> parse_name("O-LSI")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown algorithm 'O-LSI'; expected '<state>-[D-]<rule>' ...
     """
     if not isinstance(name, str):
         raise ValueError(f"name must be a string such as 'KF-D-MILS', got {name!r}")
@@ -174,6 +206,42 @@ class EstimatorSpec:
     ``theta0``, ``P0``, ``x_init``, ``P1_init``, ``Q`` are the per-lane initial values written
     by :meth:`initial_record`. ``observer_gain`` may be a callable (evaluated by the Python
     class before every state step); the lane functions read the gain ``K`` from the record.
+
+    Parameters
+    ----------
+    name, n, p, form
+        Canonical algorithm name (upper case), plant order, innovation length, canonical form.
+    state, decomposed, rule
+        The parts of ``name`` (:func:`parse_name`).
+    forgetting, window, stacked_r, project_stable, pd_check_every, on_failure, enabled
+        As for :func:`stcgym.adaptive.make_estimator`.
+    theta0, P0, r0, x_init, P1_init, Q, R, observer_gain
+        Initial values and filter settings (``P0`` ``None`` for SG/MISG rules; ``P1_init``
+        and ``Q`` ``None`` unless the state estimator is ``KF``).
+    frozen : tuple of 3 floats
+        ``(rate, ratio, gain)`` of the "frozen on a wrong model" signal.
+    regressor : {"predicted", "filtered"}
+        The state estimate ``phi_hat`` is built from.
+
+    Raises
+    ------
+    ValueError
+        From :meth:`build`: an argument out of its range or shape, or one that does not
+        apply to the rule or state estimator (``P0`` for SG, ``r0`` for RLS,
+        ``process_noise`` for ``O``, ...), naming it.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import EstimatorSpec
+    >>> spec = EstimatorSpec.build("kf-d-mils", 2, p=3)
+    >>> spec.name, spec.state, spec.decomposed, spec.rule
+    ('KF-D-MILS', 'KF', True, 'MILS')
+    >>> spec.initial_record().shape == (spec.size,)
+    True
+    >>> EstimatorSpec.build("O-RLS", 2, r0=2.0)
+    Traceback (most recent call last):
+    ...
+    ValueError: r0 applies to SG/MISG rules only, not RLS
     """
 
     name: str
