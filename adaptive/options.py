@@ -253,8 +253,10 @@ class SafeSet:
         dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
     def vector(self) -> NDArray:
-        """The safe-set vector the design lane functions read (see :func:`~stcgym.adaptive.
-        kernels.safe_set.safe_set`)."""
+        """The safe-set vector the design lane functions read.
+
+        See :func:`~stcgym.adaptive.kernels.safe_set.safe_set`.
+        """
         return dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
 

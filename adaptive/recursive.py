@@ -185,7 +185,7 @@ class RecursiveEstimator:
 
     Build it with :func:`make_estimator`. For a single plant (``num_envs=None``) every array
     below has the shape given; a batch prepends the lane axis ``B`` (``theta`` ``(B, 2n)``,
-    ``t`` ``(B,)``, ...).
+    ``t`` ``(B,)``, ...). The attributes are read-only unless stated.
 
     Parameters
     ----------
@@ -198,8 +198,8 @@ class RecursiveEstimator:
     lane_P0 : ndarray, shape (B, 2n, 2n), optional
         Per-lane ``P(0)``, overriding the spec's.
 
-    Attributes (read-only unless stated)
-    ------------------------------------
+    Attributes
+    ----------
     spec : EstimatorSpec
         The validated configuration (record layout, config arrays, initial values).
     name, n, p, form, num_envs : the algorithm name (upper case), order, innovation length,
