@@ -353,7 +353,24 @@ class RecursiveEstimator:
 
     def restart(self, theta: ArrayLike, P: ArrayLike | None = None, lanes: Any = None) -> None:
         """Restart the parameter estimate at ``theta`` with covariance ``P`` (RLS/MILS; only
-        its diagonal blocks for D- rules) keeping the state estimate; SG/MISG restart ``r``."""
+        its diagonal blocks for D- rules) keeping the state estimate; SG/MISG restart ``r``.
+
+        Parameters
+        ----------
+        theta : array_like, shape (2n,) or (lanes, 2n)
+            The new ``theta_hat``, finite (one row for every lane restarted, or one for all).
+        P : array_like, shape (2n, 2n) or (lanes, 2n, 2n), optional
+            Symmetric positive definite covariance; required by the RLS/MILS rules, ignored by
+            SG/MISG.
+        lanes : array_like of int or bool, optional
+            The lanes to restart (default all).
+
+        Raises
+        ------
+        ValueError
+            ``theta`` or ``P`` malformed, ``P`` missing for RLS/MILS, or not positive definite
+            on some lane; nothing changed.
+        """
         idx = lane_indices(lanes, self._B)
         d = 2 * self.n
         th = np.asarray(theta, dtype=float)
@@ -402,7 +419,30 @@ class RecursiveEstimator:
         """Measurement step at time ``t``: build ``phi_hat(t)``, ``Phi(p, t)``, ``Y(p, t)`` and
         update ``theta_hat(t)`` (and ``P(t)`` / ``r(t)``); returns a copy of ``theta_hat(t)``.
 
-        ``y_t``: the measured output ``y(t)`` (a scalar; shape ``(B,)`` for a batch).
+        The regressor is (9)/(57) in the observer form, (153) in the observability form; the
+        parameter rule SG (12)-(15), MISG (16)-(22), RLS (32)-(36) or MILS (37)-(44) of Ding &
+        Ma (2014) (a whole O-RLS step, this and :meth:`predict`, is (54)-(62); KF-MILS's
+        (73)-(86)).
+
+        Parameters
+        ----------
+        y_t : float or array_like of shape (B,)
+            The measured output ``y(t)``, finite.
+
+        Returns
+        -------
+        ndarray, shape (2n,) or (B, 2n)
+            ``theta_hat(t) = [a_hat(t); b_hat(t)]``.
+
+        Raises
+        ------
+        RuntimeError
+            ``update`` twice without :meth:`predict` in between.
+        ValueError
+            ``y_t`` not finite or of the wrong shape; nothing changed.
+        NumericalHealthError
+            With ``on_failure="raise"``, a covariance or normaliser that lost positive
+            definiteness or overflowed; the estimator is left as before the call.
         """
         self._check_phase(0.0, "update")
         spec = self.spec
@@ -432,6 +472,21 @@ class RecursiveEstimator:
         x_next : array_like, shape (n,) or (B, n), optional
             A known (measured) ``x(t+1)`` that replaces the estimate: the regressors then use
             the true states (which lets the rules be checked against batch least squares).
+
+        Returns
+        -------
+        ndarray, shape (n,) or (B, n)
+            ``x_hat(t+1)``: the open-loop observer (46)-(49), the closed-loop observer (50)-(53)
+            or the Kalman filter (66)-(72) on ``A_hat(t)``, ``b_hat(t)`` ((47) or (146)).
+
+        Raises
+        ------
+        RuntimeError
+            ``predict`` before :meth:`update`.
+        ValueError
+            ``u_t`` or ``x_next`` not finite or of the wrong shape; nothing changed.
+        NumericalHealthError
+            With ``on_failure="raise"``, a non-finite state estimate or Kalman covariance.
         """
         self._check_phase(1.0, "predict")
         spec = self.spec
@@ -485,8 +540,25 @@ class RecursiveEstimator:
         """Open-loop pass over recorded data: ``u[k], y[k]`` are ``u(t), y(t)`` for
         ``t = k + 1`` (continuing from the current time).
 
-        Returns ``theta_hat(t)`` for ``t = 1..T``: shape ``(T, 2n)``; a batch takes ``u``, ``y``
-        of shape ``(T, B)`` and returns ``(T, B, 2n)``.
+        Parameters
+        ----------
+        u, y : array_like, shape (T,) or (T, B)
+            Inputs and measured outputs, finite, of equal length.
+
+        Returns
+        -------
+        ndarray, shape (T, 2n) or (T, B, 2n)
+            ``theta_hat(t)`` for ``t = 1..T`` (fewer rows when ``on_failure="raise"`` stopped
+            the pass).
+
+        Raises
+        ------
+        RuntimeError
+            Called between :meth:`update` and :meth:`predict`.
+        ValueError
+            ``u`` and ``y`` malformed or of different lengths.
+        NumericalHealthError
+            With ``on_failure="raise"``, as for :meth:`update`.
         """
         if self.num_envs is not None or callable(self.spec.observer_gain):
             return self._run_steps(u, y)
