@@ -251,7 +251,22 @@ class MatrixRLS:
         return np.linalg.solve(M, self._theta_s + PsMk @ self._prior)
 
     def predict(self, x: ArrayLike) -> NDArray:
-        """Model output ``x^T Theta`` (shape ``(n_outputs,)``)."""
+        """Model output ``x^T Theta`` (shape ``(n_outputs,)``).
+
+        Parameters
+        ----------
+        x : array_like, shape (n_inputs,)
+            Finite regressor.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
+
+        Raises
+        ------
+        ValueError
+            ``x`` not finite or of the wrong length.
+        """
         return finite_vector(x, "x", length=self.n_inputs) @ self.theta
 
     def update(self, x: ArrayLike, y: ArrayLike) -> NDArray:
@@ -421,7 +436,33 @@ class StateMatrixEstimator:
 
     # ------------------------------------------------------------------ update
     def update(self, x_t: ArrayLike, u_t: ArrayLike, x_next: ArrayLike) -> NDArray:
-        """Process ``(x(t), u(t), x(t+1))`` and return the new ``C = [A B]``."""
+        """Process ``(x(t), u(t), x(t+1))`` and return the new ``C = [A B]``.
+
+        Minimum-norm step (17)-(18) while the regressors do not span ``R^{m+N}``, RLS
+        (20)-(21) afterwards (Kunik, Kovalenko & Al Sadi 2001).
+
+        Parameters
+        ----------
+        x_t : array_like, shape (m,)
+            The state ``x(t)``.
+        u_t : array_like, shape (N,)
+            The input ``u(t)`` (empty when ``N = 0``).
+        x_next : array_like, shape (m,)
+            The next state ``x(t+1)``.
+
+        Returns
+        -------
+        ndarray, shape (m, m + N)
+            A copy of ``C = [A B]``.
+
+        Raises
+        ------
+        ValueError
+            A vector not finite or of the wrong length (a non-empty ``u_t`` with ``N = 0``).
+        NumericalHealthError
+            The minimum-norm phase overflowed (estimator unchanged), or in the RLS phase with
+            ``on_failure="raise"``.
+        """
         x_t = finite_vector(x_t, "x_t", length=self.m)
         if self.N:
             u_t = finite_vector(u_t, "u_t", length=self.N)

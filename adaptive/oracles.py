@@ -670,6 +670,13 @@ class KalmanObserver:
     def set_model(self, A: ArrayLike, b: ArrayLike) -> None:
         """Filter with a new model ``A`` ``(n, n)``, ``b`` ``(n,)``; the estimate and ``P`` stay.
 
+        Parameters
+        ----------
+        A : array_like, shape (n, n)
+            Finite system matrix.
+        b : array_like, shape (n,)
+            Finite input vector.
+
         Raises
         ------
         ValueError
@@ -695,13 +702,37 @@ class KalmanObserver:
         self._work = np.zeros(2 * self.n * self.n)
 
     def correct(self, y: float) -> NDArray:
-        """Measurement update with ``y(t)``; returns ``x(t|t)``."""
+        """Measurement update with ``y(t)``; returns ``x(t|t)``.
+
+        Parameters
+        ----------
+        y : float
+            The measured output ``y(t)``.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The filtered estimate ``x(t|t) = x(t|t-1) + g [y(t) - c x(t|t-1)]``,
+            ``g = P1 c^T / (R + c P1 c^T)`` (the object itself: copy it to keep it).
+        """
         self._y = float(y)
         self._innov = _design.filtered_state(self.x, self.P, self.R, self._y, self.x_filt)
         return self.x_filt
 
     def predict(self, u: float) -> NDArray:
-        """Time update with the applied ``u(t)``; returns ``x(t+1|t)`` (eq. (72))."""
+        """Time update with the applied ``u(t)``; returns ``x(t+1|t)`` (eq. (72)).
+
+        Parameters
+        ----------
+        u : float
+            The input ``u(t)`` applied after :meth:`correct`.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``x(t+1|t)``, with ``P1(t+1)`` and ``L1(t)`` of (66)-(72) updated; a non-finite
+            covariance update keeps ``P`` and counts in ``n_failures``.
+        """
         x_next = np.empty(self.n)
         status = kalman_step(
             self.A, self.b, self.P, self.Q, self.R, self.x, float(u), self._y, x_next, self.L1,
