@@ -317,6 +317,16 @@ class GreyBoxRegression:
 
         E.g. ``z(k) = y(k+2) + 0.3 y(k) - u(k)`` and ``phi[theta](k) = y(k+1)`` for the paper's
         object (subscripts ``_r`` number outputs / states / inputs when there are several).
+
+        Parameters
+        ----------
+        digits : int, default 4
+            Significant digits of the coefficients.
+
+        Returns
+        -------
+        str
+            The equations, one per line.
         """
         p, m = self.num_outputs, self.num_inputs
         sig = "x" if self.method == "state" else "y"
@@ -505,7 +515,23 @@ class AffineStateSpace:
         return self.Phi0.shape[0]
 
     def matrices(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
-        """``(Phi(theta), Gamma(theta))``, e.g. for ``stcgym/StateSpace-v0`` (``A``, ``B``)."""
+        """``(Phi(theta), Gamma(theta))``, e.g. for ``stcgym/StateSpace-v0`` (``A``, ``B``).
+
+        Parameters
+        ----------
+        theta : array_like, shape (q,)
+            Finite parameter values.
+
+        Returns
+        -------
+        Phi : ndarray, shape (n, n)
+        Gamma : ndarray, shape (n, m)
+
+        Raises
+        ------
+        ValueError
+            ``theta`` not finite or not of length ``q``.
+        """
         th = finite_array(theta, "theta").reshape(-1)
         if th.size != self.num_params:
             raise ValueError(f"theta must hold {self.num_params} values, got {th.size}")

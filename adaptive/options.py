@@ -145,7 +145,18 @@ class EstimatorOptions:
         one_of(self.estimation_form, "estimation_form", ("observer", "plant"))
 
     def initial_covariance(self, estimator: str) -> float:
-        """``p0`` for the (canonical) estimator name: the given value or the name's default."""
+        """``p0`` for the (canonical) estimator name: the given value or the name's default.
+
+        Parameters
+        ----------
+        estimator : str
+            An estimator name (``"ELS"``, ``"O-RLS"``, ``"KF-MILS"``, ...).
+
+        Returns
+        -------
+        float
+            ``p0`` if given, else :data:`P0_KF` for ``KF-`` names and :data:`P0_ELS` otherwise.
+        """
         if self.p0 is not None:
             return float(self.p0)
         return P0_KF if estimator.upper().startswith("KF-") else P0_ELS

@@ -335,7 +335,18 @@ class RecursiveEstimator:
 
     def reset(self, lanes: Any = None) -> None:
         """Back to the initial conditions (``t = 0``) for all lanes or the given ``lanes``
-        (indices or a boolean mask of length ``B``); ``enabled`` is kept."""
+        (indices or a boolean mask of length ``B``); ``enabled`` is kept.
+
+        Parameters
+        ----------
+        lanes : array_like of int or bool, optional
+            Lane indices or a boolean mask of length ``B`` (default all lanes).
+
+        Raises
+        ------
+        ValueError
+            An index out of range or a mask of the wrong length.
+        """
         idx = lane_indices(lanes, self._B)
         oe = self.spec.offset("enabled")
         enabled = self._rec[idx, oe].copy()
@@ -347,7 +358,18 @@ class RecursiveEstimator:
 
     def reset_covariance(self, lanes: Any = None) -> None:
         """``P <- P(0)`` (``r <- r(0)``) and an empty finite-history window; ``theta_hat`` and
-        the state estimate are kept (the documented safe action, also on a change alarm)."""
+        the state estimate are kept (the documented safe action, also on a change alarm).
+
+        Parameters
+        ----------
+        lanes : array_like of int or bool, optional
+            Lane indices or a boolean mask of length ``B`` (default all lanes).
+
+        Raises
+        ------
+        ValueError
+            An index out of range or a mask of the wrong length.
+        """
         for i in lane_indices(lanes, self._B):
             _k.reset_covariance(self._rec[i], self.spec.at, self.spec.config)
 

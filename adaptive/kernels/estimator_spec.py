@@ -297,7 +297,23 @@ class EstimatorSpec:
         frozen_ratio: float = FROZEN_RATIO,
         regressor: str = "predicted",
     ) -> EstimatorSpec:
-        """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument)."""
+        """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument).
+
+        Parameters
+        ----------
+        name, n, **options
+            As for :func:`stcgym.adaptive.make_estimator`, which documents each.
+
+        Returns
+        -------
+        EstimatorSpec
+
+        Raises
+        ------
+        ValueError
+            An unknown name, or an argument out of its range, of the wrong shape or not
+            applying to the rule or state estimator.
+        """
         state, decomposed, rule = parse_name(name)
         n = integer(n, "n", 1)
         p = integer(p, "p", 1)
@@ -486,17 +502,50 @@ class EstimatorSpec:
         return self.rule in ("RLS", "MILS")
 
     def offset(self, name: str) -> int:
-        """Offset of the field ``name`` relative to the start of the estimator record."""
+        """Offset of the field ``name`` relative to the start of the estimator record.
+
+        Parameters
+        ----------
+        name : str
+            A field of :attr:`layout`.
+
+        Returns
+        -------
+        int
+        """
         return self.layout.offset(name)
 
     def record(self, base: int = 0) -> EstimatorRecord:
         """Offsets of the record's fields when it starts at ``base`` of a larger lane record
-        (the self-tuning controller embeds it at the start of its own)."""
+        (the self-tuning controller embeds it at the start of its own).
+
+        Parameters
+        ----------
+        base : int, default 0
+            Offset of the estimator record inside the lane record.
+
+        Returns
+        -------
+        EstimatorRecord
+            The named offsets.
+        """
         return self.layout.record(EstimatorRecord, base)
 
     def initial_record(self, theta0: NDArray | None = None, P0: NDArray | None = None) -> NDArray:
         """One lane's record at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
-        optionally with this lane's own ``theta0`` / ``P0``."""
+        optionally with this lane's own ``theta0`` / ``P0``.
+
+        Parameters
+        ----------
+        theta0 : ndarray, shape (2n,), optional
+            This lane's ``theta_hat(0)`` (default the spec's).
+        P0 : ndarray, shape (2n, 2n), optional
+            This lane's ``P(0)`` (default the spec's; RLS/MILS rules).
+
+        Returns
+        -------
+        ndarray, shape (size,)
+        """
         lay = self.layout
         rec = lay.empty(1)
         th0 = self.theta0 if theta0 is None else theta0
