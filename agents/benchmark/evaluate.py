@@ -156,7 +156,24 @@ class EnvSpec:
         return get_plant(self.plants[0]).n
 
     def make(self, **overrides: Any) -> gym.Env:
-        """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields."""
+        """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields.
+
+        Parameters
+        ----------
+        **overrides
+            Fields of :class:`EnvSpec` to replace (validated as on construction).
+
+        Returns
+        -------
+        gymnasium.Env
+            ``stcgym/ObserverCanonical-v0`` with the spec's plant(s), noise, cost, bounds,
+            square-wave reference and parameter jump.
+
+        Raises
+        ------
+        ValueError
+            An override out of range; ``TypeError`` for an unknown field.
+        """
         import stcgym.envs  # noqa: F401  (registers the ids)
         from stcgym.envs.signals import Jumps, SquareWave
 
@@ -175,7 +192,22 @@ class EnvSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EnvSpec:
-        """Inverse of :meth:`to_dict` (JSON data back to a spec)."""
+        """Inverse of :meth:`to_dict` (JSON data back to a spec).
+
+        Parameters
+        ----------
+        data : dict
+            The fields, lists where the spec holds tuples.
+
+        Returns
+        -------
+        EnvSpec
+
+        Raises
+        ------
+        ValueError
+            A field out of range (as on construction).
+        """
         d = dict(data)
         d["plants"] = tuple(d["plants"])
         if d.get("jump_to") is not None:

@@ -173,7 +173,17 @@ class AlgoConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> AlgoConfig:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            The fields (deep-copied).
+
+        Returns
+        -------
+        AlgoConfig
+        """
         return cls(**copy.deepcopy(data))
 
 

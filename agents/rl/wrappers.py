@@ -138,7 +138,15 @@ class HistoryBuffer:
         return o[:, 0], o[:, 1]
 
     def start(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
-        """Begin an episode (all lanes, or the boolean mask ``lanes``) at observation ``obs``."""
+        """Begin an episode (all lanes, or the boolean mask ``lanes``) at observation ``obs``.
+
+        Parameters
+        ----------
+        obs : array_like, shape (batch, 2)
+            ``[y(0), r(0)]`` per lane (a ``(2,)`` array for one lane).
+        lanes : array_like of bool, optional
+            Boolean mask of length ``batch`` (default all lanes).
+        """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
         y, r = self._split(obs, self.batch)
         for arr in (self._y, self._r, self._u):
@@ -146,7 +154,15 @@ class HistoryBuffer:
         self._y[mask, -1], self._r[mask, -1] = y[mask], r[mask]
 
     def push_obs(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
-        """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``)."""
+        """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``).
+
+        Parameters
+        ----------
+        obs : array_like, shape (batch, 2)
+            ``[y(k), r(k)]`` per lane.
+        lanes : array_like of bool, optional
+            Boolean mask of length ``batch`` (default all lanes).
+        """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
         y, r = self._split(obs, self.batch)
         for arr, v in ((self._y, y), (self._r, r)):
@@ -154,7 +170,13 @@ class HistoryBuffer:
             arr[mask, -1] = v[mask]
 
     def push_action(self, u: ArrayLike) -> None:
-        """Append the applied inputs ``u(k)`` (one per lane, in plant units)."""
+        """Append the applied inputs ``u(k)`` (one per lane, in plant units).
+
+        Parameters
+        ----------
+        u : array_like, shape (batch,)
+            The inputs actually applied (after clipping).
+        """
         self._u[:] = np.roll(self._u, -1, axis=1)
         self._u[:, -1] = np.asarray(u, dtype=float).reshape(self.batch)
 
