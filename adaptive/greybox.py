@@ -84,7 +84,35 @@ _COND_MAX = 1e8
 
 
 class NotLinearInParameters(ValueError):
-    """The structure gives no regression that is linear in ``theta`` (the message says why)."""
+    """The structure gives no regression that is linear in ``theta`` (the message says why).
+
+    A subclass of :class:`ValueError`, raised by :meth:`AffineStateSpace.regression` and
+    :meth:`AffineStateSpace.from_functions`.
+
+    Parameters
+    ----------
+    *args
+        The message: the coefficient, the offending product of parameters and the remedies.
+
+    Examples
+    --------
+    ``theta`` twice on the diagonal: ``chi(s) = (s - theta)^2`` has a ``theta^2`` term, so the
+    output route fails, while the measured state still gives a regression:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import AffineStateSpace, NotLinearInParameters
+    >>> obj = AffineStateSpace(Phi0=np.zeros((2, 2)), Gamma0=[1, 0], H=[0, 1],
+    ...                        Phi_terms=[np.eye(2)])
+    >>> try:
+    ...     obj.regression("output")
+    ... except NotLinearInParameters as exc:
+    ...     print(str(exc)[:45])
+    the structure is not linear in the parameters
+    >>> measured = AffineStateSpace(Phi0=np.zeros((2, 2)), Gamma0=[1, 0], H=np.eye(2),
+    ...                             Phi_terms=[np.eye(2)])
+    >>> measured.regression().method
+    'state'
+    """
 
 
 # --------------------------------------------------------------------------------------------
@@ -155,9 +183,10 @@ def io_coefficients(Phi: ArrayLike, Gamma: ArrayLike, H: ArrayLike) -> tuple[NDA
 class GreyBoxRegression:
     """A linear regression ``z(k) = phi(k) theta`` built from measured ``u``, ``y``.
 
-    Produced by :meth:`AffineStateSpace.regression`; :meth:`build` applies it to data.
+    Produced by :meth:`AffineStateSpace.regression`; :meth:`build` applies it to data. The
+    fields are set by that method; they are listed as the constructor's parameters.
 
-    Attributes
+    Parameters
     ----------
     method : {"state", "output"}
     order : int
@@ -171,6 +200,31 @@ class GreyBoxRegression:
         Parameter names (for messages and :meth:`equations`).
     H_inv : ndarray or None
         ``"state"`` only: the equations are written in ``x(k) = H_inv y(k)``.
+
+    Examples
+    --------
+    The object of Voevoda & Troshina (2016), eq. (5)-(8), simulated with ``theta = 0.8``;
+    least squares on the regression recovers it:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import AffineStateSpace
+    >>> obj = AffineStateSpace(
+    ...     Phi0=[[0, 1], [-0.3, 0]], Gamma0=[0, 1], H=[1, 0], Phi_terms=[[[0, 0], [0, 1]]]
+    ... )
+    >>> reg = obj.regression()
+    >>> reg.method, reg.order, reg.num_params
+    ('output', 2, 1)
+    >>> Phi, Gamma = obj.matrices([0.8])
+    >>> u = np.random.default_rng(0).standard_normal(30)
+    >>> x, y = np.zeros(2), np.empty(30)
+    >>> for k in range(30):
+    ...     y[k] = x[0]
+    ...     x = Phi @ x + Gamma[:, 0] * u[k]
+    >>> phi, z = reg.build(u, y)
+    >>> phi.shape, z.shape
+    ((28, 1), (28,))
+    >>> np.round(np.linalg.lstsq(phi, z, rcond=None)[0], 6)
+    array([0.8])
     """
 
     method: str
@@ -263,6 +317,16 @@ class GreyBoxRegression:
 
         E.g. ``z(k) = y(k+2) + 0.3 y(k) - u(k)`` and ``phi[theta](k) = y(k+1)`` for the paper's
         object (subscripts ``_r`` number outputs / states / inputs when there are several).
+
+        Parameters
+        ----------
+        digits : int, default 4
+            Significant digits of the coefficients.
+
+        Returns
+        -------
+        str
+            The equations, one per line.
         """
         p, m = self.num_outputs, self.num_inputs
         sig = "x" if self.method == "state" else "y"
@@ -321,6 +385,13 @@ class AffineStateSpace:
         ``Gamma_i`` (zeros when omitted). At least one of the two term arrays is required.
     names : sequence of str, optional
         Parameter names for messages (default ``theta[0]``, ``theta[1]``, ...).
+
+    Raises
+    ------
+    ValueError
+        A matrix that is not finite or not of its shape, neither ``Phi_terms`` nor
+        ``Gamma_terms`` given, the two holding different numbers of matrices, a parameter
+        whose ``Phi_i`` and ``Gamma_i`` are both zero, ``names`` not one per parameter.
 
     Examples
     --------
@@ -444,7 +515,23 @@ class AffineStateSpace:
         return self.Phi0.shape[0]
 
     def matrices(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
-        """``(Phi(theta), Gamma(theta))``, e.g. for ``stcgym/StateSpace-v0`` (``A``, ``B``)."""
+        """``(Phi(theta), Gamma(theta))``, e.g. for ``stcgym/StateSpace-v0`` (``A``, ``B``).
+
+        Parameters
+        ----------
+        theta : array_like, shape (q,)
+            Finite parameter values.
+
+        Returns
+        -------
+        Phi : ndarray, shape (n, n)
+        Gamma : ndarray, shape (n, m)
+
+        Raises
+        ------
+        ValueError
+            ``theta`` not finite or not of length ``q``.
+        """
         th = finite_array(theta, "theta").reshape(-1)
         if th.size != self.num_params:
             raise ValueError(f"theta must hold {self.num_params} values, got {th.size}")

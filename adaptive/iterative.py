@@ -83,6 +83,25 @@ class IterativeResult:
     rank_deficient : bool
         True if some least-squares problem was rank deficient and the minimum-norm ``lstsq``
         solution was used instead of ``(H^T H)^{-1} H^T Y``.
+
+    Examples
+    --------
+    Gradient iteration (GI) with the true states of the observer-form plant
+    ``theta = [-1.2, 0.5, 1, 0.4]``:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import fit_iterative
+    >>> A = np.array([[1.2, 1.0], [-0.5, 0.0]])
+    >>> b = np.array([1.0, 0.4])
+    >>> u = np.random.default_rng(0).standard_normal(50)
+    >>> x = np.zeros((50, 2))
+    >>> for t in range(49):
+    ...     x[t + 1] = A @ x[t] + b * u[t]
+    >>> res = fit_iterative("GI", u, x[:, 0], 2, form="observer", x=x, iterations=2000)
+    >>> res.name, res.converged, np.round(res.theta, 4)
+    ('GI', True, array([-1.2,  0.5,  1. ,  0.4]))
+    >>> res.theta_history.shape == (res.iterations + 1, 4), res.step_sizes.shape[1]
+    (True, 1)
     """
 
     name: str
@@ -310,6 +329,27 @@ def fit_iterative(
     NumericalHealthError
         The state re-estimation or the parameter update overflowed (e.g. an unstable
         ``A_hat_k`` driven open loop over a long batch); the message names the iteration.
+
+    Examples
+    --------
+    With the true states, ``"LSI"`` is batch least squares and recovers the observer-form
+    plant ``theta = [-1.2, 0.5, 1, 0.4]`` from noise-free data:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import fit_iterative
+    >>> A = np.array([[1.2, 1.0], [-0.5, 0.0]])
+    >>> b = np.array([1.0, 0.4])
+    >>> u = np.random.default_rng(0).standard_normal(50)
+    >>> x = np.zeros((50, 2))
+    >>> for t in range(49):
+    ...     x[t + 1] = A @ x[t] + b * u[t]
+    >>> res = fit_iterative("LSI", u, x[:, 0], 2, form="observer", x=x)
+    >>> np.round(res.theta, 4), res.converged
+    (array([-1.2,  0.5,  1. ,  0.4]), True)
+    >>> fit_iterative("LSI", u, x[:, 0], 2)
+    Traceback (most recent call last):
+    ...
+    ValueError: the plain rule 'LSI' needs the true states x (shape (L, n)); ...
     """
     state_est, rule = _parse_name(name)
     canonical = rule if state_est is None else f"{state_est}-{rule}"

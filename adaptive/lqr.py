@@ -63,9 +63,35 @@ class LQRController(LanePolicy):
     env, num_envs, Q, R, action_bound
         As for :class:`~stcgym.adaptive.MultivariableSelfTuningController`.
 
+    Raises
+    ------
+    ValueError
+        ``A`` and ``B`` not finite or of inconsistent shapes, settings that do not match
+        ``env``, malformed ``Q``/``R`` or ``action_bound``, or a model with no stabilising LQ
+        gain for these weights.
+
     Attributes
     ----------
     K, F : ndarray -- ``(m, n)`` (``(B, m, n)`` for lanes).
+
+    Examples
+    --------
+    A double integrator sampled at 0.1 s, observed as ``[x, x_ref]``; the gain is
+    python-control's ``dlqr``:
+
+    >>> import control
+    >>> import numpy as np
+    >>> from stcgym.adaptive import LQRController
+    >>> A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    >>> B = np.array([[0.005], [0.1]])
+    >>> oracle = LQRController(A, B, Q=1.0, R=0.01)
+    >>> np.round(oracle.K, 4)
+    array([[5.8939, 6.8209]])
+    >>> np.allclose(oracle.K, control.dlqr(A, B, np.eye(2), 0.01 * np.eye(1))[0])
+    True
+    >>> action, _ = oracle.predict(np.array([1.0, 0.0, 0.0, 0.0]))
+    >>> np.round(action, 4)
+    array([-5.8939])
     """
 
     observation_limit = OBSERVATION_LIMIT

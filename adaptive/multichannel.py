@@ -147,6 +147,36 @@ class MatrixRLS:
     t : int -- number of samples processed (including discarded ones).
     n_resets : int -- number of covariance resets performed.
     symmetric : bool -- whether ``P`` is symmetric (False only for a non-symmetric ``P0``).
+
+    Raises
+    ------
+    ValueError
+        On construction: ``n_inputs`` or ``n_outputs`` not a positive integer, ``p0`` or a
+        scalar ``P0`` not positive, a matrix ``P0`` not ``n_inputs x n_inputs``, not positive
+        definite (a symmetric one) or with a symmetric part that is not (a non-symmetric
+        one), ``theta0`` of the wrong shape, ``forgetting`` outside ``(0, 1]``, an unknown
+        ``on_failure``.
+
+    Examples
+    --------
+    Three inputs, two outputs, slightly noisy data: with the paper's ``p0 = 1e6`` the
+    estimate is the batch least-squares one:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import MatrixRLS
+    >>> rng = np.random.default_rng(0)
+    >>> Theta = np.array([[1.0, -0.5], [2.0, 0.3], [0.0, 1.5]])
+    >>> X = rng.standard_normal((20, 3))
+    >>> Y = X @ Theta + 0.01 * rng.standard_normal((20, 2))
+    >>> est = MatrixRLS(3, 2)
+    >>> for x, y in zip(X, Y):
+    ...     theta = est.update(x, y)
+    >>> np.round(theta, 2)
+    array([[ 1.  , -0.5 ],
+           [ 2.  ,  0.3 ],
+           [ 0.  ,  1.51]])
+    >>> np.allclose(theta, np.linalg.lstsq(X, Y, rcond=None)[0], atol=1e-4)
+    True
     """
 
     def __init__(
@@ -221,7 +251,22 @@ class MatrixRLS:
         return np.linalg.solve(M, self._theta_s + PsMk @ self._prior)
 
     def predict(self, x: ArrayLike) -> NDArray:
-        """Model output ``x^T Theta`` (shape ``(n_outputs,)``)."""
+        """Model output ``x^T Theta`` (shape ``(n_outputs,)``).
+
+        Parameters
+        ----------
+        x : array_like, shape (n_inputs,)
+            Finite regressor.
+
+        Returns
+        -------
+        ndarray, shape (n_outputs,)
+
+        Raises
+        ------
+        ValueError
+            ``x`` not finite or of the wrong length.
+        """
         return finite_vector(x, "x", length=self.n_inputs) @ self.theta
 
     def update(self, x: ArrayLike, y: ArrayLike) -> NDArray:
@@ -308,6 +353,35 @@ class StateMatrixEstimator:
     on_failure
         As for :class:`MatrixRLS`, in the RLS phase. The minimum-norm phase has no covariance to
         reset: an overflow there raises :class:`NumericalHealthError` (estimator unchanged).
+
+    Raises
+    ------
+    ValueError
+        On construction: ``m`` not a positive integer, ``N`` not a non-negative one,
+        ``forgetting`` outside ``(0, 1]``, ``C0`` not ``m x (m + N)``, ``dependence_tol``
+        outside ``(0, 1)``, an unknown ``on_failure``.
+
+    Examples
+    --------
+    Two states, one input: three independent regressors ``z = [x; u]`` determine
+    ``[A B]`` exactly, and the estimator then switches to RLS:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import StateMatrixEstimator
+    >>> A = np.array([[0.9, 0.2], [0.0, 0.8]])
+    >>> B = np.array([[0.0], [1.0]])
+    >>> est = StateMatrixEstimator(2, 1)
+    >>> x = np.array([1.0, 0.0])
+    >>> for u in ([0.5], [-1.0], [0.3]):
+    ...     x_next = A @ x + B @ u
+    ...     C = est.update(x, u, x_next)
+    ...     print(est.phase, est.rank)
+    ...     x = x_next
+    minimum_norm 1
+    minimum_norm 2
+    rls 3
+    >>> np.allclose(est.A, A), np.allclose(est.B, B)
+    (True, True)
     """
 
     def __init__(
@@ -362,7 +436,33 @@ class StateMatrixEstimator:
 
     # ------------------------------------------------------------------ update
     def update(self, x_t: ArrayLike, u_t: ArrayLike, x_next: ArrayLike) -> NDArray:
-        """Process ``(x(t), u(t), x(t+1))`` and return the new ``C = [A B]``."""
+        """Process ``(x(t), u(t), x(t+1))`` and return the new ``C = [A B]``.
+
+        Minimum-norm step (17)-(18) while the regressors do not span ``R^{m+N}``, RLS
+        (20)-(21) afterwards (Kunik, Kovalenko & Al Sadi 2001).
+
+        Parameters
+        ----------
+        x_t : array_like, shape (m,)
+            The state ``x(t)``.
+        u_t : array_like, shape (N,)
+            The input ``u(t)`` (empty when ``N = 0``).
+        x_next : array_like, shape (m,)
+            The next state ``x(t+1)``.
+
+        Returns
+        -------
+        ndarray, shape (m, m + N)
+            A copy of ``C = [A B]``.
+
+        Raises
+        ------
+        ValueError
+            A vector not finite or of the wrong length (a non-empty ``u_t`` with ``N = 0``).
+        NumericalHealthError
+            The minimum-norm phase overflowed (estimator unchanged), or in the RLS phase with
+            ``on_failure="raise"``.
+        """
         x_t = finite_vector(x_t, "x_t", length=self.m)
         if self.N:
             u_t = finite_vector(u_t, "u_t", length=self.N)

@@ -176,11 +176,43 @@ class MultivariableSelfTuningController(LanePolicy):
         the fewest samples that give ``n + m`` regressors, a full-rank estimate;
         ``max_probe_steps`` ``5 (n + m)``; the safe set uses ``b_min`` and ``gain_max``).
 
+    Raises
+    ------
+    ValueError
+        Dimensions missing or not matching ``env``, an env whose output is not the state,
+        malformed ``Q``/``R``, ``action_bound`` or ``seed``, ``forgetting`` outside ``(0, 1]``,
+        ``dependence_tol`` outside ``(0, 1)``, an option group or dict with a field out of
+        its range.
+
     Attributes
     ----------
     K : ndarray -- gain in use, ``(m, n)`` or ``(B, m, n)`` (zeros before the first design).
     F : ndarray -- reference feed-forward in use, same shapes.
     A_hat, B_hat : ndarray -- the estimate ``[A B]``.
+
+    Examples
+    --------
+    In closed loop with a double integrator sampled at 0.1 s (observation ``[x, x_ref]``):
+    after the probe the estimate is the true model and the gain that of the known-model
+    :class:`~stcgym.adaptive.LQRController`:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import LQRController, MultivariableSelfTuningController
+    >>> A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    >>> B = np.array([[0.005], [0.1]])
+    >>> stc = MultivariableSelfTuningController(2, 1, Q=1.0, R=0.01, seed=0)
+    >>> x, x_ref = np.zeros(2), np.array([1.0, 0.0])
+    >>> for t in range(50):
+    ...     u, _ = stc.predict(np.concatenate([x, x_ref]))
+    ...     x = A @ x + B @ u
+    >>> np.round(stc.A_hat, 4), np.round(stc.B_hat, 4)
+    (array([[1. , 0.1],
+           [0. , 1. ]]), array([[0.005],
+           [0.1  ]]))
+    >>> np.allclose(stc.K, LQRController(A, B, Q=1.0, R=0.01).K)
+    True
+    >>> np.round(x, 3)
+    array([0.976, 0.024])
     """
 
     observation_limit = OBSERVATION_LIMIT

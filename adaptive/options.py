@@ -51,16 +51,9 @@ P0_KF = 100.0
 
 @dataclass(frozen=True)
 class EstimatorOptions:
-    """Estimator settings.
+    """Estimator settings of the self-tuning controller.
 
-    ``p0``: ``P(0) = p0 I`` (moderate: the estimator starts from ``theta = 0`` on measured
-    data; ``None``: :data:`P0_ELS` for ``"ELS"`` and the observer (``O-``) estimators,
-    :data:`P0_KF` for the Kalman-filter (``KF-``) estimators); ``forgetting``: ``lambda`` in
-    ``(0, 1]``; ``p``: innovation length of the MISG/MILS rules; ``process_noise_gain``: ``q``
-    of the Kalman process noise
-    ``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + process_noise_floor I``;
-    ``measurement_noise``: ``R`` of the controller's Kalman filter on the estimated model. The
-    defaults (``p0 = 300``, ``R = 10``, ``q = 0.01``) were chosen on the catalogue plants with
+    The defaults (``p0 = 300``, ``R = 10``, ``q = 0.01``) were chosen on the catalogue plants with
     ``benchmarks/startup.py``: a larger ``R`` makes the filter trust the estimated model more
     than the noisy sample (it keeps the 4th-order plant from chasing noise with an early
     model), a larger ``p0`` lets the estimate move faster in the first samples.
@@ -87,6 +80,46 @@ class EstimatorOptions:
       components other than ``x1`` only the model can reconstruct: on ``unstable2`` of that
       form KF-MILS held 3 of 4 seeds at 50-300x the oracle's cost, against every seed near
       the oracle in the observer form.
+
+    Parameters
+    ----------
+    p0 : float or None, default None
+        ``P(0) = p0 I``, ``> 0`` (moderate: the estimator starts from ``theta = 0`` on measured
+        data). ``None``: :data:`P0_ELS` (300) for ``"ELS"`` and the observer (``O-``)
+        estimators, :data:`P0_KF` (100) for the Kalman-filter (``KF-``) estimators.
+    forgetting : float, default 1.0
+        Forgetting factor ``lambda`` in ``(0, 1]``.
+    p : int, default 2
+        Innovation length ``p >= 1`` of the multi-innovation rules (MISG, MILS).
+    process_noise_gain : float, default 0.01
+        ``q >= 0`` of the Kalman process noise
+        ``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + process_noise_floor I``.
+    process_noise_floor : float, default 1e-6
+        The ``>= 0`` floor added to ``Q``.
+    measurement_noise : float, default 10.0
+        ``R > 0`` of the controller's Kalman filter on the estimated model.
+    regressor : {"filtered", "predicted"}, default "filtered"
+        The state the paper's estimators build ``phi_hat`` from.
+    kf_measurement_noise : float, default 0.005
+        ``R > 0`` of the ``KF-`` estimators' own Kalman filter.
+    estimation_form : {"observer", "plant"}, default "observer"
+        The canonical form the estimator identifies.
+
+    Raises
+    ------
+    ValueError
+        On construction, naming the first field out of its range or set.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import EstimatorOptions
+    >>> opts = EstimatorOptions(forgetting=0.99)
+    >>> opts.initial_covariance("KF-MILS"), opts.initial_covariance("O-RLS")
+    (100.0, 300.0)
+    >>> EstimatorOptions(forgetting=1.5)
+    Traceback (most recent call last):
+    ...
+    ValueError: forgetting must lie in (0, 1], got 1.5
     """
 
     p0: float | None = None
@@ -112,7 +145,18 @@ class EstimatorOptions:
         one_of(self.estimation_form, "estimation_form", ("observer", "plant"))
 
     def initial_covariance(self, estimator: str) -> float:
-        """``p0`` for the (canonical) estimator name: the given value or the name's default."""
+        """``p0`` for the (canonical) estimator name: the given value or the name's default.
+
+        Parameters
+        ----------
+        estimator : str
+            An estimator name (``"ELS"``, ``"O-RLS"``, ``"KF-MILS"``, ...).
+
+        Returns
+        -------
+        float
+            ``p0`` if given, else :data:`P0_KF` for ``KF-`` names and :data:`P0_ELS` otherwise.
+        """
         if self.p0 is not None:
             return float(self.p0)
         return P0_KF if estimator.upper().startswith("KF-") else P0_ELS
@@ -122,14 +166,43 @@ class EstimatorOptions:
 class StartupOptions:
     """Start-up: a seeded zero-mean probe, bounded by the observed output, then the loop closes.
 
-    ``probe_steps`` samples (``None``: ``2n``) of ``+-a(t)``, ``a(t) = probe_amplitude *
-    min(1, probe_output / y_max(t))`` with ``y_max(t)`` the largest ``|y|`` seen so far; the
-    probe goes on past ``probe_steps`` while ``y_max < probe_output``, for at most
-    ``max_probe_steps`` samples (``None``: ``5n``; ``0`` or ``probe_steps`` turns the extension
-    off). ``probe_output = inf`` with ``max_probe_steps = 0`` gives a fixed probe,
-    ``+-probe_amplitude`` for ``probe_steps`` samples. Defaults chosen with
+    The probe is ``probe_steps`` samples of ``+-a(t)``, ``a(t) = probe_amplitude *
+    min(1, probe_output / y_max(t))`` with ``y_max(t)`` the largest ``|y|`` seen so far; it
+    goes on past ``probe_steps`` while ``y_max < probe_output``, for at most
+    ``max_probe_steps`` samples. ``probe_output = inf`` with ``max_probe_steps = 0`` gives a
+    fixed probe, ``+-probe_amplitude`` for ``probe_steps`` samples. Defaults chosen with
     ``benchmarks/startup.py`` (the scaled probe for high-gain plants, the extension for slow
     ones such as ``stable4``).
+
+    Parameters
+    ----------
+    probe_amplitude : float, default 0.5
+        Largest probe amplitude, ``>= 0``.
+    probe_steps : int or None, default None
+        Length of the probe, ``>= 0``; ``None``: ``2n`` for a plant of order ``n``.
+    probe_output : float, default 0.5
+        The ``|y|`` the probe scales down to and waits for, ``> 0`` (``inf`` allowed).
+    max_probe_steps : int or None, default None
+        Longest probe with the extension, ``>= 0``; ``None``: ``5n``; ``0`` or
+        ``probe_steps`` turns the extension off.
+
+    Raises
+    ------
+    ValueError
+        On construction, naming the first field out of its range.
+
+    Examples
+    --------
+    A fixed probe of ``+-1`` for 8 samples:
+
+    >>> from stcgym.adaptive import StartupOptions
+    >>> StartupOptions(probe_amplitude=1.0, probe_steps=8, probe_output=float("inf"),
+    ...                max_probe_steps=0)
+    StartupOptions(probe_amplitude=1.0, probe_steps=8, probe_output=inf, max_probe_steps=0)
+    >>> StartupOptions(probe_output=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: probe_output must lie in (0, inf], got 0
     """
 
     probe_amplitude: float = 0.5
@@ -148,9 +221,39 @@ class StartupOptions:
 
 @dataclass(frozen=True)
 class SafeSet:
-    """A design is used only when ``max |b_hat| >= b_min``, the normalised controllability
+    """The safe set of designs: outside it the last good gain stays.
+
+    A design is used only when ``max |b_hat| >= b_min``, the normalised controllability
     matrix has reciprocal condition ``>= rcond_min``, the steady-state matrix ``>= dc_rcond_min``
-    (no zero at ``z = 1``) and ``max |K|, |N| <= gain_max``; otherwise the last good gain stays."""
+    (no zero at ``z = 1``) and ``max |K|, |N| <= gain_max``.
+
+    Parameters
+    ----------
+    b_min : float, default 1e-4
+        Smallest accepted ``max |b_hat|``, ``>= 0``.
+    rcond_min : float, default 1e-6
+        Smallest accepted reciprocal condition number of the normalised controllability
+        matrix, ``>= 0``.
+    dc_rcond_min : float, default 0.0
+        Smallest accepted reciprocal condition number of the steady-state matrix, ``>= 0``.
+    gain_max : float, default 1e3
+        Largest accepted ``|K|`` and ``|N|`` entry, ``> 0``.
+
+    Raises
+    ------
+    ValueError
+        On construction, naming the first field out of its range.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import SafeSet
+    >>> SafeSet(gain_max=50.0).vector()
+    array([1.e-04, 1.e-06, 0.e+00, 5.e+01])
+    >>> SafeSet(b_min=-1)
+    Traceback (most recent call last):
+    ...
+    ValueError: b_min must lie in [0, inf), got -1
+    """
 
     b_min: float = 1e-4
     rcond_min: float = 1e-6
@@ -163,17 +266,49 @@ class SafeSet:
     def vector(self) -> NDArray:
         """The safe-set vector the design lane functions read.
 
-        See :func:`stcgym.adaptive.kernels.safe_set.safe_set`.
+        See :func:`~stcgym.adaptive.kernels.safe_set.safe_set`.
         """
         return dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
 
 @dataclass(frozen=True)
 class ChangeDetection:
-    """Covariance resetting when the short EWMA of ``e^2`` (rate ``short``) exceeds
-    ``threshold`` x the long one (rate ``long``), in closed loop, at most once per ``holdoff``
-    steps: ``P <- inflation P``. ``threshold = 5`` catches the bench's parameter jump with no
-    false alarm on the 1000 random time-invariant plants of ``benchmarks/startup.py``."""
+    """Covariance resetting on a change of the plant.
+
+    When the short EWMA of ``e^2`` (rate ``short``) exceeds ``threshold`` x the long one
+    (rate ``long``), in closed loop, at most once per ``holdoff`` steps: ``P <- inflation P``.
+    ``threshold = 5`` catches the bench's parameter jump with no false alarm on the 1000
+    random time-invariant plants of ``benchmarks/startup.py``.
+
+    Parameters
+    ----------
+    enabled : bool, default True
+        Whether change detection runs.
+    threshold : float, default 5.0
+        Ratio of the short to the long EWMA that triggers a reset, ``> 1``.
+    holdoff : int, default 100
+        Fewest steps between two resets, ``>= 0``.
+    inflation : float, default 100.0
+        Factor ``>= 1`` applied to ``P`` at a reset.
+    short, long : float, defaults 0.1 and 0.01
+        Rates of the two EWMAs, in ``(0, 1]``.
+
+    Raises
+    ------
+    ValueError
+        On construction, naming the first field out of its range (``enabled`` must be a
+        bool).
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import ChangeDetection
+    >>> ChangeDetection(threshold=3.0).holdoff
+    100
+    >>> ChangeDetection(threshold=1)
+    Traceback (most recent call last):
+    ...
+    ValueError: threshold must lie in (1, inf], got 1
+    """
 
     enabled: bool = True
     threshold: float = 5.0
@@ -208,6 +343,39 @@ class LawOptions:
     loop close to the LQ loop without integrator (steady-state cost 1.01-1.04x that of LQG
     without integral action). With integral action ``q_i`` must be > 0: with ``q_i = 0`` the
     integrator is invisible to the cost and the LQ gain leaves it alone (``k_i = 0``).
+
+    Parameters
+    ----------
+    integral : bool, default True
+        Integral action on ``r - y``.
+    feedforward : bool, default True
+        Reference feed-forward ``N r``.
+    anti_windup : bool, default True
+        Conditional integration while the input saturates.
+    filtered : bool, default True
+        Control on the filtered state ``x(t|t)`` rather than the predicted ``x(t|t-1)``.
+    lq_weights : tuple of 3 floats, default ``(1.0, 1e-4, 0.01)``
+        ``(q_y, q_i, rho)`` with ``q_y > 0``, ``q_i >= 0`` (``> 0`` with integral action) and
+        ``rho > 0``.
+
+    Raises
+    ------
+    ValueError
+        On construction: a flag that is not a bool, ``lq_weights`` not of length 3, a weight
+        out of its range, ``q_i = 0`` with ``integral=True``.
+
+    Examples
+    --------
+    The law for an env whose cost is ``(y - r)^2 + 0.1 u^2``:
+
+    >>> from stcgym.adaptive import LawOptions
+    >>> from stcgym.adaptive.options import cost_weights
+    >>> LawOptions(lq_weights=cost_weights(0.1)).lq_weights
+    (1.0, 0.0001, 0.1)
+    >>> LawOptions(lq_weights=(1.0, 0.0, 0.01))
+    Traceback (most recent call last):
+    ...
+    ValueError: lq_weights[1] (q_i) must be > 0 with integral action ...
     """
 
     integral: bool = True

@@ -45,7 +45,29 @@ __all__ = [
 
 
 class UncontrollableError(np.linalg.LinAlgError):
-    """Raised when ``(A, b)`` is uncontrollable or too close to it for a meaningful gain."""
+    """Raised when ``(A, b)`` is uncontrollable or too close to it for a meaningful gain.
+
+    A subclass of :class:`numpy.linalg.LinAlgError`, raised by :func:`ackermann`,
+    :func:`place_poles` and :func:`lq_gain`; the message gives the reciprocal condition number
+    or the Riccati solver's status.
+
+    Parameters
+    ----------
+    *args
+        The message, as for any exception.
+
+    Examples
+    --------
+    Two identical integrators driven by the same input cannot be placed independently:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import UncontrollableError, place_poles
+    >>> try:
+    ...     place_poles(np.eye(2), [1.0, 1.0], 0.5)
+    ... except UncontrollableError as exc:
+    ...     print(exc)
+    (A, b) is (nearly) uncontrollable: rcond of the controllability matrix 0
+    """
 
 
 def _single_input_model(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
@@ -149,6 +171,20 @@ def ackermann(
         ``A`` not a finite square matrix, ``b`` or ``alpha`` not finite of length ``m``.
     UncontrollableError
         ``rcond < rcond_min`` or the controllability matrix is exactly singular / non-finite.
+
+    Examples
+    --------
+    Both poles of a second-order model at ``z = 0.5``, ``phi_d(z) = z^2 - z + 0.25``:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import ackermann
+    >>> A = np.array([[1.5, 1.0], [-0.7, 0.0]])
+    >>> b = np.array([1.0, 0.5])
+    >>> K, rcond = ackermann(A, b, [-1.0, 0.25])
+    >>> np.round(K, 4), round(rcond, 4)
+    (array([0.2941, 0.4118]), 0.291)
+    >>> np.round(np.linalg.eigvals(A - np.outer(b, K)), 6)
+    array([0.5, 0.5])
     """
     A, b = _single_input_model(A, b)
     m = A.shape[0]
@@ -163,11 +199,44 @@ def ackermann(
 
 
 def place_poles(A: ArrayLike, b: ArrayLike, poles: ArrayLike, *, rcond_min: float = 0.0) -> NDArray:
-    """Convenience wrapper: validate ``poles`` and return the Ackermann gain ``K`` (1-D).
+    """Validate ``poles`` and return the Ackermann gain ``K`` (1-D) with ``eig(A - b K) = poles``.
 
     Equivalent to ``control.acker(A, b, poles)`` (and to ``control.place`` for distinct poles),
-    closed-form (the lane function :func:`stcgym.adaptive.kernels.design.ackermann_gain`); raises
-    :class:`UncontrollableError` for an uncontrollable pair.
+    closed-form (the lane function :func:`stcgym.adaptive.kernels.design.ackermann_gain`).
+
+    Parameters
+    ----------
+    A : array_like, shape (m, m)
+        Finite system matrix.
+    b : array_like, shape (m,) or (m, 1)
+        Finite input vector.
+    poles : complex or array_like of m complex
+        Desired closed-loop poles, strictly inside the unit circle; a scalar puts every pole
+        there; complex poles in conjugate pairs (see :func:`check_poles`).
+    rcond_min : float, default 0.0
+        Reject the model below this reciprocal condition number (see :func:`ackermann`).
+
+    Returns
+    -------
+    K : ndarray, shape (m,)
+        The state-feedback gain of ``u = -K x``.
+
+    Raises
+    ------
+    ValueError
+        Malformed ``A``, ``b`` or ``poles`` (see :func:`check_poles`).
+    UncontrollableError
+        ``(A, b)`` uncontrollable or too close to it.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.adaptive import place_poles
+    >>> A = np.array([[1.5, 1.0], [-0.7, 0.0]])
+    >>> b = np.array([1.0, 0.5])
+    >>> K = place_poles(A, b, [0.4, 0.6])
+    >>> np.sort(np.round(np.linalg.eigvals(A - np.outer(b, K)), 6))
+    array([0.4, 0.6])
     """
     A, b = _single_input_model(A, b)
     p = check_poles(poles, A.shape[0])
@@ -182,6 +251,37 @@ def augment_integral(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, NDArray]:
     ``z(t+1) = [[A, 0], [-c, 1]] z(t) + [b; 0] u(t) + [0; 1] r(t)``. Placing the ``n + 1``
     eigenvalues of ``A_aug - b_aug K_aug`` gives zero steady-state error to constant references
     (and input disturbances) whatever the model error, as long as the true loop stays stable.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        Finite system matrix.
+    b : array_like, shape (n,) or (n, 1)
+        Finite input vector.
+
+    Returns
+    -------
+    A_aug : ndarray, shape (n + 1, n + 1)
+        ``[[A, 0], [-c, 1]]``.
+    b_aug : ndarray, shape (n + 1,)
+        ``[b; 0]``.
+
+    Raises
+    ------
+    ValueError
+        ``A`` not a finite square matrix or ``b`` not finite of length ``n``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.adaptive import augment_integral
+    >>> A_aug, b_aug = augment_integral([[1.5, 1.0], [-0.7, 0.0]], [1.0, 0.5])
+    >>> A_aug
+    array([[ 1.5,  1. ,  0. ],
+           [-0.7,  0. ,  0. ],
+           [-1. ,  0. ,  1. ]])
+    >>> b_aug
+    array([1. , 0.5, 0. ])
     """
     A, b = _single_input_model(A, b)
     n = A.shape[0]
@@ -233,6 +333,21 @@ def lq_gain(
     :func:`stcgym.adaptive.kernels.design.dare` (the same code the self-tuning LQ design runs).
     Equivalent to ``control.dlqr(A, b, Q, R)[:2]``.
 
+    Parameters
+    ----------
+    A : array_like, shape (m, m)
+        Finite system matrix.
+    b : array_like, shape (m,) or (m, 1)
+        Finite input vector.
+    Q : array_like, shape (m, m)
+        State weight, symmetric positive semidefinite.
+    R : float
+        Input weight, ``> 0``.
+    tol : float, default 1e-12
+        Relative convergence tolerance of the doubling iteration.
+    max_iter : int, default 64
+        Most doubling steps.
+
     Returns
     -------
     K, P
@@ -246,6 +361,20 @@ def lq_gain(
     UncontrollableError
         No stabilising solution: ``(A, b)`` not stabilisable or ``(A, Q)`` not detectable
         (the doubling diverges or the closed loop is not stable), or no convergence.
+
+    Examples
+    --------
+    The output-only weight ``Q = c^T c`` of the envs' cost with ``R = 0.01``:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import lq_gain
+    >>> A = np.array([[1.5, 1.0], [-0.7, 0.0]])
+    >>> b = np.array([1.0, 0.5])
+    >>> K, P = lq_gain(A, b, np.diag([1.0, 0.0]), 0.01)
+    >>> np.round(K, 4)
+    array([1.4471, 0.9773])
+    >>> bool(np.all(np.abs(np.linalg.eigvals(A - np.outer(b, K))) < 1))
+    True
     """
     A, b = _single_input_model(A, b)
     m = A.shape[0]

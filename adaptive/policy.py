@@ -53,7 +53,26 @@ __all__ = [
 
 @runtime_checkable
 class Policy(Protocol):
-    """Anything with SB3's ``predict`` signature."""
+    """Anything with SB3's ``predict`` signature.
+
+    A structural protocol (:func:`typing.runtime_checkable`): SB3's models, the self-tuning
+    controllers, the known-model oracles and any object of your own with such a ``predict``
+    are policies; ``isinstance`` checks only that ``predict`` exists. A policy with
+    per-episode state also has ``reset()`` (see :func:`reset_policy`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.adaptive import Policy
+    >>> class Proportional:
+    ...     def predict(self, observation, state=None, episode_start=None, deterministic=True):
+    ...         y, r = observation
+    ...         return np.array([0.5 * (r - y)]), state
+    >>> isinstance(Proportional(), Policy)
+    True
+    >>> Proportional().predict(np.array([0.2, 1.0]))
+    (array([0.4]), None)
+    """
 
     def predict(
         self,
@@ -67,7 +86,29 @@ class Policy(Protocol):
 
 
 def reset_policy(policy: Any) -> None:
-    """Call ``policy.reset()`` when it has one (SB3 feed-forward policies have no state)."""
+    """Call ``policy.reset()`` when it has one (SB3 feed-forward policies have no state).
+
+    Parameters
+    ----------
+    policy : object
+        Any policy; an object without a callable ``reset`` is left alone.
+
+    Returns
+    -------
+    None
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import reset_policy
+    >>> class Counter:
+    ...     steps = 3
+    ...     def reset(self):
+    ...         self.steps = 0
+    >>> c = Counter()
+    >>> reset_policy(c), c.steps
+    (None, 0)
+    >>> reset_policy(object())  # no reset: nothing to do
+    """
     reset = getattr(policy, "reset", None)
     if callable(reset):
         reset()

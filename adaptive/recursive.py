@@ -133,6 +133,27 @@ class NumericalHealthError(FloatingPointError):
     Raised by the estimators when ``on_failure="raise"`` (the estimator is then left exactly
     as before the call); with the default ``"reset"`` they recover instead and emit a
     :class:`RuntimeWarning`.
+
+    Parameters
+    ----------
+    *args
+        The message (the algorithm, the time ``t`` and what failed).
+
+    Examples
+    --------
+    An output of ``1e300`` overflows ``P``; the estimator stays at ``t = 1``:
+
+    >>> from stcgym.adaptive import NumericalHealthError, make_estimator
+    >>> est = make_estimator("O-RLS", 2, on_failure="raise")
+    >>> _ = est.update(1e200)
+    >>> _ = est.predict(1e200)
+    >>> try:
+    ...     est.update(1e300)
+    ... except NumericalHealthError as exc:
+    ...     print(exc)
+    O-RLS at t=2: P(t) / r(t) overflowed or is not finite
+    >>> est.t
+    1
     """
 
 
@@ -164,10 +185,21 @@ class RecursiveEstimator:
 
     Build it with :func:`make_estimator`. For a single plant (``num_envs=None``) every array
     below has the shape given; a batch prepends the lane axis ``B`` (``theta`` ``(B, 2n)``,
-    ``t`` ``(B,)``, ...).
+    ``t`` ``(B,)``, ...). The attributes are read-only unless stated.
 
-    Attributes (read-only unless stated)
-    ------------------------------------
+    Parameters
+    ----------
+    spec : EstimatorSpec
+        The validated configuration (:func:`make_estimator` builds it from keywords).
+    num_envs : int or None, default None
+        Number of lanes ``B``; ``None``: one plant.
+    lane_theta0 : ndarray, shape (B, 2n), optional
+        Per-lane ``theta_hat(0)``, overriding the spec's.
+    lane_P0 : ndarray, shape (B, 2n, 2n), optional
+        Per-lane ``P(0)``, overriding the spec's.
+
+    Attributes
+    ----------
     spec : EstimatorSpec
         The validated configuration (record layout, config arrays, initial values).
     name, n, p, form, num_envs : the algorithm name (upper case), order, innovation length,
@@ -193,6 +225,34 @@ class RecursiveEstimator:
     flops_per_step, flops_parameters, flops_state : int
         Paper conventions: ``O-RLS`` = table 1, ``KF-MILS`` = table 2, D-RLS / D-MILS
         ``flops_parameters`` = tables 3 / 4 (:mod:`stcgym.adaptive.flops`).
+
+    Examples
+    --------
+    O-RLS on recorded data of the plant ``y(t) = 1.2 y(t-1) - 0.5 y(t-2) + u(t-1) + 0.4 u(t-2)``
+    (``theta = [a1, a2, b1, b2] = [-1.2, 0.5, 1, 0.4]``), with the measurement-corrected
+    regressor:
+
+    >>> import numpy as np
+    >>> from scipy.signal import lfilter
+    >>> from stcgym.adaptive import make_estimator
+    >>> u = np.random.default_rng(0).standard_normal(50)
+    >>> y = lfilter([0.0, 1.0, 0.4], [1.0, -1.2, 0.5], u)
+    >>> est = make_estimator("O-RLS", 2, p0=100.0, regressor="filtered")
+    >>> thetas = est.run(u, y)
+    >>> thetas.shape, est.t
+    ((50, 4), 50)
+    >>> np.round(est.theta, 2)
+    array([-1.2,  0.5,  1. ,  0.4])
+
+    Step by step, as a controller uses it (:meth:`update` with ``y(t)``, then :meth:`predict`
+    with ``u(t)``):
+
+    >>> est.reset()
+    >>> for u_t, y_t in zip(u, y):
+    ...     theta = est.update(y_t)
+    ...     x_next = est.predict(u_t)
+    >>> np.allclose(theta, thetas[-1])
+    True
     """
 
     def __init__(
@@ -275,7 +335,18 @@ class RecursiveEstimator:
 
     def reset(self, lanes: Any = None) -> None:
         """Back to the initial conditions (``t = 0``) for all lanes or the given ``lanes``
-        (indices or a boolean mask of length ``B``); ``enabled`` is kept."""
+        (indices or a boolean mask of length ``B``); ``enabled`` is kept.
+
+        Parameters
+        ----------
+        lanes : array_like of int or bool, optional
+            Lane indices or a boolean mask of length ``B`` (default all lanes).
+
+        Raises
+        ------
+        ValueError
+            An index out of range or a mask of the wrong length.
+        """
         idx = lane_indices(lanes, self._B)
         oe = self.spec.offset("enabled")
         enabled = self._rec[idx, oe].copy()
@@ -287,13 +358,41 @@ class RecursiveEstimator:
 
     def reset_covariance(self, lanes: Any = None) -> None:
         """``P <- P(0)`` (``r <- r(0)``) and an empty finite-history window; ``theta_hat`` and
-        the state estimate are kept (the documented safe action, also on a change alarm)."""
+        the state estimate are kept (the documented safe action, also on a change alarm).
+
+        Parameters
+        ----------
+        lanes : array_like of int or bool, optional
+            Lane indices or a boolean mask of length ``B`` (default all lanes).
+
+        Raises
+        ------
+        ValueError
+            An index out of range or a mask of the wrong length.
+        """
         for i in lane_indices(lanes, self._B):
             _k.reset_covariance(self._rec[i], self.spec.at, self.spec.config)
 
     def restart(self, theta: ArrayLike, P: ArrayLike | None = None, lanes: Any = None) -> None:
         """Restart the parameter estimate at ``theta`` with covariance ``P`` (RLS/MILS; only
-        its diagonal blocks for D- rules) keeping the state estimate; SG/MISG restart ``r``."""
+        its diagonal blocks for D- rules) keeping the state estimate; SG/MISG restart ``r``.
+
+        Parameters
+        ----------
+        theta : array_like, shape (2n,) or (lanes, 2n)
+            The new ``theta_hat``, finite (one row for every lane restarted, or one for all).
+        P : array_like, shape (2n, 2n) or (lanes, 2n, 2n), optional
+            Symmetric positive definite covariance; required by the RLS/MILS rules, ignored by
+            SG/MISG.
+        lanes : array_like of int or bool, optional
+            The lanes to restart (default all).
+
+        Raises
+        ------
+        ValueError
+            ``theta`` or ``P`` malformed, ``P`` missing for RLS/MILS, or not positive definite
+            on some lane; nothing changed.
+        """
         idx = lane_indices(lanes, self._B)
         d = 2 * self.n
         th = np.asarray(theta, dtype=float)
@@ -342,7 +441,30 @@ class RecursiveEstimator:
         """Measurement step at time ``t``: build ``phi_hat(t)``, ``Phi(p, t)``, ``Y(p, t)`` and
         update ``theta_hat(t)`` (and ``P(t)`` / ``r(t)``); returns a copy of ``theta_hat(t)``.
 
-        ``y_t``: the measured output ``y(t)`` (a scalar; shape ``(B,)`` for a batch).
+        The regressor is (9)/(57) in the observer form, (153) in the observability form; the
+        parameter rule SG (12)-(15), MISG (16)-(22), RLS (32)-(36) or MILS (37)-(44) of Ding &
+        Ma (2014) (a whole O-RLS step, this and :meth:`predict`, is (54)-(62); KF-MILS's
+        (73)-(86)).
+
+        Parameters
+        ----------
+        y_t : float or array_like of shape (B,)
+            The measured output ``y(t)``, finite.
+
+        Returns
+        -------
+        ndarray, shape (2n,) or (B, 2n)
+            ``theta_hat(t) = [a_hat(t); b_hat(t)]``.
+
+        Raises
+        ------
+        RuntimeError
+            ``update`` twice without :meth:`predict` in between.
+        ValueError
+            ``y_t`` not finite or of the wrong shape; nothing changed.
+        NumericalHealthError
+            With ``on_failure="raise"``, a covariance or normaliser that lost positive
+            definiteness or overflowed; the estimator is left as before the call.
         """
         self._check_phase(0.0, "update")
         spec = self.spec
@@ -372,6 +494,21 @@ class RecursiveEstimator:
         x_next : array_like, shape (n,) or (B, n), optional
             A known (measured) ``x(t+1)`` that replaces the estimate: the regressors then use
             the true states (which lets the rules be checked against batch least squares).
+
+        Returns
+        -------
+        ndarray, shape (n,) or (B, n)
+            ``x_hat(t+1)``: the open-loop observer (46)-(49), the closed-loop observer (50)-(53)
+            or the Kalman filter (66)-(72) on ``A_hat(t)``, ``b_hat(t)`` ((47) or (146)).
+
+        Raises
+        ------
+        RuntimeError
+            ``predict`` before :meth:`update`.
+        ValueError
+            ``u_t`` or ``x_next`` not finite or of the wrong shape; nothing changed.
+        NumericalHealthError
+            With ``on_failure="raise"``, a non-finite state estimate or Kalman covariance.
         """
         self._check_phase(1.0, "predict")
         spec = self.spec
@@ -425,8 +562,25 @@ class RecursiveEstimator:
         """Open-loop pass over recorded data: ``u[k], y[k]`` are ``u(t), y(t)`` for
         ``t = k + 1`` (continuing from the current time).
 
-        Returns ``theta_hat(t)`` for ``t = 1..T``: shape ``(T, 2n)``; a batch takes ``u``, ``y``
-        of shape ``(T, B)`` and returns ``(T, B, 2n)``.
+        Parameters
+        ----------
+        u, y : array_like, shape (T,) or (T, B)
+            Inputs and measured outputs, finite, of equal length.
+
+        Returns
+        -------
+        ndarray, shape (T, 2n) or (T, B, 2n)
+            ``theta_hat(t)`` for ``t = 1..T`` (fewer rows when ``on_failure="raise"`` stopped
+            the pass).
+
+        Raises
+        ------
+        RuntimeError
+            Called between :meth:`update` and :meth:`predict`.
+        ValueError
+            ``u`` and ``y`` malformed or of different lengths.
+        NumericalHealthError
+            With ``on_failure="raise"``, as for :meth:`update`.
         """
         if self.num_envs is not None or callable(self.spec.observer_gain):
             return self._run_steps(u, y)
@@ -786,6 +940,28 @@ def make_estimator(
     Returns
     -------
     RecursiveEstimator
+        At ``t = 0``; ``num_envs`` lanes of it when ``num_envs`` is given.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``name``, or an option out of its range or of the wrong shape, naming it.
+    TypeError
+        An unknown keyword.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import make_estimator
+    >>> est = make_estimator("kf-mils", 2, p=3)
+    >>> est.name, est.n, est.p, est.form
+    ('KF-MILS', 2, 3, 'observer')
+    >>> batch = make_estimator("O-RLS", 2, num_envs=4)
+    >>> batch.theta.shape
+    (4, 4)
+    >>> make_estimator("O-RLS", 2, forgetting=2)
+    Traceback (most recent call last):
+    ...
+    ValueError: forgetting (lambda) must lie in (0, 1], got 2
     """
     _BUILD_SIGNATURE.bind(name, n, **options)  # a TypeError naming an unknown keyword
     theta0, P0 = options.get("theta0"), options.get("P0")

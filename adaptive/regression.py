@@ -359,6 +359,15 @@ class RecursiveLeastSquares:
     num_envs : int, optional
         Number of lanes ``B``; ``None`` for a single estimator (no leading axis).
 
+    Raises
+    ------
+    ValueError
+        On construction: ``num_params``, ``num_outputs``, ``window`` or ``num_envs`` not a
+        positive integer, ``P0`` neither ``0`` nor positive definite of size ``d``, ``theta0``
+        not a finite vector of length ``d``, ``forgetting`` outside ``(0, 1]``, ``window``
+        with ``forgetting < 1`` or with ``P0 = 0``, ``on_failure`` not ``"reset"`` or
+        ``"raise"``.
+
     Examples
     --------
     >>> from stcgym.adaptive import RecursiveLeastSquares
@@ -435,7 +444,18 @@ class RecursiveLeastSquares:
 
     # ---------------------------------------------------------------- lifecycle
     def reset(self, lanes: ArrayLike | None = None) -> None:
-        """Back to ``theta0``, ``P0``, ``t = 0`` (all lanes, or the given lane indices / mask)."""
+        """Back to ``theta0``, ``P0``, ``t = 0`` (all lanes, or the given lane indices / mask).
+
+        Parameters
+        ----------
+        lanes : array_like of int or bool, optional
+            Lane indices or a boolean mask of length ``B`` (default all lanes).
+
+        Raises
+        ------
+        ValueError
+            An index out of range or a mask of the wrong length.
+        """
         idx = lane_indices(lanes, self._F.shape[0])
         rec = self._F[idx]
         rec[...] = 0.0
@@ -480,9 +500,26 @@ class RecursiveLeastSquares:
     def update(self, phi: ArrayLike, y: ArrayLike) -> NDArray:
         """One step with regressor ``phi(t)`` and measurement ``y(t)``; returns ``theta(t)``.
 
-        Shapes: single ``phi`` (d,) / (p, d), ``y`` scalar / (p,); with ``num_envs=B`` a
-        leading ``B`` axis on both. Bad shapes or non-finite values raise ``ValueError`` before
-        any state changes.
+        Parameters
+        ----------
+        phi : array_like, shape (d,) or (p, d)
+            The regressor ``phi(t)`` (one row per output); ``(B, d)`` or ``(B, p, d)`` with
+            ``num_envs=B``.
+        y : float or array_like, shape (p,)
+            The measurement ``y(t)``; ``(B,)`` or ``(B, p)`` with ``num_envs=B``.
+
+        Returns
+        -------
+        ndarray, shape (d,) or (B, d)
+            ``theta(t)``.
+
+        Raises
+        ------
+        ValueError
+            Bad shapes or non-finite values, before any state changes.
+        NumericalHealthError
+            With ``on_failure="raise"``, a step that would lose positive definiteness or
+            overflow (not applied).
         """
         Phi = self._regressor(phi, self._lead)
         Y = self._output(y, self._lead)
@@ -522,9 +559,28 @@ class RecursiveLeastSquares:
     def run(self, phi: ArrayLike, y: ArrayLike) -> NDArray:
         """Many steps in compiled code: ``phi`` (T, d) / (T, p, d), ``y`` (T,) / (T, p).
 
-        With ``num_envs=B`` a leading ``B`` axis on both. Returns ``theta(t)`` after each step,
-        shape (T, d) or (B, T, d). With ``on_failure="raise"`` a failing lane stops before its
-        failing step (the other lanes finish) and the error names the step.
+        With ``num_envs=B`` a leading ``B`` axis on both. With ``on_failure="raise"`` a failing
+        lane stops before its failing step (the other lanes finish) and the error names the
+        step.
+
+        Parameters
+        ----------
+        phi : array_like, shape (T, d) or (T, p, d)
+            Regressors of ``T`` steps (``(B, T, ...)`` with ``num_envs=B``).
+        y : array_like, shape (T,) or (T, p)
+            Measurements of the same steps (``(B, T, ...)`` with ``num_envs=B``).
+
+        Returns
+        -------
+        ndarray, shape (T, d) or (B, T, d)
+            ``theta(t)`` after each step.
+
+        Raises
+        ------
+        ValueError
+            Bad shapes or non-finite values, before any state changes.
+        NumericalHealthError
+            With ``on_failure="raise"``, as for :meth:`update`.
         """
         B = self._F.shape[0]
         phi_arr = np.asarray(phi, dtype=float)
@@ -567,7 +623,23 @@ class RecursiveLeastSquares:
         return out if self._batched else out[0]
 
     def predict(self, phi: ArrayLike) -> NDArray:
-        """``phi theta`` with the current estimate (no state change): shape (p,) or (B, p)."""
+        """``phi theta`` with the current estimate (no state change).
+
+        Parameters
+        ----------
+        phi : array_like, shape (d,) or (p, d)
+            A regressor (``(B, ...)`` with ``num_envs=B``).
+
+        Returns
+        -------
+        ndarray, shape (p,) or (B, p)
+            The model output.
+
+        Raises
+        ------
+        ValueError
+            ``phi`` malformed or not finite.
+        """
         Phi = self._regressor(phi, self._lead)
         return np.einsum("...rd,...d->...r", Phi, self.theta)
 

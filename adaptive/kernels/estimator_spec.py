@@ -140,6 +140,38 @@ def parse_name(name: str) -> tuple[str, bool, str]:
 
     ``"KF-D-MILS" -> ("KF", True, "MILS")``; case-insensitive; the state estimator is one of
     ``O``, ``KF``, ``CO`` (closed-loop observer, needs ``observer_gain``).
+
+    Parameters
+    ----------
+    name : str
+        ``"<state>-[D-]<rule>"``: state in :data:`STATE_ESTIMATORS`, rule in :data:`RULES`
+        (surrounding blanks ignored).
+
+    Returns
+    -------
+    state : str
+        ``"O"``, ``"KF"`` or ``"CO"``.
+    decomposed : bool
+        Whether the name has the ``D-`` (model decomposition) part.
+    rule : str
+        ``"SG"``, ``"MISG"``, ``"RLS"`` or ``"MILS"``.
+
+    Raises
+    ------
+    ValueError
+        ``name`` not a string of that form; the message lists the accepted names.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import parse_name
+    >>> parse_name("kf-d-mils")
+    ('KF', True, 'MILS')
+    >>> parse_name("O-RLS")
+    ('O', False, 'RLS')
+    >>> parse_name("O-LSI")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown algorithm 'O-LSI'; expected '<state>-[D-]<rule>' ...
     """
     if not isinstance(name, str):
         raise ValueError(f"name must be a string such as 'KF-D-MILS', got {name!r}")
@@ -174,6 +206,42 @@ class EstimatorSpec:
     ``theta0``, ``P0``, ``x_init``, ``P1_init``, ``Q`` are the per-lane initial values written
     by :meth:`initial_record`. ``observer_gain`` may be a callable (evaluated by the Python
     class before every state step); the lane functions read the gain ``K`` from the record.
+
+    Parameters
+    ----------
+    name, n, p, form
+        Canonical algorithm name (upper case), plant order, innovation length, canonical form.
+    state, decomposed, rule
+        The parts of ``name`` (:func:`parse_name`).
+    forgetting, window, stacked_r, project_stable, pd_check_every, on_failure, enabled
+        As for :func:`stcgym.adaptive.make_estimator`.
+    theta0, P0, r0, x_init, P1_init, Q, R, observer_gain
+        Initial values and filter settings (``P0`` ``None`` for SG/MISG rules; ``P1_init``
+        and ``Q`` ``None`` unless the state estimator is ``KF``).
+    frozen : tuple of 3 floats
+        ``(rate, ratio, gain)`` of the "frozen on a wrong model" signal.
+    regressor : {"predicted", "filtered"}
+        The state estimate ``phi_hat`` is built from.
+
+    Raises
+    ------
+    ValueError
+        From :meth:`build`: an argument out of its range or shape, or one that does not
+        apply to the rule or state estimator (``P0`` for SG, ``r0`` for RLS,
+        ``process_noise`` for ``O``, ...), naming it.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import EstimatorSpec
+    >>> spec = EstimatorSpec.build("kf-d-mils", 2, p=3)
+    >>> spec.name, spec.state, spec.decomposed, spec.rule
+    ('KF-D-MILS', 'KF', True, 'MILS')
+    >>> spec.initial_record().shape == (spec.size,)
+    True
+    >>> EstimatorSpec.build("O-RLS", 2, r0=2.0)
+    Traceback (most recent call last):
+    ...
+    ValueError: r0 applies to SG/MISG rules only, not RLS
     """
 
     name: str
@@ -229,7 +297,23 @@ class EstimatorSpec:
         frozen_ratio: float = FROZEN_RATIO,
         regressor: str = "predicted",
     ) -> EstimatorSpec:
-        """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument)."""
+        """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument).
+
+        Parameters
+        ----------
+        name, n, **options
+            As for :func:`stcgym.adaptive.make_estimator`, which documents each.
+
+        Returns
+        -------
+        EstimatorSpec
+
+        Raises
+        ------
+        ValueError
+            An unknown name, or an argument out of its range, of the wrong shape or not
+            applying to the rule or state estimator.
+        """
         state, decomposed, rule = parse_name(name)
         n = integer(n, "n", 1)
         p = integer(p, "p", 1)
@@ -418,17 +502,50 @@ class EstimatorSpec:
         return self.rule in ("RLS", "MILS")
 
     def offset(self, name: str) -> int:
-        """Offset of the field ``name`` relative to the start of the estimator record."""
+        """Offset of the field ``name`` relative to the start of the estimator record.
+
+        Parameters
+        ----------
+        name : str
+            A field of :attr:`layout`.
+
+        Returns
+        -------
+        int
+        """
         return self.layout.offset(name)
 
     def record(self, base: int = 0) -> EstimatorRecord:
         """Offsets of the record's fields when it starts at ``base`` of a larger lane record
-        (the self-tuning controller embeds it at the start of its own)."""
+        (the self-tuning controller embeds it at the start of its own).
+
+        Parameters
+        ----------
+        base : int, default 0
+            Offset of the estimator record inside the lane record.
+
+        Returns
+        -------
+        EstimatorRecord
+            The named offsets.
+        """
         return self.layout.record(EstimatorRecord, base)
 
     def initial_record(self, theta0: NDArray | None = None, P0: NDArray | None = None) -> NDArray:
         """One lane's record at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
-        optionally with this lane's own ``theta0`` / ``P0``."""
+        optionally with this lane's own ``theta0`` / ``P0``.
+
+        Parameters
+        ----------
+        theta0 : ndarray, shape (2n,), optional
+            This lane's ``theta_hat(0)`` (default the spec's).
+        P0 : ndarray, shape (2n, 2n), optional
+            This lane's ``P(0)`` (default the spec's; RLS/MILS rules).
+
+        Returns
+        -------
+        ndarray, shape (size,)
+        """
         lay = self.layout
         rec = lay.empty(1)
         th0 = self.theta0 if theta0 is None else theta0

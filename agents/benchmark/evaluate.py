@@ -92,6 +92,30 @@ class EnvSpec:
     jump_step, jump_to
         Optional parameter jump: from step ``jump_step`` on the plant has the observer-form
         parameters ``jump_to = (a1..an, b1..bn)``.
+
+    Raises
+    ------
+    ValueError
+        On construction: no plant, an unknown catalogue name, a family of mixed orders,
+        ``steps`` not a positive integer, only one of ``jump_step`` and ``jump_to``, a jump
+        outside the episode or ``jump_to`` not of length ``2n``.
+
+    Examples
+    --------
+    >>> from stcgym.agents import EnvSpec
+    >>> spec = EnvSpec("unstable2", steps=200, jump_step=100, jump_to=(-1.5, 0.56, 0.5, 0.3))
+    >>> spec.plants, spec.order
+    (('unstable2',), 2)
+    >>> EnvSpec.from_dict(spec.to_dict()) == spec
+    True
+    >>> env = spec.make()
+    >>> obs, info = env.reset(seed=0)
+    >>> info["theta"]
+    array([-1.7 ,  0.66,  0.5 ,  0.3 ])
+    >>> EnvSpec("unstable2", steps=100, jump_step=150, jump_to=(-1.5, 0.56, 0.5, 0.3))
+    Traceback (most recent call last):
+    ...
+    ValueError: jump_step must lie inside the episode (0, 100), got 150
     """
 
     plants: tuple[str, ...]
@@ -132,7 +156,24 @@ class EnvSpec:
         return get_plant(self.plants[0]).n
 
     def make(self, **overrides: Any) -> gym.Env:
-        """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields."""
+        """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields.
+
+        Parameters
+        ----------
+        **overrides
+            Fields of :class:`EnvSpec` to replace (validated as on construction).
+
+        Returns
+        -------
+        gymnasium.Env
+            ``stcgym/ObserverCanonical-v0`` with the spec's plant(s), noise, cost, bounds,
+            square-wave reference and parameter jump.
+
+        Raises
+        ------
+        ValueError
+            An override out of range; ``TypeError`` for an unknown field.
+        """
         import stcgym.envs  # noqa: F401  (registers the ids)
         from stcgym.envs.signals import Jumps, SquareWave
 
@@ -151,7 +192,22 @@ class EnvSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EnvSpec:
-        """Inverse of :meth:`to_dict` (JSON data back to a spec)."""
+        """Inverse of :meth:`to_dict` (JSON data back to a spec).
+
+        Parameters
+        ----------
+        data : dict
+            The fields, lists where the spec holds tuples.
+
+        Returns
+        -------
+        EnvSpec
+
+        Raises
+        ------
+        ValueError
+            A field out of range (as on construction).
+        """
         d = dict(data)
         d["plants"] = tuple(d["plants"])
         if d.get("jump_to") is not None:
@@ -182,6 +238,43 @@ class Episode:
 
     ``cost`` holds the charged cost per step, including the charge of a diverged run for the
     steps it did not live (``steps_run`` tells where it ended).
+
+    Parameters
+    ----------
+    seed : int
+        The episode's seed.
+    plant : str
+        Catalogue name of the plant the episode ran on.
+    y, r : ndarray, shape (T + 1,)
+        Noise-free output and reference, ``y(0..T)``, ``r(0..T)``.
+    u : ndarray, shape (T,)
+        Applied (clipped) input.
+    cost : ndarray, shape (T,)
+        Charged cost per step.
+    steps_run : int
+        Steps before the end or the divergence.
+    diverged : bool
+        Whether ``|y|`` left the env's ``y_bound``.
+    n_clipped : int
+        Steps whose action was clipped.
+    step_us : float
+        Mean wall time of one ``predict`` call, microseconds.
+    theta, theta_hat : ndarray or None
+        With ``record_theta``: the true parameters ``(T + 1, 2n)`` and the policy's estimate
+        ``(T, 2n)``.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import KnownModelController
+    >>> from stcgym.agents import EnvSpec, run_episode
+    >>> spec = EnvSpec("unstable2", steps=200)
+    >>> def oracle(plant, seed):
+    ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
+    >>> ep = run_episode(oracle, spec, seed=0)
+    >>> ep.plant, ep.steps_run, ep.diverged, ep.y.shape, ep.u.shape
+    ('unstable2', 200, False, (201,), (200,))
+    >>> round(float(ep.cost.mean()), 4)
+    0.1301
     """
 
     seed: int
@@ -215,6 +308,43 @@ def run_episode(
     by default the environment draws it from the seed. The policy is reset before the first
     step. ``record_theta`` keeps the true parameters and the policy's estimates
     (``policy.theta``) per step.
+
+    Parameters
+    ----------
+    policy : Policy or PolicyFactory
+        The controller, or ``factory(plant_spec, seed) -> policy``.
+    spec : EnvSpec
+        The scenario's environment (built afresh).
+    seed : int
+        ``env.reset(seed=seed)``.
+    plant : str, optional
+        Family member to run on (default: the environment's draw).
+    record_theta : bool, default False
+        Keep :attr:`Episode.theta` and :attr:`Episode.theta_hat`.
+
+    Returns
+    -------
+    Episode
+        The traces; a diverged episode ends early and is charged for the rest.
+
+    Raises
+    ------
+    ValueError
+        From the environment (an unknown ``plant``) or from the policy (a rejected
+        observation).
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import KnownModelController
+    >>> from stcgym.agents import EnvSpec, run_episode
+    >>> spec = EnvSpec("unstable2", steps=200)
+    >>> def oracle(plant, seed):
+    ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
+    >>> ep = run_episode(oracle, spec, seed=0, record_theta=True)
+    >>> ep.theta.shape, ep.theta_hat.shape  # the oracle has no estimate: nan
+    ((201, 4), (200, 4))
+    >>> bool(np.isnan(ep.theta_hat).all()), round(float(ep.cost.mean()), 4)
+    (True, 0.1301)
     """
     env = spec.make()
     options = None if plant is None else {"plant": plant}
@@ -316,7 +446,26 @@ def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, flo
 
 @dataclass
 class EvalResult:
-    """Episodes and their metrics, in the order of the seeds."""
+    """Episodes and their metrics, in the order of the seeds.
+
+    Parameters
+    ----------
+    episodes : list of Episode
+        One per seed.
+    metrics : list of dict
+        The per-episode columns of ``metrics.csv`` (:func:`episode_metrics`), one per seed.
+
+    Examples
+    --------
+    >>> from stcgym.adaptive import KnownModelController
+    >>> from stcgym.agents import EnvSpec, evaluate
+    >>> spec = EnvSpec("unstable2", steps=200)
+    >>> def oracle(plant, seed):
+    ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
+    >>> result = evaluate(oracle, spec, seeds=[0, 1])
+    >>> len(result.episodes), [round(m["cost"], 4) for m in result.metrics]
+    (2, [0.1301, 0.1276])
+    """
 
     episodes: list[Episode] = field(default_factory=list)
     metrics: list[dict[str, float]] = field(default_factory=list)
@@ -356,6 +505,31 @@ def evaluate(
         there, so an interrupted run keeps what it finished).
     record_theta
         Keep the true and estimated parameters per step (:func:`run_episode`).
+
+    Returns
+    -------
+    EvalResult
+        The episodes and their metrics, in the order of ``seeds``.
+
+    Raises
+    ------
+    ValueError
+        From :class:`EnvSpec` (a bad ``steps``), the environment or the policy.
+
+    Examples
+    --------
+    The known-model oracle on three seeds of ``unstable2``, summarised:
+
+    >>> from stcgym.adaptive import KnownModelController
+    >>> from stcgym.agents import EnvSpec, evaluate, summarize
+    >>> spec = EnvSpec("unstable2", steps=200)
+    >>> def oracle(plant, seed):
+    ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
+    >>> result = evaluate(oracle, spec, seeds=[0, 1, 2])
+    >>> costs = [m["cost"] for m in result.metrics]
+    >>> stats = summarize(costs, [not m["bounded"] for m in result.metrics])
+    >>> round(stats["median"], 4), stats["failure_rate"]
+    (0.1301, 0.0)
     """
     if steps is not None and steps != env_spec.steps:
         env_spec = EnvSpec(**{**asdict(env_spec), "steps": int(steps)})
@@ -378,6 +552,26 @@ def summarize(values: Sequence[float], failed: Sequence[bool] | None = None) -> 
 
     ``nan`` values (a column that does not apply) are dropped; ``inf`` counts as a very bad
     value (it makes the CVaR infinite, which is the honest worst case).
+
+    Parameters
+    ----------
+    values : sequence of float
+        One value per seed (lower is better).
+    failed : sequence of bool, optional
+        One flag per seed; gives ``failure_rate``.
+
+    Returns
+    -------
+    dict of str to float
+        ``n`` (values kept), ``median``, ``iqr``, ``cvar25`` (mean of the ``ceil(n/4)``
+        largest), ``mean``, and ``failure_rate`` when ``failed`` is given; ``nan`` statistics
+        when no value is left.
+
+    Examples
+    --------
+    >>> from stcgym.agents import summarize
+    >>> summarize([1.0, 2.0, 3.0, 10.0, float("nan")], [False, False, False, True, False])
+    {'n': 4.0, 'median': 2.5, 'iqr': 3.0, 'cvar25': 10.0, 'mean': 4.0, 'failure_rate': 0.2}
     """
     x = np.asarray(values, dtype=float)
     x = x[~np.isnan(x)]

@@ -113,7 +113,44 @@ def algorithm_class(algo: str) -> type:
 
 @dataclass
 class AlgoConfig:
-    """One algorithm's training recipe (see the module docstring for each field)."""
+    """One algorithm's training recipe (see the module docstring for each field).
+
+    A plain dataclass: :func:`validate_config` checks it (the bench does before training).
+
+    Parameters
+    ----------
+    algo : str
+        ``"ppo"``, ``"sac"``, ``"td3"``, ``"a2c"`` or ``"rppo"`` (:data:`ALGORITHMS`).
+    hyperparams : dict
+        Keyword arguments of the Stable-Baselines3 constructor.
+    n_envs : int, default 1
+        Parallel training environments.
+    normalize_reward : bool, default False
+        Reward normalisation (the Zoo's ``normalize``).
+    reward_scale : float, default 1.0
+        Fixed factor on the training reward (:class:`~stcgym.agents.TrainingReward`).
+    cost_squash : float or None, default 1.0
+        Cost compression of :class:`~stcgym.agents.TrainingReward`.
+    noise_std : float, default 0.0
+        Gaussian exploration noise (TD3).
+    quick_steps, standard_steps, standard_family_steps, full_steps : int
+        Training caps of the bench tiers.
+    eval_interval : int, default 10000
+        Steps between the evaluations of the plateau rule.
+    policy : str, default "MlpPolicy"
+        SB3 policy class name.
+    window : dict
+        Fields of :class:`~stcgym.agents.WindowConfig` (its defaults when empty).
+
+    Examples
+    --------
+    >>> from stcgym.agents import AlgoConfig, default_config
+    >>> cfg = default_config("ppo")
+    >>> cfg.algo, cfg.n_envs, cfg.hyperparams["learning_rate"]
+    ('ppo', 4, 0.001)
+    >>> AlgoConfig.from_dict(cfg.to_dict()) == cfg
+    True
+    """
 
     algo: str
     hyperparams: dict[str, Any]
@@ -136,7 +173,17 @@ class AlgoConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> AlgoConfig:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            The fields (deep-copied).
+
+        Returns
+        -------
+        AlgoConfig
+        """
         return cls(**copy.deepcopy(data))
 
 
@@ -272,7 +319,33 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
 
 
 def default_config(algo: str) -> AlgoConfig:
-    """A fresh (deep-copied) default config of ``algo``."""
+    """A fresh (deep-copied) default config of ``algo``.
+
+    Parameters
+    ----------
+    algo : str
+        An algorithm of :data:`DEFAULT_CONFIGS` (case-insensitive).
+
+    Returns
+    -------
+    AlgoConfig
+        A copy: changing it leaves the defaults alone.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``algo``, listing the known ones.
+
+    Examples
+    --------
+    >>> from stcgym.agents import default_config
+    >>> default_config("SAC").hyperparams["gamma"]
+    0.95
+    >>> default_config("dqn")
+    Traceback (most recent call last):
+    ...
+    ValueError: RL algorithm must be one of ['a2c', 'ppo', 'rppo', 'sac', 'td3'], got 'dqn'
+    """
     key = algo.lower()
     if key not in DEFAULT_CONFIGS:
         raise ValueError(f"RL algorithm must be one of {sorted(DEFAULT_CONFIGS)}, got {algo!r}")
@@ -306,8 +379,37 @@ def apply_overrides(
 
     A first key that names an :class:`AlgoConfig` field sets that field (``ppo.n_envs=8``);
     otherwise it is a constructor argument (``ppo.learning_rate=3e-4`` is short for
-    ``ppo.hyperparams.learning_rate=3e-4``). Raises ``ValueError`` for an unknown algorithm or
-    key, before anything is trained.
+    ``ppo.hyperparams.learning_rate=3e-4``).
+
+    Parameters
+    ----------
+    configs : dict of str to AlgoConfig
+        Configs by algorithm; an override of an algorithm not in it adds its default config.
+    overrides : sequence of str
+        ``"ALGO.KEY=VALUE"`` (``KEY`` may be dotted into a dict field); ``VALUE`` is read as a
+        Python literal, else kept as a string.
+
+    Returns
+    -------
+    dict of str to AlgoConfig
+        ``configs``, changed in place.
+
+    Raises
+    ------
+    ValueError
+        A malformed override, an unknown algorithm or key, a reserved argument (``seed``,
+        ``verbose``, ...) or a value its rule rejects, before anything is trained.
+
+    Examples
+    --------
+    >>> from stcgym.agents import apply_overrides
+    >>> configs = apply_overrides({}, ["ppo.learning_rate=3e-4", "ppo.n_envs=8"])
+    >>> configs["ppo"].hyperparams["learning_rate"], configs["ppo"].n_envs
+    (0.0003, 8)
+    >>> apply_overrides({}, ["ppo.lerning_rate=1"])
+    Traceback (most recent call last):
+    ...
+    ValueError: --hp 'ppo.lerning_rate=1': 'lerning_rate' is neither a config field ...
     """
     config_fields = {f.name for f in fields(AlgoConfig)} - {"algo"}
     for text in overrides:

@@ -69,6 +69,34 @@ class SB3Policy(LanePolicy):
     num_envs
         ``None`` for one env (``predict`` on ``(2,)`` gives ``(1,)``), or ``B`` lanes
         (``predict`` on ``(B, 2)`` gives ``(B, 1)``).
+
+    Raises
+    ------
+    ValueError
+        ``num_envs`` not a positive integer; from ``predict``, an observation of the wrong
+        shape or not finite (the adapter is left unchanged).
+
+    Examples
+    --------
+    An (untrained) PPO model on the window of :class:`~stcgym.agents.HistoryWindow`, asked
+    for actions on raw observations of three plants:
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> from stable_baselines3 import PPO
+    >>> from stcgym.agents import HistoryWindow, SB3Policy, WindowConfig
+    >>> window = WindowConfig(window=4)
+    >>> env = HistoryWindow(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"), window)
+    >>> model = PPO("MlpPolicy", env, seed=0, device="cpu")
+    >>> policy = SB3Policy(model, window, action_bound=10.0, num_envs=3)
+    >>> actions, state = policy.predict(np.array([[0.0, 1.0], [0.5, 1.0], [2.0, -1.0]]))
+    >>> actions.shape, state, bool(np.all(np.abs(actions) <= 10.0))
+    ((3, 1), None, True)
+    >>> policy.predict(np.array([0.0, 1.0]))
+    Traceback (most recent call last):
+    ...
+    ValueError: observation must have shape (3, 2), one row per lane for num_envs=3, ...
     """
 
     def __init__(
@@ -377,6 +405,40 @@ def train_agent(
     tensorboard_log, tb_log_name
         TensorBoard folder and run name: SB3's training statistics and the learning curve
         (``eval/curve_cost``, ``eval/cost_to_oracle``) are written there.
+
+    Returns
+    -------
+    TrainedAgent
+        The policy (an :class:`SB3Policy`), its config, seed, training spec, steps used, wall
+        time, learning curve ``[(step, cost), ...]``, folder, kept step and stop summary.
+
+    Raises
+    ------
+    ValueError
+        ``steps`` not a positive integer, or with ``plateau`` an ``eval_interval`` that is not
+        a positive integer or exceeds ``steps``; an unknown ``algo`` or a config value its
+        rule rejects.
+
+    Examples
+    --------
+    A deliberately tiny PPO run (128 steps) saved and reloaded:
+
+    >>> import tempfile
+    >>> import numpy as np
+    >>> from stcgym.agents import EnvSpec, default_config, load_agent, train_agent
+    >>> config = default_config("ppo")
+    >>> config.n_envs = 1
+    >>> config.hyperparams.update(n_steps=64, batch_size=64)
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     agent = train_agent("ppo", config, EnvSpec("stable2", steps=100), 128, seed=0,
+    ...                         out_dir=folder, curve_points=2)
+    ...     again = load_agent(folder)
+    >>> agent.algo, agent.steps, [step for step, cost in agent.curve]
+    ('ppo', 128, [0, 64, 128])
+    >>> agent.policy.reset()
+    >>> obs = np.array([0.2, 1.0])
+    >>> np.allclose(agent.policy.predict(obs)[0], again.policy.predict(obs)[0])
+    True
     """
     import torch
 
@@ -470,7 +532,36 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
 
 
 def load_agent(folder: str | Path) -> TrainedAgent:
-    """Reload an agent saved by :func:`train_agent` (``folder`` holds ``agent.json``)."""
+    """Reload an agent saved by :func:`train_agent` (``folder`` holds ``agent.json``).
+
+    The model file is a Stable-Baselines3 zip, which holds pickles: load agents from trusted
+    sources only.
+
+    Parameters
+    ----------
+    folder : str or pathlib.Path
+        The ``out_dir`` of :func:`train_agent` (``agent.json`` and ``model.zip``).
+
+    Returns
+    -------
+    TrainedAgent
+        As :func:`train_agent` returned it, with the model loaded on the CPU.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``folder`` holds no ``agent.json`` (or no ``model.zip``).
+
+    Examples
+    --------
+    See :func:`train_agent` for a save and reload;
+
+    >>> from stcgym.agents import load_agent
+    >>> load_agent("no/such/folder")
+    Traceback (most recent call last):
+    ...
+    FileNotFoundError: no/such/folder holds no agent.json (not a saved stcgym agent)
+    """
     folder = Path(folder)
     meta_file = folder / "agent.json"
     if not meta_file.is_file():

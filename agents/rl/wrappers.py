@@ -52,6 +52,24 @@ class WindowConfig:
         choice).
     obs_clip
         Every feature is clipped to ``[-obs_clip, obs_clip]`` after scaling.
+
+    Raises
+    ------
+    ValueError
+        On construction: ``window`` not an integer ``>= 1``, ``y_scale`` or ``obs_clip`` not a
+        finite positive number.
+
+    Examples
+    --------
+    >>> from stcgym.agents import WindowConfig
+    >>> WindowConfig(window=3).n_features  # y, r, u and e = r - y
+    12
+    >>> WindowConfig(window=3, include_error=False).n_features
+    9
+    >>> WindowConfig(window=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: window must be an integer >= 1, got 0
     """
 
     window: int = 10
@@ -83,6 +101,28 @@ class HistoryBuffer:
     Call :meth:`start` with the first observation of an episode, then alternate
     :meth:`push_action` (the input actually applied) and :meth:`push_obs` (the observation that
     followed); :meth:`features` gives the network input at any time.
+
+    Parameters
+    ----------
+    config : WindowConfig
+        The window's settings.
+    action_bound : float
+        Inputs are divided by it (the env's action bound).
+    batch : int, default 1
+        Number of lanes.
+
+    Examples
+    --------
+    A window of two samples without the error rows, ``y(0) = 0.5``, ``u(0) = 2``,
+    ``y(1) = 0.8`` and ``r = 1``:
+
+    >>> from stcgym.agents import HistoryBuffer, WindowConfig
+    >>> buf = HistoryBuffer(WindowConfig(window=2, include_error=False), action_bound=10.0)
+    >>> buf.start([0.5, 1.0])
+    >>> buf.push_action([2.0])
+    >>> buf.push_obs([0.8, 1.0])
+    >>> buf.features()  # [y(0), y(1) | r(0), r(1) | u(-1), u(0) / 10]
+    array([[0.5, 0.8, 1. , 1. , 0. , 0.2]], dtype=float32)
     """
 
     def __init__(self, config: WindowConfig, action_bound: float, batch: int = 1) -> None:
@@ -98,7 +138,15 @@ class HistoryBuffer:
         return o[:, 0], o[:, 1]
 
     def start(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
-        """Begin an episode (all lanes, or the boolean mask ``lanes``) at observation ``obs``."""
+        """Begin an episode (all lanes, or the boolean mask ``lanes``) at observation ``obs``.
+
+        Parameters
+        ----------
+        obs : array_like, shape (batch, 2)
+            ``[y(0), r(0)]`` per lane (a ``(2,)`` array for one lane).
+        lanes : array_like of bool, optional
+            Boolean mask of length ``batch`` (default all lanes).
+        """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
         y, r = self._split(obs, self.batch)
         for arr in (self._y, self._r, self._u):
@@ -106,7 +154,15 @@ class HistoryBuffer:
         self._y[mask, -1], self._r[mask, -1] = y[mask], r[mask]
 
     def push_obs(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
-        """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``)."""
+        """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``).
+
+        Parameters
+        ----------
+        obs : array_like, shape (batch, 2)
+            ``[y(k), r(k)]`` per lane.
+        lanes : array_like of bool, optional
+            Boolean mask of length ``batch`` (default all lanes).
+        """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
         y, r = self._split(obs, self.batch)
         for arr, v in ((self._y, y), (self._r, r)):
@@ -114,7 +170,13 @@ class HistoryBuffer:
             arr[mask, -1] = v[mask]
 
     def push_action(self, u: ArrayLike) -> None:
-        """Append the applied inputs ``u(k)`` (one per lane, in plant units)."""
+        """Append the applied inputs ``u(k)`` (one per lane, in plant units).
+
+        Parameters
+        ----------
+        u : array_like, shape (batch,)
+            The inputs actually applied (after clipping).
+        """
         self._u[:] = np.roll(self._u, -1, axis=1)
         self._u[:, -1] = np.asarray(u, dtype=float).reshape(self.batch)
 
@@ -141,6 +203,32 @@ class HistoryWindow(gym.Wrapper):
 
     ``info["u"]`` carries the applied input in plant units. Works under ``gym.make_vec`` and
     SB3's ``make_vec_env`` (pass it as ``wrapper_class``).
+
+    Raises
+    ------
+    ValueError
+        An action space that is not a ``(1,)`` box, an observation that is not ``[y, r]``, or a
+        ``config`` dict with a field out of range.
+
+    Examples
+    --------
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> from stcgym.agents import HistoryWindow
+    >>> env = HistoryWindow(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"),
+    ...                     {"window": 3})
+    >>> env.observation_space, env.action_space
+    (Box(-10.0, 10.0, (12,), float32), Box(-1.0, 1.0, (1,), float32))
+    >>> obs, info = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step(np.array([0.1]))
+    >>> info["u"]  # 0.1 of the action bound 10
+    1.0
+    >>> obs.reshape(4, 3)  # rows y, r, u / 10, r - y
+    array([[0. , 0. , 0.5],
+           [0. , 1. , 1. ],
+           [0. , 0. , 0.1],
+           [0. , 1. , 0.5]], dtype=float32)
     """
 
     def __init__(self, env: gym.Env, config: WindowConfig | dict | None = None) -> None:
@@ -199,6 +287,38 @@ class TrainingReward(gym.Wrapper):
       runs.
 
     ``reward_scale`` then multiplies every reward. ``cost_squash=None`` leaves the cost as is.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        An stcgym environment (reward ``-cost``, ``info["diverged"]`` on divergence).
+    horizon : int
+        Episode length the divergence charge runs to, ``>= 1``.
+    reward_scale : float, default 1.0
+        Factor on every reward.
+    cost_squash : float or None, default 1.0
+        ``s > 0`` of the compression, or ``None``.
+
+    Raises
+    ------
+    ValueError
+        ``horizon`` not a positive integer or ``cost_squash`` not positive.
+
+    Examples
+    --------
+    The first step of ``unstable2`` costs 0.26 (see its env's example); trained on
+    ``-log(1 + 0.26)``:
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> from stcgym.agents import TrainingReward
+    >>> env = TrainingReward(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"),
+    ...                      horizon=100)
+    >>> _ = env.reset(seed=0)
+    >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0]))
+    >>> round(reward, 6), round(-float(np.log1p(0.26)), 6)
+    (-0.231112, -0.231112)
     """
 
     def __init__(
