@@ -14,8 +14,8 @@ Options are grouped like SB3's ``policy_kwargs`` (:mod:`stcgym.adaptive.options`
 take the same ``law``); the common settings are plain keywords. ``predict`` and ``reset`` are
 those of :class:`~stcgym.adaptive.policy.LanePolicy`.
 
-Start-up (the redesign of the former open-loop bootstrap)
----------------------------------------------------------
+Start-up
+--------
 The estimator runs from the first sample on measured data with a moderate ``P(0) = p0 I``; for
 the first ``probe_steps = 2n`` samples the input is a small zero-mean probe whose signs are a
 counter-based hash of ``(seed, episode, t)`` (a new sequence for every lane and every episode,

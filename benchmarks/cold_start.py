@@ -12,7 +12,7 @@ run filled, the baseline measured in the same run (the machine is shared: compar
 
 Scenarios:
 
-* ``api``: the issue's newcomer sequence in one process, each step timed on its own: import
+* ``api``: a newcomer's sequence in one process, each step timed on its own: import
   ``stcgym.envs`` and ``stcgym.adaptive``; ``gym.make`` + ``reset`` + the first plant step;
   the first ``SelfTuningController(2).predict``; then the first predict of a second estimator
   (``KF-MILS``), of ``design="lq"``, of a batch of 4 lanes and of the compiled rollout;

@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/controller_figures.py [--seeds 20] [--steps 2000] [--jobs 2]
 
-Setting (the issue's): catalogue plants in ``stcgym/ObserverCanonical-v0``, unit square-wave
+Setting: catalogue plants in ``stcgym/ObserverCanonical-v0``, unit square-wave
 reference of period 100, output noise std 0.05, ``action_bound`` 10, ``control_cost`` 0.01,
 2000 steps, seeds ``0 .. seeds-1`` (env seed = controller probe seed). Cost of step ``k`` is the
 env's ``-reward = (y_clean(k+1) - r(k+1))^2 + rho u(k)^2``.

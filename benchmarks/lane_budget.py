@@ -1,11 +1,11 @@
-"""Where the time of one closed-loop lane step goes, against issue 10's throughput budget.
+"""Where the time of one closed-loop lane step goes, against the throughput budget.
 
 Run from the repository root::
 
     python benchmarks/lane_budget.py            # about 50 s (3 min the first time: compiles)
     python benchmarks/lane_budget.py --steps 100000
 
-Issue 10 asks for ``>= 5e6`` plant-steps/s through the public batched route and ``>= 1e7``
+The targets are ``>= 5e6`` plant-steps/s through the public batched route and ``>= 1e7``
 through the compiled rollout (n = 2, KF-MILS p = 5). With every lane an independent scalar
 computation (the :mod:`stcgym.envs.compiled` convention), ``c`` cores give at most
 ``c / t_lane`` plant-steps/s, so the budget is ``c / target`` of one core per lane-step. This
@@ -22,7 +22,7 @@ which catches the quiet moments of a shared machine):
   constants (the function inlined into a driver that passes literal sizes, so LLVM unrolls its
   loops). The ratio is what size specialisation would buy on the estimator's core;
 * the pole-placement design (``place_design``, order 2 + integrator), the same two ways;
-* a **layout experiment** for the decision issue 10 leaves open: the same MILS increment on
+* a **layout experiment** for a storage decision left open: the same MILS increment on
   blocks of ``W`` lanes stored as a structure of arrays (every scalar of the lane function
   becomes a loop over the block's lanes, innermost), against the shipped lane function run
   over the same ``B`` lanes one by one. The block version repeats the shipped function's
@@ -238,7 +238,7 @@ def _best_ns(run, steps: int, repeats: int = 20) -> float:  # type: ignore[no-un
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="lane-step cost against issue 10's budget")
+    ap = argparse.ArgumentParser(description="lane-step cost against the throughput budget")
     ap.add_argument("--steps", type=int, default=20_000, help="steps per timed loop")
     steps = ap.parse_args(argv).steps
     rng = np.random.default_rng(0)

@@ -1,4 +1,4 @@
-"""Closed-loop throughput of the self-tuning controller (issue 10's performance table).
+"""Closed-loop throughput of the self-tuning controller (the README's performance table).
 
 Run from the repository root::
 
