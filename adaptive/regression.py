@@ -28,7 +28,7 @@ Options (keywords of :class:`RecursiveLeastSquares`)
 * ``window``: finite history, the exact regularised estimate over the last ``W`` samples
   (``P0^{-1}`` and ``theta0`` stay as the prior): each new sample is added and the one ``W``
   steps old removed by an exact downdate; when the downdate would lose digits (a squared pivot
-  of ``I - phi P phi^T`` below ``WINDOW_DOWNDATE_TOL = 1e-4``: the sample carries nearly all
+  of ``I - phi P phi^T`` below ``kernels.regression.WINDOW_DOWNDATE_TOL = 1e-4``: the sample carries nearly all
   the information in some direction) the estimate is recomputed by replaying the stored window
   from the prior instead (counted in ``n_recomputes``). Needs a positive definite ``P0``;
   exclusive with ``forgetting < 1``.
@@ -51,24 +51,23 @@ code; :meth:`~RecursiveLeastSquares.update` is one step, for an online loop.
 
 from __future__ import annotations
 
-import math
 import warnings
-from typing import Literal, NamedTuple
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.estimator import upper_cholesky
-from stcgym.adaptive.kernels.least_squares import (
-    DOWNDATE_TOL,
-    factor_is_healthy,
-    least_squares_downdate,
-    least_squares_step,
+from stcgym.adaptive.kernels.regression import (
+    FAILED,
+    OK,
+    RLSRecord,
+    rls_run,
+    rls_run_lanes,
+    work_size,
 )
-from stcgym.adaptive.kernels.least_squares import OK as LS_OK
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.recursive import NumericalHealthError
-from stcgym.envs.compiled import Layout, lane, lanes, prange
+from stcgym.envs.compiled import Layout
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -81,228 +80,6 @@ from stcgym.envs.validation import (
 __all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
 
 OnFailure = Literal["reset", "raise"]
-
-#: A finite-history sample is removed by a downdate only when every pivot of
-#: ``I - phi P phi^T`` exceeds this (the kernels' one limit); otherwise the window is replayed.
-WINDOW_DOWNDATE_TOL = DOWNDATE_TOL
-
-# lane status codes
-_OK = 0
-_FAILED = 1  # non-finite or non-positive: P reset (or the lane left untouched)
-_RECOMPUTED = 2  # finite history recomputed from the stored window
-
-
-# --------------------------------------------------------------------------------------------
-# The estimator step on one lane record (the rule itself is the shared least-squares lane
-# function of :mod:`stcgym.adaptive.kernels.least_squares`)
-# --------------------------------------------------------------------------------------------
-
-
-class RLSRecord(NamedTuple):
-    """Fields of a :class:`RecursiveLeastSquares` lane record (offsets, in layout order)."""
-
-    theta: int  # (d,)
-    S: int  # (d, d) upper factor of P = S S^T
-    innovation: int  # (p,) e(t)
-    y_hat: int  # (p,) prediction with theta(t-1)
-    K: int  # (d, p) gain
-    t: int
-    n_resets: int
-    n_recomputes: int
-    count: int  # samples in the window
-    hist_Phi: int  # (W, p, d)
-    hist_Y: int  # (W, p)
-    work: int  # scratch: no allocation inside the lane function
-
-
-def work_size(d: int, p: int) -> int:
-    """Scratch floats of one lane: ``theta`` and ``S`` copies, the rule's work, ``y_pred``,
-    the ``(p, d)``, ``(p, p)`` scratch of :func:`downdate_is_accurate` and a saved window
-    block ``(p, d)``, ``(p,)`` (lane functions never allocate)."""
-    return d + d * d + (3 * d + p + d * d) + p + p * d + p * p + p * d + p
-
-
-@lane
-def replay_window(theta, S, theta0, S0, hist_Phi, hist_Y, first, work):  # pragma: no cover
-    """Finite-history estimate recomputed by replaying the stored samples from the prior.
-
-    ``theta <- theta0``, ``S <- S0``, then :func:`least_squares_step` on every stored sample,
-    oldest (slot ``first``) first: exactly the regularised estimate over the window, without the
-    cancellation of a downdate. Returns ``False`` when a step fails.
-    """
-    W = hist_Phi.shape[0]
-    copy_vector(theta0, theta)
-    copy_matrix(S0, S)
-    for k in range(W):
-        slot = (first + k) % W
-        if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, work) != LS_OK:
-            return False
-    return True
-
-
-@lane
-def downdate_is_accurate(S, Phi, F, M):  # pragma: no cover - compiled
-    """Removing ``Phi`` from ``P^{-1} = (S S^T)^{-1}`` keeps enough digits.
-
-    ``True`` when every squared Cholesky pivot of ``I - Phi P Phi^T`` exceeds
-    ``WINDOW_DOWNDATE_TOL`` (for one row: ``1 - phi^T P phi``; their product is
-    ``det(P^{-1} - Phi^T Phi) / det(P^{-1})``). ``F`` (p, d) and ``M`` (p, p) are scratch.
-    """
-    p, d = Phi.shape
-    for r in range(p):  # F = Phi S
-        for j in range(d):
-            acc = 0.0
-            for i in range(j + 1):  # S upper triangular
-                acc += Phi[r, i] * S[i, j]
-            F[r, j] = acc
-    for r in range(p):  # Cholesky I - F F^T = M M^T
-        for c in range(r + 1):
-            acc = 1.0 if r == c else 0.0
-            for j in range(d):
-                acc -= F[r, j] * F[c, j]
-            for k in range(c):
-                acc -= M[r, k] * M[c, k]
-            if r == c:
-                if not acc > WINDOW_DOWNDATE_TOL:
-                    return False
-                M[r, r] = math.sqrt(acc)
-            else:
-                M[r, c] = acc / M[c, c]
-    return True
-
-
-@lane
-def _gain(K, S, Phi, g):  # pragma: no cover - compiled
-    """``K(t) = P(t) Phi^T = S (S^T Phi^T)``, ``(d, p)`` (``= P(t-1) phi / alpha``, eq. (3));
-    ``g`` is scratch of length ``d``."""
-    p, d = Phi.shape
-    for r in range(p):
-        for j in range(d):
-            acc = 0.0
-            for i in range(d):
-                acc += S[i, j] * Phi[r, i]
-            g[j] = acc
-        for i in range(d):
-            acc = 0.0
-            for j in range(d):
-                acc += S[i, j] * g[j]
-            K[i, r] = acc
-
-
-@lane
-def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):  # pragma: no cover
-    """One step of :class:`RecursiveLeastSquares` on one lane record; returns a status code.
-
-    ``Phi`` (p, d), ``Y`` (p,). The rule is :func:`least_squares_step` (square-root RLS/MILS
-    with forgetting and its health check); with a window the sample ``window`` steps old is
-    removed by :func:`least_squares_downdate` or, when that would be inaccurate, the estimate
-    is recomputed over the window (:func:`replay_window`). Works on copies of ``theta`` and
-    ``S`` and commits only a healthy step, so a failing lane is either reset
-    (``reset_on_failure``: ``P <- P0``, window emptied, ``theta`` kept) or left exactly as it
-    was.
-    """
-    p, d = Phi.shape
-    theta = rec[at.theta : at.theta + d]
-    S = view2d(rec, at.S, d, d)
-    hPhi = view3d(rec, at.hist_Phi, window, p, d)
-    hY = view2d(rec, at.hist_Y, window, p)
-    o = at.work
-    th = rec[o : o + d]
-    Sn = view2d(rec, o + d, d, d)
-    work = rec[o + d + d * d : o + 4 * d + p + 2 * d * d]
-    o += 4 * d + p + 2 * d * d
-    y_pred = rec[o : o + p]
-    F = view2d(rec, o + p, p, d)
-    M = view2d(rec, o + p + p * d, p, p)
-    o += p + p * d + p * p
-    saved_Phi = view2d(rec, o, p, d)
-    saved_Y = rec[o + p * d : o + p * d + p]
-    for r in range(p):  # prediction with theta(t-1); innovation e(t) = y(t) - y_pred
-        acc = 0.0
-        for i in range(d):
-            acc += Phi[r, i] * theta[i]
-        y_pred[r] = acc
-    status = _OK
-    if adapt:
-        copy_vector(theta, th)
-        copy_matrix(S, Sn)
-        ok = least_squares_step(th, Sn, Phi, Y, lam, work) == LS_OK
-        count = int(rec[at.count])
-        slot = count % window if window > 0 else 0
-        if ok and window > 0 and count >= window:
-            if not (
-                downdate_is_accurate(Sn, hPhi[slot], F, M)
-                and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], work) == LS_OK
-            ):
-                copy_matrix(hPhi[slot], saved_Phi)  # recompute over the window after this step
-                copy_vector(hY[slot], saved_Y)
-                copy_matrix(Phi, hPhi[slot])
-                copy_vector(Y, hY[slot])
-                ok = replay_window(th, Sn, theta0, S0, hPhi, hY, (slot + 1) % window, work)
-                copy_matrix(saved_Phi, hPhi[slot])
-                copy_vector(saved_Y, hY[slot])
-                status = _RECOMPUTED
-            ok = ok and factor_is_healthy(Sn, 0, d)
-        for i in range(d):
-            ok = ok and math.isfinite(th[i])
-        if not ok:
-            if not reset_on_failure:
-                return _FAILED
-            copy_matrix(S0, S)
-            rec[at.count] = 0.0
-            rec[at.n_resets] += 1.0
-            status = _FAILED
-        else:
-            copy_vector(th, theta)
-            copy_matrix(Sn, S)
-            if window > 0:
-                copy_matrix(Phi, hPhi[slot])
-                copy_vector(Y, hY[slot])
-                rec[at.count] = count + 1.0
-            if status == _RECOMPUTED:
-                rec[at.n_recomputes] += 1.0
-        _gain(view2d(rec, at.K, d, p), S, Phi, th)
-    for r in range(p):
-        rec[at.y_hat + r] = y_pred[r]
-        rec[at.innovation + r] = Y[r] - y_pred[r]
-    rec[at.t] += 1.0
-    return status
-
-
-@lane
-def rls_run(
-    rec, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
-):  # pragma: no cover
-    """``T`` steps of :func:`rls_step` on one lane: ``out[t] = theta(t)``.
-
-    Returns ``(failures, first failing step or -1)``; without ``reset_on_failure`` it stops at
-    the first failure (that step not applied).
-    """
-    d = Phis.shape[2]
-    failures = 0
-    first = -1
-    for t in range(Phis.shape[0]):
-        status = rls_step(rec, at, Phis[t], Ys[t], theta0, S0, lam, window, adapt, reset_on_failure)
-        if status == _FAILED:
-            failures += 1
-            if first < 0:
-                first = t
-            if not reset_on_failure:
-                return failures, first
-        copy_vector(rec[at.theta : at.theta + d], out[t])
-    return failures, first
-
-
-@lanes
-def rls_run_lanes(
-    F, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out, failures, first
-):  # pragma: no cover
-    """:func:`rls_run` on every lane."""
-    for i in prange(F.shape[0]):
-        failures[i], first[i] = rls_run(
-            F[i], at, Phis[i], Ys[i], theta0, S0, lam, window, adapt, reset_on_failure, out[i]
-        )
-
 
 # --------------------------------------------------------------------------------------------
 # Validation
@@ -537,7 +314,7 @@ class RecursiveLeastSquares:
                 failures,
                 np.zeros(B, dtype=np.int64),
             )
-            status = np.where(failures > 0, _FAILED, _OK)
+            status = np.where(failures > 0, FAILED, OK)
         else:  # the same lane function, called directly (no thread pool for one lane)
             fails, _ = rls_run(
                 self._F[0],
@@ -550,8 +327,8 @@ class RecursiveLeastSquares:
             )
             if not fails:
                 return self._out1[0].copy()
-            status = np.array([_FAILED])
-        failed = np.flatnonzero(status == _FAILED)
+            status = np.array([FAILED])
+        failed = np.flatnonzero(status == FAILED)
         if failed.size:
             self._failure(failed, "the covariance factor or theta lost finiteness or rank")
         return self.theta
