@@ -30,8 +30,8 @@ Options (keywords of :class:`RecursiveLeastSquares`)
   steps old removed by an exact downdate; when the downdate would lose digits (a squared pivot
   of ``I - phi P phi^T`` below ``kernels.regression.WINDOW_DOWNDATE_TOL = 1e-4``: the sample
   carries nearly all the information in some direction) the estimate is recomputed by
-  replaying the stored window from the prior instead (counted in ``n_recomputes``). Needs a positive definite ``P0``;
-  exclusive with ``forgetting < 1``.
+  replaying the stored window from the prior instead (counted in ``n_recomputes``). Needs a
+  positive definite ``P0``; exclusive with ``forgetting < 1``.
 * ``enabled``: ``False`` freezes ``theta`` and ``P`` (the innovation and ``y_hat`` are still
   computed): MATLAB's ``EnableAdaptation``.
 * ``reset()`` (all lanes or some): back to ``theta0``, ``P0``, ``t = 0``.
