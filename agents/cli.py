@@ -121,6 +121,13 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         f"[0, 1) (default {rule.min_improvement})",
     )
     p.add_argument(
+        "--min-train-fraction",
+        type=float,
+        default=rule.min_fraction,
+        help="plateau rule: the fraction of the cap trained before evaluations count towards "
+        f"--patience, in [0, 1] (default {rule.min_fraction})",
+    )
+    p.add_argument(
         "--eval-interval",
         type=int,
         help="env steps between the evaluations of the plateau rule, for every algorithm "
@@ -249,6 +256,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             train_steps=args.train_steps,
             patience=args.patience,
             min_improvement=args.min_improvement,
+            min_train_fraction=args.min_train_fraction,
             eval_interval=args.eval_interval,
             train_seeds=args.train_seeds,
             seeds=args.seeds,

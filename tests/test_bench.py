@@ -243,6 +243,10 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
     assert len(list((tmp_path / "tb").rglob("events.out.tfevents.*"))) == 1
     resumed = json.loads((run / "config.json").read_text())
     assert resumed["argv"] == config["argv"] and resumed["resumed"][0][:2] == ["bench", "--resume"]
+    # the report's wall time counts the first session too, not only the resumed one
+    assert resumed["sessions"] == 2 and resumed["wall_s"] > config["wall_s"] > 0
+    report = (run / "report.md").read_text()
+    assert f"Wall time {resumed['wall_s']:.0f} s on " in report and "over 2 sessions" in report
 
 
 @pytest.mark.parametrize(
@@ -347,6 +351,7 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
         (["--eval-interval", "0"], "--eval-interval"),
         (["--patience", "-1"], "--patience must be an integer >= 1"),
         (["--patience", "0"], "--patience must be an integer >= 1"),
+        (["--min-train-fraction", "1.5"], "--min-train-fraction must be a number in [0, 1]"),
         (["--min-improvement", "1.5"], "--min-improvement must be a number in [0, 1)"),
         (["--min-improvement", "-0.05"], "--min-improvement"),
         (["--min-improvement", "nan"], "--min-improvement"),
@@ -403,7 +408,7 @@ def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
     # the RL Zoo's Pendulum-v1 n_timesteps as single-plant caps, 1e5-3e5 on the family
     assert std.train_steps == {"ppo": 100_000, "sac": 20_000, "rppo": 100_000}
     assert std.family_train_steps == {"ppo": 300_000, "sac": 100_000, "rppo": 100_000}
-    assert (std.patience, std.min_improvement) == (3, 0.05)
+    assert (std.patience, std.min_improvement, std.min_train_fraction) == (3, 0.05, 0.25)
     # each cap is bigger than the quick one, and a whole number of evaluation intervals
     for algo, cap in std.train_steps.items():
         assert cap > quick.train_steps[algo]
@@ -415,7 +420,8 @@ def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
         ("family", "sac"): 100_000,
         ("family", "rppo"): 100_000,
     }
-    assert all(t["plateau"] == {"min_improvement": 0.05, "patience": 3} for t in tasks)
+    rule = {"min_improvement": 0.05, "patience": 3, "min_fraction": 0.25}
+    assert all(t["plateau"] == rule for t in tasks)
     # about an hour on 2 cores at the caps, the quick tier under its 10 minutes
     assert 45 * 60 <= benchmark.estimate_seconds(std) <= 75 * 60
     assert 6 * 60 <= benchmark.estimate_seconds(quick) <= 10 * 60

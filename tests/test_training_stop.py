@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from stcgym.agents.benchmark.evaluate import EnvSpec
@@ -11,14 +13,16 @@ from stcgym.agents.rl.sb3 import curve_checkpoints, train_agent
 from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
 
 
-def _expected_stop(costs, min_improvement, patience):
+def _expected_stop(costs, min_improvement, patience, first=0):
     """The rule written out by hand: (index of the stopping evaluation or None, index of the
-    last evaluation that improved)."""
+    last evaluation that improved); evaluations before index ``first`` (those before the
+    minimum fraction of the cap) move the reference but do not count towards ``patience``."""
     reference, last, quiet = None, None, 0
     for i, c in enumerate(costs):
         if reference is None or c < reference * (1 - min_improvement):
-            reference, last, quiet = c, i, 0
-        else:
+            reference, last = c, i
+            quiet = 0
+        elif i >= first:
             quiet += 1
             if quiet == patience:
                 return i, last
@@ -58,10 +62,12 @@ def test_a_non_finite_cost_never_improves():
         ({"min_improvement": 1.0}, "--min-improvement must be a number in [0, 1)"),
         ({"min_improvement": -0.1}, "--min-improvement must be a number in [0, 1)"),
         ({"min_improvement": float("nan")}, "--min-improvement must be a number in [0, 1)"),
+        ({"min_fraction": 1.5}, "--min-train-fraction must be a number in [0, 1]"),
+        ({"min_fraction": -0.1}, "--min-train-fraction must be a number in [0, 1]"),
     ],
 )
 def test_rule_rejects_values_it_cannot_meet(kwargs, message):
-    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace(")", r"\)")):
+    with pytest.raises(ValueError, match=re.escape(message)):
         PlateauRule(**kwargs)
 
 
@@ -98,9 +104,37 @@ def _train(cap, rule):
     )
 
 
+def test_min_evals_hand_worked():
+    # a quarter of 30 intervals is 7.5: the evaluations at 1..7 intervals do not count
+    assert PlateauRule(0.05, 3, 0.25).min_evals(30 * 128, 128) == 7
+    assert PlateauRule(0.05, 3, 0.25).min_evals(32 * 128, 128) == 7  # 8 intervals: from the 8th
+    assert PlateauRule(0.05, 3, 0.0).min_evals(30 * 128, 128) == 0
+
+
+# A flat start (the untrained policy's cost for four evaluations), then learning, then a
+# plateau at 2.0: without the floor the flat start is taken for a plateau.
+FLAT_START = [50.0, 50.0, 50.0, 50.0, 20.0, 8.0, 3.0, 2.0, 2.0, 2.0, 2.0, 2.0]
+
+
+def test_a_flat_start_is_not_a_plateau_once_a_fraction_of_the_cap_must_be_trained(monkeypatch):
+    _scripted(monkeypatch, FLAT_START)
+    assert _expected_stop(FLAT_START, 0.05, 3) == (3, 0)
+    early = _train(16 * ROLLOUT, PlateauRule(0.05, 3, 0.0))
+    assert early.stop.status == "plateau" and early.stop.evaluations == 4
+    # a quarter of 16 intervals: evaluations count from the 4th interval on (index 3)
+    rule = PlateauRule(0.05, 3, 0.25)
+    first = rule.min_evals(16 * ROLLOUT, ROLLOUT)
+    stop_index, last = _expected_stop(FLAT_START, 0.05, 3, first)
+    assert (first, stop_index, last) == (3, 10, 7)
+    agent = _train(16 * ROLLOUT, rule)
+    assert agent.stop.status == "plateau" and agent.stop.evaluations == stop_index + 1
+    assert agent.stop.last_improvement_step == (last + 1) * ROLLOUT
+    assert "25 % of the cap" in agent.stop.rule
+
+
 def test_training_stops_at_the_plateau_through_sb3(monkeypatch):
     _scripted(monkeypatch, COSTS)
-    agent = _train(30 * ROLLOUT, PlateauRule(0.05, 3))
+    agent = _train(30 * ROLLOUT, PlateauRule(0.05, 3, 0.0))
     stop_index, last = _expected_stop(COSTS, 0.05, 3)
     stop = agent.stop
     assert stop.status == "plateau"

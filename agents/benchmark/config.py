@@ -81,6 +81,7 @@ class BenchConfig:
     #: the plateau rule (stcgym.agents.rl.stopping.PlateauRule)
     patience: int = 3
     min_improvement: float = 0.05
+    min_train_fraction: float = 0.25
     #: --eval-interval: every algorithm's evaluation interval (None: each config's own)
     eval_interval: int | None = None
     train_seeds: int = 3
@@ -134,7 +135,7 @@ class BenchConfig:
 
     @property
     def plateau(self) -> PlateauRule:
-        return PlateauRule(self.min_improvement, self.patience)
+        return PlateauRule(self.min_improvement, self.patience, self.min_train_fraction)
 
     def cap(self, algo: str, train_key: str) -> int:
         """The training cap of ``algo``'s agents on the training env ``train_key``."""
@@ -230,6 +231,7 @@ def build_config(
     train_steps: str | int | dict | None = None,
     patience: int = 3,
     min_improvement: float = 0.05,
+    min_train_fraction: float = 0.25,
     eval_interval: int | None = None,
     train_seeds: int | None = None,
     seeds: int | None = None,
@@ -289,6 +291,7 @@ def build_config(
     cfg.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
     cfg.bootstrap_reps = bootstrap_reps
     cfg.patience, cfg.min_improvement, cfg.eval_interval = patience, min_improvement, eval_interval
+    cfg.min_train_fraction = min_train_fraction
     cfg.overrides = list(hp)
     try:
         validate(cfg, train_steps)
@@ -392,7 +395,7 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
         raise ValueError("--tensorboard-log needs at least one RL agent in --agents")
     # Training caps and configs: defaults of the mode, then --eval-interval, --hp and
     # --train-steps (which sets the cap on one plant and on the family alike).
-    PlateauRule(cfg.min_improvement, cfg.patience)  # ValueError naming the option
+    cfg.plateau  # noqa: B018  (the PlateauRule's ValueError names the option)
     configs = {a: default_config(a) for a in cfg.rl_agents}
     if cfg.eval_interval is not None:
         cfg.eval_interval = _positive_int(cfg.eval_interval, "--eval-interval")

@@ -103,10 +103,12 @@ def plot_data_efficiency(
     marker = {"plateau": "o", "cap": "x"}
     plt = _plt()
     envs = list(dict.fromkeys([*adaptation, *(c["train_env"] for c in curves)]))
+    # one colour per algorithm in every panel
+    colour = {a: f"C{i}" for i, a in enumerate(dict.fromkeys(c["algo"] for c in curves))}
     fig, axes = plt.subplots(1, len(envs), figsize=(6 * len(envs), 4.5), squeeze=False)
     for ax, env in zip(axes[0], envs, strict=True):
         algos = list(dict.fromkeys(c["algo"] for c in curves if c["train_env"] == env))
-        for i, algo in enumerate(algos):
+        for algo in algos:
             pts = [c for c in curves if c["train_env"] == env and c["algo"] == algo]
             seeds = sorted({c["train_seed"] for c in pts})
             per_seed = []
@@ -115,16 +117,18 @@ def plot_data_efficiency(
                     [(c["steps"], c["cost_to_oracle"]) for c in pts if c["train_seed"] == s]
                 )
                 xy = xy[xy[:, 0] > 0]  # step 0 has no place on a log axis
-                ax.plot(xy[:, 0], xy[:, 1], color=f"C{i}", lw=0.6, alpha=0.35)
+                ax.plot(xy[:, 0], xy[:, 1], color=colour[algo], lw=0.6, alpha=0.35)
                 status = stops.get((env, algo, s), {}).get("status")
                 if status in marker and len(xy):
-                    ax.plot(*xy[-1], marker[status], color=f"C{i}", ms=6, alpha=0.8)
+                    ax.plot(*xy[-1], marker[status], color=colour[algo], ms=6, alpha=0.8)
                 per_seed.append(xy)
             n = min(len(xy) for xy in per_seed)
             if n:
                 steps = np.median([xy[:n, 0] for xy in per_seed], axis=0)
                 med = np.median([xy[:n, 1] for xy in per_seed], axis=0)
-                ax.plot(steps, med, "o-", ms=3, color=f"C{i}", label=f"{algo} (training steps)")
+                ax.plot(
+                    steps, med, "o-", ms=3, color=colour[algo], label=f"{algo} (training steps)"
+                )
         if env in adaptation:
             ends, ratios = adaptation[env]
             q25, med, q75 = np.nanpercentile(ratios, [25, 50, 75], axis=0)

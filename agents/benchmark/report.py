@@ -473,7 +473,7 @@ def _rule(cfg: Any) -> str:
     intervals = ", ".join(
         f"{a} {c.get('eval_interval')}" for a, c in getattr(cfg, "algo_configs", {}).items()
     )
-    rule = PlateauRule(cfg.min_improvement, cfg.patience)
+    rule = PlateauRule(cfg.min_improvement, cfg.patience, cfg.min_train_fraction)
     return rule.describe("eval_interval") + f" (eval_interval: {intervals or '-'})"
 
 
@@ -486,8 +486,10 @@ def write_report(
     wall_s: float,
     *,
     interrupted: bool = False,
+    sessions: int = 1,
 ) -> Path:
-    """Write ``report.md`` from the metric rows (also a partial one after an interrupt)."""
+    """Write ``report.md`` from the metric rows (also a partial one after an interrupt);
+    ``wall_s`` is the run's wall time over its ``sessions`` (the first and each ``--resume``)."""
     from stcgym.agents.executors import write_atomic
 
     agg = aggregate(rows)
@@ -505,8 +507,9 @@ def write_report(
         f"{cfg.train_seeds} training seeds per RL agent; episodes of {T} steps; output noise "
         f"std {cfg.noise_std}; cost per step `(y - r)^2 + {cfg.control_cost} u^2` "
         f"(the environments' reward); RL training caps (env steps): {budgets}. Wall time "
-        f"{wall_s:.0f} s on {cfg.jobs} worker(s). Exact configuration: `config.json`; per-run "
-        "numbers: `metrics.csv`.",
+        f"{wall_s:.0f} s on {cfg.jobs} worker(s)"
+        f"{f' over {sessions} sessions (resumed)' if sessions > 1 else ''}. Exact "
+        "configuration: `config.json`; per-run numbers: `metrics.csv`.",
         "",
         "## Headline",
         "",

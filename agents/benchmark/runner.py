@@ -307,8 +307,12 @@ def run_bench(
         "versions": _versions(),
         "started": _dt.datetime.now().isoformat(timespec="seconds"),
     }
+    wall_before = 0.0  # the earlier sessions of a resumed run
+    sessions = 1
     if resume:
         first = json.loads((run_dir / "config.json").read_text())
+        wall_before = float(first.get("wall_s", 0.0))
+        sessions = int(first.get("sessions", 1)) + 1
         config_doc["started"] = first.get("started")
         config_doc["resumed"] = [*first.get("resumed", []), config_doc.pop("argv")]
         config_doc["argv"] = first.get("argv")
@@ -317,14 +321,19 @@ def run_bench(
     state = _RunState(cfg, run_dir, writer, log, t_start)
 
     def report(interrupted: bool) -> None:
+        # the wall time of every session so far, kept in config.json for the next --resume
+        wall = wall_before + time.perf_counter() - t_start
+        config_doc["wall_s"], config_doc["sessions"] = wall, sessions
+        write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
         write_report(
             run_dir,
             cfg,
             scenarios,
             writer.rows,
             state.data,
-            time.perf_counter() - t_start,
+            wall,
             interrupted=interrupted,
+            sessions=sessions,
         )
 
     try:

@@ -197,12 +197,14 @@ def _make_callback(
     reference: float | None,
     plateau: PlateauRule | None = None,
     eval_interval: int | None = None,
+    cap: int = 0,
 ) -> Any:
     """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own cost.
 
     With ``plateau``, every evaluation at a multiple of ``eval_interval`` is passed to SB3's
     ``StopTrainingOnNoModelImprovement`` (its ``callback_after_eval``), which stops training
-    after ``plateau.patience`` evaluations without a gain of ``plateau.min_improvement``.
+    after ``plateau.patience`` evaluations without a gain of ``plateau.min_improvement``,
+    counted once ``plateau.min_fraction`` of ``cap`` (the training budget) is trained.
     """
     import copy
 
@@ -215,7 +217,10 @@ def _make_callback(
     after_eval = (
         None
         if plateau is None
-        else StopTrainingOnNoModelImprovement(max_no_improvement_evals=plateau.patience - 1)
+        else StopTrainingOnNoModelImprovement(
+            max_no_improvement_evals=plateau.patience - 1,
+            min_evals=plateau.min_evals(cap, eval_interval),
+        )
     )
 
     class _Curve(EventCallback):
@@ -475,6 +480,7 @@ def train_agent(
         curve_reference,
         plateau,
         eval_interval,
+        int(steps),
     )
     t0 = time.perf_counter()
     model.learn(
