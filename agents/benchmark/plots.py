@@ -7,9 +7,12 @@
   Each training seed's curve ends in a marker: a dot where the plateau rule stopped it, a
   cross where it reached its cap before a plateau.
 * ``theta_<scenario>.png``: the self-tuning controller's estimates theta_hat(t) against the
-  true theta(t), one panel per parameter, jump marked.
+  true theta(t), one panel per parameter, jump marked (the first online controller of the
+  run's agents with an estimate); in a ``mimo`` scenario the relative error of the estimate
+  ``[A_hat B_hat]`` instead (:func:`plot_estimate_error`).
 * ``traces_<scenario>.png``: small multiples, one row per controller on the same axes: y and r
-  over the episode, y and r over the first 100 steps, u over the first 100 steps.
+  over the episode, y and r over the first 100 steps, u over the first 100 steps (one line per
+  output and input of a MIMO plant).
 * ``jump_cost_<scenario>.png``: cost per reference period (trailing window, so nothing moves
   before the jump) around the jump, median over seeds.
 """
@@ -22,8 +25,11 @@ from typing import Any
 
 import numpy as np
 
+from stcgym.agents.controllers import CONTROLLERS
+
 __all__ = [
     "plot_data_efficiency",
+    "plot_estimate_error",
     "plot_jump_cost",
     "plot_theta",
     "plot_traces",
@@ -172,6 +178,21 @@ def plot_theta(path: Path, scenario: Any, episode: Any) -> None:
     _save(fig, path)
 
 
+def plot_estimate_error(path: Path, scenario: Any, episode: Any) -> None:
+    """``||[A_hat B_hat] - [A B]||_F / ||[A B]||_F`` against the step (log y)."""
+    from stcgym.agents.benchmark.mimo import estimate_error
+
+    plt = _plt()
+    err = estimate_error(episode.theta, episode.theta_hat)
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    ax.plot(np.arange(1, len(err) + 1), err, "C1", lw=1)
+    ax.set_yscale("log")
+    ax.set_title(f"{scenario.name}, seed {episode.seed}: relative error of [A_hat B_hat]")
+    ax.set_xlabel("step")
+    ax.set_ylabel("||estimate - true||_F / ||true||_F")
+    _save(fig, path)
+
+
 def plot_jump_cost(path: Path, scenario: Any, costs: dict[str, list[np.ndarray]]) -> None:
     """Mean cost over the trailing reference period, median over seeds, around the jump."""
     plt = _plt()
@@ -209,10 +230,12 @@ def write_plots(
             p = Path(run_dir) / f"traces_{_slug(sc.name)}.png"
             plot_traces(p, sc, eps)
             paths.append(p)
-        stc = data.traces.get((sc.name, "stc"))
-        if stc is not None and stc.theta is not None:
+        online = [c for c in order if c in CONTROLLERS and CONTROLLERS[c].online]
+        learner = [data.traces[(sc.name, c)] for c in online if (sc.name, c) in data.traces]
+        if learner and learner[0].theta is not None:
             p = Path(run_dir) / f"theta_{_slug(sc.name)}.png"
-            plot_theta(p, sc, stc)
+            plot = plot_estimate_error if sc.kind == "mimo" else plot_theta
+            plot(p, sc, learner[0])
             paths.append(p)
         if sc.env.jump_step is not None:
             jc = {c: data.costs[(sc.name, c)] for c in order if (sc.name, c) in data.costs}

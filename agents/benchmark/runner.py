@@ -32,7 +32,7 @@ from stcgym.agents.benchmark.plan import (
 )
 from stcgym.agents.benchmark.response import curve_settling_step, settling_step
 from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
-from stcgym.agents.controllers import CONTROLLERS
+from stcgym.agents.controllers import CONTROLLERS, controllers_for
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
 
 __all__ = [
@@ -448,7 +448,7 @@ class _RunState:
         seeds = [10_000 + i for i in range(cfg.curve_seeds)]
         sc = Scenario(key, "curve", curve_spec, curve_spec.plants[0], key)
         runs: dict[str, list[np.ndarray]] = {}
-        for name in cfg.classical:
+        for name in controllers_for(cfg.classical, curve_spec):
             factory = CONTROLLERS[name].build(cfg, sc)
             runs[name] = [
                 run_episode(factory, curve_spec, s, plant=p).cost
@@ -532,7 +532,7 @@ class _RunState:
         weights = job_weights(cfg, scenarios, planned)
         for key, (_, curve_spec) in envs.items():
             weights[("reference", key)] = (
-                len(cfg.classical)
+                len(controllers_for(cfg.classical, curve_spec))
                 * cfg.curve_seeds
                 * len(curve_spec.plants)
                 * curve_spec.steps
@@ -545,7 +545,7 @@ class _RunState:
             f"estimated {format_duration(estimate_seconds(cfg))}"
         )
         for sc in scenarios:
-            for name in cfg.classical:
+            for name in controllers_for(cfg.classical, sc.env):  # those that run on its plants
                 self._classical(sc, name)
             progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
         for key, (_, curve_spec) in envs.items():
