@@ -7,8 +7,9 @@
     scenario (``--scenarios ...,mimo``: the multivariable self-tuning LQ controller against
     the LQR oracle and the window RL agents) is opt-in there.
     ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds, and the MIMO
-    one, with the RL Zoo's training budgets as caps; ``stcgym bench --full`` is the long version (all catalogue
-    plants, TD3 and A2C too, 5 training seeds, 20 evaluation seeds, long caps: about a day).
+    one, with the RL Zoo's training budgets as caps; ``stcgym bench --full`` is the long
+    version (all catalogue plants, every MIMO plant, TD3 and A2C too, 5 training seeds, 20
+    evaluation seeds, long caps: about a day).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
     interrupted run without retraining its finished jobs.

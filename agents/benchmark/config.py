@@ -434,7 +434,11 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     single, family = _MODE_CAPS[cfg.mode]
     cfg.train_steps = {a: given.get(a, getattr(configs[a], single)) for a in cfg.rl_agents}
     cfg.family_train_steps = {a: given.get(a, getattr(configs[a], family)) for a in cfg.rl_agents}
-    cfg.mimo_train_steps = {a: given.get(a, _mimo_cap(configs[a], cfg.mode)) for a in cfg.rl_agents}
+    cfg.mimo_train_steps = {
+        a: given.get(a, _mimo_cap(configs[a], cfg.mode))
+        for a in cfg.rl_agents
+        if a not in RECURRENT_ALGORITHMS  # (trained on the SISO family only)
+    }
     for a in cfg.rl_agents:
         caps = [cfg.family_train_steps[a]]
         if a not in RECURRENT_ALGORITHMS:  # recurrent agents train on the family only

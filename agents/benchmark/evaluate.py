@@ -5,10 +5,10 @@ controller, the known-model oracles) is driven through the shared policy protoco
 (:mod:`stcgym.adaptive.policy`) by the closed-loop driver
 (:func:`stcgym.agents.closed_loop.run_closed_loop`): ``policy.reset()``, then
 ``policy.predict(obs, deterministic=True)`` on the *raw* observation
-``[y(k), r(k)]`` of the environment (``y`` the plant's outputs: the state ``x`` of a MIMO plant,
-:class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`). For a given :class:`EnvSpec` and seed the environment is built
-afresh and reset with ``reset(seed=seed)``, so every controller in a comparison meets the same
-plant, the same output noise and the same reference.
+``[y(k), r(k)]`` of the environment (``y`` the plant's outputs: the state ``x`` of a MIMO
+plant, :class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`). For a given :class:`EnvSpec` and
+seed the environment is built afresh and reset with ``reset(seed=seed)``, so every controller
+in a comparison meets the same plant, the same output noise and the same reference.
 
 Scoring
 -------

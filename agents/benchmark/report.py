@@ -467,10 +467,12 @@ def _curve_table(
 
 def _caps(cfg: Any) -> str:
     family = getattr(cfg, "family_train_steps", {}) or {}
+    mimo = getattr(cfg, "mimo_train_steps", {}) if "mimo" in cfg.scenarios else {}
     caps = []
     for a, n in cfg.train_steps.items():
-        f = family.get(a, n)
-        caps.append(f"{a} {n}" if f == n else f"{a} {n} (on the family {f})")
+        f, m = family.get(a, n), mimo.get(a, n)
+        where = ([f"on the family {f}"] if f != n else []) + ([f"on MIMO {m}"] if m != n else [])
+        caps.append(f"{a} {n}" + (f" ({', '.join(where)})" if where else ""))
     return ", ".join(caps) or "-"
 
 

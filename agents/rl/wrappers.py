@@ -1,17 +1,19 @@
 """The RL agents' observation: a window of past outputs, references and inputs.
 
-The plant state is not observed; an RL agent sees what the self-tuning controller sees, the
-input/output history. :class:`HistoryWindow` turns the raw ``[y(k), r(k)]`` observation of a
-SISO stcgym environment into a flat ``float32`` vector of the last ``W`` samples::
+The plant state is not observed (unless it is the output, as on the measured-state MIMO
+plants); an RL agent sees what the self-tuning controller sees, the input/output history.
+:class:`HistoryWindow` turns the raw ``[y(k), r(k)]`` observation of a SISO stcgym environment
+into a flat ``float32`` vector of the last ``W`` samples::
 
     [ y(k-W+1) .. y(k) | r(k-W+1) .. r(k) | u(k-W) .. u(k-1) | e(k-W+1) .. e(k) ]
        / y_scale          / y_scale           / action_bound     / y_scale (optional)
 
 with ``e = r - y``. With ``p`` outputs and ``m`` inputs (``stcgym/StateSpace-v0``, whose
 measured-state output is the state ``x``) each block holds the window of every channel in turn
-(``y_1`` window, ..., ``y_p`` window), so the SISO vector is the case ``p = m = 1``. Samples before the start of the episode are zero (the environment's own
-convention: every signal is zero before the first step). Values are clipped to
-``[-obs_clip, obs_clip]`` so that a run-away output cannot blow up the network's inputs.
+(``y_1`` window, ..., ``y_p`` window), so the SISO vector is the case ``p = m = 1``. Samples
+before the start of the episode are zero (the environment's own convention: every signal is
+zero before the first step). Values are clipped to ``[-obs_clip, obs_clip]`` so that a run-away
+output cannot blow up the network's inputs.
 
 The action space is normalised to ``[-1, 1]`` and rescaled to the environment's
 ``[-action_bound, action_bound]`` (the Stable-Baselines3 tip for continuous actions: Gaussian and
