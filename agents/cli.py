@@ -375,7 +375,13 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
         trained = meta["train_spec"]["plants"]
     except (ValueError, KeyError, TypeError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
-    if args.plant is not None:
+    if args.plant is not None and meta["train_spec"].get("kind") == "mimo":
+        if args.plant != trained[0]:
+            raise BenchInputError(
+                f"--plant {args.plant}: the agent was trained on the MIMO plant {trained[0]} "
+                "and runs on it only"
+            )
+    elif args.plant is not None:
         if args.plant not in plant_names():
             raise BenchInputError(
                 f"--plant must be a catalogue plant ({', '.join(plant_names())}), "
@@ -390,9 +396,9 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
 
 
 def _run_eval(args: argparse.Namespace) -> int:
-    from dataclasses import asdict
+    from dataclasses import replace
 
-    from stcgym.agents.benchmark.evaluate import EnvSpec, evaluate, summarize
+    from stcgym.agents.benchmark.evaluate import evaluate, summarize
 
     _check_eval_args(args)
     from stcgym.agents.rl.sb3 import load_agent
@@ -400,10 +406,10 @@ def _run_eval(args: argparse.Namespace) -> int:
     agent = load_agent(args.model_dir)
     spec = agent.train_spec
     plant = args.plant or spec.plants[0]
-    fields = {**asdict(spec), "plants": (plant,), "steps": args.episode_steps}
+    fields = {"plants": (plant,), "steps": args.episode_steps}
     if args.noise is not None:
         fields["noise_std"] = args.noise
-    env = EnvSpec(**fields)
+    env = replace(spec, **fields)
     seeds = [args.first_seed + i for i in range(args.seeds)]
     res = evaluate(agent.policy, env, seeds, plant=plant)
     costs = [m["cost"] for m in res.metrics]
