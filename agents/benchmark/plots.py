@@ -2,7 +2,8 @@
 
 * ``data_efficiency.png``: cost / oracle cost against environment steps (log x): RL learning
   curves (training steps; median over training seeds, one thin line per seed) and the
-  self-tuning controller's cost per reference half-period against its adaptation steps
+  self-tuning controller's (``stc``; ``stc_mimo`` on a MIMO plant: the first online controller
+  of the run's agents) cost per reference half-period against its adaptation steps
   (median and quartiles over episodes), on the same axes; the oracle (1) and LQG as lines.
   Each training seed's curve ends in a marker: a dot where the plateau rule stopped it, a
   cross where it reached its cap before a plateau.
@@ -99,7 +100,7 @@ def plot_traces(path: Path, scenario: Any, episodes: dict[str, Any]) -> None:
 def plot_data_efficiency(
     path: Path,
     curves: Sequence[dict[str, Any]],
-    adaptation: dict[str, tuple[np.ndarray, np.ndarray]],
+    adaptation: dict[str, tuple[np.ndarray, np.ndarray, str]],
     reference_lines: dict[str, dict[str, float]],
     stops: dict[tuple[str, str, Any], dict[str, Any]] | None = None,
 ) -> None:
@@ -132,9 +133,9 @@ def plot_data_efficiency(
                 med = np.median([xy[:n, 1] for xy in per_seed], axis=0)
                 ax.plot(steps, med, "o-", ms=3, color=f"C{i}", label=f"{algo} (training steps)")
         if env in adaptation:
-            ends, ratios = adaptation[env]
+            ends, ratios, learner = adaptation[env]
             q25, med, q75 = np.nanpercentile(ratios, [25, 50, 75], axis=0)
-            ax.plot(ends, med, "s-", ms=3, color="k", label="stc (adaptation steps)")
+            ax.plot(ends, med, "s-", ms=3, color="k", label=f"{learner} (adaptation steps)")
             ax.fill_between(ends, q25, q75, color="k", alpha=0.15, lw=0)
         if any(k[0] == env for k in stops):
             ax.plot([], [], "o", color="grey", label="seed stopped at its plateau")

@@ -57,12 +57,7 @@ _DETAIL_COLUMNS = (
 
 #: The self-tuning controllers given against every other controller, each with the key of its
 #: probability of the lower episode cost in :func:`headline` (and a column of the headline).
-_SELF_TUNING = {
-    "stc": "poi",
-    "stc_lq": "poi_lq",
-    "stc_kfmils": "poi_kfmils",
-    "stc_mimo": "poi_mimo",
-}
+_SELF_TUNING = {name: "poi" + name[3:] for name in ("stc", "stc_lq", "stc_kfmils", "stc_mimo")}
 #: How the conclusions name the self-tuning controllers other than ``stc``.
 _VARIANTS = {
     "stc_lq": "self-tuning LQ (stc_lq)",
