@@ -25,33 +25,11 @@ from stcgym.envs import get_mimo_plant, mimo_plant_names
 from stcgym.envs.signals import SquareWave
 
 # RL in seconds: a couple of PPO rollouts of 64 steps on 2 envs
-TINY = [
-    "--train-steps",
-    "200",
-    "--eval-interval",
-    "100",
-    "--train-seeds",
-    "1",
-    "--seeds",
-    "2",
-    "--episode-steps",
-    "120",
-    "--train-episode-steps",
-    "60",
-    "--curve-points",
-    "2",
-    "--hp",
-    "ppo.n_steps=64",
-    "--hp",
-    "ppo.n_envs=2",
-    "--hp",
-    "ppo.n_epochs=2",
-    "--bootstrap-reps",
-    "100",
-    "--jobs",
-    "1",
-    "--no-progress",
-]
+TINY = (
+    "--train-steps 200 --eval-interval 100 --train-seeds 1 --seeds 2 --episode-steps 120 "
+    "--train-episode-steps 60 --curve-points 2 --hp ppo.n_steps=64 --hp ppo.n_envs=2 "
+    "--hp ppo.n_epochs=2 --bootstrap-reps 100 --jobs 1 --no-progress"
+).split()
 
 
 def _rows(path):
