@@ -168,9 +168,7 @@ class EnvSpec:
     def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
         """``(obs, info, plant_spec)`` of ``env.reset(seed=seed)`` on the family member
         ``plant`` (default: the environment's draw)."""
-        options = None if plant is None else {"plant": plant}
-        obs, info = env.reset(seed=int(seed), options=options)
-        return obs, info, env.unwrapped.plant
+        return _reset_episode(env, seed, plant)
 
     def make(self, **overrides: Any) -> gym.Env:
         """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields.
@@ -242,6 +240,12 @@ class EnvSpec:
         d["plants"] = list(self.plants)
         d["jump_to"] = None if self.jump_to is None else list(self.jump_to)
         return d
+
+
+def _reset_episode(env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
+    options = None if plant is None else {"plant": plant}
+    obs, info = env.reset(seed=int(seed), options=options)
+    return obs, info, env.unwrapped.plant
 
 
 #: ``factory(plant, seed) -> policy``: the controller for one episode on ``plant`` (the
@@ -370,12 +374,13 @@ def run_episode(
     (True, 0.1301)
     """
     env = spec.make()
-    obs, info, drawn = spec.reset_episode(env, seed, plant)
+    # a spec's own reset (a MIMO spec's); any object with make, steps and action_bound will do
+    obs, info, drawn = getattr(spec, "reset_episode", _reset_episode)(env, seed, plant)
     name = drawn.name if drawn is not None else "?"
     if not hasattr(policy, "predict"):
         policy = policy(drawn, int(seed))
     T = spec.steps
-    p, m = spec.channels
+    p, m = len(obs) // 2, env.action_space.shape[0]  # outputs (and references), inputs
     out = () if p == 1 else (p,)  # a SISO plant keeps 1-D traces
     y, r = np.zeros((T + 1, *out)), np.zeros((T + 1, *out))
     u = np.zeros((T, *(() if m == 1 else (m,))))
