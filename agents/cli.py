@@ -3,10 +3,13 @@
 ``stcgym bench`` (= ``stcgym bench --quick``, ``make bench``)
     The self-tuning controller, the known-model and LQG oracles and PPO, SAC and RecurrentPPO
     (3 training seeds each, trained on the spot through the task executor) on the nominal,
-    plant-family and parameter-jump scenarios; under 10 minutes on 2 CPU cores.
-    ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds with the RL
-    Zoo's training budgets as caps; ``stcgym bench --full`` is the long version (all catalogue
-    plants, TD3 and A2C too, 5 training seeds, 20 evaluation seeds, long caps: about a day).
+    plant-family and parameter-jump scenarios; under 10 minutes on 2 CPU cores. The MIMO
+    scenario (``--scenarios ...,mimo``: the multivariable self-tuning LQ controller against
+    the LQR oracle and the window RL agents) is opt-in there.
+    ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds, and the MIMO
+    one, with the RL Zoo's training budgets as caps; ``stcgym bench --full`` is the long
+    version (all catalogue plants, every MIMO plant, TD3 and A2C too, 5 training seeds, 20
+    evaluation seeds, long caps: about a day).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
     interrupted run without retraining its finished jobs.
@@ -30,12 +33,13 @@ __all__ = ["main", "build_parser"]
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
-    from stcgym.agents.benchmark.config import FULL, QUICK, BenchConfig
+    from stcgym.agents.benchmark.config import FULL, QUICK, QUICK_MIMO_INTERVALS, BenchConfig
     from stcgym.agents.controllers import CONTROLLERS
     from stcgym.agents.executors import EXECUTORS
     from stcgym.agents.rl.configs import ALGORITHMS, DEFAULT_CONFIGS
     from stcgym.agents.rl.stopping import PlateauRule
     from stcgym.envs.catalogue import plant_names
+    from stcgym.envs.mimo_plants import mimo_plant_names
 
     p = sub.add_parser(
         "bench",
@@ -68,13 +72,24 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "finished RL jobs are read back, not retrained; takes --jobs, --executor, --address, "
         "--no-plots and --progress only",
     )
-    p.add_argument("--scenarios", help="comma list of nominal,family,jump (default: all)")
+    p.add_argument(
+        "--scenarios",
+        help="comma list of nominal,family,jump,mimo (quick default: "
+        f"{','.join(QUICK['scenarios'])}, so mimo is opt-in there: it would take the quick "
+        "tier past 10 minutes; standard and full: all four)",
+    )
     p.add_argument(
         "--plants",
         help=f"nominal-scenario plants (quick default: {','.join(QUICK['plants'])}; "
         f"catalogue: {','.join(plant_names())})",
     )
     defaults = BenchConfig(run="-")
+    p.add_argument(
+        "--mimo-plants",
+        help="MIMO plants of the mimo scenario (measured state; default: "
+        f"{','.join(defaults.mimo_plants)}; full: {','.join(FULL['mimo_plants'])}; MIMO "
+        f"catalogue: {','.join(mimo_plant_names())})",
+    )
     p.add_argument(
         "--family-train",
         help="plants RL trains on in the family scenario (default: "
@@ -102,7 +117,9 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "--train-steps",
         help="RL training cap in env steps: N for every agent, or ppo=N,sac=M (defaults: "
         "each algorithm's quick_steps, standard_steps / standard_family_steps or full_steps "
-        "in agents/rl/configs.py); at least one evaluation interval",
+        "in agents/rl/configs.py; on a MIMO plant in quick mode "
+        f"{QUICK_MIMO_INTERVALS} evaluation intervals, at most quick_steps); at least one "
+        "evaluation interval",
     )
     p.add_argument(
         "--patience",
@@ -252,6 +269,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             family_train=args.family_train,
             family_test=args.family_test,
             jumps=args.jumps,
+            mimo_plants=args.mimo_plants,
             agents=args.agents,
             train_steps=args.train_steps,
             patience=args.patience,
@@ -365,7 +383,13 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
         trained = meta["train_spec"]["plants"]
     except (ValueError, KeyError, TypeError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
-    if args.plant is not None:
+    if args.plant is not None and meta["train_spec"].get("kind") == "mimo":
+        if args.plant != trained[0]:
+            raise BenchInputError(
+                f"--plant {args.plant}: the agent was trained on the MIMO plant {trained[0]} "
+                "and runs on it only"
+            )
+    elif args.plant is not None:
         if args.plant not in plant_names():
             raise BenchInputError(
                 f"--plant must be a catalogue plant ({', '.join(plant_names())}), "
@@ -380,9 +404,9 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
 
 
 def _run_eval(args: argparse.Namespace) -> int:
-    from dataclasses import asdict
+    from dataclasses import replace
 
-    from stcgym.agents.benchmark.evaluate import EnvSpec, evaluate, summarize
+    from stcgym.agents.benchmark.evaluate import evaluate, summarize
 
     _check_eval_args(args)
     from stcgym.agents.rl.sb3 import load_agent
@@ -390,10 +414,10 @@ def _run_eval(args: argparse.Namespace) -> int:
     agent = load_agent(args.model_dir)
     spec = agent.train_spec
     plant = args.plant or spec.plants[0]
-    fields = {**asdict(spec), "plants": (plant,), "steps": args.episode_steps}
+    fields = {"plants": (plant,), "steps": args.episode_steps}
     if args.noise is not None:
         fields["noise_std"] = args.noise
-    env = EnvSpec(**fields)
+    env = replace(spec, **fields)
     seeds = [args.first_seed + i for i in range(args.seeds)]
     res = evaluate(agent.policy, env, seeds, plant=plant)
     costs = [m["cost"] for m in res.metrics]

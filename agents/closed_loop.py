@@ -75,7 +75,7 @@ def run_closed_loop(
         A single Gymnasium env (one lane) or a native vector env (``B`` lanes, each scored
         until it first terminates; what a lane does after its autoreset is not scored).
     obs
-        The observation returned by the reset, ``(2,)`` or ``(B, 2)``.
+        The observation returned by the reset, ``(2 p,)`` or ``(B, 2 p)`` for ``p`` outputs.
     steps
         Episode length ``T``.
     before_step, on_step
@@ -115,7 +115,7 @@ def _predict_loop(
         t0 = time.perf_counter()
         action, _ = policy.predict(obs, deterministic=True)
         wall += time.perf_counter() - t0
-        action = np.asarray(action, dtype=float).reshape(1 if single else (B, -1))
+        action = np.asarray(action, dtype=float).reshape(-1 if single else (B, -1))
         obs, reward, terminated, _, info = env.step(action)
         cost[alive, k] = -np.atleast_1d(reward)[alive]
         if on_step is not None:

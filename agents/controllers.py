@@ -6,8 +6,13 @@ controller with its defaults and the episode's seed), ``stc_lq`` (the same with 
 LQ design, ``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``),
 ``stc_kfmils`` (the same as ``stc`` on the paper's KF-MILS estimator, ``estimator="KF-MILS"``,
 with the closed-loop settings the controller chooses for it), ``oracle`` (the known-model
-controller, told the new parameters at a jump) and ``lqg`` (LQG on the true pre-jump
-parameters). Tests may register more.
+controller, told the new parameters at a jump; on a MIMO plant the LQR on the true ``(A, B)``,
+:class:`~stcgym.adaptive.LQRController`), ``lqg`` (LQG on the true pre-jump parameters) and
+``stc_mimo`` (the multivariable self-tuning LQ controller,
+:class:`~stcgym.adaptive.MultivariableSelfTuningController`, weighted by the bench's cost
+``||x - r||^2 + control_cost ||u||^2``, as its oracle). Each declares the plants it runs on
+(``ControllerInfo.plants``): a scenario evaluates only the controllers that declare its kind
+(``EnvSpec.plant_kind``: ``"siso"`` or ``"mimo"``). Tests may register more.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CONTROLLERS", "ControllerInfo"]
+__all__ = ["CONTROLLERS", "ControllerInfo", "controllers_for"]
 
 
 class _SwitchingOracle:
@@ -52,13 +57,19 @@ class ControllerInfo:
     """A classical controller of the bench.
 
     ``build(cfg, scenario) -> factory(plant_spec, seed) -> policy``; ``online`` marks a
-    controller that learns from the episode (its data use is the episode's steps).
+    controller that learns from the episode (its data use is the episode's steps); ``plants``
+    the kinds of plant it runs on (``"siso"``, ``"mimo"``).
     """
 
     kind: str
     build: Callable[[Any, Any], Callable[[Any, int], Any]]
     online: bool = False
     description: str = ""
+    plants: tuple[str, ...] = ("siso",)
+
+    def runs_on(self, spec: Any) -> bool:
+        """Whether the controller runs on the plants of the env spec ``spec``."""
+        return spec.plant_kind in self.plants
 
 
 def _self_tuning(cfg: Any, **options: Any) -> Callable[[Any, int], Any]:
@@ -98,7 +109,12 @@ def _stc_lq(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
 
 
 def _oracle(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
-    from stcgym.adaptive import KnownModelController
+    from stcgym.adaptive import KnownModelController, LQRController
+
+    if sc.env.plant_kind == "mimo":  # LQR on the true (A, B), the weights of stc_mimo
+        return lambda plant, seed: LQRController(
+            *plant.discrete(), Q=1.0, R=cfg.control_cost, action_bound=cfg.action_bound
+        )
 
     def factory(plant: Any, seed: int) -> Any:
         base = KnownModelController(plant.a, plant.b, action_bound=cfg.action_bound)
@@ -121,6 +137,22 @@ def _lqg(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
     )
 
 
+def _stc_mimo(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+    from stcgym.adaptive import MultivariableSelfTuningController
+
+    def factory(plant: Any, seed: int) -> Any:
+        return MultivariableSelfTuningController(
+            plant.n_states,
+            plant.n_inputs,
+            Q=1.0,
+            R=cfg.control_cost,
+            action_bound=cfg.action_bound,
+            seed=int(seed),
+        )
+
+    return factory
+
+
 #: Classical controllers by name (tests may register more).
 CONTROLLERS: dict[str, ControllerInfo] = {
     "stc": ControllerInfo("adaptive", _stc, True, "self-tuning controller (defaults)"),
@@ -132,7 +164,19 @@ CONTROLLERS: dict[str, ControllerInfo] = {
         "the self-tuning controller on the paper's KF-MILS estimator",
     ),
     "oracle": ControllerInfo(
-        "oracle", _oracle, False, "known-model controller (regulator's design, true parameters)"
+        "oracle",
+        _oracle,
+        False,
+        "known-model controller (regulator's design, true parameters; LQR on a MIMO plant)",
+        ("siso", "mimo"),
     ),
     "lqg": ControllerInfo("oracle", _lqg, False, "LQG on the true pre-jump parameters"),
+    "stc_mimo": ControllerInfo(
+        "adaptive", _stc_mimo, True, "multivariable self-tuning LQ controller", ("mimo",)
+    ),
 }
+
+
+def controllers_for(names: Sequence[str], spec: Any) -> list[str]:
+    """The controllers of ``names`` (in order) that run on the plants of the env spec ``spec``."""
+    return [name for name in names if CONTROLLERS[name].runs_on(spec)]

@@ -93,8 +93,8 @@ def test_history_window_spaces_and_contents():
     assert np.max(np.abs(obs)) == pytest.approx(10.0)
 
 
-def test_history_window_rejects_mimo():
-    env = gym.make("stcgym/MultichannelStatic-v0")
+def test_history_window_rejects_a_discrete_action_space():
+    env = gym.make("CartPole-v1")
     with pytest.raises(ValueError, match="action box"):
         HistoryWindow(env)
 

@@ -402,9 +402,10 @@ def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
     assert main(["bench", "--standard", "--out", "/nonexistent-never-written"]) == 130
     std, quick = seen["cfg"], build_config(run="q")
     assert std.mode == "standard"
-    same = ("scenarios", "plants", "family_train", "family_test", "jumps", "agents", "seeds")
+    same = ("plants", "family_train", "family_test", "jumps", "agents", "seeds")
     for name in (*same, "train_seeds", "first_seed", "episode_steps", "curve_seeds"):
         assert getattr(std, name) == getattr(quick, name), name
+    assert std.scenarios == [*quick.scenarios, "mimo"]  # mimo is opt-in in quick only
     # the RL Zoo's Pendulum-v1 n_timesteps as single-plant caps, 1e5-3e5 on the family
     assert std.train_steps == {"ppo": 100_000, "sac": 20_000, "rppo": 100_000}
     assert std.family_train_steps == {"ppo": 300_000, "sac": 100_000, "rppo": 100_000}
@@ -416,6 +417,8 @@ def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
     assert {(t["train_key"], t["algo"]): t["steps"] for t in tasks} == {
         ("nominal:stable2", "ppo"): 100_000,
         ("nominal:stable2", "sac"): 20_000,
+        ("mimo:quadruple_tank", "ppo"): 100_000,
+        ("mimo:quadruple_tank", "sac"): 20_000,
         ("family", "ppo"): 300_000,
         ("family", "sac"): 100_000,
         ("family", "rppo"): 100_000,

@@ -2,6 +2,7 @@
 
 Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their checks),
 :mod:`~stcgym.agents.benchmark.scenarios` (scenarios and RL training environments),
+:mod:`~stcgym.agents.benchmark.mimo` (the MIMO scenario and its environment),
 :mod:`~stcgym.agents.benchmark.plan` (the RL jobs and the ETA),
 :mod:`~stcgym.agents.benchmark.runner` (the run and ``metrics.csv``),
 :mod:`~stcgym.agents.benchmark.evaluate` (closed-loop evaluation, per-episode metrics),
@@ -23,6 +24,11 @@ Scenarios
     ``A:B`` (plant ``A`` jumping to plant ``B``). Window agents are the ones trained on the
     pre-jump plant (``nominal:A``): the jump is as new to them as to the self-tuning
     controller. The known-model oracle is told the new parameters at the jump.
+``mimo:P``
+    The MIMO catalogue plant ``P`` (``mimo_plants``) with measured state: the multivariable
+    self-tuning LQ controller against the LQR oracle on the true ``(A, B)`` and the window
+    agents trained on ``P``; the SISO-only controllers are left out. Part of the standard and
+    full tiers, opt-in at the quick one.
 
 Recurrent agents (``rppo``, sb3-contrib's RecurrentPPO: the adaptive-RL baseline) are trained on
 the plant family only and evaluated on the ``family`` and ``jump`` scenarios.
@@ -45,12 +51,15 @@ Controllers
 :class:`~stcgym.adaptive.KnownModelController`, the same design on the true parameters (always
 evaluated: every ratio is taken to it). ``lqg``: :class:`~stcgym.adaptive.LQGController`, the
 optimal linear controller for the bench's cost on the true (pre-jump) parameters.
+``stc_mimo``: :class:`~stcgym.adaptive.MultivariableSelfTuningController` (``mimo`` scenarios
+only; ``oracle`` is :class:`~stcgym.adaptive.LQRController` there).
 
 Tiers
 -----
-``quick`` (the default, about 10 minutes on 2 cores), ``standard`` (the same scenarios, seeds
-and statistics with the RL Zoo's tuned budgets as caps: about an hour) and ``full`` (every
-plant and agent, more seeds, long caps: about a day). In every tier each RL agent trains until
+``quick`` (the default, about 10 minutes on 2 cores; ``mimo`` only when asked), ``standard``
+(the quick scenarios and ``mimo``, the same seeds and statistics with the RL Zoo's tuned
+budgets as caps: about an hour) and ``full`` (every plant and agent, more seeds, long caps:
+about a day). In every tier each RL agent trains until
 its learning curve plateaus or it reaches its cap (:mod:`stcgym.agents.rl.stopping`), and the
 report says which, per scenario, agent and training seed.
 

@@ -5,7 +5,10 @@ Every tier trains each RL agent until its learning curve plateaus or it reaches 
 (:class:`~stcgym.agents.rl.stopping.PlateauRule`: ``patience`` evaluations, one every
 ``eval_interval`` env steps of the algorithm, without a gain of more than ``min_improvement``);
 the tiers differ in their caps (``AlgoConfig.quick_steps``, ``standard_steps`` and
-``standard_family_steps``, ``full_steps``) and, for ``full``, in plants, agents and seeds.
+``standard_family_steps``, ``full_steps``) and, for ``full``, in plants, agents and seeds. The
+``mimo`` scenario (:mod:`stcgym.agents.benchmark.mimo`) is part of the standard and full tiers;
+quick runs it when asked (``--scenarios ...,mimo``), with RL caps of
+:data:`QUICK_MIMO_INTERVALS` evaluation intervals.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.agents.benchmark.mimo import MimoEnvSpec, check_mimo_plants
 from stcgym.agents.benchmark.scenarios import parse_jump
 from stcgym.agents.controllers import CONTROLLERS
 from stcgym.agents.rl.configs import (
@@ -29,11 +33,13 @@ from stcgym.agents.rl.configs import (
 )
 from stcgym.agents.rl.stopping import PlateauRule
 from stcgym.envs.catalogue import get_plant, plant_names
+from stcgym.envs.mimo_plants import mimo_plant_names
 
 __all__ = [
     "FULL",
     "MODES",
     "QUICK",
+    "QUICK_MIMO_INTERVALS",
     "SCENARIO_KINDS",
     "STANDARD",
     "BenchConfig",
@@ -43,7 +49,11 @@ __all__ = [
     "validate",
 ]
 
-SCENARIO_KINDS = ("nominal", "family", "jump")
+SCENARIO_KINDS = ("nominal", "family", "jump", "mimo")
+#: The scenarios of the quick tier (mimo is opt-in there: it would take it past 10 minutes).
+QUICK_SCENARIOS = ("nominal", "family", "jump")
+#: Quick-tier RL cap in the mimo scenario: this many evaluation intervals (at most quick_steps).
+QUICK_MIMO_INTERVALS = 2
 
 
 class BenchInputError(ValueError):
@@ -57,11 +67,13 @@ class BenchConfig:
     run: str
     out: str = "results"
     mode: str = "quick"
-    scenarios: list[str] = field(default_factory=lambda: list(SCENARIO_KINDS))
+    scenarios: list[str] = field(default_factory=lambda: list(QUICK_SCENARIOS))
     plants: list[str] = field(default_factory=lambda: ["stable2"])
     family_train: list[str] = field(default_factory=lambda: ["stable2", "unstable2", "integrator2"])
     family_test: list[str] = field(default_factory=lambda: ["lightly_damped2", "nonminphase2"])
     jumps: list[str] = field(default_factory=lambda: ["timevarying2"])
+    #: MIMO catalogue plants of the mimo scenario
+    mimo_plants: list[str] = field(default_factory=lambda: ["quadruple_tank"])
     agents: list[str] = field(
         default_factory=lambda: [
             "ppo",
@@ -76,8 +88,9 @@ class BenchConfig:
     )
     #: training cap per algorithm of the agents trained on one plant ...
     train_steps: dict[str, int] = field(default_factory=dict)
-    #: ... and of those trained on the randomised plant family
+    #: ... and of those trained on the randomised plant family, and on a MIMO plant
     family_train_steps: dict[str, int] = field(default_factory=dict)
+    mimo_train_steps: dict[str, int] = field(default_factory=dict)
     #: the plateau rule (stcgym.agents.rl.stopping.PlateauRule)
     patience: int = 3
     min_improvement: float = 0.05
@@ -124,7 +137,10 @@ class BenchConfig:
         return [self.first_seed + i for i in range(self.seeds)]
 
     def env_spec(self, plants: Sequence[str], steps: int, **kw: Any) -> EnvSpec:
-        return EnvSpec(
+        """The bench's environment on ``plants`` (a :class:`~stcgym.agents.benchmark.mimo.
+        MimoEnvSpec` for a MIMO catalogue plant)."""
+        mimo = len(plants) > 0 and plants[0] in mimo_plant_names()
+        return (MimoEnvSpec if mimo else EnvSpec)(
             tuple(plants),
             steps=steps,
             noise_std=self.noise_std,
@@ -139,6 +155,8 @@ class BenchConfig:
 
     def cap(self, algo: str, train_key: str) -> int:
         """The training cap of ``algo``'s agents on the training env ``train_key``."""
+        if train_key.startswith("mimo:"):
+            return self.mimo_train_steps[algo]
         return (self.family_train_steps if train_key == "family" else self.train_steps)[algo]
 
     def to_dict(self) -> dict[str, Any]:
@@ -159,6 +177,7 @@ class BenchConfig:
 
 QUICK = dict(
     mode="quick",
+    scenarios=list(QUICK_SCENARIOS),
     plants=["stable2"],
     jumps=["timevarying2"],
     agents=["ppo", "sac", "rppo", "stc", "stc_lq", "stc_kfmils", "oracle", "lqg"],
@@ -166,10 +185,12 @@ QUICK = dict(
     seeds=5,
     episode_steps=1000,
 )
-#: Same scenarios, seeds and statistics as quick; RL caps from the Zoo (about an hour on 2 cores).
-STANDARD = dict(QUICK, mode="standard")
+#: The quick scenarios and the mimo one, same seeds; RL caps from the Zoo (about an hour).
+STANDARD = dict(QUICK, mode="standard", scenarios=list(SCENARIO_KINDS))
 FULL = dict(
     mode="full",
+    scenarios=list(SCENARIO_KINDS),
+    mimo_plants=mimo_plant_names(),
     plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4"],
     jumps=["timevarying2", "stable2:unstable2"],
     agents=["ppo", "sac", "td3", "a2c", "rppo", "stc", "stc_lq", "stc_kfmils", "oracle", "lqg"],
@@ -227,6 +248,7 @@ def build_config(
     family_train: str | Sequence[str] | None = None,
     family_test: str | Sequence[str] | None = None,
     jumps: str | Sequence[str] | None = None,
+    mimo_plants: str | Sequence[str] | None = None,
     agents: str | Sequence[str] | None = None,
     train_steps: str | int | dict | None = None,
     patience: int = 3,
@@ -270,6 +292,7 @@ def build_config(
         ("family_train", family_train),
         ("family_test", family_test),
         ("jumps", jumps),
+        ("mimo_plants", mimo_plants),
         ("agents", agents),
     ):
         parsed = _split(value)
@@ -339,6 +362,9 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
             raise ValueError(f"unknown plant(s) {bad} in {what}; catalogue: {sorted(names)}")
     if "nominal" in cfg.scenarios and not cfg.plants:
         raise ValueError("the nominal scenario needs at least one plant (--plants)")
+    check_mimo_plants(cfg.mimo_plants)
+    if "mimo" in cfg.scenarios and not cfg.mimo_plants:
+        raise ValueError("the mimo scenario needs at least one plant (--mimo-plants)")
     recurrent = [a for a in cfg.rl_agents if a in RECURRENT_ALGORITHMS]
     if "family" in cfg.scenarios or recurrent:
         if not cfg.family_train:
@@ -411,10 +437,17 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     single, family = _MODE_CAPS[cfg.mode]
     cfg.train_steps = {a: given.get(a, getattr(configs[a], single)) for a in cfg.rl_agents}
     cfg.family_train_steps = {a: given.get(a, getattr(configs[a], family)) for a in cfg.rl_agents}
+    cfg.mimo_train_steps = {
+        a: given.get(a, _mimo_cap(configs[a], cfg.mode))
+        for a in cfg.rl_agents
+        if a not in RECURRENT_ALGORITHMS  # (trained on the SISO family only)
+    }
     for a in cfg.rl_agents:
         caps = [cfg.family_train_steps[a]]
         if a not in RECURRENT_ALGORITHMS:  # recurrent agents train on the family only
             caps.append(cfg.train_steps[a])
+            if "mimo" in cfg.scenarios:
+                caps.append(cfg.mimo_train_steps[a])
         interval = configs[a].eval_interval
         if min(caps) < interval:
             raise ValueError(
@@ -423,6 +456,14 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
                 "or lower --eval-interval"
             )
     cfg.algo_configs = {a: configs[a].to_dict() for a in cfg.rl_agents}
+
+
+def _mimo_cap(config: Any, mode: str) -> int:
+    """The default cap on a MIMO plant: the single-plant cap of standard and full, and in quick
+    :data:`QUICK_MIMO_INTERVALS` evaluation intervals (at most ``quick_steps``)."""
+    if mode == "quick":
+        return min(config.quick_steps, QUICK_MIMO_INTERVALS * config.eval_interval)
+    return getattr(config, _MODE_CAPS[mode][0])
 
 
 #: The AlgoConfig fields of each mode's caps: (one plant, the plant family).

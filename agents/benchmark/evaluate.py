@@ -5,9 +5,10 @@ controller, the known-model oracles) is driven through the shared policy protoco
 (:mod:`stcgym.adaptive.policy`) by the closed-loop driver
 (:func:`stcgym.agents.closed_loop.run_closed_loop`): ``policy.reset()``, then
 ``policy.predict(obs, deterministic=True)`` on the *raw* observation
-``[y(k), r(k)]`` of the environment. For a given :class:`EnvSpec` and seed the environment is built
-afresh and reset with ``reset(seed=seed)``, so every controller in a comparison meets the same
-plant, the same output noise and the same reference.
+``[y(k), r(k)]`` of the environment (``y`` the plant's outputs: the state ``x`` of a MIMO
+plant, :class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`). For a given :class:`EnvSpec` and
+seed the environment is built afresh and reset with ``reset(seed=seed)``, so every controller
+in a comparison meets the same plant, the same output noise and the same reference.
 
 Scoring
 -------
@@ -19,11 +20,12 @@ r(k+1))^2 + rho u(k)^2``:
   :func:`default_windows` (steps ``[0, T/10)``, ``[T/2, T)``; with a jump at ``J``: steady is the
   pre-jump ``[J/2, J)`` and post-jump is ``[J + 0.3 (T-J), J + 0.6 (T-J))``, i.e. 0-200,
   1000-2000 and 1300-1600 for a 2000-step episode with the jump at 1000);
-* ``effort``: mean ``u(k)^2`` (plant units) over the steps run;
+* ``effort``: mean ``||u(k)||^2`` (plant units) over the steps run;
 * ``bounded``: the episode did not diverge (``|y|`` stayed below the environment's ``y_bound``);
 * ``overshoot_pct``, ``settling_steps``: step response at the reference steps of the steady
   window, ``startup_settling_steps`` at the first reference step (step 0), see
-  :func:`stcgym.agents.benchmark.response.step_response`;
+  :func:`stcgym.agents.benchmark.response.step_response` (one output only: ``nan`` for a MIMO
+  plant, whose references need not all be equilibria);
 * the metrics relative to the oracle on the same episode (cost ratios, adaptation and
   re-convergence steps, :mod:`stcgym.agents.benchmark.response`) need the oracle's run and
   are computed by the bench from ``Episode.cost``.
@@ -42,14 +44,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.agents.benchmark.response import step_response
+from stcgym.agents.benchmark.statistics import summarize
 from stcgym.agents.closed_loop import run_closed_loop
 from stcgym.envs.catalogue import PlantSpec, get_plant
 
@@ -128,6 +131,8 @@ class EnvSpec:
     amplitude: float = 1.0
     jump_step: int | None = None
     jump_to: tuple[float, ...] | None = None
+    #: the plants' kind, matched against a controller's ``ControllerInfo.plants``
+    plant_kind: ClassVar[str] = "siso"
 
     def __post_init__(self) -> None:
         plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
@@ -154,6 +159,16 @@ class EnvSpec:
     def order(self) -> int:
         """Plant order ``n`` (of the first plant: a family has one order)."""
         return get_plant(self.plants[0]).n
+
+    @property
+    def channels(self) -> tuple[int, int]:
+        """``(outputs, inputs)`` of the plants: ``(1, 1)``."""
+        return 1, 1
+
+    def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
+        """``(obs, info, plant_spec)`` of ``env.reset(seed=seed)`` on the family member
+        ``plant`` (default: the environment's draw)."""
+        return _reset_episode(env, seed, plant)
 
     def make(self, **overrides: Any) -> gym.Env:
         """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields.
@@ -192,7 +207,8 @@ class EnvSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EnvSpec:
-        """Inverse of :meth:`to_dict` (JSON data back to a spec).
+        """Inverse of :meth:`to_dict` (JSON data back to a spec; ``kind: "mimo"`` gives a
+        :class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`).
 
         Parameters
         ----------
@@ -209,6 +225,10 @@ class EnvSpec:
             A field out of range (as on construction).
         """
         d = dict(data)
+        if d.pop("kind", "siso") == "mimo":
+            from stcgym.agents.benchmark.mimo import MimoEnvSpec
+
+            return MimoEnvSpec(**{**d, "plants": tuple(d["plants"])})
         d["plants"] = tuple(d["plants"])
         if d.get("jump_to") is not None:
             d["jump_to"] = tuple(d["jump_to"])
@@ -220,6 +240,12 @@ class EnvSpec:
         d["plants"] = list(self.plants)
         d["jump_to"] = None if self.jump_to is None else list(self.jump_to)
         return d
+
+
+def _reset_episode(env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
+    options = None if plant is None else {"plant": plant}
+    obs, info = env.reset(seed=int(seed), options=options)
+    return obs, info, env.unwrapped.plant
 
 
 #: ``factory(plant, seed) -> policy``: the controller for one episode on ``plant`` (the
@@ -245,10 +271,11 @@ class Episode:
         The episode's seed.
     plant : str
         Catalogue name of the plant the episode ran on.
-    y, r : ndarray, shape (T + 1,)
-        Noise-free output and reference, ``y(0..T)``, ``r(0..T)``.
-    u : ndarray, shape (T,)
-        Applied (clipped) input.
+    y, r : ndarray, shape (T + 1,) or (T + 1, p)
+        Noise-free output and reference, ``y(0..T)``, ``r(0..T)`` (``p`` outputs of a MIMO
+        plant).
+    u : ndarray, shape (T,) or (T, m)
+        Applied (clipped) input (``m`` inputs of a MIMO plant).
     cost : ndarray, shape (T,)
         Charged cost per step.
     steps_run : int
@@ -261,7 +288,7 @@ class Episode:
         Mean wall time of one ``predict`` call, microseconds.
     theta, theta_hat : ndarray or None
         With ``record_theta``: the true parameters ``(T + 1, 2n)`` and the policy's estimate
-        ``(T, 2n)``.
+        ``(T, 2n)`` (a MIMO plant: ``[A B]`` flattened row by row).
 
     Examples
     --------
@@ -347,29 +374,32 @@ def run_episode(
     (True, 0.1301)
     """
     env = spec.make()
-    options = None if plant is None else {"plant": plant}
-    obs, info = env.reset(seed=int(seed), options=options)
-    drawn = env.unwrapped.plant
+    # a spec's own reset (a MIMO spec's); any object with make, steps and action_bound will do
+    obs, info, drawn = getattr(spec, "reset_episode", _reset_episode)(env, seed, plant)
     name = drawn.name if drawn is not None else "?"
     if not hasattr(policy, "predict"):
         policy = policy(drawn, int(seed))
     T = spec.steps
-    y, r, u = np.zeros(T + 1), np.zeros(T + 1), np.zeros(T)
-    y[0], r[0] = info["y_clean"], obs[1]
+    p, m = len(obs) // 2, env.action_space.shape[0]  # outputs (and references), inputs
+    out = () if p == 1 else (p,)  # a SISO plant keeps 1-D traces
+    y, r = np.zeros((T + 1, *out)), np.zeros((T + 1, *out))
+    u = np.zeros((T, *(() if m == 1 else (m,))))
+    y[0], r[0] = np.reshape(info["y_clean"], out), np.reshape(obs[p:], out)
     n_clipped = 0
     theta = theta_hat = None
     if record_theta:
-        theta = np.full((T + 1, len(info["theta"])), np.nan)
-        theta_hat = np.full((T, len(info["theta"])), np.nan)
-        theta[0] = info["theta"]
+        true = np.ravel(info["theta"] if "theta" in info else info["params"])
+        theta = np.full((T + 1, true.size), np.nan)
+        theta_hat = np.full((T, true.size), np.nan)
+        theta[0] = true
 
     def record(k: int, action: NDArray, obs: NDArray, info: dict[str, Any]) -> None:
         nonlocal n_clipped
-        u[k] = np.clip(action[0], -spec.action_bound, spec.action_bound)
-        y[k + 1], r[k + 1] = info["y_clean"], obs[1]
+        u[k] = np.clip(action, -spec.action_bound, spec.action_bound).reshape(u.shape[1:])
+        y[k + 1], r[k + 1] = np.reshape(info["y_clean"], out), np.reshape(obs[p:], out)
         n_clipped = int(info["n_clipped"])
         if record_theta:
-            theta[k + 1] = info["theta"]
+            theta[k + 1] = np.ravel(info["theta"] if "theta" in info else info["params"])
             est = getattr(policy, "theta", None)
             if est is not None and np.size(est) == theta.shape[1]:
                 theta_hat[k] = np.ravel(est)
@@ -422,13 +452,13 @@ def _window_mean(x: NDArray, window: tuple[int, int]) -> float:
 
 def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, float]:
     """The per-episode columns of ``metrics.csv`` (see the module docstring)."""
-    u = ep.u[: ep.steps_run]
+    u = ep.u[: ep.steps_run].reshape(ep.steps_run, -1)
     m = {
         "cost": float(np.mean(ep.cost)),
         "cost_start": _window_mean(ep.cost, windows.start),
         "cost_steady": _window_mean(ep.cost, windows.steady),
         "cost_post_jump": math.nan,
-        "effort": float(np.mean(u**2)),
+        "effort": float(np.mean(np.sum(u**2, axis=1))) if len(u) else math.nan,
         "bounded": int(not ep.diverged),
         "steps_run": ep.steps_run,
         "clip_frac": ep.n_clipped / max(ep.steps_run, 1),
@@ -436,6 +466,9 @@ def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, flo
     }
     if windows.post_jump is not None:
         m["cost_post_jump"] = _window_mean(ep.cost, windows.post_jump)
+    if ep.y.ndim > 1:  # several outputs: no step-response figures (module docstring)
+        nan = math.nan
+        return {**m, "overshoot_pct": nan, "settling_steps": nan, "startup_settling_steps": nan}
     steady = step_response(ep.y, ep.r, start=windows.steady[0], stop=windows.steady[1])
     startup = step_response(ep.y, ep.r, start=0, stop=min(len(ep.r), max(2, period // 2)))
     m["overshoot_pct"] = steady["overshoot_pct"]
@@ -532,7 +565,7 @@ def evaluate(
     (0.1301, 0.0)
     """
     if steps is not None and steps != env_spec.steps:
-        env_spec = EnvSpec(**{**asdict(env_spec), "steps": int(steps)})
+        env_spec = replace(env_spec, steps=int(steps))
     windows = windows or default_windows(env_spec.steps, env_spec.jump_step)
     result = EvalResult()
     for seed in seeds:
@@ -545,58 +578,3 @@ def evaluate(
         if on_episode is not None:
             on_episode(ep, metrics)
     return result
-
-
-def summarize(values: Sequence[float], failed: Sequence[bool] | None = None) -> dict[str, float]:
-    """Median, IQR, CVaR of the worst quarter, mean and failure rate of per-seed values.
-
-    ``nan`` values (a column that does not apply) are dropped; ``inf`` counts as a very bad
-    value (it makes the CVaR infinite, which is the honest worst case).
-
-    Parameters
-    ----------
-    values : sequence of float
-        One value per seed (lower is better).
-    failed : sequence of bool, optional
-        One flag per seed; gives ``failure_rate``.
-
-    Returns
-    -------
-    dict of str to float
-        ``n`` (values kept), ``median``, ``iqr``, ``cvar25`` (mean of the ``ceil(n/4)``
-        largest), ``mean``, and ``failure_rate`` when ``failed`` is given; ``nan`` statistics
-        when no value is left.
-
-    Examples
-    --------
-    >>> from stcgym.agents import summarize
-    >>> summarize([1.0, 2.0, 3.0, 10.0, float("nan")], [False, False, False, True, False])
-    {'n': 4.0, 'median': 2.5, 'iqr': 3.0, 'cvar25': 10.0, 'mean': 4.0, 'failure_rate': 0.2}
-    """
-    x = np.asarray(values, dtype=float)
-    x = x[~np.isnan(x)]
-    out = {"n": float(x.size)}
-    if x.size == 0:
-        out.update(median=math.nan, iqr=math.nan, cvar25=math.nan, mean=math.nan)
-    else:
-        q25, med, q75 = (
-            np.percentile(x, [25, 50, 75]) if np.all(np.isfinite(x)) else (_inf_percentiles(x))
-        )
-        worst = np.sort(x)[-max(1, math.ceil(x.size / 4)) :]
-        out.update(
-            median=float(med),
-            iqr=float(q75 - q25) if np.isfinite(q75 - q25) else math.inf,
-            cvar25=float(np.mean(worst)),
-            mean=float(np.mean(x)),
-        )
-    if failed is not None:
-        f = np.asarray(failed, dtype=bool)
-        out["failure_rate"] = float(np.mean(f)) if f.size else math.nan
-    return out
-
-
-def _inf_percentiles(x: NDArray) -> tuple[float, float, float]:
-    # np.percentile interpolates inf - inf into nan; order statistics are what we mean here.
-    s = np.sort(x)
-    idx = [min(len(s) - 1, int(round(q * (len(s) - 1)))) for q in (0.25, 0.5, 0.75)]
-    return tuple(float(s[i]) for i in idx)  # type: ignore[return-value]

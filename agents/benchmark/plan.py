@@ -12,6 +12,7 @@ from typing import Any
 from stcgym.agents.benchmark.config import BenchConfig
 from stcgym.agents.benchmark.evaluate import EnvSpec
 from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
+from stcgym.agents.controllers import controllers_for
 from stcgym.agents.rl.configs import AlgoConfig
 
 __all__ = [
@@ -41,7 +42,10 @@ def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence
 
     classical = cfg.seeds * cfg.episode_steps * SECONDS_PER_EVAL_STEP
     episode = cfg.curve_seeds * cfg.train_episode_steps * SECONDS_PER_EVAL_STEP
-    out = {("classical", sc.name): classical * len(cfg.classical) for sc in scenarios}
+    out = {
+        ("classical", sc.name): classical * len(controllers_for(cfg.classical, sc.env))
+        for sc in scenarios
+    }
     for t in tasks:
         plants = len(t["curve_env"]["plants"])
         interval = t["config"]["eval_interval"]

@@ -2,14 +2,18 @@
 
 * ``data_efficiency.png``: cost / oracle cost against environment steps (log x): RL learning
   curves (training steps; median over training seeds, one thin line per seed) and the
-  self-tuning controller's cost per reference half-period against its adaptation steps
+  self-tuning controller's (``stc``; ``stc_mimo`` on a MIMO plant: the first online controller
+  of the run's agents) cost per reference half-period against its adaptation steps
   (median and quartiles over episodes), on the same axes; the oracle (1) and LQG as lines.
   Each training seed's curve ends in a marker: a dot where the plateau rule stopped it, a
   cross where it reached its cap before a plateau.
 * ``theta_<scenario>.png``: the self-tuning controller's estimates theta_hat(t) against the
-  true theta(t), one panel per parameter, jump marked.
+  true theta(t), one panel per parameter, jump marked (the first online controller of the
+  run's agents with an estimate); in a ``mimo`` scenario the relative error of the estimate
+  ``[A_hat B_hat]`` instead (:func:`plot_estimate_error`).
 * ``traces_<scenario>.png``: small multiples, one row per controller on the same axes: y and r
-  over the episode, y and r over the first 100 steps, u over the first 100 steps.
+  over the episode, y and r over the first 100 steps, u over the first 100 steps (one line per
+  output and input of a MIMO plant).
 * ``jump_cost_<scenario>.png``: cost per reference period (trailing window, so nothing moves
   before the jump) around the jump, median over seeds.
 """
@@ -22,8 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from stcgym.agents.controllers import CONTROLLERS
+
 __all__ = [
     "plot_data_efficiency",
+    "plot_estimate_error",
     "plot_jump_cost",
     "plot_theta",
     "plot_traces",
@@ -93,7 +100,7 @@ def plot_traces(path: Path, scenario: Any, episodes: dict[str, Any]) -> None:
 def plot_data_efficiency(
     path: Path,
     curves: Sequence[dict[str, Any]],
-    adaptation: dict[str, tuple[np.ndarray, np.ndarray]],
+    adaptation: dict[str, tuple[np.ndarray, np.ndarray, str]],
     reference_lines: dict[str, dict[str, float]],
     stops: dict[tuple[str, str, Any], dict[str, Any]] | None = None,
 ) -> None:
@@ -130,9 +137,9 @@ def plot_data_efficiency(
                     steps, med, "o-", ms=3, color=colour[algo], label=f"{algo} (training steps)"
                 )
         if env in adaptation:
-            ends, ratios = adaptation[env]
+            ends, ratios, learner = adaptation[env]
             q25, med, q75 = np.nanpercentile(ratios, [25, 50, 75], axis=0)
-            ax.plot(ends, med, "s-", ms=3, color="k", label="stc (adaptation steps)")
+            ax.plot(ends, med, "s-", ms=3, color="k", label=f"{learner} (adaptation steps)")
             ax.fill_between(ends, q25, q75, color="k", alpha=0.15, lw=0)
         if any(k[0] == env for k in stops):
             ax.plot([], [], "o", color="grey", label="seed stopped at its plateau")
@@ -176,6 +183,21 @@ def plot_theta(path: Path, scenario: Any, episode: Any) -> None:
     _save(fig, path)
 
 
+def plot_estimate_error(path: Path, scenario: Any, episode: Any) -> None:
+    """``||[A_hat B_hat] - [A B]||_F / ||[A B]||_F`` against the step (log y)."""
+    from stcgym.agents.benchmark.mimo import estimate_error
+
+    plt = _plt()
+    err = estimate_error(episode.theta, episode.theta_hat)
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    ax.plot(np.arange(1, len(err) + 1), err, "C1", lw=1)
+    ax.set_yscale("log")
+    ax.set_title(f"{scenario.name}, seed {episode.seed}: relative error of [A_hat B_hat]")
+    ax.set_xlabel("step")
+    ax.set_ylabel("||estimate - true||_F / ||true||_F")
+    _save(fig, path)
+
+
 def plot_jump_cost(path: Path, scenario: Any, costs: dict[str, list[np.ndarray]]) -> None:
     """Mean cost over the trailing reference period, median over seeds, around the jump."""
     plt = _plt()
@@ -213,10 +235,12 @@ def write_plots(
             p = Path(run_dir) / f"traces_{_slug(sc.name)}.png"
             plot_traces(p, sc, eps)
             paths.append(p)
-        stc = data.traces.get((sc.name, "stc"))
-        if stc is not None and stc.theta is not None:
+        online = [c for c in order if c in CONTROLLERS and CONTROLLERS[c].online]
+        learner = [data.traces[(sc.name, c)] for c in online if (sc.name, c) in data.traces]
+        if learner and learner[0].theta is not None:
             p = Path(run_dir) / f"theta_{_slug(sc.name)}.png"
-            plot_theta(p, sc, stc)
+            plot = plot_estimate_error if sc.kind == "mimo" else plot_theta
+            plot(p, sc, learner[0])
             paths.append(p)
         if sc.env.jump_step is not None:
             jc = {c: data.costs[(sc.name, c)] for c in order if (sc.name, c) in data.costs}

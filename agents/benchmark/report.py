@@ -13,8 +13,8 @@ stratified-bootstrap interval (:mod:`stcgym.agents.benchmark.statistics`, i.e. `
    when it does not; median with the share of runs that recovered).
 
 Whole-episode cost stays as a column, and the probability that each self-tuning controller
-(``stc``, ``stc_lq``, ``stc_kfmils``) has the lower cost (rliable's probability of improvement)
-is given against every other controller.
+of the scenario (``stc``, ``stc_lq``, ``stc_kfmils``; ``stc_mimo`` on a MIMO plant) has the
+lower cost (rliable's probability of improvement) is given against every other controller.
 
 Next to each RL agent's figures the report says how its training ended, per training seed:
 at the plateau of its learning curve or at the cap (:mod:`stcgym.agents.rl.stopping`), and at
@@ -57,11 +57,12 @@ _DETAIL_COLUMNS = (
 
 #: The self-tuning controllers given against every other controller, each with the key of its
 #: probability of the lower episode cost in :func:`headline` (and a column of the headline).
-_SELF_TUNING = {"stc": "poi", "stc_lq": "poi_lq", "stc_kfmils": "poi_kfmils"}
+_SELF_TUNING = {name: "poi" + name[3:] for name in ("stc", "stc_lq", "stc_kfmils", "stc_mimo")}
 #: How the conclusions name the self-tuning controllers other than ``stc``.
 _VARIANTS = {
     "stc_lq": "self-tuning LQ (stc_lq)",
     "stc_kfmils": "the self-tuning controller on the paper's KF-MILS estimator (stc_kfmils)",
+    "stc_mimo": "the multivariable self-tuning LQ controller (stc_mimo)",
 }
 
 
@@ -263,7 +264,8 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
     ]
     if jump:
         cols += ["post-jump / oracle, IQM", "re-converge steps, median (recovered)"]
-    cols += ["episode cost, IQM", *(f"P({name} cost lower)" for name in _SELF_TUNING)]
+    tuners = [name for name in _SELF_TUNING if name in hl]  # those of this scenario
+    cols += ["episode cost, IQM", *(f"P({name} cost lower)" for name in tuners)]
     cols.append("RL training: stop (seeds); last > min. gain")
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c, res in hl.items():
@@ -277,7 +279,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
         if jump:
             cells += [_cell(res, "post_jump_ratio"), _cell(res, "reconverge_steps", "median")]
         cells.append(_cell(res, "cost"))
-        for key in _SELF_TUNING.values():
+        for key in (_SELF_TUNING[name] for name in tuners):
             p = res.get(key)
             cells.append(p.format(2) if p is not None else "-")
         cells.append(_training_cell(res))
@@ -460,10 +462,12 @@ def _curve_table(
 
 def _caps(cfg: Any) -> str:
     family = getattr(cfg, "family_train_steps", {}) or {}
+    mimo = getattr(cfg, "mimo_train_steps", {}) if "mimo" in cfg.scenarios else {}
     caps = []
     for a, n in cfg.train_steps.items():
-        f = family.get(a, n)
-        caps.append(f"{a} {n}" if f == n else f"{a} {n} (on the family {f})")
+        f, m = family.get(a, n), mimo.get(a, n)
+        where = ([f"on the family {f}"] if f != n else []) + ([f"on MIMO {m}"] if m != n else [])
+        caps.append(f"{a} {n}" + (f" ({', '.join(where)})" if where else ""))
     return ", ".join(caps) or "-"
 
 
@@ -521,10 +525,11 @@ def write_report(
         "ratios are to the known-model oracle on the same episode (seed, noise, reference). "
         "Env steps to <= 1.2x: training steps for RL (learning curve), adaptation steps "
         "within the episode for the self-tuning controllers, 0 for a controller that starts "
-        "there. P(stc cost lower), P(stc_lq cost lower), P(stc_kfmils cost lower): "
-        "probability that `stc` (the self-tuning controller with its defaults), `stc_lq` "
-        "(self-tuning LQ) or `stc_kfmils` (the self-tuning controller on the paper's KF-MILS "
-        "estimator) has the lower episode cost than that controller on a random pair of runs. "
+        "there. P(stc cost lower), P(stc_lq cost lower), P(stc_kfmils cost lower), "
+        "P(stc_mimo cost lower): probability that `stc` (the self-tuning controller with its "
+        "defaults), `stc_lq` (self-tuning LQ), `stc_kfmils` (the self-tuning controller on the "
+        "paper's KF-MILS estimator) or `stc_mimo` (multivariable self-tuning LQ, `mimo:*`) "
+        "has the lower episode cost than that controller on a random pair of runs. "
         f"RL training: every agent trains until {_rule(cfg)}; the column says how many "
         "training seeds stopped at the plateau and how many at the cap (before a plateau), and "
         "at which training step the cost last gained more than the minimum.",
@@ -586,6 +591,9 @@ def write_report(
         "(rppo) are trained on the family "
         f"({', '.join(cfg.family_train)}); the oracle is told the new parameters at the jump "
         "(lqg is not); in `family:*` the plant is held out.",
+        "- `mimo:*`: a MIMO plant with measured state (`stcgym/StateSpace-v0`), cost "
+        f"`||x - r||^2 + {cfg.control_cost} ||u||^2`; the oracle is LQR on the true (A, B); "
+        "the SISO-only controllers and the recurrent agents do not run there.",
         "- RL training recipe: observation = window of past y, r, u (no plant state); training "
         "reward = compressed cost `log(1 + cost)`, a diverged episode charged until its end"
         + (f" (training bound |y| > {cfg.train_y_bound:g})" if cfg.train_y_bound else "")

@@ -32,7 +32,7 @@ from stcgym.agents.benchmark.plan import (
 )
 from stcgym.agents.benchmark.response import curve_settling_step, settling_step
 from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
-from stcgym.agents.controllers import CONTROLLERS
+from stcgym.agents.controllers import CONTROLLERS, controllers_for
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
 
 __all__ = [
@@ -211,8 +211,8 @@ class Collected:
     curves: list[dict[str, Any]] = field(default_factory=list)
     #: train_env -> controller -> mean cost on the learning-curve episodes
     reference_lines: dict[str, dict[str, float]] = field(default_factory=dict)
-    #: train_env -> (window end steps, stc cost / oracle cost per window, one row per episode)
-    adaptation: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    #: train_env -> (window ends, cost / oracle per window and episode, first online controller)
+    adaptation: dict[str, tuple[np.ndarray, np.ndarray, str]] = field(default_factory=dict)
     #: (train_env, algo, train_seed) -> how training ended (StopSummary.to_dict())
     stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
 
@@ -452,12 +452,12 @@ class _RunState:
 
     def _references(self, key: str, curve_spec: EnvSpec, progress: JobProgress) -> None:
         """Classical controllers on the learning-curve episodes: the levels RL is compared to,
-        and the self-tuning controller's per-window cost against its adaptation steps."""
+        and the first online controller's per-window cost against its adaptation steps."""
         cfg = self.cfg
         seeds = [10_000 + i for i in range(cfg.curve_seeds)]
         sc = Scenario(key, "curve", curve_spec, curve_spec.plants[0], key)
         runs: dict[str, list[np.ndarray]] = {}
-        for name in cfg.classical:
+        for name in controllers_for(cfg.classical, curve_spec):
             factory = CONTROLLERS[name].build(cfg, sc)
             runs[name] = [
                 run_episode(factory, curve_spec, s, plant=p).cost
@@ -465,17 +465,17 @@ class _RunState:
                 for s in seeds
             ]
         self.data.reference_lines[key] = {n: float(np.mean(c)) for n, c in runs.items()}
-        if "stc" in runs:
+        if (learner := next((n for n in runs if CONTROLLERS[n].online), None)) is not None:
             w = max(1, curve_spec.period // 2)  # one reference step per window
             T = curve_spec.steps
             ends = np.arange(w, T + 1, w)
             ratios = np.array(
                 [
                     [_ratio(float(c[e - w : e].sum()), float(o[e - w : e].sum())) for e in ends]
-                    for c, o in zip(runs["stc"], runs["oracle"], strict=True)
+                    for c, o in zip(runs[learner], runs["oracle"], strict=True)
                 ]
             )
-            self.data.adaptation[key] = (ends, ratios)
+            self.data.adaptation[key] = (ends, ratios, learner)
         progress.finish(("reference", key), f"reference runs on {key}")
 
     # -- RL --------------------------------------------------------------------------------
@@ -541,7 +541,7 @@ class _RunState:
         weights = job_weights(cfg, scenarios, planned)
         for key, (_, curve_spec) in envs.items():
             weights[("reference", key)] = (
-                len(cfg.classical)
+                len(controllers_for(cfg.classical, curve_spec))
                 * cfg.curve_seeds
                 * len(curve_spec.plants)
                 * curve_spec.steps
@@ -554,7 +554,7 @@ class _RunState:
             f"estimated {format_duration(estimate_seconds(cfg))}"
         )
         for sc in scenarios:
-            for name in cfg.classical:
+            for name in controllers_for(cfg.classical, sc.env):  # those that run on its plants
                 self._classical(sc, name)
             progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
         for key, (_, curve_spec) in envs.items():

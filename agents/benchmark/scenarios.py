@@ -1,5 +1,5 @@
-"""The scenarios of ``stcgym bench`` (nominal, family, jump) and the RL training environments
-they use."""
+"""The scenarios of ``stcgym bench`` (nominal, family, jump, mimo) and the RL training
+environments they use."""
 
 from __future__ import annotations
 
@@ -81,6 +81,10 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
             label, before, theta = parse_jump(spec)
             env = cfg.env_spec([before], T, jump_step=T // 2, jump_to=theta)
             out.append(Scenario(f"jump:{label}", "jump", env, before, f"nominal:{before}", theta))
+    if "mimo" in cfg.scenarios:
+        from stcgym.agents.benchmark.mimo import mimo_scenarios
+
+        out += mimo_scenarios(cfg)
     return out
 
 
@@ -101,7 +105,7 @@ def training_envs(
         k for sc in scenarios for a in cfg.rl_agents if (k := sc.train_key_for(a)) is not None
     )
     envs: dict[str, tuple[EnvSpec, EnvSpec]] = {}
-    for key in keys:
+    for key in keys:  # "family", "nominal:<plant>" or "mimo:<plant>"
         plants = cfg.family_train if key == "family" else [key.split(":", 1)[1]]
         curve = cfg.env_spec(plants, cfg.train_episode_steps)
         train = curve

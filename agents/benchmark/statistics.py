@@ -5,7 +5,8 @@ with a handful of runs, report the interquartile mean (IQM: the mean of the midd
 runs, robust to outliers yet less noisy than the median) with stratified-bootstrap confidence
 intervals, and the probability of improvement ``P(X < Y)`` (here: of a lower cost) of one
 controller over another. This module only adapts ``rliable`` to costs (lower is better) and
-to the bench's tables; the estimators and the bootstrap are ``rliable``'s.
+to the bench's tables; the estimators and the bootstrap are ``rliable``'s. :func:`summarize`
+gives the plain per-seed statistics of the detail tables (median, IQR, CVaR, failure rate).
 
 In the bench a *run* is one (training seed, evaluation seed) pair: the intervals cover both
 sources of variation, training seeds and evaluation episodes, treated as one pool of
@@ -21,9 +22,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Estimate", "interval_estimates", "probability_of_improvement"]
+__all__ = ["Estimate", "interval_estimates", "probability_of_improvement", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -191,3 +192,58 @@ def probability_of_improvement(
             lo, hi = np.ravel(ci[name])
             out[name] = Estimate(float(np.ravel(point[name])[0]), float(lo), float(hi))
     return out
+
+
+def summarize(values: Sequence[float], failed: Sequence[bool] | None = None) -> dict[str, float]:
+    """Median, IQR, CVaR of the worst quarter, mean and failure rate of per-seed values.
+
+    ``nan`` values (a column that does not apply) are dropped; ``inf`` counts as a very bad
+    value (it makes the CVaR infinite, which is the honest worst case).
+
+    Parameters
+    ----------
+    values : sequence of float
+        One value per seed (lower is better).
+    failed : sequence of bool, optional
+        One flag per seed; gives ``failure_rate``.
+
+    Returns
+    -------
+    dict of str to float
+        ``n`` (values kept), ``median``, ``iqr``, ``cvar25`` (mean of the ``ceil(n/4)``
+        largest), ``mean``, and ``failure_rate`` when ``failed`` is given; ``nan`` statistics
+        when no value is left.
+
+    Examples
+    --------
+    >>> from stcgym.agents import summarize
+    >>> summarize([1.0, 2.0, 3.0, 10.0, float("nan")], [False, False, False, True, False])
+    {'n': 4.0, 'median': 2.5, 'iqr': 3.0, 'cvar25': 10.0, 'mean': 4.0, 'failure_rate': 0.2}
+    """
+    x = np.asarray(values, dtype=float)
+    x = x[~np.isnan(x)]
+    out = {"n": float(x.size)}
+    if x.size == 0:
+        out.update(median=math.nan, iqr=math.nan, cvar25=math.nan, mean=math.nan)
+    else:
+        q25, med, q75 = (
+            np.percentile(x, [25, 50, 75]) if np.all(np.isfinite(x)) else (_inf_percentiles(x))
+        )
+        worst = np.sort(x)[-max(1, math.ceil(x.size / 4)) :]
+        out.update(
+            median=float(med),
+            iqr=float(q75 - q25) if np.isfinite(q75 - q25) else math.inf,
+            cvar25=float(np.mean(worst)),
+            mean=float(np.mean(x)),
+        )
+    if failed is not None:
+        f = np.asarray(failed, dtype=bool)
+        out["failure_rate"] = float(np.mean(f)) if f.size else math.nan
+    return out
+
+
+def _inf_percentiles(x: NDArray) -> tuple[float, float, float]:
+    # np.percentile interpolates inf - inf into nan; order statistics are what we mean here.
+    s = np.sort(x)
+    idx = [min(len(s) - 1, int(round(q * (len(s) - 1)))) for q in (0.25, 0.5, 0.75)]
+    return tuple(float(s[i]) for i in idx)  # type: ignore[return-value]

@@ -69,6 +69,9 @@ class SB3Policy(LanePolicy):
     num_envs
         ``None`` for one env (``predict`` on ``(2,)`` gives ``(1,)``), or ``B`` lanes
         (``predict`` on ``(B, 2)`` gives ``(B, 1)``).
+    channels
+        ``(outputs, inputs)`` of the plant, ``(p, m)``: observations ``(2 p,)``, actions
+        ``(m,)`` (default one of each).
 
     Raises
     ------
@@ -100,12 +103,19 @@ class SB3Policy(LanePolicy):
     """
 
     def __init__(
-        self, model: Any, window: WindowConfig, action_bound: float, num_envs: int | None = None
+        self,
+        model: Any,
+        window: WindowConfig,
+        action_bound: float,
+        num_envs: int | None = None,
+        channels: tuple[int, int] = (1, 1),
     ) -> None:
         self.model, self.window, self.action_bound = model, window, float(action_bound)
         self.num_envs = None if num_envs is None else integer(num_envs, "num_envs", 1)
+        p, m = (integer(c, "channels", 1) for c in channels)
+        self.channels, self.obs_dim, self.action_dim = (p, m), 2 * p, m
         self.recurrent = type(model).__name__ == "RecurrentPPO"
-        self._buf = HistoryBuffer(window, self.action_bound, self.num_lanes)
+        self._buf = HistoryBuffer(window, self.action_bound, self.num_lanes, p, m)
         self._lstm: Any = None
         # lanes whose next observation starts an episode (every lane before the first call)
         self._fresh = np.ones(self.num_lanes, dtype=bool)
@@ -130,7 +140,7 @@ class SB3Policy(LanePolicy):
             )
         else:
             a, _ = self.model.predict(self._buf.features(), deterministic=deterministic)
-        u = np.clip(np.asarray(a, dtype=float).reshape(self.num_lanes), -1.0, 1.0)
+        u = np.clip(np.asarray(a, dtype=float).reshape(self.num_lanes, -1), -1.0, 1.0)
         u *= self.action_bound
         self._buf.push_action(u)
         return u
@@ -323,7 +333,8 @@ def build_model(
 
     kwargs = dict(config.hyperparams if hyperparams is None else hyperparams)
     if config.noise_std > 0:
-        kwargs["action_noise"] = NormalActionNoise(np.zeros(1), config.noise_std * np.ones(1))
+        dim = vec.action_space.shape[0]
+        kwargs["action_noise"] = NormalActionNoise(np.zeros(dim), config.noise_std * np.ones(dim))
     return algorithm_class(algo)(
         config.policy,
         vec,
@@ -467,7 +478,7 @@ def train_agent(
     tb = None if tensorboard_log is None else str(tensorboard_log)
     model = build_model(algo, config, vec, seed, tensorboard_log=tb)
 
-    policy = SB3Policy(model, window, train_spec.action_bound)
+    policy = SB3Policy(model, window, train_spec.action_bound, channels=train_spec.channels)
     cspec = curve_spec or train_spec
     cplants = list(curve_plants or train_spec.plants)
     curve: list[tuple[int, float]] = []
@@ -528,6 +539,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "config": agent.config.to_dict(),
         "window": agent.policy.window.to_dict(),
         "action_bound": agent.policy.action_bound,
+        "channels": list(agent.policy.channels),
         "train_spec": agent.train_spec.to_dict(),
         "curve": [list(p) for p in agent.curve],
         "best_step": agent.best_step,
@@ -575,15 +587,14 @@ def load_agent(folder: str | Path) -> TrainedAgent:
     meta = json.loads(meta_file.read_text())
     model = algorithm_class(meta["algo"]).load(folder / "model.zip", device="cpu")
     window = WindowConfig(**meta["window"])
-    policy = SB3Policy(model, window, meta["action_bound"])
-    spec = meta["train_spec"]
-    spec["plants"] = tuple(spec["plants"])
+    channels = tuple(meta.get("channels", (1, 1)))
+    policy = SB3Policy(model, window, meta["action_bound"], channels=channels)
     return TrainedAgent(
         meta["algo"],
         policy,
         AlgoConfig.from_dict(meta["config"]),
         meta["seed"],
-        EnvSpec(**spec),
+        EnvSpec.from_dict(meta["train_spec"]),
         meta["steps"],
         meta["wall_s"],
         [tuple(p) for p in meta["curve"]],

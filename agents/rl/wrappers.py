@@ -1,15 +1,19 @@
 """The RL agents' observation: a window of past outputs, references and inputs.
 
-The plant state is not observed; an RL agent sees what the self-tuning controller sees, the
-input/output history. :class:`HistoryWindow` turns the raw ``[y(k), r(k)]`` observation of a
-SISO stcgym environment into a flat ``float32`` vector of the last ``W`` samples::
+The plant state is not observed (unless it is the output, as on the measured-state MIMO
+plants); an RL agent sees what the self-tuning controller sees, the input/output history.
+:class:`HistoryWindow` turns the raw ``[y(k), r(k)]`` observation of a SISO stcgym environment
+into a flat ``float32`` vector of the last ``W`` samples::
 
     [ y(k-W+1) .. y(k) | r(k-W+1) .. r(k) | u(k-W) .. u(k-1) | e(k-W+1) .. e(k) ]
        / y_scale          / y_scale           / action_bound     / y_scale (optional)
 
-with ``e = r - y``. Samples before the start of the episode are zero (the environment's own
-convention: every signal is zero before the first step). Values are clipped to
-``[-obs_clip, obs_clip]`` so that a run-away output cannot blow up the network's inputs.
+with ``e = r - y``. With ``p`` outputs and ``m`` inputs (``stcgym/StateSpace-v0``, whose
+measured-state output is the state ``x``) each block holds the window of every channel in turn
+(``y_1`` window, ..., ``y_p`` window), so the SISO vector is the case ``p = m = 1``. Samples
+before the start of the episode are zero (the environment's own convention: every signal is
+zero before the first step). Values are clipped to ``[-obs_clip, obs_clip]`` so that a run-away
+output cannot blow up the network's inputs.
 
 The action space is normalised to ``[-1, 1]`` and rescaled to the environment's
 ``[-action_bound, action_bound]`` (the Stable-Baselines3 tip for continuous actions: Gaussian and
@@ -87,8 +91,13 @@ class WindowConfig:
 
     @property
     def n_features(self) -> int:
-        """Length of the observation the agent sees: ``window`` rows of y, r, u (and r - y)."""
-        return self.window * (4 if self.include_error else 3)
+        """Length of the SISO observation: ``window`` rows of y, r, u (and r - y)."""
+        return self.features_for(1, 1)
+
+    def features_for(self, n_outputs: int, n_inputs: int) -> int:
+        """Length of the observation with ``n_outputs`` outputs and ``n_inputs`` inputs."""
+        per_output = 3 if self.include_error else 2
+        return self.window * (per_output * int(n_outputs) + int(n_inputs))
 
     def to_dict(self) -> dict[str, Any]:
         """The window's settings as JSON data."""
@@ -96,7 +105,8 @@ class WindowConfig:
 
 
 class HistoryBuffer:
-    """Windows of ``y``, ``r`` and ``u`` for ``batch`` independent lanes.
+    """Windows of ``y``, ``r`` (``n_outputs`` each) and ``u`` (``n_inputs``) for ``batch``
+    independent lanes.
 
     Call :meth:`start` with the first observation of an episode, then alternate
     :meth:`push_action` (the input actually applied) and :meth:`push_obs` (the observation that
@@ -110,6 +120,8 @@ class HistoryBuffer:
         Inputs are divided by it (the env's action bound).
     batch : int, default 1
         Number of lanes.
+    n_outputs, n_inputs : int, default 1
+        Channels of ``y`` (and ``r``) and of ``u``.
 
     Examples
     --------
@@ -125,90 +137,100 @@ class HistoryBuffer:
     array([[0.5, 0.8, 1. , 1. , 0. , 0.2]], dtype=float32)
     """
 
-    def __init__(self, config: WindowConfig, action_bound: float, batch: int = 1) -> None:
+    def __init__(
+        self,
+        config: WindowConfig,
+        action_bound: float,
+        batch: int = 1,
+        n_outputs: int = 1,
+        n_inputs: int = 1,
+    ) -> None:
         self.config, self.action_bound, self.batch = config, float(action_bound), int(batch)
-        w = config.window
-        self._y = np.zeros((batch, w))
-        self._r = np.zeros((batch, w))
-        self._u = np.zeros((batch, w))
+        self.n_outputs, self.n_inputs = int(n_outputs), int(n_inputs)
+        w, p = config.window, self.n_outputs
+        self._y = np.zeros((batch, p, w))
+        self._r = np.zeros((batch, p, w))
+        self._u = np.zeros((batch, self.n_inputs, w))
 
-    @staticmethod
-    def _split(obs: ArrayLike, batch: int) -> tuple[NDArray, NDArray]:
-        o = np.asarray(obs, dtype=float).reshape(batch, 2)
-        return o[:, 0], o[:, 1]
+    def _split(self, obs: ArrayLike) -> tuple[NDArray, NDArray]:
+        p = self.n_outputs
+        o = np.asarray(obs, dtype=float).reshape(self.batch, 2 * p)
+        return o[:, :p], o[:, p:]
 
     def start(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
         """Begin an episode (all lanes, or the boolean mask ``lanes``) at observation ``obs``.
 
         Parameters
         ----------
-        obs : array_like, shape (batch, 2)
-            ``[y(0), r(0)]`` per lane (a ``(2,)`` array for one lane).
+        obs : array_like, shape (batch, 2 n_outputs)
+            ``[y(0), r(0)]`` per lane (a ``(2 n_outputs,)`` array for one lane).
         lanes : array_like of bool, optional
             Boolean mask of length ``batch`` (default all lanes).
         """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
-        y, r = self._split(obs, self.batch)
+        y, r = self._split(obs)
         for arr in (self._y, self._r, self._u):
             arr[mask] = 0.0
-        self._y[mask, -1], self._r[mask, -1] = y[mask], r[mask]
+        self._y[mask, :, -1], self._r[mask, :, -1] = y[mask], r[mask]
 
     def push_obs(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
         """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``).
 
         Parameters
         ----------
-        obs : array_like, shape (batch, 2)
+        obs : array_like, shape (batch, 2 n_outputs)
             ``[y(k), r(k)]`` per lane.
         lanes : array_like of bool, optional
             Boolean mask of length ``batch`` (default all lanes).
         """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
-        y, r = self._split(obs, self.batch)
+        y, r = self._split(obs)
         for arr, v in ((self._y, y), (self._r, r)):
-            arr[mask] = np.roll(arr[mask], -1, axis=1)
-            arr[mask, -1] = v[mask]
+            arr[mask] = np.roll(arr[mask], -1, axis=2)
+            arr[mask, :, -1] = v[mask]
 
     def push_action(self, u: ArrayLike) -> None:
-        """Append the applied inputs ``u(k)`` (one per lane, in plant units).
+        """Append the applied inputs ``u(k)`` (one row per lane, in plant units).
 
         Parameters
         ----------
-        u : array_like, shape (batch,)
+        u : array_like, shape (batch,) or (batch, n_inputs)
             The inputs actually applied (after clipping).
         """
-        self._u[:] = np.roll(self._u, -1, axis=1)
-        self._u[:, -1] = np.asarray(u, dtype=float).reshape(self.batch)
+        self._u[:] = np.roll(self._u, -1, axis=2)
+        self._u[:, :, -1] = np.asarray(u, dtype=float).reshape(self.batch, self.n_inputs)
 
     def features(self) -> NDArray:
         """``(batch, n_features)`` float32 network input (see the module docstring)."""
-        c = self.config
+        c, b = self.config, self.batch
         parts = [self._y / c.y_scale, self._r / c.y_scale, self._u / self.action_bound]
         if c.include_error:
             parts.append((self._r - self._y) / c.y_scale)
-        feats = np.concatenate(parts, axis=1)
+        feats = np.concatenate([part.reshape(b, -1) for part in parts], axis=1)
         return np.clip(np.nan_to_num(feats), -c.obs_clip, c.obs_clip).astype(np.float32)
 
 
 class HistoryWindow(gym.Wrapper):
-    """Window observation and ``[-1, 1]`` action space on a SISO stcgym environment.
+    """Window observation and ``[-1, 1]`` action space on a stcgym environment.
 
     Parameters
     ----------
     env
-        An environment observing ``[y(k), r(k)]`` with a ``(1,)`` action box (every canonical
-        stcgym environment).
+        An environment observing ``[y(k), r(k)]`` with an ``(m,)`` action box: every canonical
+        stcgym environment (one output, one input), or ``stcgym/StateSpace-v0`` (``p`` outputs
+        and references, ``m`` inputs, one bound for every input).
     config
         :class:`WindowConfig` (or a dict of its fields); default ``WindowConfig()``.
 
-    ``info["u"]`` carries the applied input in plant units. Works under ``gym.make_vec`` and
+    ``info["u"]`` carries the applied input in plant units (a float for one input, else an
+    array). Works under ``gym.make_vec`` and
     SB3's ``make_vec_env`` (pass it as ``wrapper_class``).
 
     Raises
     ------
     ValueError
-        An action space that is not a ``(1,)`` box, an observation that is not ``[y, r]``, or a
-        ``config`` dict with a field out of range.
+        An action space that is not a 1-D box with one bound, an observation that is not
+        ``[y, r]`` (an even length), or a ``config`` dict with a field out of range.
 
     Examples
     --------
@@ -239,19 +261,23 @@ class HistoryWindow(gym.Wrapper):
             config = WindowConfig(**config)
         self.config = config
         box = env.action_space
-        if not isinstance(box, spaces.Box) or box.shape != (1,):
-            raise ValueError(f"HistoryWindow needs a (1,) action box, got {box}")
-        if env.observation_space.shape != (2,):
-            raise ValueError(
-                "HistoryWindow needs the SISO observation [y, r], got shape "
-                f"{env.observation_space.shape}"
-            )
+        if (
+            not isinstance(box, spaces.Box)
+            or len(box.shape) != 1
+            or not np.all(box.high == box.high[0])
+        ):
+            raise ValueError(f"HistoryWindow needs a 1-D action box with one bound, got {box}")
+        shape = env.observation_space.shape
+        if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
+            raise ValueError(f"HistoryWindow needs the observation [y, r], got shape {shape}")
+        self.n_outputs, self.n_inputs = shape[0] // 2, box.shape[0]
         self.action_bound = float(box.high[0])
-        self._buf = HistoryBuffer(config, self.action_bound)
+        self._buf = HistoryBuffer(config, self.action_bound, 1, self.n_outputs, self.n_inputs)
+        n_features = config.features_for(self.n_outputs, self.n_inputs)
         self.observation_space = spaces.Box(
-            -config.obs_clip, config.obs_clip, shape=(config.n_features,), dtype=np.float32
+            -config.obs_clip, config.obs_clip, shape=(n_features,), dtype=np.float32
         )
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.n_inputs,), dtype=np.float32)
 
     def reset(self, **kwargs: Any) -> tuple[NDArray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
@@ -259,12 +285,12 @@ class HistoryWindow(gym.Wrapper):
         return self._buf.features()[0], info
 
     def step(self, action: ArrayLike) -> tuple[NDArray, float, bool, bool, dict[str, Any]]:
-        a = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1.0, 1.0))
-        u = np.array([a * self.action_bound])
+        a = np.clip(np.asarray(action, dtype=float).reshape(-1)[: self.n_inputs], -1.0, 1.0)
+        u = a * self.action_bound
         obs, reward, terminated, truncated, info = self.env.step(u)
         self._buf.push_action(u)
         self._buf.push_obs(obs)
-        info["u"] = float(u[0])
+        info["u"] = float(u[0]) if self.n_inputs == 1 else u
         return self._buf.features()[0], reward, terminated, truncated, info
 
 

@@ -1,0 +1,155 @@
+"""The ``mimo`` scenario of ``stcgym bench``: multi-input plants with measured state.
+
+Each plant of ``--mimo-plants`` (the MIMO catalogue, :data:`stcgym.envs.MIMO_PLANTS`) is one
+scenario ``mimo:<plant>`` on ``stcgym/StateSpace-v0``: ``x(k+1) = A x(k) + B u(k)``, observation
+``[x(k) + v(k), r(k)]``, the bench's square-wave reference on every state, its output noise,
+action bound and cost ``||x - r||^2 + control_cost ||u||^2``. The controllers that declare
+``"mimo"`` among their plants (:class:`~stcgym.agents.controllers.ControllerInfo`) run there:
+the multivariable self-tuning LQ controller (``stc_mimo``) and, as ``oracle``, the LQR on the
+true ``(A, B)`` with the same weights and tracking law; the window RL agents are trained on the
+plant itself (their observation window then holds every state, reference and input). The
+SISO-only controllers and the recurrent agents (trained on the SISO family) are left out.
+
+:class:`MimoEnvSpec` is the scenario's environment, an :class:`~stcgym.agents.benchmark.
+evaluate.EnvSpec` whose plant is a MIMO catalogue name, so the bench's evaluation loop, RL
+training and JSON tasks take it as they take a SISO spec.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.envs.mimo_plants import MimoPlantSpec, get_mimo_plant, mimo_plant_names
+
+if TYPE_CHECKING:
+    from stcgym.agents.benchmark.config import BenchConfig
+    from stcgym.agents.benchmark.scenarios import Scenario
+
+__all__ = [
+    "MIMO_ENV_ID",
+    "MimoEnvSpec",
+    "check_mimo_plants",
+    "estimate_error",
+    "mimo_scenarios",
+]
+
+MIMO_ENV_ID = "stcgym/StateSpace-v0"
+
+
+class MimoEnvSpec(EnvSpec):
+    """The environment of a ``mimo`` scenario: one MIMO catalogue plant, measured state.
+
+    The fields are :class:`~stcgym.agents.benchmark.evaluate.EnvSpec`'s; ``plants`` holds one
+    name of :data:`stcgym.envs.MIMO_PLANTS` and there is no parameter jump.
+
+    Raises
+    ------
+    ValueError
+        On construction: not exactly one plant, an unknown MIMO plant (the message lists the
+        catalogue), ``steps`` not a positive integer, or a jump.
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.mimo import MimoEnvSpec
+    >>> spec = MimoEnvSpec("quadruple_tank", steps=200)
+    >>> spec.channels, spec.order
+    ((4, 2), 4)
+    >>> obs, info = spec.make().reset(seed=0)
+    >>> obs.shape  # [x(0) + v(0), r(0)]
+    (8,)
+    >>> EnvSpec.from_dict(spec.to_dict()) == spec
+    True
+    """
+
+    plant_kind: ClassVar[str] = "mimo"
+
+    def __post_init__(self) -> None:
+        plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
+        if len(plants) != 1:
+            raise ValueError(f"a MIMO scenario runs on one MIMO plant, got {list(plants)}")
+        object.__setattr__(self, "plants", (get_mimo_plant(plants[0]).name,))
+        if int(self.steps) != self.steps or self.steps < 1:
+            raise ValueError(f"episode steps must be a positive integer, got {self.steps!r}")
+        if self.jump_step is not None or self.jump_to is not None:
+            raise ValueError("a MIMO scenario has no parameter jump (jump_step, jump_to)")
+
+    @property
+    def plant(self) -> MimoPlantSpec:
+        """The catalogue entry of the plant."""
+        return get_mimo_plant(self.plants[0])
+
+    @property
+    def order(self) -> int:
+        """Number of states ``n``."""
+        return self.plant.n_states
+
+    @property
+    def channels(self) -> tuple[int, int]:
+        """``(outputs, inputs)``: the ``n`` measured states and the ``m`` inputs."""
+        return self.plant.n_states, self.plant.n_inputs
+
+    def make(self, **overrides: Any) -> gym.Env:
+        """A fresh ``stcgym/StateSpace-v0`` of the plant (time limit ``steps``); ``overrides``
+        replace spec fields (validated as on construction)."""
+        import dataclasses
+
+        import stcgym.envs  # noqa: F401  (registers the ids)
+        from stcgym.envs.signals import SquareWave
+
+        spec = dataclasses.replace(self, **overrides) if overrides else self
+        return gym.make(
+            MIMO_ENV_ID,
+            max_episode_steps=spec.steps,
+            plant=spec.plants[0],
+            noise_std=spec.noise_std,
+            control_cost=spec.control_cost,
+            action_bound=spec.action_bound,
+            y_bound=spec.y_bound,
+            reference=SquareWave(period=spec.period, amplitude=spec.amplitude),
+        )
+
+    def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
+        """``(obs, info, plant_spec)`` of ``env.reset(seed=seed)``; ``plant`` may only name the
+        spec's own plant."""
+        if plant is not None and plant.lower() != self.plants[0]:
+            raise ValueError(f"plant must be {self.plants[0]!r} (the spec's), got {plant!r}")
+        obs, info = env.reset(seed=int(seed))
+        return obs, info, env.unwrapped.mimo_plant
+
+    def to_dict(self) -> dict[str, Any]:
+        """The spec as JSON data, marked ``kind: "mimo"`` (``EnvSpec.from_dict`` reads it)."""
+        return {**super().to_dict(), "kind": "mimo"}
+
+
+def check_mimo_plants(names: list[str]) -> None:
+    """Raise ``ValueError`` naming ``--mimo-plants`` for names outside the MIMO catalogue."""
+    bad = [p for p in names if p not in mimo_plant_names()]
+    if bad:
+        raise ValueError(
+            f"unknown MIMO plant(s) {bad} in --mimo-plants; MIMO catalogue: {mimo_plant_names()}"
+        )
+    if len(set(names)) != len(names):
+        raise ValueError(f"--mimo-plants lists a plant twice: {names}")
+
+
+def mimo_scenarios(cfg: BenchConfig) -> list[Scenario]:
+    """One ``mimo:<plant>`` scenario per plant of ``cfg.mimo_plants``; its RL agents train on
+    the plant itself (training key ``mimo:<plant>``)."""
+    from stcgym.agents.benchmark.scenarios import Scenario
+
+    out = []
+    for p in cfg.mimo_plants:
+        env = cfg.env_spec([p], cfg.episode_steps)
+        out.append(Scenario(f"mimo:{p}", "mimo", env, p, f"mimo:{p}"))
+    return out
+
+
+def estimate_error(theta: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
+    """Relative error ``||[A_hat B_hat] - [A B]||_F / ||[A B]||_F`` after each step (``nan``
+    where there is no estimate); ``theta`` ``(T + 1, n (n + m))``, ``theta_hat`` ``(T, ...)``."""
+    true = theta[1:]
+    return np.linalg.norm(theta_hat - true, axis=1) / np.linalg.norm(true, axis=1)

@@ -1,0 +1,237 @@
+"""The ``mimo`` scenario of ``stcgym bench``: MIMO plants, ``stc_mimo`` against the LQR oracle
+and the window RL agents, the SISO-only controllers left out."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import stcgym.agents.benchmark as benchmark
+import stcgym.envs  # noqa: F401  (registers the envs)
+from stcgym.adaptive import LQRController, MultivariableSelfTuningController
+from stcgym.agents.benchmark import build_config, make_scenarios
+from stcgym.agents.benchmark.config import FULL, QUICK
+from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
+from stcgym.agents.benchmark.mimo import MimoEnvSpec
+from stcgym.agents.cli import main
+from stcgym.agents.controllers import controllers_for
+from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, WindowConfig
+from stcgym.envs import get_mimo_plant, mimo_plant_names
+from stcgym.envs.signals import SquareWave
+
+# RL in seconds: a couple of PPO rollouts of 64 steps on 2 envs
+TINY = (
+    "--train-steps 200 --eval-interval 100 --train-seeds 1 --seeds 2 --episode-steps 120 "
+    "--train-episode-steps 60 --curve-points 2 --hp ppo.n_steps=64 --hp ppo.n_envs=2 "
+    "--hp ppo.n_epochs=2 --bootstrap-reps 100 --jobs 1 --no-progress"
+).split()
+
+
+def _rows(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _bench(out, *args):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main(["bench", *args, "--out", str(out)])
+    assert rc == 0, err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def mimo_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    _bench(
+        out,
+        *TINY,
+        "--scenarios",
+        "nominal,mimo",
+        "--agents",
+        "ppo,stc,stc_mimo,oracle,lqg",
+        "--run",
+        "mimo",
+    )
+    return out / "mimo"
+
+
+def test_mimo_rows_and_report_next_to_the_siso_scenario(mimo_run):
+    rows = _rows(mimo_run / "metrics.csv")
+    by = {}
+    for r in rows:
+        by.setdefault(r["scenario"], set()).add(r["controller"])
+    # the SISO-only controllers are left out of the MIMO scenario, stc_mimo out of the SISO one
+    assert by == {
+        "nominal:stable2": {"ppo", "stc", "oracle", "lqg"},
+        "mimo:quadruple_tank": {"ppo", "stc_mimo", "oracle"},
+    }
+    mimo = [r for r in rows if r["scenario"] == "mimo:quadruple_tank"]
+    assert {r["kind"] for r in mimo} == {"mimo"} and len(mimo) == 3 * 2
+    oracle = {r["seed"]: float(r["cost"]) for r in mimo if r["controller"] == "oracle"}
+    for r in mimo:
+        assert float(r["cost_ratio"]) == pytest.approx(float(r["cost"]) / oracle[r["seed"]], 1e-5)
+        assert r["overshoot_pct"] == ""  # no step-response figures for several outputs
+    report = (mimo_run / "report.md").read_text()
+    assert "### `mimo:quadruple_tank`" in report
+    section = report.split("### `mimo:quadruple_tank`")[1].split("###")[0]
+    assert "P(stc_mimo cost lower)" in section and "P(stc cost lower)" not in section
+    assert "multivariable self-tuning LQ controller (stc_mimo) ends at" in report
+    names = {p.name for p in mimo_run.iterdir()}
+    assert {"traces_mimo_quadruple_tank.png", "theta_mimo_quadruple_tank.png"} <= names
+    assert (mimo_run / "models" / "mimo-quadruple_tank_ppo_s0" / "agent.json").is_file()
+
+
+def test_saved_mimo_agent_reproduces_its_bench_numbers(mimo_run, capsys):
+    rows = _rows(mimo_run / "metrics.csv")
+    bench = {
+        r["seed"]: float(r["cost"])
+        for r in rows
+        if (r["scenario"], r["controller"]) == ("mimo:quadruple_tank", "ppo")
+    }
+    model = mimo_run / "models" / "mimo-quadruple_tank_ppo_s0"
+    assert main(["eval", str(model), "--seeds", "2", "--episode-steps", "120"]) == 0
+    out = capsys.readouterr().out
+    for seed, cost in bench.items():
+        assert f"seed {seed}: cost {cost:.4g} " in out
+    assert main(["eval", str(model), "--plant", "he1"]) == 2
+    assert "MIMO plant quadruple_tank" in capsys.readouterr().err
+
+
+def _direct_cost(policy, seed, steps):
+    """Mean env cost of ``policy`` on the bench's quadruple-tank episode, by a plain loop."""
+    env = gym.make(
+        "stcgym/StateSpace-v0",
+        plant="quadruple_tank",
+        noise_std=0.05,
+        control_cost=0.01,
+        action_bound=10.0,
+        y_bound=100.0,
+        reference=SquareWave(period=100, amplitude=1.0),
+        max_episode_steps=steps,
+    )
+    obs, _ = env.reset(seed=seed)
+    policy.reset()  # a new episode, as the bench starts every episode (the probe's counter)
+    total = 0.0
+    for _ in range(steps):
+        action, _ = policy.predict(obs)
+        obs, reward, terminated, truncated, _ = env.step(action)
+        total -= reward
+        assert not terminated
+    return total / steps
+
+
+def test_stc_mimo_is_within_a_ratio_of_the_lqr_oracle_on_the_quadruple_tank(tmp_path):
+    _bench(
+        tmp_path,
+        "--scenarios",
+        "mimo",
+        "--agents",
+        "stc_mimo,oracle",
+        "--seeds",
+        "3",
+        "--episode-steps",
+        "400",
+        "--bootstrap-reps",
+        "100",
+        "--no-plots",
+        "--run",
+        "r",
+    )
+    rows = _rows(tmp_path / "r" / "metrics.csv")
+    cost = {(r["controller"], int(r["seed"])): float(r["cost"]) for r in rows}
+    A, B = get_mimo_plant("quadruple_tank").discrete()
+    for seed in (1000, 1001, 1002):
+        stc = MultivariableSelfTuningController(4, 2, Q=1.0, R=0.01, seed=seed)
+        oracle = LQRController(A, B, Q=1.0, R=0.01)
+        direct_stc = _direct_cost(stc, seed, 400)
+        direct_oracle = _direct_cost(oracle, seed, 400)
+        assert cost[("stc_mimo", seed)] == pytest.approx(direct_stc, rel=1e-5)
+        assert cost[("oracle", seed)] == pytest.approx(direct_oracle, rel=1e-5)
+        # the self-tuning controller pays for its start-up only: within 10 % of the oracle
+        assert 1.0 <= direct_stc / direct_oracle <= 1.1
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--scenarios", "mimo", "--mimo-plants", "nosuch"], "unknown MIMO plant(s) ['nosuch']"),
+        (["--scenarios", "mimo", "--mimo-plants", "stable2"], "catalogue: ['quadruple_tank'"),
+        (["--scenarios", "mimo", "--mimo-plants", "he1,he1"], "twice"),
+        (["--scenarios", "mimo", "--mimo-plants", ","], "needs at least one plant"),
+    ],
+)
+def test_bad_mimo_input_is_one_line_before_any_work(tmp_path, capsys, extra, message):
+    rc = main(["bench", "--agents", "stc_mimo,oracle", "--out", str(tmp_path), *extra])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stcgym bench: error:") and err.count("\n") == 1 and message in err
+    assert "--mimo-plants" in err
+    assert not any(tmp_path.iterdir())
+
+
+def test_controllers_run_only_on_the_plants_they_declare():
+    names = ["stc", "stc_lq", "stc_kfmils", "oracle", "lqg", "stc_mimo"]
+    assert controllers_for(names, MimoEnvSpec("he1")) == ["oracle", "stc_mimo"]
+    assert controllers_for(names, EnvSpec("stable2")) == names[:5]
+
+
+def test_quick_leaves_mimo_out_and_standard_and_full_run_it():
+    quick = build_config(run="q")
+    assert "mimo" not in quick.scenarios and QUICK["scenarios"] == quick.scenarios
+    with_mimo = build_config(run="q", scenarios="nominal,family,jump,mimo")
+    # the reason mimo is opt-in at the quick tier: it takes the estimate past 10 minutes
+    assert benchmark.estimate_seconds(quick) <= 10 * 60 < benchmark.estimate_seconds(with_mimo)
+    # RL on a MIMO plant at the quick tier: two evaluation intervals
+    assert with_mimo.mimo_train_steps == {"ppo": 2 * 10240, "sac": 2 * 2000}
+    standard = build_config(mode="standard", run="s")
+    assert "mimo" in standard.scenarios and standard.mimo_plants == ["quadruple_tank"]
+    assert standard.mimo_train_steps == {"ppo": 100_000, "sac": 20_000}  # single-plant caps
+    full = build_config(mode="full", run="f")
+    assert full.mimo_plants == mimo_plant_names() == FULL["mimo_plants"]
+    assert [s.name for s in make_scenarios(full) if s.kind == "mimo"] == [
+        f"mimo:{p}" for p in mimo_plant_names()
+    ]
+
+
+def test_mimo_env_spec_round_trips_and_rejects_what_it_cannot_run():
+    spec = MimoEnvSpec("AC1", steps=50)
+    assert spec.plants == ("ac1",) and spec.channels == (5, 3)
+    assert EnvSpec.from_dict(spec.to_dict()) == spec
+    with pytest.raises(ValueError, match="plant must be one of"):
+        MimoEnvSpec("stable2")
+    with pytest.raises(ValueError, match="no parameter jump"):
+        MimoEnvSpec("he1", steps=50, jump_step=10, jump_to=(0.0,))
+    with pytest.raises(ValueError, match="one MIMO plant"):
+        MimoEnvSpec(("he1", "ac1"))
+    ep = run_episode(lambda plant, seed: LQRController(*plant.discrete()), spec, seed=3)
+    assert ep.plant == "ac1" and ep.y.shape == (51, 5) and ep.u.shape == (50, 3)
+
+
+def test_history_window_of_a_mimo_plant_holds_every_channel():
+    env = gym.make("stcgym/StateSpace-v0", plant="quadruple_tank", noise_std=0.0)
+    wrapped = HistoryWindow(env, WindowConfig(window=2, include_error=False))
+    assert wrapped.observation_space.shape == (2 * (4 + 4 + 2),)
+    assert wrapped.action_space.shape == (2,)
+    obs0, _ = wrapped.reset(seed=0)
+    obs1, _, _, _, info = wrapped.step(np.array([0.5, -0.25]))
+    x1 = info["x"]
+    np.testing.assert_allclose(info["u"], [5.0, -2.5])
+    A, B = get_mimo_plant("quadruple_tank").discrete()
+    np.testing.assert_allclose(x1, B @ np.array([5.0, -2.5]))  # from x(0) = 0
+    # blocks: y window (4 channels x 2 samples), r window (4 x 2), u window (2 x 2)
+    y_rows, r_rows = obs1[:8].reshape(4, 2), obs1[8:16].reshape(4, 2)
+    np.testing.assert_allclose(y_rows[:, 0], 0.0)
+    np.testing.assert_allclose(y_rows[:, 1], x1, rtol=1e-6)
+    np.testing.assert_allclose(r_rows, 1.0)  # the square wave's first half-period
+    np.testing.assert_allclose(obs0[8:16].reshape(4, 2), [[0.0, 1.0]] * 4)
+    u_rows = obs1[16:].reshape(2, 2)
+    np.testing.assert_allclose(u_rows, [[0.0, 0.5], [0.0, -0.25]])
+    # the one-channel buffer is the SISO one
+    buf = HistoryBuffer(WindowConfig(window=2, include_error=False), 10.0, 1, 4, 2)
+    buf.start(np.concatenate([np.zeros(4), np.ones(4)]))
+    assert buf.features().shape == (1, 20)
