@@ -36,9 +36,11 @@ regressor is built from the measurement-corrected state ``x_hat(t|t)`` (``regres
 "filtered"``) instead of the paper's prediction ``x_hat(t|t-1)``, whose model-dependence loses
 about a quarter of ordinary plants from a cold start in closed loop. ``KF-`` estimators run
 their own Kalman filter with ``R = kf_measurement_noise`` and the controller's process noise
-``Q(t)``; ``O-`` estimators become the closed-loop observer (50) with deadbeat output
-injection, i.e. least squares on measured outputs, which the output noise biases (there is no
-noise model). Every estimator identifies the observer-form realization of the plant's transfer
+``Q(t)``; ``O-`` estimators become the closed-loop observer (50) with the deadbeat output
+injection for the first ``injection_warmup = 50`` steps (least squares on measured outputs,
+which holds from a cold start but is biased by output noise: there is no noise model), then
+``injection = 0.4`` of it, so that the regressor keeps part of the model's noise-free
+prediction. Every estimator identifies the observer-form realization of the plant's transfer
 function (``estimation_form="observer"``); ``theta`` is reported in the plant's form.
 ``benchmarks/startup.py`` prints every name's figures.
 """
@@ -231,8 +233,8 @@ class SelfTuningController(LanePolicy):
                     "ordinary plants: the stochastic-gradient rules (SG, MISG) adapt too slowly "
                     "for a cold start, and the decomposition rules (D-) update a and b as if "
                     "their regressors were uncorrelated, which feedback makes them not "
-                    "(benchmarks/startup.py measures every name); 'KF-MILS', 'KF-RLS' or the "
-                    "default 'ELS' hold it",
+                    "(benchmarks/startup.py measures every name); 'KF-MILS', 'KF-RLS', 'O-RLS', "
+                    "'O-MILS' or the default 'ELS' hold it",
                     UserWarning,
                     stacklevel=2,
                 )
@@ -244,6 +246,9 @@ class SelfTuningController(LanePolicy):
                 kw["p"] = eo.p
             if state != "CO":
                 kw["regressor"] = eo.regressor
+            if state == "O" and eo.regressor == "filtered":
+                kw["injection"] = eo.injection
+                kw["injection_warmup"] = eo.injection_warmup
             if state == "KF":
                 kw["process_noise"] = eo.process_noise_floor * np.eye(n)
                 kw["measurement_noise"] = eo.kf_measurement_noise

@@ -934,6 +934,14 @@ def make_estimator(
         closed-loop observer (50) with the deadbeat gain ``K = A_hat g``). Not for ``CO``.
         Details in
         :mod:`stcgym.adaptive.kernels.estimator`.
+    injection : float
+        ``O`` with ``regressor="filtered"`` only: after the warm-up the injection is
+        ``injection * g``, in ``[0, 1]`` (default 1: the deadbeat injection throughout; the
+        closed-loop observer (50) with ``K = injection * A_hat g``, whose error dynamics in the
+        observer form have the characteristic polynomial ``z^n + (1 - injection) a(z)``).
+    injection_warmup : int
+        ``O`` with ``regressor="filtered"`` only: the first steps, ``>= 0``, with the whole
+        injection (default 0).
     num_envs : int, optional
         Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.
 

@@ -14,7 +14,7 @@ structure exploited, no health checks): the compiled lane functions of
 * open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
 * ``filtered=True``: the regressor from ``x_hat(t|t) = x_hat(t) + g (y(t) - x1_hat(t))``,
   ``g = P1 c^T / (R + c P1 c^T)`` (KF) or ``A^{n-1} e_n`` (O, which then propagates
-  ``x_hat(t|t)``);
+  ``x_hat(t|t)``), times ``injection`` after the first ``injection_warmup`` steps (O);
 * regressors (9)/(57) (observer form) and (153) (observability form), zero before ``t = 1``.
 """
 
@@ -45,6 +45,8 @@ class ReferenceEstimator:
         R: float = 1.0,
         K=None,
         filtered: bool = False,
+        injection: float = 1.0,
+        injection_warmup: int = 0,
     ) -> None:
         parts = name.upper().split("-")
         self.state, self.rule, self.decomposed = parts[0], parts[-1], len(parts) == 3
@@ -60,6 +62,8 @@ class ReferenceEstimator:
         self.R = R
         self.K = None if K is None else np.array(K, float)
         self.filtered = filtered
+        self.injection, self.injection_warmup = injection, injection_warmup
+        self.t = 0
         self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
         self.Y = np.zeros(p)
         self.xs = [np.zeros(n) for _ in range(n)]  # x_hat(t), x_hat(t-1), ..., zero before 1
@@ -74,6 +78,7 @@ class ReferenceEstimator:
         self.Phi = np.column_stack([self.phi, self.Phi[:, :-1]])
         self.Y = np.r_[y, self.Y[:-1]]
         self.y = y
+        self.t += 1
         E = self.Y - self.Phi.T @ self.theta
         delta = np.zeros_like(self.theta)
         lam = self.lam
@@ -110,6 +115,8 @@ class ReferenceEstimator:
                 g = self.P1 @ c / (self.R + c @ self.P1 @ c)
             else:  # deadbeat: c g = 1 and A (I - g c) nilpotent
                 g = np.linalg.matrix_power(A, n - 1) @ np.eye(n)[n - 1]
+                if self.t > self.injection_warmup:  # then a fraction of it
+                    g = self.injection * g
             x_reg = x + g * (self.y - x[0])
         if self.state == "KF":
             s = self.R + c @ self.P1 @ c

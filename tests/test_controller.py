@@ -269,7 +269,7 @@ def test_lq_design_bounded_and_cheaper_in_control_than_pole_placement() -> None:
 
 
 @pytest.mark.parametrize(
-    ("estimator", "unstable_ratio", "stable_ratio"), [("KF-MILS", 1.35, 1.1), ("O-RLS", 1.75, 1.35)]
+    ("estimator", "unstable_ratio", "stable_ratio"), [("KF-MILS", 1.35, 1.1), ("O-RLS", 1.35, 1.1)]
 )
 def test_paper_estimators_hold_unstable2_and_track_stable2_like_the_oracle(
     estimator: str, unstable_ratio: float, stable_ratio: float
@@ -277,8 +277,9 @@ def test_paper_estimators_hold_unstable2_and_track_stable2_like_the_oracle(
     # With the paper's regressor (x_hat(t|t-1) of an open-loop observer or the one-step Kalman
     # prediction) the loop was lost on unstable2 for every seed and cost 1.8x the oracle on
     # stable2; the controller's closed-loop regressor (x_hat(t|t)) holds both. O-RLS has no
-    # noise model: its least squares on measured outputs is biased by the output noise (about
-    # 1.55x the oracle on unstable2, 1.25x on stable2 after the start), KF-MILS is not.
+    # noise model: with the whole output injection its least squares on measured outputs is
+    # biased by the output noise (1.55x the oracle on unstable2, 1.25x on stable2 after the
+    # start); with the controller's partial injection after the warm-up, 1.19x and 1.04x.
     T, B = 1000, 10
     ref = np.array([1.0 if (k % 100) < 50 else -1.0 for k in range(T + 1)])
     z = np.random.default_rng(11).standard_normal((B, T + 1))
@@ -294,6 +295,28 @@ def test_paper_estimators_hold_unstable2_and_track_stable2_like_the_oracle(
     oracle = _lqg_window_costs(stable.a, stable.b, ref, z, T, known_model=True)
     assert not res.diverged.any()
     assert res.cost[:, 1:].sum() < stable_ratio * oracle[:, 1:].sum()  # steps 100-1000
+
+
+def test_partial_injection_removes_most_of_the_o_estimators_bias() -> None:
+    # lightly_damped2 (poles 0.95): with the whole injection (least squares on measured
+    # outputs) O-RLS cost 1.98x the oracle over the episode; with the controller's default
+    # (the whole injection for 50 steps, then 40 %) 1.40x, next to KF-MILS's 1.36x
+    T, B = 1000, 10
+    ref = np.array([1.0 if (k % 100) < 50 else -1.0 for k in range(T + 1)])
+    z = np.random.default_rng(11).standard_normal((B, T + 1))
+    plant = PLANTS["lightly_damped2"]
+    oracle = _lqg_window_costs(plant.a, plant.b, ref, z, T, known_model=True).sum()
+    ratio = {}
+    for injection in (0.4, 1.0):
+        opts = {"injection": injection}
+        ctl = SelfTuningController(2, num_envs=B, seed=0, estimator="O-RLS", estimator_options=opts)
+        res = rollout(ctl, np.tile(plant.theta, (B, 1)), T, reference=ref, z=z, window=100)
+        assert not res.diverged.any()
+        ratio[injection] = res.cost.sum() / oracle
+    assert ratio[0.4] < 1.5 < 1.8 < ratio[1.0], ratio
+    assert SelfTuningController(2, estimator="O-RLS")._spec.injection == 0.4
+    with pytest.raises(ValueError, match="injection"):
+        SelfTuningController(2, estimator="O-RLS", estimator_options={"injection": 1.5})
 
 
 def test_paper_estimators_on_an_observability_form_plant() -> None:

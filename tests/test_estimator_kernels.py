@@ -202,6 +202,46 @@ def test_filtered_regressor_equals_the_dense_reference(name, form):
     assert np.max(np.abs(th_ref - th_paper)) > 1e-6
 
 
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("name", ["O-RLS", "O-MISG", "O-D-MILS"])
+def test_partial_injection_equals_the_dense_reference(name, form):
+    u, y = data(form=form)
+    kw: dict = {"p": 3} if "MI" in name else {}
+    opts = {"injection": 0.4, "injection_warmup": 10}
+    est = make_estimator(name, 2, p0=100.0, form=form, regressor="filtered", **opts, **kw)
+    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, filtered=True, **opts, **kw)
+    whole = ReferenceEstimator(name, 2, p0=100.0, form=form, filtered=True, **kw)
+    for k in range(len(u)):
+        th, th_ref, th_whole = est.update(y[k]), ref.update(y[k]), whole.update(y[k])
+        np.testing.assert_allclose(th, th_ref, rtol=REF_RTOL, atol=1e-12)
+        np.testing.assert_allclose(est.predict(u[k]), ref.predict(u[k]), rtol=REF_RTOL, atol=1e-12)
+        whole.predict(u[k])
+        if k < 10:  # the warm-up: the whole injection
+            np.testing.assert_allclose(th_ref, th_whole, rtol=1e-12, atol=1e-14)
+    assert np.max(np.abs(th_ref - th_whole)) > 1e-6
+
+
+@pytest.mark.parametrize(("injection", "bounded"), [(0.4, True), (0.1, False)])
+def test_partial_injection_error_dynamics_shrink_the_characteristic_polynomial(injection, bounded):
+    """Observer form, a fixed unstable model (poles 1.2, 1.1): the observer error dynamics
+    ``A (I - injection g c)`` have the characteristic polynomial
+    ``z^2 + (1 - injection)(a_1 z + a_2)``, stable for 0.4 (poles of magnitude 0.89), unstable
+    for 0.1 (1.09)."""
+    a = np.array([-2.3, 1.32])
+    radius = np.max(np.abs(np.roots(np.r_[1.0, (1.0 - injection) * a])))
+    assert (radius < 1.0) == bounded
+    kw = {"theta0": np.r_[a, 0.5, 0.2], "enabled": False, "regressor": "filtered"}
+    est = make_estimator("O-RLS", 2, injection=injection, **kw)
+    u, y = data(T=300, seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for k in range(len(u)):
+            est.update(y[k])
+            est.predict(u[k])
+    grew = np.max(np.abs(est.x_hat)) > 1e6 or est.health["n_state_resets"] > 0
+    assert grew != bounded
+
+
 def test_filtered_open_loop_observer_is_least_squares_on_measured_outputs():
     """Observer form, ``g = c^T``: ``phi_hat(t) = [-y(t-1), -y(t-2), u(t-1), u(t-2)]``, so
     O-RLS with ``P(0) = p0 I`` is regularised batch least squares on input-output data."""
@@ -243,6 +283,14 @@ def test_filtered_regressor_is_validated():
         make_estimator("KF-RLS", 2, regressor="smoothed")
     with pytest.raises(ValueError, match="closed-loop observer"):
         make_estimator("CO-RLS", 2, observer_gain=[0.1, 0.0], regressor="filtered")
+    with pytest.raises(ValueError, match="injection and injection_warmup apply to the open-loop"):
+        make_estimator("KF-RLS", 2, regressor="filtered", injection=0.5)
+    with pytest.raises(ValueError, match="injection and injection_warmup apply to the open-loop"):
+        make_estimator("O-RLS", 2, injection_warmup=5)  # the paper's regressor
+    with pytest.raises(ValueError, match=r"injection must lie in \[0, 1\]"):
+        make_estimator("O-RLS", 2, regressor="filtered", injection=-0.1)
+    with pytest.raises(ValueError, match="injection_warmup"):
+        make_estimator("O-RLS", 2, regressor="filtered", injection_warmup=-1)
 
 
 # --------------------------------------------------------------------------------------------

@@ -71,6 +71,20 @@ the same canonical models):
   form ``phi_hat`` then holds the measured outputs: equation-error least squares, consistent
   only for white equation noise.
 
+  With output noise that bias costs the loop (``O-RLS`` settles at ``a = [-1.57, 0.53]`` on a
+  plant with ``a = [-1.7, 0.66]``), and the paper's regressor, unbiased where it converges, is
+  lost from a cold start. ``injection = gamma`` and ``injection_warmup = N`` sit between the
+  two: the whole injection for the first ``N`` steps (a cold start from ``theta = 0`` needs it),
+  then ``g <- gamma g``, i.e. the closed-loop observer (50) with ``K = gamma A_hat g``. In the
+  observer form its error dynamics ``A_hat (I - gamma g c)`` have the characteristic
+  polynomial ``z^n + (1 - gamma)(a_1 z^{n-1} + ... + a_n)``: every coefficient of ``A_hat``'s
+  shrunk by ``1 - gamma``, so the observer stays stable on moderately unstable models
+  (``a = [-1.7, 0.66]``, ``gamma = 0.4``: poles of magnitude 0.63), while the regressor
+  keeps ``1 - gamma`` of the model's noise-free prediction, which reduces the
+  equation-error bias (the stabilised output-error idea of the filter-error method).
+  ``benchmarks/startup.py`` measures it; the self-tuning controller takes ``gamma = 0.4``,
+  ``N = 50`` for the ``O-`` estimators.
+
 The default ``"predicted"`` is the paper's algorithm (tested against a dense reference of its
 formulas); the self-tuning controller uses ``"filtered"``.
 
@@ -500,12 +514,15 @@ def _corrected_state(
     ``regressor="filtered"`` option: ``g = P1 c^T / (R + c P1 c^T)`` for the Kalman filter (its
     filtered estimate), ``g = A_hat^{n-1} e_n`` for the observer (``c g = 1``, so
     ``x1_hat(t|t) = y(t)``, and ``A_hat (I - g c)`` is nilpotent: ``g = e_1`` in the observer
-    form). ``tmp`` (n) is scratch."""
+    form), scaled by ``injection`` after the first ``injection_warmup`` steps. ``tmp`` (n) is
+    scratch."""
     n = cfg.n
     if cfg.state == STATE_KF:
         filtered_state(x, view2d(rec, at.P1, n, n), cfg.R, y, x_reg)
         return
     innov = y - x[0]
+    if rec[at.t] > cfg.injection_warmup:  # after the warm-up: a fraction of the injection
+        innov *= cfg.injection
     for i in range(n):  # g = A^{n-1} e_n, built in x_reg
         x_reg[i] = 1.0 if i == n - 1 else 0.0
     for _ in range(n - 1):

@@ -129,6 +129,8 @@ class EstimatorConfig(NamedTuple):
     project_stable: bool  # reject updates to an unstable A_hat
     filtered: bool  # the regressor takes the measurement-corrected x_hat(t|t)
     forgetting: float  # lambda
+    injection: float  # O filtered: the fraction of the deadbeat injection after the warm-up
+    injection_warmup: int  # O filtered: steps with the whole injection
     R: float  # Kalman measurement-noise variance
     frozen_rate: float
     frozen_ratio: float
@@ -222,6 +224,9 @@ class EstimatorSpec:
         ``(rate, ratio, gain)`` of the "frozen on a wrong model" signal.
     regressor : {"predicted", "filtered"}
         The state estimate ``phi_hat`` is built from.
+    injection, injection_warmup
+        ``O`` with ``regressor="filtered"``: the fraction of the deadbeat output injection
+        after the first ``injection_warmup`` steps (1 and 0: the whole injection throughout).
 
     Raises
     ------
@@ -268,6 +273,8 @@ class EstimatorSpec:
     observer_gain: Any = field(default=None, repr=False)
     frozen: tuple[float, float, float] = (FROZEN_RATE, FROZEN_RATIO, FROZEN_GAIN)
     regressor: str = "predicted"
+    injection: float = 1.0
+    injection_warmup: int = 0
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
@@ -296,6 +303,8 @@ class EstimatorSpec:
         project_stable: bool = False,
         frozen_ratio: float = FROZEN_RATIO,
         regressor: str = "predicted",
+        injection: float = 1.0,
+        injection_warmup: int = 0,
     ) -> EstimatorSpec:
         """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument).
 
@@ -401,6 +410,14 @@ class EstimatorSpec:
                 "regressor='filtered' applies to the open-loop observer (O) and the Kalman filter "
                 "(KF); the closed-loop observer (CO, observer_gain) has its own output injection"
             )
+        injection = real_in(injection, "injection", 0.0, 1.0)
+        injection_warmup = integer(injection_warmup, "injection_warmup", 0)
+        partial = injection != 1.0 or injection_warmup != 0
+        if partial and (state != "O" or regressor != "filtered"):
+            raise ValueError(
+                "injection and injection_warmup apply to the open-loop observer (O) with "
+                f"regressor='filtered', not to {state} with regressor={regressor!r}"
+            )
         canonical = f"{state}-{'D-' if decomposed else ''}{rule}"
         return cls(
             name=canonical,
@@ -427,6 +444,8 @@ class EstimatorSpec:
             observer_gain=gain,
             frozen=(FROZEN_RATE, float(frozen_ratio), FROZEN_GAIN),
             regressor=regressor,
+            injection=injection,
+            injection_warmup=injection_warmup,
         )
 
     def __post_init__(self) -> None:
@@ -475,6 +494,8 @@ class EstimatorSpec:
             project_stable=bool(self.project_stable),
             filtered=self.regressor == "filtered",
             forgetting=float(self.forgetting),
+            injection=float(self.injection),
+            injection_warmup=int(self.injection_warmup),
             R=float(self.R),
             frozen_rate=float(self.frozen[0]),
             frozen_ratio=float(self.frozen[1]),
