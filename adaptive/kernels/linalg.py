@@ -11,7 +11,7 @@ import math
 
 from stcgym.envs.compiled import lane
 
-__all__ = ["all_finite", "invert", "matmul", "max_abs", "norm1"]
+__all__ = ["all_finite", "invert", "matmul", "matvec", "max_abs", "norm1"]
 
 
 @lane(inline=True)
@@ -35,6 +35,16 @@ def matmul(X, Y, out, trans_x=False, trans_y=False):
             for k in range(inner):
                 s += (X[k, i] if trans_x else X[i, k]) * (Y[j, k] if trans_y else Y[k, j])
             out[i, j] = s
+
+
+@lane(inline=True)
+def matvec(A, v, out):
+    """``out = A @ v`` (``out`` distinct from ``v``)."""
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for j in range(A.shape[1]):
+            acc += A[i, j] * v[j]
+        out[i] = acc
 
 
 @lane(inline=True)
