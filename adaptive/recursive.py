@@ -35,38 +35,9 @@ between::
 ``update`` twice without ``predict`` (or ``predict`` first) raises :class:`RuntimeError`.
 Batched: ``update(y (B,)) -> theta (B, 2n)``, ``predict(u (B,)) -> x_hat (B, n)``.
 
-Numerical health
-----------------
-``P`` is propagated as an upper-triangular square-root factor (Carlson's update), so it cannot
-lose symmetry or positive definiteness through cancellation. After every update the factor is
-checked (every entry finite, every diagonal entry positive: the one health check, see
-:mod:`stcgym.adaptive.kernels.least_squares`), and ``r``, the gain denominators and the
-parameter increment are checked for overflow / NaN. On a failure the default
-``on_failure="reset"`` resets ``P`` to ``P(0)`` (``r`` to ``r(0)``, the finite-history window is
-emptied), keeps the last finite ``theta_hat``, counts the event in :attr:`n_resets` and emits a
-:class:`RuntimeWarning`; ``on_failure="raise"`` leaves the estimator exactly as before the call
-and raises :class:`NumericalHealthError`. A non-finite state estimate is reset to ``x_hat(1)``
-the same way (``health["n_state_resets"]``); a non-finite Kalman covariance to ``P1(1)``. No NaN
-is returned silently. A rejected call (bad input, wrong call order) changes nothing.
-
-Frozen on a wrong model (``health["frozen"]``)
----------------------------------------------
-With the paper's ``p0 = 1e6`` the RLS/MILS family (and the D- rules) can freeze at a wrong
-estimate: an early unstable ``A_hat(t)`` makes the open-loop observer's ``x_hat`` huge, the huge
-``phi_hat`` entries collapse ``P`` before ``theta`` is right, and with ``lambda = 1`` it never
-recovers while every numerical counter stays 0. The estimator therefore raises the ``frozen``
-flag (and one :class:`RuntimeWarning` when it first switches on) while, after the first 2000
-steps, the mean gain ``phi_hat^T P phi_hat`` is below ``1e-3`` and the innovation power exceeds
-``frozen_ratio`` (default 0.05) times the output power (means over ~1000 steps; details in
-:mod:`stcgym.adaptive.kernels.estimator`). Measured with
-``python benchmarks/estimators_perf.py --frozen`` (O-RLS, O-MILS, O-D-RLS, KF-RLS, O-D-MILS,
-``p0`` = 1e6 and 100, three second-order plants incl. one with a zero at 4.64, three seeds,
-200 000 steps, white input, observer form): with output noise std 0.1 all 39 of 90 runs whose
-final parameter error exceeds 10 % are flagged at the end (41 of the 42 above 5 %), and 4 of
-the 51 runs below 10 %. The flag means "the model explains too little of the output": on data
-whose noise is more than ``frozen_ratio`` of the output power it fires on good estimates too
-(noise std 1.0: 30 of the 45 runs below 10 % flagged), so raise ``frozen_ratio`` there (``math.inf``
-disables it). The remedies are ``p0`` of 10-100, ``forgetting < 1`` or ``project_stable=True``.
+Numerical health and the "frozen on a wrong model" signal are described in
+:mod:`stcgym.adaptive.health`; :func:`make_estimator` (:mod:`stcgym.adaptive.factory`) builds
+the estimators by name.
 
 Measured behaviour of the paper's algorithms (``tests/test_recursive.py``, 2nd-order plant,
 white input)
@@ -84,7 +55,6 @@ white input)
 
 from __future__ import annotations
 
-import inspect
 import math
 import warnings
 from collections.abc import Callable
@@ -94,6 +64,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive import flops as _flops
+from stcgym.adaptive.factory import make_estimator
+from stcgym.adaptive.health import NumericalHealthError, describe_events, health_error
 from stcgym.adaptive.kernels import estimator as _k
 from stcgym.adaptive.kernels.estimator import (
     ALGORITHMS,
@@ -105,9 +77,7 @@ from stcgym.adaptive.kernels.estimator import (
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable as _schur_lane
 from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import (
-    covariance,
     finite_vector,
-    integer,
     lane_indices,
     lane_vector,
     real_number,
@@ -125,36 +95,6 @@ __all__ = [
     "make_estimator",
     "parse_name",
 ]
-
-
-class NumericalHealthError(FloatingPointError):
-    """A covariance or normaliser lost positive definiteness or became non-finite.
-
-    Raised by the estimators when ``on_failure="raise"`` (the estimator is then left exactly
-    as before the call); with the default ``"reset"`` they recover instead and emit a
-    :class:`RuntimeWarning`.
-
-    Parameters
-    ----------
-    *args
-        The message (the algorithm, the time ``t`` and what failed).
-
-    Examples
-    --------
-    An output of ``1e300`` overflows ``P``; the estimator stays at ``t = 1``:
-
-    >>> from stcgym.adaptive import NumericalHealthError, make_estimator
-    >>> est = make_estimator("O-RLS", 2, on_failure="raise")
-    >>> _ = est.update(1e200)
-    >>> _ = est.predict(1e200)
-    >>> try:
-    ...     est.update(1e300)
-    ... except NumericalHealthError as exc:
-    ...     print(exc)
-    O-RLS at t=2: P(t) / r(t) overflowed or is not finite
-    >>> est.t
-    1
-    """
 
 
 def is_schur_stable(a: ArrayLike) -> bool:
@@ -221,7 +161,7 @@ class RecursiveEstimator:
     enabled : bool (settable; per lane for a batch)
         ``False`` freezes ``theta`` and ``P`` (the innovation is still computed, the state
         still propagated, stacked windows keep sliding, the finite-history buffer does not).
-    n_resets, health : numerical-health events (see the module docstring).
+    n_resets, health : numerical-health events (see :mod:`stcgym.adaptive.health`).
     flops_per_step, flops_parameters, flops_state : int
         Paper conventions: ``O-RLS`` = table 1, ``KF-MILS`` = table 2, D-RLS / D-MILS
         ``flops_parameters`` = tables 3 / 4 (:mod:`stcgym.adaptive.flops`).
@@ -622,34 +562,17 @@ class RecursiveEstimator:
 
     def _report(self, status: NDArray, snapshot: NDArray | None, times: bool = False) -> None:
         """Turn status bits into warnings / errors (``status`` per lane, or per step)."""
-        t = self._rec[:, self.spec.offset("t")]
-        where = "step" if times else "lane"
+        t = int(self._rec[0, self.spec.offset("t")])
+        single = self.num_envs is None
 
         def describe(mask: int) -> str | None:
-            hit = np.flatnonzero(status & mask)
-            if hit.size == 0:
-                return None
-            if times:
-                first = int(t[0]) - (status.size - 1 - int(hit[0]))
-                return f"{self.name} at t={first}" + (
-                    f" ({hit.size} times)" if hit.size > 1 else ""
-                )
-            if self.num_envs is None:
-                return f"{self.name} at t={int(t[0])}"
-            return f"{self.name}: {where}s {hit[:5].tolist()}{'...' if hit.size > 5 else ''}"
+            return describe_events(self.name, t, status, mask, times=times, single=single)
 
         rule = describe(_k.ST_RESET)
         state = describe(_k.ST_STATE_RESET)
         if snapshot is not None and (rule or state):
             self._rec[...] = snapshot
-            reason = (
-                "P(t) is not symmetric positive definite (rank lost)"
-                if np.any(status & _k.ST_PD_LOST)
-                else "P(t) / r(t) overflowed or is not finite"
-            )
-            if rule:
-                raise NumericalHealthError(f"{rule}: {reason}")
-            raise NumericalHealthError(f"{state}: state estimate x_hat(t+1) is not finite")
+            raise health_error(status, rule, state)
         if rule:
             self._last_event = f"{rule}: covariance reset"
             warnings.warn(
@@ -810,7 +733,7 @@ class RecursiveEstimator:
 
     @property
     def frozen(self) -> Any:
-        """The "frozen on a wrong model" signal (see the module docstring)."""
+        """The "frozen on a wrong model" signal (see :mod:`stcgym.adaptive.health`)."""
         return self._scalar_field("frozen", bool)
 
     @property
@@ -858,153 +781,3 @@ class RecursiveEstimator:
             f"RecursiveEstimator({self.name!r}, n={self.n}, p={self.p}, form={self.form!r}"
             f"{lanes}, t={self.t if self.num_envs is None else 'per lane'})"
         )
-
-
-# --------------------------------------------------------------------------------------------
-# Factory
-# --------------------------------------------------------------------------------------------
-
-
-def make_estimator(
-    name: str, n: int, *, num_envs: int | None = None, **options: Any
-) -> RecursiveEstimator:
-    """Build one of the paper's recursive estimators by name, for one plant or ``num_envs``.
-
-    Parameters
-    ----------
-    name : str
-        ``"<state>-[D-]<rule>"``, case-insensitive: state ``O`` (open-loop observer (46)),
-        ``KF`` (Kalman filter (66)) or ``CO`` (closed-loop observer (50), needs
-        ``observer_gain``); rule ``SG``, ``MISG``, ``RLS``, ``MILS``; ``D-`` for model
-        decomposition. The 16 paper names are in :data:`ALGORITHMS`. ``O-...`` together with
-        ``observer_gain`` also gives the closed-loop observer.
-    n : int
-        Plant order (``theta`` has ``2n`` entries), ``n >= 1``.
-    p : int
-        Innovation length ``p >= 1`` (MISG/MILS; must be 1 for SG/RLS).
-    p0 : float
-        The paper's large number: ``theta_hat(0) = 1/p0``, ``P(0) = p0 I``, ``x_hat(1) = 1/p0``.
-    form : {"observer", "observability"}
-        Canonical form of the plant (regressor (9) or (153), ``A_hat`` (47) or (146)).
-    forgetting : float
-        ``lambda`` in ``(0, 1]``. RLS/MILS: ``P^{-1}(t) = lambda P^{-1}(t-1) + Phi Phi^T``.
-        SG/MISG: ``r(t) = lambda r(t-1) + ||phi||^2`` (keeps the step from vanishing).
-    window : int, optional
-        Finite history of ``W`` samples (RLS/MILS only, exclusive with ``forgetting < 1``):
-        exact regularised least squares over the last ``W`` data blocks by downdating.
-    theta0 : array_like, shape (2n,) (or (B, 2n) per lane), optional
-        ``theta_hat(0)`` (default ``1/p0``).
-    P0 : float, array_like (2n,) or (2n, 2n) (or (B, 2n, 2n) per lane), optional
-        ``P(0)`` (RLS/MILS only; block-diagonal for D- rules). Default ``p0 I``.
-    r0 : float, optional
-        ``r(0)`` of SG/MISG rules (default 1).
-    stacked_r : bool
-        MISG: ``r(t) = r(t-1) + ||Phi(p, t)||^2`` (remark 1, (116)-(117)).
-    x_init : array_like, shape (n,), optional
-        ``x_hat(1)`` (default ``1/p0``).
-    P1_init, process_noise, measurement_noise :
-        Kalman filter only: ``P1(1)`` (default ``I``), ``Q`` (default 0), ``R`` (default 1) --
-        the paper's filter. With ``Q = 0`` the gain dies out after a few tens of steps.
-    observer_gain : array_like (n,) or callable ``(a_hat, b_hat) -> (n,)``, optional
-        Gain ``K`` of the closed-loop observer (50) (``CO-...`` names, or ``O-...``).
-    enabled : bool
-        Initial adaptation switch.
-    on_failure : {"reset", "raise"}
-        Action on loss of positive definiteness / overflow (see the module docstring).
-    pd_check_every : int
-        Run the factor health check every this many steps (default 1, it costs ``O(n^2)``;
-        ``0``: only the overflow checks).
-    project_stable : bool
-        Not in the paper: reject a parameter update whose ``A_hat(t)`` is not Schur stable
-        (keep ``theta_hat(t-1)``, ``P(t)`` as updated), the projection of pseudo-linear
-        regression methods (Ljung & Soderstrom 1983).
-    frozen_ratio : float
-        RLS/MILS (and D-) only: the "frozen on a wrong model" signal switches on when, after
-        the gain ``phi^T P phi`` has fallen below ``1e-3``, the mean innovation power exceeds
-        ``frozen_ratio`` times the mean output power (default 0.05: the model explains less
-        than 95 % of the output). On data whose noise exceeds that share of the output power
-        raise it (``math.inf`` disables the signal). See the module docstring.
-    regressor : {"predicted", "filtered"}
-        State estimate the regressor ``phi_hat`` is built from. ``"predicted"`` (default): the
-        paper's ``x_hat(t)`` of (46)/(66). ``"filtered"`` (not in the paper; for closed-loop
-        use, where the self-tuning controller takes it): the measurement-corrected
-        ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` with the Kalman gain
-        ``g = P1 c^T / (R + c P1 c^T)`` (``KF``), or ``g = A_hat^{n-1} e_n`` (``c g = 1``:
-        ``x1_hat(t|t) = y(t)``) with the state propagated from ``x_hat(t|t)`` (``O``: the
-        closed-loop observer (50) with the deadbeat gain ``K = A_hat g``). Not for ``CO``.
-        Details in
-        :mod:`stcgym.adaptive.kernels.estimator`.
-    injection : float
-        ``O`` with ``regressor="filtered"`` only: after the warm-up the injection is
-        ``injection * g``, in ``[0, 1]`` (default 1: the deadbeat injection throughout; the
-        closed-loop observer (50) with ``K = injection * A_hat g``, whose error dynamics in the
-        observer form have the characteristic polynomial ``z^n + (1 - injection) a(z)``).
-    injection_warmup : int
-        ``O`` with ``regressor="filtered"`` only: the first steps, ``>= 0``, with the whole
-        injection (default 0).
-    num_envs : int, optional
-        Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.
-
-    Returns
-    -------
-    RecursiveEstimator
-        At ``t = 0``; ``num_envs`` lanes of it when ``num_envs`` is given.
-
-    Raises
-    ------
-    ValueError
-        An unknown ``name``, or an option out of its range or of the wrong shape, naming it.
-    TypeError
-        An unknown keyword.
-
-    Examples
-    --------
-    >>> from stcgym.adaptive import make_estimator
-    >>> est = make_estimator("kf-mils", 2, p=3)
-    >>> est.name, est.n, est.p, est.form
-    ('KF-MILS', 2, 3, 'observer')
-    >>> batch = make_estimator("O-RLS", 2, num_envs=4)
-    >>> batch.theta.shape
-    (4, 4)
-    >>> make_estimator("O-RLS", 2, forgetting=2)
-    Traceback (most recent call last):
-    ...
-    ValueError: forgetting (lambda) must lie in (0, 1], got 2
-    """
-    _BUILD_SIGNATURE.bind(name, n, **options)  # a TypeError naming an unknown keyword
-    theta0, P0 = options.get("theta0"), options.get("P0")
-    lane_theta0 = lane_P0 = None
-    if num_envs is not None:
-        B = num_envs = integer(num_envs, "num_envs")
-        d = 2 * int(n) if isinstance(n, (int, np.integer)) else 0
-        if theta0 is not None and np.ndim(theta0) == 2:
-            lane_theta0 = np.array(theta0, dtype=float)
-            if lane_theta0.shape != (B, d) or not np.all(np.isfinite(lane_theta0)):
-                raise ValueError(f"per-lane theta0 must be finite with shape ({B}, {d})")
-            options["theta0"] = lane_theta0[0]
-        if P0 is not None and np.ndim(P0) == 3:
-            P0_arr = np.asarray(P0, dtype=float)
-            if P0_arr.shape != (B, d, d):
-                raise ValueError(f"per-lane P0 must have shape ({B}, {d}, {d})")
-            lane_P0 = np.array([covariance(M, d, "P0") for M in P0_arr])
-            options["P0"] = lane_P0[0]
-    spec = EstimatorSpec.build(name, n, **options)
-    if lane_P0 is not None and spec.decomposed:
-        n_ = spec.n
-        if np.any(lane_P0[:, :n_, n_:] != 0.0) or np.any(lane_P0[:, n_:, :n_] != 0.0):
-            raise ValueError("per-lane P0 must be block-diagonal diag(P_a, P_b) for D- rules")
-    return RecursiveEstimator(spec, num_envs, lane_theta0=lane_theta0, lane_P0=lane_P0)
-
-
-# One source of truth for the keywords: make_estimator takes EstimatorSpec.build's (which
-# validates them) plus num_envs; help() and inspect show that combined signature.
-_BUILD_SIGNATURE = inspect.signature(EstimatorSpec.build)
-make_estimator.__signature__ = _BUILD_SIGNATURE.replace(  # type: ignore[attr-defined]
-    parameters=[
-        *_BUILD_SIGNATURE.parameters.values(),
-        inspect.Parameter(
-            "num_envs", inspect.Parameter.KEYWORD_ONLY, default=None, annotation="int | None"
-        ),
-    ],
-    return_annotation="RecursiveEstimator",
-)

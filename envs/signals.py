@@ -28,36 +28,9 @@ easily a callable ``k -> r`` (:class:`CallableReference`).
 
 from __future__ import annotations
 
-from stcgym.envs.references import (
-    PRBS,
-    ArrayReference,
-    CallableReference,
-    Reference,
-    Sine,
-    SquareWave,
-    Step,
-    Zero,
-    make_reference,
-    make_references,
-)
-from stcgym.envs.schedules import NEVER, Constant, Jumps, Ramp, RandomWalk, Schedule, make_schedule
+from stcgym.envs import references as _references
+from stcgym.envs import schedules as _schedules
+from stcgym.envs.references import *  # noqa: F403
+from stcgym.envs.schedules import *  # noqa: F403
 
-__all__ = [
-    "NEVER",
-    "Reference",
-    "SquareWave",
-    "Step",
-    "Sine",
-    "PRBS",
-    "Zero",
-    "ArrayReference",
-    "CallableReference",
-    "make_reference",
-    "make_references",
-    "Schedule",
-    "Constant",
-    "Jumps",
-    "Ramp",
-    "RandomWalk",
-    "make_schedule",
-]
+__all__ = [*_references.__all__, *_schedules.__all__]

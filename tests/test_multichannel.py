@@ -262,21 +262,29 @@ def test_minimum_norm_phase_then_exact():
     np.testing.assert_allclose(est.B, B, atol=1e-9)
 
 
+def drive(est, A, B, rng, T, noise_std):
+    """Feed ``est`` ``T`` samples of ``x+ = A x + B u + w`` (white ``u``, ``w`` of std
+    ``noise_std``); returns the regressors ``[x; u]`` and the next states, one row per sample."""
+    m, N = B.shape
+    Z, Xn = [], []
+    x = rng.standard_normal(m)
+    for _ in range(T):
+        u = rng.standard_normal(N)
+        x_next = A @ x + B @ u + noise_std * rng.standard_normal(m)
+        est.update(x, u, x_next)
+        Z.append(np.r_[x, u])
+        Xn.append(x_next)
+        x = x_next
+    return np.array(Z), np.array(Xn)
+
+
 def test_rls_phase_equals_batch_least_squares_with_noise():
     rng = np.random.default_rng(4)
     m, N, T = 2, 1, 80
     A, B = random_plant(m, N, rng)
     est = StateMatrixEstimator(m, N)
-    Z, Xn = [], []
-    x = rng.standard_normal(m)
-    for _ in range(T):
-        u = rng.standard_normal(N)
-        x_next = A @ x + B @ u + 0.05 * rng.standard_normal(m)
-        est.update(x, u, x_next)
-        Z.append(np.r_[x, u])
-        Xn.append(x_next)
-        x = x_next
-    C_ls = np.linalg.lstsq(np.array(Z), np.array(Xn), rcond=None)[0].T  # (11)
+    Z, Xn = drive(est, A, B, rng, T, 0.05)
+    C_ls = np.linalg.lstsq(Z, Xn, rcond=None)[0].T  # (11)
     np.testing.assert_allclose(est.C, C_ls, atol=1e-9)
     assert np.all(np.linalg.eigvalsh(est.P) > 0)
 
@@ -301,17 +309,9 @@ def test_state_estimator_forgetting_is_weighted_least_squares():
     m, N, T, lam = 2, 1, 50, 0.9
     A, B = random_plant(m, N, rng)
     est = StateMatrixEstimator(m, N, forgetting=lam)
-    Z, Xn = [], []
-    x = rng.standard_normal(m)
-    for _ in range(T):
-        u = rng.standard_normal(N)
-        x_next = A @ x + B @ u + 0.1 * rng.standard_normal(m)
-        est.update(x, u, x_next)
-        Z.append(np.r_[x, u])
-        Xn.append(x_next)
-        x = x_next
+    Z, Xn = drive(est, A, B, rng, T, 0.1)
     w = np.sqrt(lam ** np.arange(T - 1, -1, -1))[:, None]
-    C_wls = np.linalg.lstsq(w * np.array(Z), w * np.array(Xn), rcond=None)[0].T
+    C_wls = np.linalg.lstsq(w * Z, w * Xn, rcond=None)[0].T
     np.testing.assert_allclose(est.C, C_wls, atol=1e-8)
 
 

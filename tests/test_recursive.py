@@ -68,6 +68,13 @@ def true_regressors(X, u, n, form):
     return H
 
 
+def true_state_data(seed, T, form):
+    """White input, true states, outputs (noise std 0.2) and true regressors of the test plant."""
+    u = np.random.default_rng(seed).standard_normal(T)
+    X, y = simulate(A_TRUE, B_TRUE, form, u, noise_std=0.2, seed=seed)
+    return u, X, y, true_regressors(X, u, 2, form)
+
+
 def run_with_true_state(est, X, u, y):
     """Feed the true ``x(t+1)`` through ``predict(..., x_next=...)``; return theta(t) rows."""
     out = []
@@ -315,11 +322,8 @@ def test_closed_loop_observer_deadbeat_gain_recovers_the_state():
 @pytest.mark.parametrize("state", ["O", "KF", "CO"])
 @pytest.mark.parametrize("p0", [1e6, 10.0])
 def test_rls_with_true_state_is_regularised_batch_least_squares(form, state, p0):
-    rng = np.random.default_rng(5)
     T = 200
-    u = rng.standard_normal(T)
-    X, y = simulate(A_TRUE, B_TRUE, form, u, noise_std=0.2, seed=5)
-    H = true_regressors(X, u, 2, form)
+    u, X, y, H = true_state_data(5, T, form)
     theta0 = np.array([0.3, -0.2, 0.1, 0.4])
     kw = {"observer_gain": [0.2, 0.1]} if state == "CO" else {}
     est = make_estimator(f"{state}-RLS", 2, form=form, p0=p0, theta0=theta0, x_init=X[:, 0], **kw)
@@ -333,11 +337,8 @@ def test_rls_with_true_state_is_regularised_batch_least_squares(form, state, p0)
 
 
 def test_rls_forgetting_is_exponentially_weighted_least_squares():
-    rng = np.random.default_rng(6)
     T, lam, p0 = 150, 0.95, 100.0
-    u = rng.standard_normal(T)
-    X, y = simulate(A_TRUE, B_TRUE, "observer", u, noise_std=0.2, seed=6)
-    H = true_regressors(X, u, 2, "observer")
+    u, X, y, H = true_state_data(6, T, "observer")
     est = make_estimator("O-RLS", 2, p0=p0, forgetting=lam, x_init=X[:, 0])
     thetas = run_with_true_state(est, X, u, y)
     theta0 = np.full(4, 1.0 / p0)
@@ -349,11 +350,8 @@ def test_rls_forgetting_is_exponentially_weighted_least_squares():
 
 
 def test_mils_forgetting_is_exponentially_weighted_stacked_least_squares():
-    rng = np.random.default_rng(12)
     T, lam, p0, p = 100, 0.9, 100.0, 3
-    u = rng.standard_normal(T)
-    X, y = simulate(A_TRUE, B_TRUE, "observability", u, noise_std=0.2, seed=12)
-    H = true_regressors(X, u, 2, "observability")
+    u, X, y, H = true_state_data(12, T, "observability")
     est = make_estimator(
         "KF-MILS", 2, p=p, p0=p0, forgetting=lam, form="observability", x_init=X[:, 0]
     )
@@ -370,11 +368,8 @@ def test_mils_forgetting_is_exponentially_weighted_stacked_least_squares():
 
 @pytest.mark.parametrize("name", ["O-RLS", "KF-MILS"])
 def test_finite_history_is_least_squares_over_the_window(name):
-    rng = np.random.default_rng(7)
     T, W, p, p0 = 160, 25, (3 if "MILS" in name else 1), 50.0
-    u = rng.standard_normal(T)
-    X, y = simulate(A_TRUE, B_TRUE, "observer", u, noise_std=0.2, seed=7)
-    H = true_regressors(X, u, 2, "observer")
+    u, X, y, H = true_state_data(7, T, "observer")
     est = make_estimator(name, 2, p=p, p0=p0, window=W, x_init=X[:, 0])
     thetas = run_with_true_state(est, X, u, y)
     theta0 = np.full(4, 1.0 / p0)
@@ -410,11 +405,8 @@ def test_finite_history_stays_exact_when_dominant_samples_leave_the_window(spike
 
 
 def test_mils_with_true_state_is_batch_least_squares_on_stacked_windows():
-    rng = np.random.default_rng(8)
     T, p, p0 = 120, 4, 10.0
-    u = rng.standard_normal(T)
-    X, y = simulate(A_TRUE, B_TRUE, "observability", u, noise_std=0.2, seed=8)
-    H = true_regressors(X, u, 2, "observability")
+    u, X, y, H = true_state_data(8, T, "observability")
     est = make_estimator("O-MILS", 2, p=p, p0=p0, form="observability", x_init=X[:, 0])
     thetas = run_with_true_state(est, X, u, y)
     theta0 = np.full(4, 1.0 / p0)

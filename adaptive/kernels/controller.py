@@ -228,6 +228,32 @@ def probe_sign(seed, episode, t):
     return 1.0 if (h >> 7) & 1 else -1.0
 
 
+# ------------------------------------------------------------------------ change detection
+@lane(inline=True)
+def change_alarm(f, at, cfg, e2, update, t, closed_t, last_alarm):
+    """Step 2 of both controllers: the innovation-power test of covariance resetting.
+
+    With ``update``, the short and long exponentially weighted means of ``e2 = |e(t)|^2`` at
+    ``f[at.ews]``, ``f[at.ewl]`` take the sample (weights ``cfg.ew_short``, ``cfg.ew_long``).
+    True (an alarm) when detection is on (``cfg.detect``), the loop closed at ``closed_t >= 0``,
+    more than ``cfg.holdoff`` steps have passed since then and since ``last_alarm``, and the
+    short mean exceeds ``cfg.threshold`` times the long mean before this sample.
+    """
+    ews = f[at.ews]
+    ewl_prev = f[at.ewl]
+    if update:
+        ews += cfg.ew_short * (e2 - ews)
+        f[at.ews] = ews
+        f[at.ewl] = ewl_prev + cfg.ew_long * (e2 - ewl_prev)
+    return (
+        cfg.detect
+        and closed_t >= 0
+        and t - closed_t > cfg.holdoff
+        and t - last_alarm > cfg.holdoff
+        and ews > cfg.threshold * ewl_prev
+    )
+
+
 # ------------------------------------------------------------------------ parameter covariance
 @lane(inline=True)
 def covariance_entry(f, at, d, i, j):
@@ -299,20 +325,8 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
         eps = e
     f[at.e] = e
     # -- 2. change detection: covariance resetting on a jump of the innovation variance
-    e2 = e * e
-    ews = f[at.ews]
-    ewl_prev = f[at.ewl]
-    ews += cfg.ew_short * (e2 - ews)
-    f[at.ews] = ews
-    f[at.ewl] = ewl_prev + cfg.ew_long * (e2 - ewl_prev)
     closed_t = g[INTS.closed_t]
-    if (
-        cfg.detect
-        and closed_t >= 0
-        and t - closed_t > cfg.holdoff
-        and t - g[INTS.last_alarm] > cfg.holdoff
-        and ews > cfg.threshold * ewl_prev
-    ):
+    if change_alarm(f, at, cfg, e * e, True, t, closed_t, g[INTS.last_alarm]):
         inflate_covariance(f, at, d, cfg.inflation)
         g[INTS.n_alarms] += 1
         g[INTS.last_alarm] = t

@@ -148,6 +148,7 @@ from stcgym.adaptive.kernels.least_squares import (
     least_squares_increment,
     upper_factor,
 )
+from stcgym.adaptive.kernels.linalg import matvec
 from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.state_estimation import (
     advance_regressor,
@@ -526,11 +527,7 @@ def _corrected_state(
     for i in range(n):  # g = A^{n-1} e_n, built in x_reg
         x_reg[i] = 1.0 if i == n - 1 else 0.0
     for _ in range(n - 1):
-        for i in range(n):
-            acc = 0.0
-            for j in range(n):
-                acc += A[i, j] * x_reg[j]
-            tmp[i] = acc
+        matvec(A, x_reg, tmp)
         for i in range(n):
             x_reg[i] = tmp[i]
     for i in range(n):

@@ -64,7 +64,7 @@ ALGORITHMS: tuple[str, ...] = tuple(
 # Rule and state-estimator codes of the configuration (values, not offsets).
 RULE_SG, RULE_MISG, RULE_RLS, RULE_MILS = range(4)
 STATE_O, STATE_CO, STATE_KF = range(3)
-#: Frozen-signal defaults (see :mod:`.estimator`; calibrated in ``stcgym.adaptive.recursive``).
+#: Frozen-signal defaults (see :mod:`.estimator`; calibrated in ``stcgym.adaptive.health``).
 FROZEN_RATE = 1e-3
 FROZEN_RATIO = 0.05
 FROZEN_GAIN = 1e-3

@@ -11,7 +11,7 @@ import math
 
 from stcgym.envs.compiled import lane
 
-__all__ = ["all_finite", "invert", "matmul", "max_abs", "norm1"]
+__all__ = ["all_finite", "invert", "matmul", "matvec", "max_abs", "norm1"]
 
 
 @lane(inline=True)
@@ -24,15 +24,27 @@ def all_finite(v):
 
 @lane(inline=True)
 def matmul(X, Y, out, trans_x=False, trans_y=False):
-    """``out = op(X) @ op(Y)`` for small square matrices, ``op`` the transpose when asked
-    (``out`` distinct from ``X`` and ``Y``)."""
-    m = X.shape[0]
-    for i in range(m):
-        for j in range(m):
+    """``out = op(X) @ op(Y)`` for small matrices, ``op`` the transpose when asked (``out``
+    distinct from ``X`` and ``Y``; its shape is the product's)."""
+    rows = out.shape[0]
+    cols = out.shape[1]
+    inner = X.shape[0] if trans_x else X.shape[1]
+    for i in range(rows):
+        for j in range(cols):
             s = 0.0
-            for k in range(m):
+            for k in range(inner):
                 s += (X[k, i] if trans_x else X[i, k]) * (Y[j, k] if trans_y else Y[k, j])
             out[i, j] = s
+
+
+@lane(inline=True)
+def matvec(A, v, out):
+    """``out = A @ v`` (``out`` distinct from ``v``)."""
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for j in range(A.shape[1]):
+            acc += A[i, j] * v[j]
+        out[i] = acc
 
 
 @lane(inline=True)

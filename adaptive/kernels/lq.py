@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, matmul, max_abs
+from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.kernels.safe_set import (
     MAT,
     N_MAT,
@@ -280,9 +281,7 @@ def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
             for j in range(m):
                 Gk[i, j] += 0.5 * (W[i, j] + W[j, i])
         matmul(Ak, T1, W)
-        for i in range(m):
-            for j in range(m):
-                Ak[i, j] = W[i, j]
+        copy_matrix(W, Ak)
         hmax = max_abs(Hk)
         if not hmax <= P_MAX or not all_finite(Gk) or not all_finite(Ak):
             return NOT_STABILISABLE
@@ -291,9 +290,7 @@ def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
             break
     if not converged:
         return NOT_CONVERGED
-    for i in range(m):
-        for j in range(m):
-            P[i, j] = Hk[i, j]
+    copy_matrix(Hk, P)
     _lq_gain(A, b, rho, P, K)
     v = Vs[VEC.v1, :m]
     w = Vs[VEC.v2, :m]

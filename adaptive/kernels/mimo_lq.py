@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import math
 
-from stcgym.adaptive.kernels.linalg import invert
-from stcgym.adaptive.kernels.records import view2d
+from stcgym.adaptive.kernels.linalg import invert, matmul
+from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.safe_set import (
     B_SMALL,
     DC_SINGULAR,
@@ -84,17 +84,12 @@ def _slot(work, k, rows, cols):
 
 
 @lane(inline=True)
-def _mul(X, Y, out, tx, ty):
-    """``out = op(X) op(Y)`` for rectangular matrices (``op`` the transpose when asked)."""
-    rows = out.shape[0]
-    cols = out.shape[1]
-    inner = X.shape[0] if tx else X.shape[1]
-    for i in range(rows):
-        for j in range(cols):
-            acc = 0.0
-            for k in range(inner):
-                acc += (X[k, i] if tx else X[i, k]) * (Y[j, k] if ty else Y[k, j])
-            out[i, j] = acc
+def _closed_loop(A, B, K, Acl):
+    """``Acl = A - B K``."""
+    matmul(B, K, Acl, False, False)
+    for i in range(A.shape[0]):
+        for j in range(A.shape[0]):
+            Acl[i, j] = A[i, j] - Acl[i, j]
 
 
 @lane(inline=True)
@@ -117,15 +112,15 @@ def lq_gain(A, B, R, P, K, work):
     Sm = _slot(work, 1, m, m)
     Sinv = _slot(work, 2, m, m)
     T = _slot(work, 3, m, n)
-    _mul(P, B, PB, False, False)
-    _mul(B, PB, Sm, True, False)
+    matmul(P, B, PB, False, False)
+    matmul(B, PB, Sm, True, False)
     for i in range(m):
         for j in range(m):
             Sm[i, j] += R[i, j]
     if not invert(Sm, Sinv):
         return False
-    _mul(PB, A, T, True, False)  # B^T P A (P symmetric)
-    _mul(Sinv, T, K, False, False)
+    matmul(PB, A, T, True, False)  # B^T P A (P symmetric)
+    matmul(Sinv, T, K, False, False)
     return True
 
 
@@ -140,12 +135,9 @@ def riccati_step(A, B, Q, R, P, K, work):
     Acl = _slot(work, 4, n, n)
     T = _slot(work, 5, n, n)
     KR = _slot(work, 6, m, n)
-    _mul(B, K, Acl, False, False)
-    for i in range(n):
-        for j in range(n):
-            Acl[i, j] = A[i, j] - Acl[i, j]
-    _mul(P, Acl, T, False, False)
-    _mul(R, K, KR, False, False)
+    _closed_loop(A, B, K, Acl)
+    matmul(P, Acl, T, False, False)
+    matmul(R, K, KR, False, False)
     for i in range(n):
         for j in range(i, n):
             acc = Q[i, j]
@@ -164,9 +156,7 @@ def schur_stable(M, work):
     n = M.shape[0]
     X = _slot(work, 7, n, n)
     Y = _slot(work, 8, n, n)
-    for i in range(n):
-        for j in range(n):
-            X[i, j] = M[i, j]
+    copy_matrix(M, X)
     for _ in range(MAX_SQUARINGS):
         fro = 0.0
         for i in range(n):
@@ -176,10 +166,8 @@ def schur_stable(M, work):
             return False
         if fro < 0.25:
             return True
-        _mul(X, X, Y, False, False)
-        for i in range(n):
-            for j in range(n):
-                X[i, j] = Y[i, j]
+        matmul(X, X, Y, False, False)
+        copy_matrix(Y, X)
     return False
 
 
@@ -201,41 +189,37 @@ def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
     Rinv = _slot(work, 8, m, m)
     RB = _slot(work, 9, m, n)
     Rc = _slot(work, 10, m, m)
-    for i in range(m):
-        for j in range(m):
-            Rc[i, j] = R[i, j]
+    copy_matrix(R, Rc)
     if not invert(Rc, Rinv):
         return NOT_STABILISABLE
-    _mul(Rinv, B, RB, False, True)  # R^{-1} B^T
-    _mul(B, RB, Gk, False, False)
+    matmul(Rinv, B, RB, False, True)  # R^{-1} B^T
+    matmul(B, RB, Gk, False, False)
     for i in range(n):
         for j in range(n):
             Ak[i, j] = A[i, j]
             Hk[i, j] = 0.5 * (Q[i, j] + Q[j, i])
     converged = False
     for _ in range(max_iter):
-        _mul(Gk, Hk, W, False, False)
+        matmul(Gk, Hk, W, False, False)
         for i in range(n):
             W[i, i] += 1.0
         if not invert(W, Winv):
             return NOT_STABILISABLE
-        _mul(Winv, Ak, T1, False, False)  # W^{-1} A_k
-        _mul(Winv, Gk, T2, False, False)  # W^{-1} G_k
-        _mul(Hk, T1, T3, False, False)  # H_k W^{-1} A_k
-        _mul(Ak, T3, W, True, False)  # A_k^T H_k W^{-1} A_k
+        matmul(Winv, Ak, T1, False, False)  # W^{-1} A_k
+        matmul(Winv, Gk, T2, False, False)  # W^{-1} G_k
+        matmul(Hk, T1, T3, False, False)  # H_k W^{-1} A_k
+        matmul(Ak, T3, W, True, False)  # A_k^T H_k W^{-1} A_k
         dH = _max_abs(W)
         for i in range(n):
             for j in range(n):
                 Hk[i, j] += 0.5 * (W[i, j] + W[j, i])
-        _mul(Ak, T2, T3, False, False)
-        _mul(T3, Ak, W, False, True)  # A_k W^{-1} G_k A_k^T
+        matmul(Ak, T2, T3, False, False)
+        matmul(T3, Ak, W, False, True)  # A_k W^{-1} G_k A_k^T
         for i in range(n):
             for j in range(n):
                 Gk[i, j] += 0.5 * (W[i, j] + W[j, i])
-        _mul(Ak, T1, W, False, False)
-        for i in range(n):
-            for j in range(n):
-                Ak[i, j] = W[i, j]
+        matmul(Ak, T1, W, False, False)
+        copy_matrix(W, Ak)
         hmax = _max_abs(Hk)
         if not hmax <= P_MAX or not _max_abs(Gk) <= P_MAX or not _max_abs(Ak) <= P_MAX:
             return NOT_STABILISABLE
@@ -246,25 +230,16 @@ def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
         return NOT_CONVERGED
     # the gain from H_k (slots 0-3 and 11 are free now; lq_gain uses 0-3)
     Psol = _slot(work, 11, n, n)
-    for i in range(n):
-        for j in range(n):
-            Psol[i, j] = Hk[i, j]
+    copy_matrix(Hk, Psol)
     Kt = _slot(work, 9, m, n)
     if not lq_gain(A, B, R, Psol, Kt, work):
         return NOT_STABILISABLE
     Acl = _slot(work, 4, n, n)
-    _mul(B, Kt, Acl, False, False)
-    for i in range(n):
-        for j in range(n):
-            Acl[i, j] = A[i, j] - Acl[i, j]
+    _closed_loop(A, B, Kt, Acl)
     if not schur_stable(Acl, work):
         return NOT_STABILISABLE
-    for i in range(n):
-        for j in range(n):
-            P[i, j] = Psol[i, j]
-    for i in range(m):
-        for j in range(n):
-            K[i, j] = Kt[i, j]
+    copy_matrix(Psol, P)
+    copy_matrix(Kt, K)
     return OK
 
 
@@ -317,9 +292,7 @@ def steady_state_feedforward(A, B, Q, R, K, F, work):
             if not math.isfinite(acc):
                 return False
             Mu[i, j] = acc
-    for i in range(m):
-        for j in range(n):
-            F[i, j] = Mu[i, j]
+    copy_matrix(Mu, F)
     return True
 
 
@@ -335,10 +308,7 @@ def design_checks(A, B, Q, R, K, F, safe_b_min, gain_max, work):
     if not _max_abs(B) >= safe_b_min:
         return B_SMALL
     Acl = _slot(work, 4, n, n)
-    _mul(B, K, Acl, False, False)
-    for i in range(n):
-        for j in range(n):
-            Acl[i, j] = A[i, j] - Acl[i, j]
+    _closed_loop(A, B, K, Acl)
     if not schur_stable(Acl, work):
         return NOT_STABILISABLE
     Fc = _slot(work, 10, m, n)
@@ -346,9 +316,7 @@ def design_checks(A, B, Q, R, K, F, safe_b_min, gain_max, work):
         return DC_SINGULAR
     if not (_max_abs(K) <= gain_max and _max_abs(Fc) <= gain_max):
         return GAIN_LARGE
-    for i in range(m):
-        for j in range(n):
-            F[i, j] = Fc[i, j]
+    copy_matrix(Fc, F)
     return OK
 
 

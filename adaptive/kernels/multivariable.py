@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.controller import probe_sign
+from stcgym.adaptive.kernels.controller import change_alarm, inflate_covariance, probe_sign
 from stcgym.adaptive.kernels.mimo_lq import (
     P_MAX,
     dare_solve,
@@ -234,24 +234,11 @@ def mimo_step(f, g, at, cfg, x, r, u):
             g[MIMO_INTS.n_resets] += 1
         for i in range(n):
             e2 += f[at.e + i] * f[at.e + i]
-    # -- 2. change detection: covariance resetting on a jump of the innovation variance
-    ews = f[at.ews]
-    ewl_prev = f[at.ewl]
-    if t > 0:
-        ews += cfg.ew_short * (e2 - ews)
-        f[at.ews] = ews
-        f[at.ewl] = ewl_prev + cfg.ew_long * (e2 - ewl_prev)
+    # -- 2. change detection: covariance resetting on a jump of the innovation variance (no
+    # sample at t = 0, before the first estimator update)
     closed_t = g[MIMO_INTS.closed_t]
-    if (
-        cfg.detect
-        and closed_t >= 0
-        and t - closed_t > cfg.holdoff
-        and t - g[MIMO_INTS.last_alarm] > cfg.holdoff
-        and ews > cfg.threshold * ewl_prev
-    ):
-        scale = math.sqrt(cfg.inflation)
-        for i in range(q * q):
-            f[at.S + i] *= scale
+    if change_alarm(f, at, cfg, e2, t > 0, t, closed_t, g[MIMO_INTS.last_alarm]):
+        inflate_covariance(f, at, q, cfg.inflation)
         g[MIMO_INTS.n_alarms] += 1
         g[MIMO_INTS.last_alarm] = t
         g[MIMO_INTS.fresh] = 1

@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
-from stcgym.adaptive.kernels.linalg import all_finite, invert, norm1
+from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
 from stcgym.adaptive.kernels.records import view2d, view3d
 from stcgym.envs.compiled import lane
 from stcgym.envs.validation import real_in
@@ -238,11 +238,7 @@ def controllability(A, b, Ws, Vs):
             C[i, k] = v[i]
             s += v[i] * v[i]
         norms[k] = math.sqrt(s)
-        for i in range(m):
-            acc = 0.0
-            for j in range(m):
-                acc += A[i, j] * v[j]
-            w[i] = acc
+        matvec(A, v, w)
         for i in range(m):
             v[i] = w[i]
     for k in range(m):

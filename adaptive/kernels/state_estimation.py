@@ -39,6 +39,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from stcgym.adaptive.kernels.linalg import matmul
 from stcgym.adaptive.kernels.records import view2d
 from stcgym.envs.compiled import lane
 
@@ -93,12 +94,7 @@ def kalman_step(
     n = x.shape[0]
     AP = view2d(work, 0, n, n)
     Pn = view2d(work, n * n, n, n)
-    for i in range(n):
-        for j in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += A[i, k] * P1[k, j]
-            AP[i, j] = acc
+    matmul(A, P1, AP)
     s = R + P1[0, 0]
     innov = y - x[0]
     for i in range(n):
