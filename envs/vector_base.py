@@ -578,7 +578,7 @@ class LinearPlantVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------ misc
     @property
-    def memoryper_lane(self) -> float:
+    def memory_per_lane(self) -> float:
         """Bytes of lane state (arrays and noise buffers) per lane, Python objects excluded.
 
         Examples
