@@ -121,7 +121,7 @@ def _measure(
 
 
 def frozen(T: int, seeds: int) -> None:
-    """How well ``health["frozen"]`` marks wrong estimates (see stcgym.adaptive.recursive)."""
+    """How well ``health["frozen"]`` marks wrong estimates (see stcgym.adaptive.health)."""
     from stcgym.adaptive import make_estimator
     from stcgym.envs.canonical import canonical_matrices
 

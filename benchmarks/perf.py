@@ -9,7 +9,7 @@ Run from the repository root::
 Every row is measured in this run; ratios are to the naive loop of the same run, so they stay
 meaningful on a loaded machine (absolute numbers do not).
 
-* ``naive``: ``gym.make`` env step + :func:`~stcgym.adaptive.recursive.make_estimator`
+* ``naive``: ``gym.make`` env step + :func:`~stcgym.adaptive.make_estimator`
   KF-MILS (p = 5) + ``control.place`` on the integral-augmented estimated model every step;
 * ``predict``: ``SelfTuningController(2).predict(obs)`` through the Python API (one call per
   step, plant in numpy);
@@ -55,8 +55,8 @@ def _naive(steps: int) -> float:
     import gymnasium as gym
 
     import stcgym.envs  # noqa: F401 - registers the envs
+    from stcgym.adaptive import make_estimator
     from stcgym.adaptive.placement import augment_integral
-    from stcgym.adaptive.recursive import make_estimator
     from stcgym.envs.canonical import companion_A
 
     env = gym.make("stcgym/ObserverCanonical-v0", plant="stable2", noise_std=0.1)
