@@ -108,8 +108,9 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--agents",
-        help=f"comma list of {','.join([*ALGORITHMS, *CONTROLLERS])} (quick default: "
-        f"{','.join(QUICK['agents'])}; full: {','.join(FULL['agents'])}); the oracle is "
+        # ", " so that argparse can wrap the lists between names
+        help=f"comma list of {', '.join([*ALGORITHMS, *CONTROLLERS])} (quick default: "
+        f"{', '.join(QUICK['agents'])}; full: {', '.join(FULL['agents'])}); the oracle is "
         "always evaluated",
     )
     rule = PlateauRule()

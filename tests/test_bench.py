@@ -385,7 +385,7 @@ def test_bare_bench_runs_the_quick_preset_that_help_describes(monkeypatch, capsy
     with pytest.raises(SystemExit):
         main(["bench", "--help"])
     help_text = " ".join(capsys.readouterr().out.split())
-    assert f"quick default: {','.join(QUICK['agents'])}" in help_text
+    assert f"quick default: {', '.join(QUICK['agents'])}" in help_text
     assert "estimate is printed first" in help_text  # --full announces its time
     # the stopping rule is stated in --help
     assert "has not improved on its best by more than 5 % in 3 consecutive" in help_text

@@ -196,6 +196,11 @@ def test_quick_leaves_mimo_out_and_standard_and_full_run_it():
     assert [s.name for s in make_scenarios(full) if s.kind == "mimo"] == [
         f"mimo:{p}" for p in mimo_plant_names()
     ]
+    # every tier's default agents include the multivariable controller the scenario is for
+    for cfg in (quick, with_mimo, standard, full):
+        assert "stc_mimo" in cfg.agents
+    mimo = next(s for s in make_scenarios(standard) if s.kind == "mimo")
+    assert {"stc_mimo", "oracle"} <= set(controllers_for(standard.classical, mimo.env))
 
 
 def test_mimo_env_spec_round_trips_and_rejects_what_it_cannot_run():

@@ -82,6 +82,7 @@ class BenchConfig:
             "stc",
             "stc_lq",
             "stc_kfmils",
+            "stc_mimo",
             "oracle",
             "lqg",
         ]
@@ -180,7 +181,8 @@ QUICK = dict(
     scenarios=list(QUICK_SCENARIOS),
     plants=["stable2"],
     jumps=["timevarying2"],
-    agents=["ppo", "sac", "rppo", "stc", "stc_lq", "stc_kfmils", "oracle", "lqg"],
+    # stc_mimo runs in the mimo scenario only, the others in the SISO ones only
+    agents=["ppo", "sac", "rppo", "stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg"],
     train_seeds=3,
     seeds=5,
     episode_steps=1000,
@@ -193,7 +195,10 @@ FULL = dict(
     mimo_plants=mimo_plant_names(),
     plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4"],
     jumps=["timevarying2", "stable2:unstable2"],
-    agents=["ppo", "sac", "td3", "a2c", "rppo", "stc", "stc_lq", "stc_kfmils", "oracle", "lqg"],
+    agents=[
+        *("ppo", "sac", "td3", "a2c", "rppo"),
+        *("stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg"),
+    ],
     train_seeds=5,
     seeds=20,
     episode_steps=2000,
