@@ -74,7 +74,7 @@ class EstimatorOptions:
       output injection of ``"filtered"`` for the first 50 steps, then 40 % of it, so that the
       regressor keeps 60 % of the model's noise-free prediction (the whole injection turns the
       estimator into least squares on the measured outputs, which output noise biases: on
-      ``lightly_damped2`` ``O-RLS`` cost 1.95x the oracle with it, 1.37x with these settings;
+      ``lightly_damped2`` ``O-RLS`` cost 1.97x the oracle with it, 1.40x with these settings;
       without a warm-up the partial injection loses a sixth of the random family from
       ``theta = 0``). Chosen with ``benchmarks/startup.py`` on 300 random plants and the
       catalogue; tried: ``injection`` 0.3 / 0.4 / 0.5 / 0.8 / 1 after 50 or 100 steps, 0.4

@@ -472,12 +472,10 @@ def _caps(cfg: Any) -> str:
 
 
 def _rule(cfg: Any) -> str:
-    from stcgym.agents.rl.stopping import PlateauRule
-
     intervals = ", ".join(
         f"{a} {c.get('eval_interval')}" for a, c in getattr(cfg, "algo_configs", {}).items()
     )
-    rule = PlateauRule(cfg.min_improvement, cfg.patience, cfg.min_train_fraction)
+    rule = cfg.plateau
     return rule.describe("eval_interval") + f" (eval_interval: {intervals or '-'})"
 
 
