@@ -48,7 +48,13 @@ myst_heading_anchors = 3
 # API reference: one page per public name, generated from the docstrings at build time
 autosummary_generate = True
 autosummary_imported_members = True
-autodoc_default_options = {"members": True, "inherited-members": False, "show-inheritance": True}
+# members inherited from a base class are not documented again on a subclass's page (an explicit
+# "inherited-members": False here would also switch off the option where a page asks for it),
+# except for the classes named in "documented_bases", whose public attributes live partly in a
+# base class of their own: their pages list them all (_templates/autosummary/class.rst)
+autodoc_default_options = {"members": True, "show-inheritance": True}
+templates_path = ["_templates"]
+autosummary_context = {"documented_bases": ["RecursiveEstimator"]}
 autodoc_typehints = "none"  # numpydoc's Parameters sections carry the types
 autoclass_content = "class"
 numpydoc_show_class_members = False

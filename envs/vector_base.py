@@ -2,7 +2,8 @@
 
 The lanes, resets, autoreset, stepping and infos that :mod:`stcgym.envs.vector`'s concrete
 environments share (see that module for the equivalence with single environments); the
-per-lane streams and argument checks are in :mod:`stcgym.envs.lanes`.
+per-lane streams and argument checks are in :mod:`stcgym.envs.lanes`, the lanes' time-varying
+schedules in :mod:`stcgym.envs.lane_schedules`.
 """
 
 from __future__ import annotations
@@ -20,15 +21,14 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.envs import dynamics
+from stcgym.envs.lane_schedules import LaneSchedules
 from stcgym.envs.lanes import (
     NOISE_BUFFER_BYTES,
     STREAM_DRAW,
     STREAM_REF,
-    STREAM_SCHED,
     STREAM_V,
     STREAM_W,
     LaneNormals,
-    advance_schedules,
     episode_streams,
     lane_actions,
     lane_seeds,
@@ -37,13 +37,12 @@ from stcgym.envs.lanes import (
     vector_arguments,
 )
 from stcgym.envs.plants import LinearPlantEnv
-from stcgym.envs.signals import NEVER, Schedule
+from stcgym.envs.signals import Schedule
 from stcgym.envs.validation import non_negative as _non_negative
 
 __all__ = ["LinearPlantVectorEnv", "USER_SCHEDULE"]
 
 USER_SCHEDULE = "user schedule"  #: key of the schedule given to the constructor
-_NEVER = NEVER
 
 
 class LinearPlantVectorEnv(VectorEnv):
@@ -169,13 +168,8 @@ class LinearPlantVectorEnv(VectorEnv):
         for ref in self.reference:
             ref.allocate(B)
         self._random_refs = any(r.random for r in self.reference)
-        # Time-varying schedules: objects holding their lanes' state, keyed like _schedule_key;
-        # `_schedule_id[i]` is lane i's (-1: constant) and `_next_change[i]` the first step at
-        # which lane i's parameters must be re-read.
-        self._schedules: list[Schedule] = []
-        self._schedule_keys: dict[Hashable, int] = {}
-        self._schedule_id = np.full(B, -1, dtype=np.int64)
-        self._next_change = np.full(B, _NEVER, dtype=np.int64)
+        # Time-varying schedules: objects holding their lanes' state (see _make_schedule).
+        self._lane_schedules = LaneSchedules(B)
         self._started = False
         self._obs = np.zeros((B, 2 * p))
         self._init_params()
@@ -218,21 +212,6 @@ class LinearPlantVectorEnv(VectorEnv):
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:
         raise NotImplementedError
-
-    # ------------------------------------------------------------------ schedules
-    def _schedule_index(self, key: Hashable) -> int:
-        if key not in self._schedule_keys:
-            sched = self._make_schedule(key)
-            sched.allocate(self.num_envs)
-            self._schedule_keys[key] = len(self._schedules)
-            self._schedules.append(sched)
-        return self._schedule_keys[key]
-
-    def _update_schedules(self) -> None:
-        """Re-read the parameters of lanes whose schedule may have changed at their step."""
-        advance_schedules(
-            self._schedules, self._schedule_id, self.t, self.params, self._next_change
-        )
 
     # ------------------------------------------------------------------ resets
     def _check_options(self, options: dict[str, Any]) -> tuple[Any, NDArray | None, float | None]:
@@ -292,22 +271,9 @@ class LinearPlantVectorEnv(VectorEnv):
         nominal, keys = self._nominal(idx, parsed, draw)
 
         # Schedules: params(0) and the first step at which they may change again.
-        params = np.array(nominal, dtype=float, copy=True)
-        self._schedule_id[idx] = -1
-        self._next_change[idx] = _NEVER
-        for key in {key for key in keys if key is not None}:
-            rows = np.array([j for j, kj in enumerate(keys) if kj == key], dtype=np.int64)
-            lanes = idx[rows]
-            s = self._schedule_index(key)
-            sched = self._schedules[s]
-            rngs = [episode_streams(entropy[j], [STREAM_SCHED])[0] for j in rows]
-            sched.reset_lanes(lanes, params[rows], rngs)
-            zero = np.zeros(len(lanes), dtype=np.int64)
-            params[rows] = sched.values(zero, lanes)
-            if sched.time_varying:
-                self._schedule_id[lanes] = s
-                self._next_change[lanes] = sched.next_change(zero, lanes)
-        self.params[idx] = params
+        self.params[idx] = self._lane_schedules.start(
+            idx, nominal, keys, entropy, self._make_schedule
+        )
 
         if x0 is not None:
             self.x[idx] = x0[idx]
@@ -451,7 +417,7 @@ class LinearPlantVectorEnv(VectorEnv):
         self._step_lanes(u_raw, z_w, z_v, r)
         self.n_clipped += self._clipped
         self.t += 1
-        self._update_schedules()
+        self._lane_schedules.advance(self.t, self.params)
         rewards = self._reward.copy()
         terminated = self._diverged.copy()
         if self.max_episode_steps is not None:
@@ -530,7 +496,6 @@ class LinearPlantVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before lookahead()")
         T, B, n, p = int(steps), self.num_envs, self.n_states, self.n_outputs
         refs = copy.deepcopy(self.reference)
-        scheds = copy.deepcopy(self._schedules)
         v, w = copy.deepcopy(self._v), copy.deepcopy(self._w)
         out: dict[str, Any] = {
             "r": np.empty((B, T, p)),
@@ -538,22 +503,15 @@ class LinearPlantVectorEnv(VectorEnv):
             "z_w": np.zeros((B, T, n)),
             "params": None,
         }
-        varying = bool((self._schedule_id >= 0).any())
-        if varying:
-            out["params"] = np.empty((B, T, *self.params.shape[1:]))
-        params = self.params.copy()
-        next_change = self._next_change.copy()
         for j in range(T):
-            k = self.t + j
             for c, ref in enumerate(refs):
-                out["r"][:, j, c] = ref.values(k + 1)
+                out["r"][:, j, c] = ref.values(self.t + j + 1)
             if v is not None:
                 out["z_v"][:, j] = v.take()
             if w is not None:
                 out["z_w"][:, j] = w.take()
-            if varying:
-                advance_schedules(scheds, self._schedule_id, k, params, next_change)
-                out["params"][:, j] = params
+        if self._lane_schedules.varying:
+            out["params"] = self._lane_schedules.lookahead(self.t, self.params, T)
         return out
 
     # ------------------------------------------------------------------ infos
@@ -593,9 +551,9 @@ class LinearPlantVectorEnv(VectorEnv):
         arrays = [
             self.x, self.t, self.y_clean, self.n_clipped, self._u, self._y, self._reward,
             self._clipped, self._diverged, self._terminated, self._truncated, self._needs_reset,
-            self._from_options, self._schedule_id, self._next_change, self.params, self._obs,
+            self._from_options, self.params, self._obs,
         ]  # fmt: skip
-        total = sum(a.nbytes for a in arrays)
+        total = sum(a.nbytes for a in arrays) + self._lane_schedules.nbytes
         total += sum(s.nbytes for s in (self._v, self._w) if s is not None)
         return total / self.num_envs
 

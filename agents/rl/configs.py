@@ -42,7 +42,8 @@ a string otherwise; dotted keys reach into dicts (``ppo.policy_kwargs.net_arch=[
 
     stcgym bench --quick --hp ppo.learning_rate=3e-4 --hp sac.hyperparams.batch_size=128
 
-A key that is neither a config field nor a constructor argument of the algorithm is an error.
+A key that is neither a config field nor a constructor argument of the algorithm is an error;
+every value is checked by the rules of :mod:`stcgym.agents.rl.config_rules`.
 """
 
 from __future__ import annotations
@@ -50,10 +51,10 @@ from __future__ import annotations
 import ast
 import copy
 import inspect
-import math
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
+
+from stcgym.agents.rl.config_rules import HYPERPARAMETER_RULES, RESERVED_ARGS, validate_config
 
 __all__ = [
     "ALGORITHMS",
@@ -82,19 +83,6 @@ ALGORITHMS: dict[str, str] = {
 #: family, never on one plant, and evaluated where adaptation is asked for (held-out plants,
 #: parameter jumps): the meta-RL recipe, where the memory must identify the plant in context.
 RECURRENT_ALGORITHMS: tuple[str, ...] = ("rppo",)
-
-#: Keyword arguments the bench sets itself; ``--hp`` may not touch them.
-RESERVED_ARGS: dict[str, str] = {
-    "tensorboard_log": "use --tensorboard-log DIR",
-    "verbose": "set by the bench",
-    "seed": "use --train-seeds",
-    "device": "the bench trains on the CPU",
-    "env": "set by the bench",
-    "policy": "use ALGO.policy (a config field)",
-    "action_noise": "use ALGO.noise_std",
-    "replay_buffer_class": "not configurable from the command line",
-    "replay_buffer_kwargs": "not configurable from the command line",
-}
 
 
 def algorithm_class(algo: str) -> type:
@@ -461,146 +449,3 @@ def _check(cfg: AlgoConfig, text: str) -> None:
         validate_config(cfg)
     except ValueError as exc:
         raise ValueError(f"--hp {text!r}: {exc}") from None
-
-
-# ------------------------------------------------------------------------------ value rules
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _rule(check: Callable[[Any], bool], expected: str) -> tuple[Callable[[Any], bool], str]:
-    return check, expected
-
-
-_POSITIVE = _rule(lambda v: _is_num(v) and v > 0, "a positive number")
-_NONNEG = _rule(lambda v: _is_num(v) and v >= 0, "a number >= 0")
-_UNIT = _rule(lambda v: _is_num(v) and 0 <= v <= 1, "a number in [0, 1]")
-_DISCOUNT = _rule(lambda v: _is_num(v) and 0 < v <= 1, "a number in (0, 1]")
-_COUNT = _rule(lambda v: _is_int(v) and v >= 1, "an integer >= 1")
-_COUNT0 = _rule(lambda v: _is_int(v) and v >= 0, "an integer >= 0")
-_BOOL = _rule(lambda v: isinstance(v, bool), "True or False")
-_OPT_POSITIVE = _rule(lambda v: v is None or (_is_num(v) and v > 0), "None or a positive number")
-
-
-def _train_freq(v: Any) -> bool:
-    if _is_int(v):
-        return v >= 1
-    return (
-        isinstance(v, (list, tuple))
-        and len(v) == 2
-        and _is_int(v[0])
-        and v[0] >= 1
-        and v[1] in ("step", "episode")
-    )
-
-
-def _ent_coef(v: Any) -> bool:
-    if isinstance(v, str) and (v == "auto" or v.startswith("auto_")):
-        try:
-            return v == "auto" or float(v[5:]) > 0
-        except ValueError:
-            return False
-    return _is_num(v) and v >= 0
-
-
-#: What each constructor argument must be (SB3's own rules, checked before anything starts:
-#: SB3 asserts some of them only when the model is built or, like ``batch_size=0``, not at all).
-HYPERPARAMETER_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "learning_rate": _POSITIVE,
-    "gamma": _DISCOUNT,
-    "gae_lambda": _UNIT,
-    "tau": _DISCOUNT,
-    "clip_range": _POSITIVE,
-    "clip_range_vf": _OPT_POSITIVE,
-    "ent_coef": _rule(_ent_coef, "a number >= 0 (SAC also 'auto' or 'auto_<init>')"),
-    "vf_coef": _NONNEG,
-    "max_grad_norm": _POSITIVE,
-    "batch_size": _COUNT,
-    "n_steps": _COUNT,
-    "n_epochs": _COUNT,
-    "buffer_size": _COUNT,
-    "learning_starts": _COUNT0,
-    "train_freq": _rule(_train_freq, "an integer >= 1 or [N, 'step'|'episode']"),
-    "gradient_steps": _rule(lambda v: _is_int(v) and (v >= 1 or v == -1), "an integer >= 1 or -1"),
-    "policy_delay": _COUNT,
-    "target_policy_noise": _NONNEG,
-    "target_noise_clip": _NONNEG,
-    "target_update_interval": _COUNT,
-    "target_entropy": _rule(lambda v: v == "auto" or _is_num(v), "'auto' or a number"),
-    "target_kl": _OPT_POSITIVE,
-    "use_sde": _BOOL,
-    "use_sde_at_warmup": _BOOL,
-    "sde_sample_freq": _rule(lambda v: _is_int(v) and v >= -1, "an integer >= -1"),
-    "normalize_advantage": _BOOL,
-    "use_rms_prop": _BOOL,
-    "rms_prop_eps": _POSITIVE,
-    "optimize_memory_usage": _BOOL,
-    "stats_window_size": _COUNT,
-    "policy_kwargs": _rule(lambda v: isinstance(v, dict), "a dict"),
-}
-
-#: What each :class:`AlgoConfig` field must be.
-FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "n_envs": _COUNT,
-    "normalize_reward": _BOOL,
-    "reward_scale": _POSITIVE,
-    "cost_squash": _OPT_POSITIVE,
-    "noise_std": _NONNEG,
-    "quick_steps": _COUNT,
-    "standard_steps": _COUNT,
-    "standard_family_steps": _COUNT,
-    "full_steps": _COUNT,
-    "eval_interval": _COUNT,
-    "policy": _rule(lambda v: isinstance(v, str) and bool(v), "a policy name such as MlpPolicy"),
-    "window": _rule(lambda v: isinstance(v, dict), "a dict of WindowConfig fields"),
-    "hyperparams": _rule(lambda v: isinstance(v, dict), "a dict"),
-}
-
-#: Policy names each algorithm accepts (SB3's ``policy_aliases``).
-POLICIES: dict[str, tuple[str, ...]] = {
-    "ppo": ("MlpPolicy",),
-    "a2c": ("MlpPolicy",),
-    "sac": ("MlpPolicy",),
-    "td3": ("MlpPolicy",),
-    "rppo": ("MlpLstmPolicy",),
-}
-
-
-def validate_config(cfg: AlgoConfig) -> None:
-    """Check every value of ``cfg`` against the rules above; ``ValueError`` names the key.
-
-    Beyond single values: PPO-family rollouts need ``n_steps * n_envs > 1`` and PPO's
-    minibatches ``batch_size > 1`` (SB3 asserts both only when the model is built).
-    """
-    from stcgym.agents.rl.wrappers import WindowConfig
-
-    name = cfg.algo
-    for key, (check, expected) in FIELD_RULES.items():
-        value = getattr(cfg, key)
-        if not check(value):
-            raise ValueError(f"{name}.{key} must be {expected}, got {value!r}")
-    if cfg.policy not in POLICIES.get(name, (cfg.policy,)):
-        raise ValueError(f"{name}.policy must be one of {POLICIES[name]}, got {cfg.policy!r}")
-    try:
-        WindowConfig(**cfg.window)
-    except TypeError as exc:
-        raise ValueError(f"{name}.window: {exc}") from None
-    for key, value in cfg.hyperparams.items():
-        if key in RESERVED_ARGS:
-            raise ValueError(f"{name}.{key} is not a hyperparameter ({RESERVED_ARGS[key]})")
-        rule = HYPERPARAMETER_RULES.get(key)
-        if rule is not None and not rule[0](value):
-            raise ValueError(f"{name}.{key} must be {rule[1]}, got {value!r}")
-    hp = cfg.hyperparams
-    if name in ("ppo", "a2c", "rppo") and hp.get("n_steps", 2) * cfg.n_envs < 2:
-        raise ValueError(f"{name}: n_steps * n_envs must be > 1 (SB3's rollout rule)")
-    if name in ("ppo", "rppo") and hp.get("batch_size", 2) < 2:
-        raise ValueError(f"{name}.batch_size must be > 1 (PPO normalises advantages per batch)")
-    if name == "sac" and "ent_coef" in hp and not _ent_coef(hp["ent_coef"]):
-        raise ValueError(f"{name}.ent_coef must be a number >= 0, 'auto' or 'auto_<init>'")
-    if name != "sac" and isinstance(hp.get("ent_coef"), str):
-        raise ValueError(f"{name}.ent_coef must be a number >= 0, got {hp['ent_coef']!r}")

@@ -6,8 +6,8 @@ Training (:func:`train_agent`) runs on ``n_envs`` copies of the scenario's envir
 pays for the steps it did not live), each with a SB3 ``Monitor`` on the raw environment
 (``monitor/*.monitor.csv``: raw episode returns). A callback evaluates the deterministic
 policy at log-spaced training steps through the bench's own evaluation loop, so the learning
-curve is on exactly the cost the bench reports; the curve also goes through SB3's logger
-(TensorBoard with ``tensorboard_log``). Recurrent agents (sb3-contrib ``RecurrentPPO``) go
+curve is on exactly the cost the bench reports (:mod:`stcgym.agents.rl.learning_curve`); the
+curve also goes through SB3's logger (TensorBoard with ``tensorboard_log``). Recurrent agents (sb3-contrib ``RecurrentPPO``) go
 through the same code; :class:`SB3Policy` carries their LSTM state.
 
 A saved agent is a folder with ``model.zip`` (SB3) and ``agent.json`` (algorithm, config, seed,
@@ -29,9 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.policy import LanePolicy
-from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
+from stcgym.agents.benchmark.evaluate import EnvSpec
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
-from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker, StopSummary
+from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
+from stcgym.agents.rl.stopping import PlateauRule, StopSummary
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 from stcgym.envs.validation import integer
 
@@ -165,134 +166,11 @@ class TrainedAgent:
     stop: StopSummary | None = None
 
 
-def curve_cost(policy: Any, spec: EnvSpec, seeds: Sequence[int], plants: Sequence[str]) -> float:
-    """Mean cost per step over ``seeds`` x ``plants`` (the learning-curve metric)."""
-    costs = [
-        float(np.mean(run_episode(policy, spec, s, plant=p).cost)) for p in plants for s in seeds
-    ]
-    return float(np.mean(costs))
-
-
 def _progress_bar_wanted(progress: bool | None) -> bool:
     if progress is not None:
         return progress
     # SB3's rich bar redraws in place; piped into a log file it only adds noise.
     return sys.stderr.isatty()
-
-
-def curve_checkpoints(steps: int, points: int, eval_interval: int | None = None) -> list[int]:
-    """Training steps at which the learning curve is measured.
-
-    Without ``eval_interval``: ``points`` log-spaced steps up to ``steps``. Log spacing puts as
-    many points on 1e3-1e4 steps as on 1e4-1e5, which is what the data-efficiency plot (log-x)
-    needs. With it: ``points`` log-spaced steps up to the first interval, then every
-    ``eval_interval`` steps up to ``steps`` (the evaluations of the plateau rule). Step 0 (the
-    untrained policy) is always measured too.
-    """
-    steps, points = int(steps), max(1, int(points))
-    head = steps if eval_interval is None else min(steps, int(eval_interval))
-    first = max(1, min(1000, head // (2 * points) or 1))
-    marks = np.round(np.geomspace(first, head, points)).astype(int)
-    if eval_interval is not None:
-        marks = np.concatenate([marks, np.arange(head, steps + 1, int(eval_interval))])
-    return [int(m) for m in np.unique(marks)]
-
-
-def _make_callback(
-    curve: list,
-    policy: SB3Policy,
-    checkpoints: Sequence[int],
-    evaluate_curve: Any,
-    keep_best: bool,
-    reference: float | None,
-    plateau: PlateauRule | None = None,
-    eval_interval: int | None = None,
-    cap: int = 0,
-) -> Any:
-    """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own cost.
-
-    With ``plateau``, every evaluation at a multiple of ``eval_interval`` is passed to SB3's
-    ``StopTrainingOnNoModelImprovement`` (its ``callback_after_eval``), which stops training
-    after ``plateau.patience`` evaluations without a gain of ``plateau.min_improvement``,
-    counted once ``plateau.min_fraction`` of ``cap`` (the training budget) is trained.
-    """
-    import copy
-
-    from stable_baselines3.common.callbacks import (
-        EventCallback,
-        StopTrainingOnNoModelImprovement,
-    )
-
-    tracker = None if plateau is None else PlateauTracker(plateau)
-    after_eval = (
-        None
-        if plateau is None
-        else StopTrainingOnNoModelImprovement(
-            max_no_improvement_evals=plateau.patience - 1,
-            min_evals=plateau.min_evals(cap, eval_interval),
-        )
-    )
-
-    class _Curve(EventCallback):
-        # Recorded at the start of a rollout, i.e. right after the previous policy update (PPO
-        # collects n_steps x n_envs before it learns; SAC/TD3 update after every rollout).
-        def _on_training_start(self) -> None:
-            super()._on_training_start()
-            self.best_cost, self.best_state, self.best_step = float("inf"), None, 0
-            self.tracker, self.stopped_at = tracker, None
-            self._continue = True
-            self._marks = list(checkpoints)
-            self._record()
-
-        @property
-        def best_mean_reward(self) -> float:
-            # what StopTrainingOnNoModelImprovement reads: only a gain above the minimum counts
-            return self.tracker.best_mean_reward
-
-        def _record(self) -> None:
-            cost = evaluate_curve(policy)
-            curve.append((int(self.num_timesteps), cost))
-            rule_eval = False
-            while self._marks and self._marks[0] <= self.num_timesteps:
-                mark = self._marks.pop(0)
-                rule_eval |= eval_interval is not None and mark > 0 and mark % eval_interval == 0
-            # Through SB3's logger: TensorBoard (--tensorboard-log) shows the curve next to
-            # SB3's own training statistics.
-            self.logger.record("eval/curve_cost", cost)
-            if reference is not None and reference > 0:
-                self.logger.record("eval/cost_to_oracle", cost / reference)
-            if self.tracker is not None and rule_eval:
-                self.tracker.observe(self.num_timesteps, cost)
-                self._continue = self._on_event()
-                self.logger.record("eval/plateau_reference_cost", self.tracker.reference_cost)
-                self.logger.record(
-                    "eval/evals_without_improvement", after_eval.no_improvement_evals
-                )
-                if not self._continue:
-                    self.stopped_at = int(self.num_timesteps)
-            self.logger.dump(self.num_timesteps)
-            if keep_best and cost < self.best_cost:
-                self.best_cost, self.best_step = cost, int(self.num_timesteps)
-                self.best_state = copy.deepcopy(self.model.policy.state_dict())
-
-        def _on_rollout_start(self) -> None:
-            if self._continue and self._marks and self.num_timesteps >= self._marks[0]:
-                self._record()
-
-        def _on_step(self) -> bool:
-            # SB3 stops learn() when a callback's on_step returns False
-            return self._continue
-
-        def _on_training_end(self) -> None:
-            # (after a stop the policy is the one just evaluated: no second evaluation)
-            if self.stopped_at is None and curve[-1][0] != self.num_timesteps:
-                self._record()
-            if keep_best and self.best_state is not None and self.best_cost < curve[-1][1]:
-                self.model.policy.load_state_dict(self.best_state)
-            else:
-                self.best_step = int(self.num_timesteps)
-
-    return _Curve(after_eval)
 
 
 def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor_dir: Any) -> Any:
@@ -482,7 +360,7 @@ def train_agent(
     cspec = curve_spec or train_spec
     cplants = list(curve_plants or train_spec.plants)
     curve: list[tuple[int, float]] = []
-    callback = _make_callback(
+    callback = make_curve_callback(
         curve,
         policy,
         curve_checkpoints(int(steps), curve_points, eval_interval if plateau else None),

@@ -1,0 +1,144 @@
+"""The learning curve of an RL agent: the bench's cost of the deterministic policy measured
+during training.
+
+:func:`curve_checkpoints` chooses the training steps at which the curve is measured (log-spaced,
+then every evaluation interval of the plateau rule), :func:`curve_cost` measures one point (the
+mean cost per step of the bench's own evaluation loop), and :func:`make_curve_callback` is the
+SB3 callback that records the curve during :func:`~stcgym.agents.train_agent`, stops training on
+a plateau (:mod:`stcgym.agents.rl.stopping`) and keeps the best checkpoint.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
+from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
+
+__all__ = ["curve_checkpoints", "curve_cost", "make_curve_callback"]
+
+
+def curve_cost(policy: Any, spec: EnvSpec, seeds: Sequence[int], plants: Sequence[str]) -> float:
+    """Mean cost per step over ``seeds`` x ``plants`` (the learning-curve metric)."""
+    costs = [
+        float(np.mean(run_episode(policy, spec, s, plant=p).cost)) for p in plants for s in seeds
+    ]
+    return float(np.mean(costs))
+
+
+def curve_checkpoints(steps: int, points: int, eval_interval: int | None = None) -> list[int]:
+    """Training steps at which the learning curve is measured.
+
+    Without ``eval_interval``: ``points`` log-spaced steps up to ``steps``. Log spacing puts as
+    many points on 1e3-1e4 steps as on 1e4-1e5, which is what the data-efficiency plot (log-x)
+    needs. With it: ``points`` log-spaced steps up to the first interval, then every
+    ``eval_interval`` steps up to ``steps`` (the evaluations of the plateau rule). Step 0 (the
+    untrained policy) is always measured too.
+    """
+    steps, points = int(steps), max(1, int(points))
+    head = steps if eval_interval is None else min(steps, int(eval_interval))
+    first = max(1, min(1000, head // (2 * points) or 1))
+    marks = np.round(np.geomspace(first, head, points)).astype(int)
+    if eval_interval is not None:
+        marks = np.concatenate([marks, np.arange(head, steps + 1, int(eval_interval))])
+    return [int(m) for m in np.unique(marks)]
+
+
+def make_curve_callback(
+    curve: list,
+    policy: Any,
+    checkpoints: Sequence[int],
+    evaluate_curve: Any,
+    keep_best: bool,
+    reference: float | None,
+    plateau: PlateauRule | None = None,
+    eval_interval: int | None = None,
+    cap: int = 0,
+) -> Any:
+    """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own cost.
+
+    With ``plateau``, every evaluation at a multiple of ``eval_interval`` is passed to SB3's
+    ``StopTrainingOnNoModelImprovement`` (its ``callback_after_eval``), which stops training
+    after ``plateau.patience`` evaluations without a gain of ``plateau.min_improvement``,
+    counted once ``plateau.min_fraction`` of ``cap`` (the training budget) is trained.
+    """
+    import copy
+
+    from stable_baselines3.common.callbacks import (
+        EventCallback,
+        StopTrainingOnNoModelImprovement,
+    )
+
+    tracker = None if plateau is None else PlateauTracker(plateau)
+    after_eval = (
+        None
+        if plateau is None
+        else StopTrainingOnNoModelImprovement(
+            max_no_improvement_evals=plateau.patience - 1,
+            min_evals=plateau.min_evals(cap, eval_interval),
+        )
+    )
+
+    class _Curve(EventCallback):
+        # Recorded at the start of a rollout, i.e. right after the previous policy update (PPO
+        # collects n_steps x n_envs before it learns; SAC/TD3 update after every rollout).
+        def _on_training_start(self) -> None:
+            super()._on_training_start()
+            self.best_cost, self.best_state, self.best_step = float("inf"), None, 0
+            self.tracker, self.stopped_at = tracker, None
+            self._continue = True
+            self._marks = list(checkpoints)
+            self._record()
+
+        @property
+        def best_mean_reward(self) -> float:
+            # what StopTrainingOnNoModelImprovement reads: only a gain above the minimum counts
+            return self.tracker.best_mean_reward
+
+        def _record(self) -> None:
+            cost = evaluate_curve(policy)
+            curve.append((int(self.num_timesteps), cost))
+            rule_eval = False
+            while self._marks and self._marks[0] <= self.num_timesteps:
+                mark = self._marks.pop(0)
+                rule_eval |= eval_interval is not None and mark > 0 and mark % eval_interval == 0
+            # Through SB3's logger: TensorBoard (--tensorboard-log) shows the curve next to
+            # SB3's own training statistics.
+            self.logger.record("eval/curve_cost", cost)
+            if reference is not None and reference > 0:
+                self.logger.record("eval/cost_to_oracle", cost / reference)
+            if self.tracker is not None and rule_eval:
+                self.tracker.observe(self.num_timesteps, cost)
+                self._continue = self._on_event()
+                self.logger.record("eval/plateau_reference_cost", self.tracker.reference_cost)
+                self.logger.record(
+                    "eval/evals_without_improvement", after_eval.no_improvement_evals
+                )
+                if not self._continue:
+                    self.stopped_at = int(self.num_timesteps)
+            self.logger.dump(self.num_timesteps)
+            if keep_best and cost < self.best_cost:
+                self.best_cost, self.best_step = cost, int(self.num_timesteps)
+                self.best_state = copy.deepcopy(self.model.policy.state_dict())
+
+        def _on_rollout_start(self) -> None:
+            if self._continue and self._marks and self.num_timesteps >= self._marks[0]:
+                self._record()
+
+        def _on_step(self) -> bool:
+            # SB3 stops learn() when a callback's on_step returns False
+            return self._continue
+
+        def _on_training_end(self) -> None:
+            # (after a stop the policy is the one just evaluated: no second evaluation)
+            if self.stopped_at is None and curve[-1][0] != self.num_timesteps:
+                self._record()
+            if keep_best and self.best_state is not None and self.best_cost < curve[-1][1]:
+                self.model.policy.load_state_dict(self.best_state)
+            else:
+                self.best_step = int(self.num_timesteps)
+
+    return _Curve(after_eval)
