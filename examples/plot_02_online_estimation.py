@@ -26,21 +26,29 @@ from stcgym.adaptive import make_estimator
 from stcgym.envs import get_plant
 
 T = 3000
-env = gym.make(
-    "stcgym/ObserverCanonical-v0",
-    plant="stable2",
-    noise_std=0.05,
-    reference="zero",
-    max_episode_steps=T,
-)
+
+
+def record(u, seed):
+    """The outputs ``y`` of ``stable2`` under the input record ``u``, and the last info."""
+    env = gym.make(
+        "stcgym/ObserverCanonical-v0",
+        plant="stable2",
+        noise_std=0.05,
+        reference="zero",
+        max_episode_steps=T,
+    )
+    y = np.empty(T)
+    obs, info = env.reset(seed=seed)
+    for k in range(T):
+        y[k] = obs[0]
+        obs, _, _, _, info = env.step(u[k : k + 1])
+    env.close()
+    return y, info
+
+
 rng = np.random.default_rng(0)
 u = rng.standard_normal(T)
-y = np.empty(T)
-obs, info = env.reset(seed=0)
-for k in range(T):
-    y[k] = obs[0]
-    obs, _, _, _, info = env.step(u[k : k + 1])
-env.close()
+y, info = record(u, seed=0)
 theta_true = info["theta"]
 print(f"true theta = {theta_true}, pole radius {np.abs(get_plant('stable2').poles).max():.2f}")
 
@@ -117,19 +125,7 @@ plt.show()
 # signal). With the paper's regressor the joint estimators stay far from the truth on this
 # record; the filtered regressor does not.
 u_binary = rng.choice([-1.0, 1.0], size=T)
-env = gym.make(
-    "stcgym/ObserverCanonical-v0",
-    plant="stable2",
-    noise_std=0.05,
-    reference="zero",
-    max_episode_steps=T,
-)
-y_binary = np.empty(T)
-obs, info = env.reset(seed=1)
-for k in range(T):
-    y_binary[k] = obs[0]
-    obs, _, _, _, info = env.step(u_binary[k : k + 1])
-env.close()
+y_binary, _ = record(u_binary, seed=1)
 for label, options in runs.items():
     final = make_estimator(n=2, p0=100.0, **options).run(u_binary, y_binary)[-1]
     print(f"binary input, {label:16s} relative error at t = {T}: {relative_error(final):.4f}")

@@ -8,6 +8,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from family_envs import single_family_env
 
 import stcgym.adaptive.rollout as rollout_module
 import stcgym.envs  # noqa: F401  (registers the ids)
@@ -48,18 +49,7 @@ class LaneSpec:
     def make(self) -> gym.Env:
         p, fam = self.plant, self.fam
         schedule = Jumps({fam.jump_step: np.r_[p.a_after, p.b_after]})
-        return gym.make(
-            "stcgym/ObserverCanonical-v0",
-            a=p.a,
-            b=p.b,
-            noise_std=fam["noise_std"],
-            control_cost=fam["control_cost"],
-            action_bound=fam["action_bound"],
-            y_bound=fam["y_bound"],
-            reference=fam["reference"],
-            schedule=schedule,
-            max_episode_steps=self.steps,
-        )
+        return single_family_env(fam, p, self.steps, schedule=schedule)
 
 
 def test_charge_divergence_repeats_the_last_cost_of_a_diverged_lane():

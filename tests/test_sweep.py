@@ -9,9 +9,9 @@ import subprocess
 import sys
 import time
 
-import gymnasium as gym
 import numpy as np
 import pytest
+from family_envs import single_family_env
 
 import stcgym.agents.sweeps.chunk as chunk
 import stcgym.envs  # noqa: F401
@@ -163,18 +163,7 @@ def test_closed_loop_lanes_equal_single_episodes_run_by_hand(kind, change):
             extra["schedule"] = Jumps({J: np.r_[p.a_after, p.b_after]})
         if drift is not None:
             extra["schedule"] = RandomWalk(drift["std"])
-        env = gym.make(
-            "stcgym/ObserverCanonical-v0",
-            a=p.a,
-            b=p.b,
-            noise_std=fam["noise_std"],
-            control_cost=fam["control_cost"],
-            action_bound=fam["action_bound"],
-            y_bound=fam["y_bound"],
-            reference=fam["reference"],
-            max_episode_steps=T,
-            **extra,
-        )
+        env = single_family_env(fam, p, T, **extra)
         if kind == "oracle":
             ctl = KnownModelController(p.a, p.b, action_bound=fam["action_bound"])
         else:

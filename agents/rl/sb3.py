@@ -7,8 +7,9 @@ pays for the steps it did not live), each with a SB3 ``Monitor`` on the raw envi
 (``monitor/*.monitor.csv``: raw episode returns). A callback evaluates the deterministic
 policy at log-spaced training steps through the bench's own evaluation loop, so the learning
 curve is on exactly the cost the bench reports (:mod:`stcgym.agents.rl.learning_curve`); the
-curve also goes through SB3's logger (TensorBoard with ``tensorboard_log``). Recurrent agents (sb3-contrib ``RecurrentPPO``) go
-through the same code; :class:`SB3Policy` carries their LSTM state.
+curve also goes through SB3's logger (TensorBoard with ``tensorboard_log``). Recurrent agents
+(sb3-contrib ``RecurrentPPO``) go through the same code; :class:`SB3Policy` carries their LSTM
+state.
 
 A saved agent is a folder with ``model.zip`` (SB3) and ``agent.json`` (algorithm, config, seed,
 window, training environment, steps, wall time, learning curve); :func:`load_agent` returns an
