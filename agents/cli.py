@@ -3,11 +3,11 @@
 ``stcgym bench`` (= ``stcgym bench --quick``, ``make bench``)
     The self-tuning controller, the known-model and LQG oracles and PPO, SAC and RecurrentPPO
     (3 training seeds each, trained on the spot through the task executor) on the nominal,
-    plant-family and parameter-jump scenarios; under 10 minutes on 2 CPU cores. The MIMO
-    scenario (``--scenarios ...,mimo``: the multivariable self-tuning LQ controller against
-    the LQR oracle and the window RL agents) is opt-in there.
-    ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds, and the MIMO
-    one, with the RL Zoo's training budgets as caps; ``stcgym bench --full`` is the long
+    plant-family, parameter-jump and MIMO scenarios (on the quadruple tank: the
+    multivariable self-tuning LQ controller against the LQR oracle and the window RL agents);
+    under 10 minutes on 2 CPU cores.
+    ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds, with the RL
+    Zoo's training budgets as caps; ``stcgym bench --full`` is the long
     version (all catalogue plants, every MIMO plant, TD3 and A2C too, 5 training seeds, 20
     evaluation seeds, long caps: about a day).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
@@ -74,9 +74,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--scenarios",
-        help="comma list of nominal,family,jump,mimo (quick default: "
-        f"{','.join(QUICK['scenarios'])}, so mimo is opt-in there: it would take the quick "
-        "tier past 10 minutes; standard and full: all four)",
+        help="comma list of nominal,family,jump,mimo (default: all four)",
     )
     p.add_argument(
         "--plants",
@@ -119,8 +117,8 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         help="RL training cap in env steps: N for every agent, or ppo=N,sac=M (defaults: "
         "each algorithm's quick_steps, standard_steps / standard_family_steps or full_steps "
         "in agents/rl/configs.py; on a MIMO plant in quick mode "
-        f"{QUICK_MIMO_INTERVALS} evaluation intervals, at most quick_steps); at least one "
-        "evaluation interval",
+        f"{', '.join(f'{a} {n}' for a, n in QUICK_MIMO_INTERVALS.items())} evaluation "
+        "intervals, at most quick_steps); at least one evaluation interval",
     )
     p.add_argument(
         "--patience",
@@ -190,8 +188,8 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--curve-points",
         type=int,
-        default=10,
-        help="log-spaced learning-curve points before the first evaluation interval",
+        help="log-spaced learning-curve points before the first evaluation interval (quick "
+        f"default: {QUICK['curve_points']}; standard and full: 10)",
     )
     p.add_argument(
         "--jobs",

@@ -13,12 +13,21 @@ import stcgym.agents.benchmark as benchmark
 from stcgym.agents.benchmark import METRIC_COLUMNS, BenchConfig, build_config, make_scenarios
 from stcgym.agents.benchmark import runner as runner_mod
 from stcgym.agents.benchmark.config import FULL, QUICK
-from stcgym.agents.benchmark.plan import rl_tasks
+from stcgym.agents.benchmark.plan import (
+    WORKER_START_SECONDS,
+    curve_evaluations,
+    job_weights,
+    rl_tasks,
+    schedule,
+)
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 
-# A few hundred training steps, 2 training seeds, short episodes: the whole pipeline in seconds.
+# A few hundred training steps, 2 training seeds, short episodes: the whole pipeline in seconds
+# (the SISO scenarios; tests/test_bench_mimo.py runs the mimo one).
 TINY = [
+    "--scenarios",
+    "nominal,family,jump",
     "--train-steps",
     "300",
     "--eval-interval",
@@ -297,17 +306,23 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
         "--scenarios",
         "nominal",
         "--train-seeds",
-        "1",
-        "--no-plots",
+        "2",
         "--out",
         str(tmp_path),
     ]
-    with contextlib.redirect_stderr(io.StringIO()):
-        assert main(["bench", *args, "--run", "a"]) == 0
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["bench", *args, "--run", "a", "--no-plots"]) == 0
+        # two workers train while the driver evaluates the classical controllers in a thread
+        # and, at the end, draws the plots in a process of their own next to the report
         assert main(["bench", *args, "--run", "b", "--jobs", "2"]) == 0
+    assert "plots written" in err.getvalue()
+    assert (tmp_path / "b" / "traces_nominal_stable2.png").is_file()
     a, b = _numbers(tmp_path / "a" / "metrics.csv"), _numbers(tmp_path / "b" / "metrics.csv")
-    assert len(a) == 2 * 2
-    key = lambda r: (r["scenario"], r["controller"], r["seed"])  # noqa: E731
+    assert len(a) == 2 + 2 * 2  # the oracle on 2 seeds, 2 agents on 2 seeds
+    # the rows of the classical controllers (the oracle's: every ratio needs them) come first
+    assert [r["controller"] for r in b][:2] == ["oracle", "oracle"]
+    key = lambda r: (r["scenario"], r["controller"], r["seed"], r["train_seed"])  # noqa: E731
     assert sorted(a, key=key) == sorted(b, key=key)
 
 
@@ -403,9 +418,12 @@ def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
     std, quick = seen["cfg"], build_config(run="q")
     assert std.mode == "standard"
     same = ("plants", "family_train", "family_test", "jumps", "agents", "seeds")
-    for name in (*same, "train_seeds", "first_seed", "episode_steps", "curve_seeds"):
+    for name in (*same, "train_seeds", "first_seed", "episode_steps"):
         assert getattr(std, name) == getattr(quick, name), name
-    assert std.scenarios == [*quick.scenarios, "mimo"]  # mimo is opt-in in quick only
+    # quick measures its learning curves at fewer points, on one episode per plant
+    assert (quick.curve_points, quick.curve_seeds) == (5, 1)
+    assert (std.curve_points, std.curve_seeds) == (10, 2)
+    assert std.scenarios == quick.scenarios == ["nominal", "family", "jump", "mimo"]
     # the RL Zoo's Pendulum-v1 n_timesteps as single-plant caps, 1e5-3e5 on the family
     assert std.train_steps == {"ppo": 100_000, "sac": 20_000, "rppo": 100_000}
     assert std.family_train_steps == {"ppo": 300_000, "sac": 100_000, "rppo": 100_000}
@@ -442,6 +460,7 @@ def test_stc_kfmils_is_stc_on_the_kf_mils_estimator_in_every_scenario(tmp_path):
         quick=True,
         run="kf",
         out=str(tmp_path),
+        scenarios="nominal,family,jump",  # stc_kfmils is SISO-only
         agents="stc,stc_lq,stc_kfmils,oracle,lqg",
         seeds=2,
         episode_steps=120,
@@ -526,3 +545,30 @@ def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
     assert [r["scenario"] for r in rows] == ["nominal:stable2"] * 4 + ["family:lightly_damped2"] * 2
     assert all(r["cost"] for r in rows)
     assert "INTERRUPTED" in (tmp_path / "int" / "report.md").read_text()
+
+
+def test_curve_evaluations_count_the_points_each_training_measured(tiny_run):
+    run = tiny_run[0]
+    cfg = BenchConfig.from_dict(json.loads((run / "config.json").read_text())["bench"])
+    _, curves = _rows(run / "learning_curves.csv")
+    measured = {}
+    for r in curves:
+        key = (r["train_env"], r["algo"], int(r["train_seed"]))
+        measured[key] = measured.get(key, 0) + 1
+    tasks = rl_tasks(cfg, make_scenarios(cfg), {}, {})
+    assert {(t["train_key"], t["algo"], t["seed"]): curve_evaluations(t) for t in tasks} == measured
+
+
+def test_schedule_gives_each_job_to_the_first_free_worker():
+    # jobs in the order given: 5 -> A, 4 -> B, 3 -> B (B free first), 3 -> A, 3 -> B
+    s = WORKER_START_SECONDS
+    assert schedule([5, 4, 3, 3, 3], 2) == [s + 5 + 3, s + 4 + 3 + 3]
+    assert schedule([7], 2) == [s + 7] and schedule([], 2) == []
+    # longest first: the quick tier's RL jobs end within one short job of each other
+    cfg = build_config(run="q")
+    tasks = rl_tasks(cfg, make_scenarios(cfg), {}, {})
+    weights = job_weights(cfg, [], tasks)
+    cost = [weights[("rl", t["name"])] for t in tasks]
+    assert cost == sorted(cost, reverse=True)
+    busy = schedule(cost, 2)
+    assert max(busy) - min(busy) <= min(cost)

@@ -18,6 +18,7 @@ from stcgym.agents.benchmark import build_config, make_scenarios
 from stcgym.agents.benchmark.config import FULL, QUICK
 from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
 from stcgym.agents.benchmark.mimo import MimoEnvSpec
+from stcgym.agents.benchmark.plan import rl_tasks
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import controllers_for
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, WindowConfig
@@ -180,14 +181,24 @@ def test_controllers_run_only_on_the_plants_they_declare():
     assert controllers_for(names, EnvSpec("stable2")) == names[:5]
 
 
-def test_quick_leaves_mimo_out_and_standard_and_full_run_it():
+def test_every_tier_runs_mimo_and_quick_stays_under_its_ten_minutes():
     quick = build_config(run="q")
-    assert "mimo" not in quick.scenarios and QUICK["scenarios"] == quick.scenarios
-    with_mimo = build_config(run="q", scenarios="nominal,family,jump,mimo")
-    # the reason mimo is opt-in at the quick tier: it takes the estimate past 10 minutes
-    assert benchmark.estimate_seconds(quick) <= 10 * 60 < benchmark.estimate_seconds(with_mimo)
-    # RL on a MIMO plant at the quick tier: two evaluation intervals
-    assert with_mimo.mimo_train_steps == {"ppo": 2 * 10240, "sac": 2 * 2000}
+    assert quick.scenarios == QUICK["scenarios"] == ["nominal", "family", "jump", "mimo"]
+    assert quick.mimo_plants == ["quadruple_tank"]
+    assert benchmark.estimate_seconds(quick) <= 10 * 60
+    # RL on a MIMO plant at the quick tier: PPO two evaluation intervals, SAC one
+    assert quick.mimo_train_steps == {"ppo": 2 * 10240, "sac": 2000}
+    # the RL agents meet the episodes of the classical controllers: same env, seeds, reference
+    scenarios = make_scenarios(quick)
+    mimo = next(s for s in scenarios if s.kind == "mimo")
+    tasks = [t for t in rl_tasks(quick, scenarios, {}, {}) if t["train_key"] == mimo.train_key]
+    assert sorted((t["algo"], t["seed"]) for t in tasks) == [
+        (a, s) for a in ("ppo", "sac") for s in range(quick.train_seeds)
+    ]
+    for t in tasks:
+        (ev,) = t["evaluations"]
+        assert ev["env"] == mimo.env.to_dict() and ev["seeds"] == quick.eval_seeds
+    assert {"stc_mimo", "oracle"} == set(controllers_for(quick.classical, mimo.env))
     standard = build_config(mode="standard", run="s")
     assert "mimo" in standard.scenarios and standard.mimo_plants == ["quadruple_tank"]
     assert standard.mimo_train_steps == {"ppo": 100_000, "sac": 20_000}  # single-plant caps
@@ -197,7 +208,7 @@ def test_quick_leaves_mimo_out_and_standard_and_full_run_it():
         f"mimo:{p}" for p in mimo_plant_names()
     ]
     # every tier's default agents include the multivariable controller the scenario is for
-    for cfg in (quick, with_mimo, standard, full):
+    for cfg in (quick, standard, full):
         assert "stc_mimo" in cfg.agents
     mimo = next(s for s in make_scenarios(standard) if s.kind == "mimo")
     assert {"stc_mimo", "oracle"} <= set(controllers_for(standard.classical, mimo.env))

@@ -4,10 +4,13 @@ Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their ch
 :mod:`~stcgym.agents.benchmark.scenarios` (scenarios and RL training environments),
 :mod:`~stcgym.agents.benchmark.mimo` (the MIMO scenario and its environment),
 :mod:`~stcgym.agents.benchmark.plan` (the RL jobs and the ETA),
-:mod:`~stcgym.agents.benchmark.runner` (the run and ``metrics.csv``),
+:mod:`~stcgym.agents.benchmark.runner` (the run),
+:mod:`~stcgym.agents.benchmark.rundir` (the run folder, the checks before any work),
+:mod:`~stcgym.agents.benchmark.metrics_csv` (``metrics.csv``),
 :mod:`~stcgym.agents.benchmark.evaluate` (closed-loop evaluation, per-episode metrics),
 :mod:`~stcgym.agents.benchmark.response` (metrics relative to the oracle),
 :mod:`~stcgym.agents.benchmark.statistics` (interval estimates),
+:mod:`~stcgym.agents.benchmark.headline` (the report's estimates),
 :mod:`~stcgym.agents.benchmark.report` and :mod:`~stcgym.agents.benchmark.plots` (output).
 
 Scenarios
@@ -27,8 +30,7 @@ Scenarios
 ``mimo:P``
     The MIMO catalogue plant ``P`` (``mimo_plants``) with measured state: the multivariable
     self-tuning LQ controller against the LQR oracle on the true ``(A, B)`` and the window
-    agents trained on ``P``; the SISO-only controllers are left out. Part of the standard and
-    full tiers, opt-in at the quick one.
+    agents trained on ``P``; the SISO-only controllers are left out. Part of every tier.
 
 Recurrent agents (``rppo``, sb3-contrib's RecurrentPPO: the adaptive-RL baseline) are trained on
 the plant family only and evaluated on the ``family`` and ``jump`` scenarios.
@@ -56,19 +58,22 @@ only; ``oracle`` is :class:`~stcgym.adaptive.LQRController` there).
 
 Tiers
 -----
-``quick`` (the default, about 10 minutes on 2 cores; ``mimo`` only when asked), ``standard``
-(the quick scenarios and ``mimo``, the same seeds and statistics with the RL Zoo's tuned
-budgets as caps: about an hour) and ``full`` (every plant and agent, more seeds, long caps:
-about a day). In every tier each RL agent trains until
+``quick`` (the default, under 10 minutes on 2 cores), ``standard`` (the same scenarios, seeds
+and statistics with the RL Zoo's tuned budgets as caps: about an hour) and ``full`` (every
+plant and agent, more seeds, long caps: about a day). In every tier each RL agent trains until
 its learning curve plateaus or it reaches its cap (:mod:`stcgym.agents.rl.stopping`), and the
 report says which, per scenario, agent and training seed.
 
 Execution
 ---------
-The classical controllers run in the driver first (seconds). Every RL training job (training
-env x agent x seed) is a JSON task (:mod:`stcgym.agents.rl.training`) run by the executor of
-:mod:`stcgym.agents.executors` (``jobs`` local processes, or Ray), longest first; the driver
-writes every result as the jobs finish and logs ``job k/N, ETA`` for the whole run. Each
+Every RL training job (training env x agent x seed) is a JSON task
+(:mod:`stcgym.agents.rl.training`) run by the executor of :mod:`stcgym.agents.executors`
+(``jobs`` local processes, or Ray), longest first by its estimated cost
+(:mod:`~stcgym.agents.benchmark.plan`); meanwhile the driver evaluates the classical
+controllers in a thread (when the jobs run in this process, it does so first). The driver
+writes every result as the jobs finish (the RL rows once the oracle's are in) and logs
+``job k/N, ETA`` for the whole run; the plots are drawn in a process of their own while the
+driver writes the report. Each
 finished job's result is kept in ``jobs/<id>.json``: ``run_bench(cfg, resume=True)``
 (``stcgym bench --resume RUN_DIR``) reads those back instead of training them again.
 

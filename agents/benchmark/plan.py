@@ -17,54 +17,123 @@ from stcgym.agents.rl.configs import AlgoConfig
 
 __all__ = [
     "SECONDS_PER_EVAL_STEP",
+    "SECONDS_PER_POLICY_STEP",
     "SECONDS_PER_STEP",
     "JobProgress",
+    "curve_evaluations",
     "estimate_seconds",
     "format_duration",
     "job_weights",
+    "reference_weights",
     "rl_tasks",
+    "schedule",
 ]
 
 
-#: Rough CPU seconds per training env step on the 2-core development machine when nothing
-#: else runs (torch on one thread; PPO 30k, SAC 1.5k and RecurrentPPO 4k steps timed with
-#: start-up included); only the ETA and the announced estimate use them. With the other
-#: core busy too each takes 2-3x as long; the ETA rescales by the jobs already finished.
-SECONDS_PER_STEP = {"ppo": 2.0e-3, "a2c": 2.0e-3, "sac": 7.0e-3, "td3": 6.5e-3, "rppo": 5.5e-3}
-#: Seconds per evaluated controller step (python loop).
+#: CPU seconds per training env step on the 2-core development machine, the other core busy
+#: with the other worker (torch on one thread; fitted to the per-job wall times of quick runs:
+#: PPO 40 960, SAC 6 000 and RecurrentPPO 15 360 steps, their learning-curve and evaluation
+#: episodes counted apart). Only the schedule, the ETA and the announced estimate use them.
+SECONDS_PER_STEP = {"ppo": 0.9e-3, "a2c": 0.9e-3, "sac": 9.0e-3, "td3": 8.5e-3, "rppo": 4.7e-3}
+#: Seconds per step of an RL policy in a learning-curve or evaluation episode (SB3's predict
+#: in the python loop; the LSTM of RecurrentPPO costs about twice as much).
+SECONDS_PER_POLICY_STEP = {"rppo": 0.8e-3}
+DEFAULT_POLICY_STEP = 0.45e-3
+#: Seconds per evaluated step of a classical controller (python loop): SISO plants, and MIMO
+#: ones (the self-tuning LQ controller solves its Riccati equation every step).
 SECONDS_PER_EVAL_STEP = 1.5e-4
+SECONDS_PER_MIMO_EVAL_STEP = 1.6e-3
+#: A worker's start: a fresh process importing torch, SB3 and the compiled kernels.
+WORKER_START_SECONDS = 4.0
+#: Plots and report per scenario (they are written side by side when ``jobs > 1``).
+OUTPUT_SECONDS_PER_SCENARIO = 2.5
+
+
+def _eval_step_seconds(spec: EnvSpec) -> float:
+    return SECONDS_PER_MIMO_EVAL_STEP if spec.plant_kind == "mimo" else SECONDS_PER_EVAL_STEP
+
+
+def curve_evaluations(task: dict[str, Any]) -> int:
+    """How many learning-curve evaluations an RL job runs at its cap: step 0, then the first
+    rollout boundary at or after each checkpoint (checkpoints inside one rollout share it)."""
+    from stcgym.agents.rl.sb3 import curve_checkpoints
+
+    config = task["config"]
+    hp = config["hyperparams"]
+    step = hp.get("n_steps", hp.get("train_freq", 1))  # (train_freq may be (n, "episode"))
+    per_rollout = max(1, (step if isinstance(step, int) else 1) * int(config.get("n_envs", 1)))
+    marks = curve_checkpoints(task["steps"], task["curve_points"], config["eval_interval"])
+    boundaries = {-(-m // per_rollout) * per_rollout for m in marks if m > 0}
+    return 1 + len(boundaries)
 
 
 def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence[dict]) -> dict:
     """Estimated seconds of every job, RL jobs at their cap (the plateau rule may stop them
-    earlier; the ETA then adapts)."""
-    from stcgym.agents.rl.sb3 import curve_checkpoints
-
-    classical = cfg.seeds * cfg.episode_steps * SECONDS_PER_EVAL_STEP
-    episode = cfg.curve_seeds * cfg.train_episode_steps * SECONDS_PER_EVAL_STEP
+    earlier; the ETA then adapts): training steps, learning-curve episodes and evaluation
+    episodes of the policy, classical controllers on the scenarios."""
     out = {
-        ("classical", sc.name): classical * len(controllers_for(cfg.classical, sc.env))
+        ("classical", sc.name): cfg.seeds
+        * cfg.episode_steps
+        * _eval_step_seconds(sc.env)
+        * len(controllers_for(cfg.classical, sc.env))
         for sc in scenarios
     }
     for t in tasks:
-        plants = len(t["curve_env"]["plants"])
-        interval = t["config"]["eval_interval"]
-        curve = 1 + len(curve_checkpoints(t["steps"], cfg.curve_points, interval))
-        evals = sum(len(e["seeds"]) for e in t["evaluations"]) * cfg.episode_steps
-        out[("rl", t["name"])] = (
-            t["steps"] * SECONDS_PER_STEP.get(t["algo"], 5e-3)
-            + curve * episode * plants
-            + evals * 2 * SECONDS_PER_EVAL_STEP
-        )
+        policy_step = SECONDS_PER_POLICY_STEP.get(t["algo"], DEFAULT_POLICY_STEP)
+        curve_env = t["curve_env"]
+        curve_steps = len(t["curve_seeds"]) * len(curve_env["plants"]) * curve_env["steps"]
+        evals = sum(len(e["seeds"]) * e["env"]["steps"] for e in t["evaluations"])
+        train = t["steps"] * SECONDS_PER_STEP.get(t["algo"], 5e-3)
+        out[("rl", t["name"])] = train + policy_step * (curve_evaluations(t) * curve_steps + evals)
     return out
 
 
+def schedule(weights: Sequence[float], jobs: int) -> list[float]:
+    """Each worker's busy seconds when ``jobs`` workers take the jobs in the given order, the
+    next job going to the first free worker (as the process pool does), each worker paying
+    :data:`WORKER_START_SECONDS` once."""
+    workers = [WORKER_START_SECONDS] * max(1, min(int(jobs), len(weights)))
+    for w in weights:
+        i = min(range(len(workers)), key=workers.__getitem__)
+        workers[i] += w
+    return workers if weights else []
+
+
+def reference_weights(cfg: BenchConfig, envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> dict:
+    """Estimated seconds of the reference runs (classical controllers on the learning-curve
+    episodes of every RL training env)."""
+    return {
+        ("reference", key): len(controllers_for(cfg.classical, curve))
+        * cfg.curve_seeds
+        * len(curve.plants)
+        * curve.steps
+        * _eval_step_seconds(curve)
+        for key, (_, curve) in envs.items()
+    }
+
+
 def estimate_seconds(cfg: BenchConfig) -> float:
-    """Rough wall time of ``cfg`` on ``cfg.jobs`` cores (announced before long runs)."""
+    """Rough wall time of ``cfg`` on ``cfg.jobs`` cores (announced before long runs).
+
+    The reference runs come first, in the driver; then the RL jobs on ``cfg.jobs`` workers,
+    longest first, while the driver evaluates the classical controllers (their work shares
+    the cores); then the plots and the report, side by side.
+    """
     scenarios = make_scenarios(cfg)
-    weights = job_weights(cfg, scenarios, rl_tasks(cfg, scenarios, {}, {}))
-    rl = sum(w for (kind, _), w in weights.items() if kind == "rl")
-    return sum(weights.values()) - rl + rl / max(1, cfg.jobs)
+    envs = training_envs(cfg, scenarios)
+    tasks = rl_tasks(cfg, scenarios, envs, {})
+    weights = job_weights(cfg, scenarios, tasks)
+    classical = sum(w for (kind, _), w in weights.items() if kind == "classical")
+    references = sum(reference_weights(cfg, envs).values())
+    rl = [weights[("rl", t["name"])] for t in tasks]
+    cores = max(1, cfg.jobs)
+    if not rl:
+        train = classical
+    else:
+        # the classical evaluations take their share of the cores from the workers
+        train = max(schedule(rl, cfg.jobs)) + classical / cores
+    output = OUTPUT_SECONDS_PER_SCENARIO * len(scenarios) * (1 if cores > 1 else 2)
+    return references + train + output
 
 
 def format_duration(seconds: float) -> str:
@@ -119,7 +188,7 @@ def rl_tasks(
     references: dict[str, float],
     run_dir: Path | None = None,
 ) -> list[dict[str, Any]]:
-    """The RL jobs, longest first (so that two workers finish together)."""
+    """The RL jobs, longest first by :func:`job_weights`."""
     from stcgym.agents.rl.training import training_task
 
     envs = envs or training_envs(cfg, scenarios)
@@ -164,5 +233,7 @@ def rl_tasks(
                         progress=cfg.progress if cfg.jobs == 1 else False,
                     )
                 )
-    cost = {t["name"]: t["steps"] * SECONDS_PER_STEP.get(t["algo"], 5e-3) for t in tasks}
-    return sorted(tasks, key=lambda t: -cost[t["name"]])
+    # longest first (training, curve and evaluation episodes), so that the workers finish
+    # together: a long job taken last would leave the other worker idle
+    cost = job_weights(cfg, [], tasks)
+    return sorted(tasks, key=lambda t: -cost[("rl", t["name"])])

@@ -5,13 +5,11 @@ See :mod:`stcgym.agents.benchmark` for the scenarios, controllers and outputs.
 
 from __future__ import annotations
 
-import csv
 import datetime as _dt
 import json
 import math
-import os
-import platform
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -20,173 +18,43 @@ from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
+from stcgym.agents.benchmark.config import BenchConfig
 from stcgym.agents.benchmark.evaluate import EnvSpec, Episode, evaluate, run_episode
+from stcgym.agents.benchmark.metrics_csv import (
+    METRIC_COLUMNS,
+    TOLERANCE,
+    MetricsWriter,
+    format_value,
+    ratio,
+)
 from stcgym.agents.benchmark.plan import (
-    SECONDS_PER_EVAL_STEP,
     JobProgress,
     estimate_seconds,
     format_duration,
     job_weights,
+    reference_weights,
     rl_tasks,
 )
 from stcgym.agents.benchmark.response import curve_settling_step, settling_step
+from stcgym.agents.benchmark.rundir import (
+    JOBS_FOLDER,
+    check_runnable,
+    job_id,
+    prepare_run_dir,
+    versions,
+)
 from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
 from stcgym.agents.controllers import CONTROLLERS, controllers_for
-from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
 
 __all__ = [
     "METRIC_COLUMNS",
     "TOLERANCE",
     "BenchResult",
     "check_runnable",
+    "job_id",
     "prepare_run_dir",
     "run_bench",
 ]
-
-#: Columns of ``metrics.csv``, in order.
-METRIC_COLUMNS = [
-    "scenario",
-    "kind",
-    "plant",
-    "controller",
-    "family",
-    "seed",
-    "train_seed",
-    "controller_seed",
-    "cost",
-    "cost_ratio",
-    "cost_start",
-    "cost_steady",
-    "steady_ratio",
-    "steps_to_oracle",
-    "cost_post_jump",
-    "post_jump_ratio",
-    "reconverge_steps",
-    "effort",
-    "bounded",
-    "steps_run",
-    "clip_frac",
-    "overshoot_pct",
-    "settling_steps",
-    "startup_settling_steps",
-    "data_steps",
-    "train_steps",
-    "train_cap",
-    "train_stop",
-    "train_last_improvement",
-    "train_wall_s",
-    "step_us",
-]
-
-#: Allowed cost ratio to the oracle in ``steps_to_oracle`` and ``reconverge_steps``.
-TOLERANCE = 1.2
-
-
-class MetricsWriter:
-    """Append rows to ``metrics.csv``, flushed to disk one by one."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.rows: list[dict[str, Any]] = []
-        new = not path.exists() or path.stat().st_size == 0
-        self._fh = open(path, "a", newline="")  # noqa: SIM115  (kept open for the whole run)
-        self._csv = csv.DictWriter(self._fh, METRIC_COLUMNS, extrasaction="ignore")
-        if new:
-            self._csv.writeheader()
-            self._flush()
-
-    def _flush(self) -> None:
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
-
-    def write(self, row: dict[str, Any]) -> None:
-        self._csv.writerow({k: _fmt(row.get(k, "")) for k in METRIC_COLUMNS})
-        self._flush()
-        self.rows.append(row)
-
-    def close(self) -> None:
-        self._fh.close()
-
-
-def _fmt(v: Any) -> Any:
-    if isinstance(v, float):
-        return "" if math.isnan(v) else f"{v:.6g}"
-    return v
-
-
-def _check_writable(folder: Path) -> None:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / ".write-test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as exc:
-        raise BenchInputError(f"output folder {folder} cannot be written: {exc}") from exc
-
-
-def _check_dependencies(cfg: BenchConfig) -> None:
-    missing = []
-    if cfg.rl_agents:
-        mods = ["stable_baselines3", "torch", "rliable"]
-        if any(a in RECURRENT_ALGORITHMS for a in cfg.rl_agents):
-            mods.append("sb3_contrib")
-        if cfg.tensorboard_log:
-            mods.append("tensorboard")
-        if cfg.progress:
-            mods += ["tqdm", "rich"]
-        for mod in mods:
-            try:
-                __import__(mod)
-            except ImportError:
-                missing.append(f"{mod} (pip install 'stcgym[rl]')")
-    else:
-        try:
-            __import__("rliable")
-        except ImportError:
-            missing.append("rliable for the confidence intervals (pip install 'stcgym[rl]')")
-    if cfg.executor == "ray":
-        try:
-            __import__("ray")
-        except ImportError:
-            missing.append("ray for --executor ray (pip install 'stcgym[ray]')")
-    if cfg.plots:
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            missing.append("matplotlib for the plots (pip install 'stcgym[plot]' or --no-plots)")
-    if missing:
-        raise BenchInputError("missing dependencies: " + "; ".join(missing))
-
-
-def check_runnable(cfg: BenchConfig) -> None:
-    """The checks that need more than the config: dependencies, and every agent's model built
-    once by SB3 itself. Raises :class:`BenchInputError`."""
-    _check_dependencies(cfg)
-    if cfg.rl_agents:
-        _check_trainable(cfg, training_envs(cfg, make_scenarios(cfg)))
-
-
-def _check_trainable(cfg: BenchConfig, envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> None:
-    """Build every agent's model once (and drop it): SB3's own checks run before any work."""
-    from stcgym.agents.rl.sb3 import check_trainable
-
-    for algo in cfg.rl_agents:
-        key = "family" if algo in RECURRENT_ALGORITHMS else next(iter(envs))
-        try:
-            check_trainable(algo, AlgoConfig.from_dict(cfg.algo_configs[algo]), envs[key][0])
-        except ValueError as exc:
-            raise BenchInputError(str(exc)) from exc
-
-
-def _versions() -> dict[str, str]:
-    out = {"python": platform.python_version(), "platform": platform.platform()}
-    for mod in ("numpy", "gymnasium", "control", "stable_baselines3", "torch"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except ImportError:
-            pass
-    return out
 
 
 @dataclass
@@ -215,47 +83,6 @@ class Collected:
     adaptation: dict[str, tuple[np.ndarray, np.ndarray, str]] = field(default_factory=dict)
     #: (train_env, algo, train_seed) -> how training ended (StopSummary.to_dict())
     stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
-
-
-#: Where each finished RL job's result is kept (what ``--resume`` reuses).
-JOBS_FOLDER = "jobs"
-
-
-def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = False) -> Path:
-    """Create ``<out>/<run>``; refuse to mix two runs in one folder.
-
-    ``overwrite`` starts the run afresh; ``resume`` keeps the finished RL jobs (``jobs/``) and
-    the trained agents, and rebuilds the tables and the report.
-    """
-    run_dir = cfg.run_dir
-    _check_writable(Path(cfg.out))
-    if resume and not (run_dir / "config.json").is_file():
-        raise BenchInputError(f"--resume: {run_dir} holds no config.json (not a bench run)")
-    if (run_dir / "metrics.csv").exists() and not (overwrite or resume):
-        raise BenchInputError(
-            f"{run_dir} already holds a run; pick another --run, pass --overwrite, or "
-            f"--resume {run_dir}"
-        )
-    _check_writable(run_dir)
-    if overwrite or resume:
-        for name in ("metrics.csv", "learning_curves.csv", "report.md"):
-            (run_dir / name).unlink(missing_ok=True)
-    if overwrite:
-        for old in (run_dir / JOBS_FOLDER).glob("*.json"):
-            old.unlink()
-    return run_dir
-
-
-#: Task keys that do not shape an RL job's result (where its files go, the progress bar).
-_NOT_RESULT = ("progress", "model_dir", "tensorboard_log")
-
-
-def job_id(task: dict[str, Any]) -> str:
-    """The id a finished RL job is kept under: everything that shapes its result (not where
-    its files go, nor the progress bar), so a resumed run finds it under another --jobs."""
-    from stcgym.agents.executors import task_id
-
-    return task_id({k: v for k, v in task.items() if k not in _NOT_RESULT})
 
 
 def run_bench(
@@ -304,7 +131,7 @@ def run_bench(
             for s in scenarios
         ],
         "argv": list(argv) if argv is not None else None,
-        "versions": _versions(),
+        "versions": versions(),
         "started": _dt.datetime.now().isoformat(timespec="seconds"),
     }
     wall_before = 0.0  # the earlier sessions of a resumed run
@@ -348,18 +175,46 @@ def run_bench(
             log(f"could not write the partial report: {report_exc!r}")
         raise
     writer.close()
-    if cfg.plots:
-        from stcgym.agents.benchmark.plots import write_plots
-
-        t0 = time.perf_counter()
-        write_plots(run_dir, cfg, scenarios, writer.rows, state.data)
-        state.log(f"plots written ({time.perf_counter() - t0:.0f} s)")
+    plots = _start_plots(run_dir, cfg, scenarios, writer.rows, state) if cfg.plots else None
     t0 = time.perf_counter()
     report(False)
     state.log(f"report written ({time.perf_counter() - t0:.0f} s)")
+    if plots is not None:
+        plots()
     wall = time.perf_counter() - t_start
     log(f"done in {format_duration(wall)}: {run_dir}")
     return BenchResult(run_dir, writer.rows, state.data.curves, wall)
+
+
+def _start_plots(
+    run_dir: Path, cfg: BenchConfig, scenarios: list[Scenario], rows: list, state: _RunState
+) -> Callable[[], None]:
+    """Start writing the plots; the returned call waits for them.
+
+    With more than one job they are drawn in a process of their own while the driver writes
+    the report (each takes seconds of one core; the workers are done by then)."""
+    from stcgym.agents.benchmark.plots import write_plots
+
+    t0 = time.perf_counter()
+    args = (run_dir, cfg, scenarios, rows, state.data)
+    if cfg.jobs == 1:
+        write_plots(*args)
+        state.log(f"plots written ({time.perf_counter() - t0:.0f} s)")
+        return lambda: None
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    pool = ProcessPoolExecutor(1, mp_context=get_context("spawn"))
+    future = pool.submit(write_plots, *args)
+
+    def wait() -> None:
+        try:
+            future.result()
+        finally:
+            pool.shutdown()
+        state.log(f"plots written ({time.perf_counter() - t0:.0f} s, next to the report)")
+
+    return wait
 
 
 class _RunState:
@@ -371,6 +226,8 @@ class _RunState:
         # (scenario, seed) -> the oracle's episode costs and metrics (the reference of ratios)
         self.oracle: dict[tuple[str, int], tuple[np.ndarray, dict[str, float]]] = {}
         self.scenarios: dict[str, Scenario] = {}
+        # set when the driver fails while the classical controllers run in a thread
+        self.halt = threading.Event()
 
     def log(self, msg: str) -> None:
         self._log(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
@@ -400,10 +257,10 @@ class _RunState:
             **extra,
         }
         if ref is not None:
-            row["cost_ratio"] = _ratio(metrics["cost"], ref["cost"])
-            row["steady_ratio"] = _ratio(metrics["cost_steady"], ref["cost_steady"])
+            row["cost_ratio"] = ratio(metrics["cost"], ref["cost"])
+            row["steady_ratio"] = ratio(metrics["cost_steady"], ref["cost_steady"])
             if J is not None:
-                row["post_jump_ratio"] = _ratio(metrics["cost_post_jump"], ref["cost_post_jump"])
+                row["post_jump_ratio"] = ratio(metrics["cost_post_jump"], ref["cost_post_jump"])
                 row["reconverge_steps"] = settling_step(
                     cost, ref_cost, span=span, start=J, tol=TOLERANCE
                 )
@@ -426,6 +283,8 @@ class _RunState:
         seeded = info.kind == "adaptive"
 
         def on_episode(ep: Episode, metrics: dict[str, float]) -> None:
+            if self.halt.is_set():
+                raise _Stop
             if name == "oracle":
                 self.oracle[(sc.name, ep.seed)] = (ep.cost, metrics)
             extra = {
@@ -471,7 +330,7 @@ class _RunState:
             ends = np.arange(w, T + 1, w)
             ratios = np.array(
                 [
-                    [_ratio(float(c[e - w : e].sum()), float(o[e - w : e].sum())) for e in ends]
+                    [ratio(float(c[e - w : e].sum()), float(o[e - w : e].sum())) for e in ends]
                     for c, o in zip(runs[learner], runs["oracle"], strict=True)
                 ]
             )
@@ -490,7 +349,7 @@ class _RunState:
                     "train_seed": ts,
                     "steps": s,
                     "cost": c,
-                    "cost_to_oracle": _ratio(c, oracle_level) if oracle_level else math.nan,
+                    "cost_to_oracle": ratio(c, oracle_level) if oracle_level else math.nan,
                 }
             )
         self._write_curves()
@@ -532,68 +391,81 @@ class _RunState:
                     ep["metrics"]["step_us"],
                 )
 
+    def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> None:
+        for sc in scenarios:
+            for name in controllers_for(self.cfg.classical, sc.env):  # those on its plants
+                self._classical(sc, name)
+            progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
+
     def run(self, scenarios: list[Scenario], envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> None:
-        from stcgym.agents.executors import run_tasks
+        """Reference runs, then the RL jobs on the workers while the driver evaluates the
+        classical controllers (one core's work, which would otherwise leave a worker's core
+        idle); the RL results are written once the classical rows (the oracle's) are in."""
+        from stcgym.agents.executors import ResultStore, run_tasks
+        from stcgym.agents.rl.training import train_and_evaluate
 
         cfg = self.cfg
         self.scenarios = {sc.name: sc for sc in scenarios}
         planned = rl_tasks(cfg, scenarios, envs, {}, self.run_dir)
-        weights = job_weights(cfg, scenarios, planned)
-        for key, (_, curve_spec) in envs.items():
-            weights[("reference", key)] = (
-                len(controllers_for(cfg.classical, curve_spec))
-                * cfg.curve_seeds
-                * len(curve_spec.plants)
-                * curve_spec.steps
-                * SECONDS_PER_EVAL_STEP
-            )
+        weights = job_weights(cfg, scenarios, planned) | reference_weights(cfg, envs)
         progress = JobProgress(weights, self.log, cfg.jobs)
         workers = "worker" if cfg.jobs == 1 else "workers"
         self.log(
             f"{len(weights)} jobs ({len(planned)} RL trainings on {cfg.jobs} {workers}), "
             f"estimated {format_duration(estimate_seconds(cfg))}"
         )
-        for sc in scenarios:
-            for name in controllers_for(cfg.classical, sc.env):  # those that run on its plants
-                self._classical(sc, name)
-            progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
         for key, (_, curve_spec) in envs.items():
             self._references(key, curve_spec, progress)
         if not planned:
+            self._classical_all(scenarios, progress)
             return
         refs = {k: v["oracle"] for k, v in self.data.reference_lines.items()}
         tasks = rl_tasks(cfg, scenarios, envs, refs, self.run_dir)
-        from stcgym.agents.executors import ResultStore
-        from stcgym.agents.rl.training import train_and_evaluate
-
         store = ResultStore(self.run_dir / JOBS_FOLDER)
         finished = store.done()
-        todo = []
+        todo, ready = [], []
         for task in tasks:
             if job_id(task) in finished:
-                self._collect(task, store.load(job_id(task)))
+                ready.append((task, store.load(job_id(task))))
                 progress.drop(("rl", task["name"]))
             else:
                 todo.append(task)
-        if len(todo) < len(tasks):
-            self.log(f"{len(tasks) - len(todo)} finished RL jobs read back from {store.folder}")
+        if ready:
+            self.log(f"{len(ready)} finished RL jobs read back from {store.folder}")
+        # the classical controllers run in a thread while the workers train; when the RL jobs
+        # run in this process (one job, or jobs=1) they go first instead
+        classical = _Background(self._classical_all, scenarios, progress, stop=self.halt)
+        if cfg.executor == "ray" or (cfg.jobs > 1 and len(todo) > 1):
+            classical.start()
+        else:
+            classical.run_here()
         failures = []
-        for out in run_tasks(
-            train_and_evaluate,
-            todo,
-            executor=cfg.executor,
-            jobs=cfg.jobs,
-            address=cfg.address,
-            threads=1,
-        ):
-            name = out.task["name"]
-            if out.error is not None:
-                failures.append(name)
-                self.log(f"RL job {name} FAILED:\n{out.error}")
-            else:
-                store.save(job_id(out.task), out.result)
-                self._collect(out.task, out.result)
-            progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
+        try:
+            for out in run_tasks(
+                train_and_evaluate,
+                todo,
+                executor=cfg.executor,
+                jobs=cfg.jobs,
+                address=cfg.address,
+                threads=1,
+            ):
+                name = out.task["name"]
+                if out.error is not None:
+                    failures.append(name)
+                    self.log(f"RL job {name} FAILED:\n{out.error}")
+                else:
+                    store.save(job_id(out.task), out.result)
+                    ready.append((out.task, out.result))
+                progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
+                if classical.finished():
+                    while ready:
+                        self._collect(*ready.pop(0))
+        except BaseException:
+            classical.abort()
+            raise
+        classical.join()
+        for task, result in ready:
+            self._collect(task, result)
         if failures:
             raise RuntimeError(f"{len(failures)} RL job(s) failed: {', '.join(failures)}")
 
@@ -603,11 +475,57 @@ class _RunState:
         cols = ["train_env", "algo", "train_seed", "steps", "cost", "cost_to_oracle"]
         lines = [",".join(cols)]
         for row in self.data.curves:
-            lines.append(",".join(str(_fmt(row[c])) for c in cols))
+            lines.append(",".join(str(format_value(row[c])) for c in cols))
         write_atomic(self.run_dir / "learning_curves.csv", "\n".join(lines) + "\n")
 
 
-def _ratio(x: float, ref: float | None) -> float:
-    if ref is None or not math.isfinite(x) or not ref > 0:
-        return math.nan if ref is None or math.isnan(x) else math.inf
-    return x / ref
+class _Stop(Exception):
+    """Raised in the classical evaluations when the driver stops (an error or Ctrl-C)."""
+
+
+class _Background:
+    """``fn(*args)`` in a thread of the driver; its error is raised by :meth:`finished` or
+    :meth:`join` in the driver's thread. ``stop`` is the event ``fn`` checks between
+    episodes (:meth:`abort` sets it)."""
+
+    def __init__(self, fn: Callable[..., None], *args: Any, stop: threading.Event) -> None:
+        self.fn, self.args, self.stop = fn, args, stop
+        self.error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+
+    def _target(self) -> None:
+        try:
+            self.fn(*self.args)
+        except BaseException as exc:  # noqa: BLE001  (raised again in the driver's thread)
+            self.error = exc
+
+    def run_here(self) -> None:
+        self.fn(*self.args)
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._target, name="classical", daemon=True)
+        self._thread.start()
+
+    def finished(self) -> bool:
+        """Whether it is done (raises its error, if any)."""
+        if self._thread is not None and self._thread.is_alive():
+            return False
+        self._raise()
+        return True
+
+    def join(self) -> None:
+        """Wait for it (raises its error, if any)."""
+        if self._thread is not None:
+            self._thread.join()
+        self._raise()
+
+    def abort(self) -> None:
+        """The driver failed: stop it at its next episode and wait (its error is dropped)."""
+        self.stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            error, self.error = self.error, None
+            raise error
