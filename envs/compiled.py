@@ -43,6 +43,7 @@ from typing import Any, TypeVar
 import numba
 import numpy as np
 from numba.core import event
+from numba.core.registry import CPUDispatcher
 from numpy.typing import NDArray
 
 from stcgym.envs.kernel_cache import guard_cache
@@ -123,25 +124,48 @@ NOTICE = CompileNotice(COMPILE_NOTICE_AFTER, _is_stcgym_kernel)
 event.register("numba:compile", NOTICE)
 
 
-def _jit(fn: F | None, allocates: bool, parallel: bool, inline: bool = False) -> Any:
-    options: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy"}
+class LaneHelper(CPUDispatcher):
+    """A lane function compiled for other lane functions only (:func:`lane` without
+    ``entry=True``): numba builds no CPython wrapper for it, so calling it from Python would
+    jump to a null address; this class raises instead."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        raise TypeError(
+            f"{self.py_func.__module__}.{self.py_func.__qualname__} is a lane helper, "
+            "compiled to be called from other lane functions only (declare it with "
+            "@lane(entry=True) to call it from Python)"
+        )
+
+
+def _jit(
+    fn: F | None, allocates: bool, parallel: bool, inline: bool = False, entry: bool = True
+) -> Any:
+    # numba's cfunc wrapper (for first-class function use) is never used here
+    options: dict[str, Any] = {"nogil": True, "error_model": "numpy", "no_cfunc_wrapper": True}
     if inline:
         options["inline"] = "always"
     if parallel:
         options["parallel"] = True
     if not allocates:
         options["_nrt"] = False
-    jit = numba.njit(**options)
+    if not entry:
+        options["no_cpython_wrapper"] = True
 
     def decorate(f: F) -> Any:
-        dispatcher = jit(f)
+        if numba.config.DISABLE_JIT:
+            return f
+        cls = CPUDispatcher if entry else LaneHelper
+        dispatcher = cls(py_func=f, locals={}, targetoptions=options)
+        dispatcher.enable_caching()
         guard_cache(dispatcher)
         return dispatcher
 
     return decorate if fn is None else decorate(fn)
 
 
-def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) -> Any:
+def lane(
+    fn: F | None = None, *, allocates: bool = False, inline: bool = False, entry: bool = False
+) -> Any:
     """Compile ``fn`` as a lane function (nopython, cached, releases the GIL).
 
     ``error_model="numpy"``: a division by zero gives inf/nan like numpy instead of raising,
@@ -156,25 +180,21 @@ def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) 
     keeps the rule honest. The few set-up helpers that do allocate (the solve-to-convergence
     designs of a fresh model) say so with ``@lane(allocates=True)``.
 
-    ``inline=True`` (numba's ``inline="always"``) for the small building blocks (a Kalman step,
-    a 3 x 3 inverse, the design's and the controller's helpers): numba compiles every function
-    separately and LLVM does not inline across them, so a call with a few array arguments (each
-    passed as a dozen machine words) costs as much as the arithmetic of a small step; inlined, a
-    pole-placement design of order 2 went from 1.1 to 0.47 us. A named record and configuration
-    (a few dozen integers and numbers) are passed the same way, so the estimator's per-step
-    helpers that take them are inlined too (KF-MILS update + predict 727 -> 688 ns). Where
-    inlining was measured not to help it is not used: the least-squares blocks (a Carlson
-    update) and the plant step stay calls, as inlining them made the KF-MILS step slower. The
-    public entry points (``controller_step``, ``place_design``, ``estimator_update``...) stay
-    separate functions.
+    ``entry=True`` for the lane functions that Python calls (the controller step, the estimator
+    steps, the designs, the plant steps...). The others are helpers of lane functions, compiled
+    without numba's CPython wrapper (the code that unboxes every argument from Python objects):
+    that wrapper is a large part of the compile time of a small function, and a helper never
+    needs it. Calling a helper from Python raises ``TypeError`` (:class:`LaneHelper`).
 
-    Inlining costs compile time (numba rebuilds and retypes the helper at every call site: half
-    of the 18.6 s cold compile of ``place_design``), but not inlining costs more: every helper
-    then compiles on its own and each caller re-optimises the code of all the functions it
-    calls (numba links them into the caller's module); the first controller step took about 3x
-    longer to compile with no helper inlined (``benchmarks/README.md``, cold start).
+    Helpers are separate compiled functions, not inlined by numba: numba links each callee's
+    code into its caller's module, where LLVM's optimiser inlines what pays (the helpers'
+    functions are ``linkonce_odr``), while numba's own ``inline="always"`` rebuilds and retypes
+    the helper at every call site, nested helpers again at every level (it was 11 of the 17 s
+    of a cold ``place_design``; ``benchmarks/cold_start.py``). ``inline=True`` is kept for the
+    few helpers that return views of their arguments (a function compiled without NRT may
+    return an array only where it is inlined).
     """
-    return _jit(fn, allocates, parallel=False, inline=inline)
+    return _jit(fn, allocates, parallel=False, inline=inline, entry=entry)
 
 
 def lanes(fn: F | None = None, *, allocates: bool = False) -> Any:

@@ -77,7 +77,7 @@ class LQWeights(NamedTuple):
 DEFAULT_LQ_WEIGHTS = (1.0, 1e-4, 1e-2)
 
 
-@lane(inline=True)
+@lane
 def weight_fields(weights):
     """The weight vector ``weights`` (float64, length 3) as an :class:`LQWeights`: the one place
     that knows the order of its entries (a vector, not the named tuple, is what the lane
@@ -122,7 +122,7 @@ def lq_initial_P(n: int, integral: bool, weights: ArrayLike) -> NDArray[np.float
     return P
 
 
-@lane(inline=True)
+@lane
 def _lq_gain(A, b, rho, P, K):
     """``K = (rho + b^T P b)^{-1} b^T P A``; returns ``rho + b^T P b``."""
     m = A.shape[0]
@@ -141,7 +141,7 @@ def _lq_gain(A, b, rho, P, K):
     return s
 
 
-@lane(inline=True)
+@lane
 def _riccati_step(A, b, Q, rho, P, K, Acl, T):
     """``P <- Q + (A - b K)^T P (A - b K) + rho K^T K`` with ``K`` the gain of ``P`` (the
     Joseph form of the Riccati difference equation: stays symmetric positive semidefinite)."""
@@ -178,7 +178,7 @@ def _weight_matrix(n, integral, weights, Ws, m):
     return Q
 
 
-@lane
+@lane(entry=True)
 def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
 
@@ -208,7 +208,7 @@ def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 
-@lane(inline=True)
+@lane
 def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
     """Every root of ``det(zI - A + b K)`` strictly inside the unit circle.
 
@@ -300,7 +300,7 @@ def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
     return OK
 
 
-@lane
+@lane(entry=True)
 def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     """Discrete algebraic Riccati equation of a general single-input pair (see :func:`_dare`).
 
@@ -314,7 +314,7 @@ def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
 
 
-@lane
+@lane(entry=True)
 def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter):
     """The LQ design of :func:`lq_design` solved to convergence (doubling) for a fresh model.
 
@@ -369,7 +369,7 @@ def lq_solve_lanes(
         )
 
 
-@lane(allocates=True)
+@lane(allocates=True, entry=True)
 def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     """Steady-state (a-priori) Kalman filter covariance of the canonical model of ``theta``:
     the stabilising solution of the dual Riccati equation ``dare(A^T, c^T, W, R)`` (``W``

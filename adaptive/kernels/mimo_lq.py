@@ -83,7 +83,7 @@ def _slot(work, k, rows, cols):
     return view2d(work, k * (work.size // 12), rows, cols)
 
 
-@lane(inline=True)
+@lane
 def _closed_loop(A, B, K, Acl):
     """``Acl = A - B K``."""
     matmul(B, K, Acl, False, False)
@@ -92,7 +92,7 @@ def _closed_loop(A, B, K, Acl):
             Acl[i, j] = A[i, j] - Acl[i, j]
 
 
-@lane(inline=True)
+@lane
 def _max_abs(M):
     best = 0.0
     for i in range(M.shape[0]):
@@ -103,7 +103,7 @@ def _max_abs(M):
     return best
 
 
-@lane
+@lane(entry=True)
 def lq_gain(A, B, R, P, K, work):
     """``K = (R + B^T P B)^{-1} B^T P A``; ``False`` when ``R + B^T P B`` is singular."""
     n = A.shape[0]
@@ -171,7 +171,7 @@ def schur_stable(M, work):
     return False
 
 
-@lane
+@lane(entry=True)
 def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
     """Stabilising DARE solution ``P`` and its gain ``K`` by doubling; returns ``OK``,
     ``NOT_STABILISABLE`` (diverging, singular, or a closed loop that is not Schur stable) or
@@ -243,7 +243,7 @@ def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
     return OK
 
 
-@lane
+@lane(entry=True)
 def steady_state_feedforward(A, B, Q, R, K, F, work):
     """``F = M_u + K M_x`` of the cheapest equilibrium (module docstring); ``False`` when the
     KKT matrix is singular (no equilibrium for some reference: an uncontrollable mode at
@@ -320,7 +320,7 @@ def design_checks(A, B, Q, R, K, F, safe_b_min, gain_max, work):
     return OK
 
 
-@lane(inline=True)
+@lane
 def feedback_law(K, F, x, r, bound, u):
     """``u = sat(-K x + F r)`` per input; returns the number of saturated inputs."""
     m = K.shape[0]

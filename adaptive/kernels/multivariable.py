@@ -162,7 +162,7 @@ def mimo_record(n: int, m: int, Q: NDArray, R: NDArray) -> tuple[Layout, MimoRec
     return lay, at, init
 
 
-@lane(inline=True)
+@lane
 def _model(f, at, n, m, A, B):
     """``[A_hat B_hat] = Theta^T``."""
     q = n + m
@@ -174,7 +174,7 @@ def _model(f, at, n, m, A, B):
             B[i, j] = theta[n + j, i]
 
 
-@lane(inline=True)
+@lane
 def _copy(f, src, dst, size):
     for i in range(size):
         f[dst + i] = f[src + i]
@@ -218,7 +218,7 @@ def _design(f, g, at, cfg):
     return status
 
 
-@lane
+@lane(entry=True)
 def mimo_step(f, g, at, cfg, x, r, u):
     """One sample of the controller (module docstring, steps 1-4): ``u(t)`` from ``x(t)``,
     ``r(t)`` (1-D arrays of ``n``, ``n`` and ``m`` floats)."""

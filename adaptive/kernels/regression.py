@@ -224,7 +224,7 @@ def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):
     return status
 
 
-@lane
+@lane(entry=True)
 def rls_run(
     rec, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
 ):  # pragma: no cover

@@ -171,7 +171,7 @@ class SafeSetBounds(NamedTuple):
     gain_max: float  # max(|K|, |N|) <= gain_max
 
 
-@lane(inline=True)
+@lane
 def safe_bounds(safe):
     """The safe-set vector ``safe`` (float64, length 4) as a :class:`SafeSetBounds`: the one
     place that knows the order of its entries.
@@ -216,7 +216,7 @@ def split_work(work, mm, n_mat):
     return view3d(work, 0, n_mat, mm, mm), view2d(work, n_mat * mm * mm, N_VEC, mm)
 
 
-@lane(inline=True)
+@lane
 def controllability(A, b, Ws, Vs):
     """Invert the column-normalised controllability matrix ``Ctrb / norms``.
 
@@ -256,7 +256,7 @@ def controllability(A, b, Ws, Vs):
     return rcond
 
 
-@lane(inline=True)
+@lane
 def _steady_state(A, b, x_ss, Ws):
     n = A.shape[0]
     M = Ws[MAT.m0, : n + 1, : n + 1]
@@ -283,7 +283,7 @@ def _steady_state(A, b, x_ss, Ws):
     return Minv[n, n], rcond
 
 
-@lane
+@lane(entry=True)
 def steady_state(A, b, x_ss, work):
     """Steady state of ``x = A x + b u``, ``y = x_1 = 1``: writes ``x_ss``, returns
     ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] = [0; 1]``
@@ -294,7 +294,7 @@ def steady_state(A, b, x_ss, work):
     return _steady_state(A, b, x_ss, Ws)
 
 
-@lane(inline=True)
+@lane
 def _prepare(theta, form, integral, safe, Ws, Vs):
     """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
     builds ``A``, ``b`` and ``(A_aug, b_aug)`` in the work and leaves ``Ctrb^{-1}`` there.
@@ -337,7 +337,7 @@ def design_start(theta, form, integral, safe, work, n_mat):
     return status, rcond, Ws, Vs, Ws[MAT.A_aug, :m, :m], Vs[VEC.b_aug, :m], Vs[VEC.K, :m]
 
 
-@lane(inline=True)
+@lane
 def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
     """Feed-forward from the steady state, the gain bound, and the commit of ``gain``."""
     n = theta.size // 2
