@@ -6,7 +6,8 @@ controller in :mod:`stcgym.adaptive`):
 * A **lane function** advances *one* plant (or estimator, or controller) by one step. It is
   decorated with :func:`lane`, works on the arrays of that one lane (1-D views), mutates them in
   place and returns plain numbers (a status code, an output). It contains the paper's equations
-  and nothing about batching.
+  and nothing about batching. Lane functions that Python calls are ``@lane(entry=True)``; the
+  others are helpers of lane functions and raise ``TypeError`` if Python calls them.
 * A **lane record** holds all the floating-point state of one lane in one ``float64`` vector (and,
   where needed, integer state in one ``int64`` vector). Its fields are declared once, as a
   ``typing.NamedTuple`` class of ints; :class:`Layout` places them (offsets and shapes fixed
