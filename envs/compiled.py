@@ -139,11 +139,19 @@ class LaneHelper(CPUDispatcher):
 
 
 def _jit(
-    fn: F | None, allocates: bool, parallel: bool, inline: bool = False, entry: bool = True
+    fn: F | None,
+    allocates: bool,
+    parallel: bool,
+    inline: bool = False,
+    returns_views: bool = False,
+    entry: bool = True,
 ) -> Any:
     # numba's cfunc wrapper (for first-class function use) is never used here
     options: dict[str, Any] = {"nogil": True, "error_model": "numpy", "no_cfunc_wrapper": True}
-    if inline:
+    # LLVM's alwaysinline where asked, else never (numba would otherwise pass the flag on from
+    # an inlined caller to the helpers it compiles)
+    options["forceinline"] = inline
+    if returns_views:
         options["inline"] = "always"
     if parallel:
         options["parallel"] = True
@@ -165,7 +173,12 @@ def _jit(
 
 
 def lane(
-    fn: F | None = None, *, allocates: bool = False, inline: bool = False, entry: bool = False
+    fn: F | None = None,
+    *,
+    allocates: bool = False,
+    inline: bool = False,
+    returns_views: bool = False,
+    entry: bool = False,
 ) -> Any:
     """Compile ``fn`` as a lane function (nopython, cached, releases the GIL).
 
@@ -184,18 +197,26 @@ def lane(
     ``entry=True`` for the lane functions that Python calls (the controller step, the estimator
     steps, the designs, the plant steps...). The others are helpers of lane functions, compiled
     without numba's CPython wrapper (the code that unboxes every argument from Python objects):
-    that wrapper is a large part of the compile time of a small function, and a helper never
+    that wrapper is a sizeable part of the compile time of a small function, and a helper never
     needs it. Calling a helper from Python raises ``TypeError`` (:class:`LaneHelper`).
 
-    Helpers are separate compiled functions, not inlined by numba: numba links each callee's
-    code into its caller's module, where LLVM's optimiser inlines what pays (the helpers'
-    functions are ``linkonce_odr``), while numba's own ``inline="always"`` rebuilds and retypes
-    the helper at every call site, nested helpers again at every level (it was 11 of the 17 s
-    of a cold ``place_design``; ``benchmarks/cold_start.py``). ``inline=True`` is kept for the
-    few helpers that return views of their arguments (a function compiled without NRT may
-    return an array only where it is inlined).
+    ``inline=True`` for the small building blocks called every step (a Kalman step, a 3 x 3
+    inverse, the design's and the controller's helpers): the helper gets LLVM's
+    ``alwaysinline`` attribute (numba's ``forceinline`` flag), so LLVM inlines it into every
+    caller. numba compiles every function separately and links the callees' code into the
+    caller's module; without the attribute LLVM keeps most of them as calls, and a call with
+    a few array arguments (each passed as a dozen machine words) costs as much as the arithmetic
+    of a small step (the compiled rollout of the default controller: 1.1 us a step inlined,
+    1.5-2.2 us not). The helper is still compiled once, and shared by every caller and every
+    controller version. ``returns_views=True`` (numba's own ``inline="always"``, which rebuilds
+    and retypes the helper at every call site) only for the few helpers that return views of
+    their arguments: a function compiled without NRT may return an array only where numba
+    inlines it. numba's inlining was 10-12 of the 17-19 s of a cold ``place_design`` when every
+    helper used it (``benchmarks/README.md``, cold start).
     """
-    return _jit(fn, allocates, parallel=False, inline=inline, entry=entry)
+    return _jit(
+        fn, allocates, parallel=False, inline=inline, returns_views=returns_views, entry=entry
+    )
 
 
 def lanes(fn: F | None = None, *, allocates: bool = False) -> Any:

@@ -37,7 +37,7 @@ OBSERVER = 0
 OBSERVABILITY = 1
 
 
-@lane
+@lane(inline=True)
 def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> None:
     """Write ``A_hat(t)`` of ``theta_hat(t)`` into ``A`` (n, n); see the module docstring."""
     for i in range(n):
@@ -51,7 +51,7 @@ def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> N
             A[i, 0] = -theta[i]
 
 
-@lane(entry=True)
+@lane(inline=True, entry=True)
 def model_matrices(theta, form, A, b):
     """Write the canonical-form ``A`` (``n x n``) and ``b`` of ``theta = [a; b]``."""
     n = theta.size // 2
@@ -60,7 +60,7 @@ def model_matrices(theta, form, A, b):
         b[i] = theta[n + i]
 
 
-@lane(entry=True)
+@lane(inline=True, entry=True)
 def augment_integral(A, b, integral, Ad, bd):
     """``(A_aug, b_aug)`` of the integral state ``xi(t+1) = xi(t) + r(t) - c x(t)`` (or a copy)."""
     n = A.shape[0]
@@ -77,7 +77,7 @@ def augment_integral(A, b, integral, Ad, bd):
         bd[n] = 0.0
 
 
-@lane
+@lane(inline=True)
 def augmented_characteristic(theta, integral, out):
     """``[c_1..c_m]`` of ``det(zI - A_aug) = (z^n + a_1 z^{n-1} + ... + a_n)(z - 1)`` (both
     canonical forms: ``A_aug`` is block triangular), or ``a`` itself without integral action."""

@@ -209,7 +209,7 @@ def controller_record(
 
 
 # ---------------------------------------------------------------------------------- probe
-@lane
+@lane(inline=True)
 def hash32(x):
     """32-bit integer hash (``lowbias32``, C. Wellons): a counter-based random generator."""
     x = x & 0xFFFFFFFF
@@ -221,7 +221,7 @@ def hash32(x):
     return x
 
 
-@lane
+@lane(inline=True)
 def probe_sign(seed, episode, t):
     """``+-1`` from ``hash(seed, episode, t)``: a fresh, reproducible sequence per lane/episode."""
     h = hash32(hash32(hash32(seed) ^ (episode & 0xFFFFFFFF)) ^ (t & 0xFFFFFFFF))
@@ -229,7 +229,7 @@ def probe_sign(seed, episode, t):
 
 
 # ------------------------------------------------------------------------ change detection
-@lane
+@lane(inline=True)
 def change_alarm(f, at, cfg, e2, update, t, closed_t, last_alarm):
     """Step 2 of both controllers: the innovation-power test of covariance resetting.
 
@@ -255,7 +255,7 @@ def change_alarm(f, at, cfg, e2, update, t, closed_t, last_alarm):
 
 
 # ------------------------------------------------------------------------ parameter covariance
-@lane
+@lane(inline=True)
 def covariance_entry(f, at, d, i, j):
     """``P_ij = (S S^T)_ij`` of the estimator's square-root factor (0 for SG/MISG)."""
     if at.S < 0:
@@ -267,7 +267,7 @@ def covariance_entry(f, at, d, i, j):
     return acc
 
 
-@lane
+@lane(inline=True)
 def inflate_covariance(f, at, d, factor):
     """``P <- factor P`` (covariance resetting on a detected change): ``S <- sqrt(factor) S``."""
     if at.S < 0:
@@ -277,7 +277,7 @@ def inflate_covariance(f, at, d, factor):
         f[at.S + i] *= scale
 
 
-@lane
+@lane(inline=True)
 def process_noise(f, at, d, n, y, u, q, q_floor, Q):
     """``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + q_floor I``.
 

@@ -216,7 +216,7 @@ def _innovation(theta: NDArray, Phi: NDArray, Y: NDArray, p: int, E: NDArray) ->
         E[k] = acc
 
 
-@lane
+@lane(inline=True)
 def _rule_increment(
     rec: NDArray,
     at: EstimatorRecord,
@@ -347,7 +347,7 @@ def _slide_window(
     return 0
 
 
-@lane
+@lane(inline=True)
 def _gain(S: NDArray, phi: NDArray) -> float:
     """``q = phi^T P phi = ||S^T phi||^2`` (over both halves for D- rules)."""
     d = phi.shape[0]
@@ -441,7 +441,7 @@ def estimator_update(
     return status
 
 
-@lane
+@lane(inline=True)
 def _frozen_signal(
     rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, e: float, y: float, q: float, t: float
 ) -> int:

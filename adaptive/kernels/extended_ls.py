@@ -68,7 +68,7 @@ def extended_ls_layout(n: int, with_c: bool) -> Layout:
     return lay
 
 
-@lane
+@lane(inline=True)
 def extended_ls_reset(f, at, d, p0):
     """``theta(0) = 0``, ``P(0) = p0 I`` (``S = sqrt(p0) I``), ``phi(1) = 0`` (every signal zero
     before t = 1)."""
@@ -78,7 +78,7 @@ def extended_ls_reset(f, at, d, p0):
     extended_ls_restart(f, at, d, p0)
 
 
-@lane
+@lane(inline=True)
 def extended_ls_update(f, at, d, y, lam, p0):
     """Measurement step with ``y(t)``: ``theta(t)``, ``P(t)``; returns ``(e(t), eps(t))``.
 
@@ -106,7 +106,7 @@ def extended_ls_update(f, at, d, y, lam, p0):
     return e, eps
 
 
-@lane
+@lane(inline=True)
 def extended_ls_restart(f, at, d, p0):
     """``P = p0 I`` (numerical trouble; ``S = sqrt(p0) I``); a non-finite ``theta`` goes back to
     zero."""
@@ -120,7 +120,7 @@ def extended_ls_restart(f, at, d, p0):
             S[i, j] = root if i == j else 0.0
 
 
-@lane
+@lane(inline=True)
 def extended_ls_push(f, at, n, d, y, u, eps):
     """Shift ``y(t)``, ``u(t)``, ``eps(t)`` into the regressor: it becomes ``phi(t+1)``."""
     phi = f[at.phi : at.phi + d]

@@ -28,7 +28,7 @@ LAW = LawState(*range(len(LawState._fields)))
 LAW_SIZE = len(LawState._fields)
 
 
-@lane
+@lane(inline=True)
 def track(gain, law, x, y, r, excitation, action_bound, integral, anti_windup):
     """``u(t) = sat(-K_x x(t) - k_i xi(t) + N r(t) + e(t))``; advances ``xi`` to ``xi(t+1)``.
 

@@ -14,7 +14,7 @@ from stcgym.envs.compiled import lane
 __all__ = ["all_finite", "invert", "matmul", "matvec", "max_abs", "norm1"]
 
 
-@lane
+@lane(inline=True)
 def all_finite(v):
     for i in range(v.size):
         if not math.isfinite(v.flat[i]):
@@ -22,7 +22,7 @@ def all_finite(v):
     return True
 
 
-@lane
+@lane(inline=True)
 def matmul(X, Y, out, trans_x=False, trans_y=False):
     """``out = op(X) @ op(Y)`` for small matrices, ``op`` the transpose when asked (``out``
     distinct from ``X`` and ``Y``; its shape is the product's)."""
@@ -37,7 +37,7 @@ def matmul(X, Y, out, trans_x=False, trans_y=False):
             out[i, j] = s
 
 
-@lane
+@lane(inline=True)
 def matvec(A, v, out):
     """``out = A @ v`` (``out`` distinct from ``v``)."""
     for i in range(A.shape[0]):
@@ -47,7 +47,7 @@ def matvec(A, v, out):
         out[i] = acc
 
 
-@lane
+@lane(inline=True)
 def norm1(M):
     """Largest absolute column sum."""
     m = M.shape[0]
@@ -61,7 +61,7 @@ def norm1(M):
     return best
 
 
-@lane
+@lane(inline=True)
 def max_abs(M):
     best = 0.0
     for i in range(M.size):
@@ -71,7 +71,7 @@ def max_abs(M):
     return best
 
 
-@lane
+@lane(inline=True)
 def invert(M, Minv):
     """Gauss-Jordan inverse with partial pivoting; ``M`` is destroyed. False if singular."""
     m = M.shape[0]

@@ -77,7 +77,7 @@ class LQWeights(NamedTuple):
 DEFAULT_LQ_WEIGHTS = (1.0, 1e-4, 1e-2)
 
 
-@lane
+@lane(inline=True)
 def weight_fields(weights):
     """The weight vector ``weights`` (float64, length 3) as an :class:`LQWeights`: the one place
     that knows the order of its entries (a vector, not the named tuple, is what the lane
@@ -122,7 +122,7 @@ def lq_initial_P(n: int, integral: bool, weights: ArrayLike) -> NDArray[np.float
     return P
 
 
-@lane
+@lane(inline=True)
 def _lq_gain(A, b, rho, P, K):
     """``K = (rho + b^T P b)^{-1} b^T P A``; returns ``rho + b^T P b``."""
     m = A.shape[0]
@@ -141,7 +141,7 @@ def _lq_gain(A, b, rho, P, K):
     return s
 
 
-@lane
+@lane(inline=True)
 def _riccati_step(A, b, Q, rho, P, K, Acl, T):
     """``P <- Q + (A - b K)^T P (A - b K) + rho K^T K`` with ``K`` the gain of ``P`` (the
     Joseph form of the Riccati difference equation: stays symmetric positive semidefinite)."""
@@ -163,7 +163,7 @@ def _riccati_step(A, b, Q, rho, P, K, Acl, T):
             P[i, j] = P[j, i]
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def _weight_matrix(n, integral, weights, Ws, m):
     """The state weight ``Q = q_y c^T c (+ q_i on the integrator)``, ``m x m``, written into
     matrix slot ``m2`` (the controllability scratch, dead once the safe set has passed)."""
@@ -208,7 +208,7 @@ def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 
-@lane
+@lane(inline=True)
 def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
     """Every root of ``det(zI - A + b K)`` strictly inside the unit circle.
 

@@ -76,14 +76,14 @@ def design_work_size(n: int, m: int) -> int:
     return 12 * s * s
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def _slot(work, k, rows, cols):
     """Slot ``k`` of the scratch as a ``rows x cols`` matrix (slots of ``(2n + m)^2`` floats,
     ``work.size / 12``)."""
     return view2d(work, k * (work.size // 12), rows, cols)
 
 
-@lane
+@lane(inline=True)
 def _closed_loop(A, B, K, Acl):
     """``Acl = A - B K``."""
     matmul(B, K, Acl, False, False)
@@ -92,7 +92,7 @@ def _closed_loop(A, B, K, Acl):
             Acl[i, j] = A[i, j] - Acl[i, j]
 
 
-@lane
+@lane(inline=True)
 def _max_abs(M):
     best = 0.0
     for i in range(M.shape[0]):
@@ -320,7 +320,7 @@ def design_checks(A, B, Q, R, K, F, safe_b_min, gain_max, work):
     return OK
 
 
-@lane
+@lane(inline=True)
 def feedback_law(K, F, x, r, bound, u):
     """``u = sat(-K x + F r)`` per input; returns the number of saturated inputs."""
     m = K.shape[0]

@@ -162,7 +162,7 @@ def mimo_record(n: int, m: int, Q: NDArray, R: NDArray) -> tuple[Layout, MimoRec
     return lay, at, init
 
 
-@lane
+@lane(inline=True)
 def _model(f, at, n, m, A, B):
     """``[A_hat B_hat] = Theta^T``."""
     q = n + m
@@ -174,7 +174,7 @@ def _model(f, at, n, m, A, B):
             B[i, j] = theta[n + j, i]
 
 
-@lane
+@lane(inline=True)
 def _copy(f, src, dst, size):
     for i in range(size):
         f[dst + i] = f[src + i]

@@ -32,7 +32,7 @@ from stcgym.envs.compiled import lane, lanes, prange
 __all__ = ["ackermann_gain", "place_design", "place_design_lanes"]
 
 
-@lane
+@lane(inline=True)
 def _ackermann_from_ctrb(A, alpha, K, Ws, Vs):
     """``K = e_m^T Ctrb^{-1} phi_d(A) = sum_k alpha_{m-k} w^T A^k`` with ``w`` the last row of
     ``Ctrb^{-1}`` (``phi_d(A)`` never formed: ``m`` row-vector/matrix products)."""

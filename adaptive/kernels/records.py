@@ -81,7 +81,7 @@ _register(view2d, 2)
 _register(view3d, 3)
 
 
-@lane
+@lane(inline=True)
 def copy_matrix(src: NDArray, dst: NDArray) -> None:
     """``dst[:, :] = src`` written out (a whole-array assignment may allocate a temporary for
     overlapping operands, which lane functions must not do)."""
@@ -90,7 +90,7 @@ def copy_matrix(src: NDArray, dst: NDArray) -> None:
             dst[i, j] = src[i, j]
 
 
-@lane
+@lane(inline=True)
 def copy_vector(src: NDArray, dst: NDArray) -> None:
     """``dst[:] = src`` written out (see :func:`copy_matrix`)."""
     for i in range(src.shape[0]):

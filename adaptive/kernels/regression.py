@@ -126,7 +126,7 @@ def downdate_is_accurate(S, Phi, F, M):  # pragma: no cover - compiled
     return True
 
 
-@lane
+@lane(inline=True)
 def _gain(K, S, Phi, g):  # pragma: no cover - compiled
     """``K(t) = P(t) Phi^T = S (S^T Phi^T)``, ``(d, p)`` (``= P(t-1) phi / alpha``, eq. (3));
     ``g`` is scratch of length ``d``."""

@@ -171,7 +171,7 @@ class SafeSetBounds(NamedTuple):
     gain_max: float  # max(|K|, |N|) <= gain_max
 
 
-@lane
+@lane(inline=True)
 def safe_bounds(safe):
     """The safe-set vector ``safe`` (float64, length 4) as a :class:`SafeSetBounds`: the one
     place that knows the order of its entries.
@@ -205,7 +205,7 @@ def safe_set(
     return np.array(bounds, dtype=np.float64)
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def split_work(work, mm, n_mat):
     """The scratch as ``Ws`` ``(n_mat, mm, mm)`` and ``Vs`` ``(9, mm)`` views (every slot after
     that a cheap basic slice ``Ws[slot, :m, :m]``). A scratch shorter than that would corrupt
@@ -216,7 +216,7 @@ def split_work(work, mm, n_mat):
     return view3d(work, 0, n_mat, mm, mm), view2d(work, n_mat * mm * mm, N_VEC, mm)
 
 
-@lane
+@lane(inline=True)
 def controllability(A, b, Ws, Vs):
     """Invert the column-normalised controllability matrix ``Ctrb / norms``.
 
@@ -256,7 +256,7 @@ def controllability(A, b, Ws, Vs):
     return rcond
 
 
-@lane
+@lane(inline=True)
 def _steady_state(A, b, x_ss, Ws):
     n = A.shape[0]
     M = Ws[MAT.m0, : n + 1, : n + 1]
@@ -294,7 +294,7 @@ def steady_state(A, b, x_ss, work):
     return _steady_state(A, b, x_ss, Ws)
 
 
-@lane
+@lane(inline=True)
 def _prepare(theta, form, integral, safe, Ws, Vs):
     """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
     builds ``A``, ``b`` and ``(A_aug, b_aug)`` in the work and leaves ``Ctrb^{-1}`` there.
@@ -321,7 +321,7 @@ def _prepare(theta, form, integral, safe, Ws, Vs):
     return OK, rcond
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def design_start(theta, form, integral, safe, work, n_mat):
     """The start every design shares: the scratch split into ``n_mat`` matrix slots
     (:func:`split_work`), the model of ``theta`` built and the safe-set tests passed in order
@@ -337,7 +337,7 @@ def design_start(theta, form, integral, safe, work, n_mat):
     return status, rcond, Ws, Vs, Ws[MAT.A_aug, :m, :m], Vs[VEC.b_aug, :m], Vs[VEC.K, :m]
 
 
-@lane
+@lane(inline=True)
 def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
     """Feed-forward from the steady state, the gain bound, and the commit of ``gain``."""
     n = theta.size // 2
