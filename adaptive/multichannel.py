@@ -62,7 +62,7 @@ def _is_spd(P: NDArray) -> bool:
     return True
 
 
-@lane
+@lane(entry=True)
 def matrix_rls_step(theta, S, x, y, lam, work):
     """One step of appendix 2's recursion (P.6)-(P.8) on ``P = S S^T``; returns a status.
 

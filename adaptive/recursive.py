@@ -389,7 +389,7 @@ class RecursiveEstimator(EstimatorViews):
         snapshot = rec.copy() if spec.on_failure == "raise" else None
         if self.num_envs is None:
             y = _scalar(y_t, "y(t)")
-            status = _estimator_update(self._lane0, spec.at, spec.config, y)
+            status = _estimator_update(self._lane0, spec.at, spec.config, y, True)
             if status:
                 self._status[0] = status
                 self._report(self._status, snapshot)

@@ -95,7 +95,7 @@ def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
     return cost
 
 
-@lane
+@lane(inline=True)
 def rollout_lane(f, g, at, cfg, est_at, est_cfg, lq_weights, x, theta, theta_after, jump_at,
                  form, bound, sigma_v, z, r, rho, y_bound, window, cost, y_tr, u_tr,
                  traces):  # fmt: skip

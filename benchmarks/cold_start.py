@@ -16,9 +16,10 @@ Scenarios:
   ``stcgym.envs`` and ``stcgym.adaptive``; ``gym.make`` + ``reset`` + the first plant step;
   the first ``SelfTuningController(2).predict``; then the first predict of a second estimator
   (``KF-MILS``), of ``design="lq"``, of a batch of 4 lanes and of the compiled rollout;
-* ``quickstart`` and ``controller example``: the first ``python`` block under the README's
-  ``## Quick start`` and ``## Self-tuning controller and oracles`` headings, run as scripts
-  (wall time of the whole process, interpreter start included).
+* ``README example 1-3``: the ``python`` blocks under the README's ``## Three examples``
+  heading (a plant as an environment; an estimator of the paper online; the self-tuning
+  controller against PPO and the known-model oracle), each run as a script (wall time of the
+  whole process, interpreter start included).
 
 The per-function table comes from numba's ``numba:compile`` events in the cold ``api``
 process (``numba.core.event``): for each compiled function (and signature) the time spent in
@@ -135,14 +136,15 @@ def child_api() -> dict:
 
 
 # ------------------------------------------------------------------------ parent process
-def readme_block(heading: str) -> str:
-    """The first ``python`` code block after the README heading ``heading``."""
+def readme_blocks(heading: str) -> list[str]:
+    """The ``python`` code blocks of the README section under ``heading``."""
     text = (ROOT / "README.md").read_text()
     start = text.index(f"\n{heading}\n")
-    match = re.search(r"```python\n(.*?)```", text[start:], re.S)
-    if match is None:
+    end = text.find("\n## ", start + len(heading) + 2)
+    blocks = re.findall(r"```python\n(.*?)```", text[start : end if end >= 0 else None], re.S)
+    if not blocks:
         raise ValueError(f"no python block under {heading!r} in README.md")
-    return match.group(1)
+    return blocks
 
 
 def _process(args: list[str], cache: str, stdin: str | None = None) -> tuple[float, str]:
@@ -213,15 +215,11 @@ def main(argv: list[str] | None = None) -> None:
     for (label, c), (_, w) in zip(cold["steps"], warm["steps"], strict=True):
         row(label, c, w)
     row("api sequence, whole process", cold_wall, warm_wall)
-    for heading, label in (
-        ("## Quick start", "README quick start, whole process"),
-        ("## Self-tuning controller and oracles", "README controller example, whole process"),
-    ):
-        code = readme_block(heading)
+    for k, code in enumerate(readme_blocks("## Three examples"), start=1):
         with tempfile.TemporaryDirectory() as cache:
             c = script_run(code, cache)
             w = script_run(code, cache)
-        row(label, c, w)
+        row(f"README example {k}, whole process", c, w)
     per_function_table(cold["compiles"], args.top)
 
 

@@ -93,7 +93,7 @@ def _measure(
 
     def lane_loop() -> None:
         for k in range(T):
-            K.estimator_update(rec, at, cfg, y[k])
+            K.estimator_update(rec, at, cfg, y[k], True)
             K.estimator_predict(rec, at, cfg, u[k])
 
     t_lane = _best(lane_loop) / T

@@ -6,7 +6,8 @@ controller in :mod:`stcgym.adaptive`):
 * A **lane function** advances *one* plant (or estimator, or controller) by one step. It is
   decorated with :func:`lane`, works on the arrays of that one lane (1-D views), mutates them in
   place and returns plain numbers (a status code, an output). It contains the paper's equations
-  and nothing about batching.
+  and nothing about batching. Lane functions that Python calls are ``@lane(entry=True)``; the
+  others are helpers of lane functions and raise ``TypeError`` if Python calls them.
 * A **lane record** holds all the floating-point state of one lane in one ``float64`` vector (and,
   where needed, integer state in one ``int64`` vector). Its fields are declared once, as a
   ``typing.NamedTuple`` class of ints; :class:`Layout` places them (offsets and shapes fixed
@@ -43,6 +44,7 @@ from typing import Any, TypeVar
 import numba
 import numpy as np
 from numba.core import event
+from numba.core.registry import CPUDispatcher
 from numpy.typing import NDArray
 
 from stcgym.envs.kernel_cache import guard_cache
@@ -123,25 +125,61 @@ NOTICE = CompileNotice(COMPILE_NOTICE_AFTER, _is_stcgym_kernel)
 event.register("numba:compile", NOTICE)
 
 
-def _jit(fn: F | None, allocates: bool, parallel: bool, inline: bool = False) -> Any:
-    options: dict[str, Any] = {"cache": True, "nogil": True, "error_model": "numpy"}
-    if inline:
+class LaneHelper(CPUDispatcher):
+    """A lane function compiled for other lane functions only (:func:`lane` without
+    ``entry=True``): numba builds no CPython wrapper for it, so calling it from Python would
+    jump to a null address; this class raises instead."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        raise TypeError(
+            f"{self.py_func.__module__}.{self.py_func.__qualname__} is a lane helper, "
+            "compiled to be called from other lane functions only (declare it with "
+            "@lane(entry=True) to call it from Python)"
+        )
+
+
+def _jit(
+    fn: F | None,
+    allocates: bool,
+    parallel: bool,
+    inline: bool = False,
+    returns_views: bool = False,
+    entry: bool = True,
+) -> Any:
+    # numba's cfunc wrapper (for first-class function use) is never used here
+    options: dict[str, Any] = {"nogil": True, "error_model": "numpy", "no_cfunc_wrapper": True}
+    # LLVM's alwaysinline where asked, else never (numba would otherwise pass the flag on from
+    # an inlined caller to the helpers it compiles)
+    options["forceinline"] = inline
+    if returns_views:
         options["inline"] = "always"
     if parallel:
         options["parallel"] = True
     if not allocates:
         options["_nrt"] = False
-    jit = numba.njit(**options)
+    if not entry:
+        options["no_cpython_wrapper"] = True
 
     def decorate(f: F) -> Any:
-        dispatcher = jit(f)
+        if numba.config.DISABLE_JIT:
+            return f
+        cls = CPUDispatcher if entry else LaneHelper
+        dispatcher = cls(py_func=f, locals={}, targetoptions=options)
+        dispatcher.enable_caching()
         guard_cache(dispatcher)
         return dispatcher
 
     return decorate if fn is None else decorate(fn)
 
 
-def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) -> Any:
+def lane(
+    fn: F | None = None,
+    *,
+    allocates: bool = False,
+    inline: bool = False,
+    returns_views: bool = False,
+    entry: bool = False,
+) -> Any:
     """Compile ``fn`` as a lane function (nopython, cached, releases the GIL).
 
     ``error_model="numpy"``: a division by zero gives inf/nan like numpy instead of raising,
@@ -156,25 +194,29 @@ def lane(fn: F | None = None, *, allocates: bool = False, inline: bool = False) 
     keeps the rule honest. The few set-up helpers that do allocate (the solve-to-convergence
     designs of a fresh model) say so with ``@lane(allocates=True)``.
 
-    ``inline=True`` (numba's ``inline="always"``) for the small building blocks (a Kalman step,
-    a 3 x 3 inverse, the design's and the controller's helpers): numba compiles every function
-    separately and LLVM does not inline across them, so a call with a few array arguments (each
-    passed as a dozen machine words) costs as much as the arithmetic of a small step; inlined, a
-    pole-placement design of order 2 went from 1.1 to 0.47 us. A named record and configuration
-    (a few dozen integers and numbers) are passed the same way, so the estimator's per-step
-    helpers that take them are inlined too (KF-MILS update + predict 727 -> 688 ns). Where
-    inlining was measured not to help it is not used: the least-squares blocks (a Carlson
-    update) and the plant step stay calls, as inlining them made the KF-MILS step slower. The
-    public entry points (``controller_step``, ``place_design``, ``estimator_update``...) stay
-    separate functions.
+    ``entry=True`` for the lane functions that Python calls (the controller step, the estimator
+    steps, the designs, the plant steps...). The others are helpers of lane functions, compiled
+    without numba's CPython wrapper (the code that unboxes every argument from Python objects):
+    that wrapper is a sizeable part of the compile time of a small function, and a helper never
+    needs it. Calling a helper from Python raises ``TypeError`` (:class:`LaneHelper`).
 
-    Inlining costs compile time (numba rebuilds and retypes the helper at every call site: half
-    of the 18.6 s cold compile of ``place_design``), but not inlining costs more: every helper
-    then compiles on its own and each caller re-optimises the code of all the functions it
-    calls (numba links them into the caller's module); the first controller step took about 3x
-    longer to compile with no helper inlined (``benchmarks/README.md``, cold start).
+    ``inline=True`` for the small building blocks called every step (a Kalman step, a 3 x 3
+    inverse, the design's and the controller's helpers): the helper gets LLVM's
+    ``alwaysinline`` attribute (numba's ``forceinline`` flag), so LLVM inlines it into every
+    caller. numba compiles every function separately and links the callees' code into the
+    caller's module; without the attribute LLVM keeps most of them as calls, and a call with
+    a few array arguments (each passed as a dozen machine words) costs as much as the arithmetic
+    of a small step (the compiled rollout of the default controller: 1.1 us a step inlined,
+    1.5-2.2 us not). The helper is still compiled once, and shared by every caller and every
+    controller version. ``returns_views=True`` (numba's own ``inline="always"``, which rebuilds
+    and retypes the helper at every call site) only for the few helpers that return views of
+    their arguments: a function compiled without NRT may return an array only where numba
+    inlines it. numba's inlining was 10-12 of the 17-19 s of a cold ``place_design`` when every
+    helper used it (``benchmarks/README.md``, cold start).
     """
-    return _jit(fn, allocates, parallel=False, inline=inline)
+    return _jit(
+        fn, allocates, parallel=False, inline=inline, returns_views=returns_views, entry=entry
+    )
 
 
 def lanes(fn: F | None = None, *, allocates: bool = False) -> Any:

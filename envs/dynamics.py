@@ -198,7 +198,7 @@ def clip_action(u_raw, bound, u):
     return clipped
 
 
-@lane
+@lane(entry=True)
 def shift_transition(x, a, a0, b, b0, u, form):
     """``x <- A(a) x + b u`` in place with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` (no views).
 
@@ -221,7 +221,7 @@ def shift_transition(x, a, a0, b, b0, u, form):
         x[n - 1] = -last + b[b0 + n - 1] * u
 
 
-@lane
+@lane(entry=True)
 def add_noise(x, sigma, z):
     """``x <- x + sigma z`` in place (untouched when ``sigma == 0``)."""
     if sigma != 0.0:
@@ -229,7 +229,7 @@ def add_noise(x, sigma, z):
             x[i] += sigma * z[i]
 
 
-@lane
+@lane(entry=True)
 def canonical_output(x):
     """``y = c x = x_1``: the output row of both canonical forms (eq. (2), (147))."""
     return x[0]
@@ -252,7 +252,7 @@ def state_space_transition(x, AB, u, tmp):
         x[i] = tmp[i]
 
 
-@lane
+@lane(entry=True)
 def state_output(x, C, y):
     """``y = C x``."""
     for i in range(y.shape[0]):
@@ -294,7 +294,7 @@ def all_finite(x):
     return True
 
 
-@lane
+@lane(entry=True)
 def measure(y_clean, sigma_v, z_v):
     """Measured output ``y_clean + sigma_v z_v`` of one channel (``y_clean`` when noise-free)."""
     if sigma_v != 0.0:
@@ -379,7 +379,7 @@ def observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y):
 
 
 # ----------------------------------------------------------------------------- env steps
-@lane
+@lane(entry=True)
 def canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, form):
     """One step of a canonical plant (``theta = [a; b]``, SISO: scalar input, noise, reference).
 
@@ -395,7 +395,7 @@ def canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, 
     return reward, clipped, diverged, u, y_clean, y
 
 
-@lane
+@lane(entry=True)
 def state_space_plant_step(
     x, AB, C, D, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, tmp
 ):
@@ -411,7 +411,7 @@ def state_space_plant_step(
     return reward, clipped, diverged
 
 
-@lane
+@lane(entry=True)
 def static_plant_step(theta, u_raw, bound, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, none):
     """One step of the static object ``y = Theta^T u + v``; ``(reward, clipped, diverged)``."""
     clipped = clip_action(u_raw, bound, u)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from lane_call import call
 
 from stcgym.adaptive.kernels import design as d
 from stcgym.adaptive.placement import augment_integral, controllability_matrix
@@ -312,7 +313,7 @@ def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> No
     x = np.array([0.3, -0.7])
     gain = np.r_[K, ki if integral else 0.0, N, 1.0, 0.5]
     law = np.array([xi, 0.0, 0.0])
-    u = d.track(gain, law, x, y, r, e, bound, integral, anti_windup)
+    u = call(d.track, gain, law, x, y, r, e, bound, integral, anti_windup)
     u_ref, xi_ref, sat_ref, u_unsat = _law_by_hand(
         K, ki if integral else 0.0, N, xi, x, y, r, e, bound, integral, anti_windup
     )
@@ -326,9 +327,9 @@ def test_track_without_gain_applies_only_the_excitation() -> None:
     gain = np.zeros(d.gain_size(2))
     gain[:2] = [5.0, 5.0]  # never used while has_gain is 0
     law = np.array([0.7, 0.0, 0.0])
-    assert d.track(gain, law, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True) == 0.25
+    assert call(d.track, gain, law, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True) == 0.25
     assert law[d.LAW.xi] == 0.7  # the integrator waits for a gain
-    assert d.track(gain, law, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True) == 10.0
+    assert call(d.track, gain, law, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True) == 10.0
 
 
 # ------------------------------------------------------------------------------ Kalman filter
@@ -418,6 +419,7 @@ def test_the_safe_set_and_weight_vectors_are_read_by_name() -> None:
     from stcgym.adaptive.kernels.safe_set import safe_bounds
 
     safe = d.safe_set(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3, gain_max=4.0)
-    assert safe_bounds(safe) == d.SafeSetBounds(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3,
+    assert call(safe_bounds, safe) == d.SafeSetBounds(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3,
                                                 gain_max=4.0)  # fmt: skip
-    assert weight_fields(d.lq_weights(2.0, 0.5, 0.25)) == d.LQWeights(q_y=2.0, q_i=0.5, rho=0.25)
+    weights = d.lq_weights(2.0, 0.5, 0.25)
+    assert call(weight_fields, weights) == d.LQWeights(q_y=2.0, q_i=0.5, rho=0.25)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from lane_call import call
 from reference_estimators import ReferenceEstimator
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
@@ -67,7 +68,7 @@ def test_carlson_update_is_the_rls_covariance_update(d, seed, lam):
     assert np.all(np.tril(S, -1) == 0.0)
     phi = rng.standard_normal(d)
     Kv = np.zeros(d)
-    alpha = carlson_update(S, 0, d, phi, lam, Kv)
+    alpha = call(carlson_update, S, 0, d, phi, lam, Kv)
     s = lam + phi @ P @ phi
     assert alpha == pytest.approx(s, rel=1e-12)
     np.testing.assert_allclose(Kv, P @ phi, rtol=1e-10, atol=1e-12)
@@ -76,7 +77,7 @@ def test_carlson_update_is_the_rls_covariance_update(d, seed, lam):
     assert np.all(np.tril(S, -1) == 0.0) and np.all(np.diag(S) > 0.0)
     v = rng.standard_normal(d)
     before = S @ S.T
-    rank_one_update(S, 0, d, v.copy())
+    call(rank_one_update, S, 0, d, v.copy())
     np.testing.assert_allclose(S @ S.T, before + np.outer(v, v), rtol=1e-9, atol=1e-11)
     assert np.all(np.tril(S, -1) == 0.0)
 
@@ -100,7 +101,7 @@ def test_generic_least_squares_step_against_the_dense_formulas(p):
     work = np.zeros(3 * d + p + d * d)
     for _ in range(50):
         Phi, Y = rng.standard_normal((p, d)), rng.standard_normal(p)
-        assert least_squares_step(theta, S, Phi, Y, lam, work) == OK
+        assert call(least_squares_step, theta, S, Phi, Y, lam, work) == OK
         E = Y - Phi @ theta_ref
         L = P @ Phi.T @ np.linalg.inv(lam * np.eye(p) + Phi @ P @ Phi.T)
         P = (P - L @ Phi @ P) / lam
@@ -117,7 +118,7 @@ def test_kalman_step_matches_a_textbook_filter(form):
     n = 3
     theta = np.r_[0.2, -0.1, 0.05, rng.standard_normal(n)]
     A = np.zeros((n, n))
-    companion_into(theta, n, form == "observability", A)
+    call(companion_into, theta, n, form == "observability", A)
     np.testing.assert_array_equal(A, companion_A(theta[:n], form))
     P1 = np.eye(n)
     Q = 0.01 * np.eye(n)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from lane_call import call
 from scipy.linalg import null_space
 
 import stcgym.envs  # noqa: F401  (registers the envs)
@@ -78,7 +79,7 @@ def _feed(lay, at, rec, n, m, X, U, lam=1.0):
     q = n + m
     for k in range(len(U)):
         rec[at.z : at.z + q] = np.concatenate((X[k], U[k]))
-        state_matrix_update(rec, at, n, m, np.ascontiguousarray(X[k + 1]), lam, 1e-9, 100.0)
+        call(state_matrix_update, rec, at, n, m, np.ascontiguousarray(X[k + 1]), lam, 1e-9, 100.0)
     return lay.view(rec, "theta").T  # C = [A B]
 
 
@@ -143,7 +144,7 @@ def test_estimator_counts_dependent_regressors_in_the_switch():
     lay, at, rec = _estimator(n, m)
     for k in range(4):
         rec[at.z : at.z + 3] = Z[k]
-        status = state_matrix_update(rec, at, n, m, Y[k].copy(), 1.0, 1e-9, 100.0)
+        status = call(state_matrix_update, rec, at, n, m, Y[k].copy(), 1.0, 1e-9, 100.0)
         assert status == (1 if k == 1 else 0)
     expected = np.linalg.lstsq(Z, Y, rcond=None)[0].T
     np.testing.assert_allclose(lay.view(rec, "theta").T, expected, atol=1e-10)
@@ -177,7 +178,7 @@ def test_lq_gain_equals_dlqr(seed):
     K = np.zeros((m, n))
     work = np.zeros(mimo_lq.design_work_size(n, m))
     for _ in range(3000):
-        mimo_lq.riccati_step(A, B, Q, R, P, K, work)
+        call(mimo_lq.riccati_step, A, B, Q, R, P, K, work)
     mimo_lq.lq_gain(A, B, R, P, K, work)
     np.testing.assert_allclose(P, P_ref, rtol=1e-7)
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9)
@@ -224,10 +225,10 @@ def test_oracle_lanes_take_their_own_matrices():
 
 def test_stability_test_by_squaring():
     work = np.zeros(mimo_lq.design_work_size(2, 1))
-    assert mimo_lq.schur_stable(np.array([[0.999, 1e3], [0.0, 0.5]]), work)
-    assert not mimo_lq.schur_stable(np.array([[1.001, 0.0], [0.0, 0.1]]), work)
-    assert not mimo_lq.schur_stable(np.array([[1.0, 1.0], [0.0, 1.0]]), work)
-    assert not mimo_lq.schur_stable(np.array([[np.nan, 0.0], [0.0, 0.1]]), work)
+    assert call(mimo_lq.schur_stable, np.array([[0.999, 1e3], [0.0, 0.5]]), work)
+    assert not call(mimo_lq.schur_stable, np.array([[1.001, 0.0], [0.0, 0.1]]), work)
+    assert not call(mimo_lq.schur_stable, np.array([[1.0, 1.0], [0.0, 1.0]]), work)
+    assert not call(mimo_lq.schur_stable, np.array([[np.nan, 0.0], [0.0, 0.1]]), work)
 
 
 # ------------------------------------------------------------------ closed loop

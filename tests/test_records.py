@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from lane_call import call
 
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable
 from stcgym.envs.compiled import FixedTypes, Layout, lane
 
 
-@lane
+@lane(entry=True)
 def _write_through_views(a, offset, count, rows, cols):
     """Write k * 1000 + i * 10 + j through view3d and read it back through view2d."""
     M = view3d(a, offset, count, rows, cols)
@@ -54,10 +55,10 @@ def test_compiled_views_are_the_numpy_reshape(offset, count, rows, cols, tail):
 def test_copies_write_every_entry():
     src = np.arange(12.0).reshape(3, 4)
     dst = np.zeros((3, 4))
-    copy_matrix(src, dst)
+    call(copy_matrix, src, dst)
     np.testing.assert_array_equal(dst, src)
     v = np.zeros(5)
-    copy_vector(np.arange(5.0), v)
+    call(copy_vector, np.arange(5.0), v)
     np.testing.assert_array_equal(v, np.arange(5.0))
 
 
@@ -81,14 +82,14 @@ def test_a_lane_function_that_allocates_does_not_compile():
     """Lane functions run without numba's reference counting: an allocation is a compile
     error, not a silent slowdown (``lane(allocates=True)`` is the documented opt-out)."""
 
-    @lane
+    @lane(entry=True)
     def allocating(n):
         return np.zeros(n).sum()
 
     with pytest.raises(numba.core.errors.NumbaError):
         allocating(3)
 
-    @lane(allocates=True)
+    @lane(allocates=True, entry=True)
     def allowed(n):
         return np.zeros(n).sum() + n
 
@@ -100,7 +101,7 @@ class _Pair(NamedTuple):
     theta: int
 
 
-@lane
+@lane(entry=True)
 def _read_by_name(f, at, d):
     """``sum(theta) + 100 * S[d - 1, d - 1]`` read through the record's field names."""
     theta = f[at.theta : at.theta + d]
@@ -141,3 +142,16 @@ def test_fixed_types_calls_the_same_compiled_code():
     assert step.entry is not None
     rec[1] = 7.0  # the looked-up overload reads the current values
     assert step(rec, at, 2) == 507.0
+
+
+def test_a_lane_helper_called_from_python_raises_and_runs_through_a_compiled_caller() -> None:
+    """Helpers have no CPython wrapper: a Python call is a clear error, before and after the
+    helper was compiled for a lane function, never a jump to a null address."""
+    from stcgym.adaptive.kernels.linalg import norm1
+
+    M = np.array([[1.0, -2.0], [3.0, 0.5]])
+    with pytest.raises(TypeError, match="lane helper"):
+        norm1(M)
+    assert call(norm1, M) == 4.0  # max column sum of |M|
+    with pytest.raises(TypeError, match=r"@lane\(entry=True\)"):
+        norm1(M)

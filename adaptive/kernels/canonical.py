@@ -51,7 +51,7 @@ def companion_into(theta: NDArray, n: int, observability: bool, A: NDArray) -> N
             A[i, 0] = -theta[i]
 
 
-@lane(inline=True)
+@lane(inline=True, entry=True)
 def model_matrices(theta, form, A, b):
     """Write the canonical-form ``A`` (``n x n``) and ``b`` of ``theta = [a; b]``."""
     n = theta.size // 2
@@ -60,7 +60,7 @@ def model_matrices(theta, form, A, b):
         b[i] = theta[n + i]
 
 
-@lane(inline=True)
+@lane(inline=True, entry=True)
 def augment_integral(A, b, integral, Ad, bd):
     """``(A_aug, b_aug)`` of the integral state ``xi(t+1) = xi(t) + r(t) - c x(t)`` (or a copy)."""
     n = A.shape[0]

@@ -301,7 +301,7 @@ def process_noise(f, at, d, n, y, u, q, q_floor, Q):
 
 
 # --------------------------------------------------------------------------------- the step
-@lane
+@lane(entry=True)
 def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 

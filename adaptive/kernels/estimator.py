@@ -7,7 +7,7 @@ describes one configuration: ``spec.config`` (an :class:`EstimatorConfig`) and t
 offsets ``spec.at`` (an :class:`EstimatorRecord`; ``spec.record(base)`` for a record stored at
 ``base`` of a larger lane record, such as the controller's).
 
-``status = estimator_update(rec, at, cfg, y)``
+``status = estimator_update(rec, at, cfg, y, windowed=True)``
     Measurement step at time ``t`` on the estimator record stored in ``rec`` at the offsets
     ``at`` (``rec`` a 1-D float64 array, e.g. the controller's own lane record): shift the
     stacked window ``Phi(p, t)``, ``Y(p, t)`` (eq. (19)-(20), (74)-(75)), compute the innovation
@@ -192,7 +192,7 @@ ST_STATE_RESET, ST_KF_RESET, ST_PD_LOST = 16, 32, 64
 # ============================================================================================
 
 
-@lane
+@lane(entry=True)
 def reset_covariance(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig) -> None:
     """``P <- P(0)`` / ``r <- r(0)`` and an empty finite-history window; ``theta`` kept."""
     d = 2 * cfg.n
@@ -360,9 +360,24 @@ def _gain(S: NDArray, phi: NDArray) -> float:
     return q
 
 
-@lane
-def estimator_update(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, y: float) -> int:
-    """Measurement step at time ``t``; see the module docstring."""
+@lane(entry=True)
+def estimator_update(
+    rec: NDArray,
+    at: EstimatorRecord,
+    cfg: EstimatorConfig,
+    y: float,
+    windowed: bool | None = None,
+) -> int:
+    """Measurement step at time ``t``; see the module docstring.
+
+    ``windowed``: ``True`` where the configuration may have a finite history window
+    (``cfg.window > 0``). Left out (``None``), the compiled version has no window code at all
+    (numba prunes the branch on the argument's type before it types the function), so a
+    caller that never slides a window (the self-tuning controller) does not compile the
+    downdate and replay; that version raises ``ValueError`` on a configuration with a window.
+    """
+    if windowed is None and cfg.window > 0:
+        raise ValueError("estimator_update: a configuration with window > 0 needs windowed=True")
     n = cfg.n
     d = 2 * n
     p = cfg.p
@@ -392,7 +407,7 @@ def estimator_update(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, y:
     least_squares = cfg.rule >= RULE_RLS
     q = _gain(view2d(rec, at.S, d, d), phi) if least_squares else 0.0
     ok = _rule_increment(rec, at, cfg, Phi, E, delta, K, w)
-    if ok and cfg.window > 0:
+    if windowed is not None and ok and cfg.window > 0:
         status |= _slide_window(rec, at, cfg, theta, Phi, Y, delta)
     if ok:
         for i in range(d):
@@ -448,7 +463,7 @@ def _frozen_signal(
     return ST_FROZEN if (frozen and not was) else 0
 
 
-@lane
+@lane(entry=True)
 def estimator_predict(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, u: float) -> int:
     """State step with the applied input ``u(t)``; see the module docstring."""
     n = cfg.n
@@ -534,7 +549,7 @@ def _corrected_state(
         x_reg[i] = x[i] + x_reg[i] * innov
 
 
-@lane
+@lane(entry=True)
 def estimator_restart(
     rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, theta: NDArray, P: NDArray
 ) -> bool:
@@ -565,7 +580,7 @@ def update_lanes(
 ) -> None:
     """``estimator_update`` on every row of ``R`` (one lane per row)."""
     for i in prange(R.shape[0]):
-        status[i] = estimator_update(R[i], at, cfg, y[i])
+        status[i] = estimator_update(R[i], at, cfg, y[i], True)
 
 
 @lanes
@@ -577,7 +592,7 @@ def predict_lanes(
         status[i] = estimator_predict(R[i], at, cfg, u[i])
 
 
-@lane
+@lane(entry=True)
 def run_lane(
     rec: NDArray,
     at: EstimatorRecord,
@@ -593,7 +608,7 @@ def run_lane(
     status has a bit of ``stop_mask``; returns the number of steps done."""
     d = 2 * cfg.n
     for k in range(u.shape[0]):
-        st = estimator_update(rec, at, cfg, y[k])
+        st = estimator_update(rec, at, cfg, y[k], True)
         for i in range(d):
             thetas[k, i] = rec[at.theta + i]
         if st & stop_mask:

@@ -53,7 +53,7 @@ def oracle_scratch_size(n: int) -> int:
     return 3 * n + 3 * n * n + 5
 
 
-@lane
+@lane(entry=True)
 def known_model_propose(f, at, n, s, y, r, filtered, integral, anti_windup, action_bound):
     """One step of a known-model controller, written to the proposal buffer ``s`` only.
 
@@ -96,7 +96,7 @@ def known_model_propose(f, at, n, s, y, r, filtered, integral, anti_windup, acti
     return 0
 
 
-@lane
+@lane(entry=True)
 def known_model_commit(f, at, n, s):
     """Make the proposal ``s`` of :func:`known_model_propose` the lane's state; returns ``u``."""
     k = 2 * n + n * n

@@ -127,7 +127,7 @@ def rank_one_update(S: NDArray, lo: int, hi: int, v: NDArray) -> None:
             v[i] = c * v[i] - s * sij
 
 
-@lane
+@lane(entry=True)
 def factor_is_healthy(S: NDArray, lo: int, hi: int) -> bool:
     """The one positive-definiteness check: every entry of the block finite, every diagonal
     entry strictly positive (see the module docstring)."""
@@ -155,7 +155,7 @@ def _p_times(S: NDArray, lo: int, hi: int, g: NDArray, w: NDArray, out: NDArray)
         out[i] = acc
 
 
-@lane
+@lane(entry=True)
 def least_squares_increment(
     S: NDArray,
     lo: int,
@@ -232,7 +232,7 @@ def gradient_increment(
     return r_new
 
 
-@lane
+@lane(entry=True)
 def block_trace_is_finite(S: NDArray, lo: int, hi: int) -> bool:
     """``trace(P) = ||S||_F^2`` is finite (it bounds every entry of ``P``; NaN propagates)."""
     acc = 0.0
@@ -341,7 +341,7 @@ def least_squares_downdate(
     return OK
 
 
-@lane
+@lane(entry=True)
 def upper_factor(P: NDArray, S: NDArray) -> bool:
     """Upper-triangular ``S`` with ``S S^T = P`` (a Cholesky factorisation run from the last
     row/column backwards); ``False`` if ``P`` is not symmetric positive definite."""

@@ -163,7 +163,7 @@ def _riccati_step(A, b, Q, rho, P, K, Acl, T):
             P[i, j] = P[j, i]
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def _weight_matrix(n, integral, weights, Ws, m):
     """The state weight ``Q = q_y c^T c (+ q_i on the integrator)``, ``m x m``, written into
     matrix slot ``m2`` (the controllability scratch, dead once the safe set has passed)."""
@@ -178,7 +178,7 @@ def _weight_matrix(n, integral, weights, Ws, m):
     return Q
 
 
-@lane
+@lane(entry=True)
 def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
     """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
 
@@ -300,7 +300,7 @@ def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
     return OK
 
 
-@lane
+@lane(entry=True)
 def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     """Discrete algebraic Riccati equation of a general single-input pair (see :func:`_dare`).
 
@@ -314,7 +314,7 @@ def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
     return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
 
 
-@lane
+@lane(entry=True)
 def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter):
     """The LQ design of :func:`lq_design` solved to convergence (doubling) for a fresh model.
 
@@ -369,7 +369,7 @@ def lq_solve_lanes(
         )
 
 
-@lane(allocates=True)
+@lane(allocates=True, entry=True)
 def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     """Steady-state (a-priori) Kalman filter covariance of the canonical model of ``theta``:
     the stabilising solution of the dual Riccati equation ``dare(A^T, c^T, W, R)`` (``W``

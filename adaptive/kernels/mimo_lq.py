@@ -76,7 +76,7 @@ def design_work_size(n: int, m: int) -> int:
     return 12 * s * s
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def _slot(work, k, rows, cols):
     """Slot ``k`` of the scratch as a ``rows x cols`` matrix (slots of ``(2n + m)^2`` floats,
     ``work.size / 12``)."""
@@ -103,7 +103,7 @@ def _max_abs(M):
     return best
 
 
-@lane
+@lane(entry=True)
 def lq_gain(A, B, R, P, K, work):
     """``K = (R + B^T P B)^{-1} B^T P A``; ``False`` when ``R + B^T P B`` is singular."""
     n = A.shape[0]
@@ -171,7 +171,7 @@ def schur_stable(M, work):
     return False
 
 
-@lane
+@lane(entry=True)
 def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
     """Stabilising DARE solution ``P`` and its gain ``K`` by doubling; returns ``OK``,
     ``NOT_STABILISABLE`` (diverging, singular, or a closed loop that is not Schur stable) or
@@ -243,7 +243,7 @@ def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
     return OK
 
 
-@lane
+@lane(entry=True)
 def steady_state_feedforward(A, B, Q, R, K, F, work):
     """``F = M_u + K M_x`` of the cheapest equilibrium (module docstring); ``False`` when the
     KKT matrix is singular (no equilibrium for some reference: an uncontrollable mode at

@@ -218,7 +218,7 @@ def _design(f, g, at, cfg):
     return status
 
 
-@lane
+@lane(entry=True)
 def mimo_step(f, g, at, cfg, x, r, u):
     """One sample of the controller (module docstring, steps 1-4): ``u(t)`` from ``x(t)``,
     ``r(t)`` (1-D arrays of ``n``, ``n`` and ``m`` floats)."""

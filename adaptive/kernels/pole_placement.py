@@ -56,7 +56,7 @@ def _ackermann_from_ctrb(A, alpha, K, Ws, Vs):
             K[j] += coef * v[j]
 
 
-@lane
+@lane(entry=True)
 def ackermann_gain(A, b, alpha, K, work):
     """Ackermann gain of a general pair ``(A, b)`` (``m x m``; ``work`` of ``work_size(m - 1)``).
 
@@ -72,7 +72,7 @@ def ackermann_gain(A, b, alpha, K, work):
     return rcond
 
 
-@lane
+@lane(entry=True)
 def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
     """Pole placement on the (augmented) model of ``theta``; see the module docstring.
 

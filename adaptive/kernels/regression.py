@@ -126,7 +126,7 @@ def downdate_is_accurate(S, Phi, F, M):  # pragma: no cover - compiled
     return True
 
 
-@lane
+@lane(inline=True)
 def _gain(K, S, Phi, g):  # pragma: no cover - compiled
     """``K(t) = P(t) Phi^T = S (S^T Phi^T)``, ``(d, p)`` (``= P(t-1) phi / alpha``, eq. (3));
     ``g`` is scratch of length ``d``."""
@@ -224,7 +224,7 @@ def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):
     return status
 
 
-@lane
+@lane(entry=True)
 def rls_run(
     rec, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
 ):  # pragma: no cover

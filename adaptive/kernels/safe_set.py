@@ -205,7 +205,7 @@ def safe_set(
     return np.array(bounds, dtype=np.float64)
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def split_work(work, mm, n_mat):
     """The scratch as ``Ws`` ``(n_mat, mm, mm)`` and ``Vs`` ``(9, mm)`` views (every slot after
     that a cheap basic slice ``Ws[slot, :m, :m]``). A scratch shorter than that would corrupt
@@ -283,7 +283,7 @@ def _steady_state(A, b, x_ss, Ws):
     return Minv[n, n], rcond
 
 
-@lane
+@lane(entry=True)
 def steady_state(A, b, x_ss, work):
     """Steady state of ``x = A x + b u``, ``y = x_1 = 1``: writes ``x_ss``, returns
     ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] = [0; 1]``
@@ -321,7 +321,7 @@ def _prepare(theta, form, integral, safe, Ws, Vs):
     return OK, rcond
 
 
-@lane(inline=True)
+@lane(returns_views=True)
 def design_start(theta, form, integral, safe, work, n_mat):
     """The start every design shares: the scratch split into ``n_mat`` matrix slots
     (:func:`split_work`), the model of ``theta`` built and the safe-set tests passed in order

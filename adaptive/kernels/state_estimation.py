@@ -76,7 +76,7 @@ def observer_step(
         x_next[i] = acc
 
 
-@lane(inline=True)
+@lane(inline=True, entry=True)
 def kalman_step(
     A: NDArray,
     b: NDArray,
@@ -128,7 +128,7 @@ def kalman_step(
     return 0
 
 
-@lane(inline=True)
+@lane(inline=True, entry=True)
 def filtered_state(x, P1, R, y, x_filt):
     """The current estimate ``x(t|t) = x(t|t-1) + P1 c^T (y - c x(t|t-1)) / (R + c P1 c^T)`` of
     the seed paper's Kalman filter (eq. (66)-(72), ``c = e_1``); returns the innovation. The
@@ -164,7 +164,7 @@ def advance_regressor(
         phi[0] = -x[0]
 
 
-@lane(inline=True)
+@lane(inline=True, entry=True)
 def is_schur_stable(a: NDArray, n: int, c: NDArray) -> bool:
     """Schur-Cohn / Jury step-down test of ``z^n + a_1 z^{n-1} + ... + a_n``: stable iff every
     reflection coefficient ``k_m`` satisfies ``|k_m| < 1`` (False for NaN).
@@ -189,7 +189,7 @@ def is_schur_stable(a: NDArray, n: int, c: NDArray) -> bool:
     return True
 
 
-@lane(allocates=True)
+@lane(allocates=True, entry=True)
 def state_trajectory(
     A: NDArray,
     b: NDArray,

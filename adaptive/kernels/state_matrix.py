@@ -91,7 +91,7 @@ def state_matrix_initial(lay: Layout, rec: NDArray, n: int, m: int) -> None:
     rec[o : o + q * q] = np.eye(q).ravel()
 
 
-@lane(inline=True)
+@lane(inline=True, entry=True)
 def _switch_to_rls(f, at, n, q, p0):
     """``P = G^{-1}`` (19) and ``Theta = G^{-1} H`` (11); a singular ``G`` keeps ``Theta`` and
     starts ``P`` at ``p0 I``."""
