@@ -147,7 +147,12 @@ def _jit(
     entry: bool = True,
 ) -> Any:
     # numba's cfunc wrapper (for first-class function use) is never used here
-    options: dict[str, Any] = {"nogil": True, "error_model": "numpy", "no_cfunc_wrapper": True}
+    options: dict[str, Any] = {
+        "nopython": True,  # as numba.njit: a typing error is an error, never object mode
+        "nogil": True,
+        "error_model": "numpy",
+        "no_cfunc_wrapper": True,
+    }
     # LLVM's alwaysinline where asked, else never (numba would otherwise pass the flag on from
     # an inlined caller to the helpers it compiles)
     options["forceinline"] = inline

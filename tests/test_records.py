@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numba
@@ -86,8 +87,10 @@ def test_a_lane_function_that_allocates_does_not_compile():
     def allocating(n):
         return np.zeros(n).sum()
 
-    with pytest.raises(numba.core.errors.NumbaError):
-        allocating(3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a typing error, never a fallback to object mode
+        with pytest.raises(numba.core.errors.TypingError):
+            allocating(3)
 
     @lane(allocates=True, entry=True)
     def allowed(n):
