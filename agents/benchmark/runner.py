@@ -12,6 +12,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -434,36 +435,42 @@ class _RunState:
             self.log(f"{len(ready)} finished RL jobs read back from {store.folder}")
         # the classical controllers run in a thread while the workers train; when the RL jobs
         # run in this process (one job, or jobs=1) they go first instead
-        classical = _Background(self._classical_all, scenarios, progress, stop=self.halt)
-        if cfg.executor == "ray" or (cfg.jobs > 1 and len(todo) > 1):
-            classical.start()
-        else:
-            classical.run_here()
+        background = cfg.executor == "ray" or (cfg.jobs > 1 and len(todo) > 1)
         failures = []
-        try:
-            for out in run_tasks(
-                train_and_evaluate,
-                todo,
-                executor=cfg.executor,
-                jobs=cfg.jobs,
-                address=cfg.address,
-                threads=1,
-            ):
-                name = out.task["name"]
-                if out.error is not None:
-                    failures.append(name)
-                    self.log(f"RL job {name} FAILED:\n{out.error}")
-                else:
-                    store.save(job_id(out.task), out.result)
-                    ready.append((out.task, out.result))
-                progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
-                if classical.finished():
-                    while ready:
-                        self._collect(*ready.pop(0))
-        except BaseException:
-            classical.abort()
-            raise
-        classical.join()
+        with ThreadPoolExecutor(1, thread_name_prefix="classical") as pool:
+            if background:
+                classical = pool.submit(self._classical_all, scenarios, progress)
+            else:
+                classical = Future()
+                self._classical_all(scenarios, progress)
+                classical.set_result(None)
+            try:
+                for out in run_tasks(
+                    train_and_evaluate,
+                    todo,
+                    executor=cfg.executor,
+                    jobs=cfg.jobs,
+                    address=cfg.address,
+                    threads=1,
+                ):
+                    name = out.task["name"]
+                    if out.error is not None:
+                        failures.append(name)
+                        self.log(f"RL job {name} FAILED:\n{out.error}")
+                    else:
+                        store.save(job_id(out.task), out.result)
+                        ready.append((out.task, out.result))
+                    progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
+                    if classical.done():
+                        classical.result()  # the thread's error, raised in this one
+                        while ready:
+                            self._collect(*ready.pop(0))
+            except BaseException:
+                # the thread stops at its next episode (leaving the block waits for it) and
+                # its own error, if any, is dropped
+                self.halt.set()
+                raise
+            classical.result()
         for task, result in ready:
             self._collect(task, result)
         if failures:
@@ -481,51 +488,3 @@ class _RunState:
 
 class _Stop(Exception):
     """Raised in the classical evaluations when the driver stops (an error or Ctrl-C)."""
-
-
-class _Background:
-    """``fn(*args)`` in a thread of the driver; its error is raised by :meth:`finished` or
-    :meth:`join` in the driver's thread. ``stop`` is the event ``fn`` checks between
-    episodes (:meth:`abort` sets it)."""
-
-    def __init__(self, fn: Callable[..., None], *args: Any, stop: threading.Event) -> None:
-        self.fn, self.args, self.stop = fn, args, stop
-        self.error: BaseException | None = None
-        self._thread: threading.Thread | None = None
-
-    def _target(self) -> None:
-        try:
-            self.fn(*self.args)
-        except BaseException as exc:  # noqa: BLE001  (raised again in the driver's thread)
-            self.error = exc
-
-    def run_here(self) -> None:
-        self.fn(*self.args)
-
-    def start(self) -> None:
-        self._thread = threading.Thread(target=self._target, name="classical", daemon=True)
-        self._thread.start()
-
-    def finished(self) -> bool:
-        """Whether it is done (raises its error, if any)."""
-        if self._thread is not None and self._thread.is_alive():
-            return False
-        self._raise()
-        return True
-
-    def join(self) -> None:
-        """Wait for it (raises its error, if any)."""
-        if self._thread is not None:
-            self._thread.join()
-        self._raise()
-
-    def abort(self) -> None:
-        """The driver failed: stop it at its next episode and wait (its error is dropped)."""
-        self.stop.set()
-        if self._thread is not None:
-            self._thread.join()
-
-    def _raise(self) -> None:
-        if self.error is not None:
-            error, self.error = self.error, None
-            raise error
