@@ -68,6 +68,7 @@ from stcgym.adaptive.estimator_views import EstimatorViews
 from stcgym.adaptive.factory import make_estimator
 from stcgym.adaptive.health import NumericalHealthError
 from stcgym.adaptive.kernels import estimator as _k
+from stcgym.adaptive.kernels import estimator_lanes as _lanes
 from stcgym.adaptive.kernels.estimator import (
     ALGORITHMS,
     RULES,
@@ -395,7 +396,7 @@ class RecursiveEstimator(EstimatorViews):
                 self._report(self._status, snapshot)
             return self._lane0[self._theta_slice].copy()
         y_arr = lane_vector(y_t, self._B, "y(t)")
-        _k.update_lanes(rec, spec.at, spec.config, y_arr, self._status)
+        _lanes.update_lanes(rec, spec.at, spec.config, y_arr, self._status)
         if self._status.any():
             self._report(self._status, snapshot)
         return rec[:, self._theta_slice].copy()
@@ -455,7 +456,7 @@ class RecursiveEstimator(EstimatorViews):
                 self._status[0] = status
                 self._report(self._status, snapshot)
             return self._lane0[self._x_slice].copy()
-        _k.predict_lanes(rec, spec.at, spec.config, u, self._status)
+        _lanes.predict_lanes(rec, spec.at, spec.config, u, self._status)
         if known is not None:
             rec[:, self._x_slice] = known
         if self._status.any():
@@ -511,7 +512,9 @@ class RecursiveEstimator(EstimatorViews):
         snapshot = self._rec.copy() if raising else None
         stop = (_k.ST_RESET | _k.ST_STATE_RESET) if raising else 0
         spec = self.spec
-        done = _k.run_lane(self._rec[0], spec.at, spec.config, u_arr, y_arr, thetas, status, stop)
+        done = _lanes.run_lane(
+            self._rec[0], spec.at, spec.config, u_arr, y_arr, thetas, status, stop
+        )
         events = status[:done]
         if events.any():
             self._report(events, snapshot, times=True)

@@ -58,6 +58,7 @@ def _measure(
 
     from stcgym.adaptive import make_estimator
     from stcgym.adaptive.kernels import estimator as K
+    from stcgym.adaptive.kernels.estimator_lanes import run_lane
 
     T, B = u.size, U.shape[1]
     t0 = time.perf_counter()
@@ -100,7 +101,7 @@ def _measure(
     thetas = np.empty((T, 4))
     status = np.zeros(T, dtype=np.int64)
     rec2 = est.spec.initial_record().copy()
-    t_run = _best(lambda: K.run_lane(rec2, at, cfg, u, y, thetas, status, 0)) / T
+    t_run = _best(lambda: run_lane(rec2, at, cfg, u, y, thetas, status, 0)) / T
 
     def batch_loop() -> None:
         for k in range(20):

@@ -29,9 +29,7 @@ offsets ``spec.at`` (an :class:`EstimatorRecord`; ``spec.record(base)`` for a re
 ``reset_covariance(rec, at, cfg)``
     ``P <- P(0)`` (``r <- r(0)``), window emptied, ``theta`` kept: the documented safe action.
 
-Batch loops: ``update_lanes(R, at, cfg, y, status)``, ``predict_lanes(R, at, cfg, u, status)``
-run the lane functions over the rows of a ``(B, size)`` record (``prange``);
-``run_lane(rec, at, cfg, u, y, thetas, status, stop)`` runs ``T`` steps of one lane.
+The batch loops over lanes and the ``T``-step loop of one lane are in :mod:`.estimator_lanes`.
 
 The record (floats only, so it embeds in any caller's float record) holds: the parameters,
 the factor of ``P`` and ``P(0)``'s factor (for the safe reset), the state estimate and
@@ -157,7 +155,7 @@ from stcgym.adaptive.kernels.state_estimation import (
     kalman_step,
     observer_step,
 )
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane
 
 __all__ = [
     "ALGORITHMS",
@@ -175,10 +173,7 @@ __all__ = [
     "estimator_restart",
     "estimator_update",
     "parse_name",
-    "predict_lanes",
     "reset_covariance",
-    "run_lane",
-    "update_lanes",
     "upper_cholesky",
 ]
 
@@ -572,50 +567,3 @@ def estimator_restart(
     for i in range(d):
         rec[at.theta + i] = theta[i]
     return True
-
-
-@lanes
-def update_lanes(
-    R: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, y: NDArray, status: NDArray
-) -> None:
-    """``estimator_update`` on every row of ``R`` (one lane per row)."""
-    for i in prange(R.shape[0]):
-        status[i] = estimator_update(R[i], at, cfg, y[i], True)
-
-
-@lanes
-def predict_lanes(
-    R: NDArray, at: EstimatorRecord, cfg: EstimatorConfig, u: NDArray, status: NDArray
-) -> None:
-    """``estimator_predict`` on every row of ``R``."""
-    for i in prange(R.shape[0]):
-        status[i] = estimator_predict(R[i], at, cfg, u[i])
-
-
-@lane(entry=True)
-def run_lane(
-    rec: NDArray,
-    at: EstimatorRecord,
-    cfg: EstimatorConfig,
-    u: NDArray,
-    y: NDArray,
-    thetas: NDArray,
-    status: NDArray,
-    stop_mask: int,
-) -> int:
-    """``T`` steps ``update(y[k])``, ``predict(u[k])`` of one lane; ``thetas[k] = theta_hat``
-    after the update, ``status[k]`` the events of step ``k``. Stops after the first step whose
-    status has a bit of ``stop_mask``; returns the number of steps done."""
-    d = 2 * cfg.n
-    for k in range(u.shape[0]):
-        st = estimator_update(rec, at, cfg, y[k], True)
-        for i in range(d):
-            thetas[k, i] = rec[at.theta + i]
-        if st & stop_mask:
-            status[k] = st
-            return k + 1
-        st |= estimator_predict(rec, at, cfg, u[k])
-        status[k] = st
-        if st & stop_mask:
-            return k + 1
-    return u.shape[0]
