@@ -47,7 +47,7 @@ Pieces (lane functions; arrays are float64 and C-contiguous, modified in place w
     ``x <- x + sigma z`` in place (nothing when ``sigma == 0``).
 ``state_space_transition(x, AB, u, tmp)``
     ``x <- A x + B u`` in place for ``AB = [A B]`` of shape ``(n, n + m)`` (``tmp``: ``n`` floats).
-``linear_output(x, C, D, u, y)`` / ``state_output(x, C, y)``
+``linear_output(x, C, D, u, y)`` / ``matvec(C, x, y)``
     ``y = C x + D u`` / ``y = C x``.
 ``static_output(theta, u, y)``
     ``y = Theta^T u`` for ``Theta`` of shape ``(m, p)``.
@@ -119,7 +119,7 @@ __all__ = [
     "add_noise",
     "state_space_transition",
     "linear_output",
-    "state_output",
+    "matvec",
     "static_output",
     "observe",
     "canonical_plant_step",
@@ -252,14 +252,15 @@ def state_space_transition(x, AB, u, tmp):
         x[i] = tmp[i]
 
 
-@lane(entry=True)
-def state_output(x, C, y):
-    """``y = C x``."""
-    for i in range(y.shape[0]):
-        s = 0.0
-        for j in range(x.shape[0]):
-            s += C[i, j] * x[j]
-        y[i] = s
+@lane(inline=True, entry=True)
+def matvec(A, v, out):
+    """``out = A @ v`` (``out`` distinct from ``v``): the output ``y = C x`` of a plant without
+    feedthrough, and the small products of :mod:`stcgym.adaptive.kernels`."""
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for j in range(A.shape[1]):
+            acc += A[i, j] * v[j]
+        out[i] = acc
 
 
 @lane
@@ -518,4 +519,4 @@ def canonical_outputs(X, idx, Y_clean):
 def state_outputs(X, idx, C, Y_clean):
     """``Y_clean[j] = C x`` of lane ``idx[j]`` (the output at reset, before any input)."""
     for j in prange(idx.shape[0]):
-        state_output(X[idx[j]], C, Y_clean[j])
+        matvec(C, X[idx[j]], Y_clean[j])

@@ -213,7 +213,7 @@ class StateSpaceEnv(LinearPlantEnv):
         )  # fmt: skip
 
     def _reset_output(self) -> None:
-        dynamics.state_output(self._x, self.C, self._y_clean)
+        dynamics.matvec(self.C, self._x, self._y_clean)
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()

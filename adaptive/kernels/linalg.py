@@ -2,7 +2,8 @@
 
 The matrices of a lane are a few rows wide (the order of a plant plus an integrator), where a
 call into a library costs more than the arithmetic; see :mod:`stcgym.envs.compiled`. All are
-inlined into their callers.
+inlined into their callers. ``matvec`` is the plants' own (:func:`stcgym.envs.dynamics.matvec`,
+which computes their output ``y = C x``), re-exported here.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import math
 
 from stcgym.envs.compiled import lane
+from stcgym.envs.dynamics import matvec
 
 __all__ = ["all_finite", "invert", "matmul", "matvec", "max_abs", "norm1"]
 
@@ -35,16 +37,6 @@ def matmul(X, Y, out, trans_x=False, trans_y=False):
             for k in range(inner):
                 s += (X[k, i] if trans_x else X[i, k]) * (Y[j, k] if trans_y else Y[k, j])
             out[i, j] = s
-
-
-@lane(inline=True)
-def matvec(A, v, out):
-    """``out = A @ v`` (``out`` distinct from ``v``)."""
-    for i in range(A.shape[0]):
-        acc = 0.0
-        for j in range(A.shape[1]):
-            acc += A[i, j] * v[j]
-        out[i] = acc
 
 
 @lane(inline=True)
