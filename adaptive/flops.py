@@ -240,50 +240,13 @@ def d_gi(n: int, L: int) -> int:
     return 4 * n**2 * L + 8 * n * L - 2 * n**2 + 2 * n
 
 
-def o_gi(n: int, L: int) -> int:
-    """O-GI per iteration: ``gi + observer_states``."""
-    return gi(n, L) + observer_states(n, L)
-
-
-def kf_gi(n: int, L: int) -> int:
-    """KF-GI per iteration: ``gi + kalman_states``."""
-    return gi(n, L) + kalman_states(n, L)
-
-
-def o_d_gi(n: int, L: int) -> int:
-    """O-D-GI per iteration: ``d_gi + observer_states``."""
-    return d_gi(n, L) + observer_states(n, L)
-
-
-def kf_d_gi(n: int, L: int) -> int:
-    """KF-D-GI per iteration: ``d_gi + kalman_states``."""
-    return d_gi(n, L) + kalman_states(n, L)
-
-
-def kf_lsi(n: int, L: int) -> int:
-    """KF-LSI per iteration: ``lsi`` (table 5) ``+ kalman_states``."""
-    return lsi(n, L) + kalman_states(n, L)
-
-
-def o_d_lsi(n: int, L: int) -> int:
-    """O-D-LSI per iteration: ``d_lsi`` (table 6's rows) ``+ observer_states``."""
-    return d_lsi(n, L) + observer_states(n, L)
-
-
-ITERATIVE: dict[str, object] = {
-    "GI": gi,
-    "D-GI": d_gi,
-    "LSI": lsi,
-    "D-LSI": d_lsi,
-    "O-GI": o_gi,
-    "KF-GI": kf_gi,
-    "O-D-GI": o_d_gi,
-    "KF-D-GI": kf_d_gi,
-    "O-LSI": o_lsi,
-    "KF-LSI": kf_lsi,
-    "O-D-LSI": o_d_lsi,
-    "KF-D-LSI": kf_d_lsi,
-}
+#: The parameter updates of the iterative algorithms, and their state re-estimation over
+#: ``t = 1..L``. Without a table, ``S-R`` costs ``R + S`` per iteration (e.g. O-GI is
+#: ``gi + observer_states``, KF-D-GI ``d_gi + kalman_states``); tables 7 and 8 count O-LSI and
+#: KF-D-LSI themselves.
+_ITERATIVE_UPDATES = {"GI": gi, "D-GI": d_gi, "LSI": lsi, "D-LSI": d_lsi}
+_ITERATIVE_STATES = {"O": observer_states, "KF": kalman_states}
+_ITERATIVE_TABLES = {"O-LSI": o_lsi, "KF-D-LSI": kf_d_lsi}
 
 
 def iterative(name: str, n: int, L: int) -> int:
@@ -293,6 +256,15 @@ def iterative(name: str, n: int, L: int) -> int:
     (``"GI"``, ``"LSI"``, ...) are the parameter update alone, as used with known states.
     """
     key = str(name).upper()
-    if key not in ITERATIVE:
-        raise ValueError(f"name must be one of {sorted(ITERATIVE)}, got {name!r}")
-    return ITERATIVE[key](n, L)  # type: ignore[operator]
+    if key in _ITERATIVE_TABLES:
+        return _ITERATIVE_TABLES[key](n, L)
+    if key in _ITERATIVE_UPDATES:
+        return _ITERATIVE_UPDATES[key](n, L)
+    states, _, rule = key.partition("-")
+    if states in _ITERATIVE_STATES and rule in _ITERATIVE_UPDATES:
+        return _ITERATIVE_UPDATES[rule](n, L) + _ITERATIVE_STATES[states](n, L)
+    names = [
+        *_ITERATIVE_UPDATES,
+        *(f"{s}-{r}" for s in _ITERATIVE_STATES for r in _ITERATIVE_UPDATES),
+    ]
+    raise ValueError(f"name must be one of {sorted(names)}, got {name!r}")

@@ -235,7 +235,7 @@ def test_flops_equal_tables_5_to_8(n, L):
 @pytest.mark.parametrize(("n", "L"), NL)
 def test_observer_and_kalman_d_lsi_count_the_same_parameter_update(n, L):
     """O-D-LSI and KF-D-LSI differ only in the state re-estimation (one D-LSI convention)."""
-    o_update = flops.o_d_lsi(n, L) - flops.observer_states(n, L)
+    o_update = flops.iterative("O-D-LSI", n, L) - flops.observer_states(n, L)
     kf_update = flops.kf_d_lsi(n, L) - flops.kalman_states(n, L)
     assert o_update == kf_update == flops.d_lsi(n, L)
 
