@@ -48,7 +48,6 @@ function (``estimation_form="observer"``); ``theta`` is reported in the plant's 
 from __future__ import annotations
 
 import warnings
-from numbers import Integral
 from typing import Any
 
 import numpy as np
@@ -69,7 +68,7 @@ from stcgym.adaptive.options import (
     plant_settings,
 )
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
-from stcgym.adaptive.policy import LanePolicy
+from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.canonical import observer_to_observability_b
 from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import integer
@@ -104,7 +103,7 @@ def _frozen(values: Any) -> NDArray:
     return arr
 
 
-class SelfTuningController(LanePolicy):
+class SelfTuningController(SelfTuningLanes):
     """Indirect self-tuning regulator for one plant (``num_envs=None``) or ``B`` plants.
 
     Parameters
@@ -168,6 +167,7 @@ class SelfTuningController(LanePolicy):
     """
 
     observation_limit = OBSERVATION_LIMIT
+    _INTS = kc.INTS
 
     def __init__(
         self,
@@ -325,43 +325,15 @@ class SelfTuningController(LanePolicy):
             P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
             init[at.P_lq : at.P_lq + P_lq.size] = P_lq.ravel()
         init.setflags(write=False)
+        # a reset lane starts here: estimator at theta(0) = 0, P(0) = p0 I; Kalman filter at
+        # x(1) = 0, P1(1) = I; no gain
         self._init = init
         self._F = np.empty((self.B, self._layout.size))
-        self._G = np.zeros((self.B, len(kc.INTS)), dtype=np.int64)
-        self._G[:, kc.INTS.seed] = self.seeds
-        self._G[:, kc.INTS.episode] = -1  # the first reset starts episode 0
+        self._G = self._int_records()
         self._u = np.zeros(self.B)
         self.reset()
 
-    # ------------------------------------------------------------------ lanes and validation
-    def _lane_ints(self, value: Any, name: str) -> NDArray:
-        if isinstance(value, (Integral,)) and not isinstance(value, bool):
-            return (int(value) + np.arange(self.B)).astype(np.int64)
-        try:
-            arr = np.asarray(value)
-        except (ValueError, TypeError):  # ragged nested sequences
-            arr = np.empty(0)
-        if arr.ndim != 1 or arr.size != self.B or arr.dtype.kind not in "iu":
-            raise ValueError(
-                f"{name} must be an int or {self.B} ints (one per lane), got {value!r}"
-            )
-        return arr.astype(np.int64)
-
     # ------------------------------------------------------------------ protocol
-    def _reset_lanes(self, idx: NDArray) -> None:
-        """Start a new episode on the lanes ``idx``.
-
-        Estimator at ``theta(0) = 0``, ``P(0) = p0 I``; Kalman filter at ``x(1) = 0``,
-        ``P1(1) = I``; no gain; ``t = 0``; each reset lane's episode counter advances, so its
-        probe is a new sequence."""
-        self._F[idx] = self._init
-        G = self._G
-        episodes = G[idx, kc.INTS.episode] + 1
-        G[idx] = 0
-        G[idx, kc.INTS.seed] = self.seeds[idx]
-        G[idx, kc.INTS.episode] = episodes
-        G[idx, kc.INTS.closed_t] = -1
-
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[y(t), r(t)]``; ``deterministic`` is ignored (the probe
         is part of the law)."""
@@ -384,9 +356,6 @@ class SelfTuningController(LanePolicy):
         return u.copy()
 
     # ------------------------------------------------------------------ views
-    def _lanes_out(self, arr: NDArray) -> NDArray:
-        return arr[0].copy() if self.num_envs is None else arr.copy()
-
     @property
     def theta(self) -> NDArray:
         """``theta_hat = [a_hat; b_hat]`` in the plant's canonical form (per lane if batched)."""
@@ -420,33 +389,14 @@ class SelfTuningController(LanePolicy):
         return float(v[0]) if self.num_envs is None else v
 
     @property
-    def t(self) -> int | NDArray:
-        """Samples since the lane's last reset."""
-        v = self._G[:, kc.INTS.t].copy()
-        return int(v[0]) if self.num_envs is None else v
-
-    @property
     def diagnostics(self) -> dict[str, Any]:
         """Counters and flags per lane (scalars for a single controller)."""
-        G = self._G
+        G, ints = self._G, kc.INTS
         has_gain = self._F[:, self._at.gain + self.n + 2] > 0
-        ints = kc.INTS
-        out = {
-            "t": G[:, ints.t],
-            "episode": G[:, ints.episode],
-            "has_gain": has_gain,
-            "closed_at": G[:, ints.closed_t],
-            "n_rejected": G[:, ints.n_rejected],
-            "last_rejection": np.array([dz.STATUS_NAMES[c] for c in G[:, ints.last_reason]]),
-            "n_alarms": G[:, ints.n_alarms],
-            "n_saturated": G[:, ints.n_saturated],
-            "n_probe": G[:, ints.n_probe],
-            "n_kf_resets": G[:, ints.n_kf_resets],
-            "estimator_status": G[:, ints.est_status],
-        }
-        if self.num_envs is None:
-            return {k: (v[0].item() if hasattr(v[0], "item") else v[0]) for k, v in out.items()}
-        return {k: v.copy() for k, v in out.items()}
+        return self._diagnostics(
+            {"has_gain": has_gain},
+            {"n_kf_resets": G[:, ints.n_kf_resets], "estimator_status": G[:, ints.est_status]},
+        )
 
     @property
     def nbytes_per_lane(self) -> int:

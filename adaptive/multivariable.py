@@ -26,14 +26,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import multivariable as km
-from stcgym.adaptive.kernels.safe_set import STATUS_NAMES
 from stcgym.adaptive.options import (
     ChangeDetection,
     SafeSet,
     StartupOptions,
     option_group,
 )
-from stcgym.adaptive.policy import LanePolicy
+from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import integer, real_in
 
@@ -147,7 +146,7 @@ def resolve_dimensions(
     return n, m, num_envs, bound, cost
 
 
-class MultivariableSelfTuningController(LanePolicy):
+class MultivariableSelfTuningController(SelfTuningLanes):
     """Self-tuning LQ controller of a measured-state plant ``x+ = A x + B u`` (module docstring).
 
     Parameters
@@ -216,6 +215,7 @@ class MultivariableSelfTuningController(LanePolicy):
     """
 
     observation_limit = OBSERVATION_LIMIT
+    _INTS = km.MIMO_INTS
 
     def __init__(
         self,
@@ -279,38 +279,21 @@ class MultivariableSelfTuningController(LanePolicy):
             solve_tol=1e-12,
             solve_max_iter=64,
         )
+        # a reset lane starts here: C = 0, the minimum-norm phase from R = I, no gain, P_lq = Q
         self._layout, self._at, init = km.mimo_record(n, m, self.Q, self.R)
         init.setflags(write=False)
         self._init = init
         self._F = np.empty((self.B, self._layout.size))
-        self._G = np.zeros((self.B, len(km.MIMO_INTS)), dtype=np.int64)
-        self._G[:, km.MIMO_INTS.seed] = self.seeds
-        self._G[:, km.MIMO_INTS.episode] = -1  # the first reset starts episode 0
+        self._G = self._int_records()
         self._u = np.zeros((self.B, m))
         self.reset()
 
-    def _lane_ints(self, value: Any, name: str) -> NDArray:
-        if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-            return (int(value) + np.arange(self.B)).astype(np.int64)
-        arr = np.asarray(value)
-        if arr.ndim != 1 or arr.size != self.B or arr.dtype.kind not in "iu":
-            raise ValueError(
-                f"{name} must be an int or {self.B} ints (one per lane), got {value!r}"
-            )
-        return arr.astype(np.int64)
-
     # ------------------------------------------------------------------ protocol
     def _reset_lanes(self, idx: NDArray) -> None:
-        """New episode on the lanes ``idx``: ``C = 0``, minimum-norm phase from ``R = I``, no
-        gain, ``P_lq = Q``; the episode counter advances (a new probe sequence)."""
-        self._F[idx] = self._init
-        G = self._G
-        episodes = G[idx, km.MIMO_INTS.episode] + 1
-        G[idx] = 0
-        G[idx, km.MIMO_INTS.seed] = self.seeds[idx]
-        G[idx, km.MIMO_INTS.episode] = episodes
-        G[idx, km.MIMO_INTS.closed_t] = -1
-        G[idx, km.MIMO_INTS.fresh] = 1
+        """A new episode on the lanes ``idx`` (:meth:`SelfTuningLanes._reset_lanes`), with a
+        fresh model to design for."""
+        super()._reset_lanes(idx)
+        self._G[idx, km.MIMO_INTS.fresh] = 1
 
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[x(t), r(t)]``."""
@@ -328,9 +311,6 @@ class MultivariableSelfTuningController(LanePolicy):
         return self._u.copy()
 
     # ------------------------------------------------------------------ views
-    def _lanes_out(self, arr: NDArray) -> NDArray:
-        return arr[0].copy() if self.num_envs is None else arr.copy()
-
     def _matrix(self, name: str, rows: int, cols: int) -> NDArray:
         return self._lanes_out(self._layout.view(self._F, name).reshape(self.B, rows, cols))
 
@@ -366,33 +346,14 @@ class MultivariableSelfTuningController(LanePolicy):
         return th[..., self.n_states :]
 
     @property
-    def t(self) -> int | NDArray:
-        """Samples since the lane's last reset."""
-        v = self._G[:, km.MIMO_INTS.t].copy()
-        return int(v[0]) if self.num_envs is None else v
-
-    @property
     def diagnostics(self) -> dict[str, Any]:
         """Counters and flags per lane (scalars for a single controller)."""
-        G = self._G
-        ints = km.MIMO_INTS
         q = self.n_states + self.n_inputs
-        out = {
-            "t": G[:, ints.t],
-            "episode": G[:, ints.episode],
+        flags = {
             "has_gain": self._layout.view(self._F, "has_gain") > 0,
             "full_rank": self._layout.view(self._F, "rank") >= q,
-            "closed_at": G[:, ints.closed_t],
-            "n_rejected": G[:, ints.n_rejected],
-            "last_rejection": np.array([STATUS_NAMES[c] for c in G[:, ints.last_reason]]),
-            "n_alarms": G[:, ints.n_alarms],
-            "n_saturated": G[:, ints.n_saturated],
-            "n_probe": G[:, ints.n_probe],
-            "n_resets": G[:, ints.n_resets],
         }
-        if self.num_envs is None:
-            return {k: (v[0].item() if hasattr(v[0], "item") else v[0]) for k, v in out.items()}
-        return {k: v.copy() for k, v in out.items()}
+        return self._diagnostics(flags, {"n_resets": self._G[:, km.MIMO_INTS.n_resets]})
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

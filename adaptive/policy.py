@@ -35,11 +35,13 @@ from __future__ import annotations
 import math
 import sys
 from abc import ABC, abstractmethod
+from numbers import Integral
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.kernels.safe_set import STATUS_NAMES
 from stcgym.adaptive.recursive import lane_indices
 
 __all__ = [
@@ -269,3 +271,84 @@ class LanePolicy(ABC):
     @abstractmethod
     def _reset_lanes(self, idx: NDArray) -> None:
         """Start a new episode on the lanes ``idx`` (validated int64 indices)."""
+
+
+class SelfTuningLanes(LanePolicy):
+    """The lane records of the self-tuning controllers (SISO and MIMO).
+
+    Lane ``i`` keeps a float record ``_F[i]`` (back to ``_init`` at a reset) and an int record
+    ``_G[i]`` with the fields of :attr:`_INTS`: the step ``t``, the ``episode``, the ``seed``
+    of the lane's probe, the step the loop closed at (``closed_t``, ``-1`` while open) and the
+    counters that :attr:`diagnostics` reports.
+    """
+
+    #: Offsets of the int record's fields (a NamedTuple of ints, ``len(_INTS)`` of them).
+    _INTS: Any
+    #: One seed per lane.
+    seeds: NDArray
+
+    def _lane_ints(self, value: Any, name: str) -> NDArray:
+        """``value + 0..B-1`` for an int, else ``B`` ints (one per lane), as int64."""
+        B = self.num_lanes
+        if isinstance(value, Integral) and not isinstance(value, bool):
+            return (int(value) + np.arange(B)).astype(np.int64)
+        try:
+            arr = np.asarray(value)
+        except (ValueError, TypeError):  # ragged nested sequences
+            arr = np.empty(0)
+        if arr.ndim != 1 or arr.size != B or arr.dtype.kind not in "iu":
+            raise ValueError(f"{name} must be an int or {B} ints (one per lane), got {value!r}")
+        return arr.astype(np.int64)
+
+    def _int_records(self) -> NDArray:
+        """A fresh int record of every lane: its seed, and episode ``-1`` (the first reset
+        starts episode 0)."""
+        G = np.zeros((self.num_lanes, len(self._INTS)), dtype=np.int64)
+        G[:, self._INTS.seed] = self.seeds
+        G[:, self._INTS.episode] = -1
+        return G
+
+    def _reset_lanes(self, idx: NDArray) -> None:
+        """Start a new episode on the lanes ``idx``: the float record back to ``_init``, the
+        counters and ``t`` to 0, the loop open; each lane's episode counter advances, so its
+        probe is a new sequence."""
+        self._F[idx] = self._init
+        G, ints = self._G, self._INTS
+        episodes = G[idx, ints.episode] + 1
+        G[idx] = 0
+        G[idx, ints.seed] = self.seeds[idx]
+        G[idx, ints.episode] = episodes
+        G[idx, ints.closed_t] = -1
+
+    def _lanes_out(self, arr: NDArray) -> NDArray:
+        """A copy of lane 0 of ``arr`` for a single plant, else of every lane."""
+        return arr[0].copy() if self.num_envs is None else arr.copy()
+
+    @property
+    def t(self) -> int | NDArray:
+        """Samples since the lane's last reset."""
+        v = self._G[:, self._INTS.t].copy()
+        return int(v[0]) if self.num_envs is None else v
+
+    def _diagnostics(
+        self, flags: dict[str, NDArray], counters: dict[str, NDArray]
+    ) -> dict[str, Any]:
+        """:attr:`diagnostics`: ``t``, ``episode``, the controller's ``flags``, the loop's
+        closing step and the shared counters, then the controller's own ``counters``; scalars
+        for a single controller."""
+        G, ints = self._G, self._INTS
+        out = {
+            "t": G[:, ints.t],
+            "episode": G[:, ints.episode],
+            **flags,
+            "closed_at": G[:, ints.closed_t],
+            "n_rejected": G[:, ints.n_rejected],
+            "last_rejection": np.array([STATUS_NAMES[c] for c in G[:, ints.last_reason]]),
+            "n_alarms": G[:, ints.n_alarms],
+            "n_saturated": G[:, ints.n_saturated],
+            "n_probe": G[:, ints.n_probe],
+            **counters,
+        }
+        if self.num_envs is None:
+            return {k: (v[0].item() if hasattr(v[0], "item") else v[0]) for k, v in out.items()}
+        return {k: v.copy() for k, v in out.items()}

@@ -54,7 +54,13 @@ autosummary_imported_members = True
 # base class of their own: their pages list them all (_templates/autosummary/class.rst)
 autodoc_default_options = {"members": True, "show-inheritance": True}
 templates_path = ["_templates"]
-autosummary_context = {"documented_bases": ["RecursiveEstimator"]}
+autosummary_context = {
+    "documented_bases": [
+        "RecursiveEstimator",
+        "SelfTuningController",
+        "MultivariableSelfTuningController",
+    ]
+}
 autodoc_typehints = "none"  # numpydoc's Parameters sections carry the types
 autoclass_content = "class"
 numpydoc_show_class_members = False
