@@ -86,22 +86,8 @@ class IterativeResult:
 
     Examples
     --------
-    Gradient iteration (GI) with the true states of the observer-form plant
-    ``theta = [-1.2, 0.5, 1, 0.4]``:
-
-    >>> import numpy as np
-    >>> from stcgym.adaptive import fit_iterative
-    >>> A = np.array([[1.2, 1.0], [-0.5, 0.0]])
-    >>> b = np.array([1.0, 0.4])
-    >>> u = np.random.default_rng(0).standard_normal(50)
-    >>> x = np.zeros((50, 2))
-    >>> for t in range(49):
-    ...     x[t + 1] = A @ x[t] + b * u[t]
-    >>> res = fit_iterative("GI", u, x[:, 0], 2, form="observer", x=x, iterations=2000)
-    >>> res.name, res.converged, np.round(res.theta, 4)
-    ('GI', True, array([-1.2,  0.5,  1. ,  0.4]))
-    >>> res.theta_history.shape == (res.iterations + 1, 4), res.step_sizes.shape[1]
-    (True, 1)
+    See :func:`fit_iterative`, which returns one (its gradient-iteration example shows the
+    history and the step sizes).
     """
 
     name: str
@@ -346,6 +332,15 @@ def fit_iterative(
     >>> res = fit_iterative("LSI", u, x[:, 0], 2, form="observer", x=x)
     >>> np.round(res.theta, 4), res.converged
     (array([-1.2,  0.5,  1. ,  0.4]), True)
+
+    Gradient iteration (GI) on the same data converges to the same plant, and the result keeps
+    every iterate and the step size ``mu_k`` of every iteration:
+
+    >>> res = fit_iterative("GI", u, x[:, 0], 2, form="observer", x=x, iterations=2000)
+    >>> res.name, res.converged, np.round(res.theta, 4)
+    ('GI', True, array([-1.2,  0.5,  1. ,  0.4]))
+    >>> res.theta_history.shape == (res.iterations + 1, 4), res.step_sizes.shape[1]
+    (True, 1)
     >>> fit_iterative("LSI", u, x[:, 0], 2)
     Traceback (most recent call last):
     ...

@@ -292,16 +292,7 @@ class Episode:
 
     Examples
     --------
-    >>> from stcgym.adaptive import KnownModelController
-    >>> from stcgym.agents import EnvSpec, run_episode
-    >>> spec = EnvSpec("unstable2", steps=200)
-    >>> def oracle(plant, seed):
-    ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
-    >>> ep = run_episode(oracle, spec, seed=0)
-    >>> ep.plant, ep.steps_run, ep.diverged, ep.y.shape, ep.u.shape
-    ('unstable2', 200, False, (201,), (200,))
-    >>> round(float(ep.cost.mean()), 4)
-    0.1301
+    See :func:`run_episode`, which returns one.
     """
 
     seed: int
@@ -368,6 +359,8 @@ def run_episode(
     >>> def oracle(plant, seed):
     ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
     >>> ep = run_episode(oracle, spec, seed=0, record_theta=True)
+    >>> ep.plant, ep.steps_run, ep.diverged, ep.y.shape, ep.u.shape
+    ('unstable2', 200, False, (201,), (200,))
     >>> ep.theta.shape, ep.theta_hat.shape  # the oracle has no estimate: nan
     ((201, 4), (200, 4))
     >>> bool(np.isnan(ep.theta_hat).all()), round(float(ep.cost.mean()), 4)
@@ -490,14 +483,7 @@ class EvalResult:
 
     Examples
     --------
-    >>> from stcgym.adaptive import KnownModelController
-    >>> from stcgym.agents import EnvSpec, evaluate
-    >>> spec = EnvSpec("unstable2", steps=200)
-    >>> def oracle(plant, seed):
-    ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
-    >>> result = evaluate(oracle, spec, seeds=[0, 1])
-    >>> len(result.episodes), [round(m["cost"], 4) for m in result.metrics]
-    (2, [0.1301, 0.1276])
+    See :func:`evaluate`, which returns one.
     """
 
     episodes: list[Episode] = field(default_factory=list)
@@ -559,6 +545,8 @@ def evaluate(
     >>> def oracle(plant, seed):
     ...     return KnownModelController(plant.a, plant.b, action_bound=spec.action_bound)
     >>> result = evaluate(oracle, spec, seeds=[0, 1, 2])
+    >>> len(result.episodes), [round(m["cost"], 4) for m in result.metrics]
+    (3, [0.1301, 0.1276, 0.1302])
     >>> costs = [m["cost"] for m in result.metrics]
     >>> stats = summarize(costs, [not m["bounded"] for m in result.metrics])
     >>> round(stats["median"], 4), stats["failure_rate"]
