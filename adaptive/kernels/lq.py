@@ -31,14 +31,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
-from stcgym.adaptive.kernels.linalg import all_finite, invert, matmul, max_abs
+from stcgym.adaptive.kernels.linalg import all_finite, matmul, max_abs
+from stcgym.adaptive.kernels.mimo_lq import P_MAX, doubling
 from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.kernels.safe_set import (
     MAT,
     N_MAT,
     N_MAT_SOLVE,
     N_VEC,
-    NOT_CONVERGED,
     NOT_STABILISABLE,
     OK,
     VEC,
@@ -83,10 +83,6 @@ def weight_fields(weights):
     that knows the order of its entries (a vector, not the named tuple, is what the lane
     functions take, for the reason given in :func:`.safe_set.safe_bounds`)."""
     return LQWeights(weights[0], weights[1], weights[2])
-
-
-#: Riccati iterates above this are taken as diverging (a non-stabilisable model).
-P_MAX = 1e150
 
 
 def lq_weights(
@@ -240,7 +236,7 @@ def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
 @lane
 def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
     """Stabilising solution of ``P = Q + A^T P A - A^T P b (rho + b^T P b)^{-1} b^T P A`` by the
-    structure-preserving doubling algorithm (quadratic convergence):
+    structure-preserving doubling algorithm (quadratic convergence; :func:`.mimo_lq.doubling`):
 
         W = I + G_k H_k,  A_{k+1} = A_k W^{-1} A_k,  G_{k+1} = G_k + A_k W^{-1} G_k A_k^T,
         H_{k+1} = H_k + A_k^T H_k W^{-1} A_k,    A_0 = A, G_0 = b b^T / rho, H_0 = Q -> P.
@@ -254,42 +250,14 @@ def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
     T1 = Ws[MAT.m8, :m, :m]
     T2 = Ws[MAT.m9, :m, :m]
     T3 = Ws[MAT.m0, :m, :m]
-    T4 = Ws[MAT.m1, :m, :m]
     for i in range(m):
         for j in range(m):
             Ak[i, j] = A[i, j]
             Gk[i, j] = b[i] * b[j] / rho
             Hk[i, j] = 0.5 * (Q[i, j] + Q[j, i])
-    converged = False
-    for _ in range(max_iter):
-        matmul(Gk, Hk, W)
-        for i in range(m):
-            W[i, i] += 1.0
-        if not invert(W, Winv):
-            return NOT_STABILISABLE
-        matmul(Winv, Ak, T1)  # W^{-1} A_k
-        matmul(Winv, Gk, T2)  # W^{-1} G_k
-        matmul(Hk, T1, T4)  # H_k W^{-1} A_k
-        matmul(Ak, T4, W, True, False)  # A_k^T H_k W^{-1} A_k
-        dH = max_abs(W)
-        for i in range(m):
-            for j in range(m):
-                Hk[i, j] += 0.5 * (W[i, j] + W[j, i])
-        matmul(Ak, T2, T3)
-        matmul(T3, Ak, W, False, True)  # A_k W^{-1} G_k A_k^T
-        for i in range(m):
-            for j in range(m):
-                Gk[i, j] += 0.5 * (W[i, j] + W[j, i])
-        matmul(Ak, T1, W)
-        copy_matrix(W, Ak)
-        hmax = max_abs(Hk)
-        if not hmax <= P_MAX or not all_finite(Gk) or not all_finite(Ak):
-            return NOT_STABILISABLE
-        if dH <= tol * max(1.0, hmax):
-            converged = True
-            break
-    if not converged:
-        return NOT_CONVERGED
+    status = doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter)
+    if status != OK:
+        return status
     copy_matrix(Hk, P)
     _lq_gain(A, b, rho, P, K)
     v = Vs[VEC.v1, :m]
@@ -331,7 +299,7 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     m = Ad.shape[0]
     Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
     Psol = Ws[MAT.m10, :m, :m]
-    # _dare uses slots m0, m1, m3..m9; Q lives in m2 and the solution in m10 until the
+    # _dare uses slots m0, m3..m9; Q lives in m2 and the solution in m10 until the
     # safe set has accepted the gain.
     char_A = Vs[VEC.v5, :m]
     augmented_characteristic(theta, integral, char_A)

@@ -14,7 +14,8 @@ For a model ``x+ = A x + B u`` (``n`` states, ``m`` inputs) and the stage cost
     structure-preserving doubling algorithm (``A_0 = A``, ``G_0 = B R^{-1} B^T``, ``H_0 = Q``;
     ``W = I + G_k H_k``, ``A_{k+1} = A_k W^{-1} A_k``, ``G_{k+1} = G_k + A_k W^{-1} G_k A_k^T``,
     ``H_{k+1} = H_k + A_k^T H_k W^{-1} A_k``, ``H_k -> P``): the full solve for a fresh model and
-    the known-model oracle (tested against python-control's ``dlqr``).
+    the known-model oracle (tested against python-control's ``dlqr``). The iteration itself,
+    ``doubling``, also serves the single-input :func:`.lq.dare`.
 ``steady_state_feedforward``
     For a constant reference ``r`` the cheapest equilibrium ``(x_s, u_s)``: minimise
     ``(x_s - r)^T Q (x_s - r) + u_s^T R u_s`` subject to ``(A - I) x_s + B u_s = 0`` (the
@@ -37,7 +38,7 @@ from __future__ import annotations
 
 import math
 
-from stcgym.adaptive.kernels.linalg import invert, matmul
+from stcgym.adaptive.kernels.linalg import invert, matmul, max_abs
 from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.safe_set import (
     B_SMALL,
@@ -54,6 +55,7 @@ __all__ = [
     "P_MAX",
     "dare_solve",
     "design_checks",
+    "doubling",
     "design_work_size",
     "feedback_law",
     "feedback_laws",
@@ -90,17 +92,6 @@ def _closed_loop(A, B, K, Acl):
     for i in range(A.shape[0]):
         for j in range(A.shape[0]):
             Acl[i, j] = A[i, j] - Acl[i, j]
-
-
-@lane(inline=True)
-def _max_abs(M):
-    best = 0.0
-    for i in range(M.shape[0]):
-        for j in range(M.shape[1]):
-            v = abs(M[i, j])
-            if not v <= best:  # also catches nan
-                best = v
-    return best
 
 
 @lane(entry=True)
@@ -171,6 +162,48 @@ def schur_stable(M, work):
     return False
 
 
+@lane
+def doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter):
+    """The structure-preserving doubling iteration, from ``A_0``, ``G_0``, ``H_0`` in ``Ak``,
+    ``Gk``, ``Hk`` (``n x n``, overwritten; ``G_0`` and ``H_0`` symmetric):
+    ``W = I + G_k H_k``, ``A_{k+1} = A_k W^{-1} A_k``, ``G_{k+1} = G_k + A_k W^{-1} G_k A_k^T``,
+    ``H_{k+1} = H_k + A_k^T H_k W^{-1} A_k`` (both kept symmetric), until the step of ``H`` is at
+    most ``tol max(1, |H_k|)``; ``H_k -> P``, the stabilising DARE solution when there is one.
+
+    Returns ``OK`` (``Hk`` converged), ``NOT_STABILISABLE`` (a singular ``W``, or an iterate
+    above :data:`P_MAX` or not finite: diverging) or ``NOT_CONVERGED``. ``W``, ``Winv``,
+    ``T1``-``T3``: ``n x n`` scratch.
+    """
+    n = Ak.shape[0]
+    for _ in range(max_iter):
+        matmul(Gk, Hk, W, False, False)
+        for i in range(n):
+            W[i, i] += 1.0
+        if not invert(W, Winv):
+            return NOT_STABILISABLE
+        matmul(Winv, Ak, T1, False, False)  # W^{-1} A_k
+        matmul(Winv, Gk, T2, False, False)  # W^{-1} G_k
+        matmul(Hk, T1, T3, False, False)  # H_k W^{-1} A_k
+        matmul(Ak, T3, W, True, False)  # A_k^T H_k W^{-1} A_k
+        dH = max_abs(W)
+        for i in range(n):
+            for j in range(n):
+                Hk[i, j] += 0.5 * (W[i, j] + W[j, i])
+        matmul(Ak, T2, T3, False, False)
+        matmul(T3, Ak, W, False, True)  # A_k W^{-1} G_k A_k^T
+        for i in range(n):
+            for j in range(n):
+                Gk[i, j] += 0.5 * (W[i, j] + W[j, i])
+        matmul(Ak, T1, W, False, False)
+        copy_matrix(W, Ak)
+        hmax = max_abs(Hk)
+        if not hmax <= P_MAX or not max_abs(Gk) <= P_MAX or not max_abs(Ak) <= P_MAX:
+            return NOT_STABILISABLE
+        if dH <= tol * max(1.0, hmax):
+            return OK
+    return NOT_CONVERGED
+
+
 @lane(entry=True)
 def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
     """Stabilising DARE solution ``P`` and its gain ``K`` by doubling; returns ``OK``,
@@ -198,36 +231,9 @@ def dare_solve(A, B, Q, R, P, K, work, tol, max_iter):
         for j in range(n):
             Ak[i, j] = A[i, j]
             Hk[i, j] = 0.5 * (Q[i, j] + Q[j, i])
-    converged = False
-    for _ in range(max_iter):
-        matmul(Gk, Hk, W, False, False)
-        for i in range(n):
-            W[i, i] += 1.0
-        if not invert(W, Winv):
-            return NOT_STABILISABLE
-        matmul(Winv, Ak, T1, False, False)  # W^{-1} A_k
-        matmul(Winv, Gk, T2, False, False)  # W^{-1} G_k
-        matmul(Hk, T1, T3, False, False)  # H_k W^{-1} A_k
-        matmul(Ak, T3, W, True, False)  # A_k^T H_k W^{-1} A_k
-        dH = _max_abs(W)
-        for i in range(n):
-            for j in range(n):
-                Hk[i, j] += 0.5 * (W[i, j] + W[j, i])
-        matmul(Ak, T2, T3, False, False)
-        matmul(T3, Ak, W, False, True)  # A_k W^{-1} G_k A_k^T
-        for i in range(n):
-            for j in range(n):
-                Gk[i, j] += 0.5 * (W[i, j] + W[j, i])
-        matmul(Ak, T1, W, False, False)
-        copy_matrix(W, Ak)
-        hmax = _max_abs(Hk)
-        if not hmax <= P_MAX or not _max_abs(Gk) <= P_MAX or not _max_abs(Ak) <= P_MAX:
-            return NOT_STABILISABLE
-        if dH <= tol * max(1.0, hmax):
-            converged = True
-            break
-    if not converged:
-        return NOT_CONVERGED
+    status = doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter)
+    if status != OK:
+        return status
     # the gain from H_k (slots 0-3 and 11 are free now; lq_gain uses 0-3)
     Psol = _slot(work, 11, n, n)
     copy_matrix(Hk, Psol)
@@ -303,9 +309,9 @@ def design_checks(A, B, Q, R, K, F, safe_b_min, gain_max, work):
     Writes ``F`` (on success) and returns the status code of :mod:`.safe_set`."""
     n = A.shape[0]
     m = B.shape[1]
-    if not (_max_abs(A) < math.inf and _max_abs(B) < math.inf):
+    if not (max_abs(A) < math.inf and max_abs(B) < math.inf):
         return NONFINITE
-    if not _max_abs(B) >= safe_b_min:
+    if not max_abs(B) >= safe_b_min:
         return B_SMALL
     Acl = _slot(work, 4, n, n)
     _closed_loop(A, B, K, Acl)
@@ -314,7 +320,7 @@ def design_checks(A, B, Q, R, K, F, safe_b_min, gain_max, work):
     Fc = _slot(work, 10, m, n)
     if not steady_state_feedforward(A, B, Q, R, K, Fc, work):
         return DC_SINGULAR
-    if not (_max_abs(K) <= gain_max and _max_abs(Fc) <= gain_max):
+    if not (max_abs(K) <= gain_max and max_abs(Fc) <= gain_max):
         return GAIN_LARGE
     copy_matrix(Fc, F)
     return OK
