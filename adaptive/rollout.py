@@ -120,7 +120,7 @@ def rollout_lane(f, g, at, cfg, est_at, est_cfg, lq_weights, x, theta, theta_aft
     return T, False
 
 
-@lanes
+@lanes(min_lanes=1)  # a lane is a whole episode
 def rollout_lanes(F, G, at, cfg, est_at, est_cfg, lq_weights, X, Theta, Theta_after, jump_at,
                   form, bound, sigma_v, Z, R, rho, y_bound, window, Cost, Y, U, traces,
                   steps_run, diverged, first: int, last: int):  # fmt: skip

@@ -93,7 +93,7 @@ def augmented_characteristic(theta, integral, out):
     out[n] = -prev
 
 
-@lanes
+@lanes(min_lanes=1 << 12)  # a few multiply-adds a lane
 def model_matrices_lanes(thetas, form, A, b, first, last):
     """:func:`model_matrices` for every lane: ``A`` ``(B, n, n)``, ``b`` ``(B, n)``."""
     for i in range(first, last):

@@ -346,7 +346,7 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     return status
 
 
-@lanes(allocates=True)
+@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
 def lq_solve_lanes(
     thetas,
     form,
@@ -400,7 +400,7 @@ def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     return dare(At, c, W, R, char_A, P, K, work, tol, max_iter)
 
 
-@lanes(allocates=True)
+@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
 def kalman_covariance_lanes(thetas, form, W, R, Ps, status, tol, max_iter, first, last):
     """:func:`kalman_covariance` for every lane (``W``, ``Ps`` ``(B, n, n)``)."""
     for i in range(first, last):

@@ -337,7 +337,7 @@ def feedback_law(K, F, x, r, bound, u):
     return saturated
 
 
-@lanes
+@lanes(min_lanes=1 << 12)  # one matrix-vector product a lane
 def feedback_laws(K, F, X, Rr, bound, U, first, last):
     """:func:`feedback_law` for every lane (``K``, ``F`` ``(B, m, n)``)."""
     for i in range(first, last):

@@ -85,7 +85,7 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
     return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 
-@lanes(allocates=True)
+@lanes(allocates=True, min_lanes=16)  # one design a lane
 def place_design_lanes(
     thetas, form, integral, feedforward, alpha, safe, gains, status, first, last
 ):

@@ -248,7 +248,7 @@ def rls_run(
     return failures, first
 
 
-@lanes
+@lanes(min_lanes=1)  # a lane is a whole record of samples
 def rls_run_lanes(
     F,
     at,
