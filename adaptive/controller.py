@@ -5,7 +5,7 @@ its compiled lane step (:mod:`stcgym.adaptive.kernels.controller`) runs: estimat
 change detection -> certainty-equivalence design (pole placement or LQ) in the safe set ->
 Kalman state estimate on the estimated model -> control (a short seeded probe, then the tracking
 law) -> process noise and state step. ``num_envs=B`` holds ``B`` lane records in one array and
-steps them in a ``prange``; a single controller is the case ``B = 1`` of the same code, so a
+steps them in one batch loop; a single controller is the case ``B = 1`` of the same code, so a
 single plant equals its lane of a batch bit for bit.
 
 Options are grouped like SB3's ``policy_kwargs`` (:mod:`stcgym.adaptive.options`):

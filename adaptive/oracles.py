@@ -30,7 +30,7 @@ numerical floors (an uncontrollable model, a zero at ``z = 1``) reject it, with 
 
 Both are :class:`~stcgym.adaptive.policy.LanePolicy` policies (SB3's ``predict``) for one plant
 (``num_envs=None``) or for ``num_envs=B`` plants with their own true parameters (``a``, ``b`` of
-shape ``(B, n)``), stepped together by a ``prange`` over lanes. A lane record holds all the
+shape ``(B, n)``), stepped together by a batch loop over lanes. A lane record holds all the
 state, so the oracles pickle and deep-copy with identical continuation, and a step whose result
 would not be finite is rejected as a whole: no lane changes.
 """

@@ -7,7 +7,7 @@ implementation: the lane functions of :mod:`stcgym.adaptive.kernels.estimator` (
 in :mod:`~stcgym.adaptive.kernels.least_squares`, state estimators and regressors in
 :mod:`~stcgym.adaptive.kernels.state_estimation`). The estimator's whole state is one
 ``(B, size)`` lane record (``B = 1`` for a single plant); ``make_estimator(..., num_envs=B)``
-returns the *same* class stepping ``B`` lanes with a ``prange`` loop over the same lane
+returns the *same* class stepping ``B`` lanes with a batch loop over the same lane
 function, so a single estimator equals lane ``i`` of a batch bit for bit.
 
 * parameter rule: SG (12)-(15), MISG (16)-(22), RLS (32)-(36), MILS (37)-(44), each optionally

@@ -42,7 +42,7 @@ Options (keywords of :class:`RecursiveLeastSquares`)
   :class:`~stcgym.adaptive.NumericalHealthError` and leaves the failing lanes as they were
   before the failing step.
 * ``num_envs=B``: ``B`` independent lanes stepped together (arrays with a leading ``B`` axis,
-  ``prange`` over lanes); a single estimator calls the same lane function, so lane ``i``
+  one batch loop over lanes); a single estimator calls the same lane function, so lane ``i``
   equals a single estimator fed lane ``i``'s data bit for bit.
 
 :meth:`RecursiveLeastSquares.run` steps a whole record (``T`` samples, all lanes) in compiled

@@ -3,7 +3,7 @@
 For sweeps over many plants (e.g. chunks of ~1e4 lanes): the plant step of
 :mod:`stcgym.envs.dynamics` (``canonical_plant_step``, the env's own step: clipping, output noise,
 divergence test, reward) and the controller step of :mod:`stcgym.adaptive.kernels.controller`
-run fused in one compiled loop per lane, lanes in a ``prange``. A lane stops at its first
+run fused in one compiled loop per lane, in one batch loop over lanes. A lane stops at its first
 divergence (``|y| > y_bound``), like an env episode that terminates.
 
 Divergence rule
@@ -53,7 +53,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.controller import SelfTuningController
 from stcgym.adaptive.kernels.controller import controller_step
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 from stcgym.envs.dynamics import canonical_plant_step
 from stcgym.envs.validation import integer, non_negative
 
@@ -120,12 +120,12 @@ def rollout_lane(f, g, at, cfg, est_at, est_cfg, lq_weights, x, theta, theta_aft
     return T, False
 
 
-@lanes
+@lanes(min_lanes=1)  # a lane is a whole episode
 def rollout_lanes(F, G, at, cfg, est_at, est_cfg, lq_weights, X, Theta, Theta_after, jump_at,
                   form, bound, sigma_v, Z, R, rho, y_bound, window, Cost, Y, U, traces,
-                  steps_run, diverged):  # fmt: skip
+                  steps_run, diverged, first: int, last: int):  # fmt: skip
     """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
-    for i in prange(F.shape[0]):
+    for i in range(first, last):
         steps_run[i], diverged[i] = rollout_lane(
             F[i], G[i], at, cfg, est_at, est_cfg, lq_weights, X[i], Theta[i], Theta_after[i],
             jump_at, form, bound, sigma_v, Z[i], R[i], rho, y_bound, window, Cost[i], Y[i], U[i],

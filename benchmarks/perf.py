@@ -4,7 +4,7 @@ Run from the repository root::
 
     python benchmarks/perf.py            # full table, B up to 1e6 (a few minutes on 2 cores)
     python benchmarks/perf.py --quick    # fewer steps, B up to 1e4
-    python benchmarks/perf.py --plant-threads  # plant batch step: 1 thread vs all cores
+    python benchmarks/perf.py --threads  # plant and controller batch steps: 1 thread vs all
 
 Every row is measured in this run; ratios are to the naive loop of the same run, so they stay
 meaningful on a loaded machine (absolute numbers do not).
@@ -14,7 +14,7 @@ meaningful on a loaded machine (absolute numbers do not).
 * ``predict``: ``SelfTuningController(2).predict(obs)`` through the Python API (one call per
   step, plant in numpy);
 * ``rollout``: :func:`stcgym.adaptive.rollout.rollout`, plant + controller fused in one
-  compiled call, ``B`` lanes in a ``prange``;
+  compiled call, ``B`` lanes in one batch loop;
 * ``vector env``: the public batched route, ``gym.make_vec(..., num_envs=B)`` +
   ``SelfTuningController(2, num_envs=B)``, one ``predict`` and one ``step`` per sample;
 * memory: bytes of controller lane records per plant; import time and first-call compile time
@@ -151,10 +151,12 @@ def _vector_rate(B: int, steps: int, estimator: str) -> float:
 
 def plant_batch_ns(B: int, threads: int, steps: int, n: int = 2) -> float:
     """Nanoseconds per lane of one noisy canonical plant batch step (the vector env's compiled
-    loop, :func:`stcgym.envs.dynamics.canonical_plants_step`) on ``threads`` numba threads."""
+    loop, :func:`stcgym.envs.dynamics.canonical_plants_step`) on ``threads`` threads (the loop's
+    blocks of rows, whatever its own threshold)."""
     import numba
 
     from stcgym.envs import dynamics
+    from stcgym.envs.compiled import run_blocks
 
     rng = np.random.default_rng(0)
     X = np.zeros((B, n))
@@ -170,28 +172,65 @@ def plant_batch_ns(B: int, threads: int, steps: int, n: int = 2) -> float:
     try:
         best = np.inf
         for _ in range(5):  # best of 5: the least disturbed by other processes
-            dynamics.canonical_plants_step.compiled(*args, *outs)
+            loop = dynamics.canonical_plants_step.dispatcher
+            run_blocks(loop, (*args, *outs), min_lanes=1)
             t0 = time.perf_counter()
             for _ in range(steps):
-                dynamics.canonical_plants_step.compiled(*args, *outs)
+                run_blocks(loop, (*args, *outs), min_lanes=1)
             best = min(best, (time.perf_counter() - t0) / steps)
     finally:
         numba.set_num_threads(saved)
     return best / B * 1e9
 
 
-def plant_threads_table() -> None:
-    """One thread against all cores for the plant batch step: the basis of
-    :data:`stcgym.envs.dynamics.PARALLEL_MIN_LANES`."""
+def controller_batch_ns(B: int, threads: int, steps: int) -> float:
+    """Nanoseconds per lane of one batch step of ``SelfTuningController(2, num_envs=B)`` (the
+    compiled loop :func:`stcgym.adaptive.kernels.controller.controllers_step`) on ``threads``
+    threads, after 200 closed-loop-free steps (the loop closed on every lane)."""
+    import numba
+
+    from stcgym.adaptive import SelfTuningController
+    from stcgym.adaptive.kernels import controller as kc
+    from stcgym.envs.compiled import run_blocks
+
+    c = SelfTuningController(2, num_envs=B)
+    u, y, r = np.zeros(B), np.full(B, 0.1), np.ones(B)
+    args = (c._F, c._G, c._at, c._cfg, c._est_at, c._est_cfg, c._lq_weights, y, r, u)
+    types = tuple(numba.typeof(a) for a in args) + (numba.int64, numba.int64)
+    loop = kc.controllers_step.dispatcher.compile(types)
+    saved = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        for _ in range(200):
+            run_blocks(loop, args, min_lanes=1)
+        best = np.inf
+        for _ in range(5):
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                run_blocks(loop, args, min_lanes=1)
+            best = min(best, (time.perf_counter() - t0) / steps)
+    finally:
+        numba.set_num_threads(saved)
+    return best / B * 1e9
+
+
+def threads_table() -> None:
+    """One thread against all cores for two batch loops, the plant step and the controller
+    step: the basis of :data:`stcgym.envs.dynamics.PARALLEL_MIN_LANES` and
+    :data:`stcgym.envs.compiled.DEFAULT_MIN_LANES`."""
     import numba
 
     cores = numba.config.NUMBA_NUM_THREADS
-    print(f"plant batch step, n=2, ns per lane (best of 5), 1 thread vs {cores} threads")
-    print(f"{'B':>8s} {'1 thread':>10s} {f'{cores} threads':>11s} {'speed-up':>9s}")
-    for B in (64, 256, 1024, 4096, 16384, 65536):
-        steps = max(20, 2_000_000 // B)
-        one, many = plant_batch_ns(B, 1, steps), plant_batch_ns(B, cores, steps)
-        print(f"{B:8d} {one:10.1f} {many:11.1f} {one / many:8.2f}x", flush=True)
+    for name, ns, sizes, work in (
+        ("plant batch step, n=2", plant_batch_ns, (1024, 16384, 65536, 262144), 2_000_000),
+        ("controller batch step, n=2, ELS", controller_batch_ns, (16, 64, 256, 1024), 20_000),
+    ):
+        print(f"{name}, ns per lane (best of 5), 1 thread vs {cores} threads")
+        print(f"{'B':>8s} {'1 thread':>10s} {f'{cores} threads':>11s} {'speed-up':>9s}")
+        for B in sizes:
+            steps = max(20, work // B)
+            one, many = ns(B, 1, steps), ns(B, cores, steps)
+            print(f"{B:8d} {one:10.1f} {many:11.1f} {one / many:8.2f}x", flush=True)
 
 
 def _fresh_process(code: str, cache_dir: str | None = None) -> float:
@@ -207,13 +246,13 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="closed-loop throughput table")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument(
-        "--plant-threads",
+        "--threads",
         action="store_true",
-        help="only the plant batch step, one thread against all cores (PARALLEL_MIN_LANES)",
+        help="only the plant and controller batch steps, one thread against all cores",
     )
     args = ap.parse_args(argv)
-    if args.plant_threads:
-        plant_threads_table()
+    if args.threads:
+        threads_table()
         return
     q = args.quick
     rows: list[tuple[str, str, str]] = []

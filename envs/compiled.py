@@ -20,10 +20,13 @@ controller in :mod:`stcgym.adaptive`):
   A batch of ``B`` lanes is a C-contiguous ``(B, size)`` array whose row ``i`` is lane ``i``'s
   record; reset, copy, pickle and memory accounting are plain array operations.
 * A **batch loop** is decorated with :func:`lanes` and is nothing but
-  ``for i in prange(B): lane_fn(F[i], ...)``. A single plant calls the same lane function on a
-  ``(1, size)`` record, so a single plant equals lane ``i`` of a batch **bit for bit by
-  construction**, on any CPU: the same compiled machine code runs on the same numbers (no BLAS,
-  no LAPACK inside lane functions; small dense loops are written out).
+  ``for i in range(first, last): lane_fn(F[i], ...)``: its last two parameters are a range of
+  lanes, which its Python caller leaves out (``loop(F, ...)`` runs every row of the first
+  argument; a large batch is split into blocks of rows run on several threads,
+  :class:`LaneLoop`). A single plant calls the same lane function on a ``(1, size)`` record,
+  so a single plant equals lane ``i`` of a batch **bit for bit by construction**, on any CPU and
+  any number of threads: the same compiled machine code runs on the same numbers (no BLAS, no
+  LAPACK inside lane functions; small dense loops are written out).
 
 Compilation is lazy (first call) and cached on disk (``cache=True``), so importing stcgym
 compiles nothing and a second process starts fast. A compile that is still running after
@@ -35,10 +38,13 @@ never runs stale machine code: :mod:`stcgym.envs.kernel_cache`.
 
 from __future__ import annotations
 
+import functools
 import logging
+import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
 import numba
@@ -51,10 +57,6 @@ from stcgym.envs.kernel_cache import guard_cache
 
 F = TypeVar("F", bound=Callable[..., Any])
 R = TypeVar("R", bound=tuple)
-
-#: Parallel range for batch loops (``numba.prange``; plain ``range`` without the JIT).
-prange = numba.prange
-
 
 #: Seconds after which a compile of stcgym kernels still running is announced (once a process).
 COMPILE_NOTICE_AFTER = 1.0
@@ -141,7 +143,6 @@ class LaneHelper(CPUDispatcher):
 def _jit(
     fn: F | None,
     allocates: bool,
-    parallel: bool,
     inline: bool = False,
     returns_views: bool = False,
     entry: bool = True,
@@ -158,8 +159,6 @@ def _jit(
     options["forceinline"] = inline
     if returns_views:
         options["inline"] = "always"
-    if parallel:
-        options["parallel"] = True
     if not allocates:
         options["_nrt"] = False
     if not entry:
@@ -192,11 +191,11 @@ def lane(
 
     Lane functions **never allocate**: their scratch lives in the lane record or in a work array
     from the caller. They are therefore compiled without numba's reference-counting runtime
-    (NRT, numba's ``_nrt=False`` flag): with it every slice of a record increments and
-    decrements an atomic counter on the batch's memory block, and in a ``prange`` all threads
-    hammer that one counter (measured on the plant step: 87 -> 30 ns per lane on one thread,
-    800 -> 17 ns on two). Compiling an allocation (``np.empty``, ``.copy()``) then fails, which
-    keeps the rule honest. The few set-up helpers that do allocate (the solve-to-convergence
+    (NRT, numba's ``_nrt=False`` flag): with it every slice of a record increments and decrements an
+    atomic counter on the batch's memory block, and when a batch runs on several threads they all
+    hammer that one counter (measured on the plant step: 87 -> 30 ns per lane on one thread, 800 ->
+    17 ns on two). Compiling an allocation (``np.empty``, ``.copy()``) then fails, which keeps the
+    rule honest. The few set-up helpers that do allocate (the solve-to-convergence
     designs of a fresh model) say so with ``@lane(allocates=True)``.
 
     ``entry=True`` for the lane functions that Python calls (the controller step, the estimator
@@ -219,15 +218,124 @@ def lane(
     inlines it. numba's inlining was 10-12 of the 17-19 s of a cold ``place_design`` when every
     helper used it (``benchmarks/README.md``, cold start).
     """
-    return _jit(
-        fn, allocates, parallel=False, inline=inline, returns_views=returns_views, entry=entry
-    )
+    return _jit(fn, allocates, inline=inline, returns_views=returns_views, entry=entry)
 
 
-def lanes(fn: F | None = None, *, allocates: bool = False) -> Any:
-    """Compile ``fn`` as a batch loop over lanes (``prange`` runs lanes on all cores); without
-    NRT unless ``allocates=True`` (see :func:`lane`)."""
-    return _jit(fn, allocates, parallel=True)
+#: Fewest lanes a thread of a batch loop gets by default: below ``2 * DEFAULT_MIN_LANES`` lanes a
+#: batch runs on the calling thread (waking a thread and waiting for it costs tens of
+#: microseconds, tens of controller steps).
+DEFAULT_MIN_LANES = 128
+
+
+def lanes(
+    fn: F | None = None, *, allocates: bool = False, min_lanes: int = DEFAULT_MIN_LANES
+) -> Any:
+    """Compile ``fn(*args, first, last)`` as a batch loop over the lanes ``first .. last - 1``
+    (one thread, cached, releases the GIL); without NRT unless ``allocates=True`` (see
+    :func:`lane`). Returns a :class:`LaneLoop`: Python calls it without ``first, last``.
+
+    ``min_lanes``: the fewest lanes worth a thread of their own (a block of a batch split over
+    threads), about 100 microseconds of work: the default suits a controller or estimator step
+    (about 1 us a lane); a whole rollout per lane takes 1, a plant step (30 ns) far more.
+    """
+
+    def decorate(f: F) -> LaneLoop:
+        return LaneLoop(f, _jit(f, allocates), min_lanes)
+
+    return decorate if fn is None else decorate(fn)
+
+
+def _blocks(num_lanes: int, min_lanes: int) -> int:
+    """How many blocks of rows a batch of ``num_lanes`` lanes runs as: one per thread that
+    ``numba.get_num_threads()`` allows (numba's own setting: ``NUMBA_NUM_THREADS``,
+    ``numba.set_num_threads``), each of at least ``min_lanes`` lanes."""
+    most = num_lanes // max(int(min_lanes), 1)
+    if most < 2:  # not worth a thread: no need to ask numba
+        return 1
+    return max(1, min(numba.get_num_threads(), most))
+
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _thread_pool() -> ThreadPoolExecutor:
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ThreadPoolExecutor(
+                max_workers=numba.config.NUMBA_NUM_THREADS, thread_name_prefix="stcgym-lanes"
+            )
+        return _pool
+
+
+def _forget_pool() -> None:  # a forked child has none of the parent's threads
+    global _pool, _pool_lock
+    _pool, _pool_lock = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def run_blocks(loop: Callable[..., Any], args: Sequence[Any], min_lanes: int) -> None:
+    """``loop(*args, first, last)`` over every row of ``args[0]``: on the calling thread, or in
+    contiguous blocks of rows on a thread pool (:func:`_blocks`), the first block on the calling
+    thread. Each block writes only its own rows, and a lane's numbers never depend on the
+    block it ran in. An exception in any block is raised after every block has finished."""
+    num_lanes = args[0].shape[0]
+    k = _blocks(num_lanes, min_lanes)
+    if k == 1:
+        loop(*args, 0, num_lanes)
+        return
+    edges = [num_lanes * j // k for j in range(k + 1)]
+    pool = _thread_pool()
+    futures = [pool.submit(loop, *args, edges[j], edges[j + 1]) for j in range(1, k)]
+    try:
+        loop(*args, edges[0], edges[1])
+    finally:
+        for future in futures:
+            future.exception()  # wait for every block before the rows are read or raised
+    for future in futures:
+        future.result()
+
+
+class LaneLoop:
+    """A batch loop (:func:`lanes`): call it without its ``first, last`` parameters.
+
+    ``loop(F, ...)`` runs lanes ``0 .. B - 1`` (``B = F.shape[0]``, the first argument's rows)
+    through :func:`run_blocks`: small batches on the calling thread, large ones in blocks on
+    ``numba.get_num_threads()`` threads. The loop is compiled without numba's parallel
+    accelerator: a ``prange`` loop is compiled twice more around the lane function (numba's
+    gufunc and its caller, each optimising the whole step again), which tripled the batch
+    loop's cold compile, and it woke its threads for every call, which made a batch of 4
+    controllers ten times slower per lane than one thread (``benchmarks/README.md``).
+    """
+
+    def __init__(self, py_func: Callable[..., Any], dispatcher: Any, min_lanes: int) -> None:
+        functools.update_wrapper(self, py_func)
+        self.py_func = py_func
+        self.dispatcher = dispatcher  # the serial loop (the plain function without the JIT)
+        self.min_lanes = int(min_lanes)
+
+    def __call__(self, *args: Any) -> None:
+        run_blocks(self.dispatcher, args, self.min_lanes)
+
+    def compile(self, arg_types: tuple) -> Callable[..., None]:
+        """The loop compiled for ``arg_types`` (the types of the Python call's arguments),
+        called without numba's typing of the arguments (:class:`FixedTypes`)."""
+        if not hasattr(self.dispatcher, "compile"):  # the JIT is disabled: plain Python
+            entry = self.dispatcher
+        else:
+            entry = self.dispatcher.compile(tuple(arg_types) + (numba.int64, numba.int64))
+        return functools.partial(_run_compiled, entry, self.min_lanes)
+
+    def __reduce__(self) -> str:  # pickle by reference, like a function
+        return self.__qualname__
+
+
+def _run_compiled(entry: Callable[..., Any], min_lanes: int, *args: Any) -> None:
+    run_blocks(entry, args, min_lanes)
 
 
 class FixedTypes:

@@ -3,9 +3,9 @@
 Every environment of :mod:`stcgym.envs.plants` (one plant) and :mod:`stcgym.envs.vector`
 (``B`` plants) advances its plant with the functions of this module, following the convention of
 :mod:`stcgym.envs.compiled`: a *lane function* advances one plant on 1-D (or 2-D matrix) views of
-that plant's arrays, and a *batch loop* is ``for i in prange(B): lane_fn(X[i], ...)``. A single
-env therefore equals lane ``i`` of the vector env bit for bit, on any CPU: the same machine code
-runs on the same numbers (no BLAS inside; the small loops are written out).
+that plant's arrays, and a *batch loop* is ``for i in range(first, last): lane_fn(X[i], ...)``.
+A single env therefore equals lane ``i`` of the vector env bit for bit, on any CPU: the same
+machine code runs on the same numbers (no BLAS inside; the small loops are written out).
 
 Plants (seed paper: Ding & Ma 2014)
 -----------------------------------
@@ -77,10 +77,10 @@ row per lane; outputs ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` 
 :func:`canonical_plants_step` (``U_raw``, ``Z_v``, ``R``, ``U``, ``Y_clean``, ``Y`` of shape
 ``(B,)``), :func:`state_space_plants_step` (per-lane ``AB`` of shape ``(B, n, n + m)``, a
 last scratch argument ``TMP`` of shape ``(B, n)``), and at reset :func:`canonical_outputs` /
-:func:`state_outputs` for lanes ``idx``. Each batch loop uses all cores from
-:data:`PARALLEL_MIN_LANES` lanes on and one thread below (``.compiled`` is the numba function
-itself). Lane functions take as few array views as possible: each view passed to a call is a
-dozen machine words, a noticeable share of a small plant's step.
+:func:`state_outputs` for lanes ``idx``. Each batch loop splits its lanes over threads from
+:data:`PARALLEL_MIN_LANES` lanes a thread on and runs on the calling thread below
+(:class:`stcgym.envs.compiled.LaneLoop`). Lane functions take as few array views as possible:
+each view passed to a call is a dozen machine words, a noticeable share of a small plant's step.
 
 Reference values and parameters for a rollout
 ---------------------------------------------
@@ -99,14 +99,9 @@ plant, use a one-lane vector env: lane 0 equals the single env with the same see
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable
-from typing import Any
-
-import numba
 import numpy as np
 
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 
 __all__ = [
     "OBSERVER",
@@ -132,40 +127,12 @@ __all__ = [
     "PARALLEL_MIN_LANES",
 ]
 
-#: Batches smaller than this run their loop on the calling thread. The lane functions take no
-#: reference counts (no NRT), so threads do not contend for a counter; what remains is the
-#: cost of waking and joining the pool's threads, which a plant step (about 30 ns per lane)
-#: only pays back for huge batches. Measured with ``python benchmarks/perf.py --plant-threads``
-#: on 2 cores shared with other jobs (load average about 5), ns per lane, 1 thread vs 2:
-#: B = 64: 111 vs 697; 1024: 47 vs 266; 16384: 32 vs 90; 65536: 30 vs 142-182;
-#: 262144: 27 vs 42; 1048576: 30 vs 35. One thread won at every size up to 2^20, so the
-#: threshold stays at 2^20; re-measure on a machine with more (idle) cores before lowering it.
+#: Fewest lanes a thread of a plant batch loop gets: smaller batches run on the calling thread.
+#: The lane functions take no reference counts (no NRT), so threads do not contend for a
+#: counter; what remains is the cost of handing blocks to the pool's threads and waiting for
+#: them, which a plant step (about 30 ns per lane) only pays back for huge batches. Measured
+#: with ``python benchmarks/perf.py --threads``: see ``benchmarks/README.md``.
 PARALLEL_MIN_LANES = 1 << 20
-
-
-class _LaneLoop:
-    """A batch loop (:func:`lanes`) that runs on one thread below ``PARALLEL_MIN_LANES`` lanes.
-
-    The same compiled code either way (``numba.set_num_threads`` only limits how many threads
-    the ``prange`` uses), so every lane's numbers are the same.
-    """
-
-    def __init__(self, fn: Callable[..., Any]) -> None:
-        functools.update_wrapper(self, fn)
-        self.compiled = lanes(fn)
-
-    def __call__(self, *args: Any) -> Any:
-        if args[0].shape[0] >= PARALLEL_MIN_LANES:
-            return self.compiled(*args)
-        threads = numba.get_num_threads()
-        numba.set_num_threads(1)
-        try:
-            return self.compiled(*args)
-        finally:
-            numba.set_num_threads(threads)
-
-    def __reduce__(self) -> str:  # pickle by reference, like a function
-        return self.__qualname__
 
 
 #: ``form`` codes of the canonical lane functions.
@@ -422,7 +389,7 @@ def static_plant_step(theta, u_raw, bound, sigma_v, z_v, r, rho, y_bound, u, y_c
 
 
 # --------------------------------------------------------------------------- batch loops
-@_LaneLoop
+@lanes(min_lanes=PARALLEL_MIN_LANES)
 def canonical_plants_step(
     X,
     Theta,
@@ -442,10 +409,12 @@ def canonical_plants_step(
     reward,
     clipped,
     diverged,
+    first,
+    last,
 ):
     """:func:`canonical_plant_step` for every lane; ``U_raw``, ``Z_v``, ``R``, ``U``,
     ``Y_clean``, ``Y`` of shape ``(B,)``, ``Z_w`` ``(B, n)`` (``(B, 0)`` when unused)."""
-    for i in prange(X.shape[0]):
+    for i in range(first, last):
         reward[i], clipped[i], diverged[i], U[i], Y_clean[i], Y[i] = canonical_plant_step(
             X[i],
             Theta[i],
@@ -462,7 +431,7 @@ def canonical_plants_step(
         )
 
 
-@_LaneLoop
+@lanes(min_lanes=PARALLEL_MIN_LANES)
 def state_space_plants_step(
     X,
     AB,
@@ -484,9 +453,11 @@ def state_space_plants_step(
     clipped,
     diverged,
     TMP,
+    first,
+    last,
 ):
     """:func:`state_space_plant_step` for every lane, lane ``i`` with its own ``AB[i]``."""
-    for i in prange(X.shape[0]):
+    for i in range(first, last):
         reward[i], clipped[i], diverged[i] = state_space_plant_step(
             X[i],
             AB[i],
@@ -508,15 +479,15 @@ def state_space_plants_step(
         )
 
 
-@_LaneLoop
-def canonical_outputs(X, idx, Y_clean):
+@lanes(min_lanes=PARALLEL_MIN_LANES)
+def canonical_outputs(idx, X, Y_clean, first, last):
     """``Y_clean[j, 0] = c x`` of lane ``idx[j]`` (the output at reset, before any input)."""
-    for j in prange(idx.shape[0]):
+    for j in range(first, last):
         Y_clean[j, 0] = canonical_output(X[idx[j]])
 
 
-@_LaneLoop
-def state_outputs(X, idx, C, Y_clean):
+@lanes(min_lanes=PARALLEL_MIN_LANES)
+def state_outputs(idx, X, C, Y_clean, first, last):
     """``Y_clean[j] = C x`` of lane ``idx[j]`` (the output at reset, before any input)."""
-    for j in prange(idx.shape[0]):
+    for j in range(first, last):
         matvec(C, X[idx[j]], Y_clean[j])

@@ -4,7 +4,7 @@
 are the vector counterparts of the single environments in :mod:`stcgym.envs.plants` (their
 ``vector_entry_point``, so ``gym.make_vec(id, num_envs=B)`` builds them). Each sub-environment
 ("lane") has its own parameters, state, noise streams, reference and seed; ``step`` runs the
-plant step of :mod:`stcgym.envs.dynamics` for every lane in one ``prange`` loop (Python loops
+plant step of :mod:`stcgym.envs.dynamics` for every lane in one compiled batch loop (Python loops
 run only for lanes that reset, once per noise block to refill the per-lane noise buffers, and for
 the per-lane generators of random references and schedules).
 
@@ -254,7 +254,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
 
     def _reset_outputs(self, idx: NDArray) -> NDArray:
         y = np.empty((len(idx), 1))
-        dynamics.canonical_outputs(self.x, idx, y)
+        dynamics.canonical_outputs(idx, self.x, y)
         return y
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:
@@ -387,7 +387,7 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
 
     def _reset_outputs(self, idx: NDArray) -> NDArray:
         y = np.empty((len(idx), self.n_outputs))
-        dynamics.state_outputs(self.x, idx, self.C, y)
+        dynamics.state_outputs(idx, self.x, self.C, y)
         return y
 
     def _param_infos(self, infos: dict[str, Any], mask: NDArray) -> None:

@@ -366,7 +366,7 @@ def test_lq_weights_defaults_and_no_integral() -> None:
 
 
 def test_batch_loops_equal_the_lane_functions() -> None:
-    """The prange loops run the same compiled lane function per row: equal bit for bit."""
+    """The batch loops run the same compiled lane function per row: equal bit for bit."""
     rng = np.random.default_rng(11)
     thetas = np.array([_plant(rng, 3, "observer")[0] for _ in range(6)])
     thetas[2, 4] = np.nan  # one lane outside the safe set

@@ -446,11 +446,17 @@ def test_schedules_give_each_lane_its_single_lane_values(schedule):
     ],
 )
 def test_a_batch_above_the_parallel_threshold_equals_the_single_envs(monkeypatch, env_id, kwargs):
-    """Batches of at least PARALLEL_MIN_LANES lanes run the prange on every core: each lane
-    must still be its single env bit for bit (the threshold lowered to 1 to get there)."""
+    """Batches of at least 2 * PARALLEL_MIN_LANES lanes run in blocks on several threads: each
+    lane must still be its single env bit for bit (the threshold lowered to 1 to get there)."""
+    import numba
+
     from stcgym.envs import dynamics
 
-    monkeypatch.setattr(dynamics, "PARALLEL_MIN_LANES", 1)
+    loops = ("canonical_plants_step", "state_space_plants_step", "canonical_outputs")
+    for name in (*loops, "state_outputs"):
+        monkeypatch.setattr(getattr(dynamics, name), "min_lanes", 1)
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread: no blocks to compare")
     B, seeds = 5, [11, 12, 13, 14, 15]
     venv = gym.make_vec(env_id, num_envs=B, vectorization_mode="vector_entry_point", **kwargs)
     envs = [gym.make(env_id, **kwargs) for _ in range(B)]

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from numpy.typing import NDArray
 
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 
 __all__ = [
     "OBSERVABILITY",
@@ -93,8 +93,8 @@ def augmented_characteristic(theta, integral, out):
     out[n] = -prev
 
 
-@lanes
-def model_matrices_lanes(thetas, form, A, b):
+@lanes(min_lanes=1 << 12)  # a few multiply-adds a lane
+def model_matrices_lanes(thetas, form, A, b, first, last):
     """:func:`model_matrices` for every lane: ``A`` ``(B, n, n)``, ``b`` ``(B, n)``."""
-    for i in prange(thetas.shape[0]):
+    for i in range(first, last):
         model_matrices(thetas[i], form, A[i], b[i])

@@ -67,7 +67,7 @@ from stcgym.adaptive.kernels.pole_placement import place_design
 from stcgym.adaptive.kernels.records import view2d
 from stcgym.adaptive.kernels.safe_set import OK, gain_size, work_size
 from stcgym.adaptive.kernels.state_estimation import filtered_state, kalman_step
-from stcgym.envs.compiled import Layout, lane, lanes, prange
+from stcgym.envs.compiled import Layout, lane, lanes
 
 __all__ = [
     "INTS",
@@ -404,7 +404,7 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
 
 
 @lanes
-def controllers_step(F, G, at, cfg, est_at, est_cfg, lq_weights, y, r, u):
+def controllers_step(F, G, at, cfg, est_at, est_cfg, lq_weights, y, r, u, first, last):
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
-    for i in prange(F.shape[0]):
+    for i in range(first, last):
         u[i] = controller_step(F[i], G[i], at, cfg, est_at, est_cfg, lq_weights, y[i], r[i])

@@ -4,7 +4,7 @@ Every function works on one plant's small arrays (see :mod:`stcgym.envs.compiled
 convention: no BLAS/LAPACK, small dense loops written out, status codes instead of
 exceptions). The self-tuning controller, the known-model oracles
 (:mod:`stcgym.adaptive.oracles`) and the public numpy helpers of
-:mod:`stcgym.adaptive.placement` all call these, for one plant or inside a ``prange`` over
+:mod:`stcgym.adaptive.placement` all call these, for one plant or inside a batch loop over
 lanes. Each piece has one home:
 
 * :mod:`.canonical` -- the canonical-form model ``(A, b)`` of ``theta = [a; b]`` and its

@@ -17,7 +17,7 @@ from typing import NamedTuple
 from stcgym.adaptive.kernels.law import LAW_SIZE, track
 from stcgym.adaptive.kernels.records import view2d
 from stcgym.adaptive.kernels.state_estimation import filtered_state, kalman_step
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 
 __all__ = [
     "OracleRecord",
@@ -114,17 +114,17 @@ def known_model_commit(f, at, n, s):
 
 @lanes
 def known_model_propose_lanes(
-    F, at, n, S, y, r, filtered, integral, anti_windup, action_bound, status
+    F, at, n, S, y, r, filtered, integral, anti_windup, action_bound, status, first, last
 ):
     """Batch of :func:`known_model_propose` (lane ``i``: record ``F[i]``, buffer ``S[i]``)."""
-    for i in prange(F.shape[0]):
+    for i in range(first, last):
         status[i] = known_model_propose(
             F[i], at, n, S[i], y[i], r[i], filtered, integral, anti_windup, action_bound
         )
 
 
 @lanes
-def known_model_commit_lanes(F, at, n, S, u):
+def known_model_commit_lanes(F, at, n, S, u, first, last):
     """Batch of :func:`known_model_commit`; writes the applied inputs into ``u``."""
-    for i in prange(F.shape[0]):
+    for i in range(first, last):
         u[i] = known_model_commit(F[i], at, n, S[i])

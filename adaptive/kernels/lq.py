@@ -47,7 +47,7 @@ from stcgym.adaptive.kernels.safe_set import (
     split_work,
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 from stcgym.envs.validation import real_in
 
 __all__ = [
@@ -314,13 +314,25 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     return status
 
 
-@lanes(allocates=True)
+@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
 def lq_solve_lanes(
-    thetas, form, integral, feedforward, weights, safe, Ps, gains, status, tol, max_iter
+    thetas,
+    form,
+    integral,
+    feedforward,
+    weights,
+    safe,
+    Ps,
+    gains,
+    status,
+    tol,
+    max_iter,
+    first,
+    last,
 ):
     """:func:`lq_solve` for every lane (``Ps`` ``(B, m, m)``)."""
     mm = thetas.shape[1] // 2 + 1
-    for i in prange(thetas.shape[0]):
+    for i in range(first, last):
         work = np.empty(N_MAT_SOLVE * mm * mm + N_VEC * mm)
         status[i] = lq_solve(
             thetas[i],
@@ -356,8 +368,8 @@ def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     return dare(At, c, W, R, char_A, P, K, work, tol, max_iter)
 
 
-@lanes(allocates=True)
-def kalman_covariance_lanes(thetas, form, W, R, Ps, status, tol, max_iter):
+@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
+def kalman_covariance_lanes(thetas, form, W, R, Ps, status, tol, max_iter, first, last):
     """:func:`kalman_covariance` for every lane (``W``, ``Ps`` ``(B, n, n)``)."""
-    for i in prange(thetas.shape[0]):
+    for i in range(first, last):
         status[i] = kalman_covariance(thetas[i], form, W[i], R, Ps[i], tol, max_iter)

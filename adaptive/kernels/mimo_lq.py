@@ -49,7 +49,7 @@ from stcgym.adaptive.kernels.safe_set import (
     NOT_STABILISABLE,
     OK,
 )
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 
 __all__ = [
     "P_MAX",
@@ -343,8 +343,8 @@ def feedback_law(K, F, x, r, bound, u):
     return saturated
 
 
-@lanes
-def feedback_laws(K, F, X, Rr, bound, U):
+@lanes(min_lanes=1 << 12)  # one matrix-vector product a lane
+def feedback_laws(K, F, X, Rr, bound, U, first, last):
     """:func:`feedback_law` for every lane (``K``, ``F`` ``(B, m, n)``)."""
-    for i in prange(X.shape[0]):
+    for i in range(first, last):
         feedback_law(K[i], F[i], X[i], Rr[i], bound, U[i])

@@ -52,7 +52,7 @@ from stcgym.adaptive.kernels.state_matrix import (
     state_matrix_layout,
     state_matrix_update,
 )
-from stcgym.envs.compiled import Layout, lane, lanes, prange
+from stcgym.envs.compiled import Layout, lane, lanes
 
 __all__ = [
     "MIMO_INTS",
@@ -284,7 +284,7 @@ def mimo_step(f, g, at, cfg, x, r, u):
 
 
 @lanes
-def mimo_steps(F, G, at, cfg, X, Rr, U):
+def mimo_steps(F, G, at, cfg, X, Rr, U, first, last):
     """:func:`mimo_step` for every lane (``X``, ``Rr`` ``(B, n)``, ``U`` ``(B, m)``)."""
-    for i in prange(F.shape[0]):
+    for i in range(first, last):
         mimo_step(F[i], G[i], at, cfg, X[i], Rr[i], U[i])

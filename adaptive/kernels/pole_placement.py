@@ -27,7 +27,7 @@ from stcgym.adaptive.kernels.safe_set import (
     finish,
     split_work,
 )
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 
 __all__ = ["ackermann_gain", "place_design", "place_design_lanes"]
 
@@ -85,12 +85,14 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
     return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
 
 
-@lanes(allocates=True)
-def place_design_lanes(thetas, form, integral, feedforward, alpha, safe, gains, status):
+@lanes(allocates=True, min_lanes=16)  # one design a lane
+def place_design_lanes(
+    thetas, form, integral, feedforward, alpha, safe, gains, status, first, last
+):
     """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` ``(B, n + 4)``,
     ``status`` ``(B,)`` int64); each lane allocates its own scratch."""
     mm = thetas.shape[1] // 2 + 1
-    for i in prange(thetas.shape[0]):
+    for i in range(first, last):
         work = np.empty(N_MAT * mm * mm + N_VEC * mm)
         status[i] = place_design(
             thetas[i], form, integral, feedforward, alpha, safe, gains[i], work

@@ -6,7 +6,7 @@ square-root factor ``S`` of ``P = S S^T``, the gain and the finite-history windo
 (:func:`stcgym.adaptive.kernels.least_squares.least_squares_step`) with forgetting, an
 optional finite window (a rank-one downdate when it is accurate, else a replay of the stored
 window) and the common health policy; :func:`rls_run` is a record of samples, and
-:func:`rls_run_lanes` one ``prange`` over lanes. :class:`stcgym.adaptive.RecursiveLeastSquares`
+:func:`rls_run_lanes` its batch loop over lanes. :class:`stcgym.adaptive.RecursiveLeastSquares`
 is its Python face.
 """
 
@@ -23,7 +23,7 @@ from stcgym.adaptive.kernels.least_squares import (
 )
 from stcgym.adaptive.kernels.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
-from stcgym.envs.compiled import lane, lanes, prange
+from stcgym.envs.compiled import lane, lanes
 
 __all__ = [
     "FAILED",
@@ -248,12 +248,26 @@ def rls_run(
     return failures, first
 
 
-@lanes
+@lanes(min_lanes=1)  # a lane is a whole record of samples
 def rls_run_lanes(
-    F, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out, failures, first
+    F,
+    at,
+    Phis,
+    Ys,
+    theta0,
+    S0,
+    lam,
+    window,
+    adapt,
+    reset_on_failure,
+    out,
+    failures,
+    first_failure,
+    first: int,
+    last: int,
 ):  # pragma: no cover
-    """:func:`rls_run` on every lane."""
-    for i in prange(F.shape[0]):
-        failures[i], first[i] = rls_run(
+    """:func:`rls_run` on every lane (``failures[i]``, ``first_failure[i]``: its results)."""
+    for i in range(first, last):
+        failures[i], first_failure[i] = rls_run(
             F[i], at, Phis[i], Ys[i], theta0, S0, lam, window, adapt, reset_on_failure, out[i]
         )

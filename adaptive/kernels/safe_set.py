@@ -176,9 +176,8 @@ def safe_bounds(safe):
     """The safe-set vector ``safe`` (float64, length 4) as a :class:`SafeSetBounds`: the one
     place that knows the order of its entries.
 
-    The lane functions take the vector, not the named tuple: a tuple of four floats inside a
-    configuration that a ``prange`` loop receives fails in numba's parallel lowering (it is
-    taken for an array argument), so the tuple is built inside the lane function.
+    The lane functions take the vector and build the tuple inside, so the safe set travels
+    like the other configuration vectors (``alpha``, the LQ weights): one float64 array.
     """
     return SafeSetBounds(safe[0], safe[1], safe[2], safe[3])
 
