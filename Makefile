@@ -35,16 +35,16 @@ bench-full: install
 # only for this CPU's kernels must fail here, not on a user's machine. Prescott (SSE3) runs on
 # every x86-64 CPU and differs from what any AVX2/AVX-512 CPU picks by default.
 test: install
-	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -q
+	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -q
 	@if [ "$$(uname -m)" = x86_64 ]; then \
 		echo "equality tests again under OPENBLAS_CORETYPE=Prescott:"; \
-		OPENBLAS_CORETYPE=Prescott MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -q -m equality; \
+		OPENBLAS_CORETYPE=Prescott MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -q -m equality; \
 	fi
 
 # Property tests with fresh random examples (and more of them): `make test` draws the same
 # examples every run (tests/conftest.py), this target looks for new counter-examples.
 test-explore: install
-	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 -q --hypothesis-profile=explore
+	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -q --hypothesis-profile=explore
 
 perf: install
 	$(BIN)/python benchmarks/perf.py
