@@ -132,7 +132,7 @@ __all__ = [
 #: counter; what remains is the cost of handing blocks to the pool's threads and waiting for
 #: them, which a plant step (about 30 ns per lane) only pays back for huge batches. Measured
 #: with ``python benchmarks/perf.py --threads``: see ``benchmarks/README.md``.
-PARALLEL_MIN_LANES = 1 << 20
+PARALLEL_MIN_LANES = 1 << 15
 
 
 #: ``form`` codes of the canonical lane functions.
