@@ -305,11 +305,11 @@ class LaneLoop:
 
     ``loop(F, ...)`` runs lanes ``0 .. B - 1`` (``B = F.shape[0]``, the first argument's rows)
     through :func:`run_blocks`: small batches on the calling thread, large ones in blocks on
-    ``numba.get_num_threads()`` threads. The loop is compiled without numba's parallel
-    accelerator: a ``prange`` loop is compiled twice more around the lane function (numba's
-    gufunc and its caller, each optimising the whole step again), which tripled the batch
-    loop's cold compile, and it woke its threads for every call, which made a batch of 4
-    controllers ten times slower per lane than one thread (``benchmarks/README.md``).
+    ``numba.get_num_threads()`` threads. The loop is not compiled with numba's parallel
+    accelerator: a ``prange`` loop would compile the lane function twice more (numba's gufunc
+    and the function around it, each optimising the whole step again: about four times the
+    serial loop's cold compile for the controller step). Handing a block to a pool thread costs
+    about 35 us, hence ``min_lanes`` (``benchmarks/README.md`` has the measurements).
     """
 
     def __init__(self, py_func: Callable[..., Any], dispatcher: Any, min_lanes: int) -> None:
