@@ -328,14 +328,14 @@ class LaneLoop:
             entry = self.dispatcher
         else:
             entry = self.dispatcher.compile(tuple(arg_types) + (numba.int64, numba.int64))
-        return functools.partial(_run_compiled, entry, self.min_lanes)
+        return functools.partial(_run_compiled, entry, self)
 
     def __reduce__(self) -> str:  # pickle by reference, like a function
         return self.__qualname__
 
 
-def _run_compiled(entry: Callable[..., Any], min_lanes: int, *args: Any) -> None:
-    run_blocks(entry, args, min_lanes)
+def _run_compiled(entry: Callable[..., Any], loop: LaneLoop, *args: Any) -> None:
+    run_blocks(entry, args, loop.min_lanes)  # read at each call: the setting may change
 
 
 class FixedTypes:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import gymnasium as gym
+import numba
 import numpy as np
 import pytest
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.controller import SelfTuningController
+from stcgym.adaptive.kernels import controller as kc
 
 
 def _closed_loop(ctls: list, venv: gym.vector.VectorEnv, steps: int, batched: bool) -> np.ndarray:
@@ -33,9 +35,17 @@ def _closed_loop(ctls: list, venv: gym.vector.VectorEnv, steps: int, batched: bo
         {"estimator": "O-RLS"},
     ],
 )
-def test_single_controllers_equal_their_lanes_bit_for_bit(kw: dict) -> None:
-    """The same compiled lane function runs in both: equality is exact, on any CPU."""
-    plants = ["stable2", "unstable2", "integrator2"]
+@pytest.mark.parametrize("blocks", [False, True])
+def test_single_controllers_equal_their_lanes_bit_for_bit(
+    kw: dict, blocks: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The same compiled lane function runs in both: equality is exact, on any CPU, also when
+    the batch runs in blocks of rows on two threads (``blocks``: one lane a thread suffices)."""
+    if blocks:
+        if numba.config.NUMBA_NUM_THREADS < 2:
+            pytest.skip("one thread: no blocks")
+        monkeypatch.setattr(kc.controllers_step, "min_lanes", 1)
+        monkeypatch.setattr(numba, "get_num_threads", lambda: 2)
     seeds = [4, 5, 6]
 
     def venv() -> gym.vector.VectorEnv:
@@ -49,7 +59,6 @@ def test_single_controllers_equal_their_lanes_bit_for_bit(kw: dict) -> None:
         v.reset(seed=[11, 12, 13])
     batch = SelfTuningController(2, num_envs=3, seed=seeds, **kw)
     singles = [SelfTuningController(2, seed=s, **kw) for s in seeds]
-    del plants
     ub = _closed_loop([batch], v1, 150, batched=True)
     us = _closed_loop(singles, v2, 150, batched=False)
     np.testing.assert_array_equal(ub, us)
