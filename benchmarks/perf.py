@@ -149,59 +149,18 @@ def _vector_rate(B: int, steps: int, estimator: str) -> float:
     return B * steps / (time.perf_counter() - t0)
 
 
-def plant_batch_ns(B: int, threads: int, steps: int, n: int = 2) -> float:
-    """Nanoseconds per lane of one noisy canonical plant batch step (the vector env's compiled
-    loop, :func:`stcgym.envs.dynamics.canonical_plants_step`) on ``threads`` threads (the loop's
-    blocks of rows, whatever its own threshold)."""
+def _blocks_ns(loop, args: tuple, B: int, threads: int, steps: int, warmup: int = 1) -> float:
+    """Nanoseconds per lane of ``loop(*args, first, last)`` over ``B`` lanes in blocks on
+    ``threads`` threads (whatever the loop's own threshold), best of 5: the least disturbed by
+    other processes."""
     import numba
 
-    from stcgym.envs import dynamics
     from stcgym.envs.compiled import run_blocks
 
-    rng = np.random.default_rng(0)
-    X = np.zeros((B, n))
-    Theta = np.tile(_theta(n), (B, 1))
-    U_raw, R = rng.uniform(-1, 1, B), np.zeros(B)
-    Z_w, Z_v = rng.standard_normal((B, n)), rng.standard_normal(B)
-    U, Y_clean, Y, reward = np.zeros(B), np.zeros(B), np.zeros(B), np.zeros(B)
-    clipped, diverged = np.zeros(B, bool), np.zeros(B, bool)
-    args = (X, Theta, U_raw, 10.0, 0.01, Z_w, 0.1, Z_v, R, 0.0, 1e6, 0)
-    outs = (U, Y_clean, Y, reward, clipped, diverged)
     saved = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        best = np.inf
-        for _ in range(5):  # best of 5: the least disturbed by other processes
-            loop = dynamics.canonical_plants_step.dispatcher
-            run_blocks(loop, (*args, *outs), min_lanes=1)
-            t0 = time.perf_counter()
-            for _ in range(steps):
-                run_blocks(loop, (*args, *outs), min_lanes=1)
-            best = min(best, (time.perf_counter() - t0) / steps)
-    finally:
-        numba.set_num_threads(saved)
-    return best / B * 1e9
-
-
-def controller_batch_ns(B: int, threads: int, steps: int) -> float:
-    """Nanoseconds per lane of one batch step of ``SelfTuningController(2, num_envs=B)`` (the
-    compiled loop :func:`stcgym.adaptive.kernels.controller.controllers_step`) on ``threads``
-    threads, after 200 closed-loop-free steps (the loop closed on every lane)."""
-    import numba
-
-    from stcgym.adaptive import SelfTuningController
-    from stcgym.adaptive.kernels import controller as kc
-    from stcgym.envs.compiled import run_blocks
-
-    c = SelfTuningController(2, num_envs=B)
-    u, y, r = np.zeros(B), np.full(B, 0.1), np.ones(B)
-    args = (c._F, c._G, c._at, c._cfg, c._est_at, c._est_cfg, c._lq_weights, y, r, u)
-    types = tuple(numba.typeof(a) for a in args) + (numba.int64, numba.int64)
-    loop = kc.controllers_step.dispatcher.compile(types)
-    saved = numba.get_num_threads()
-    numba.set_num_threads(threads)
-    try:
-        for _ in range(200):
+        for _ in range(warmup):
             run_blocks(loop, args, min_lanes=1)
         best = np.inf
         for _ in range(5):
@@ -212,6 +171,41 @@ def controller_batch_ns(B: int, threads: int, steps: int) -> float:
     finally:
         numba.set_num_threads(saved)
     return best / B * 1e9
+
+
+def plant_batch_ns(B: int, threads: int, steps: int, n: int = 2) -> float:
+    """Nanoseconds per lane of one noisy canonical plant batch step (the vector env's compiled
+    loop, :func:`stcgym.envs.dynamics.canonical_plants_step`, through numba's dispatcher) on
+    ``threads`` threads."""
+    from stcgym.envs import dynamics
+
+    rng = np.random.default_rng(0)
+    X = np.zeros((B, n))
+    Theta = np.tile(_theta(n), (B, 1))
+    U_raw, R = rng.uniform(-1, 1, B), np.zeros(B)
+    Z_w, Z_v = rng.standard_normal((B, n)), rng.standard_normal(B)
+    U, Y_clean, Y, reward = np.zeros(B), np.zeros(B), np.zeros(B), np.zeros(B)
+    clipped, diverged = np.zeros(B, bool), np.zeros(B, bool)
+    args = (X, Theta, U_raw, 10.0, 0.01, Z_w, 0.1, Z_v, R, 0.0, 1e6, 0)
+    outs = (U, Y_clean, Y, reward, clipped, diverged)
+    return _blocks_ns(dynamics.canonical_plants_step.dispatcher, (*args, *outs), B, threads, steps)
+
+
+def controller_batch_ns(B: int, threads: int, steps: int) -> float:
+    """Nanoseconds per lane of one batch step of ``SelfTuningController(2, num_envs=B)`` (the
+    compiled loop :func:`stcgym.adaptive.kernels.controller.controllers_step`) on ``threads``
+    threads, after 200 steps (the loop closed on every lane)."""
+    import numba
+
+    from stcgym.adaptive import SelfTuningController
+    from stcgym.adaptive.kernels import controller as kc
+
+    c = SelfTuningController(2, num_envs=B)
+    u, y, r = np.zeros(B), np.full(B, 0.1), np.ones(B)
+    args = (c._F, c._G, c._at, c._cfg, c._est_at, c._est_cfg, c._lq_weights, y, r, u)
+    types = tuple(numba.typeof(a) for a in args) + (numba.int64, numba.int64)
+    loop = kc.controllers_step.dispatcher.compile(types)
+    return _blocks_ns(loop, args, B, threads, steps, warmup=200)
 
 
 def threads_table() -> None:
