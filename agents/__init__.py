@@ -10,7 +10,7 @@
   (:mod:`~stcgym.agents.benchmark.evaluate`, :mod:`~stcgym.agents.benchmark.response`), the
   run (config, scenarios, plan, runner), interval statistics, report and plots;
 * :mod:`stcgym.agents.sweeps`: ``stcgym sweep``: random plant families
-  (:mod:`~stcgym.agents.sweeps.families`) and the classical controllers swept over them;
+  (:mod:`~stcgym.envs.families`) and the classical controllers swept over them;
 * :mod:`stcgym.agents.closed_loop`: the one closed-loop driver behind every cost the benchmark
   and the sweeps report (the compiled rollout where it applies, ``predict`` otherwise) and its
   divergence rule;

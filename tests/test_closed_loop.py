@@ -17,7 +17,7 @@ from stcgym.adaptive.rollout import charge_divergence, rollout
 from stcgym.agents.benchmark.evaluate import run_episode
 from stcgym.agents.closed_loop import run_closed_loop
 from stcgym.agents.sweeps.chunk import _vector_env, closed_loop
-from stcgym.agents.sweeps.families import draw_plant, load_family
+from stcgym.envs.families import draw_plant, load_family
 from stcgym.envs.signals import Jumps
 
 FAMILY = {

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.agents.sweeps.families import (
+from stcgym.envs.families import (
     FamilySpecError,
     draw_plant,
     draw_plants,

@@ -20,7 +20,7 @@ from stcgym.adaptive.options import cost_weights
 from stcgym.agents.sweeps import SweepConfig, SweepError, run_sweep
 from stcgym.agents.sweeps.chunk import closed_loop
 from stcgym.agents.sweeps.cli import main, parse_controller
-from stcgym.agents.sweeps.families import draw_plant, load_family, plant_features
+from stcgym.envs.families import draw_plant, load_family, plant_features
 from stcgym.envs.signals import Jumps, RandomWalk
 
 FAMILY = {

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.agents.closed_loop import LoopResult, run_closed_loop
-from stcgym.agents.sweeps.families import FamilySpec, Plant, draw_plant, plant_features
+from stcgym.envs.families import FamilySpec, Plant, draw_plant, plant_features
 from stcgym.envs.signals import NEVER, Schedule
 
 __all__ = [

@@ -12,8 +12,8 @@ from typing import Any
 from stcgym.agents.executors import EXECUTORS
 from stcgym.agents.sweeps.chunk import CONTROLLER_KINDS
 from stcgym.agents.sweeps.config import DEFAULT_CHUNK, SweepConfig, SweepError
-from stcgym.agents.sweeps.families import FamilySpecError
 from stcgym.agents.sweeps.sweep import run_sweep
+from stcgym.envs.families import FamilySpecError
 
 __all__ = ["add_sweep_subcommand", "main", "parse_controller", "run_sweep_command"]
 
@@ -76,7 +76,7 @@ def add_sweep_subcommand(subparsers: argparse._SubParsersAction) -> argparse.Arg
         "sweep",
         help="classical controllers over a random plant family (process pool or Ray)",
         description="Run the self-tuning controller, the known-model oracle and LQG over a "
-        "plant family (YAML/JSON spec, see stcgym.agents.sweeps.families); writes <out>/<run>/ "
+        "plant family (YAML/JSON spec, see stcgym.envs.families); writes <out>/<run>/ "
         "(metrics.csv or .parquet, robustness.png, config.json).",
     )
     p.add_argument("family", nargs="?", help="family spec file (.yaml/.yml/.json)")

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from stcgym.agents.sweeps.chunk import CONTROLLER_KINDS, make_controller
-from stcgym.agents.sweeps.families import FamilySpec, draw_plant, load_family
+from stcgym.envs.families import FamilySpec, draw_plant, load_family
 
 __all__ = ["DEFAULT_CHUNK", "SweepConfig", "SweepError"]
 

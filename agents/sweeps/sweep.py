@@ -43,7 +43,7 @@ Outputs (``<out>/<run>/``)
 --------------------------
 ``metrics.csv`` (``metrics.parquet`` with pyarrow; pandas reads both): one row per (plant,
 controller, seed) with the plant features of
-:func:`~stcgym.agents.sweeps.families.plant_features` and its coefficients ``a1..an, b1..bn``, then
+:func:`~stcgym.envs.families.plant_features` and its coefficients ``a1..an, b1..bn``, then
 
 * ``bounded`` (1: ``|y|`` stayed below ``y_bound``), ``steps_run``;
 * ``cost`` (mean of ``(y - r)^2 + rho u^2`` over the episode), ``cost_start``,
@@ -91,7 +91,7 @@ from stcgym.agents.executors import (
 )
 from stcgym.agents.sweeps.chunk import simulate_chunk
 from stcgym.agents.sweeps.config import SweepConfig, SweepError
-from stcgym.agents.sweeps.families import FamilySpec, draw_plant, plant_features
+from stcgym.envs.families import FamilySpec, draw_plant, plant_features
 
 __all__ = ["SweepResult", "read_table", "robustness_map", "run_sweep"]
 
