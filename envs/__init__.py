@@ -9,9 +9,11 @@ id                                  plant
 ``stcgym/ObservabilityCanonical-v0`` SISO observability canonical form (seed eq. (146)-(147))
 ``stcgym/StateSpace-v0``             MIMO ``(A, B, C, D)`` or any python-control system
 ``stcgym/MultichannelStatic-v0``     static object ``y^T = u^T Theta + v`` (Voevoda-Troshina)
+``stcgym/PlantFamily-v0``            one split of a plant family, a plant drawn per episode
 ==================================  =============================================================
 
-The first three also have a native vector env (:mod:`stcgym.envs.vector`), the default of
+All but the static object also have a native vector env (:mod:`stcgym.envs.vector`,
+:class:`~stcgym.envs.family_env.PlantFamilyVectorEnv`), the default of
 ``gym.make_vec(id, num_envs=B, **kwargs)``. Every env, single or vector, steps its plant with the
 compiled lane functions of :mod:`stcgym.envs.dynamics` (the plant step, written once), so a
 single env equals the matching lane of a vector env bit for bit. ``gym.make(id)`` works for
@@ -23,6 +25,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 from stcgym.envs import catalogue as _catalogue
+from stcgym.envs import families as _families
 from stcgym.envs import plants as _plants
 from stcgym.envs.canonical import (
     canonical_matrices,
@@ -31,6 +34,15 @@ from stcgym.envs.canonical import (
     transfer_function_coefficients,
 )
 from stcgym.envs.catalogue import PlantSpec, get_plant, plant_names
+from stcgym.envs.families import (
+    FamilySpec,
+    FamilySpecError,
+    Plant,
+    draw_plant,
+    get_family,
+    load_family,
+)
+from stcgym.envs.family_env import PlantFamilyEnv
 from stcgym.envs.mimo_plants import MIMO_PLANTS, MimoPlantSpec, get_mimo_plant, mimo_plant_names
 from stcgym.envs.plants import (
     CanonicalPlantEnv,
@@ -47,6 +59,8 @@ from stcgym.envs.signals import (
     Constant,
     Jumps,
     Ramp,
+    RandomJump,
+    RandomSteps,
     RandomWalk,
     Reference,
     Schedule,
@@ -67,11 +81,17 @@ from stcgym.envs.signals import (
 #: up case-insensitively with a clear error.
 PLANTS: dict[str, PlantSpec] = _catalogue.PLANTS
 
+#: The named plant families, spec dict by ``"<name>-v<version>"`` (see
+#: :data:`stcgym.envs.families.FAMILIES`; ``"siso2-v1"`` is the benchmark's default family);
+#: :func:`get_family` looks a name up.
+FAMILIES: dict[str, dict] = _families.FAMILIES
+
 #: The plant of ``gym.make("stcgym/StateSpace-v0")`` without matrices: a stable, coupled
 #: two-state, two-input plant (eigenvalues 0.9 and 0.8) with measured state (``C = I``, ``D = 0``).
 DEFAULT_STATE_SPACE: dict[str, tuple] = _plants.DEFAULT_STATE_SPACE
 
-#: ``max_episode_steps`` of every registered id (``gym.make(..., max_episode_steps=T)`` overrides).
+#: ``max_episode_steps`` of every registered id (``gym.make(..., max_episode_steps=T)`` overrides)
+#: but ``stcgym/PlantFamily-v0``, which truncates by itself at its family's episode length.
 DEFAULT_MAX_EPISODE_STEPS = 1000
 
 #: The registered environment ids and their entry points (``"module:Class"``).
@@ -80,6 +100,7 @@ ENV_IDS = {
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.plants:ObservabilityCanonicalEnv",
     "stcgym/StateSpace-v0": "stcgym.envs.plants:StateSpaceEnv",
     "stcgym/MultichannelStatic-v0": "stcgym.envs.plants:MultichannelStaticEnv",
+    "stcgym/PlantFamily-v0": "stcgym.envs.family_env:PlantFamilyEnv",
 }
 
 #: The native vector envs: ``gym.make_vec(id, num_envs=B)`` builds these by default (also with
@@ -89,7 +110,10 @@ VECTOR_ENTRY_POINTS = {
     "stcgym/ObserverCanonical-v0": "stcgym.envs.vector:ObserverCanonicalVectorEnv",
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.vector:ObservabilityCanonicalVectorEnv",
     "stcgym/StateSpace-v0": "stcgym.envs.vector:StateSpaceVectorEnv",
+    "stcgym/PlantFamily-v0": "stcgym.envs.family_env:PlantFamilyVectorEnv",
 }
+#: Ids that truncate their episodes themselves (registered without a ``TimeLimit``).
+_SELF_TRUNCATING = frozenset({"stcgym/PlantFamily-v0"})
 
 
 def _register() -> None:
@@ -99,7 +123,9 @@ def _register() -> None:
                 id=env_id,
                 entry_point=entry_point,
                 vector_entry_point=VECTOR_ENTRY_POINTS.get(env_id),
-                max_episode_steps=DEFAULT_MAX_EPISODE_STEPS,
+                max_episode_steps=(
+                    None if env_id in _SELF_TRUNCATING else DEFAULT_MAX_EPISODE_STEPS
+                ),
             )
 
 
@@ -108,6 +134,14 @@ _register()
 __all__ = [
     "DEFAULT_STATE_SPACE",
     "ENV_IDS",
+    "FAMILIES",
+    "FamilySpec",
+    "FamilySpecError",
+    "Plant",
+    "PlantFamilyEnv",
+    "draw_plant",
+    "get_family",
+    "load_family",
     "VECTOR_ENTRY_POINTS",
     "PLANTS",
     "PRBS",
@@ -124,6 +158,8 @@ __all__ = [
     "ObserverCanonicalEnv",
     "PlantSpec",
     "Ramp",
+    "RandomJump",
+    "RandomSteps",
     "RandomWalk",
     "Reference",
     "Schedule",

@@ -21,7 +21,7 @@ from stcgym.envs.canonical import (
 )
 from stcgym.envs.catalogue import PlantSpec, get_plant
 from stcgym.envs.linear_plant import LinearPlantEnv
-from stcgym.envs.signals import Jumps, Schedule, make_schedule
+from stcgym.envs.signals import Jumps, RandomJump, Schedule, make_schedule
 
 __all__ = ["CanonicalPlantEnv", "ObservabilityCanonicalEnv", "ObserverCanonicalEnv"]
 
@@ -35,9 +35,10 @@ class CanonicalPlantEnv(LinearPlantEnv):
 
     Parameters
     ----------
-    plant : str or list of str, optional
-        Catalogue name (see :mod:`stcgym.envs.catalogue`), or a list of names to draw one per
-        episode (plant-family training; the names must share one order ``n``). Default
+    plant : str, PlantSpec or list of them, optional
+        Catalogue name (see :mod:`stcgym.envs.catalogue`) or a
+        :class:`~stcgym.envs.catalogue.PlantSpec` of your own, or a list of them to draw one
+        per episode (plant-family training; one order ``n``, one plant per name). Default
         ``"stable2"`` when neither ``plant`` nor ``a``/``b`` is given.
     a, b : array_like, shape (n,), optional
         Parameters of this env's canonical form (finite, equal lengths ``n``; both or neither,
@@ -62,10 +63,13 @@ class CanonicalPlantEnv(LinearPlantEnv):
         Divergence bound on ``|y|`` (``> 0``; terminates the episode).
     initial_state : array_like, shape (n,), optional
         ``x(0)``; zero by default.
+    initial_state_std : float, default 0.0
+        ``> 0``: ``x(0) ~ N(0, std^2 I)`` each episode (see :class:`LinearPlantEnv`).
     render_mode : {None, "rgb_array"}, default None
         See :class:`LinearPlantEnv`.
 
-    ``reset(options=...)`` also accepts ``"plant"`` (a catalogue name), ``"a"`` and ``"b"``, or
+    ``reset(options=...)`` also accepts ``"plant"`` (the name of one of this env's plants, a
+    catalogue name or a ``PlantSpec``), ``"a"`` and ``"b"``, or
     ``"theta"`` to set this episode's parameters (of the env's order ``n``). ``info`` carries the
     true state ``"x"``, the noise-free output ``"y_clean"``, the true parameters in force
     ``"theta"`` (also ``"a"``, ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the
@@ -75,10 +79,11 @@ class CanonicalPlantEnv(LinearPlantEnv):
     ------
     ValueError
         ``plant`` with ``a``/``b``; ``a`` without ``b``; an unknown catalogue name; a family of
-        plants of different orders; ``a``, ``b`` empty, not finite or of unequal lengths; any
-        value :class:`LinearPlantEnv` rejects.
+        plants of different orders or two plants of one name; ``a``, ``b`` empty, not finite
+        or of unequal lengths; any value :class:`LinearPlantEnv` rejects.
     TypeError
-        ``plant`` neither a name nor a list of names; a value of the wrong kind.
+        ``plant`` neither a name, a ``PlantSpec`` nor a list of them; a value of the wrong
+        kind.
 
     Examples
     --------
@@ -104,7 +109,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
 
     def __init__(
         self,
-        plant: str | Sequence[str] | None = None,
+        plant: str | PlantSpec | Sequence[str | PlantSpec] | None = None,
         *,
         a: ArrayLike | None = None,
         b: ArrayLike | None = None,
@@ -118,28 +123,36 @@ class CanonicalPlantEnv(LinearPlantEnv):
         if (a is None) != (b is None):
             raise ValueError("a and b must be given together (theta = [a; b])")
         if a is not None:
-            self.family: list[PlantSpec] = []
+            self.members: list[PlantSpec] = []
             self.user_theta = np.concatenate(check_ab(a, b))
         else:
             if plant is None:
-                names: list[Any] = ["stable2"]
-            elif isinstance(plant, str):
-                names = [plant]
+                entries: list[Any] = ["stable2"]
+            elif isinstance(plant, (str, PlantSpec)):
+                entries = [plant]
             elif isinstance(plant, (list, tuple)):
-                names = list(plant)
+                entries = list(plant)
             else:
-                raise TypeError(f"plant must be a catalogue name or a list of names, got {plant!r}")
-            if len(names) == 0:
-                raise ValueError("plant must be a catalogue name or a non-empty list of names")
-            self.family = [get_plant(name) for name in names]
-            if len({spec.n for spec in self.family}) > 1:
+                raise TypeError(
+                    f"plant must be a catalogue name, a PlantSpec or a list of them, got {plant!r}"
+                )
+            if len(entries) == 0:
+                raise ValueError("plant must be a catalogue name, a PlantSpec or a non-empty list")
+            self.members = [_plant_spec(entry, "plant") for entry in entries]
+            if len({spec.n for spec in self.members}) > 1:
                 raise ValueError(
-                    f"plant family must share one order n, got {[s.name for s in self.family]}"
+                    f"plant family must share one order n, got {[s.name for s in self.members]}"
                 )
             self.user_theta = None
+        # One plant per name, so that reset(options={"plant": name}) is unambiguous.
+        self._member_index: dict[str, int] = {}
+        for j, spec in enumerate(self.members):
+            first = self._member_index.setdefault(spec.name, j)
+            if self.members[first] != spec:
+                raise ValueError(f"plant: two different plants are named {spec.name!r}")
         self.has_user_schedule = schedule is not None
-        self.plant: PlantSpec | None = None if self.family == [] else self.family[0]
-        n = self.family[0].n if self.family else self.user_theta.size // 2
+        self.plant: PlantSpec | None = None if self.members == [] else self.members[0]
+        n = self.members[0].n if self.members else self.user_theta.size // 2
         super().__init__(n_states=n, n_inputs=1, n_outputs=1, schedule=schedule, **kwargs)
         # The constructor's plant is in force until the first reset (A, B, C, D, theta exist).
         self._set_params(self.theta_of(self.plant) if self.plant else self.user_theta)
@@ -204,7 +217,25 @@ class CanonicalPlantEnv(LinearPlantEnv):
         sched = spec.schedule()
         if self.form == "observability" and isinstance(sched, Jumps):
             sched = Jumps([(k, self.theta_of(_spec_from_theta(v))) for k, v in sched.changes])
+        elif self.form == "observability" and isinstance(sched, RandomJump):
+            after = self.theta_of(_spec_from_theta(sched.after))
+            sched = RandomJump(after, sched.at, sched.probability)
         return sched
+
+    def _find_plant(self, plant: Any, name: str = "options['plant']") -> PlantSpec:
+        """A plant given by name (this env's own plants first, then the catalogue) or as a
+        ``PlantSpec``; ``ValueError``/``TypeError`` naming ``name`` otherwise."""
+        if isinstance(plant, str) and plant in self._member_index:
+            return self.members[self._member_index[plant]]
+        try:
+            return _plant_spec(plant, name)
+        except ValueError as exc:
+            if not self.members:
+                raise
+            raise ValueError(
+                f"{name} must name one of this env's {len(self.members)} plants (e.g. "
+                f"{self.members[0].name!r}) or a catalogue plant: {exc}"
+            ) from exc
 
     def _parse_options(self, options: dict[str, Any]) -> tuple[NDArray | None, PlantSpec | None]:
         theta, spec = None, None
@@ -215,7 +246,7 @@ class CanonicalPlantEnv(LinearPlantEnv):
         elif "a" in options or "b" in options:
             theta = np.concatenate(check_ab(options.get("a"), options.get("b")))
         elif "plant" in options:
-            spec = get_plant(options["plant"])
+            spec = self._find_plant(options["plant"])
             theta = self.theta_of(spec)
         if theta is not None and theta.size != 2 * self.n_states:
             raise ValueError(
@@ -229,11 +260,11 @@ class CanonicalPlantEnv(LinearPlantEnv):
     ) -> NDArray:
         theta, spec = parsed
         if theta is None:
-            if self.family:
+            if self.members:
                 spec = (
-                    self.family[int(rng.integers(len(self.family)))]
-                    if len(self.family) > 1
-                    else self.family[0]
+                    self.members[int(rng.integers(len(self.members)))]
+                    if len(self.members) > 1
+                    else self.members[0]
                 )
                 theta = self.theta_of(spec)
             else:
@@ -278,6 +309,16 @@ class CanonicalPlantEnv(LinearPlantEnv):
         info["a"], info["b"] = theta[: self.n_states], theta[self.n_states :]
         info["y_clean"] = float(info["y_clean"][0])
         return info
+
+
+def _plant_spec(plant: Any, name: str) -> PlantSpec:
+    """A catalogue plant by name, or a ``PlantSpec`` of finite ``a``, ``b`` of one length."""
+    if isinstance(plant, PlantSpec):
+        check_ab(plant.a, plant.b)
+        return plant
+    if isinstance(plant, str):
+        return get_plant(plant)
+    raise TypeError(f"{name} must be a plant name or a PlantSpec, got {plant!r}")
 
 
 def _spec_from_theta(theta: NDArray) -> PlantSpec:

@@ -107,6 +107,10 @@ class LinearPlantEnv(gym.Env):
         Divergence bound on ``|y|`` (``> 0``): an output beyond it terminates the episode.
     initial_state : array_like, shape (n,), optional
         ``x(0)`` of every episode unless ``reset`` options say otherwise; zero by default.
+    initial_state_std : float, default 0.0
+        ``> 0``: each episode draws ``x(0) ~ N(0, std^2 I)`` (as the reset option of that name
+        does, from the episode's draw stream) unless ``reset`` options say otherwise; not with
+        ``initial_state``.
     render_mode : {None, "rgb_array"}, default None
         ``"rgb_array"``: :meth:`render` draws the episode's traces (needs matplotlib).
 
@@ -114,7 +118,8 @@ class LinearPlantEnv(gym.Env):
     ------
     ValueError
         A number out of range or not finite, an unknown ``render_mode``, an ``initial_state``
-        of the wrong length or not finite, a reference or schedule spec that is rejected.
+        of the wrong length or not finite, ``initial_state`` with ``initial_state_std > 0``, a
+        reference or schedule spec that is rejected.
     TypeError
         A number that is not a real number; a reference or schedule of an unknown kind.
 
@@ -156,6 +161,7 @@ class LinearPlantEnv(gym.Env):
         control_cost: float = 0.01,
         y_bound: float = 100.0,
         initial_state: ArrayLike | None = None,
+        initial_state_std: float = 0.0,
         render_mode: str | None = None,
     ) -> None:
         super().__init__()
@@ -173,6 +179,9 @@ class LinearPlantEnv(gym.Env):
         self.initial_state = (
             None if initial_state is None else self._check_state(initial_state, "initial_state")
         )
+        self.initial_state_std = non_negative(initial_state_std, "initial_state_std")
+        if self.initial_state is not None and self.initial_state_std > 0:
+            raise ValueError("give initial_state or initial_state_std > 0, not both")
         self.action_space = spaces.Box(
             -self.action_bound, self.action_bound, shape=(n_inputs,), dtype=np.float64
         )
@@ -335,6 +344,8 @@ class LinearPlantEnv(gym.Env):
             self._x = std * rng_draw.standard_normal(self.n_states)
         elif self.initial_state is not None:
             self._x = self.initial_state.copy()
+        elif self.initial_state_std > 0:
+            self._x = self.initial_state_std * rng_draw.standard_normal(self.n_states)
         else:
             self._x = np.zeros(self.n_states)
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import integer, real_number
+from stcgym.envs.validation import integer, integer_range, non_negative, real_number
 
 __all__ = [
     "Reference",
@@ -28,6 +28,7 @@ __all__ = [
     "Step",
     "Sine",
     "PRBS",
+    "RandomSteps",
     "Zero",
     "ArrayReference",
     "CallableReference",
@@ -355,6 +356,108 @@ class PRBS(Reference):
             self._count[i] = end
 
 
+class RandomSteps(Reference):
+    """Random steps: a piecewise-constant ``r(k)`` with random levels held for random times.
+
+    Each level is uniform in ``[offset - amplitude, offset + amplitude]`` and is held for a whole
+    number of steps uniform in ``[hold_min, hold_max]`` (both ends included); the first level
+    starts at ``k = 0``. Each lane draws its levels and holds from its own episode generator, 64
+    of each at a time as it reaches them, so the signal changes with the seed, is identical for
+    equal seeds, and a lane of a vector env draws exactly what the single env with the same seed
+    draws. Before its first :meth:`reset` the reference holds the draws of generator seed 0.
+
+    Parameters
+    ----------
+    amplitude : float, default 1.0
+        Half the width of the level range, ``>= 0``.
+    hold : int or (int, int), default (50, 150)
+        Steps each level is held: ``[hold_min, hold_max]`` with ``1 <= hold_min <= hold_max``
+        (a single integer: always that many).
+    offset : float, default 0.0
+        The middle of the level range.
+
+    Raises
+    ------
+    ValueError
+        ``amplitude`` negative; ``hold`` not an integer ``>= 1`` or a pair ``[low, high]`` of
+        them with ``low <= high``; a value not finite.
+    TypeError
+        ``amplitude`` or ``offset`` not a real number.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import RandomSteps
+    >>> ref = RandomSteps(amplitude=2.0, hold=(3, 5))
+    >>> ref.reset(np.random.default_rng(1))
+    >>> r = np.array([ref(k) for k in range(40)])
+    >>> bool(np.all(np.abs(r) <= 2.0))
+    True
+    >>> changes = np.flatnonzero(np.diff(r)) + 1  # the steps where a new level starts
+    >>> holds = np.diff(np.concatenate(([0], changes)))
+    >>> bool(np.all((holds >= 3) & (holds <= 5)))
+    True
+    """
+
+    random = True
+    _CHUNK = 64
+
+    def __init__(
+        self, amplitude: float = 1.0, hold: int | Sequence[int] = (50, 150), offset: float = 0.0
+    ) -> None:
+        self.amplitude = non_negative(amplitude, "amplitude")
+        self.hold = integer_range(hold, "hold")
+        self.offset = real_number(offset, "offset")
+        self.allocate(1)
+        self.reset_lanes(_LANE0, [np.random.default_rng(0)])
+
+    def allocate(self, num_lanes: int) -> None:
+        super().allocate(num_lanes)
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        self._ends = np.zeros((self.num_lanes, self._CHUNK), dtype=np.int64)  # after level s
+        self._levels = np.zeros((self.num_lanes, self._CHUNK))
+        self._count = np.zeros(self.num_lanes, dtype=np.int64)  # levels drawn this episode
+        self._seg = np.zeros(self.num_lanes, dtype=np.int64)  # level of the last step asked
+
+    def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
+        for i, g in zip(lanes, rngs, strict=True):
+            self._rngs[i] = np.random.default_rng(g.integers(2**63))
+            self._count[i] = 0
+            self._seg[i] = 0
+
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        lanes = _lanes(lanes, self.num_lanes)
+        k = np.asarray(k, dtype=np.int64)
+        seg = self._seg[lanes]
+        start = np.where(seg > 0, self._ends[lanes, np.maximum(seg - 1, 0)], 0)
+        moved = (seg >= self._count[lanes]) | (k >= self._ends[lanes, seg]) | (k < start)
+        for j in np.flatnonzero(moved):  # a new level (or a first or backward look-up)
+            self._locate(int(lanes[j]), int(k[j]))
+        return self._levels[lanes, self._seg[lanes]]
+
+    def _locate(self, i: int, k: int) -> None:
+        """Point lane ``i`` at the level in force at step ``k``, drawing levels as needed."""
+        while self._count[i] == 0 or self._ends[i, self._count[i] - 1] <= k:
+            self._draw(i)
+        c = int(self._count[i])
+        self._seg[i] = np.searchsorted(self._ends[i, :c], k, side="right")
+
+    def _draw(self, i: int) -> None:
+        """The next 64 levels and holds of lane ``i`` (levels first, then holds)."""
+        c, n = int(self._count[i]), self._CHUNK
+        if c + n > self._ends.shape[1]:
+            width = 2 * self._ends.shape[1]
+            self._ends = np.pad(self._ends, ((0, 0), (0, width - self._ends.shape[1])))
+            self._levels = np.pad(self._levels, ((0, 0), (0, width - self._levels.shape[1])))
+        rng, (lo, hi) = self._rngs[i], self.hold
+        self._levels[i, c : c + n] = rng.uniform(
+            self.offset - self.amplitude, self.offset + self.amplitude, n
+        )
+        start = self._ends[i, c - 1] if c else 0
+        self._ends[i, c : c + n] = start + np.cumsum(rng.integers(lo, hi + 1, n))
+        self._count[i] = c + n
+
+
 class Zero(Reference):
     """Regulation: ``r(k) = 0`` (``reference="zero"`` or ``reference=None``).
 
@@ -470,6 +573,7 @@ _REFERENCES: dict[str, type[Reference]] = {
     "step": Step,
     "sine": Sine,
     "prbs": PRBS,
+    "random_steps": RandomSteps,
     "zero": Zero,
 }
 
@@ -481,13 +585,14 @@ def make_reference(spec: Any = "square", **kwargs: Any) -> Reference:
     ----------
     spec : Reference, str, dict, float, array_like, callable or None, default "square"
         A :class:`Reference` (copied, so that envs never share per-lane state); a name
-        (``"square"``/``"meander"``, ``"step"``, ``"sine"``, ``"prbs"``, ``"zero"``,
-        case-insensitive) with keyword arguments for it; a dict ``{"kind": name, ...}``; a
-        number (constant reference); a 1-D array (:class:`ArrayReference`, held at its last
-        value); a callable ``k -> r`` (:class:`CallableReference`); ``None`` (:class:`Zero`).
+        (``"square"``/``"meander"``, ``"step"``, ``"sine"``, ``"prbs"``,
+        ``"random_steps"``, ``"zero"``, case-insensitive) with keyword arguments for it; a
+        dict ``{"kind": name, ...}``; a number (constant reference); a 1-D array
+        (:class:`ArrayReference`, held at its last value); a callable ``k -> r``
+        (:class:`CallableReference`); ``None`` (:class:`Zero`).
     **kwargs
         Arguments of the named reference's class (:class:`SquareWave`, :class:`Step`,
-        :class:`Sine`, :class:`PRBS`).
+        :class:`Sine`, :class:`PRBS`, :class:`RandomSteps`).
 
     Returns
     -------
@@ -512,7 +617,7 @@ def make_reference(spec: Any = "square", **kwargs: Any) -> Reference:
     >>> make_reference("triangle")
     Traceback (most recent call last):
         ...
-    ValueError: reference must be one of ['meander', 'prbs', 'sine', 'square', 'step', 'zero'], ...
+    ValueError: reference must be one of ['meander', 'prbs', 'random_steps', 'sine', ...], ...
     """
     if isinstance(spec, Reference):
         return copy.deepcopy(spec)

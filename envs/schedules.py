@@ -22,13 +22,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.envs.references import _LANE0, _lanes, _repr
-from stcgym.envs.validation import finite_array, real_number
+from stcgym.envs.validation import finite_array, integer_range, real_in, real_number
 
 __all__ = [
     "NEVER",
     "Schedule",
     "Constant",
     "Jumps",
+    "RandomJump",
     "Ramp",
     "RandomWalk",
     "make_schedule",
@@ -285,6 +286,87 @@ class Jumps(Schedule):
         i = np.searchsorted(self._steps, k, side="right")
         later = np.append(self._steps, NEVER)
         return later[i]
+
+
+class RandomJump(Schedule):
+    """One jump to ``after`` at a random step, in a random share of the episodes.
+
+    At each reset every lane draws from its episode's schedule generator, in this order,
+    whether its episode has the jump (with probability ``probability``) and the jump step, an
+    integer uniform in ``[at_low, at_high]`` (both draws are made whether or not the episode
+    jumps, so the stream use does not depend on the outcome). From that step on the lane's
+    parameters are ``after``; before it (and throughout an episode without the jump) the
+    nominal ones.
+
+    Parameters
+    ----------
+    after : array_like
+        The parameters after the jump: finite, the shape of the plant's parameter array
+        (checked at each reset).
+    at : int or (int, int)
+        The jump step, or a range ``[low, high]`` of steps (integers, ``0 <= low <= high``).
+    probability : float, default 1.0
+        The chance that an episode has the jump, in ``[0, 1]``.
+
+    Raises
+    ------
+    ValueError
+        ``at`` not a non-negative integer or a range of them with ``low <= high``;
+        ``probability`` outside ``[0, 1]``; ``after`` not finite, or (at reset) not of the
+        parameters' shape.
+    TypeError
+        ``probability`` not a real number.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.envs import RandomJump
+    >>> schedule = RandomJump(after=[-0.5, 2.0], at=(10, 20), probability=1.0)
+    >>> schedule.reset(np.array([-0.9, 1.0]), np.random.default_rng(0))
+    >>> step = int(schedule.next_change(np.array([0]))[0])
+    >>> 10 <= step <= 20, schedule(step - 1), schedule(step)
+    (True, array([-0.9,  1. ]), array([-0.5,  2. ]))
+    """
+
+    def __init__(self, after: ArrayLike, at: int | Sequence[int], probability: float = 1.0):
+        self.after = _check_shape(after, np.shape(after), "after")
+        self.at = integer_range(at, "at", minimum=0)
+        self.probability = real_in(probability, "probability", 0.0, 1.0)
+
+    def allocate(self, num_lanes: int) -> None:
+        super().allocate(num_lanes)
+        self._step = np.full(self.num_lanes, NEVER, dtype=np.int64)
+        self._after: NDArray | None = None
+
+    def _targets(self, lanes: NDArray, nominal: NDArray) -> NDArray:
+        """The parameters after the jump of ``lanes`` (one row per lane, like ``nominal``)."""
+        return np.broadcast_to(_check_shape(self.after, nominal.shape[1:], "after"), nominal.shape)
+
+    def reset_lanes(
+        self, lanes: NDArray, nominal: NDArray, rngs: Sequence[np.random.Generator | None]
+    ) -> None:
+        super().reset_lanes(lanes, nominal, rngs)
+        shape = self._nominal.shape[1:]
+        targets = self._targets(np.asarray(lanes), self._nominal[lanes])
+        if self._after is None or self._after.shape[1:] != shape:
+            self._after = np.zeros((self.num_lanes, *shape))
+        self._after[lanes] = targets
+        low, high = self.at
+        for i, g in zip(lanes, rngs, strict=True):
+            happens = g.random() < self.probability
+            step = int(g.integers(low, high + 1))
+            self._step[i] = step if happens else NEVER
+
+    def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        lanes = _lanes(lanes, self.num_lanes)
+        out = self._nominal[lanes].copy()
+        jumped = np.asarray(k) >= self._step[lanes]
+        out[jumped] = self._after[lanes[jumped]]
+        return out
+
+    def next_change(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
+        step = self._step[_lanes(lanes, self.num_lanes)]
+        return np.where(np.asarray(k, dtype=np.int64) < step, step, NEVER)
 
 
 class Ramp(Schedule):

@@ -290,7 +290,7 @@ class MultichannelStaticEnv(LinearPlantEnv):
     ) -> None:
         self._theta0 = matrix(theta, "theta", (None, None))
         n_in, n_out = self._theta0.shape
-        if "process_noise_std" in kwargs or "initial_state" in kwargs:
+        if {"process_noise_std", "initial_state", "initial_state_std"} & set(kwargs):
             raise ValueError("a static object has no state: no process noise or initial state")
         super().__init__(n_states=0, n_inputs=n_in, n_outputs=n_out, noise_std=noise_std, **kwargs)
         self._set_params(self._theta0.copy())

@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "integer",
+    "integer_range",
     "real_number",
     "real_in",
     "non_negative",
@@ -47,6 +48,23 @@ def integer(value: Any, name: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def integer_range(value: Any, name: str, minimum: int = 1) -> tuple[int, int]:
+    """``value`` as ``(low, high)``: a pair ``[low, high]`` of integers ``>= minimum`` with
+    ``low <= high``, or one integer ``v`` meaning ``(v, v)``."""
+    if isinstance(value, (list, tuple, np.ndarray)):
+        if len(value) != 2:
+            raise ValueError(
+                f"{name} must be an integer >= {minimum} or a range [low, high] of them, "
+                f"got {value!r}"
+            )
+        low, high = (integer(v, name, minimum) for v in value)
+        if low > high:
+            raise ValueError(f"{name} must be a range [low, high] with low <= high, got {value!r}")
+        return low, high
+    v = integer(value, name, minimum)
+    return v, v
 
 
 def _real(value: Any, name: str) -> float:

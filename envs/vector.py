@@ -65,7 +65,7 @@ from numpy.typing import NDArray
 
 from stcgym.envs import dynamics
 from stcgym.envs.canonical import check_ab, split_theta
-from stcgym.envs.catalogue import PlantSpec, get_plant
+from stcgym.envs.catalogue import PlantSpec
 from stcgym.envs.lanes import episode_streams, lane_matrix, lane_rows
 from stcgym.envs.plants import (
     CanonicalPlantEnv,
@@ -92,9 +92,12 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     """Lanes of a SISO canonical plant; ``params`` is ``theta = [a; b]`` per lane ``(B, 2n)``.
 
     Keyword arguments are those of :class:`~stcgym.envs.plants.CanonicalPlantEnv`; ``a`` and
-    ``b`` may also have shape ``(num_envs, n)`` (one plant per lane). With a list of catalogue
-    names (``plant=[...]``) every lane draws its own plant each episode, as the single env does.
-    ``plant_index`` gives each lane's catalogue index in that list (``-1``: user parameters).
+    ``b`` may also have shape ``(num_envs, n)`` (one plant per lane). With a list of plants
+    (``plant=[...]``: names or ``PlantSpec`` objects) every lane draws its own plant each
+    episode, as the single env does. ``plant_index`` gives each lane's index in that list
+    (``-1``: another plant). ``reset(options={"plant": ...})`` takes one plant for every lane
+    being reset or a list of ``num_envs`` plants, one per lane (names of this env's plants or
+    of the catalogue, or ``PlantSpec`` objects).
 
     Parameters
     ----------
@@ -155,8 +158,9 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         self.params = np.zeros((B, 2 * n))
         self.params[:] = proto.params if self._lane_theta is None else self._lane_theta
         self.plant_index = np.full(B, -1 if proto.plant is None else 0, dtype=np.int64)
-        self.family: list[PlantSpec] = proto.family
-        self._family_theta = np.array([proto.theta_of(s) for s in self.family]).reshape(-1, 2 * n)
+        self.members: list[PlantSpec] = proto.members
+        self._members_theta = np.array([proto.theta_of(s) for s in self.members]).reshape(-1, 2 * n)
+        self._lane_plants: list[PlantSpec | None] = [proto.plant] * B
         self.form = proto.form
         self.form_code = proto.form_code
 
@@ -167,8 +171,8 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
 
     @property
     def plants(self) -> list[PlantSpec | None]:
-        """Each lane's catalogue plant of this episode (``None`` for user parameters)."""
-        return [self.family[j] if j >= 0 else None for j in self.plant_index]
+        """Each lane's plant of this episode (``None`` for user parameters)."""
+        return list(self._lane_plants)
 
     def _parse_options(self, options: dict[str, Any]) -> Any:
         n, B = self.n_states, self.num_envs
@@ -187,12 +191,7 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
                 return ("theta", np.hstack((a2, b2)), None)
             theta = np.concatenate(check_ab(a_opt, b_opt))
         elif "plant" in options:
-            spec = get_plant(options["plant"])
-            if spec.n != n:
-                raise ValueError(
-                    f"options['plant'] {spec.name!r} has order {spec.n}, the env has order {n}"
-                )
-            return ("plant", self._proto.theta_of(spec), spec)
+            return self._parse_plants(options["plant"])
         else:
             return None
         if theta.size != 2 * n:
@@ -202,8 +201,35 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
             )
         return ("theta", np.broadcast_to(theta, (B, 2 * n)), None)
 
+    def _parse_plants(self, plant: Any) -> tuple[str, NDArray, list[PlantSpec]]:
+        """``options["plant"]``: one plant for all lanes or a list of one per lane."""
+        proto: CanonicalPlantEnv = self._proto  # type: ignore[assignment]
+        n, B = self.n_states, self.num_envs
+        per_lane = isinstance(plant, (list, tuple, np.ndarray))
+        if per_lane and len(plant) != B:
+            raise ValueError(
+                f"options['plant'] must be one plant or a list of num_envs={B} plants (one per "
+                f"lane), got {len(plant)}"
+            )
+        entries = list(plant) if per_lane else [plant]
+        specs = [proto._find_plant(p.item() if isinstance(p, np.generic) else p) for p in entries]
+        for spec in specs:
+            if spec.n != n:
+                raise ValueError(
+                    f"options['plant'] {spec.name!r} has order {spec.n}, the env has order {n}"
+                )
+        theta = np.array([proto.theta_of(spec) for spec in specs])
+        if not per_lane:
+            return ("plants", np.broadcast_to(theta[0], (B, 2 * n)), specs * B)
+        return ("plants", theta, specs)
+
+    def _member_position(self, spec: PlantSpec) -> int:
+        """``spec``'s index in :attr:`members` (``-1``: not one of them)."""
+        j = self._proto._member_index.get(spec.name, -1)
+        return j if j >= 0 and self.members[j] == spec else -1
+
     def _needs_draw_rng(self, parsed: Any) -> bool:
-        return parsed is None and len(self.family) > 1
+        return parsed is None and len(self.members) > 1
 
     def _nominal(
         self, idx: NDArray, parsed: Any, draw: list[np.random.Generator | None]
@@ -214,33 +240,34 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
         index = np.full(k, -1, dtype=np.int64)
         if parsed is not None and parsed[0] == "theta":
             theta = parsed[1][idx]
-        elif parsed is not None:  # a catalogue plant for these lanes
-            spec = parsed[2]
-            theta = np.broadcast_to(parsed[1], (k, 2 * n))
-            specs = [spec] * k
-            index[:] = self.family.index(spec) if spec in self.family else -1
-        elif self.family:
-            if len(self.family) > 1:
-                index = np.array([g.integers(len(self.family)) for g in draw], dtype=np.int64)
+        elif parsed is not None:  # plants given by name (or PlantSpec) for these lanes
+            theta = parsed[1][idx]
+            specs = [parsed[2][i] for i in idx]
+            index[:] = [self._member_position(spec) for spec in specs]
+        elif self.members:
+            if len(self.members) > 1:
+                index = np.array([g.integers(len(self.members)) for g in draw], dtype=np.int64)
             else:
                 index[:] = 0
-            theta = self._family_theta[index]
-            specs = [self.family[j] for j in index]
+            theta = self._members_theta[index]
+            specs = [self.members[j] for j in index]
         elif self._lane_theta is not None:
             theta = self._lane_theta[idx]
         else:
             theta = np.broadcast_to(proto.user_theta, (k, 2 * n))
         self.plant_index[idx] = index
+        for j, spec in zip(idx, specs, strict=True):
+            self._lane_plants[j] = spec
         if proto.has_user_schedule:
             keys: list[Hashable | None] = [USER_SCHEDULE] * k
-        else:
-            keys = [s.name if s is not None and s.schedule else None for s in specs]
+        else:  # a plant with a schedule of its own: the PlantSpec is the key
+            keys = [s if s is not None and s.schedule else None for s in specs]
         return theta, keys
 
     def _make_schedule(self, key: Hashable) -> Schedule:
-        if key == USER_SCHEDULE:
-            return super()._make_schedule(key)
-        return self._proto.catalogue_schedule(get_plant(str(key)))
+        if isinstance(key, PlantSpec):
+            return self._proto.catalogue_schedule(key)
+        return super()._make_schedule(key)
 
     def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
         B = self.num_envs  # SISO: one column per lane, as (B,) views

@@ -246,6 +246,9 @@ class LinearPlantVectorEnv(VectorEnv):
         """Start a new episode in lanes ``idx`` (exactly like ``LinearPlantEnv.reset``)."""
         k = len(idx)
         n = self.n_states
+        proto = self._proto
+        if x0 is None and std is None and proto.initial_state is None:
+            std = proto.initial_state_std or None  # the constructor's, drawn as the option's
         entropy = []
         for j, i in enumerate(idx):
             seed = None if seeds is None else seeds[j]

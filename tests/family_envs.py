@@ -22,6 +22,7 @@ def single_family_env(fam: Any, plant: Any, steps: int, **extra: Any) -> gym.Env
         action_bound=fam["action_bound"],
         y_bound=fam["y_bound"],
         reference=fam["reference"],
+        initial_state_std=fam["initial_state_std"],
         max_episode_steps=steps,
         **extra,
     )

@@ -11,7 +11,13 @@ import pytest
 
 #: The packages (and the vector envs' module, public through ``gym.make_vec``) whose public
 #: names must all carry a docstring.
-CHECKED_PACKAGES = ("stcgym.envs", "stcgym.envs.vector", "stcgym.adaptive", "stcgym.agents")
+CHECKED_PACKAGES = (
+    "stcgym.envs",
+    "stcgym.envs.vector",
+    "stcgym.envs.family_env",
+    "stcgym.adaptive",
+    "stcgym.agents",
+)
 
 
 def _public_names(package: str) -> list[tuple[str, object]]:

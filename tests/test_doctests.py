@@ -17,7 +17,13 @@ import pytest
 
 #: The public packages, and the vector envs' module: those classes are public through
 #: ``gym.make_vec`` rather than through the package's ``__all__``.
-MODULES = ("stcgym.envs", "stcgym.adaptive", "stcgym.agents", "stcgym.envs.vector")
+MODULES = (
+    "stcgym.envs",
+    "stcgym.adaptive",
+    "stcgym.agents",
+    "stcgym.envs.vector",
+    "stcgym.envs.family_env",
+)
 OPTIONFLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 
 

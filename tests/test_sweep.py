@@ -146,13 +146,17 @@ def test_a_failed_task_keeps_the_others_and_resume_retries_it(reference_run, tmp
     assert again.table_path.read_bytes() == reference_run.table_path.read_bytes()
 
 
-@pytest.mark.parametrize("change", ["none", "jump", "drift"])
+@pytest.mark.parametrize("change", ["none", "jump", "drift", "initial_state"])
 @pytest.mark.parametrize("kind", ["oracle", "lqg"])
 def test_closed_loop_lanes_equal_single_episodes_run_by_hand(kind, change):
-    """Each lane against a single env stepped by hand (the envs' own ``Jumps``/``RandomWalk``)."""
+    """Each lane against a single env stepped by hand (the envs' own ``Jumps``/``RandomWalk``;
+    the family's random initial state)."""
     jump = FAMILY["jump"] if change == "jump" else None
     drift = {"std": 0.002} if change == "drift" else None
-    fam = load_family({**FAMILY, "jump": jump, "drift": drift, "count": 4})
+    x0_std = 0.5 if change == "initial_state" else 0.0
+    fam = load_family(
+        {**FAMILY, "jump": jump, "drift": drift, "count": 4, "initial_state_std": x0_std}
+    )
     plants = [draw_plant(fam, i) for i in range(4)]
     seeds = [11, 12, 13, 14]
     res = closed_loop({"kind": kind}, fam, plants, seeds)

@@ -101,6 +101,7 @@ def _vector_env(family: FamilySpec, plants: Sequence[Plant]) -> Any:
         action_bound=family["action_bound"],
         y_bound=family["y_bound"],
         reference=family["reference"],
+        initial_state_std=family["initial_state_std"],
         info_keys=(),
     )
     if family.jump_step is not None:

@@ -46,6 +46,12 @@ class SweepConfig:
         ``seeds``: a count ``S`` (seeds ``0..S-1``) or the list of episode seeds.
         """
         fam = family if isinstance(family, FamilySpec) else load_family(family)
+        span = fam.jump_range()  # the post-jump metrics are read from one step in every lane
+        if span is not None and (span[0] != span[1] or fam.jump_probability < 1):
+            raise SweepError(
+                f"family: a sweep needs a fixed jump (one step, probability 1), got jump.at "
+                f"{fam['jump']['at']!r} and jump.probability {fam.jump_probability}"
+            )
         if controllers is None:
             controllers = list(CONTROLLER_KINDS)
         if not isinstance(controllers, Mapping):
