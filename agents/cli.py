@@ -33,12 +33,20 @@ __all__ = ["main", "build_parser"]
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
-    from stcgym.agents.benchmark.config import FULL, QUICK, QUICK_MIMO_INTERVALS, BenchConfig
+    from stcgym.agents.benchmark.config import (
+        FULL,
+        QUICK,
+        QUICK_MIMO_INTERVALS,
+        SCENARIO_KINDS,
+        STANDARD,
+        BenchConfig,
+    )
     from stcgym.agents.controllers import CONTROLLERS
     from stcgym.agents.executors import EXECUTORS
     from stcgym.agents.rl.configs import ALGORITHMS, DEFAULT_CONFIGS
     from stcgym.agents.rl.stopping import PlateauRule
     from stcgym.envs.catalogue import plant_names
+    from stcgym.envs.families import FAMILIES
     from stcgym.envs.mimo_plants import mimo_plant_names
 
     p = sub.add_parser(
@@ -74,7 +82,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--scenarios",
-        help="comma list of nominal,family,jump,mimo (default: all four)",
+        help=f"comma list of {','.join(SCENARIO_KINDS)} (default: all)",
     )
     p.add_argument(
         "--plants",
@@ -83,33 +91,28 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     defaults = BenchConfig(run="-")
     p.add_argument(
+        "--family",
+        help=f"the plant family (default {defaults.family}; registered: "
+        f"{','.join(FAMILIES)}; or a YAML/JSON spec file with train, validation and test "
+        "splits)",
+    )
+    p.add_argument(
+        "--ood",
+        help="held-out variants of the family tested (quick default: "
+        f"{','.join(QUICK['ood'])}; standard and full: {','.join(STANDARD['ood'])})",
+    )
+    p.add_argument(
         "--mimo-plants",
         help="MIMO plants of the mimo scenario (measured state; default: "
         f"{','.join(defaults.mimo_plants)}; full: {','.join(FULL['mimo_plants'])}; MIMO "
         f"catalogue: {','.join(mimo_plant_names())})",
     )
     p.add_argument(
-        "--family-train",
-        help="plants RL trains on in the family scenario (default: "
-        f"{','.join(defaults.family_train)})",
-    )
-    p.add_argument(
-        "--family-test",
-        help=f"held-out plants of the family scenario (default: {','.join(defaults.family_test)})",
-    )
-    p.add_argument(
-        "--jump",
-        action="append",
-        dest="jumps",
-        help="jump scenario: 'timevarying2' or BEFORE:AFTER plant names (repeatable; quick "
-        f"default: {','.join(QUICK['jumps'])}; full: {','.join(FULL['jumps'])})",
-    )
-    p.add_argument(
         "--agents",
         # ", " so that argparse can wrap the lists between names
         help=f"comma list of {', '.join([*ALGORITHMS, *CONTROLLERS])} (quick default: "
-        f"{', '.join(QUICK['agents'])}; full: {', '.join(FULL['agents'])}); the oracle is "
-        "always evaluated",
+        f"{', '.join(QUICK['agents'])}; full: {', '.join(FULL['agents'])}); lqg (the "
+        "yardstick) and zero are always evaluated",
     )
     rule = PlateauRule()
     p.add_argument(
@@ -151,32 +154,49 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         + ", ".join(f"{a} {c.eval_interval}" for a, c in DEFAULT_CONFIGS.items())
         + ")",
     )
-    p.add_argument("--train-seeds", type=int, help="RL training seeds per agent (quick 3, full 5)")
     p.add_argument(
-        "--seeds",
+        "--train-seeds",
         type=int,
-        help=f"evaluation episodes (seeds) per scenario (quick {QUICK['seeds']}, full "
-        f"{FULL['seeds']})",
+        help="runs per controller with random parts: RL training seeds, self-tuning "
+        f"controller seeds (quick {QUICK['train_seeds']}, standard {STANDARD['train_seeds']}, "
+        f"full {FULL['train_seeds']})",
     )
-    p.add_argument("--first-seed", type=int, default=1000, help="first evaluation seed (>= 0)")
+    p.add_argument(
+        "--test-plants",
+        type=int,
+        help=f"test plants per family split (quick {QUICK['test_plants']}; standard and full: "
+        "the whole split)",
+    )
+    p.add_argument(
+        "--episodes-per-plant",
+        type=int,
+        help="episodes on each test plant (quick and standard 1, full "
+        f"{FULL['episodes_per_plant']})",
+    )
+    p.add_argument(
+        "--nominal-episodes",
+        type=int,
+        help=f"episodes of a nominal or MIMO scenario (quick {QUICK['nominal_episodes']}, "
+        f"standard {STANDARD['nominal_episodes']})",
+    )
+    p.add_argument(
+        "--curve-episodes",
+        type=int,
+        help=f"validation episodes per learning-curve point (quick {QUICK['curve_episodes']}, "
+        f"standard {STANDARD['curve_episodes']}, full {FULL['curve_episodes']})",
+    )
+    p.add_argument(
+        "--bound-plants",
+        type=int,
+        help=f"training episodes that set the action bound (default {defaults.bound_plants})",
+    )
+    p.add_argument("--first-seed", type=int, default=1000, help="first test episode seed (>= 0)")
     p.add_argument(
         "--episode-steps",
         type=int,
-        help=f"evaluation episode length, >= 20 (quick {QUICK['episode_steps']}, full "
-        f"{FULL['episode_steps']}); the jump is at half of it",
+        help="episode length, >= 20 (default: the family's, 1000); RL trains on the same",
     )
-    p.add_argument(
-        "--train-episode-steps",
-        type=int,
-        help=f"RL training episode length (default {defaults.train_episode_steps})",
-    )
-    p.add_argument("--noise", type=float, default=0.05, help="output noise std (default 0.05)")
-    p.add_argument(
-        "--train-y-bound",
-        type=float,
-        help="end RL training episodes once |y| exceeds this (x reference amplitude); "
-        "default: the environment's bound",
-    )
+    p.add_argument("--noise", type=float, help="output noise std (default: the family's)")
     p.add_argument(
         "--hp",
         action="append",
@@ -202,7 +222,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "--tensorboard-log",
         metavar="DIR",
         help="write TensorBoard logs of every RL training to DIR/<run>/ (learning curve "
-        "included: eval/curve_cost, eval/cost_to_oracle); view with tensorboard --logdir DIR",
+        "included: eval/curve_score); view with tensorboard --logdir DIR",
     )
     p.add_argument(
         "--bootstrap-reps",
@@ -229,7 +249,9 @@ def _eval_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="evaluate a saved RL agent (a bench models/ folder)")
     p.add_argument("model_dir", help="folder holding agent.json and model.zip")
     p.add_argument(
-        "--plant", help="catalogue plant of the training order (default: the first training one)"
+        "--plant",
+        help="catalogue plant of the training order (default: the training plant, or the test "
+        "split of the training family)",
     )
     p.add_argument("--seeds", type=int, default=5, help="evaluation episodes (default 5)")
     p.add_argument("--first-seed", type=int, default=1000, help="first seed (>= 0)")
@@ -265,9 +287,8 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             out=args.out,
             scenarios=args.scenarios,
             plants=args.plants,
-            family_train=args.family_train,
-            family_test=args.family_test,
-            jumps=args.jumps,
+            family=args.family,
+            ood=args.ood,
             mimo_plants=args.mimo_plants,
             agents=args.agents,
             train_steps=args.train_steps,
@@ -276,12 +297,14 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             min_train_fraction=args.min_train_fraction,
             eval_interval=args.eval_interval,
             train_seeds=args.train_seeds,
-            seeds=args.seeds,
+            test_plants=args.test_plants,
+            episodes_per_plant=args.episodes_per_plant,
+            nominal_episodes=args.nominal_episodes,
+            curve_episodes=args.curve_episodes,
+            bound_plants=args.bound_plants,
             first_seed=args.first_seed,
             episode_steps=args.episode_steps,
-            train_episode_steps=args.train_episode_steps,
             noise_std=args.noise,
-            train_y_bound=args.train_y_bound,
             hp=args.hp,
             curve_points=args.curve_points,
             plots=not args.no_plots,
@@ -379,8 +402,10 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
         raise BenchInputError(f"{args.model_dir} holds no agent.json (not a saved stcgym agent)")
     try:
         meta = json.loads(meta_file.read_text())
-        trained = meta["train_spec"]["plants"]
-    except (ValueError, KeyError, TypeError) as exc:
+        spec = meta["train_spec"]
+        trained = spec.get("plants") or []
+        order = get_plant(trained[0]).n if trained else None
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
     if args.plant is not None and meta["train_spec"].get("kind") == "mimo":
         if args.plant != trained[0]:
@@ -394,10 +419,13 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
                 f"--plant must be a catalogue plant ({', '.join(plant_names())}), "
                 f"got {args.plant!r}"
             )
-        if get_plant(args.plant).n != get_plant(trained[0]).n:
+        if order is None:
+            from stcgym.agents.benchmark.env_spec import EnvSpec
+
+            order = EnvSpec.from_dict(spec).order
+        if get_plant(args.plant).n != order:
             raise BenchInputError(
-                f"--plant {args.plant}: the agent was trained on order-"
-                f"{get_plant(trained[0]).n} plants ({', '.join(trained)})"
+                f"--plant {args.plant}: the agent was trained on order-{order} plants"
             )
     return meta
 
@@ -405,29 +433,36 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
 def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from stcgym.agents.benchmark.evaluate import evaluate, summarize
+    from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
+    from stcgym.agents.benchmark.evaluate import summarize
 
     _check_eval_args(args)
     from stcgym.agents.rl.sb3 import load_agent
 
     agent = load_agent(args.model_dir)
-    spec = agent.train_spec
-    plant = args.plant or spec.plants[0]
-    fields = {"plants": (plant,), "steps": args.episode_steps}
+    spec = replace(agent.train_spec, steps=args.episode_steps)
     if args.noise is not None:
-        fields["noise_std"] = args.noise
-    env = replace(spec, **fields)
-    seeds = [args.first_seed + i for i in range(args.seeds)]
-    res = evaluate(agent.policy, env, seeds, plant=plant)
-    costs = [m["cost"] for m in res.metrics]
-    s = summarize(costs, [not m["bounded"] for m in res.metrics])
+        spec = replace(spec, noise_std=args.noise)
+    if args.plant is not None and spec.family is not None:
+        spec = replace(spec, family=None, split=None, jump_probability=None, plants=(args.plant,))
+    elif args.plant is not None:
+        spec = replace(spec, plants=(args.plant,))
+    elif spec.family is not None:
+        spec = replace(spec, split="test", jump_probability=0.0)
+    names = spec.plant_names()
+    plants = tuple(names[i % len(names)] for i in range(args.seeds))
+    episodes = EpisodeSet(plants, tuple(args.first_seed + i for i in range(args.seeds)))
+    batch = run_episodes(lambda lanes, seeds: agent.policy.with_lanes(len(lanes)), spec, episodes)
+    costs = batch.cost.mean(axis=1)
+    s = summarize(costs, batch.diverged)
+    where = spec.plants[0] if spec.family is None else f"{spec.family} {spec.split}"
     print(
-        f"{agent.algo} (seed {agent.seed}, {agent.steps} steps) on {plant}: median cost "
+        f"{agent.algo} (seed {agent.seed}, {agent.steps} steps) on {where}: median cost "
         f"{s['median']:.4g} [IQR {s['iqr']:.3g}], CVaR25 {s['cvar25']:.4g}, failure rate "
         f"{s['failure_rate']:.2f}"
     )
-    for seed, m in zip(seeds, res.metrics, strict=True):
-        print(f"  seed {seed}: cost {m['cost']:.4g} steady {m['cost_steady']:.4g}")
+    for plant, seed, c in zip(plants, episodes.seeds, costs, strict=True):
+        print(f"  {plant} seed {seed}: cost {c:.4g}")
     return 0
 
 

@@ -1,178 +1,266 @@
 """The classical controllers of ``stcgym bench``, behind one registry.
 
-``CONTROLLERS[name].build(cfg, scenario)`` gives a policy factory ``factory(plant, seed)``
-(the protocol of :func:`stcgym.agents.benchmark.evaluate.evaluate`): ``stc`` (the self-tuning
-controller with its defaults and the episode's seed), ``stc_lq`` (the same with the self-tuning
-LQ design, ``design="lq"``, weighted by the bench's cost ``(y - r)^2 + control_cost u^2``),
-``stc_kfmils`` (the same as ``stc`` on the paper's KF-MILS estimator, ``estimator="KF-MILS"``,
-with the closed-loop settings the controller chooses for it), ``oracle`` (the known-model
-controller, told the new parameters at a jump; on a MIMO plant the LQR on the true ``(A, B)``,
-:class:`~stcgym.adaptive.LQRController`), ``lqg`` (LQG on the true pre-jump parameters) and
-``stc_mimo`` (the multivariable self-tuning LQ controller,
-:class:`~stcgym.adaptive.MultivariableSelfTuningController`, weighted by the bench's cost
-``||x - r||^2 + control_cost ||u||^2``, as its oracle). Each declares the plants it runs on
-(``ControllerInfo.plants``): a scenario evaluates only the controllers that declare its kind
-(``EnvSpec.plant_kind``: ``"siso"`` or ``"mimo"``). Tests may register more.
+``CONTROLLERS[name].build(cfg, scenario)`` gives a lane builder ``builder(plants, seeds)``
+returning one policy for ``len(plants)`` lanes (:func:`stcgym.agents.benchmark.episodes.
+run_episodes`): lane ``i`` runs on the plant spec ``plants[i]`` (only the known-model
+controllers look at it) with the controller seed ``seeds[i]``.
+
+* ``stc``: the self-tuning controller with its defaults (pole placement, extended least
+  squares); ``stc_lq``: the same with the self-tuning LQ design (``design="lq"``) weighted by
+  the bench's cost ``(y - r)^2 + control_cost u^2``; ``stc_kfmils``: ``stc`` on the paper's
+  KF-MILS estimator. Each is told the plant order of the scenario's training distribution
+  (also on a held-out distribution of another order) and nothing else; their options are the
+  library's defaults, fixed before any test plant was drawn.
+* ``lqg``: the yardstick, LQG on the true model for the bench's own cost (the steady-state
+  LQ gain and Kalman filter, the reference fed forward through the steady state), told the new
+  parameters at a jump; on a measured-state MIMO plant the LQR on the true ``(A, B)``
+  (:class:`~stcgym.adaptive.LQRController`) with the same weights.
+* ``oracle``: pole placement on the true model with the self-tuning controller's poles and
+  integral action (:class:`~stcgym.adaptive.KnownModelController`), told the new parameters
+  at a jump: the self-tuning controller's design with the identification problem removed.
+* ``zero``: zero input, the reference of the normalised score.
+* ``stc_mimo``: the multivariable self-tuning LQ controller
+  (:class:`~stcgym.adaptive.MultivariableSelfTuningController`) weighted by the bench's cost
+  ``||x - r||^2 + control_cost ||u||^2``.
+
+Each declares the plants it runs on (``ControllerInfo.plants``): a scenario evaluates only the
+controllers that declare its kind (``EnvSpec.plant_kind``: ``"siso"`` or ``"mimo"``), and what
+it knows (:attr:`ControllerInfo.knows`, the report's knowledge table). Tests may register more.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-__all__ = ["CONTROLLERS", "ControllerInfo", "controllers_for"]
+__all__ = ["CONTROLLERS", "YARDSTICK", "ControllerInfo", "ZeroController", "controllers_for"]
+
+#: The controller every ratio is taken to.
+YARDSTICK = "lqg"
 
 
-class _SwitchingOracle:
-    """Known-model oracle told the true parameters at the jump (policy protocol)."""
+class ZeroController:
+    """Zero input on every lane (SB3's ``predict``/``reset`` protocol): the reference of the
+    normalised score ``(C_zero - C) / (C_zero - C_LQG)``.
 
-    def __init__(self, base: Any, jump_step: int, theta: Sequence[float]) -> None:
-        n = len(theta) // 2
-        self.base, self.jump_step = base, int(jump_step)
-        self.after = (np.asarray(theta[:n]), np.asarray(theta[n:]))
-        self._k = 0
+    Parameters
+    ----------
+    num_envs : int or None
+        ``None``: one env (``predict`` on ``(2 p,)`` gives ``(m,)``); else that many lanes.
+    n_inputs : int, default 1
+        Inputs ``m``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.agents.controllers import ZeroController
+    >>> ZeroController(num_envs=2).predict(np.ones((2, 2)))[0]
+    array([[0.],
+           [0.]])
+    """
+
+    def __init__(self, num_envs: int | None = None, n_inputs: int = 1) -> None:
+        self.num_envs, self.n_inputs = num_envs, int(n_inputs)
 
     def reset(self) -> None:
-        self.base.reset()  # also restores the initial (pre-jump) model
-        self._k = 0
+        """Nothing to forget."""
 
     def predict(
         self, observation: Any, state: Any = None, episode_start: Any = None, deterministic=True
-    ) -> tuple[Any, Any]:
-        if episode_start is not None and np.any(episode_start):
-            self.reset()
-        # The schedule's value at step J governs the transition J -> J+1, so the model is
-        # switched before the input of step J is chosen.
-        if self._k == self.jump_step:
-            self.base.set_model(*self.after)
-        self._k += 1
-        return self.base.predict(observation, state, None, deterministic)
+    ) -> tuple[NDArray, None]:
+        shape = (self.n_inputs,) if self.num_envs is None else (self.num_envs, self.n_inputs)
+        return np.zeros(shape), None
 
 
 @dataclass(frozen=True)
 class ControllerInfo:
     """A classical controller of the bench.
 
-    ``build(cfg, scenario) -> factory(plant_spec, seed) -> policy``; ``online`` marks a
+    ``build(cfg, scenario) -> builder(plants, seeds) -> policy``; ``online`` marks a
     controller that learns from the episode (its data use is the episode's steps); ``plants``
-    the kinds of plant it runs on (``"siso"``, ``"mimo"``).
+    the kinds of plant it runs on (``"siso"``, ``"mimo"``); ``informed`` a known-model
+    controller told the true parameters whenever they change; ``seeded`` a controller with
+    random parts (its runs are controller seeds); ``knows`` what it is given, for the report.
     """
 
     kind: str
-    build: Callable[[Any, Any], Callable[[Any, int], Any]]
+    build: Callable[[Any, Any], Callable[[list[Any], list[int]], Any]]
     online: bool = False
     description: str = ""
     plants: tuple[str, ...] = ("siso",)
+    informed: bool = False
+    seeded: bool = False
+    knows: dict[str, str] = field(default_factory=dict)
 
     def runs_on(self, spec: Any) -> bool:
         """Whether the controller runs on the plants of the env spec ``spec``."""
         return spec.plant_kind in self.plants
 
 
-def _self_tuning(cfg: Any, **options: Any) -> Callable[[Any, int], Any]:
-    """The self-tuning controller with its defaults and ``options`` (episode-seeded)."""
+def _lanes(plants: Sequence[Any]) -> tuple[NDArray, NDArray]:
+    """Per-lane true ``a``, ``b`` of catalogue or family plant specs, ``(B, n)`` each."""
+    return np.array([p.a for p in plants], dtype=float), np.array([p.b for p in plants])
+
+
+def _self_tuning(cfg: Any, sc: Any, **options: Any) -> Callable[[list[Any], list[int]], Any]:
+    """The self-tuning controller with its defaults and ``options``, told the order of the
+    scenario's training distribution (``sc.controller_order``)."""
     from stcgym.adaptive import SelfTuningController
 
-    def factory(plant: Any, seed: int) -> Any:
+    def builder(plants: list[Any], seeds: list[int]) -> Any:
         return SelfTuningController(
-            plant.n, action_bound=cfg.action_bound, seed=int(seed), **options
+            sc.controller_order,
+            num_envs=len(plants),
+            action_bound=sc.env.action_bound,
+            seed=[int(s) for s in seeds],
+            **options,
         )
 
-    return factory
+    return builder
 
 
-def _stc(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
-    return _self_tuning(cfg)
+def _stc(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    return _self_tuning(cfg, sc)
 
 
-def _stc_kfmils(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+def _stc_kfmils(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     # no estimator options: the controller picks its closed-loop settings for KF-MILS itself
-    return _self_tuning(cfg, estimator="KF-MILS")
+    return _self_tuning(cfg, sc, estimator="KF-MILS")
 
 
-def _stc_lq(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
-    from stcgym.adaptive import LawOptions, SelfTuningController
+def _stc_lq(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    from stcgym.adaptive import LawOptions
     from stcgym.adaptive.options import cost_weights
 
-    # the LQ weights are the bench's own cost, as LQGController's (q_i keeps the integrator)
-    law = LawOptions(lq_weights=cost_weights(cfg.control_cost))
-
-    def factory(plant: Any, seed: int) -> Any:
-        return SelfTuningController(
-            plant.n, design="lq", law=law, action_bound=cfg.action_bound, seed=int(seed)
-        )
-
-    return factory
+    # the LQ weights are the bench's own cost, as LQG's (q_i keeps the integrator)
+    law = LawOptions(lq_weights=cost_weights(sc.env.control_cost))
+    return _self_tuning(cfg, sc, design="lq", law=law)
 
 
-def _oracle(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
-    from stcgym.adaptive import KnownModelController, LQRController
+def _oracle(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    from stcgym.adaptive import KnownModelController
 
-    if sc.env.plant_kind == "mimo":  # LQR on the true (A, B), the weights of stc_mimo
-        return lambda plant, seed: LQRController(
-            *plant.discrete(), Q=1.0, R=cfg.control_cost, action_bound=cfg.action_bound
-        )
+    def builder(plants: list[Any], seeds: list[int]) -> Any:
+        a, b = _lanes(plants)
+        return KnownModelController(a, b, num_envs=len(plants), action_bound=sc.env.action_bound)
 
-    def factory(plant: Any, seed: int) -> Any:
-        base = KnownModelController(plant.a, plant.b, action_bound=cfg.action_bound)
-        if sc.env.jump_step is None:
-            return base
-        return _SwitchingOracle(base, sc.env.jump_step, sc.jump_to)
-
-    return factory
+    return builder
 
 
-def _lqg(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
-    from stcgym.adaptive import LawOptions, LQGController
+def _lqg(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    from stcgym.adaptive import LawOptions, LQGController, LQRController
     from stcgym.adaptive.options import cost_weights
 
-    # LQG without integral action: the optimal linear controller for the bench's cost on the
-    # known model (its published figures are of this design)
-    law = LawOptions(integral=False, lq_weights=cost_weights(cfg.control_cost))
-    return lambda plant, seed: LQGController(
-        plant.a, plant.b, law=law, noise_std=cfg.noise_std, action_bound=cfg.action_bound
-    )
+    env = sc.env
+    if env.plant_kind == "mimo":  # measured state: the LQR on the true (A, B)
+
+        def lqr(plants: list[Any], seeds: list[int]) -> Any:
+            A, B = (np.array(m) for m in zip(*(p.discrete() for p in plants), strict=True))
+            return LQRController(
+                A, B, num_envs=len(plants), Q=1.0, R=env.control_cost,
+                action_bound=env.action_bound,
+            )  # fmt: skip
+
+        return lqr
+    # without integral action: the optimal linear controller for the bench's cost on the
+    # known model
+    law = LawOptions(integral=False, lq_weights=cost_weights(env.control_cost))
+
+    def builder(plants: list[Any], seeds: list[int]) -> Any:
+        a, b = _lanes(plants)
+        return LQGController(
+            a, b, law=law, noise_std=env.noise_std, action_bound=env.action_bound,
+            num_envs=len(plants),
+        )  # fmt: skip
+
+    return builder
 
 
-def _stc_mimo(cfg: Any, sc: Any) -> Callable[[Any, int], Any]:
+def _zero(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    m = sc.env.channels[1]
+    return lambda plants, seeds: ZeroController(len(plants), m)
+
+
+def _stc_mimo(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     from stcgym.adaptive import MultivariableSelfTuningController
 
-    def factory(plant: Any, seed: int) -> Any:
+    n, m = sc.env.order, sc.env.channels[1]
+
+    def builder(plants: list[Any], seeds: list[int]) -> Any:
         return MultivariableSelfTuningController(
-            plant.n_states,
-            plant.n_inputs,
-            Q=1.0,
-            R=cfg.control_cost,
-            action_bound=cfg.action_bound,
-            seed=int(seed),
-        )
+            n, m, num_envs=len(plants), Q=1.0, R=sc.env.control_cost,
+            action_bound=sc.env.action_bound, seed=[int(s) for s in seeds],
+        )  # fmt: skip
 
-    return factory
+    return builder
 
+
+_ADAPTIVE = {
+    "order": "the training distribution's order n",
+    "integral": "yes, with anti-windup",
+    "model": "none: identified online",
+    "data": "the episode so far",
+}
+_KNOWN = {"order": "true", "model": "true (a, b), told the jump", "data": "none"}
 
 #: Classical controllers by name (tests may register more).
 CONTROLLERS: dict[str, ControllerInfo] = {
-    "stc": ControllerInfo("adaptive", _stc, True, "self-tuning controller (defaults)"),
-    "stc_lq": ControllerInfo("adaptive", _stc_lq, True, "self-tuning LQ (design='lq')"),
+    "stc": ControllerInfo(
+        "adaptive", _stc, True, "self-tuning controller (defaults)", seeded=True, knows=_ADAPTIVE
+    ),
+    "stc_lq": ControllerInfo(
+        "adaptive", _stc_lq, True, "self-tuning LQ (design='lq')", seeded=True, knows=_ADAPTIVE
+    ),
     "stc_kfmils": ControllerInfo(
         "adaptive",
         _stc_kfmils,
         True,
         "the self-tuning controller on the paper's KF-MILS estimator",
+        seeded=True,
+        knows=_ADAPTIVE,
+    ),
+    "lqg": ControllerInfo(
+        "oracle",
+        _lqg,
+        False,
+        "LQG on the true model, the bench's cost (LQR with measured state on a MIMO plant)",
+        ("siso", "mimo"),
+        informed=True,
+        knows={**_KNOWN, "integral": "no (reference feed-forward)"},
     ),
     "oracle": ControllerInfo(
         "oracle",
         _oracle,
         False,
-        "known-model controller (regulator's design, true parameters; LQR on a MIMO plant)",
-        ("siso", "mimo"),
+        "pole placement on the true model (the self-tuning controller's poles)",
+        informed=True,
+        knows={**_KNOWN, "integral": "yes, with anti-windup"},
     ),
-    "lqg": ControllerInfo("oracle", _lqg, False, "LQG on the true pre-jump parameters"),
+    "zero": ControllerInfo(
+        "reference",
+        _zero,
+        False,
+        "zero input",
+        ("siso", "mimo"),
+        knows={"order": "-", "integral": "-", "model": "-", "data": "-"},
+    ),
     "stc_mimo": ControllerInfo(
-        "adaptive", _stc_mimo, True, "multivariable self-tuning LQ controller", ("mimo",)
+        "adaptive",
+        _stc_mimo,
+        True,
+        "multivariable self-tuning LQ controller",
+        ("mimo",),
+        seeded=True,
+        knows={
+            "order": "the number of states and inputs",
+            "integral": "no",
+            "model": "none: identified online",
+            "data": "the episode so far",
+        },
     ),
 }
 

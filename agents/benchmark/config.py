@@ -1,15 +1,17 @@
 """The settings of a ``stcgym bench`` run: :class:`BenchConfig`, the quick, standard and full
 presets, and the checks every value passes before any work starts (:func:`build_config`).
 
-Every tier trains each RL agent until its learning curve plateaus or it reaches the tier's cap
-(:class:`~stcgym.agents.rl.stopping.PlateauRule`: ``patience`` evaluations, one every
-``eval_interval`` env steps of the algorithm, without a gain of more than ``min_improvement``);
-the tiers differ in their caps (``AlgoConfig.quick_steps``, ``standard_steps`` and
-``standard_family_steps``, ``full_steps``) and, for ``full``, in plants, agents and seeds. Every
-tier runs the four scenarios, ``mimo`` (:mod:`stcgym.agents.benchmark.mimo`) included; at the
-quick tier RL trains there for :data:`QUICK_MIMO_INTERVALS` evaluation intervals, and the
-learning curves have :data:`QUICK_CURVE_POINTS` points before the first interval and
-:data:`QUICK_CURVE_SEEDS` episode per plant and point.
+Every tier evaluates every controller on the same fixed episodes of each scenario
+(:mod:`stcgym.agents.benchmark.scenarios`) and trains each RL agent, with ``train_seeds``
+training runs, until its learning curve on the validation split plateaus or it reaches the
+tier's cap (:class:`~stcgym.agents.rl.stopping.PlateauRule`: ``patience`` evaluations, one every
+``eval_interval`` env steps of the algorithm, without a gain of more than ``min_improvement``).
+The tiers differ in caps (``AlgoConfig.quick_steps``, ``standard_steps`` on one plant and
+``standard_family_steps`` on the family, ``full_steps``), runs, test plants, held-out
+distributions and agents. At the quick tier RL trains on a MIMO plant for
+:data:`QUICK_MIMO_INTERVALS` evaluation intervals. Outside the quick tier an algorithm's
+evaluation interval is at least :data:`EVALUATIONS_PER_CAP`-th of its cap, so that the plateau
+rule's patience spans a fixed share of the budget.
 """
 
 from __future__ import annotations
@@ -22,10 +24,8 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from stcgym.agents.benchmark.evaluate import EnvSpec
-from stcgym.agents.benchmark.mimo import MimoEnvSpec, check_mimo_plants
-from stcgym.agents.benchmark.scenarios import parse_jump
-from stcgym.agents.controllers import CONTROLLERS
+from stcgym.agents.benchmark.mimo import check_mimo_plants
+from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 from stcgym.agents.rl.configs import (
     ALGORITHMS,
     RECURRENT_ALGORITHMS,
@@ -37,11 +37,10 @@ from stcgym.envs.catalogue import get_plant, plant_names
 from stcgym.envs.mimo_plants import mimo_plant_names
 
 __all__ = [
+    "EVALUATIONS_PER_CAP",
     "FULL",
     "MODES",
     "QUICK",
-    "QUICK_CURVE_POINTS",
-    "QUICK_CURVE_SEEDS",
     "QUICK_MIMO_INTERVALS",
     "SCENARIO_KINDS",
     "STANDARD",
@@ -52,20 +51,11 @@ __all__ = [
     "validate",
 ]
 
-SCENARIO_KINDS = ("nominal", "family", "jump", "mimo")
-#: The scenarios of the quick tier: all of them.
-QUICK_SCENARIOS = SCENARIO_KINDS
-#: Quick-tier RL cap in the mimo scenario: this many evaluation intervals (at most quick_steps):
-#: two for the on-policy agents, one for the off-policy ones (SAC's learning curve on the
-#: quadruple tank is flat between one and two intervals, PPO's still falls by a fifth).
+SCENARIO_KINDS = ("nominal", "family", "ood", "jump", "mimo")
+#: Quick-tier RL cap in the mimo scenario: this many evaluation intervals (at most quick_steps).
 QUICK_MIMO_INTERVALS = {"ppo": 2, "a2c": 2, "sac": 1, "td3": 1}
-#: Learning-curve points before the first evaluation interval at the quick tier (10 at the
-#: others): PPO's and RecurrentPPO's ten fall on five rollouts anyway, and half of SAC's ten
-#: come before it starts learning (``learning_starts``), where the policy is the untrained one.
-QUICK_CURVE_POINTS = 5
-#: Learning-curve episodes per plant and point at the quick tier (2 at the others): the
-#: reference is a fixed square wave and the noise small, so a second seed moves a point little.
-QUICK_CURVE_SEEDS = 1
+#: Outside the quick tier, evaluations of the plateau rule per cap at most.
+EVALUATIONS_PER_CAP = 20
 
 
 class BenchInputError(ValueError):
@@ -79,11 +69,13 @@ class BenchConfig:
     run: str
     out: str = "results"
     mode: str = "quick"
-    scenarios: list[str] = field(default_factory=lambda: list(QUICK_SCENARIOS))
+    scenarios: list[str] = field(default_factory=lambda: list(SCENARIO_KINDS))
+    #: catalogue plants of the nominal scenarios
     plants: list[str] = field(default_factory=lambda: ["stable2"])
-    family_train: list[str] = field(default_factory=lambda: ["stable2", "unstable2", "integrator2"])
-    family_test: list[str] = field(default_factory=lambda: ["lightly_damped2", "nonminphase2"])
-    jumps: list[str] = field(default_factory=lambda: ["timevarying2"])
+    #: the plant family (a registered name: stcgym.envs.families.FAMILIES)
+    family: str = "siso2-v1"
+    #: the family's held-out variants tested (the ood scenarios)
+    ood: list[str] = field(default_factory=lambda: ["ood_near_zero", "ood_order3"])
     #: MIMO catalogue plants of the mimo scenario
     mimo_plants: list[str] = field(default_factory=lambda: ["quadruple_tank"])
     agents: list[str] = field(
@@ -97,11 +89,12 @@ class BenchConfig:
             "stc_mimo",
             "oracle",
             "lqg",
+            "zero",
         ]
     )
     #: training cap per algorithm of the agents trained on one plant ...
     train_steps: dict[str, int] = field(default_factory=dict)
-    #: ... and of those trained on the randomised plant family, and on a MIMO plant
+    #: ... and of those trained on the plant family, and on a MIMO plant
     family_train_steps: dict[str, int] = field(default_factory=dict)
     mimo_train_steps: dict[str, int] = field(default_factory=dict)
     #: the plateau rule (stcgym.agents.rl.stopping.PlateauRule)
@@ -110,17 +103,25 @@ class BenchConfig:
     min_train_fraction: float = 0.25
     #: --eval-interval: every algorithm's evaluation interval (None: each config's own)
     eval_interval: int | None = None
+    #: runs per controller: RL training seeds, self-tuning controller seeds
     train_seeds: int = 3
-    seeds: int = 5
+    #: test plants per family split (None: all of them) and episodes on each
+    test_plants: int | None = 40
+    episodes_per_plant: int = 1
+    #: episodes of a nominal or MIMO scenario (one plant)
+    nominal_episodes: int = 20
+    #: validation episodes of a learning-curve point
+    curve_episodes: int = 10
+    #: training episodes on which LQG's input range sets the action bound
+    bound_plants: int = 200
     first_seed: int = 1000
-    episode_steps: int = 1000
-    train_episode_steps: int = 500
-    train_y_bound: float | None = None
-    noise_std: float = 0.05
-    control_cost: float = 0.01
-    action_bound: float = 10.0
-    curve_points: int = 10
-    curve_seeds: int = 2
+    #: episode length (None: the family's)
+    episode_steps: int | None = None
+    #: output noise (None: the family's)
+    noise_std: float | None = None
+    #: the action bound of each training distribution (measured at the start of a run)
+    action_bounds: dict[str, float] = field(default_factory=dict)
+    curve_points: int = 5
     algo_configs: dict[str, dict[str, Any]] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)
     plots: bool = True
@@ -141,26 +142,11 @@ class BenchConfig:
 
     @property
     def classical(self) -> list[str]:
-        """Classical controllers in evaluation order: the oracle first (every ratio needs it)."""
+        """Classical controllers in evaluation order: the yardstick and zero input first (every
+        ratio and score needs them)."""
         names = [a for a in self.agents if a in CONTROLLERS]
-        return ["oracle", *[a for a in names if a != "oracle"]]
-
-    @property
-    def eval_seeds(self) -> list[int]:
-        return [self.first_seed + i for i in range(self.seeds)]
-
-    def env_spec(self, plants: Sequence[str], steps: int, **kw: Any) -> EnvSpec:
-        """The bench's environment on ``plants`` (a :class:`~stcgym.agents.benchmark.mimo.
-        MimoEnvSpec` for a MIMO catalogue plant)."""
-        mimo = len(plants) > 0 and plants[0] in mimo_plant_names()
-        return (MimoEnvSpec if mimo else EnvSpec)(
-            tuple(plants),
-            steps=steps,
-            noise_std=self.noise_std,
-            control_cost=self.control_cost,
-            action_bound=self.action_bound,
-            **kw,
-        )
+        first = [YARDSTICK, "zero"]
+        return [*first, *[a for a in names if a not in first]]
 
     @property
     def plateau(self) -> PlateauRule:
@@ -172,6 +158,15 @@ class BenchConfig:
             return self.mimo_train_steps[algo]
         return (self.family_train_steps if train_key == "family" else self.train_steps)[algo]
 
+    def eval_interval_for(self, algo: str, train_key: str) -> int:
+        """The plateau rule's evaluation interval of ``algo`` on ``train_key``: the config's,
+        outside the quick tier at least the cap / :data:`EVALUATIONS_PER_CAP` in whole
+        multiples of it."""
+        base = int(self.algo_configs[algo]["eval_interval"])
+        if self.mode == "quick" or self.eval_interval is not None:
+            return base
+        return base * max(1, self.cap(algo, train_key) // (EVALUATIONS_PER_CAP * base))
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -182,42 +177,49 @@ class BenchConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown bench settings {unknown} (written by another version?)")
-        data = dict(data)
-        # written before the family had caps of its own: the single-plant caps applied
-        data.setdefault("family_train_steps", dict(data.get("train_steps", {})))
-        return cls(**data)
+        return cls(**dict(data))
 
 
+_CLASSICAL = ["stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg", "zero"]
 QUICK = dict(
     mode="quick",
-    scenarios=list(QUICK_SCENARIOS),
-    plants=["stable2"],
-    jumps=["timevarying2"],
-    # stc_mimo runs in the mimo scenario only, the others in the SISO ones only
-    agents=["ppo", "sac", "rppo", "stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg"],
-    train_seeds=3,
-    seeds=5,
-    episode_steps=1000,
-    curve_points=QUICK_CURVE_POINTS,
-    curve_seeds=QUICK_CURVE_SEEDS,
-)
-#: The quick scenarios and seeds; RL caps from the Zoo (about an hour).
-STANDARD = dict(QUICK, mode="standard", curve_points=10, curve_seeds=2)
-FULL = dict(
-    mode="full",
     scenarios=list(SCENARIO_KINDS),
-    mimo_plants=mimo_plant_names(),
-    plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2", "stable4"],
-    jumps=["timevarying2", "stable2:unstable2"],
-    agents=[
-        *("ppo", "sac", "td3", "a2c", "rppo"),
-        *("stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg"),
+    plants=["stable2"],
+    ood=["ood_near_zero", "ood_order3"],
+    agents=["ppo", "sac", "rppo", *_CLASSICAL],
+    train_seeds=3,
+    test_plants=40,
+    nominal_episodes=20,
+    curve_episodes=10,
+    curve_points=5,
+)
+#: Five training runs, the whole test split, every held-out variant, RL caps of 1e6 steps on
+#: the family for PPO and RecurrentPPO (a few hours on 2 cores).
+STANDARD = dict(
+    QUICK,
+    mode="standard",
+    ood=[
+        "ood_fast_unstable",
+        "ood_near_zero",
+        "ood_lightly_damped",
+        "ood_high_gain",
+        "ood_order3",
     ],
     train_seeds=5,
-    seeds=20,
-    episode_steps=2000,
+    test_plants=None,
+    nominal_episodes=100,
+    curve_episodes=20,
     curve_points=10,
-    curve_seeds=2,
+)
+FULL = dict(
+    STANDARD,
+    mode="full",
+    mimo_plants=mimo_plant_names(),
+    plants=["stable2", "lightly_damped2", "unstable2", "nonminphase2", "integrator2"],
+    agents=["ppo", "sac", "td3", "a2c", "rppo", *_CLASSICAL],
+    train_seeds=10,
+    episodes_per_plant=2,
+    curve_episodes=50,
 )
 MODES = {"quick": QUICK, "standard": STANDARD, "full": FULL}
 
@@ -258,6 +260,21 @@ def parse_train_steps(value: str | int | dict | None, algos: Sequence[str]) -> d
     return out
 
 
+#: build_config's keyword arguments that are BenchConfig fields taken as given when not None
+_PLAIN = (
+    "train_seeds",
+    "test_plants",
+    "episodes_per_plant",
+    "nominal_episodes",
+    "curve_episodes",
+    "bound_plants",
+    "episode_steps",
+    "noise_std",
+    "curve_points",
+    "eval_interval",
+)
+
+
 def build_config(
     *,
     quick: bool = True,
@@ -266,25 +283,16 @@ def build_config(
     out: str = "results",
     scenarios: str | Sequence[str] | None = None,
     plants: str | Sequence[str] | None = None,
-    family_train: str | Sequence[str] | None = None,
-    family_test: str | Sequence[str] | None = None,
-    jumps: str | Sequence[str] | None = None,
+    family: str | None = None,
+    ood: str | Sequence[str] | None = None,
     mimo_plants: str | Sequence[str] | None = None,
     agents: str | Sequence[str] | None = None,
     train_steps: str | int | dict | None = None,
     patience: int = 3,
     min_improvement: float = 0.05,
     min_train_fraction: float = 0.25,
-    eval_interval: int | None = None,
-    train_seeds: int | None = None,
-    seeds: int | None = None,
     first_seed: int = 1000,
-    episode_steps: int | None = None,
-    train_episode_steps: int | None = None,
-    noise_std: float = 0.05,
-    train_y_bound: float | None = None,
     hp: Sequence[str] = (),
-    curve_points: int | None = None,
     plots: bool = True,
     progress: bool | None = None,
     jobs: int | None = None,
@@ -292,13 +300,20 @@ def build_config(
     address: str | None = None,
     tensorboard_log: str | None = None,
     bootstrap_reps: int = 2000,
+    **plain: Any,
 ) -> BenchConfig:
     """Build and validate a :class:`BenchConfig` (raises :class:`BenchInputError`).
 
     Defaults come from the preset ``mode`` (``"quick"``, ``"standard"`` or ``"full"``; without
     it ``quick`` picks quick or full); every list argument takes a comma-separated string or a
-    sequence. Nothing is trained or written here.
+    sequence; ``plain`` takes the fields ``train_seeds``, ``test_plants``,
+    ``episodes_per_plant``, ``nominal_episodes``, ``curve_episodes``, ``bound_plants``,
+    ``episode_steps``, ``noise_std``, ``curve_points`` and ``eval_interval`` (``None``: the
+    preset's). Nothing is trained or written here.
     """
+    unknown = sorted(set(plain) - set(_PLAIN))
+    if unknown:
+        raise TypeError(f"build_config() got unexpected keyword arguments {unknown}")
     mode = mode if mode is not None else ("quick" if quick else "full")
     if mode not in MODES:
         raise BenchInputError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
@@ -310,33 +325,25 @@ def build_config(
     for name, value in (
         ("scenarios", scenarios),
         ("plants", plants),
-        ("family_train", family_train),
-        ("family_test", family_test),
-        ("jumps", jumps),
+        ("ood", ood),
         ("mimo_plants", mimo_plants),
         ("agents", agents),
     ):
         parsed = _split(value)
         if parsed is not None:
             setattr(cfg, name, parsed)
-    if train_seeds is not None:
-        cfg.train_seeds = train_seeds
-    if seeds is not None:
-        cfg.seeds = seeds
-    if episode_steps is not None:
-        cfg.episode_steps = episode_steps
-    if train_episode_steps is not None:
-        cfg.train_episode_steps = train_episode_steps
-    cfg.first_seed, cfg.noise_std = first_seed, noise_std
-    cfg.train_y_bound = train_y_bound
-    if curve_points is not None:
-        cfg.curve_points = curve_points
+    if family is not None:
+        cfg.family = str(family)
+    for name, value in plain.items():
+        if value is not None:
+            setattr(cfg, name, value)
+    cfg.first_seed = first_seed
     cfg.plots, cfg.progress = bool(plots), progress
     cfg.jobs = jobs if jobs is not None else min(2, os.cpu_count() or 1)
     cfg.executor, cfg.address = executor, address
     cfg.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
     cfg.bootstrap_reps = bootstrap_reps
-    cfg.patience, cfg.min_improvement, cfg.eval_interval = patience, min_improvement, eval_interval
+    cfg.patience, cfg.min_improvement = patience, min_improvement
     cfg.min_train_fraction = min_train_fraction
     cfg.overrides = list(hp)
     try:
@@ -359,11 +366,7 @@ def _finite(value: Any, name: str, *, positive: bool = False) -> float:
     return v
 
 
-def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> None:
-    """Check every input, fill in training budgets and algorithm configs; raise ``ValueError``."""
-    from stcgym.agents.executors import EXECUTORS
-    from stcgym.agents.rl.configs import validate_config
-
+def _check_names(cfg: BenchConfig) -> None:
     if not cfg.run or any(c in cfg.run for c in "/\\") or cfg.run in (".", ".."):
         raise ValueError(f"run name must be a plain folder name, got {cfg.run!r}")
     unknown = [s for s in cfg.scenarios if s not in SCENARIO_KINDS]
@@ -376,54 +379,58 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
         )
     if len(set(cfg.agents)) != len(cfg.agents):
         raise ValueError(f"agents listed twice: {cfg.agents}")
-    if "oracle" not in cfg.agents:
-        cfg.agents.append("oracle")  # the reference of every ratio
-    names = set(plant_names())
-    for what in ("plants", "family_train", "family_test"):
-        bad = [p for p in getattr(cfg, what) if p not in names]
-        if bad:
-            raise ValueError(f"unknown plant(s) {bad} in {what}; catalogue: {sorted(names)}")
+    for name in (YARDSTICK, "zero"):  # every ratio and score needs them
+        if name not in cfg.agents:
+            cfg.agents.append(name)
+    bad = [p for p in cfg.plants if p not in plant_names()]
+    if bad:
+        raise ValueError(f"unknown plant(s) {bad} in --plants; catalogue: {plant_names()}")
+    if any(get_plant(p).schedule is not None for p in cfg.plants):
+        raise ValueError("--plants takes time-invariant plants (jumps: the jump scenario)")
     if "nominal" in cfg.scenarios and not cfg.plants:
         raise ValueError("the nominal scenario needs at least one plant (--plants)")
     check_mimo_plants(cfg.mimo_plants)
     if "mimo" in cfg.scenarios and not cfg.mimo_plants:
         raise ValueError("the mimo scenario needs at least one plant (--mimo-plants)")
+    from stcgym.envs.families import get_family
+
+    try:
+        fam = get_family(cfg.family)
+    except (KeyError, ValueError, FileNotFoundError) as exc:
+        raise ValueError(f"--family: {exc}") from None
+    missing = [s for s in ("train", "validation", "test") if s not in fam.splits]
+    if missing:
+        raise ValueError(f"--family {cfg.family!r} needs the splits train, validation and test")
+    bad = [v for v in cfg.ood if v not in fam.variant_names]
+    if bad:
+        raise ValueError(f"unknown --ood variant(s) {bad}; {cfg.family} has {fam.variant_names}")
+    if "ood" in cfg.scenarios and not cfg.ood:
+        raise ValueError("the ood scenarios need at least one --ood variant")
     recurrent = [a for a in cfg.rl_agents if a in RECURRENT_ALGORITHMS]
-    if "family" in cfg.scenarios or recurrent:
-        if not cfg.family_train:
-            raise ValueError("the family scenario and recurrent agents need --family-train plants")
-        if "family" in cfg.scenarios and not cfg.family_test:
-            raise ValueError("the family scenario needs --family-test plants")
-        overlap = sorted(set(cfg.family_train) & set(cfg.family_test))
-        if overlap:
-            raise ValueError(f"held-out plants {overlap} are also in the training family")
-        orders = {get_plant(p).n for p in cfg.family_train + cfg.family_test}
-        if len(orders) > 1:
-            raise ValueError("family_train and family_test plants must share one order")
-    if recurrent and not {"family", "jump"} & set(cfg.scenarios):
+    if recurrent and not {"family", "ood", "jump"} & set(cfg.scenarios):
         raise ValueError(
-            f"{recurrent} are evaluated on the family and jump scenarios only; add one of them"
+            f"{recurrent} train on the plant family: add the family, ood or jump scenario"
         )
-    if "jump" in cfg.scenarios and not cfg.jumps:
-        raise ValueError("the jump scenario needs at least one --jump")
-    # every --jump is checked, also when the jump scenario is not among --scenarios
-    for spec in cfg.jumps:
-        _, before, _ = parse_jump(spec)
-        if "jump" in cfg.scenarios and recurrent:
-            if get_plant(before).n != get_plant(cfg.family_train[0]).n:
-                raise ValueError(f"--jump {spec!r}: recurrent agents need the family's order")
+
+
+def _check_numbers(cfg: BenchConfig) -> None:
     for name in (
         "train_seeds",
-        "seeds",
-        "episode_steps",
-        "train_episode_steps",
+        "episodes_per_plant",
+        "nominal_episodes",
+        "curve_episodes",
+        "bound_plants",
         "curve_points",
         "jobs",
         "bootstrap_reps",
     ):
         setattr(cfg, name, _positive_int(getattr(cfg, name), f"--{name.replace('_', '-')}"))
-    if cfg.episode_steps < 20:
-        raise ValueError(f"--episode-steps must be >= 20, got {cfg.episode_steps}")
+    if cfg.test_plants is not None:
+        cfg.test_plants = _positive_int(cfg.test_plants, "--test-plants")
+    if cfg.episode_steps is not None:
+        cfg.episode_steps = _positive_int(cfg.episode_steps, "--episode-steps")
+        if cfg.episode_steps < 20:
+            raise ValueError(f"--episode-steps must be >= 20, got {cfg.episode_steps}")
     try:
         first = int(cfg.first_seed)
     except (TypeError, ValueError):
@@ -431,17 +438,26 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     if first != cfg.first_seed or first < 0:
         raise ValueError(f"--first-seed must be an integer >= 0, got {cfg.first_seed!r}")
     cfg.first_seed = first
-    cfg.noise_std = _finite(cfg.noise_std, "--noise")
-    if cfg.train_y_bound is not None:
-        cfg.train_y_bound = _finite(cfg.train_y_bound, "--train-y-bound", positive=True)
-    if cfg.noise_std == 0 and "lqg" in cfg.agents:
-        raise ValueError("the lqg oracle needs --noise > 0 (its Kalman filter assumes it)")
+    if cfg.noise_std is not None:
+        cfg.noise_std = _finite(cfg.noise_std, "--noise", positive=True)
+    from stcgym.agents.executors import EXECUTORS
+
     if cfg.executor not in EXECUTORS:
         raise ValueError(f"--executor must be one of {EXECUTORS}, got {cfg.executor!r}")
     if cfg.address is not None and cfg.executor != "ray":
         raise ValueError("--address needs --executor ray")
     if cfg.tensorboard_log is not None and not cfg.rl_agents:
         raise ValueError("--tensorboard-log needs at least one RL agent in --agents")
+    for key, bound in cfg.action_bounds.items():
+        cfg.action_bounds[key] = _finite(bound, f"action bound of {key}", positive=True)
+
+
+def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> None:
+    """Check every input, fill in training budgets and algorithm configs; raise ``ValueError``."""
+    from stcgym.agents.rl.configs import validate_config
+
+    _check_names(cfg)
+    _check_numbers(cfg)
     # Training caps and configs: defaults of the mode, then --eval-interval, --hp and
     # --train-steps (which sets the cap on one plant and on the family alike).
     cfg.plateau  # noqa: B018  (the PlateauRule's ValueError names the option)

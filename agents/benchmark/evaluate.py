@@ -44,17 +44,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
-from typing import Any, ClassVar
+from dataclasses import dataclass, field, replace
+from typing import Any
 
-import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
+from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.response import step_response
 from stcgym.agents.benchmark.statistics import summarize
 from stcgym.agents.closed_loop import run_closed_loop
-from stcgym.envs.catalogue import PlantSpec, get_plant
+from stcgym.envs.catalogue import PlantSpec
 
 __all__ = [
     "EnvSpec",
@@ -62,191 +62,14 @@ __all__ = [
     "EvalResult",
     "PolicyFactory",
     "Windows",
+    "cost_metrics",
     "default_windows",
     "episode_metrics",
+    "response_metrics",
     "evaluate",
     "run_episode",
     "summarize",
 ]
-
-ENV_ID = "stcgym/ObserverCanonical-v0"
-
-
-@dataclass(frozen=True)
-class EnvSpec:
-    """Everything needed to build the environment of one scenario (hashable, JSON-able).
-
-    Parameters
-    ----------
-    plants
-        One catalogue name, or several for a plant family (one drawn per episode).
-    steps
-        Episode length ``T`` (time limit).
-    noise_std
-        Output noise standard deviation.
-    control_cost
-        ``rho`` in the cost.
-    action_bound
-        Actions are clipped to ``[-action_bound, action_bound]``.
-    y_bound
-        Divergence bound on ``|y|``.
-    period, amplitude
-        Square-wave reference.
-    jump_step, jump_to
-        Optional parameter jump: from step ``jump_step`` on the plant has the observer-form
-        parameters ``jump_to = (a1..an, b1..bn)``.
-
-    Raises
-    ------
-    ValueError
-        On construction: no plant, an unknown catalogue name, a family of mixed orders,
-        ``steps`` not a positive integer, only one of ``jump_step`` and ``jump_to``, a jump
-        outside the episode or ``jump_to`` not of length ``2n``.
-
-    Examples
-    --------
-    >>> from stcgym.agents import EnvSpec
-    >>> spec = EnvSpec("unstable2", steps=200, jump_step=100, jump_to=(-1.5, 0.56, 0.5, 0.3))
-    >>> spec.plants, spec.order
-    (('unstable2',), 2)
-    >>> EnvSpec.from_dict(spec.to_dict()) == spec
-    True
-    >>> env = spec.make()
-    >>> obs, info = env.reset(seed=0)
-    >>> info["theta"]
-    array([-1.7 ,  0.66,  0.5 ,  0.3 ])
-    >>> EnvSpec("unstable2", steps=100, jump_step=150, jump_to=(-1.5, 0.56, 0.5, 0.3))
-    Traceback (most recent call last):
-    ...
-    ValueError: jump_step must lie inside the episode (0, 100), got 150
-    """
-
-    plants: tuple[str, ...]
-    steps: int = 1000
-    noise_std: float = 0.05
-    control_cost: float = 0.01
-    action_bound: float = 10.0
-    y_bound: float = 100.0
-    period: int = 100
-    amplitude: float = 1.0
-    jump_step: int | None = None
-    jump_to: tuple[float, ...] | None = None
-    #: the plants' kind, matched against a controller's ``ControllerInfo.plants``
-    plant_kind: ClassVar[str] = "siso"
-
-    def __post_init__(self) -> None:
-        plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
-        object.__setattr__(self, "plants", plants)
-        if not plants:
-            raise ValueError("EnvSpec needs at least one plant")
-        specs = [get_plant(p) for p in plants]  # raises on unknown names
-        if len({s.n for s in specs}) > 1:
-            raise ValueError(f"a plant family must share one order, got {list(plants)}")
-        if int(self.steps) != self.steps or self.steps < 1:
-            raise ValueError(f"episode steps must be a positive integer, got {self.steps!r}")
-        if (self.jump_step is None) != (self.jump_to is None):
-            raise ValueError("jump_step and jump_to go together")
-        if self.jump_step is not None:
-            if not 0 < self.jump_step < self.steps:
-                raise ValueError(
-                    f"jump_step must lie inside the episode (0, {self.steps}), got {self.jump_step}"
-                )
-            object.__setattr__(self, "jump_to", tuple(float(v) for v in self.jump_to))
-            if len(self.jump_to) != 2 * specs[0].n:
-                raise ValueError(f"jump_to must have {2 * specs[0].n} parameters")
-
-    @property
-    def order(self) -> int:
-        """Plant order ``n`` (of the first plant: a family has one order)."""
-        return get_plant(self.plants[0]).n
-
-    @property
-    def channels(self) -> tuple[int, int]:
-        """``(outputs, inputs)`` of the plants: ``(1, 1)``."""
-        return 1, 1
-
-    def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
-        """``(obs, info, plant_spec)`` of ``env.reset(seed=seed)`` on the family member
-        ``plant`` (default: the environment's draw)."""
-        return _reset_episode(env, seed, plant)
-
-    def make(self, **overrides: Any) -> gym.Env:
-        """A fresh environment (time limit ``steps``); ``overrides`` replace spec fields.
-
-        Parameters
-        ----------
-        **overrides
-            Fields of :class:`EnvSpec` to replace (validated as on construction).
-
-        Returns
-        -------
-        gymnasium.Env
-            ``stcgym/ObserverCanonical-v0`` with the spec's plant(s), noise, cost, bounds,
-            square-wave reference and parameter jump.
-
-        Raises
-        ------
-        ValueError
-            An override out of range; ``TypeError`` for an unknown field.
-        """
-        import stcgym.envs  # noqa: F401  (registers the ids)
-        from stcgym.envs.signals import Jumps, SquareWave
-
-        spec = self if not overrides else EnvSpec(**{**asdict(self), **overrides})
-        kwargs: dict[str, Any] = dict(
-            plant=list(spec.plants) if len(spec.plants) > 1 else spec.plants[0],
-            noise_std=spec.noise_std,
-            control_cost=spec.control_cost,
-            action_bound=spec.action_bound,
-            y_bound=spec.y_bound,
-            reference=SquareWave(period=spec.period, amplitude=spec.amplitude),
-        )
-        if spec.jump_step is not None:
-            kwargs["schedule"] = Jumps({spec.jump_step: np.array(spec.jump_to)})
-        return gym.make(ENV_ID, max_episode_steps=spec.steps, **kwargs)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> EnvSpec:
-        """Inverse of :meth:`to_dict` (JSON data back to a spec; ``kind: "mimo"`` gives a
-        :class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`).
-
-        Parameters
-        ----------
-        data : dict
-            The fields, lists where the spec holds tuples.
-
-        Returns
-        -------
-        EnvSpec
-
-        Raises
-        ------
-        ValueError
-            A field out of range (as on construction).
-        """
-        d = dict(data)
-        if d.pop("kind", "siso") == "mimo":
-            from stcgym.agents.benchmark.mimo import MimoEnvSpec
-
-            return MimoEnvSpec(**{**d, "plants": tuple(d["plants"])})
-        d["plants"] = tuple(d["plants"])
-        if d.get("jump_to") is not None:
-            d["jump_to"] = tuple(d["jump_to"])
-        return cls(**d)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The spec as JSON data (:meth:`from_dict` reads it back)."""
-        d = asdict(self)
-        d["plants"] = list(self.plants)
-        d["jump_to"] = None if self.jump_to is None else list(self.jump_to)
-        return d
-
-
-def _reset_episode(env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
-    options = None if plant is None else {"plant": plant}
-    obs, info = env.reset(seed=int(seed), options=options)
-    return obs, info, env.unwrapped.plant
-
 
 #: ``factory(plant, seed) -> policy``: the controller for one episode on ``plant`` (the
 #: catalogue plant in force at the start of the episode, which only the oracles may look at);
@@ -368,7 +191,7 @@ def run_episode(
     """
     env = spec.make()
     # a spec's own reset (a MIMO spec's); any object with make, steps and action_bound will do
-    obs, info, drawn = getattr(spec, "reset_episode", _reset_episode)(env, seed, plant)
+    obs, info, drawn = spec.reset_episode(env, seed, plant)
     name = drawn.name if drawn is not None else "?"
     if not hasattr(policy, "predict"):
         policy = policy(drawn, int(seed))
@@ -468,6 +291,77 @@ def episode_metrics(ep: Episode, windows: Windows, period: int) -> dict[str, flo
     m["settling_steps"] = steady["settling_steps"]
     m["startup_settling_steps"] = startup["settling_steps"]
     return m
+
+
+def cost_metrics(cost: NDArray, jump_step: NDArray) -> dict[str, NDArray]:
+    """The cost columns of a batch of episodes, from the per-step (charged) costs.
+
+    Parameters
+    ----------
+    cost : ndarray, shape (B, T)
+        Per-step costs of ``B`` episodes.
+    jump_step : ndarray of int, shape (B,)
+        Each episode's jump step (``-1``: none).
+
+    Returns
+    -------
+    dict of str to ndarray, shape (B,)
+        ``cost`` (mean per step), ``cost_start`` (steps ``[0, T/10)``), ``cost_steady`` (the
+        second half, ``[T/2, T)``; before the jump ``[J/2, J)`` in an episode with one) and
+        ``cost_post_jump`` (``[J, T)``: the whole re-adaptation; ``nan`` without a jump).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.agents.benchmark.evaluate import cost_metrics
+    >>> m = cost_metrics(np.arange(20.0).reshape(2, 10), np.array([-1, 6]))
+    >>> m["cost"].tolist(), m["cost_steady"].tolist(), m["cost_post_jump"].tolist()
+    ([4.5, 14.5], [7.0, 14.0], [nan, 17.5])
+    """
+    B, T = cost.shape
+    out = {
+        "cost": cost.mean(axis=1),
+        "cost_start": cost[:, : max(1, T // 10)].mean(axis=1),
+        "cost_steady": np.empty(B),
+        "cost_post_jump": np.full(B, math.nan),
+    }
+    for i, J in enumerate(np.asarray(jump_step)):
+        lo, hi = (T // 2, T) if J < 1 else (int(J) // 2, int(J))
+        out["cost_steady"][i] = cost[i, lo:hi].mean()
+        if J >= 1:
+            out["cost_post_jump"][i] = cost[i, int(J) :].mean()
+    return out
+
+
+def response_metrics(batch: Any, spec: EnvSpec) -> dict[str, NDArray]:
+    """The per-episode columns of a :class:`~stcgym.agents.benchmark.episodes.BatchEpisodes`
+    that need the traces: ``effort`` (mean ``||u||^2``), ``bounded``, ``steps_run``,
+    ``clip_frac``, ``step_us`` (predict time per lane and step), and the step response of
+    the second half (``overshoot_pct``, ``settling_steps``) and of the first reference step
+    (``startup_settling_steps``; one output only, :func:`~stcgym.agents.benchmark.response.
+    step_response`)."""
+    B, T = batch.cost.shape
+    lived = np.maximum(batch.steps_run, 1)
+    u = np.nan_to_num(batch.u.reshape(B, T, -1))
+    out = {
+        "effort": np.sum(u**2, axis=(1, 2)) / lived,
+        "bounded": (~np.asarray(batch.diverged, dtype=bool)).astype(float),
+        "steps_run": batch.steps_run.astype(float),
+        "clip_frac": batch.n_clipped / lived,
+        "step_us": np.full(B, 1e6 * batch.predict_s / (B * T)),
+    }
+    names = ("overshoot_pct", "settling_steps", "startup_settling_steps")
+    for name in names:
+        out[name] = np.full(B, math.nan)
+    if batch.y.ndim == 2:  # one output: the step response
+        first = max(2, spec.span)
+        for i in range(B):
+            steady = step_response(batch.y[i], batch.r[i], start=T // 2, stop=T + 1)
+            start = step_response(batch.y[i], batch.r[i], start=0, stop=min(T + 1, first))
+            out["overshoot_pct"][i] = steady["overshoot_pct"]
+            out["settling_steps"][i] = steady["settling_steps"]
+            out["startup_settling_steps"][i] = start["settling_steps"]
+    return out
 
 
 @dataclass

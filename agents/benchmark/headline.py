@@ -1,6 +1,23 @@
-"""The estimates behind ``report.md``: per-scenario headline figures with stratified-bootstrap
-intervals (:func:`headline`), per-column summaries (:func:`aggregate`) and how each RL agent's
-training ended (:func:`training_stops`). :mod:`stcgym.agents.benchmark.report` writes them out.
+"""The estimates behind ``report.md``, with the run as the unit.
+
+:func:`scenario_tables` arranges a scenario's rows as arrays ``(runs, plants, episodes)`` per
+controller (a run: one RL training seed, one self-tuning controller seed, the single run of a
+deterministic controller) and :func:`headline` estimates, each with its 95 % interval
+(:mod:`stcgym.agents.benchmark.statistics`):
+
+* the cost ratio to the LQG yardstick on the same episode and the normalised score
+  ``(C_zero - C) / (C_zero - C_LQG)``: interquartile means over (run, plant) of the per-plant
+  means, with rliable's stratified bootstrap over runs (one stratum per test plant);
+* the divergence rate, with its own interval (runs and plants resampled);
+* steps to get within 1.2x of LQG (RL: training steps read off the validation curve, for
+  in-distribution scenarios only; online learners: adaptation steps within the episode),
+  re-convergence steps after a jump, and the post-jump cost ratio: medians, with the share of
+  runs or episodes that got there;
+* paired comparisons (:func:`paired`) of every self-tuning controller with every RL agent on
+  the same (plant, episode): the probability of the lower cost and the paired cost ratio.
+
+:func:`aggregate` gives the plain per-column summaries of the report's details, and
+:func:`training_stops` how each RL agent's training runs ended.
 """
 
 from __future__ import annotations
@@ -12,16 +29,31 @@ from typing import Any
 import numpy as np
 
 from stcgym.agents.benchmark.evaluate import summarize
-from stcgym.agents.benchmark.statistics import interval_estimates, probability_of_improvement
+from stcgym.agents.benchmark.statistics import (
+    Estimate,
+    interval_estimates,
+    paired_comparison,
+    rate_estimate,
+)
 
-__all__ = ["DETAIL_COLUMNS", "SELF_TUNING", "aggregate", "headline", "training_stops"]
+__all__ = [
+    "DETAIL_COLUMNS",
+    "SELF_TUNING",
+    "aggregate",
+    "headline",
+    "paired",
+    "scenario_tables",
+    "training_stops",
+]
 
 #: Columns summarised per (scenario, controller) in the report's details.
 DETAIL_COLUMNS = (
     "cost",
+    "cost_ratio",
     "cost_start",
     "cost_steady",
     "effort",
+    "clip_frac",
     "data_steps",
     "train_wall_s",
     "step_us",
@@ -30,9 +62,18 @@ DETAIL_COLUMNS = (
     "startup_settling_steps",
 )
 
-#: The self-tuning controllers given against every other controller, each with the key of its
-#: probability of the lower episode cost in :func:`headline` (and a column of the headline).
-SELF_TUNING = {name: "poi" + name[3:] for name in ("stc", "stc_lq", "stc_kfmils", "stc_mimo")}
+#: The self-tuning controllers, compared pairwise with every RL agent.
+SELF_TUNING = ("stc", "stc_lq", "stc_kfmils", "stc_mimo")
+
+_TABLE_COLUMNS = (
+    "cost",
+    "cost_ratio",
+    "score",
+    "post_jump_ratio",
+    "steps_to_target",
+    "reconverge_steps",
+    "bounded",
+)
 
 
 def _float(v: Any) -> float:
@@ -49,95 +90,117 @@ def _groups(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], list[dict[s
     return groups
 
 
+def scenario_tables(
+    rows: Sequence[dict[str, Any]], scenario: str, units: tuple[int, int]
+) -> dict[str, dict[str, Any]]:
+    """``controller -> {"family", "runs", column: ndarray (runs, plants, episodes)}`` of one
+    scenario; ``units`` is ``(plants, episodes per plant)`` of its episode set (rows of a run
+    come in episode order, plant-major). Runs with missing episodes (an interrupted run) are
+    left out."""
+    P, E = units
+    out: dict[str, dict[str, Any]] = {}
+    for (sc, controller), rs in _groups(rows).items():
+        if sc != scenario:
+            continue
+        by_run: dict[Any, list[dict[str, Any]]] = {}
+        for r in rs:
+            by_run.setdefault(r["run"], []).append(r)
+        runs = [k for k in sorted(by_run, key=_float) if len(by_run[k]) == P * E]
+        if not runs:
+            continue
+        table = {
+            col: np.array(
+                [[_float(r.get(col)) for r in by_run[k]] for k in runs], dtype=float
+            ).reshape(len(runs), P, E)
+            for col in _TABLE_COLUMNS
+        }
+        out[controller] = {"family": rs[0]["family"], "runs": len(runs), "rows": by_run, **table}
+    return out
+
+
+def _median_reached(values: np.ndarray) -> dict[str, Any]:
+    """Median of step counts (``inf``: never) with the share that got there."""
+    v = values[~np.isnan(values)]
+    if v.size == 0:
+        return {"median": math.nan, "reached": 0, "n": 0}
+    order = np.sort(v)  # an order statistic: "never" counts as the largest value
+    return {
+        "median": float(order[(v.size - 1) // 2]),
+        "reached": int(np.isfinite(v).sum()),
+        "n": int(v.size),
+    }
+
+
+def headline(
+    tables: dict[str, dict[str, Any]], *, reps: int, seed: int = 0
+) -> dict[str, dict[str, Any]]:
+    """The estimates of one scenario (see the module docstring): ``controller -> {...}``.
+
+    Keys: ``runs``, ``episodes`` (per run), ``ratio`` and ``score`` (:class:`Estimate`, IQM),
+    ``ratio_mean`` (the mean over runs of each run's mean ratio), ``diverged``
+    (:class:`Estimate`), ``post_jump`` (:class:`Estimate` or ``None``), ``to_target`` and
+    ``reconverge`` (:func:`_median_reached` dicts).
+    """
+    ratio_data, score_data = {}, {}
+    for c, t in tables.items():
+        ratio_data[c] = np.nanmean(t["cost_ratio"], axis=2)
+        score = t["score"]
+        defined = ~np.isnan(score).any(axis=(0, 2))  # plants where it is defined
+        score_data[c] = np.mean(score[:, defined], axis=2) if defined.any() else np.empty((0, 1))
+    est_ratio = interval_estimates(ratio_data, pool_tasks=True, reps=reps, seed=seed)
+    est_score = interval_estimates(score_data, pool_tasks=True, reps=reps, seed=seed)
+    post = {
+        c: np.nanmean(t["post_jump_ratio"], axis=2)
+        for c, t in tables.items()
+        if not np.all(np.isnan(t["post_jump_ratio"]))
+    }
+    est_post = interval_estimates(post, pool_tasks=True, reps=reps, seed=seed) if post else {}
+    out = {}
+    for c, t in tables.items():
+        targets = t["steps_to_target"]
+        if t["family"] == "rl":
+            targets = targets[:, 0, 0]  # one value per run (its training)
+        out[c] = {
+            "family": t["family"],
+            "runs": t["runs"],
+            "episodes": int(t["cost"][0].size),
+            "ratio": est_ratio[c]["iqm"][0],
+            "ratio_mean": float(np.mean(ratio_data[c])),
+            "score": est_score[c]["iqm"][0],
+            "diverged": rate_estimate(1.0 - t["bounded"], reps=reps, seed=seed),
+            "post_jump": est_post[c]["iqm"][0] if c in est_post else None,
+            "to_target": _median_reached(np.ravel(targets)),
+            "reconverge": _median_reached(np.ravel(t["reconverge_steps"])),
+        }
+    return out
+
+
+def paired(
+    tables: dict[str, dict[str, Any]], a: str, b: str, *, reps: int, seed: int = 0
+) -> dict[str, Estimate]:
+    """``a`` against ``b`` on the same (plant, episode): ``{"probability", "ratio"}``."""
+    comp = paired_comparison(tables[a]["cost"], tables[b]["cost"], reps=reps, seed=seed)
+    return {"probability": comp.probability, "ratio": comp.ratio}
+
+
 def aggregate(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
-    """``(scenario, controller) -> {column: summarize(...)} plus run and failure counts``."""
+    """``(scenario, controller) -> {column: summarize(...)} plus row and failure counts``."""
     out = {}
     for key, rs in _groups(rows).items():
-        failed = [not int(r["bounded"]) for r in rs]
+        failed = [not int(_float(r["bounded"])) for r in rs]
         stats = {c: summarize([_float(r.get(c)) for r in rs], failed) for c in DETAIL_COLUMNS}
-        stats["runs"] = len(rs)
+        stats["rows"] = len(rs)
         stats["failures"] = int(sum(failed))
         stats["family"] = rs[0]["family"]
         out[key] = stats
     return out
 
 
-def _censor(values: np.ndarray, cap: float) -> np.ndarray:
-    # "never" (inf) counts as the largest possible value: order statistics stay right and the
-    # bootstrap gets finite numbers.
-    return np.where(np.isfinite(values), values, cap)
-
-
-def headline(
-    rows: Sequence[dict[str, Any]],
-    scenario: str,
-    controllers: Sequence[str],
-    *,
-    jump: bool,
-    reps: int,
-) -> dict[str, dict[str, Any]]:
-    """Estimates of one scenario: ``controller -> {metric: Estimate, ...}`` (see the module).
-
-    Step counts that never reach the tolerance (``inf``) are censored at the largest value
-    that could have been observed (the episode part or the training budget); the count of
-    runs that did reach it is reported next to them.
-    """
-    groups = _groups(rows)
-    cols = ["steady_ratio", "cost", "steps_to_oracle"] + (
-        ["post_jump_ratio", "reconverge_steps"] if jump else []
-    )
-    data: dict[str, np.ndarray] = {}
-    extra: dict[str, dict[str, Any]] = {}
-    for c in controllers:
-        rs = groups.get((scenario, c))
-        if not rs:
-            continue
-        table = np.array([[_float(r.get(k)) for k in cols] for r in rs])
-        info: dict[str, Any] = {"runs": len(rs), "failures": sum(not int(r["bounded"]) for r in rs)}
-        if rs[0]["family"] == "rl":
-            info["training"] = training_stops(rs)
-        for j, k in enumerate(cols):
-            v = table[:, j]
-            if k in ("steps_to_oracle", "reconverge_steps"):
-                cap = _step_cap(rs, k)
-                info[f"{k}_reached"] = int(np.sum(np.isfinite(v)))
-                info[f"{k}_cap"] = cap
-                table[:, j] = _censor(v, cap)
-            else:
-                # a diverged run has an infinite ratio at worst: the largest finite one stands in
-                finite = v[np.isfinite(v)]
-                table[:, j] = np.where(np.isfinite(v), v, finite.max() if finite.size else math.nan)
-        keep = np.all(np.isfinite(table), axis=0)
-        info["cols"] = [k for k, ok in zip(cols, keep, strict=True) if ok]
-        data[c] = table[:, keep]
-        extra[c] = info
-    est = interval_estimates(data, reps=reps) if data else {}
-    costs = {
-        c: data[c][:, extra[c]["cols"].index("cost")] for c in data if "cost" in extra[c]["cols"]
-    }
-    # probability that each self-tuning controller has the lower episode cost than every other
-    poi = {
-        name: probability_of_improvement(costs, name, reps=reps)
-        if name in costs and len(costs) > 1
-        else {}
-        for name in SELF_TUNING
-    }
-    out = {}
-    for c, info in extra.items():
-        res = dict(info)
-        for j, k in enumerate(info["cols"]):
-            res[k] = {"iqm": est[c]["iqm"][j], "median": est[c]["median"][j]}
-        for name, key in SELF_TUNING.items():
-            res[key] = poi[name].get(c)
-        out[c] = res
-    return out
-
-
 def training_stops(rs: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """How the training runs behind the rows ``rs`` (one RL agent) ended, one per train seed:
-    ``{"seeds", "plateau", "cap", "steps", "last_improvement"}`` (step lists by seed)."""
-    per_seed = {r["train_seed"]: r for r in rs}
-    runs = [per_seed[k] for k in sorted(per_seed, key=str)]
+    """How the training runs behind the rows ``rs`` (one RL agent) ended, one per run:
+    ``{"seeds", "plateau", "cap", "steps", "last_improvement"}`` (step lists by run)."""
+    per_run = {r["run"]: r for r in rs}
+    runs = [per_run[k] for k in sorted(per_run, key=_float)]
     status = [str(r.get("train_stop", "")) for r in runs]
     return {
         "seeds": len(runs),
@@ -146,12 +209,3 @@ def training_stops(rs: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "steps": [_float(r["train_steps"]) for r in runs],
         "last_improvement": [_float(r.get("train_last_improvement")) for r in runs],
     }
-
-
-def _step_cap(rs: Sequence[dict[str, Any]], key: str) -> float:
-    if key == "steps_to_oracle" and rs[0]["family"] == "rl":
-        return max(_float(r["train_steps"]) for r in rs)
-    T = max(_float(r["steps_run"]) for r in rs)
-    if key == "reconverge_steps":
-        return float(T // 2)  # the jump is at T/2
-    return float(T if rs[0]["kind"] != "jump" else T // 2)

@@ -1,5 +1,5 @@
-"""``metrics.csv`` of a ``stcgym bench`` run: its columns, the row-by-row writer, and the cost
-ratio to the oracle every row is scored by."""
+"""``metrics.csv`` of a ``stcgym bench`` run: its columns, the writer (a run's rows at a time,
+flushed), and the cost ratio every row is scored by."""
 
 from __future__ import annotations
 
@@ -11,25 +11,26 @@ from typing import Any
 
 __all__ = ["METRIC_COLUMNS", "TOLERANCE", "MetricsWriter", "format_value", "ratio"]
 
-#: Columns of ``metrics.csv``, in order.
+#: Columns of ``metrics.csv``, in order: one row per scenario, controller, run and episode.
 METRIC_COLUMNS = [
     "scenario",
     "kind",
     "plant",
     "controller",
     "family",
+    "run",
     "seed",
-    "train_seed",
-    "controller_seed",
+    "jump_step",
     "cost",
     "cost_ratio",
+    "score",
     "cost_start",
     "cost_steady",
     "steady_ratio",
-    "steps_to_oracle",
     "cost_post_jump",
     "post_jump_ratio",
     "reconverge_steps",
+    "steps_to_target",
     "effort",
     "bounded",
     "steps_run",
@@ -46,7 +47,7 @@ METRIC_COLUMNS = [
     "step_us",
 ]
 
-#: Allowed cost ratio to the oracle in ``steps_to_oracle`` and ``reconverge_steps``.
+#: Allowed cost ratio to the yardstick in ``steps_to_target`` and ``reconverge_steps``.
 TOLERANCE = 1.2
 
 
@@ -67,10 +68,12 @@ class MetricsWriter:
         self._fh.flush()
         os.fsync(self._fh.fileno())
 
-    def write(self, row: dict[str, Any]) -> None:
-        self._csv.writerow({k: format_value(row.get(k, "")) for k in METRIC_COLUMNS})
+    def write(self, rows: list[dict[str, Any]]) -> None:
+        """Append ``rows`` (one controller run's episodes) and flush them to disk."""
+        for row in rows:
+            self._csv.writerow({k: format_value(row.get(k, "")) for k in METRIC_COLUMNS})
         self._flush()
-        self.rows.append(row)
+        self.rows.extend(rows)
 
     def close(self) -> None:
         self._fh.close()
@@ -86,5 +89,5 @@ def format_value(v: Any) -> Any:
 def ratio(x: float, ref: float | None) -> float:
     """``x / ref``; ``nan`` without a reference, ``inf`` for a diverged ``x`` or a zero ``ref``."""
     if ref is None or not math.isfinite(x) or not ref > 0:
-        return math.nan if ref is None or math.isnan(x) else math.inf
+        return math.nan if ref is None or math.isnan(x) or math.isnan(ref) else math.inf
     return x / ref

@@ -3,10 +3,11 @@
 Each plant of ``--mimo-plants`` (the MIMO catalogue, :data:`stcgym.envs.MIMO_PLANTS`) is one
 scenario ``mimo:<plant>`` on ``stcgym/StateSpace-v0``: ``x(k+1) = A x(k) + B u(k)``, observation
 ``[x(k) + v(k), r(k)]``, the bench's square-wave reference on every state, its output noise,
-action bound and cost ``||x - r||^2 + control_cost ||u||^2``. The controllers that declare
-``"mimo"`` among their plants (:class:`~stcgym.agents.controllers.ControllerInfo`) run there:
-the multivariable self-tuning LQ controller (``stc_mimo``) and, as ``oracle``, the LQR on the
-true ``(A, B)`` with the same weights and tracking law; the window RL agents are trained on the
+cost ``||x - r||^2 + control_cost ||u||^2`` and an action bound set from the yardstick's input
+range (:mod:`stcgym.agents.benchmark.bounds`). The controllers that declare ``"mimo"`` among
+their plants (:class:`~stcgym.agents.controllers.ControllerInfo`) run there: the multivariable
+self-tuning LQ controller (``stc_mimo``), and as the yardstick ``lqg`` the LQR on the true
+``(A, B)`` with the same weights and tracking law; the window RL agents are trained on the
 plant itself (their observation window then holds every state, reference and input). The
 SISO-only controllers and the recurrent agents (trained on the SISO family) are left out.
 
@@ -22,7 +23,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.envs.mimo_plants import MimoPlantSpec, get_mimo_plant, mimo_plant_names
 
 if TYPE_CHECKING:
@@ -76,6 +77,8 @@ class MimoEnvSpec(EnvSpec):
             raise ValueError(f"episode steps must be a positive integer, got {self.steps!r}")
         if self.jump_step is not None or self.jump_to is not None:
             raise ValueError("a MIMO scenario has no parameter jump (jump_step, jump_to)")
+        if self.family is not None or self.reference is not None:
+            raise ValueError("a MIMO scenario has one plant and a square-wave reference")
 
     @property
     def plant(self) -> MimoPlantSpec:
@@ -92,24 +95,19 @@ class MimoEnvSpec(EnvSpec):
         """``(outputs, inputs)``: the ``n`` measured states and the ``m`` inputs."""
         return self.plant.n_states, self.plant.n_inputs
 
-    def make(self, **overrides: Any) -> gym.Env:
-        """A fresh ``stcgym/StateSpace-v0`` of the plant (time limit ``steps``); ``overrides``
-        replace spec fields (validated as on construction)."""
-        import dataclasses
+    def plant_names(self) -> list[str]:
+        return list(self.plants)
 
-        import stcgym.envs  # noqa: F401  (registers the ids)
+    def _kwargs(self) -> tuple[str, dict[str, Any]]:
         from stcgym.envs.signals import SquareWave
 
-        spec = dataclasses.replace(self, **overrides) if overrides else self
-        return gym.make(
-            MIMO_ENV_ID,
-            max_episode_steps=spec.steps,
-            plant=spec.plants[0],
-            noise_std=spec.noise_std,
-            control_cost=spec.control_cost,
-            action_bound=spec.action_bound,
-            y_bound=spec.y_bound,
-            reference=SquareWave(period=spec.period, amplitude=spec.amplitude),
+        return MIMO_ENV_ID, dict(
+            plant=self.plants[0],
+            noise_std=self.noise_std,
+            control_cost=self.control_cost,
+            action_bound=self.action_bound,
+            y_bound=self.y_bound,
+            reference=SquareWave(period=self.period, amplitude=self.amplitude),
         )
 
     def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
@@ -119,6 +117,12 @@ class MimoEnvSpec(EnvSpec):
             raise ValueError(f"plant must be {self.plants[0]!r} (the spec's), got {plant!r}")
         obs, info = env.reset(seed=int(seed))
         return obs, info, env.unwrapped.mimo_plant
+
+    def reset_lanes(
+        self, env: Any, seeds: list[int], plants: list[str] | None
+    ) -> tuple[np.ndarray, list[Any]]:
+        obs, _ = env.reset(seed=[int(s) for s in seeds])
+        return obs, [self.plant] * len(seeds)
 
     def to_dict(self) -> dict[str, Any]:
         """The spec as JSON data, marked ``kind: "mimo"`` (``EnvSpec.from_dict`` reads it)."""
@@ -136,15 +140,32 @@ def check_mimo_plants(names: list[str]) -> None:
         raise ValueError(f"--mimo-plants lists a plant twice: {names}")
 
 
+def mimo_spec(cfg: BenchConfig, plant: str) -> MimoEnvSpec:
+    """The environment of ``mimo:<plant>`` (the bench's noise, cost and the plant's bound)."""
+    from stcgym.agents.benchmark.scenarios import _episode_settings
+
+    settings = _episode_settings(cfg)
+    return MimoEnvSpec(
+        (plant,),
+        steps=settings["steps"],
+        noise_std=settings["noise_std"],
+        control_cost=settings["control_cost"],
+        action_bound=float(cfg.action_bounds.get(f"mimo:{plant}", 10.0)),
+    )
+
+
 def mimo_scenarios(cfg: BenchConfig) -> list[Scenario]:
     """One ``mimo:<plant>`` scenario per plant of ``cfg.mimo_plants``; its RL agents train on
     the plant itself (training key ``mimo:<plant>``)."""
+    from stcgym.agents.benchmark.episodes import EpisodeSet
     from stcgym.agents.benchmark.scenarios import Scenario
 
     out = []
+    n = cfg.nominal_episodes
     for p in cfg.mimo_plants:
-        env = cfg.env_spec([p], cfg.episode_steps)
-        out.append(Scenario(f"mimo:{p}", "mimo", env, p, f"mimo:{p}"))
+        env = mimo_spec(cfg, p)
+        eps = EpisodeSet((env.plants[0],) * n, tuple(range(cfg.first_seed, cfg.first_seed + n)))
+        out.append(Scenario(f"mimo:{p}", "mimo", env, eps, f"mimo:{p}", env.order))
     return out
 
 

@@ -10,13 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from stcgym.agents.benchmark.config import BenchConfig
-from stcgym.agents.benchmark.evaluate import EnvSpec
-from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
+from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.benchmark.scenarios import Scenario, TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.controllers import controllers_for
 from stcgym.agents.rl.configs import AlgoConfig
 
 __all__ = [
     "SECONDS_PER_EVAL_STEP",
+    "SECONDS_PER_EVAL_LANE_STEP",
     "SECONDS_PER_POLICY_STEP",
     "SECONDS_PER_STEP",
     "JobProgress",
@@ -31,26 +32,43 @@ __all__ = [
 
 
 #: CPU seconds per training env step on the 2-core development machine, the other core busy
-#: with the other worker (torch on one thread; fitted to the per-job wall times of quick runs:
-#: PPO 40 960, SAC 6 000 and RecurrentPPO 15 360 steps, their learning-curve and evaluation
-#: episodes counted apart). Only the schedule, the ETA and the announced estimate use them.
-SECONDS_PER_STEP = {"ppo": 0.9e-3, "a2c": 0.9e-3, "sac": 9.0e-3, "td3": 8.5e-3, "rppo": 4.7e-3}
-#: Seconds per step of an RL policy in a learning-curve or evaluation episode (SB3's predict
-#: in the python loop; the LSTM of RecurrentPPO costs about twice as much).
-SECONDS_PER_POLICY_STEP = {"rppo": 0.8e-3}
-DEFAULT_POLICY_STEP = 0.45e-3
-#: Seconds per evaluated step of a classical controller (python loop): SISO plants, and MIMO
-#: ones (the self-tuning LQ controller solves its Riccati equation every step).
+#: with the other worker (torch on one thread, the native vector env; learning-curve and
+#: evaluation episodes counted apart). Only the schedule, the ETA and the announced estimate
+#: use them.
+SECONDS_PER_STEP = {"ppo": 0.8e-3, "a2c": 0.8e-3, "sac": 8.0e-3, "td3": 7.5e-3, "rppo": 2.5e-3}
+#: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
+#: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.
+SECONDS_PER_POLICY_STEP = {"rppo": 1.2e-3}
+DEFAULT_POLICY_STEP = 0.5e-3
+SECONDS_PER_LANE_STEP = 2e-6
+#: Seconds per evaluated step of a batch of classical controllers (python loop around the
+#: compiled batch step) and per lane: SISO plants, and MIMO ones (the self-tuning LQ
+#: controller solves its Riccati equation every step).
 SECONDS_PER_EVAL_STEP = 1.5e-4
-SECONDS_PER_MIMO_EVAL_STEP = 1.6e-3
+SECONDS_PER_EVAL_LANE_STEP = 2.5e-6
+SECONDS_PER_MIMO_EVAL_LANE_STEP = 1.6e-3
 #: A worker's start: a fresh process importing torch, SB3 and the compiled kernels.
 WORKER_START_SECONDS = 4.0
 #: Plots and report per scenario (they are written side by side when ``jobs > 1``).
 OUTPUT_SECONDS_PER_SCENARIO = 2.5
 
 
-def _eval_step_seconds(spec: EnvSpec) -> float:
-    return SECONDS_PER_MIMO_EVAL_STEP if spec.plant_kind == "mimo" else SECONDS_PER_EVAL_STEP
+def _batch_seconds(spec: EnvSpec, lanes: int, per_step: float, per_lane: float) -> float:
+    """A batch of ``lanes`` episodes of ``spec``, in blocks of at most ``MAX_LANES``."""
+    from stcgym.agents.benchmark.episodes import MAX_LANES
+
+    blocks = -(-lanes // MAX_LANES)
+    return spec.steps * (blocks * per_step + lanes * per_lane)
+
+
+def _classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
+    from stcgym.agents.controllers import CONTROLLERS
+
+    runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
+    lane = SECONDS_PER_EVAL_LANE_STEP
+    if sc.env.plant_kind == "mimo" and CONTROLLERS[name].online:
+        lane = SECONDS_PER_MIMO_EVAL_LANE_STEP
+    return runs * _batch_seconds(sc.env, len(sc.episodes.seeds), SECONDS_PER_EVAL_STEP, lane)
 
 
 def curve_evaluations(task: dict[str, Any]) -> int:
@@ -62,7 +80,7 @@ def curve_evaluations(task: dict[str, Any]) -> int:
     hp = config["hyperparams"]
     step = hp.get("n_steps", hp.get("train_freq", 1))  # (train_freq may be (n, "episode"))
     per_rollout = max(1, (step if isinstance(step, int) else 1) * int(config.get("n_envs", 1)))
-    marks = curve_checkpoints(task["steps"], task["curve_points"], config["eval_interval"])
+    marks = curve_checkpoints(task["steps"], task["curve_points"], task["eval_interval"])
     boundaries = {-(-m // per_rollout) * per_rollout for m in marks if m > 0}
     return 1 + len(boundaries)
 
@@ -72,19 +90,25 @@ def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence
     earlier; the ETA then adapts): training steps, learning-curve episodes and evaluation
     episodes of the policy, classical controllers on the scenarios."""
     out = {
-        ("classical", sc.name): cfg.seeds
-        * cfg.episode_steps
-        * _eval_step_seconds(sc.env)
-        * len(controllers_for(cfg.classical, sc.env))
+        ("classical", sc.name): sum(
+            _classical_seconds(cfg, sc, name) for name in controllers_for(cfg.classical, sc.env)
+        )
         for sc in scenarios
     }
     for t in tasks:
-        policy_step = SECONDS_PER_POLICY_STEP.get(t["algo"], DEFAULT_POLICY_STEP)
-        curve_env = t["curve_env"]
-        curve_steps = len(t["curve_seeds"]) * len(curve_env["plants"]) * curve_env["steps"]
-        evals = sum(len(e["seeds"]) * e["env"]["steps"] for e in t["evaluations"])
+        per_step = SECONDS_PER_POLICY_STEP.get(t["algo"], DEFAULT_POLICY_STEP)
+        curve = EnvSpec.from_dict(t["curve_env"])
+        lanes = len(t["curve_episodes"]["seeds"])
+        curve_s = _batch_seconds(curve, lanes, per_step, SECONDS_PER_LANE_STEP)
+        evals = sum(
+            _batch_seconds(
+                EnvSpec.from_dict(e["env"]), len(e["episodes"]["seeds"]), per_step,
+                SECONDS_PER_LANE_STEP,
+            )
+            for e in t["evaluations"]
+        )  # fmt: skip
         train = t["steps"] * SECONDS_PER_STEP.get(t["algo"], 5e-3)
-        out[("rl", t["name"])] = train + policy_step * (curve_evaluations(t) * curve_steps + evals)
+        out[("rl", t["name"])] = train + curve_evaluations(t) * curve_s + evals
     return out
 
 
@@ -99,16 +123,14 @@ def schedule(weights: Sequence[float], jobs: int) -> list[float]:
     return workers if weights else []
 
 
-def reference_weights(cfg: BenchConfig, envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> dict:
-    """Estimated seconds of the reference runs (classical controllers on the learning-curve
-    episodes of every RL training env)."""
+def reference_weights(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> dict:
+    """Estimated seconds of the reference runs: the yardstick on the training episodes that set
+    each action bound and on the learning-curve episodes."""
+    per_step, lane = SECONDS_PER_EVAL_STEP, SECONDS_PER_EVAL_LANE_STEP
     return {
-        ("reference", key): len(controllers_for(cfg.classical, curve))
-        * cfg.curve_seeds
-        * len(curve.plants)
-        * curve.steps
-        * _eval_step_seconds(curve)
-        for key, (_, curve) in envs.items()
+        ("reference", key): _batch_seconds(env.train, len(env.bound_episodes.seeds), per_step, lane)
+        + _batch_seconds(env.curve, len(env.curve_episodes.seeds), per_step, lane)
+        for key, env in envs.items()
     }
 
 
@@ -184,33 +206,27 @@ class JobProgress:
 def rl_tasks(
     cfg: BenchConfig,
     scenarios: Sequence[Scenario],
-    envs: dict[str, tuple[EnvSpec, EnvSpec]],
-    references: dict[str, float],
+    envs: dict[str, TrainingEnv],
+    references: dict[str, list[float]],
     run_dir: Path | None = None,
 ) -> list[dict[str, Any]]:
-    """The RL jobs, longest first by :func:`job_weights`."""
+    """The RL jobs, longest first by :func:`job_weights`; ``references`` holds the yardstick's
+    cost on each learning-curve episode of every training key."""
     from stcgym.agents.rl.training import training_task
 
-    envs = envs or training_envs(cfg, scenarios)
-    curve_seeds = [10_000 + i for i in range(cfg.curve_seeds)]
     tasks = []
-    for key, (train_spec, curve_spec) in envs.items():
+    folder = Path("models") if run_dir is None else run_dir / "models"
+    for key, env in envs.items():
         for algo in cfg.rl_agents:
             users = [sc for sc in scenarios if sc.train_key_for(algo) == key]
             if not users:
                 continue
+            evaluations = [
+                {"scenario": sc.name, "env": sc.env.to_dict(), "episodes": sc.episodes.to_dict()}
+                for sc in users
+            ]
             for ts in range(cfg.train_seeds):
                 name = f"{key.replace(':', '-')}_{algo}_s{ts}"
-                evaluations = [
-                    {
-                        "scenario": sc.name,
-                        "env": sc.env.to_dict(),
-                        "plant": sc.plant,
-                        "seeds": cfg.eval_seeds,
-                        "trace_seed": cfg.eval_seeds[0] if ts == 0 else None,
-                    }
-                    for sc in users
-                ]
                 tb = None
                 if cfg.tensorboard_log is not None:
                     tb = str(Path(cfg.tensorboard_log) / cfg.run)
@@ -220,15 +236,16 @@ def rl_tasks(
                         config=AlgoConfig.from_dict(cfg.algo_configs[algo]),
                         seed=ts,
                         steps=cfg.cap(algo, key),
+                        eval_interval=cfg.eval_interval_for(algo, key),
                         plateau=cfg.plateau,
                         train_key=key,
-                        train_env=train_spec,
-                        curve_env=curve_spec,
-                        curve_seeds=curve_seeds,
+                        train_env=env.train,
+                        curve_env=env.curve,
+                        curve_episodes=env.curve_episodes,
                         curve_points=cfg.curve_points,
                         curve_reference=references.get(key),
                         evaluations=evaluations,
-                        model_dir=None if run_dir is None else str(run_dir / "models" / name),
+                        model_dir=str(folder / name),
                         tensorboard_log=tb,
                         progress=cfg.progress if cfg.jobs == 1 else False,
                     )

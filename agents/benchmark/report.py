@@ -1,26 +1,14 @@
-"""``report.md`` of a bench run: the headline with confidence intervals, then the details.
+"""``report.md`` of a bench run: the protocol, what each controller knows, the headline per
+scenario with intervals, paired comparisons, RL training, details.
 
-The headline answers three questions per scenario, each as a point estimate with a 95 %
-stratified-bootstrap interval (:mod:`stcgym.agents.benchmark.statistics`, i.e. ``rliable``):
-
-1. where does each controller end up: steady-state cost / the oracle's on the same episode
-   (interquartile mean, IQM);
-2. how much data does it need: environment steps until its cost stays within 1.2x of the
-   oracle's (training steps for RL, read off the learning curve; adaptation steps within the
-   episode for the self-tuning controller; median, with the share of runs that got there);
-3. what happens after a change (``jump:*``): post-jump cost / the oracle's, and the steps until
-   the cost stays within 1.2x of the oracle told the new parameters (``inf``, shown as "never",
-   when it does not; median with the share of runs that recovered).
-
-Whole-episode cost stays as a column, and the probability that each self-tuning controller
-of the scenario (``stc``, ``stc_lq``, ``stc_kfmils``; ``stc_mimo`` on a MIMO plant) has the
-lower cost (rliable's probability of improvement) is given against every other controller.
-
-Next to each RL agent's figures the report says how its training ended, per training seed:
-at the plateau of its learning curve or at the cap (:mod:`stcgym.agents.rl.stopping`), and at
-which step its cost last improved by more than the rule's minimum. A conclusion that a
-self-tuning controller beats an RL agent names, in the same sentence, the seeds of that agent
-that reached the cap before a plateau.
+The headline (:mod:`stcgym.agents.benchmark.headline`) gives per scenario and controller the
+cost ratio to the LQG yardstick on the same episode and the normalised score (IQM over runs and
+test plants, rliable's stratified bootstrap over runs), the divergence rate with its interval,
+the steps to get within 1.2x of LQG, and after a jump the post-jump ratio and re-convergence;
+then every self-tuning controller against every RL agent on the same (plant, episode): the
+probability of the lower cost and the paired cost ratio, with intervals. Next to each RL agent's
+figures the report says how its training runs ended (plateau or cap). The conclusions are
+generated from those numbers, whichever way they fall.
 """
 
 from __future__ import annotations
@@ -30,24 +18,21 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from stcgym.agents.benchmark.evaluate import default_windows
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
     aggregate,
     headline,
+    paired,
+    scenario_tables,
     training_stops,
 )
 from stcgym.agents.benchmark.statistics import Estimate
-from stcgym.agents.controllers import CONTROLLERS
+from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 
-__all__ = ["aggregate", "headline", "training_stops", "write_report"]
+__all__ = ["write_report"]
 
-#: How the conclusions name the self-tuning controllers other than ``stc``.
-_VARIANTS = {
-    "stc_lq": "self-tuning LQ (stc_lq)",
-    "stc_kfmils": "the self-tuning controller on the paper's KF-MILS estimator (stc_kfmils)",
-    "stc_mimo": "the multivariable self-tuning LQ controller (stc_mimo)",
-}
+#: Reference rows: compared with, not ranked.
+_REFERENCES = (YARDSTICK, "zero", "oracle")
 
 
 def _g(x: float | None, digits: int = 3) -> str:
@@ -60,285 +45,263 @@ def _g(x: float | None, digits: int = 3) -> str:
     return f"{x:.{digits}g}"
 
 
-# ---------------------------------------------------------------------------------- headline
-def _steps_range(values: Sequence[float]) -> str:
-    v = [x for x in values if math.isfinite(x)]
-    if not v:
-        return "-"
-    lo, hi = _k(min(v)), _k(max(v))
-    return lo if lo == hi else f"{lo}-{hi}"
-
-
 def _k(x: float) -> str:
     return f"{x / 1000:.3g}k" if x >= 1000 else f"{x:.0f}"
 
 
-def _training_cell(res: dict[str, Any]) -> str:
-    """``"plateau 2/3, cap 1/3; last gain at 40k-100k"`` (``-`` for a classical controller)."""
-    t = res.get("training")
-    if t is None:
+def _pct(e: Estimate) -> str:
+    return f"{100 * e.value:.1f} % [{100 * e.low:.1f}, {100 * e.high:.1f}]"
+
+
+def _steps(res: dict[str, Any]) -> str:
+    """``"2.3k (4/5)"``: median steps and how many got there; ``never`` when none did."""
+    n, reached = res["n"], res["reached"]
+    if n == 0:
         return "-"
-    parts = [f"{k} {t[k]}/{t['seeds']}" for k in ("plateau", "cap") if t[k]]
-    return f"{', '.join(parts) or '-'}; last gain at {_steps_range(t['last_improvement'])}"
+    if reached == 0:
+        return f"never (0/{n})"
+    if 2 * reached <= n:  # the median is a "never"
+        return f"never in half or more ({reached}/{n})"
+    return f"{_k(res['median'])} ({reached}/{n})"
 
 
-def _still_improving(hl: dict[str, dict[str, Any]], agents: Sequence[str]) -> str:
-    """``" (at the training cap before a plateau: sac in 3/3 seeds)"`` or ``""``: the seeds
-    that the cap stopped before the plateau rule could (an agent that may still improve)."""
-    capped = [
-        f"{c} in {hl[c]['training']['cap']}/{hl[c]['training']['seeds']} seeds"
-        for c in agents
-        if hl[c].get("training", {}).get("cap")
+def _training_cell(res: dict[str, Any] | None) -> str:
+    """``"plateau 2/3, cap 1/3"`` (``-`` for a classical controller)."""
+    if res is None:
+        return "-"
+    parts = [f"{k} {res[k]}/{res['seeds']}" for k in ("plateau", "cap") if res[k]]
+    return ", ".join(parts) or "-"
+
+
+def _knowledge_table(cfg: Any) -> list[str]:
+    from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS
+
+    lines = [
+        "| controller | plant order | integral action | model | data before the episode |",
+        "|---|---|---|---|---|",
     ]
-    if not capped:
-        return ""
-    return f" (at the training cap before a plateau: {', '.join(capped)})"
+    for name in cfg.agents:
+        if name in CONTROLLERS:
+            k = CONTROLLERS[name].knows
+            data = k.get("data", "-")
+            lines.append(
+                f"| {name} | {k.get('order', '-')} | {k.get('integral', '-')} | "
+                f"{k.get('model', '-')} | {data} |"
+            )
+            continue
+        window = cfg.algo_configs[name]["window"]
+        w = window.get("window", 10)
+        memory = "an LSTM over the episode, " if name in RECURRENT_ALGORITHMS else ""
+        integral = (
+            "the integral of e = r - y as an input"
+            if window.get("include_integral", True)
+            else "none"
+        )
+        lines.append(
+            f"| {name} | none ({memory}a window of {w} past y, r, u, e) | {integral} | none | "
+            f"its training distribution's episodes (up to its cap) |"
+        )
+    lines += [
+        "",
+        "Every controller gets the same observation `[y(k), r(k)]` and the same action bound "
+        "per training distribution; nobody sees the plant state.",
+    ]
+    return lines
 
 
-def _converged(res: dict[str, Any]) -> str:
-    """``" (trained to its plateau in 3/3 seeds)"`` when every seed stopped at its plateau."""
-    t = res.get("training")
-    if not t or t["plateau"] != t["seeds"]:
-        return ""
-    return f" (trained to its plateau in {t['plateau']}/{t['seeds']} seeds)"
+def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
+    from stcgym.envs.families import get_family
+
+    fam = get_family(cfg.family)
+    splits = ", ".join(f"{k} {len(fam.split_indices(k))}" for k in fam.splits)
+    bounds = "; ".join(f"`{k}` {_g(v)}" for k, v in cfg.action_bounds.items())
+    peaks = "; ".join(
+        f"`{k}`: median {_g(b['peak_median'])}, max {_g(b['peak_max'])} over {b['episodes']}"
+        for k, b in data.bounds.items()
+    )
+    lines = [
+        "## Protocol",
+        "",
+        f"- **Plants**: the family `{cfg.family}` (`stcgym.envs.families`; splits by plant "
+        f"index: {splits}); scenarios test on its test split"
+        + (f" (the first {cfg.test_plants} plants)" if cfg.test_plants else "")
+        + f", {cfg.episodes_per_plant} episode(s) per plant, and on the held-out variants "
+        f"{', '.join(f'`{v}`' for v in cfg.ood) or '-'}; `nominal:*` on one catalogue plant "
+        f"({cfg.nominal_episodes} episodes). Every controller meets the same episodes "
+        "(the same plants, seeds, noise, reference and initial state).",
+        "- **Episodes differ**: random initial state, a random-steps reference, output noise, "
+        "and in `jump:test` a parameter jump at a random time in every episode. RL trains on "
+        "episodes drawn the same way, of the same length, with the jump in a share of them.",
+        "- **Score**: the environments' per-step cost `(y - r)^2 + rho u^2`, undiscounted over "
+        "the episode; a diverged episode is charged its last cost for every step it did not "
+        "live. RL trains on that cost as its reward (SB3's running reward scale, no squash), "
+        "with gamma 0.99, normalised observations and the integral of the tracking error "
+        "among its inputs.",
+        f"- **One action bound per training distribution** for every controller: {bounds} "
+        f"(1.5 x the 99th percentile of LQG's input peak per training episode; peaks: "
+        f"{peaks or 'read back from config.json'}).",
+        "- **Yardstick**: LQG on the true model with the scored cost, told the new "
+        "parameters at a jump (the best a linear controller that knows the plant does); every "
+        "ratio is a controller's episode cost over LQG's on the same episode. Pole placement "
+        "on the true model (`oracle`) stays as a reference row. Normalised score: "
+        "`(C_zero - C) / (C_zero - C_LQG)` where zero input stays bounded and costs more than "
+        "LQG (1: as good as LQG, 0: as good as doing nothing).",
+        "- **The self-tuning controllers' options are the library defaults**, fixed before the "
+        "test split was drawn; none was tuned on it.",
+        f"- **Runs**: {cfg.train_seeds} per controller with random parts (RL training seeds; "
+        "self-tuning controller seeds), one for the deterministic ones. A run's score is its "
+        "mean over test plants and episodes; intervals bootstrap the runs (stratified by test "
+        f"plant, rliable) with {cfg.bootstrap_reps} replications; paired comparisons and rates "
+        "bootstrap runs and plants.",
+        f"- **RL training**: until {cfg.plateau.describe()} (the learning curve: median cost "
+        f"ratio to LQG on {cfg.curve_episodes} fixed validation episodes); the checkpoint with "
+        "the best validation score is kept.",
+        "",
+    ]
+    return lines
 
 
-def _cell(res: dict[str, Any], key: str, stat: str = "iqm") -> str:
-    if key not in res:
-        return "-"
-    e: Estimate = res[key][stat]
-    if key in ("steps_to_oracle", "reconverge_steps"):
-        reached, cap = res[f"{key}_reached"], res[f"{key}_cap"]
-        if reached == 0:
-            return f"never (0/{res['runs']})"
-        if 2 * reached <= res["runs"]:  # the median is (or averages in) a run that never did
-            return f"> {_g(cap)} in half the runs or more ({reached}/{res['runs']})"
-        return f"{e.format(3)} ({reached}/{res['runs']})"
-    return e.format(3)
-
-
-def _headline_table(hl: dict[str, dict[str, Any]], jump: bool) -> list[str]:
+def _headline_table(hl: dict[str, dict[str, Any]], jump: bool, stops: dict) -> list[str]:
     cols = [
         "controller",
-        "runs (div.)",
-        "steady / oracle, IQM",
-        "env steps to <= 1.2x oracle, median (reached)",
+        "runs x episodes",
+        "cost / LQG, IQM",
+        "score, IQM",
+        "diverged",
+        "steps to <= 1.2x LQG (reached)",
     ]
     if jump:
-        cols += ["post-jump / oracle, IQM", "re-converge steps, median (recovered)"]
-    tuners = [name for name in SELF_TUNING if name in hl]  # those of this scenario
-    cols += ["episode cost, IQM", *(f"P({name} cost lower)" for name in tuners)]
-    cols.append("RL training: stop (seeds); last > min. gain")
+        cols += ["post-jump cost / LQG, IQM", "re-converge steps (recovered)"]
+    cols.append("RL training stop")
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c, res in hl.items():
-        div = f" ({res['failures']})" if res["failures"] else ""
         cells = [
             c,
-            f"{res['runs']}{div}",
-            _cell(res, "steady_ratio"),
-            _cell(res, "steps_to_oracle", "median"),
+            f"{res['runs']} x {res['episodes']}",
+            res["ratio"].format(3),
+            res["score"].format(3),
+            _pct(res["diverged"]),
+            _steps(res["to_target"]),
         ]
         if jump:
-            cells += [_cell(res, "post_jump_ratio"), _cell(res, "reconverge_steps", "median")]
-        cells.append(_cell(res, "cost"))
-        for key in (SELF_TUNING[name] for name in tuners):
-            p = res.get(key)
-            cells.append(p.format(2) if p is not None else "-")
-        cells.append(_training_cell(res))
+            post = res["post_jump"]
+            cells += ["-" if post is None else post.format(3), _steps(res["reconverge"])]
+        cells.append(_training_cell(stops.get(c)))
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
-def _reach(res: dict[str, Any], key: str, verb: str, unit: str = "steps") -> str:
-    """``"gets within 1.2x after 16 steps (median; 5/5 runs)"`` or ``"never gets ..."``."""
-    reached, runs = res[f"{key}_reached"], res["runs"]
-    if reached == 0:
-        return f"never {verb} (0/{runs} runs)"
-    med = res[key]["median"].value
-    if 2 * reached <= runs:  # the median is (or averages in) a censored value
-        return f"{verb} in no more than half of the runs ({reached}/{runs})"
-    return f"{verb} after {_g(med)} {unit} (median; {reached}/{runs} runs)"
-
-
-def _sentences(name: str, hl: dict[str, dict[str, Any]], jump: bool) -> str:
-    parts = []
-    stc = hl.get("stc")
-    if stc is not None and "steady_ratio" in stc:
-        parts.append(
-            f"stc ends at {_g(stc['steady_ratio']['iqm'].value)}x the oracle's steady cost and "
-            + _reach(stc, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
-        )
-    variants = [ctl for ctl in _VARIANTS if ctl in hl]
-    for ctl in variants:
-        res = hl[ctl]
-        if "steady_ratio" in res:
-            parts.append(
-                f"{_VARIANTS[ctl]} ends at {_g(res['steady_ratio']['iqm'].value)}x and "
-                + _reach(res, "steps_to_oracle", "gets within 1.2x", "adaptation steps")
-            )
-    rl = {
-        c: r
-        for c, r in hl.items()
-        if c not in CONTROLLERS and "steady_ratio" in r and "steps_to_oracle" in r
-    }
-    if rl:
-        best = min(rl, key=lambda c: rl[c]["steady_ratio"]["iqm"].value)
-        r = rl[best]
-        parts.append(
-            f"the best RL agent ({best}) ends at {_g(r['steady_ratio']['iqm'].value)}x and "
-            + _reach(r, "steps_to_oracle", "gets within 1.2x", "training steps")
-            + (_still_improving(hl, [best]) or _converged(r))
-        )
-    if jump and stc is not None and "post_jump_ratio" in stc:
-        parts.append(
-            f"after the jump stc runs at {_g(stc['post_jump_ratio']['iqm'].value)}x the "
-            "informed oracle and " + _reach(stc, "reconverge_steps", "re-converges")
-        )
-    better = [c for c, r in hl.items() if r.get("poi") is not None and r["poi"].value > 0.5]
-    if better:
-        parts.append(
-            f"stc has the lower episode cost more often than not against {', '.join(better)}"
-            + _still_improving(hl, better)
-        )
-    # and where RL wins, said as plainly
-    rl_wins = [
-        c
-        for c, r in hl.items()
-        if "training" in r and r.get("poi") is not None and r["poi"].value < 0.5
-    ]
-    if rl_wins:
-        trained = [c for c in rl_wins if _converged(hl[c])]
-        parts.append(
-            f"{', '.join(rl_wins)} {'has' if len(rl_wins) == 1 else 'have'} the lower episode "
-            "cost than stc more often than not"
-            + (f" ({', '.join(trained)} trained to the plateau in every seed)" if trained else "")
-        )
-    for ctl in variants:
-        # against the RL agents only: a classical controller is never counted as one
-        key = SELF_TUNING[ctl]
-        rivals = [c for c, r in hl.items() if c not in CONTROLLERS and r.get(key) is not None]
-        wins = [c for c in rivals if hl[c][key].value > 0.5]
-        losses = [c for c in rivals if c not in wins]
-        if rivals:
-            parts.append(
-                f"{ctl} has the lower episode cost more often than not against "
-                f"{', '.join(wins) or 'no RL agent'}"
-                + _still_improving(hl, wins)
-                + (f", not against {', '.join(losses)}" if losses else "")
-            )
-    return f"- `{name}`: " + "; ".join(parts) + "." if parts else ""
-
-
-# ---------------------------------------------------------------------------------- details
-def _detail_table(agg, scenario: str, controllers: Sequence[str]) -> list[str]:
-    cols = [
-        "controller",
-        "episode cost median [IQR]",
-        "CVaR25",
-        "start",
-        "steady",
-        "effort u^2",
-        "bounded",
-        "data steps",
-        "train s",
-        "us/step",
-    ]
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for c in controllers:
-        st = agg.get((scenario, c))
-        if st is None:
-            continue
-        lines.append(
-            "| "
-            + " | ".join(
-                [
-                    c,
-                    f"{_g(st['cost']['median'])} [{_g(st['cost']['iqr'], 2)}]",
-                    _g(st["cost"]["cvar25"]),
-                    _g(st["cost_start"]["median"]),
-                    _g(st["cost_steady"]["median"]),
-                    _g(st["effort"]["median"]),
-                    f"{st['runs'] - st['failures']}/{st['runs']}",
-                    _g(st["data_steps"]["median"], 4),
-                    _g(st["train_wall_s"]["median"], 3),
-                    _g(st["step_us"]["median"], 3),
-                ]
-            )
-            + " |"
-        )
-    return lines
-
-
-def _step_table(agg, names: Sequence[str], controllers: Sequence[str]) -> list[str]:
+def _paired_table(pairs: list[tuple[str, str, dict[str, Estimate]]]) -> list[str]:
     lines = [
-        "| scenario | controller | overshoot % | settling steps | start-up settling steps |",
-        "|---|---|---|---|---|",
+        "| self-tuning | RL agent | P(self-tuning cost lower) | paired cost ratio "
+        "(self-tuning / RL) |",
+        "|---|---|---|---|",
     ]
-    for s in names:
-        for c in controllers:
-            st = agg.get((s, c))
-            if st is None:
-                continue
-            lines.append(
-                f"| `{s}` | {c} | {_g(st['overshoot_pct']['median'], 3)} | "
-                f"{_g(st['settling_steps']['median'])} | "
-                f"{_g(st['startup_settling_steps']['median'])} |"
-            )
+    for a, b, p in pairs:
+        lines.append(f"| {a} | {b} | {p['probability'].format(3)} | {p['ratio'].format(3)} |")
     return lines
 
 
-def _stop_text(stop: dict[str, Any] | None) -> str:
-    if not stop:
-        return "-"
-    where = "plateau at" if stop["status"] == "plateau" else "cap"
-    last = stop.get("last_improvement_step")
-    gain = "-" if last is None else _k(float(last))
-    return f"{where} {_k(float(stop['steps']))} (last gain {gain})"
+def _best(hl: dict[str, dict[str, Any]], names: Sequence[str]) -> str | None:
+    present = [n for n in names if n in hl]
+    return min(present, key=lambda n: hl[n]["ratio"].value) if present else None
 
 
-def _curve_table(
-    curves: Sequence[dict[str, Any]],
-    lines_ref: dict[str, dict[str, float]],
-    stops: dict[tuple[str, str, Any], dict[str, Any]],
-):
-    if not curves:
-        return []
-    out = [
-        "| training env | agent | final curve cost / oracle, per training seed | "
-        "training stop, per training seed | classical on the same episodes |",
-        "|---|---|---|---|---|",
+def _conclusion(name: str, hl: dict[str, dict[str, Any]], pairs: list, stops: dict) -> str:
+    """One sentence per scenario, from the numbers."""
+    rl = [c for c, r in hl.items() if r["family"] == "rl"]
+    tuners = [c for c in SELF_TUNING if c in hl]
+    ranked = [c for c in hl if c not in _REFERENCES]
+    if not ranked:
+        return ""
+    best = _best(hl, ranked)
+    parts = [f"`{name}`: the lowest cost / LQG is {best}'s, {hl[best]['ratio'].format(3)}"]
+    best_rl, best_tuner = _best(hl, rl), _best(hl, tuners)
+    if best_rl and best_tuner:
+        p = next((q for a, b, q in pairs if a == best_tuner and b == best_rl), None)
+        if p is not None:
+            prob, ratio = p["probability"], p["ratio"]
+            if prob.low > 0.5:
+                verdict = f"{best_tuner} has the lower cost more often than {best_rl}"
+            elif prob.high < 0.5:
+                verdict = f"{best_rl} has the lower cost more often than {best_tuner}"
+            else:
+                verdict = f"neither {best_tuner} nor {best_rl} has the lower cost reliably"
+            capped = stops.get(best_rl, {}).get("cap", 0)
+            caveat = (
+                f" ({best_rl} reached its training cap before a plateau in "
+                f"{capped}/{stops[best_rl]['seeds']} runs)"
+                if capped
+                else ""
+            )
+            parts.append(
+                f"{verdict}: P = {prob.format(3)}, paired cost ratio {ratio.format(3)}{caveat}"
+            )
+    div = [f"{c} {_pct(r['diverged'])}" for c, r in hl.items() if r["diverged"].value > 0]
+    if div:
+        parts.append("diverged: " + ", ".join(div))
+    return "; ".join(parts) + "."
+
+
+def _detail_table(agg: dict, name: str, controllers: Sequence[str]) -> list[str]:
+    cols = [
+        ("cost", "median"),
+        ("cost_ratio", "median"),
+        ("cost_ratio", "cvar25"),
+        ("effort", "median"),
+        ("clip_frac", "mean"),
+        ("overshoot_pct", "median"),
+        ("settling_steps", "median"),
+        ("data_steps", "median"),
+        ("step_us", "median"),
     ]
-    for env, algo in sorted({(c["train_env"], c["algo"]) for c in curves}):
-        final: dict[Any, float] = {}
-        for c in curves:
-            if c["train_env"] == env and c["algo"] == algo:
-                final[c["train_seed"]] = c["cost_to_oracle"]  # rows in step order: keep last
-        ref = lines_ref.get(env, {})
-        oracle = ref.get("oracle")
-        refs = ", ".join(f"{k} {_g(v / oracle) if oracle else _g(v)}" for k, v in ref.items())
-        seeds = ", ".join(_g(final[s]) for s in sorted(final))
-        ended = ", ".join(_stop_text(stops.get((env, algo, s))) for s in sorted(final))
-        out.append(f"| `{env}` | {algo} | {seeds} | {ended} | {refs} |")
-    return out
+    head = ["controller", "rows (div.)", *(f"{c} {s}" for c, s in cols)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in controllers:
+        a = agg.get((name, c))
+        if a is None:
+            continue
+        div = f" ({a['failures']})" if a["failures"] else ""
+        cells = [c, f"{a['rows']}{div}", *(_g(a[col][stat]) for col, stat in cols)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
 
 
-def _caps(cfg: Any) -> str:
-    family = getattr(cfg, "family_train_steps", {}) or {}
-    mimo = getattr(cfg, "mimo_train_steps", {}) if "mimo" in cfg.scenarios else {}
-    caps = []
-    for a, n in cfg.train_steps.items():
-        f, m = family.get(a, n), mimo.get(a, n)
-        where = ([f"on the family {f}"] if f != n else []) + ([f"on MIMO {m}"] if m != n else [])
-        caps.append(f"{a} {n}" + (f" ({', '.join(where)})" if where else ""))
-    return ", ".join(caps) or "-"
+def _training_table(cfg: Any, data: Any, rows: Sequence[dict[str, Any]]) -> list[str]:
+    from stcgym.agents.rl.configs import ZOO_DEPARTURES
+
+    lines = [
+        "| training env | agent | run | stop | steps (cap) | last gain at | best validation "
+        "score | wall s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    walls = {}
+    for r in rows:
+        if r["family"] == "rl":
+            walls[(r["controller"], str(r["run"]), r["scenario"])] = r.get("train_wall_s")
+    for (key, algo, ts), stop in sorted(data.stops.items(), key=lambda kv: str(kv[0])):
+        curve = [c["score"] for c in data.curves if (c["train_env"], c["algo"], c["train_seed"])
+                 == (key, algo, ts)]  # fmt: skip
+        wall = next((w for (a, run, _), w in walls.items() if a == algo and run == str(ts)), None)
+        lines.append(
+            f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
+            f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
+            f"{_g(min(curve)) if curve else '-'} | {_g(_float(wall), 4)} |"
+        )
+    if len(lines) == 2:
+        return []
+    dep = ["| agent | setting | RL Zoo | here | why |", "|---|---|---|---|---|"]
+    for agent in cfg.rl_agents:
+        for setting, zoo, ours, why in ZOO_DEPARTURES.get(agent, []):
+            dep.append(f"| {agent} | {setting} | {zoo} | {ours} | {why} |")
+    return [*lines, "", "Departures from the RL Zoo's settings:", "", *dep]
 
 
-def _rule(cfg: Any) -> str:
-    intervals = ", ".join(
-        f"{a} {c.get('eval_interval')}" for a, c in getattr(cfg, "algo_configs", {}).items()
-    )
-    rule = cfg.plateau
-    return rule.describe("eval_interval") + f" (eval_interval: {intervals or '-'})"
+def _float(v: Any) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def write_report(
@@ -357,108 +320,85 @@ def write_report(
     from stcgym.agents.executors import write_atomic
 
     agg = aggregate(rows)
-    names = [s.name for s in scenarios if any(r["scenario"] == s.name for r in rows)]
-    controllers = [c for c in cfg.agents if any(r["controller"] == c for r in rows)]
-    T = cfg.episode_steps
-    w = default_windows(T)
-    wj = default_windows(T, T // 2)
-    budgets = _caps(cfg)
+    present = {r["scenario"] for r in rows}
+    order = [c for c in cfg.agents if c not in _REFERENCES] + [c for c in _REFERENCES]
     out = [f"# stcgym bench: `{cfg.run}`", ""]
     if interrupted:
         out += ["**INTERRUPTED: partial results (the rows finished before the interrupt).**", ""]
     out += [
-        f"Mode `{cfg.mode}`; {cfg.seeds} evaluation seeds (from {cfg.first_seed}) x "
-        f"{cfg.train_seeds} training seeds per RL agent; episodes of {T} steps; output noise "
-        f"std {cfg.noise_std}; cost per step `(y - r)^2 + {cfg.control_cost} u^2` "
-        f"(the environments' reward); RL training caps (env steps): {budgets}. Wall time "
-        f"{wall_s:.0f} s on {cfg.jobs} worker(s)"
+        f"Tier `{cfg.mode}`. Wall time {wall_s:.0f} s on {cfg.jobs} worker(s)"
         f"{f' over {sessions} sessions (resumed)' if sessions > 1 else ''}. Exact "
-        "configuration: `config.json`; per-run numbers: `metrics.csv`.",
+        "configuration: `config.json`; one row per scenario, controller, run and episode: "
+        "`metrics.csv`; learning curves: `learning_curves.csv`.",
+        "",
+        *_protocol(cfg, scenarios, data),
+        "## What each controller knows",
+        "",
+        *_knowledge_table(cfg),
         "",
         "## Headline",
         "",
-        "Each cell: point estimate [95 % confidence interval]. A run is one (training seed, "
-        "evaluation seed) pair for an RL agent and one evaluation seed for the other "
-        "controllers, so the intervals cover both training and evaluation variation; they are "
-        f"rliable's stratified bootstrap ({cfg.bootstrap_reps} replications). IQM: mean of "
-        "the middle 50 % of runs. All "
-        "ratios are to the known-model oracle on the same episode (seed, noise, reference). "
-        "Env steps to <= 1.2x: training steps for RL (learning curve), adaptation steps "
-        "within the episode for the self-tuning controllers, 0 for a controller that starts "
-        "there. P(stc cost lower), P(stc_lq cost lower), P(stc_kfmils cost lower), "
-        "P(stc_mimo cost lower): probability that `stc` (the self-tuning controller with its "
-        "defaults), `stc_lq` (self-tuning LQ), `stc_kfmils` (the self-tuning controller on the "
-        "paper's KF-MILS estimator) or `stc_mimo` (multivariable self-tuning LQ, `mimo:*`) "
-        "has the lower episode cost than that controller on a random pair of runs. "
-        f"RL training: every agent trains until {_rule(cfg)}; the column says how many "
-        "training seeds stopped at the plateau and how many at the cap (before a plateau), and "
-        "at which training step the cost last gained more than the minimum.",
+        "Each cell: point estimate [95 % interval]. cost / LQG: interquartile mean (IQM) over "
+        "runs and test plants of the per-plant mean ratio to LQG on the same episodes; score: "
+        "the same for the normalised score (higher is better); diverged: share of episodes. "
+        "Steps to <= 1.2x LQG: for RL the training steps after which its validation score "
+        "stays within 1.2x of LQG (in-distribution scenarios only, and only for runs within "
+        "1.2x on the test episodes too), for the self-tuning controllers the adaptation steps "
+        "within an episode (median, with how many got there).",
         "",
     ]
     sentences = []
-    for name in names:
-        jump = name.startswith("jump:")
-        hl = headline(rows, name, controllers, jump=jump, reps=cfg.bootstrap_reps)
-        out += [f"### `{name}`", "", *_headline_table(hl, jump), ""]
-        line = _sentences(name, hl, jump)
-        if line:
-            sentences.append(line)
-    out += ["## Conclusions", "", *sentences, ""]
-    out += [
-        "## Step response",
-        "",
-        "Medians over episodes (and training seeds) at the reference steps of the steady "
-        "window; start-up: the first reference step. Settling: steps until |y - r| stays "
-        "within 5 % of the step.",
-        "",
-        *_step_table(agg, names, controllers),
-        "",
-        "## Details per scenario",
-        "",
-    ]
-    for name in names:
-        out += [f"### `{name}`", "", *_detail_table(agg, name, controllers), ""]
-    ct = _curve_table(data.curves, data.reference_lines, getattr(data, "stops", {}))
-    if ct:
+    for sc in scenarios:
+        if sc.name not in present:
+            continue
+        tables = scenario_tables(rows, sc.name, sc.episodes.units)
+        tables = {c: tables[c] for c in order if c in tables}
+        hl = headline(tables, reps=cfg.bootstrap_reps)
+        stops = {
+            c: training_stops([r for rs in t["rows"].values() for r in rs[:1]])
+            for c, t in tables.items()
+            if t["family"] == "rl"
+        }
+        pairs = [
+            (a, b, paired(tables, a, b, reps=cfg.bootstrap_reps))
+            for a in SELF_TUNING
+            if a in tables
+            for b in tables
+            if tables[b]["family"] == "rl"
+        ]
+        out += [f"### `{sc.name}`", "", *_headline_table(hl, sc.kind == "jump", stops), ""]
+        if pairs:
+            out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
+        sentences.append(_conclusion(sc.name, hl, pairs, stops))
+    out += ["## Conclusions", "", *(s for s in sentences if s), ""]
+    training = _training_table(cfg, data, rows)
+    if training:
         out += [
-            "## Learning curves",
+            "## RL training",
             "",
-            f"Deterministic policy at {cfg.curve_points} log-spaced points up to the first "
-            "evaluation interval, then at every interval (the evaluations of the plateau "
-            f"rule), on {cfg.curve_seeds} fixed episodes per training plant of "
-            f"{cfg.train_episode_steps} steps (`learning_curves.csv`, `data_efficiency.png`). "
-            "Training stop: where training ended (at the plateau or the cap) and the step of "
-            "the last gain above the rule's minimum.",
+            "Per training run: how it ended (plateau or cap), env steps used, the step of its "
+            "last gain above the rule's minimum, its best validation score (median cost / LQG "
+            "on the validation episodes) and its wall time (`learning_curves.csv`, "
+            "`data_efficiency.png`).",
             "",
-            *ct,
+            *training,
             "",
         ]
+    out += ["## Details per scenario", ""]
+    for sc in scenarios:
+        if sc.name in present:
+            out += [f"### `{sc.name}`", "", *_detail_table(agg, sc.name, order), ""]
     out += [
         "## Definitions",
         "",
-        f"- Windows (steps): start {w.start[0]}-{w.start[1]}, steady {w.steady[0]}-{w.steady[1]}; "
-        f"with the jump at {wj.jump_step}: steady (pre-jump) {wj.steady[0]}-{wj.steady[1]}, "
-        f"post-jump {wj.post_jump[0]}-{wj.post_jump[1]}.",
+        "- Windows: start = steps `[0, T/10)`, steady = `[T/2, T)` (with a jump at J: "
+        "`[J/2, J)`), post-jump = `[J, T)`.",
         "- Steps to <= 1.2x and re-converge: the first step from which on the cost over every "
-        "following reference period stays within 1.2x of the oracle's on the same episode "
-        "(`stcgym.agents.benchmark.response.settling_step`); never reaching it reads `never`, "
-        "not 0.",
-        "- CVaR25: mean episode cost of the worst quarter of runs. `div.`: diverged runs "
-        "(charged their last cost until the end).",
-        "- Data steps: environment steps of RL training plus the steps an online learner adapts "
-        "on (the self-tuning controller learns during the episode; the oracles know the model).",
-        "- Window agents in `jump:*` are those trained on the pre-jump plant; recurrent agents "
-        "(rppo) are trained on the family "
-        f"({', '.join(cfg.family_train)}); the oracle is told the new parameters at the jump "
-        "(lqg is not); in `family:*` the plant is held out.",
-        "- `mimo:*`: a MIMO plant with measured state (`stcgym/StateSpace-v0`), cost "
-        f"`||x - r||^2 + {cfg.control_cost} ||u||^2`; the oracle is LQR on the true (A, B); "
-        "the SISO-only controllers and the recurrent agents do not run there.",
-        "- RL training recipe: observation = window of past y, r, u (no plant state); training "
-        "reward = compressed cost `log(1 + cost)`, a diverged episode charged until its end"
-        + (f" (training bound |y| > {cfg.train_y_bound:g})" if cfg.train_y_bound else "")
-        + "; the checkpoint with the lowest learning-curve cost (validation seeds, disjoint "
-        "from the evaluation seeds) is kept.",
+        "window of the reference's shortest hold stays within 1.2x of LQG's on the same "
+        "episode (`stcgym.agents.benchmark.response.settling_step`); `never` when it does not.",
+        "- CVaR25: mean of the worst quarter. `div.`: diverged episodes (charged their last cost "
+        "until the end). Data steps: RL training steps, or the steps an online learner adapts "
+        "on within the episode.",
         "",
     ]
     path = Path(run_dir) / "report.md"

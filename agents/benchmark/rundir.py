@@ -8,8 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
-from stcgym.agents.benchmark.evaluate import EnvSpec
-from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
+from stcgym.agents.benchmark.scenarios import TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
 
 __all__ = ["JOBS_FOLDER", "check_runnable", "job_id", "prepare_run_dir", "versions"]
@@ -72,14 +71,14 @@ def check_runnable(cfg: BenchConfig) -> None:
         _check_trainable(cfg, training_envs(cfg, make_scenarios(cfg)))
 
 
-def _check_trainable(cfg: BenchConfig, envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> None:
+def _check_trainable(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> None:
     """Build every agent's model once (and drop it): SB3's own checks run before any work."""
     from stcgym.agents.rl.sb3 import check_trainable
 
     for algo in cfg.rl_agents:
         key = "family" if algo in RECURRENT_ALGORITHMS else next(iter(envs))
         try:
-            check_trainable(algo, AlgoConfig.from_dict(cfg.algo_configs[algo]), envs[key][0])
+            check_trainable(algo, AlgoConfig.from_dict(cfg.algo_configs[algo]), envs[key].train)
         except ValueError as exc:
             raise BenchInputError(str(exc)) from exc
 

@@ -20,13 +20,13 @@ from typing import Any
 import numpy as np
 
 from stcgym.agents.benchmark.config import BenchConfig
-from stcgym.agents.benchmark.evaluate import EnvSpec, Episode, evaluate, run_episode
+from stcgym.agents.benchmark.episodes import run_episodes
+from stcgym.agents.benchmark.evaluate import response_metrics
 from stcgym.agents.benchmark.metrics_csv import (
     METRIC_COLUMNS,
     TOLERANCE,
     MetricsWriter,
     format_value,
-    ratio,
 )
 from stcgym.agents.benchmark.plan import (
     JobProgress,
@@ -36,7 +36,8 @@ from stcgym.agents.benchmark.plan import (
     reference_weights,
     rl_tasks,
 )
-from stcgym.agents.benchmark.response import curve_settling_step, settling_step
+from stcgym.agents.benchmark.response import curve_settling_step
+from stcgym.agents.benchmark.rows import Yardstick, episode_rows
 from stcgym.agents.benchmark.rundir import (
     JOBS_FOLDER,
     check_runnable,
@@ -44,8 +45,13 @@ from stcgym.agents.benchmark.rundir import (
     prepare_run_dir,
     versions,
 )
-from stcgym.agents.benchmark.scenarios import Scenario, make_scenarios, training_envs
-from stcgym.agents.controllers import CONTROLLERS, controllers_for
+from stcgym.agents.benchmark.scenarios import (
+    Scenario,
+    TrainingEnv,
+    make_scenarios,
+    training_envs,
+)
+from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controllers_for
 
 __all__ = [
     "METRIC_COLUMNS",
@@ -69,19 +75,30 @@ class BenchResult:
 
 
 @dataclass
+class RunRecord:
+    """One run of a controller on a scenario's episodes: per-step costs ``(B, T)`` (float32)
+    and the episodes' jump steps, as the plots and the report read them."""
+
+    run: int
+    cost: np.ndarray
+    jump_step: np.ndarray
+
+
+@dataclass
 class Collected:
     """What the plots and the report need besides the rows (kept in the driver's memory)."""
 
-    #: (scenario, controller) -> Episode of the first evaluation seed (first training seed)
-    traces: dict[tuple[str, str], Episode] = field(default_factory=dict)
-    #: (scenario, controller) -> per-step costs of every episode of the first training seed
-    costs: dict[tuple[str, str], list[np.ndarray]] = field(default_factory=dict)
-    #: learning-curve rows (train_env, algo, train_seed, steps, cost, cost_to_oracle)
+    #: (scenario, controller) -> the traces of the first episodes of the first run (y, r, u,
+    #: and theta, theta_hat for the self-tuning controllers)
+    traces: dict[tuple[str, str], dict[str, np.ndarray]] = field(default_factory=dict)
+    #: (scenario, controller) -> every run's per-step costs
+    costs: dict[tuple[str, str], list[RunRecord]] = field(default_factory=dict)
+    #: learning-curve rows (train_env, algo, train_seed, steps, score)
     curves: list[dict[str, Any]] = field(default_factory=list)
-    #: train_env -> controller -> mean cost on the learning-curve episodes
-    reference_lines: dict[str, dict[str, float]] = field(default_factory=dict)
-    #: train_env -> (window ends, cost / oracle per window and episode, first online controller)
-    adaptation: dict[str, tuple[np.ndarray, np.ndarray, str]] = field(default_factory=dict)
+    #: train_env -> the yardstick's mean cost per step on each learning-curve episode
+    curve_references: dict[str, list[float]] = field(default_factory=dict)
+    #: train_env -> the action bound and the LQG input peaks it was set from
+    bounds: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: (train_env, algo, train_seed) -> how training ended (StopSummary.to_dict())
     stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
 
@@ -99,15 +116,18 @@ def run_bench(
 
     All checks (names, budgets, hyperparameters against SB3, dependencies, output folder)
     happen before anything is evaluated or trained (``checked=True``: :func:`check_runnable`
-    has been called already). Rows are appended to ``metrics.csv`` as
-    episodes finish; on ``KeyboardInterrupt`` (or any error) the finished rows stay, a partial
-    ``report.md`` is written and the exception is re-raised.
+    has been called already). First the action bound of each training distribution is set from
+    the LQG yardstick (:mod:`~stcgym.agents.benchmark.bounds`) and written into
+    ``config.json``; then the yardstick and zero input run on every scenario, the RL jobs on the
+    workers while the driver evaluates the other classical controllers. Rows are appended to
+    ``metrics.csv`` run by run; on ``KeyboardInterrupt`` (or any error) the finished rows stay,
+    a partial ``report.md`` is written and the exception is re-raised.
 
     Each finished RL job is kept in ``jobs/<id>.json``. ``resume=True`` continues the run in
-    ``cfg.run_dir`` (``cfg`` read back from its ``config.json``): the classical controllers
-    are evaluated again (deterministic, and cheap next to training), the finished RL jobs are
-    read back instead of retrained, and the rest are trained; the tables and the report are
-    rebuilt, so they equal those of an uninterrupted run.
+    ``cfg.run_dir`` (``cfg`` read back from its ``config.json``, the action bounds included):
+    the classical controllers are evaluated again (deterministic, and cheap next to training),
+    the finished RL jobs are read back instead of retrained, and the rest are trained; the
+    tables and the report are rebuilt, so they equal those of an uninterrupted run.
     """
     from stcgym.agents.benchmark.report import write_report
     from stcgym.agents.executors import write_atomic
@@ -116,21 +136,8 @@ def run_bench(
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     if not checked:
         check_runnable(cfg)
-    scenarios = make_scenarios(cfg)
-    envs = training_envs(cfg, scenarios)
     run_dir = prepare_run_dir(cfg, overwrite, resume)
-    config_doc = {
-        "bench": cfg.to_dict(),
-        "scenarios": [
-            {
-                "name": s.name,
-                "kind": s.kind,
-                "plant": s.plant,
-                "train_env": s.train_key,
-                "env": s.env.to_dict(),
-            }
-            for s in scenarios
-        ],
+    config_doc: dict[str, Any] = {
         "argv": list(argv) if argv is not None else None,
         "versions": versions(),
         "started": _dt.datetime.now().isoformat(timespec="seconds"),
@@ -144,28 +151,46 @@ def run_bench(
         config_doc["started"] = first.get("started")
         config_doc["resumed"] = [*first.get("resumed", []), config_doc.pop("argv")]
         config_doc["argv"] = first.get("argv")
-    write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
     writer = MetricsWriter(run_dir / "metrics.csv")
     state = _RunState(cfg, run_dir, writer, log, t_start)
+    scenarios: list[Scenario] = []
+
+    def write_config() -> None:
+        config_doc["bench"] = cfg.to_dict()
+        config_doc["scenarios"] = [
+            {
+                "name": s.name,
+                "kind": s.kind,
+                "train_env": s.train_key,
+                "env": s.env.to_dict(),
+                "episodes": len(s.episodes.seeds),
+            }
+            for s in scenarios
+        ]
+        write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
 
     def report(interrupted: bool) -> None:
         # the wall time of every session so far, kept in config.json for the next --resume
-        wall = wall_before + time.perf_counter() - t_start
-        config_doc["wall_s"], config_doc["sessions"] = wall, sessions
-        write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
+        config_doc["wall_s"] = wall_before + time.perf_counter() - t_start
+        config_doc["sessions"] = sessions
+        write_config()
         write_report(
             run_dir,
             cfg,
             scenarios,
             writer.rows,
             state.data,
-            wall,
+            config_doc["wall_s"],
             interrupted=interrupted,
             sessions=sessions,
         )
 
+    write_config()
     try:
-        state.run(scenarios, envs)
+        state.measure_bounds(make_scenarios(cfg))
+        scenarios = make_scenarios(cfg)  # with the bounds
+        write_config()
+        state.run(scenarios, training_envs(cfg, scenarios))
     except BaseException as exc:  # Ctrl-C or a crash: keep what is finished, then re-raise
         writer.close()
         what = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed ({exc!r})"
@@ -218,14 +243,25 @@ def _start_plots(
     return wait
 
 
+def _lane_seeds(seeds: Sequence[int], run: int) -> list[int]:
+    """Controller seeds of run ``run`` on the episodes ``seeds``: every episode and run its own
+    stream (a pure function of both)."""
+    return [int(np.random.SeedSequence([int(s), int(run)]).generate_state(1)[0]) for s in seeds]
+
+
+def _trace(batch: Any, count: int, theta: bool) -> dict[str, np.ndarray]:
+    names = ("y", "r", "u", "theta", "theta_hat") if theta else ("y", "r", "u")
+    return {n: np.asarray(getattr(batch, n))[:count] for n in names}
+
+
 class _RunState:
-    """The bench's driver: classical controllers, reference runs, then the RL jobs."""
+    """The bench's driver: action bounds, yardstick runs, classical controllers, RL jobs."""
 
     def __init__(self, cfg, run_dir, writer, log, t0) -> None:
         self.cfg, self.run_dir, self.writer, self._log, self.t0 = cfg, run_dir, writer, log, t0
         self.data = Collected()
-        # (scenario, seed) -> the oracle's episode costs and metrics (the reference of ratios)
-        self.oracle: dict[tuple[str, int], tuple[np.ndarray, dict[str, float]]] = {}
+        # scenario -> the yardstick's and zero input's numbers per episode
+        self.yard: dict[str, Yardstick] = {}
         self.scenarios: dict[str, Scenario] = {}
         # set when the driver fails while the classical controllers run in a thread
         self.halt = threading.Event()
@@ -233,175 +269,141 @@ class _RunState:
     def log(self, msg: str) -> None:
         self._log(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
 
-    # -- rows ------------------------------------------------------------------------------
-    def _row(
-        self,
-        sc: Scenario,
-        controller: str,
-        seed: int,
-        cost: np.ndarray,
-        metrics: dict[str, float],
-        extra: dict[str, Any],
-    ) -> dict[str, Any]:
-        """One ``metrics.csv`` row, with the ratios to the oracle on the same episode."""
-        T = len(cost)
-        J = sc.env.jump_step
-        span = sc.env.period
-        ref_cost, ref = self.oracle.get((sc.name, seed), (None, None))
-        row = {
-            "scenario": sc.name,
-            "kind": sc.kind,
-            "plant": sc.plant if sc.jump_to is None else sc.name.split(":", 1)[1],
-            "controller": controller,
-            "seed": seed,
-            **metrics,
-            **extra,
-        }
-        if ref is not None:
-            row["cost_ratio"] = ratio(metrics["cost"], ref["cost"])
-            row["steady_ratio"] = ratio(metrics["cost_steady"], ref["cost_steady"])
-            if J is not None:
-                row["post_jump_ratio"] = ratio(metrics["cost_post_jump"], ref["cost_post_jump"])
-                row["reconverge_steps"] = settling_step(
-                    cost, ref_cost, span=span, start=J, tol=TOLERANCE
-                )
-            if "steps_to_oracle" not in extra:
-                row["steps_to_oracle"] = settling_step(
-                    cost, ref_cost, span=span, stop=J or T, tol=TOLERANCE
-                )
-        return row
+    # -- before anything is compared -------------------------------------------------------
+    def measure_bounds(self, scenarios: list[Scenario]) -> None:
+        """The action bound of every training distribution not in ``cfg.action_bounds`` yet
+        (a resumed run reads them back), from the LQG yardstick's input range."""
+        from stcgym.agents.benchmark.bounds import lqg_action_bound
 
-    def _write(self, row: dict[str, Any], ep_cost: np.ndarray, first_model: bool) -> None:
-        self.writer.write(row)
-        if first_model:
-            self.data.costs.setdefault((row["scenario"], row["controller"]), []).append(ep_cost)
-
-    # -- classical -------------------------------------------------------------------------
-    def _classical(self, sc: Scenario, name: str) -> None:
-        cfg = self.cfg
-        info = CONTROLLERS[name]
-        # the self-tuning controllers (random probe) take the episode's seed
-        seeded = info.kind == "adaptive"
-
-        def on_episode(ep: Episode, metrics: dict[str, float]) -> None:
-            if self.halt.is_set():
-                raise _Stop
-            if name == "oracle":
-                self.oracle[(sc.name, ep.seed)] = (ep.cost, metrics)
-            extra = {
-                "family": info.kind,
-                "train_seed": "",
-                "controller_seed": ep.seed if seeded else "",
-                "train_steps": 0,
-                "train_wall_s": 0.0,
-                # online learners adapt on the whole episode; the oracles know the model
-                "data_steps": ep.steps_run if info.online else 0,
+        for key, env in training_envs(self.cfg, scenarios).items():
+            if key in self.cfg.action_bounds:
+                continue
+            bound, peaks = lqg_action_bound(env.train, env.bound_episodes)
+            self.cfg.action_bounds[key] = bound
+            self.data.bounds[key] = {
+                "bound": bound,
+                "episodes": len(peaks),
+                "peak_median": float(np.median(peaks)),
+                "peak_max": float(np.max(peaks)),
             }
-            self._write(self._row(sc, name, ep.seed, ep.cost, metrics, extra), ep.cost, True)
-            if ep.seed == cfg.eval_seeds[0]:
-                self.data.traces[(sc.name, name)] = ep
+            self.log(f"action bound of {key}: {bound:g} (LQG's input peaks: median "
+                     f"{np.median(peaks):.3g}, max {np.max(peaks):.3g} over {len(peaks)} "
+                     "training episodes)")  # fmt: skip
 
-        evaluate(
-            info.build(cfg, sc),
+    def _yardstick(self, sc: Scenario) -> None:
+        """LQG and zero input on the scenario's episodes: the reference of every row."""
+        lqg = self._evaluate(sc, YARDSTICK, 0)
+        zero = self._evaluate(sc, "zero", 0)
+        self.yard[sc.name] = Yardstick(
+            lqg.cost, lqg.jump_step, zero.cost.mean(axis=1), ~np.asarray(zero.diverged)
+        )
+        for name, batch in ((YARDSTICK, lqg), ("zero", zero)):
+            self._classical_rows(sc, name, 0, batch)
+
+    def _curve_reference(self, env: TrainingEnv) -> list[float]:
+        """The yardstick's mean cost per step on each learning-curve episode of ``env``."""
+        from types import SimpleNamespace
+
+        sc = SimpleNamespace(env=env.curve, controller_order=env.curve.order)
+        builder = CONTROLLERS[YARDSTICK].build(self.cfg, sc)
+        batch = run_episodes(builder, env.curve, env.curve_episodes, informed=True)
+        return [float(c) for c in batch.cost.mean(axis=1)]
+
+    # -- classical controllers -------------------------------------------------------------
+    def _evaluate(self, sc: Scenario, name: str, run: int) -> Any:
+        info = CONTROLLERS[name]
+        seeds = dict(zip(sc.episodes.seeds, _lane_seeds(sc.episodes.seeds, run), strict=True))
+        builder = info.build(self.cfg, sc)
+        return run_episodes(
+            lambda plants, lanes: builder(plants, [seeds[s] for s in lanes]),
             sc.env,
-            cfg.eval_seeds,
-            plant=sc.plant,
-            on_episode=on_episode,
+            sc.episodes,
+            informed=info.informed,
             record_theta=info.kind == "adaptive",
         )
 
-    def _references(self, key: str, curve_spec: EnvSpec, progress: JobProgress) -> None:
-        """Classical controllers on the learning-curve episodes: the levels RL is compared to,
-        and the first online controller's per-window cost against its adaptation steps."""
-        cfg = self.cfg
-        seeds = [10_000 + i for i in range(cfg.curve_seeds)]
-        sc = Scenario(key, "curve", curve_spec, curve_spec.plants[0], key)
-        runs: dict[str, list[np.ndarray]] = {}
-        for name in controllers_for(cfg.classical, curve_spec):
-            factory = CONTROLLERS[name].build(cfg, sc)
-            runs[name] = [
-                run_episode(factory, curve_spec, s, plant=p).cost
-                for p in curve_spec.plants
-                for s in seeds
-            ]
-        self.data.reference_lines[key] = {n: float(np.mean(c)) for n, c in runs.items()}
-        if (learner := next((n for n in runs if CONTROLLERS[n].online), None)) is not None:
-            w = max(1, curve_spec.period // 2)  # one reference step per window
-            T = curve_spec.steps
-            ends = np.arange(w, T + 1, w)
-            ratios = np.array(
-                [
-                    [ratio(float(c[e - w : e].sum()), float(o[e - w : e].sum())) for e in ends]
-                    for c, o in zip(runs[learner], runs["oracle"], strict=True)
-                ]
-            )
-            self.data.adaptation[key] = (ends, ratios, learner)
-        progress.finish(("reference", key), f"reference runs on {key}")
+    def _classical_rows(self, sc: Scenario, name: str, run: int, batch: Any) -> None:
+        info = CONTROLLERS[name]
+        rows = episode_rows(
+            sc,
+            name,
+            info.kind,
+            run,
+            batch.cost,
+            response_metrics(batch, sc.env),
+            self.yard[sc.name],
+            online=info.online,
+            extra={"train_steps": 0, "train_wall_s": 0.0},
+        )
+        self.writer.write(rows)
+        self.data.costs.setdefault((sc.name, name), []).append(
+            RunRecord(run, batch.cost.astype(np.float32), batch.jump_step)
+        )
+        if run == 0:
+            self.data.traces[(sc.name, name)] = _trace(batch, 2, info.kind == "adaptive")
+
+    def _classical(self, sc: Scenario, name: str) -> None:
+        runs = self.cfg.train_seeds if CONTROLLERS[name].seeded else 1
+        for run in range(runs):
+            if self.halt.is_set():
+                raise _Stop
+            self._classical_rows(sc, name, run, self._evaluate(sc, name, run))
+
+    def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> None:
+        for sc in scenarios:
+            for name in controllers_for(self.cfg.classical, sc.env):  # those on its plants
+                if name not in (YARDSTICK, "zero"):
+                    self._classical(sc, name)
+            progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
 
     # -- RL --------------------------------------------------------------------------------
     def _collect(self, task: dict[str, Any], result: dict[str, Any]) -> None:
         key, algo, ts = task["train_key"], result["algo"], result["seed"]
-        oracle_level = self.data.reference_lines.get(key, {}).get("oracle")
         for s, c in result["curve"]:
             self.data.curves.append(
-                {
-                    "train_env": key,
-                    "algo": algo,
-                    "train_seed": ts,
-                    "steps": s,
-                    "cost": c,
-                    "cost_to_oracle": ratio(c, oracle_level) if oracle_level else math.nan,
-                }
+                {"train_env": key, "algo": algo, "train_seed": ts, "steps": s, "score": c}
             )
         self._write_curves()
         stop = self.data.stops[(key, algo, ts)] = result["stop"]
-        to_oracle = (
-            curve_settling_step(result["curve"], oracle_level, TOLERANCE)
-            if oracle_level
-            else math.nan
-        )
-        for ep in result["episodes"]:
-            sc = self.scenarios[ep["scenario"]]
-            cost = np.asarray(ep["cost"], dtype=float)
+        reached = curve_settling_step(result["curve"], 1.0, TOLERANCE)
+        folder = Path(task["model_dir"])
+        for ev in result["evaluations"]:
+            sc = self.scenarios[ev["scenario"]]
+            cost = np.load(folder / ev["costs"], allow_pickle=False).astype(float)
+            yard = self.yard[sc.name]
+            # steps to the target from the validation curve: only where the test episodes come
+            # from the validation distribution, and only if this run is within the tolerance
+            # on them too (the curve's median ratio and the test episodes' must agree)
+            target = math.nan
+            if sc.in_distribution:
+                median = float(np.median(cost.mean(axis=1) / yard.metrics["cost"]))
+                target = reached if median <= TOLERANCE else math.inf
             extra = {
-                "family": "rl",
-                "train_seed": ts,
-                "controller_seed": ts,
                 "train_steps": result["steps"],
                 "train_cap": stop["cap"],
                 "train_stop": stop["status"],
                 "train_last_improvement": stop["last_improvement_step"],
                 "train_wall_s": result["wall_s"],
                 "data_steps": result["steps"],
-                "steps_to_oracle": to_oracle,
             }
-            row = self._row(sc, algo, ep["seed"], cost, ep["metrics"], extra)
-            self._write(row, cost, ts == 0)
-            if ep["trace"] is not None:
-                tr = ep["trace"]
-                self.data.traces[(sc.name, algo)] = Episode(
-                    ep["seed"],
-                    ep["plant"],
-                    np.asarray(tr["y"], dtype=float),
-                    np.asarray(tr["r"], dtype=float),
-                    np.asarray(tr["u"], dtype=float),
-                    cost,
-                    int(ep["metrics"]["steps_run"]),
-                    not ep["metrics"]["bounded"],
-                    0,
-                    ep["metrics"]["step_us"],
-                )
+            metrics = {k: np.asarray(v, dtype=float) for k, v in ev["metrics"].items()}
+            rows = episode_rows(
+                sc, algo, "rl", ts, cost, metrics, yard, online=False,
+                steps_to_target=target, extra=extra,
+            )  # fmt: skip
+            self.writer.write(rows)
+            self.data.costs.setdefault((sc.name, algo), []).append(
+                RunRecord(ts, cost.astype(np.float32), np.asarray(ev["jump_step"]))
+            )
+            if ts == 0:
+                self.data.traces[(sc.name, algo)] = {
+                    k: np.asarray(v, dtype=float) for k, v in ev["traces"].items()
+                }
 
-    def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> None:
-        for sc in scenarios:
-            for name in controllers_for(self.cfg.classical, sc.env):  # those on its plants
-                self._classical(sc, name)
-            progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
-
-    def run(self, scenarios: list[Scenario], envs: dict[str, tuple[EnvSpec, EnvSpec]]) -> None:
-        """Reference runs, then the RL jobs on the workers while the driver evaluates the
+    def run(self, scenarios: list[Scenario], envs: dict[str, TrainingEnv]) -> None:
+        """Yardstick runs, then the RL jobs on the workers while the driver evaluates the
         classical controllers (one core's work, which would otherwise leave a worker's core
-        idle); the RL results are written once the classical rows (the oracle's) are in."""
+        idle); the RL results are written once the classical rows are in."""
         from stcgym.agents.executors import ResultStore, run_tasks
         from stcgym.agents.rl.training import train_and_evaluate
 
@@ -415,13 +417,16 @@ class _RunState:
             f"{len(weights)} jobs ({len(planned)} RL trainings on {cfg.jobs} {workers}), "
             f"estimated {format_duration(estimate_seconds(cfg))}"
         )
-        for key, (_, curve_spec) in envs.items():
-            self._references(key, curve_spec, progress)
+        for key, env in envs.items():
+            self.data.curve_references[key] = self._curve_reference(env)
+            progress.finish(("reference", key), f"yardstick on the {key} curve episodes")
+        for sc in scenarios:
+            self._yardstick(sc)
+        self.log("yardstick and zero input evaluated on every scenario")
         if not planned:
             self._classical_all(scenarios, progress)
             return
-        refs = {k: v["oracle"] for k, v in self.data.reference_lines.items()}
-        tasks = rl_tasks(cfg, scenarios, envs, refs, self.run_dir)
+        tasks = rl_tasks(cfg, scenarios, envs, self.data.curve_references, self.run_dir)
         store = ResultStore(self.run_dir / JOBS_FOLDER)
         finished = store.done()
         todo, ready = [], []
@@ -466,8 +471,8 @@ class _RunState:
                         while ready:
                             self._collect(*ready.pop(0))
             except BaseException:
-                # the thread stops at its next episode (leaving the block waits for it) and
-                # its own error, if any, is dropped
+                # the thread stops at its next run (leaving the block waits for it) and its
+                # own error, if any, is dropped
                 self.halt.set()
                 raise
             classical.result()
@@ -479,7 +484,7 @@ class _RunState:
     def _write_curves(self) -> None:
         from stcgym.agents.executors import write_atomic
 
-        cols = ["train_env", "algo", "train_seed", "steps", "cost", "cost_to_oracle"]
+        cols = ["train_env", "algo", "train_seed", "steps", "score"]
         lines = [",".join(cols)]
         for row in self.data.curves:
             lines.append(",".join(str(format_value(row[c])) for c in cols))

@@ -1,86 +1,175 @@
-"""The scenarios of ``stcgym bench`` (nominal, family, jump, mimo) and the RL training
-environments they use."""
+"""The scenarios of ``stcgym bench`` and the RL training environments they use.
+
+Every SISO scenario draws its episodes the same way: the benchmark family's episode settings
+(output noise, a random-steps reference, a random initial state, its control cost and
+divergence bound), and one action bound for every controller, set from the LQG yardstick's
+input range on the training distribution (:func:`stcgym.agents.benchmark.bounds.
+lqg_action_bound`).
+
+``nominal:P``
+    The catalogue plant ``P``; RL agents train on ``P`` itself.
+``family:test``
+    The test split of the plant family (``BenchConfig.family``, e.g. ``siso2-v1``); RL agents
+    train on its training split, with parameter jumps at random times in a share of the
+    episodes (the family's ``jump.probability``), and their learning curves and plateau rule
+    read the validation split. Without jumps.
+``family:<variant>``
+    A named out-of-distribution split of the family (``ood_*``): plants none of the
+    controllers was tuned or trained on (another order, unstable poles further out, ...). The
+    self-tuning controllers keep the training distribution's order.
+``jump:test``
+    The test split with the parameter jump in every episode, at a random time.
+``mimo:P``
+    The MIMO catalogue plant ``P`` with measured state (:mod:`stcgym.agents.benchmark.mimo`).
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
-from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.benchmark.episodes import EpisodeSet
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS
-from stcgym.envs.catalogue import TIMEVARYING2_AFTER, get_plant, plant_names
 
 if TYPE_CHECKING:
     from stcgym.agents.benchmark.config import BenchConfig
 
-__all__ = ["JUMP_FORM", "Scenario", "make_scenarios", "parse_jump", "training_envs"]
+__all__ = [
+    "CURVE_SEED",
+    "BOUND_SEED",
+    "Scenario",
+    "TrainingEnv",
+    "family_train_spec",
+    "make_scenarios",
+    "nominal_spec",
+    "training_envs",
+]
 
-#: What ``--jump`` accepts, as its error messages say.
-JUMP_FORM = "'timevarying2' or 'BEFORE:AFTER' (two catalogue plants of the same order)"
-
-
-def parse_jump(spec: str) -> tuple[str, str, tuple[float, ...]]:
-    """``"timevarying2"`` or ``"A:B"`` -> ``(label, pre-jump plant, post-jump theta)``.
-
-    Raises ``ValueError`` naming ``--jump`` and the expected form for anything else: a missing
-    plant name, an unknown one, two plants of different orders or the same plant twice.
-    """
-    s = spec.strip().lower()
-    if s == "timevarying2":
-        return s, "stable2", tuple(TIMEVARYING2_AFTER[0] + TIMEVARYING2_AFTER[1])
-    before, colon, after = (part.strip() for part in s.partition(":"))
-    if not (colon and before and after):
-        raise ValueError(f"--jump must be {JUMP_FORM}, got {spec!r}")
-    unknown = [p for p in (before, after) if p not in plant_names()]
-    if unknown:
-        raise ValueError(
-            f"--jump {spec!r}: unknown plant(s) {unknown}; expected {JUMP_FORM} from "
-            f"{plant_names()}"
-        )
-    a, b = get_plant(before), get_plant(after)
-    if a.n != b.n:
-        raise ValueError(
-            f"--jump {spec!r}: both plants must have the same order ({before} has {a.n}, "
-            f"{after} has {b.n}); expected {JUMP_FORM}"
-        )
-    if before == after:
-        raise ValueError(f"--jump {spec!r}: the plant must change; expected {JUMP_FORM}")
-    return f"{before}>{after}", before, tuple(b.theta)
+#: First seed of the learning-curve (validation) episodes and of the episodes that set the
+#: action bound: apart from the test episodes' (``BenchConfig.first_seed``).
+CURVE_SEED = 10_000
+BOUND_SEED = 20_000
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """One evaluation setting: environment, plant and the RL training environment it uses."""
+    """One evaluation setting: its environment, episodes, and the RL training env it uses.
+
+    ``controller_order`` is the plant order the self-tuning controllers are told (the training
+    distribution's); ``in_distribution`` marks a scenario drawn from the distribution the
+    validation curves are measured on; ``adaptation`` one whose per-step costs are kept (the
+    adaptation figure, re-convergence after a jump).
+    """
 
     name: str
     kind: str
     env: EnvSpec
-    plant: str
+    episodes: EpisodeSet
     train_key: str
-    jump_to: tuple[float, ...] | None = None
+    controller_order: int
+    in_distribution: bool = True
+    adaptation: bool = False
+
+    @property
+    def plant(self) -> str:
+        """The plant label of the scenario's rows (a catalogue name or the family split)."""
+        return self.name.split(":", 1)[1]
 
     def train_key_for(self, algo: str) -> str | None:
         """The training environment of ``algo``'s agents evaluated here (``None``: not here)."""
         if algo in RECURRENT_ALGORITHMS:
-            return "family" if self.kind in ("family", "jump") else None
+            return self.train_key if self.train_key == "family" else None
         return self.train_key
 
 
+@dataclass(frozen=True)
+class TrainingEnv:
+    """Where the RL agents of one training key train, and the episodes their learning curves
+    (validation) and the action bound (training distribution) are measured on."""
+
+    key: str
+    train: EnvSpec
+    curve: EnvSpec
+    curve_episodes: EpisodeSet
+    bound_episodes: EpisodeSet
+
+
+def _episode_settings(cfg: BenchConfig) -> dict[str, Any]:
+    """The family's episode settings every SISO scenario shares (``BenchConfig`` overrides)."""
+    from stcgym.envs.families import get_family
+
+    fam = get_family(cfg.family)
+    return dict(
+        steps=cfg.episode_steps or fam.steps,
+        noise_std=fam["noise_std"] if cfg.noise_std is None else cfg.noise_std,
+        control_cost=fam["control_cost"],
+        y_bound=fam["y_bound"],
+        reference=fam["reference"],
+        initial_state_std=fam["initial_state_std"],
+    )
+
+
+def _bound(cfg: BenchConfig, key: str) -> float:
+    # before the bounds are measured (validation, plans) the family's own bound stands in
+    return float(cfg.action_bounds.get(key, 10.0))
+
+
+def nominal_spec(cfg: BenchConfig, plant: str) -> EnvSpec:
+    """The environment of ``nominal:<plant>``: the catalogue plant, the family's episodes."""
+    return EnvSpec((plant,), action_bound=_bound(cfg, f"nominal:{plant}"), **_episode_settings(cfg))
+
+
+def family_spec(cfg: BenchConfig, split: str, jump_probability: float | None) -> EnvSpec:
+    """The family split ``split`` with the bench's episode settings and the family's bound."""
+    settings = _episode_settings(cfg)
+    return EnvSpec(
+        family=cfg.family,
+        split=split,
+        jump_probability=jump_probability,
+        action_bound=_bound(cfg, "family"),
+        **settings,
+    )
+
+
+def family_train_spec(cfg: BenchConfig) -> EnvSpec:
+    """The RL agents' training distribution: the training split, the family's own jumps."""
+    return family_spec(cfg, "train", None)
+
+
 def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
-    T = cfg.episode_steps
+    """The scenarios of ``cfg`` in report order (see the module docstring)."""
+    from stcgym.envs.catalogue import get_plant
+
     out: list[Scenario] = []
+    first = cfg.first_seed
     if "nominal" in cfg.scenarios:
         for p in cfg.plants:
-            out.append(Scenario(f"nominal:{p}", "nominal", cfg.env_spec([p], T), p, f"nominal:{p}"))
-    if "family" in cfg.scenarios:
-        for p in cfg.family_test:
-            out.append(Scenario(f"family:{p}", "family", cfg.env_spec([p], T), p, "family"))
-    if "jump" in cfg.scenarios:
-        for spec in cfg.jumps:
-            label, before, theta = parse_jump(spec)
-            env = cfg.env_spec([before], T, jump_step=T // 2, jump_to=theta)
-            out.append(Scenario(f"jump:{label}", "jump", env, before, f"nominal:{before}", theta))
+            env = nominal_spec(cfg, p)
+            eps = EpisodeSet(
+                (p,) * cfg.nominal_episodes, tuple(range(first, first + cfg.nominal_episodes))
+            )
+            out.append(
+                Scenario(f"nominal:{p}", "nominal", env, eps, f"nominal:{p}", get_plant(p).n)
+            )
+    if {"family", "ood", "jump"} & set(cfg.scenarios):
+        order = family_spec(cfg, "train", None).order
+
+        def split_scenario(name: str, kind: str, split: str, p_jump: float, **kw: Any) -> Scenario:
+            env = family_spec(cfg, split, p_jump)
+            eps = EpisodeSet.of(env, cfg.episodes_per_plant, first, cfg.test_plants)
+            return Scenario(name, kind, env, eps, "family", order, **kw)
+
+        if "family" in cfg.scenarios:
+            out.append(split_scenario("family:test", "family", "test", 0.0, adaptation=True))
+        if "ood" in cfg.scenarios:
+            for variant in cfg.ood:
+                out.append(
+                    split_scenario(f"family:{variant}", "ood", variant, 0.0, in_distribution=False)
+                )
+        if "jump" in cfg.scenarios:
+            out.append(split_scenario("jump:test", "jump", "test", 1.0, adaptation=True))
     if "mimo" in cfg.scenarios:
         from stcgym.agents.benchmark.mimo import mimo_scenarios
 
@@ -88,30 +177,29 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
     return out
 
 
-def training_envs(
-    cfg: BenchConfig, scenarios: Sequence[Scenario]
-) -> dict[str, tuple[EnvSpec, EnvSpec]]:
-    """``train_key -> (training env, learning-curve env)`` for every key an RL agent uses.
+def training_envs(cfg: BenchConfig, scenarios: Sequence[Scenario]) -> dict[str, TrainingEnv]:
+    """``train_key -> TrainingEnv`` for every key a scenario uses (and so RL, the action bound
+    and the learning curves): ``"nominal:<plant>"``, ``"family"`` or ``"mimo:<plant>"``.
 
-    The training environment is the evaluation one, with shorter episodes; ``train_y_bound``
-    (times the reference amplitude) optionally replaces the divergence bound, so that training
-    episodes end (and are charged to the end, see :class:`~stcgym.agents.rl.wrappers.
-    TrainingReward`) earlier. In our tests a bound of 10 got SAC and TD3 out of a saturated
-    local optimum on ``unstable2`` but made exploration end episodes all the time on the
-    high-gain ``stable2`` and ruined them there, so the default keeps the environment's bound.
-    The learning curve is always measured on the evaluation settings.
+    Training episodes are evaluation episodes: the same length, noise, reference, initial
+    state, jumps and bound; the family trains on its training split (jumps with the family's
+    probability) and is validated on its validation split, drawn the same way.
     """
-    keys = dict.fromkeys(
-        k for sc in scenarios for a in cfg.rl_agents if (k := sc.train_key_for(a)) is not None
-    )
-    envs: dict[str, tuple[EnvSpec, EnvSpec]] = {}
-    for key in keys:  # "family", "nominal:<plant>" or "mimo:<plant>"
-        plants = cfg.family_train if key == "family" else [key.split(":", 1)[1]]
-        curve = cfg.env_spec(plants, cfg.train_episode_steps)
-        train = curve
-        if cfg.train_y_bound is not None:
-            train = cfg.env_spec(
-                plants, cfg.train_episode_steps, y_bound=cfg.train_y_bound * curve.amplitude
-            )
-        envs[key] = (train, curve)
-    return envs
+    keys = dict.fromkeys(sc.train_key for sc in scenarios)
+    out: dict[str, TrainingEnv] = {}
+    n = cfg.curve_episodes
+    for key in keys:
+        if key == "family":
+            train = family_train_spec(cfg)
+            curve = family_spec(cfg, "validation", None)
+            curve_eps = EpisodeSet.of(curve, 1, CURVE_SEED, n)
+            bound_eps = EpisodeSet.of(train, 1, BOUND_SEED, cfg.bound_plants)
+        else:
+            train = next(sc.env for sc in scenarios if sc.train_key == key)
+            curve = train
+            name = train.plants[0]
+            curve_eps = EpisodeSet((name,) * n, tuple(range(CURVE_SEED, CURVE_SEED + n)))
+            m = cfg.bound_plants
+            bound_eps = EpisodeSet((name,) * m, tuple(range(BOUND_SEED, BOUND_SEED + m)))
+        out[key] = TrainingEnv(key, train, curve, curve_eps, bound_eps)
+    return out

@@ -8,10 +8,16 @@ controller over another. This module only adapts ``rliable`` to costs (lower is 
 to the bench's tables; the estimators and the bootstrap are ``rliable``'s. :func:`summarize`
 gives the plain per-seed statistics of the detail tables (median, IQR, CVaR, failure rate).
 
-In the bench a *run* is one (training seed, evaluation seed) pair: the intervals cover both
-sources of variation, training seeds and evaluation episodes, treated as one pool of
-exchangeable runs per scenario (one rliable task). For the classical controllers, which have no
-training seed, the runs are the evaluation seeds.
+In the bench the unit is the *run*: one training run of an RL agent (its training seed), one
+controller seed of a self-tuning controller (its probe), the single run of a deterministic
+controller. Each run meets the same test plants and episodes, so the scores form a matrix
+``(runs, plants)`` (each entry a mean over that plant's episodes) and the intervals of
+:func:`interval_estimates` (``pool_tasks=True``) are rliable's stratified bootstrap over runs,
+one stratum per test plant. Comparisons between two controllers are paired on the same
+``(plant, episode)``: :func:`paired_comparison` gives the probability of the lower cost and the
+geometric-mean cost ratio, :func:`rate_estimate` a rate (such as divergence) with its own
+interval; both bootstrap the runs of each side and the test plants together, since a claim about
+a controller is a claim about the plant distribution as well as its training.
 """
 
 from __future__ import annotations
@@ -24,7 +30,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Estimate", "interval_estimates", "probability_of_improvement", "summarize"]
+__all__ = [
+    "Estimate",
+    "PairedComparison",
+    "interval_estimates",
+    "paired_comparison",
+    "probability_of_improvement",
+    "rate_estimate",
+    "summarize",
+]
 
 
 @dataclass(frozen=True)
@@ -122,11 +136,10 @@ def interval_estimates(
     dict
         ``name -> {"iqm": [Estimate per column], "median": [...]}``.
     """
-    from rliable import metrics
 
     def stats(x: np.ndarray) -> np.ndarray:
-        if pool_tasks:
-            return np.array([metrics.aggregate_iqm(x), metrics.aggregate_median(x)])
+        if pool_tasks:  # rliable's aggregate IQM and median over every (run, task) score
+            return np.array([_iqm_columns(x.reshape(-1, 1))[0], np.median(x)])
         # rliable's aggregate_iqm / aggregate_median column by column in one vectorised call:
         # the bootstrap calls this `reps` times, and scipy's trim_mean (rliable's IQM) costs
         # milliseconds per call in argument handling alone, which made the report take
@@ -192,6 +205,143 @@ def probability_of_improvement(
             lo, hi = np.ravel(ci[name])
             out[name] = Estimate(float(np.ravel(point[name])[0]), float(lo), float(hi))
     return out
+
+
+#: Smallest cost a ratio is taken of: a per-episode cost is a sum of squares and never 0 in
+#: practice, but a ratio or logarithm of an exact 0 would not be finite.
+COST_FLOOR = 1e-12
+
+
+@dataclass(frozen=True)
+class PairedComparison:
+    """Controller X against controller Y on the same ``(plant, episode)`` units.
+
+    ``probability``: ``P(cost_X < cost_Y)`` (ties one half), over every pair of a run of X and
+    a run of Y on each unit; ``ratio``: the geometric mean of ``cost_X / cost_Y`` over the same
+    pairs (below 1: X costs less). Each with its bootstrap interval.
+    """
+
+    probability: Estimate
+    ratio: Estimate
+
+
+def _units(values: ArrayLike, name: str) -> np.ndarray:
+    x = np.asarray(values, dtype=float)
+    if x.ndim == 2:
+        x = x[:, :, None]
+    if x.ndim != 3 or 0 in x.shape:
+        raise ValueError(
+            f"{name} must have shape (runs, plants, episodes) or (runs, plants), got {x.shape}"
+        )
+    return x
+
+
+def _counts(rng: np.random.Generator, reps: int, n: int) -> np.ndarray:
+    """Multinomial resampling counts ``(reps, n)``: how often each of ``n`` items is drawn
+    when ``n`` are drawn with replacement (all ones for a single item)."""
+    if n == 1:
+        return np.ones((reps, 1))
+    return rng.multinomial(n, np.full(n, 1.0 / n), size=reps).astype(float)
+
+
+def _bootstrap_mean(
+    table: np.ndarray, reps: int, confidence: float, seed: int
+) -> tuple[float, float, float]:
+    """Mean of ``table[i, j, p]`` (run of X, run of Y, plant) and its percentile interval
+    when the runs of X, the runs of Y and the plants are resampled independently."""
+    rx, ry, P = table.shape
+    rng = np.random.default_rng(seed)
+    wx, wy, wp = _counts(rng, reps, rx), _counts(rng, reps, ry), _counts(rng, reps, P)
+    stats = np.einsum("ri,rj,rp,ijp->r", wx, wy, wp, table) / (rx * ry * P)
+    alpha = (1.0 - confidence) / 2.0
+    lo, hi = np.quantile(stats, [alpha, 1.0 - alpha])
+    return float(table.mean()), float(lo), float(hi)
+
+
+def paired_comparison(
+    x: ArrayLike,
+    y: ArrayLike,
+    *,
+    reps: int = 2000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> PairedComparison:
+    """Paired probability of the lower cost and cost ratio of X against Y, with intervals.
+
+    Parameters
+    ----------
+    x, y : array_like, shape (runs, plants, episodes) or (runs, plants)
+        Costs (lower is better) of the runs of X and of Y; entry ``[r, p, e]`` of both is the
+        same episode ``e`` of test plant ``p``. The run counts may differ (an RL agent's
+        training seeds against a deterministic controller's single run).
+    reps, confidence, seed
+        Bootstrap replications, interval size and the bootstrap's seed.
+
+    Returns
+    -------
+    PairedComparison
+        ``probability``: the mean over runs ``i`` of X, ``j`` of Y, plants and episodes of
+        ``[x_ipe < y_jpe] + [x_ipe = y_jpe] / 2``; ``ratio``: ``exp`` of the mean of
+        ``log(x_ipe / y_jpe)`` (costs floored at :data:`COST_FLOOR`). Intervals: percentile
+        bootstrap resampling the runs of X, the runs of Y and the plants (each with
+        replacement, independently).
+
+    Raises
+    ------
+    ValueError
+        Shapes that differ in plants or episodes, or costs that are not finite.
+
+    Examples
+    --------
+    Two runs of X against one run of Y on two plants (one episode each): X is lower in 3 of
+    the 4 pairs, and by a factor 2 in every pair but one, where it is 2x higher:
+
+    >>> from stcgym.agents.benchmark.statistics import paired_comparison
+    >>> c = paired_comparison([[1.0, 1.0], [1.0, 4.0]], [[2.0, 2.0]], reps=200)
+    >>> round(c.probability.value, 3), round(c.ratio.value, 3)
+    (0.75, 0.707)
+    """
+    X, Y = _units(x, "x"), _units(y, "y")
+    if X.shape[1:] != Y.shape[1:]:
+        raise ValueError(
+            f"x and y must cover the same (plants, episodes), got {X.shape[1:]} and {Y.shape[1:]}"
+        )
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
+        raise ValueError("costs must be finite for a paired comparison (charge divergences)")
+    xs, ys = X[:, None], Y[None, :]  # (rx, 1, P, E) against (1, ry, P, E)
+    wins = np.mean((xs < ys) + 0.5 * (xs == ys), axis=3)
+    logs = np.mean(np.log(np.maximum(xs, COST_FLOOR) / np.maximum(ys, COST_FLOOR)), axis=3)
+    p = _bootstrap_mean(wins, reps, confidence, seed)
+    r = _bootstrap_mean(logs, reps, confidence, seed)
+    return PairedComparison(Estimate(*p), Estimate(*(math.exp(v) for v in r)))
+
+
+def rate_estimate(
+    flags: ArrayLike, *, reps: int = 2000, confidence: float = 0.95, seed: int = 0
+) -> Estimate:
+    """The share of flagged episodes (e.g. diverged) with a bootstrap interval.
+
+    Parameters
+    ----------
+    flags : array_like of bool, shape (runs, plants, episodes) or (runs, plants)
+        One flag per run and episode.
+    reps, confidence, seed
+        As :func:`paired_comparison`: runs and plants resampled independently.
+
+    Returns
+    -------
+    Estimate
+        The share over every run, plant and episode, and its percentile interval.
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.statistics import rate_estimate
+    >>> rate_estimate([[0, 0, 1, 0]], reps=200).value
+    0.25
+    """
+    F = _units(flags, "flags")
+    table = F.mean(axis=2)[:, None, :]  # (runs, 1, plants): one "run of Y"
+    return Estimate(*_bootstrap_mean(table, reps, confidence, seed))
 
 
 def summarize(values: Sequence[float], failed: Sequence[bool] | None = None) -> dict[str, float]:

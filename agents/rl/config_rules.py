@@ -122,6 +122,7 @@ HYPERPARAMETER_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
 FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "n_envs": _COUNT,
     "normalize_reward": _BOOL,
+    "normalize_obs": _BOOL,
     "reward_scale": _POSITIVE,
     "cost_squash": _OPT_POSITIVE,
     "noise_std": _NONNEG,

@@ -1,32 +1,49 @@
-"""The learning curve of an RL agent: the bench's cost of the deterministic policy measured
-during training.
+"""The learning curve of an RL agent: the bench's score of the deterministic policy measured
+during training, on validation episodes.
 
 :func:`curve_checkpoints` chooses the training steps at which the curve is measured (log-spaced,
-then every evaluation interval of the plateau rule), :func:`curve_cost` measures one point (the
-mean cost per step of the bench's own evaluation loop), and :func:`make_curve_callback` is the
-SB3 callback that records the curve during :func:`~stcgym.agents.train_agent`, stops training on
-a plateau (:mod:`stcgym.agents.rl.stopping`) and keeps the best checkpoint.
+then every evaluation interval of the plateau rule), :func:`curve_cost` measures one point on a
+fixed :class:`~stcgym.agents.benchmark.episodes.EpisodeSet` (with per-episode reference costs,
+the LQG yardstick's on the same episodes: the median of the cost ratios; without, the mean cost
+per step), and :func:`make_curve_callback` is the SB3 callback that records the curve during
+:func:`~stcgym.agents.train_agent`, stops training on a plateau
+(:mod:`stcgym.agents.rl.stopping`) and keeps the best checkpoint.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.evaluate import EnvSpec, run_episode
+from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
 
 __all__ = ["curve_checkpoints", "curve_cost", "make_curve_callback"]
 
 
-def curve_cost(policy: Any, spec: EnvSpec, seeds: Sequence[int], plants: Sequence[str]) -> float:
-    """Mean cost per step over ``seeds`` x ``plants`` (the learning-curve metric)."""
-    costs = [
-        float(np.mean(run_episode(policy, spec, s, plant=p).cost)) for p in plants for s in seeds
-    ]
-    return float(np.mean(costs))
+def curve_cost(
+    policy: Any,
+    spec: EnvSpec,
+    episodes: EpisodeSet,
+    reference: Sequence[float] | None = None,
+) -> float:
+    """One learning-curve point: ``policy`` (for ``len(episodes)`` lanes) on ``episodes``.
+
+    With ``reference`` (one cost per episode, the yardstick's mean cost per step on it): the
+    median over episodes of ``cost / reference``, the score the plateau rule reads (a median,
+    so that one diverged validation episode does not decide it); without: the mean cost per
+    step over the episodes.
+    """
+    cost = run_episodes(policy, spec, episodes).cost.mean(axis=1)
+    if reference is None:
+        return float(np.mean(cost))
+    ref = np.asarray(reference, dtype=float)
+    if ref.shape != cost.shape or not np.all(ref > 0):
+        raise ValueError(f"reference must hold {cost.size} positive costs, got {ref}")
+    return float(np.median(cost / ref))
 
 
 def curve_checkpoints(steps: int, points: int, eval_interval: int | None = None) -> list[int]:
@@ -53,17 +70,22 @@ def make_curve_callback(
     checkpoints: Sequence[int],
     evaluate_curve: Any,
     keep_best: bool,
-    reference: float | None,
     plateau: PlateauRule | None = None,
     eval_interval: int | None = None,
     cap: int = 0,
+    snapshot: Callable[[], Any] | None = None,
+    restore: Callable[[Any], None] | None = None,
 ) -> Any:
-    """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own cost.
+    """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own score.
 
-    With ``plateau``, every evaluation at a multiple of ``eval_interval`` is passed to SB3's
+    ``evaluate_curve(policy)`` measures one point (lower is better). With ``plateau``, every
+    evaluation at a multiple of ``eval_interval`` is passed to SB3's
     ``StopTrainingOnNoModelImprovement`` (its ``callback_after_eval``), which stops training
     after ``plateau.patience`` evaluations without a gain of ``plateau.min_improvement``,
     counted once ``plateau.min_fraction`` of ``cap`` (the training budget) is trained.
+    ``snapshot()`` is called before each point and returns what must travel with the kept
+    checkpoint besides the policy's weights (the observation normaliser's statistics, which the
+    policy evaluated takes then); ``restore(state)`` puts the kept one back at the end.
     """
     import copy
 
@@ -99,6 +121,7 @@ def make_curve_callback(
             return self.tracker.best_mean_reward
 
         def _record(self) -> None:
+            extra = snapshot() if snapshot is not None else None
             cost = evaluate_curve(policy)
             curve.append((int(self.num_timesteps), cost))
             rule_eval = False
@@ -107,9 +130,7 @@ def make_curve_callback(
                 rule_eval |= eval_interval is not None and mark > 0 and mark % eval_interval == 0
             # Through SB3's logger: TensorBoard (--tensorboard-log) shows the curve next to
             # SB3's own training statistics.
-            self.logger.record("eval/curve_cost", cost)
-            if reference is not None and reference > 0:
-                self.logger.record("eval/cost_to_oracle", cost / reference)
+            self.logger.record("eval/curve_score", cost)
             if self.tracker is not None and rule_eval:
                 self.tracker.observe(self.num_timesteps, cost)
                 self._continue = self._on_event()
@@ -122,7 +143,7 @@ def make_curve_callback(
             self.logger.dump(self.num_timesteps)
             if keep_best and cost < self.best_cost:
                 self.best_cost, self.best_step = cost, int(self.num_timesteps)
-                self.best_state = copy.deepcopy(self.model.policy.state_dict())
+                self.best_state = (copy.deepcopy(self.model.policy.state_dict()), extra)
 
         def _on_rollout_start(self) -> None:
             if self._continue and self._marks and self.num_timesteps >= self._marks[0]:
@@ -137,7 +158,10 @@ def make_curve_callback(
             if self.stopped_at is None and curve[-1][0] != self.num_timesteps:
                 self._record()
             if keep_best and self.best_state is not None and self.best_cost < curve[-1][1]:
-                self.model.policy.load_state_dict(self.best_state)
+                weights, extra = self.best_state
+                self.model.policy.load_state_dict(weights)
+                if restore is not None:
+                    restore(extra)
             else:
                 self.best_step = int(self.num_timesteps)
 

@@ -1,19 +1,21 @@
 """Stable-Baselines3 agents: training, saving/loading and the policy-protocol adapter.
 
-Training (:func:`train_agent`) runs on ``n_envs`` copies of the scenario's environment behind
-:class:`~stcgym.agents.rl.wrappers.HistoryWindow` (the observation window) and
-:class:`~stcgym.agents.rl.wrappers.TrainingReward` (compressed per-step cost; a diverged episode
-pays for the steps it did not live), each with a SB3 ``Monitor`` on the raw environment
-(``monitor/*.monitor.csv``: raw episode returns). A callback evaluates the deterministic
-policy at log-spaced training steps through the bench's own evaluation loop, so the learning
-curve is on exactly the cost the bench reports (:mod:`stcgym.agents.rl.learning_curve`); the
-curve also goes through SB3's logger (TensorBoard with ``tensorboard_log``). Recurrent agents
-(sb3-contrib ``RecurrentPPO``) go through the same code; :class:`SB3Policy` carries their LSTM
-state.
+Training (:func:`train_agent`) runs on ``n_envs`` lanes of the scenario's native vector
+environment (:meth:`~stcgym.agents.benchmark.env_spec.EnvSpec.make_vec`, one compiled step for
+all lanes) behind SB3's ``VecMonitor`` (``monitor.csv``: raw episode returns, the scored cost),
+:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow` (the observation window and the training
+reward: the scored per-step cost, a diverged episode charged for the steps it did not live) and
+SB3's ``VecNormalize`` (observation normalisation and a running reward scale, as the RL Zoo's
+``normalize``). A callback evaluates the deterministic policy at log-spaced training steps
+through the bench's own evaluation loop on fixed validation episodes, so the learning curve is
+on the score the bench reports (:mod:`stcgym.agents.rl.learning_curve`); the curve also goes
+through SB3's logger (TensorBoard with ``tensorboard_log``). Recurrent agents (sb3-contrib
+``RecurrentPPO``) go through the same code; :class:`SB3Policy` carries their LSTM state.
 
 A saved agent is a folder with ``model.zip`` (SB3) and ``agent.json`` (algorithm, config, seed,
-window, training environment, steps, wall time, learning curve); :func:`load_agent` returns an
-:class:`SB3Policy` ready for :func:`stcgym.agents.benchmark.evaluate.evaluate`.
+window, the observation normaliser's statistics, training environment, steps, wall time,
+learning curve); :func:`load_agent` returns an :class:`SB3Policy` ready for
+:func:`stcgym.agents.benchmark.evaluate.evaluate`.
 """
 
 from __future__ import annotations
@@ -30,14 +32,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.policy import LanePolicy
-from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.benchmark.episodes import EpisodeSet
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
 from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
 from stcgym.agents.rl.stopping import PlateauRule, StopSummary
-from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
+from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig
 from stcgym.envs.validation import integer
 
 __all__ = [
+    "ObsNorm",
     "SB3Policy",
     "TrainedAgent",
     "build_model",
@@ -47,6 +51,53 @@ __all__ = [
     "load_agent",
     "train_agent",
 ]
+
+
+@dataclass(frozen=True)
+class ObsNorm:
+    """A frozen snapshot of SB3's ``VecNormalize`` observation statistics.
+
+    :meth:`apply` is ``VecNormalize.normalize_obs``:
+    ``clip((x - mean) / sqrt(var + epsilon), -clip, clip)``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.agents.rl.sb3 import ObsNorm
+    >>> norm = ObsNorm(mean=(1.0, 0.0), var=(4.0, 1.0), clip=10.0, epsilon=0.0)
+    >>> norm.apply(np.array([[3.0, 50.0]]))
+    array([[ 1., 10.]])
+    """
+
+    mean: tuple[float, ...]
+    var: tuple[float, ...]
+    clip: float = 10.0
+    epsilon: float = 1e-8
+
+    @classmethod
+    def of(cls, vec_normalize: Any) -> ObsNorm:
+        """The current statistics of a ``VecNormalize`` (a copy)."""
+        rms = vec_normalize.obs_rms
+        return cls(
+            tuple(float(v) for v in np.ravel(rms.mean)),
+            tuple(float(v) for v in np.ravel(rms.var)),
+            float(vec_normalize.clip_obs),
+            float(vec_normalize.epsilon),
+        )
+
+    def apply(self, features: NDArray) -> NDArray:
+        mean, var = np.asarray(self.mean), np.asarray(self.var)
+        return np.clip((features - mean) / np.sqrt(var + self.epsilon), -self.clip, self.clip)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mean": list(self.mean), "var": list(self.var), "clip": self.clip,
+                "epsilon": self.epsilon}  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> ObsNorm | None:
+        if data is None:
+            return None
+        return cls(tuple(data["mean"]), tuple(data["var"]), data["clip"], data["epsilon"])
 
 
 class SB3Policy(LanePolicy):
@@ -74,6 +125,8 @@ class SB3Policy(LanePolicy):
     channels
         ``(outputs, inputs)`` of the plant, ``(p, m)``: observations ``(2 p,)``, actions
         ``(m,)`` (default one of each).
+    obs_norm
+        The observation normaliser the model was trained behind (``None``: none).
 
     Raises
     ------
@@ -111,8 +164,10 @@ class SB3Policy(LanePolicy):
         action_bound: float,
         num_envs: int | None = None,
         channels: tuple[int, int] = (1, 1),
+        obs_norm: ObsNorm | None = None,
     ) -> None:
         self.model, self.window, self.action_bound = model, window, float(action_bound)
+        self.obs_norm = obs_norm
         self.num_envs = None if num_envs is None else integer(num_envs, "num_envs", 1)
         p, m = (integer(c, "channels", 1) for c in channels)
         self.channels, self.obs_dim, self.action_dim = (p, m), 2 * p, m
@@ -121,6 +176,12 @@ class SB3Policy(LanePolicy):
         self._lstm: Any = None
         # lanes whose next observation starts an episode (every lane before the first call)
         self._fresh = np.ones(self.num_lanes, dtype=bool)
+
+    def with_lanes(self, num_envs: int | None) -> SB3Policy:
+        """The same model (shared, not copied) behind a fresh adapter for ``num_envs`` lanes."""
+        return SB3Policy(
+            self.model, self.window, self.action_bound, num_envs, self.channels, self.obs_norm
+        )
 
     def _reset_lanes(self, idx: NDArray) -> None:
         """The next observation of the lanes ``idx`` starts a new window and LSTM state."""
@@ -133,15 +194,18 @@ class SB3Policy(LanePolicy):
         if not np.all(starts):
             self._buf.push_obs(obs, ~starts)
         self._fresh[:] = False
+        features = self._buf.features()
+        if self.obs_norm is not None:
+            features = self.obs_norm.apply(features).astype(np.float32)
         if self.recurrent:
             a, self._lstm = self.model.predict(
-                self._buf.features(),
+                features,
                 state=self._lstm,
                 episode_start=starts,
                 deterministic=deterministic,
             )
         else:
-            a, _ = self.model.predict(self._buf.features(), deterministic=deterministic)
+            a, _ = self.model.predict(features, deterministic=deterministic)
         u = np.clip(np.asarray(a, dtype=float).reshape(self.num_lanes, -1), -1.0, 1.0)
         u *= self.action_bound
         self._buf.push_action(u)
@@ -174,26 +238,26 @@ def _progress_bar_wanted(progress: bool | None) -> bool:
     return sys.stderr.isatty()
 
 
-def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor_dir: Any) -> Any:
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import VecNormalize
+def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: Any) -> Any:
+    """``n_envs`` lanes of the native vector env of ``train_spec``, seeded ``seed + i``,
+    behind ``VecMonitor`` (raw returns into the file ``monitor``), the window and training
+    reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`) and ``VecNormalize``."""
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
 
     window = WindowConfig(**config.window)
-
-    def wrap(env: Any) -> Any:
-        env = HistoryWindow(env, window)
-        return TrainingReward(env, train_spec.steps, config.reward_scale, config.cost_squash)
-
-    vec = make_vec_env(
-        train_spec.make,
-        n_envs=int(config.n_envs),
-        seed=int(seed),
-        monitor_dir=monitor_dir,
-        wrapper_class=wrap,
-    )
-    if config.normalize_reward:
+    lanes = SB3VecEnv(train_spec.make_vec(int(config.n_envs), info_keys=()))
+    lanes.seed(int(seed))
+    vec = VecMonitor(lanes, filename=monitor)
+    vec = VecHistoryWindow(vec, window, train_spec.steps, config.reward_scale, config.cost_squash)
+    if config.normalize_obs or config.normalize_reward:
         vec = VecNormalize(
-            vec, norm_obs=False, norm_reward=True, gamma=config.hyperparams.get("gamma", 0.99)
+            vec,
+            norm_obs=config.normalize_obs,
+            norm_reward=config.normalize_reward,
+            clip_obs=window.obs_clip,
+            gamma=config.hyperparams.get("gamma", 0.99),
         )
     return vec
 
@@ -255,10 +319,9 @@ def train_agent(
     *,
     out_dir: str | Path | None = None,
     curve_spec: EnvSpec | None = None,
-    curve_plants: Sequence[str] | None = None,
-    curve_seeds: Sequence[int] = (10_000, 10_001),
+    curve_episodes: EpisodeSet | None = None,
     curve_points: int = 10,
-    curve_reference: float | None = None,
+    curve_reference: Sequence[float] | None = None,
     keep_best: bool = True,
     plateau: PlateauRule | None = None,
     eval_interval: int | None = None,
@@ -275,37 +338,39 @@ def train_agent(
     config
         Its :class:`~stcgym.agents.rl.configs.AlgoConfig`.
     train_spec
-        Training environment (a single plant, or a family drawn per episode).
+        Training environment (catalogue plants, or a family split drawn per episode).
     steps
         Environment steps of training (``> 0``): the budget, or the cap with ``plateau``.
     seed
-        Seeds SB3 (network init, exploration) and the training environments.
+        Seeds SB3 (network init, exploration) and the training lanes (``seed + i``).
     out_dir
-        Where to save ``model.zip``, ``agent.json`` and the monitor logs (nothing saved when
+        Where to save ``model.zip``, ``agent.json`` and ``monitor.csv`` (nothing saved when
         ``None``).
-    curve_spec, curve_plants, curve_seeds, curve_points
+    curve_spec, curve_episodes, curve_points
         Learning curve: at ``curve_points`` log-spaced training steps (up to the first
         ``eval_interval`` when given, then every ``eval_interval`` steps:
-        :func:`curve_checkpoints`) and at step 0 the deterministic policy runs one episode of
-        ``curve_spec`` (default ``train_spec``) per seed and plant (default the training
-        plants); the mean cost per step is recorded.
+        :func:`curve_checkpoints`) and at step 0 the deterministic policy runs the episodes
+        ``curve_episodes`` of ``curve_spec`` (default ``train_spec``; default episodes: two per
+        plant of the spec, the first 20 plants, seeds from 10 000) as one batch of lanes.
     curve_reference
-        The oracle's cost on the same curve episodes; logged as ``eval/cost_to_oracle``.
+        The yardstick's mean cost per step on each curve episode: the curve is then the median
+        cost ratio to it (:func:`curve_cost`), else the mean cost per step.
     keep_best
-        Keep the checkpoint with the lowest learning-curve cost rather than the last one (RL
-        Zoo's ``EvalCallback`` best model). The curve episodes use their own seeds, so this is
-        model selection on validation episodes, not on the bench's evaluation episodes.
+        Keep the checkpoint with the lowest learning-curve score rather than the last one (RL
+        Zoo's ``EvalCallback`` best model). The curve episodes are validation episodes, never
+        the bench's test episodes.
     progress
         SB3's progress bar; default on when stderr is a terminal.
     tensorboard_log, tb_log_name
         TensorBoard folder and run name: SB3's training statistics and the learning curve
-        (``eval/curve_cost``, ``eval/cost_to_oracle``) are written there.
+        (``eval/curve_score``) are written there.
 
     Returns
     -------
     TrainedAgent
-        The policy (an :class:`SB3Policy`), its config, seed, training spec, steps used, wall
-        time, learning curve ``[(step, cost), ...]``, folder, kept step and stop summary.
+        The policy (an :class:`SB3Policy` for one env), its config, seed, training spec, steps
+        used, wall time, learning curve ``[(step, score), ...]``, folder, kept step and stop
+        summary.
 
     Raises
     ------
@@ -356,21 +421,33 @@ def train_agent(
     vec = _training_env(config, train_spec, seed, None if out is None else str(out / "monitor"))
     tb = None if tensorboard_log is None else str(tensorboard_log)
     model = build_model(algo, config, vec, seed, tensorboard_log=tb)
+    normaliser = vec if getattr(vec, "norm_obs", False) else None
 
-    policy = SB3Policy(model, window, train_spec.action_bound, channels=train_spec.channels)
     cspec = curve_spec or train_spec
-    cplants = list(curve_plants or train_spec.plants)
+    episodes = curve_episodes or EpisodeSet.of(cspec, 2, 10_000, max_plants=20)
+    channels = train_spec.channels
+    lanes = SB3Policy(model, window, train_spec.action_bound, len(episodes.seeds), channels)
+
+    def snapshot() -> ObsNorm | None:
+        # the policy evaluated (and kept) is the network with the statistics of that moment
+        lanes.obs_norm = None if normaliser is None else ObsNorm.of(normaliser)
+        return lanes.obs_norm
+
+    def restore(norm: ObsNorm | None) -> None:
+        lanes.obs_norm = norm
+
     curve: list[tuple[int, float]] = []
     callback = make_curve_callback(
         curve,
-        policy,
+        lanes,
         curve_checkpoints(int(steps), curve_points, eval_interval if plateau else None),
-        lambda p: curve_cost(p, cspec, curve_seeds, cplants),
+        lambda p: curve_cost(p, cspec, episodes, curve_reference),
         keep_best,
-        curve_reference,
         plateau,
         eval_interval,
         int(steps),
+        snapshot,
+        restore,
     )
     t0 = time.perf_counter()
     model.learn(
@@ -389,7 +466,7 @@ def train_agent(
         stop = callback.tracker.summary(status, used, int(steps), eval_interval)
     agent = TrainedAgent(
         algo,
-        policy,
+        lanes.with_lanes(None),
         config,
         int(seed),
         train_spec,
@@ -407,9 +484,12 @@ def train_agent(
 
 def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
     """Write ``model.zip`` and ``agent.json`` into ``folder``."""
+    from stcgym.agents.executors import write_atomic
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     agent.policy.model.save(folder / "model.zip")
+    norm = agent.policy.obs_norm
     meta = {
         "algo": agent.algo,
         "seed": agent.seed,
@@ -417,6 +497,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "wall_s": agent.wall_s,
         "config": agent.config.to_dict(),
         "window": agent.policy.window.to_dict(),
+        "obs_norm": None if norm is None else norm.to_dict(),
         "action_bound": agent.policy.action_bound,
         "channels": list(agent.policy.channels),
         "train_spec": agent.train_spec.to_dict(),
@@ -424,7 +505,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "best_step": agent.best_step,
         "stop": None if agent.stop is None else agent.stop.to_dict(),
     }
-    (folder / "agent.json").write_text(json.dumps(meta, indent=2))
+    write_atomic(folder / "agent.json", json.dumps(meta, indent=2))
     return folder
 
 
@@ -467,7 +548,8 @@ def load_agent(folder: str | Path) -> TrainedAgent:
     model = algorithm_class(meta["algo"]).load(folder / "model.zip", device="cpu")
     window = WindowConfig(**meta["window"])
     channels = tuple(meta.get("channels", (1, 1)))
-    policy = SB3Policy(model, window, meta["action_bound"], channels=channels)
+    norm = ObsNorm.from_dict(meta.get("obs_norm"))
+    policy = SB3Policy(model, window, meta["action_bound"], channels=channels, obs_norm=norm)
     return TrainedAgent(
         meta["algo"],
         policy,

@@ -1,17 +1,20 @@
-"""Stable-Baselines3 ``VecEnv`` adapter of the native vector envs (:mod:`stcgym.envs.vector`)."""
+"""Stable-Baselines3 ``VecEnv`` adapter of the native vector envs (:mod:`stcgym.envs.vector`),
+and the RL agents' observation window and training reward over all its lanes at once."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from numpy.typing import NDArray
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig, training_reward
 from stcgym.envs.vector import LinearPlantVectorEnv
 
-__all__ = ["SB3VecEnv"]
+__all__ = ["SB3VecEnv", "VecHistoryWindow"]
 
 
 class SB3VecEnv(VecEnv):
@@ -81,3 +84,125 @@ class SB3VecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
+
+
+class VecHistoryWindow(VecEnvWrapper):
+    """:class:`~stcgym.agents.rl.wrappers.HistoryWindow` and the training reward of
+    :class:`~stcgym.agents.rl.wrappers.TrainingReward` for a whole SB3 ``VecEnv`` of stcgym
+    lanes (e.g. :class:`SB3VecEnv` of a native vector env), in numpy over all lanes at once.
+
+    Observations are the window features of :class:`~stcgym.agents.rl.wrappers.HistoryBuffer`
+    (one buffer of ``num_envs`` lanes), actions the ``[-1, 1]`` box rescaled to
+    ``[-action_bound, action_bound]``, rewards :func:`~stcgym.agents.rl.wrappers.
+    training_reward` (the scored cost by default, a divergence charged for the steps not
+    lived). A lane that ends is restarted by the wrapped env within the step (SB3's
+    convention): its window starts afresh at the new episode's first observation, and
+    ``infos[i]["terminal_observation"]`` holds the features of its last one. A lane ends by
+    divergence when it is done and not truncated by the time limit (stcgym envs terminate on
+    nothing else).
+
+    Parameters
+    ----------
+    venv : stable_baselines3.common.vec_env.VecEnv
+        Lanes observing ``[y, r]`` (``2 p`` values) with an ``(m,)`` action box of one bound.
+    config : WindowConfig
+        The window's settings.
+    horizon : int
+        Episode length the divergence charge runs to.
+    reward_scale, cost_squash
+        As :class:`~stcgym.agents.rl.wrappers.TrainingReward`.
+
+    Examples
+    --------
+    Four lanes of ``unstable2``; lane ``i`` sees what :class:`~stcgym.agents.HistoryWindow`
+    on the single env reset with seed ``i`` sees:
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> import stcgym.envs
+    >>> from stcgym.agents import HistoryWindow, WindowConfig
+    >>> from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
+    >>> config = WindowConfig(window=3)
+    >>> lanes = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=4, plant="unstable2",
+    ...                      noise_std=0.1)
+    >>> venv = VecHistoryWindow(SB3VecEnv(lanes), config, horizon=100)
+    >>> venv.seed(0)
+    [0, 1, 2, 3]
+    >>> obs = venv.reset()
+    >>> venv.step_async(np.full((4, 1), 0.1))
+    >>> obs, rewards, dones, infos = venv.step_wait()
+    >>> single = HistoryWindow(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2",
+    ...                                 noise_std=0.1), config)
+    >>> _ = single.reset(seed=2)
+    >>> obs_2, reward_2, *_ = single.step(np.array([0.1]))
+    >>> bool(np.array_equal(obs[2], obs_2)), bool(np.isclose(rewards[2], reward_2))
+    (True, True)
+    """
+
+    def __init__(
+        self,
+        venv: VecEnv,
+        config: WindowConfig,
+        horizon: int,
+        reward_scale: float = 1.0,
+        cost_squash: float | None = None,
+    ) -> None:
+        box = venv.action_space
+        if not isinstance(box, spaces.Box) or len(box.shape) != 1 or np.ptp(box.high) != 0:
+            raise ValueError(f"VecHistoryWindow needs a 1-D action box with one bound, got {box}")
+        shape = venv.observation_space.shape
+        if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
+            raise ValueError(f"VecHistoryWindow needs the observation [y, r], got shape {shape}")
+        if int(horizon) != horizon or horizon < 1:
+            raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+        p, m = shape[0] // 2, box.shape[0]
+        self.config, self.action_bound = config, float(box.high[0])
+        self.horizon, self.reward_scale, self.cost_squash = int(horizon), reward_scale, cost_squash
+        self._buf = HistoryBuffer(config, self.action_bound, venv.num_envs, p, m)
+        self._k = np.zeros(venv.num_envs, dtype=np.int64)
+        self._u = np.zeros((venv.num_envs, m))
+        n_features = config.features_for(p, m)
+        observation_space = spaces.Box(
+            -config.obs_clip, config.obs_clip, shape=(n_features,), dtype=np.float32
+        )
+        action_space = spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
+        super().__init__(venv, observation_space, action_space)
+
+    def reset(self) -> NDArray:
+        obs = self.venv.reset()
+        self._buf.start(obs)
+        self._k[:] = 0
+        return self._buf.features()
+
+    def step_async(self, actions: NDArray) -> None:
+        a = np.clip(np.asarray(actions, dtype=float).reshape(self.num_envs, -1), -1.0, 1.0)
+        self._u = a * self.action_bound
+        self.venv.step_async(self._u)
+
+    def step_wait(self) -> tuple[NDArray, NDArray, NDArray, list[dict[str, Any]]]:
+        obs, rewards, dones, infos = self.venv.step_wait()
+        self._k += 1
+        self._buf.push_action(self._u)
+        done = np.asarray(dones, dtype=bool)
+        diverged = np.array(
+            [
+                d and not info.get("TimeLimit.truncated", False)
+                for d, info in zip(done, infos, strict=True)
+            ]
+        )
+        r = training_reward(
+            rewards, self._k, diverged, self.horizon, self.reward_scale, self.cost_squash
+        )
+        if done.any():
+            last = np.array(obs, dtype=float)
+            for i in np.flatnonzero(done):
+                last[i] = infos[i]["terminal_observation"]
+            self._buf.push_obs(last, done)
+            final = self._buf.features()
+            for i in np.flatnonzero(done):
+                infos[i]["terminal_observation"] = final[i]
+            self._buf.start(obs, done)
+            self._k[done] = 0
+        if not done.all():
+            self._buf.push_obs(obs, ~done)
+        return self._buf.features(), r.astype(np.float32), dones, infos

@@ -1,19 +1,26 @@
-"""The RL agents' observation: a window of past outputs, references and inputs.
+"""The RL agents' observation: a window of past outputs, references and inputs, and the
+integral of the tracking error.
 
 The plant state is not observed (unless it is the output, as on the measured-state MIMO
 plants); an RL agent sees what the self-tuning controller sees, the input/output history.
 :class:`HistoryWindow` turns the raw ``[y(k), r(k)]`` observation of a SISO stcgym environment
 into a flat ``float32`` vector of the last ``W`` samples::
 
-    [ y(k-W+1) .. y(k) | r(k-W+1) .. r(k) | u(k-W) .. u(k-1) | e(k-W+1) .. e(k) ]
-       / y_scale          / y_scale           / action_bound     / y_scale (optional)
+    [ y(k-W+1) .. y(k) | r(k-W+1) .. r(k) | u(k-W) .. u(k-1) | e(k-W+1) .. e(k) | z(k) ]
+       / y_scale          / y_scale           / action_bound     / y_scale          integral
 
-with ``e = r - y``. With ``p`` outputs and ``m`` inputs (``stcgym/StateSpace-v0``, whose
+with ``e = r - y`` (optional) and the integral of the tracking error (optional, on by default)
+
+    z(k) = clip(z(k-1) + integral_gain e(k) / y_scale, -obs_clip, obs_clip),   z(-1) = 0,
+
+the structural prior that the self-tuning controller's integral action has: with it a policy
+can remove a steady-state offset on a plant whose gain it does not know. The clip is its
+anti-windup. With ``p`` outputs and ``m`` inputs (``stcgym/StateSpace-v0``, whose
 measured-state output is the state ``x``) each block holds the window of every channel in turn
-(``y_1`` window, ..., ``y_p`` window), so the SISO vector is the case ``p = m = 1``. Samples
-before the start of the episode are zero (the environment's own convention: every signal is
-zero before the first step). Values are clipped to ``[-obs_clip, obs_clip]`` so that a run-away
-output cannot blow up the network's inputs.
+(``y_1`` window, ..., ``y_p`` window) and ``z`` has one entry per output, so the SISO vector is
+the case ``p = m = 1``. Samples before the start of the episode are zero (the environment's own
+convention: every signal is zero before the first step). Values are clipped to
+``[-obs_clip, obs_clip]`` so that a run-away output cannot blow up the network's inputs.
 
 The action space is normalised to ``[-1, 1]`` and rescaled to the environment's
 ``[-action_bound, action_bound]`` (the Stable-Baselines3 tip for continuous actions: Gaussian and
@@ -21,8 +28,9 @@ squashed policies work best on a unit box).
 
 The same feature construction is needed at evaluation time, when the harness hands every
 controller the raw environment observation: :class:`HistoryBuffer` holds it and is shared by the
-wrapper (training) and :class:`stcgym.agents.rl.sb3.SB3Policy` (evaluation), so the two cannot drift
-apart.
+wrappers (training: :class:`HistoryWindow` here, :class:`~stcgym.agents.rl.vec_env.
+VecHistoryWindow` on a native vector env) and :class:`stcgym.agents.rl.sb3.SB3Policy`
+(evaluation), so the two cannot drift apart.
 """
 
 from __future__ import annotations
@@ -35,7 +43,13 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["WindowConfig", "HistoryBuffer", "HistoryWindow", "TrainingReward"]
+__all__ = [
+    "WindowConfig",
+    "HistoryBuffer",
+    "HistoryWindow",
+    "TrainingReward",
+    "training_reward",
+]
 
 
 @dataclass(frozen=True)
@@ -51,6 +65,12 @@ class WindowConfig:
     include_error
         Append the tracking error ``e = r - y`` (redundant, but it spares the network a
         subtraction and speeds learning up).
+    include_integral
+        Append the integral of the tracking error ``z`` (module docstring), one value per
+        output.
+    integral_gain
+        The integral's gain per step: a tracking error of ``y_scale`` held for
+        ``1 / integral_gain`` steps moves ``z`` by 1.
     y_scale
         Outputs, references and errors are divided by it (the reference amplitude is a good
         choice).
@@ -60,15 +80,15 @@ class WindowConfig:
     Raises
     ------
     ValueError
-        On construction: ``window`` not an integer ``>= 1``, ``y_scale`` or ``obs_clip`` not a
-        finite positive number.
+        On construction: ``window`` not an integer ``>= 1``, ``y_scale``, ``obs_clip`` or
+        ``integral_gain`` not a finite positive number.
 
     Examples
     --------
     >>> from stcgym.agents import WindowConfig
-    >>> WindowConfig(window=3).n_features  # y, r, u and e = r - y
-    12
-    >>> WindowConfig(window=3, include_error=False).n_features
+    >>> WindowConfig(window=3).n_features  # y, r, u and e = r - y, and the integral z
+    13
+    >>> WindowConfig(window=3, include_error=False, include_integral=False).n_features
     9
     >>> WindowConfig(window=0)
     Traceback (most recent call last):
@@ -80,14 +100,16 @@ class WindowConfig:
     include_error: bool = True
     y_scale: float = 1.0
     obs_clip: float = 10.0
+    include_integral: bool = True
+    integral_gain: float = 0.05
 
     def __post_init__(self) -> None:
         if int(self.window) != self.window or self.window < 1:
             raise ValueError(f"window must be an integer >= 1, got {self.window!r}")
-        if not (np.isfinite(self.y_scale) and self.y_scale > 0):
-            raise ValueError(f"y_scale must be a positive number, got {self.y_scale!r}")
-        if not (np.isfinite(self.obs_clip) and self.obs_clip > 0):
-            raise ValueError(f"obs_clip must be a positive number, got {self.obs_clip!r}")
+        for name in ("y_scale", "obs_clip", "integral_gain"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
 
     @property
     def n_features(self) -> int:
@@ -97,7 +119,8 @@ class WindowConfig:
     def features_for(self, n_outputs: int, n_inputs: int) -> int:
         """Length of the observation with ``n_outputs`` outputs and ``n_inputs`` inputs."""
         per_output = 3 if self.include_error else 2
-        return self.window * (per_output * int(n_outputs) + int(n_inputs))
+        integral = int(n_outputs) if self.include_integral else 0
+        return self.window * (per_output * int(n_outputs) + int(n_inputs)) + integral
 
     def to_dict(self) -> dict[str, Any]:
         """The window's settings as JSON data."""
@@ -126,15 +149,16 @@ class HistoryBuffer:
     Examples
     --------
     A window of two samples without the error rows, ``y(0) = 0.5``, ``u(0) = 2``,
-    ``y(1) = 0.8`` and ``r = 1``:
+    ``y(1) = 0.8`` and ``r = 1``; the integral is ``0.1 (1 - 0.5) + 0.1 (1 - 0.8)``:
 
     >>> from stcgym.agents import HistoryBuffer, WindowConfig
-    >>> buf = HistoryBuffer(WindowConfig(window=2, include_error=False), action_bound=10.0)
+    >>> config = WindowConfig(window=2, include_error=False, integral_gain=0.1)
+    >>> buf = HistoryBuffer(config, action_bound=10.0)
     >>> buf.start([0.5, 1.0])
     >>> buf.push_action([2.0])
     >>> buf.push_obs([0.8, 1.0])
-    >>> buf.features()  # [y(0), y(1) | r(0), r(1) | u(-1), u(0) / 10]
-    array([[0.5, 0.8, 1. , 1. , 0. , 0.2]], dtype=float32)
+    >>> buf.features()  # [y(0), y(1) | r(0), r(1) | u(-1), u(0) / 10 | z(1)]
+    array([[0.5 , 0.8 , 1.  , 1.  , 0.  , 0.2 , 0.07]], dtype=float32)
     """
 
     def __init__(
@@ -151,6 +175,7 @@ class HistoryBuffer:
         self._y = np.zeros((batch, p, w))
         self._r = np.zeros((batch, p, w))
         self._u = np.zeros((batch, self.n_inputs, w))
+        self._z = np.zeros((batch, p))
 
     def _split(self, obs: ArrayLike) -> tuple[NDArray, NDArray]:
         p = self.n_outputs
@@ -169,9 +194,10 @@ class HistoryBuffer:
         """
         mask = np.ones(self.batch, bool) if lanes is None else np.asarray(lanes, bool)
         y, r = self._split(obs)
-        for arr in (self._y, self._r, self._u):
+        for arr in (self._y, self._r, self._u, self._z):
             arr[mask] = 0.0
         self._y[mask, :, -1], self._r[mask, :, -1] = y[mask], r[mask]
+        self._integrate(mask)
 
     def push_obs(self, obs: ArrayLike, lanes: ArrayLike | None = None) -> None:
         """Append ``[y(k), r(k)]`` (for all lanes, or the boolean mask ``lanes``).
@@ -188,6 +214,13 @@ class HistoryBuffer:
         for arr, v in ((self._y, y), (self._r, r)):
             arr[mask] = np.roll(arr[mask], -1, axis=2)
             arr[mask, :, -1] = v[mask]
+        self._integrate(mask)
+
+    def _integrate(self, mask: NDArray) -> None:
+        """``z(k) = clip(z(k-1) + integral_gain e(k) / y_scale, -obs_clip, obs_clip)``."""
+        c = self.config
+        e = np.nan_to_num(self._r[mask, :, -1] - self._y[mask, :, -1]) / c.y_scale
+        self._z[mask] = np.clip(self._z[mask] + c.integral_gain * e, -c.obs_clip, c.obs_clip)
 
     def push_action(self, u: ArrayLike) -> None:
         """Append the applied inputs ``u(k)`` (one row per lane, in plant units).
@@ -206,6 +239,8 @@ class HistoryBuffer:
         parts = [self._y / c.y_scale, self._r / c.y_scale, self._u / self.action_bound]
         if c.include_error:
             parts.append((self._r - self._y) / c.y_scale)
+        if c.include_integral:
+            parts.append(self._z)
         feats = np.concatenate([part.reshape(b, -1) for part in parts], axis=1)
         return np.clip(np.nan_to_num(feats), -c.obs_clip, c.obs_clip).astype(np.float32)
 
@@ -241,16 +276,18 @@ class HistoryWindow(gym.Wrapper):
     >>> env = HistoryWindow(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"),
     ...                     {"window": 3})
     >>> env.observation_space, env.action_space
-    (Box(-10.0, 10.0, (12,), float32), Box(-1.0, 1.0, (1,), float32))
+    (Box(-10.0, 10.0, (13,), float32), Box(-1.0, 1.0, (1,), float32))
     >>> obs, info = env.reset(seed=0)
     >>> obs, reward, terminated, truncated, info = env.step(np.array([0.1]))
     >>> info["u"]  # 0.1 of the action bound 10
     1.0
-    >>> obs.reshape(4, 3)  # rows y, r, u / 10, r - y
+    >>> obs[:12].reshape(4, 3)  # rows y, r, u / 10, r - y
     array([[0. , 0. , 0.5],
            [0. , 1. , 1. ],
            [0. , 0. , 0.1],
            [0. , 1. , 0.5]], dtype=float32)
+    >>> round(float(obs[12]), 6)  # the integral z(1) = 0.05 (1 - 0) + 0.05 (1 - 0.5)
+    0.075
     """
 
     def __init__(self, env: gym.Env, config: WindowConfig | dict | None = None) -> None:
@@ -295,24 +332,21 @@ class HistoryWindow(gym.Wrapper):
 
 
 class TrainingReward(gym.Wrapper):
-    """The reward an RL agent is trained on (training only; evaluation uses the raw reward).
+    """The reward an RL agent is trained on: the scored cost, with divergence charged.
 
-    Two changes to the environment's reward ``-cost``, both needed for learning to work at all:
+    By default the reward is the environment's own ``-cost``, the per-step cost every
+    controller is scored on, so RL optimises what it is measured by. One change is needed for
+    that to hold over an episode: a diverged episode is charged for the steps it did not live.
+    The reward is a negative cost per step, so an episode that ends early would collect *less*
+    cost than a well-controlled one and an agent would learn to blow the loop up. On divergence
+    (``terminated`` with ``info["diverged"]``) the terminal step's cost is charged once more for
+    every step left until ``horizon``, the convention the evaluation scores failed runs by
+    (:func:`stcgym.adaptive.rollout.charge_divergence`).
 
-    * the per-step cost is compressed, ``c -> s log(1 + c / s)`` with ``s = cost_squash``: a
-      saturated input on a high-gain plant costs thousands per step while a good controller
-      costs ~0.1, and value functions fitted over that range learn nothing about the small
-      costs. The map is the identity for ``c << s`` (good policies are ranked as before) and
-      logarithmic above, so it keeps a slope where plain clipping would leave a saturated
-      deterministic actor (TD3) without any gradient;
-    * a diverged episode is charged for the steps it did not live: the reward is a negative cost
-      per step, so an episode that ends early would collect *less* cost than a well-controlled
-      one and an agent would learn to blow the loop up. On divergence (``terminated`` with
-      ``info["diverged"]``) the terminal step's (compressed) cost is charged once more for every
-      step left until ``horizon``, the convention the evaluation harness uses to score failed
-      runs.
-
-    ``reward_scale`` then multiplies every reward. ``cost_squash=None`` leaves the cost as is.
+    ``reward_scale`` then multiplies every reward (a constant rescaling; a running one is
+    SB3's ``VecNormalize``). ``cost_squash=s`` optionally compresses the per-step cost,
+    ``c -> s log(1 + c / s)``, before the charge: an ablation, off by default, since it trains
+    on another objective than the score (it favours policies with rare large transients).
 
     Parameters
     ----------
@@ -322,8 +356,8 @@ class TrainingReward(gym.Wrapper):
         Episode length the divergence charge runs to, ``>= 1``.
     reward_scale : float, default 1.0
         Factor on every reward.
-    cost_squash : float or None, default 1.0
-        ``s > 0`` of the compression, or ``None``.
+    cost_squash : float or None, default None
+        ``s > 0`` of the compression, or ``None`` (the scored cost).
 
     Raises
     ------
@@ -332,8 +366,8 @@ class TrainingReward(gym.Wrapper):
 
     Examples
     --------
-    The first step of ``unstable2`` costs 0.26 (see its env's example); trained on
-    ``-log(1 + 0.26)``:
+    The first step of ``unstable2`` costs 0.26 (see its env's example), and that is the
+    reward; with the compression it would be ``-log(1 + 0.26)``:
 
     >>> import gymnasium as gym
     >>> import numpy as np
@@ -342,8 +376,12 @@ class TrainingReward(gym.Wrapper):
     >>> env = TrainingReward(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"),
     ...                      horizon=100)
     >>> _ = env.reset(seed=0)
-    >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0]))
-    >>> round(reward, 6), round(-float(np.log1p(0.26)), 6)
+    >>> round(env.step(np.array([1.0]))[1], 6)
+    -0.26
+    >>> squashed = TrainingReward(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"),
+    ...                           horizon=100, cost_squash=1.0)
+    >>> _ = squashed.reset(seed=0)
+    >>> round(squashed.step(np.array([1.0]))[1], 6), round(-float(np.log1p(0.26)), 6)
     (-0.231112, -0.231112)
     """
 
@@ -352,7 +390,7 @@ class TrainingReward(gym.Wrapper):
         env: gym.Env,
         horizon: int,
         reward_scale: float = 1.0,
-        cost_squash: float | None = 1.0,
+        cost_squash: float | None = None,
     ) -> None:
         super().__init__(env)
         if int(horizon) != horizon or horizon < 1:
@@ -370,9 +408,42 @@ class TrainingReward(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._k += 1
-        if self.cost_squash is not None:
-            s = self.cost_squash
-            reward = -s * float(np.log1p(max(-float(reward), 0.0) / s))
-        if terminated and info.get("diverged", False):
-            reward = reward * (1 + max(self.horizon - self._k, 0))
-        return obs, float(reward) * self.reward_scale, terminated, truncated, info
+        diverged = bool(terminated and info.get("diverged", False))
+        r = training_reward(reward, self._k, diverged, self.horizon, self.reward_scale,
+                            self.cost_squash)  # fmt: skip
+        return obs, float(r), terminated, truncated, info
+
+
+def training_reward(
+    reward: ArrayLike,
+    steps: ArrayLike,
+    diverged: ArrayLike,
+    horizon: int,
+    reward_scale: float = 1.0,
+    cost_squash: float | None = None,
+) -> NDArray:
+    """The training reward of :class:`TrainingReward` for one step of one or many lanes.
+
+    Parameters
+    ----------
+    reward : array_like
+        The environments' rewards ``-cost``.
+    steps : array_like of int
+        Steps lived in the episode, this one included.
+    diverged : array_like of bool
+        Lanes whose episode ended in a divergence at this step.
+    horizon, reward_scale, cost_squash
+        As :class:`TrainingReward`.
+
+    Returns
+    -------
+    ndarray
+        ``reward_scale * r`` with ``r`` the (optionally compressed) reward, times
+        ``1 + horizon - steps`` on the diverged lanes.
+    """
+    r = np.asarray(reward, dtype=float)
+    if cost_squash is not None:
+        r = -cost_squash * np.log1p(np.maximum(-r, 0.0) / cost_squash)
+    left = np.maximum(horizon - np.asarray(steps), 0)
+    r = np.where(np.asarray(diverged, dtype=bool), r * (1 + left), r)
+    return r * reward_scale

@@ -1,0 +1,90 @@
+"""One action bound per scenario for every controller, set from the LQG yardstick.
+
+A bound that only the RL agents feel (a wide box they must explore) or only the classical
+controllers feel (a clip they were not designed for) makes a comparison unequal. The bench
+gives every controller of a training distribution the same bound: the input range that the
+LQG controller on the true model uses on that distribution's training episodes, with a margin,
+
+    bound = margin * quantile_q( max_k |u_LQG(k)| over each episode ),
+
+rounded up to two significant digits (``margin = 1.5``, ``q = 0.99`` by default; LQG runs
+unbounded for this). The yardstick itself then runs under the bound too, which it reaches on
+at most the rare episodes above the quantile.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+
+from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
+
+__all__ = ["BOUND_MARGIN", "BOUND_QUANTILE", "lqg_action_bound", "round_up"]
+
+BOUND_MARGIN = 1.5
+BOUND_QUANTILE = 0.99
+#: The bound LQG runs under while its input range is measured (none in practice).
+_UNBOUNDED = 1e9
+
+
+def round_up(x: float, digits: int = 2) -> float:
+    """``x > 0`` rounded up to ``digits`` significant digits.
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.bounds import round_up
+    >>> round_up(3.4501), round_up(0.0123), round_up(120.0)
+    (3.5, 0.013, 120.0)
+    """
+    if not (math.isfinite(x) and x > 0):
+        raise ValueError(f"x must be a positive finite number, got {x!r}")
+    scale = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    return round(math.ceil(round(x / scale, 9)) * scale, 12)
+
+
+def lqg_action_bound(
+    spec: EnvSpec,
+    episodes: EpisodeSet,
+    *,
+    margin: float = BOUND_MARGIN,
+    quantile: float = BOUND_QUANTILE,
+) -> tuple[float, np.ndarray]:
+    """The action bound of a training distribution (module docstring).
+
+    Parameters
+    ----------
+    spec : EnvSpec
+        The training distribution (its own ``action_bound`` is ignored).
+    episodes : EpisodeSet
+        The training episodes LQG (``CONTROLLERS["lqg"]``, told every jump) runs on.
+    margin, quantile
+        As in the module docstring.
+
+    Returns
+    -------
+    bound : float
+        The rounded bound.
+    peaks : ndarray
+        ``max_k |u(k)|`` of every episode.
+
+    Raises
+    ------
+    RuntimeError
+        LQG diverged on some training episode even without a bound (the distribution holds a
+        plant no linear controller holds at this noise: a family spec to fix).
+    """
+    from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
+
+    free = replace(spec, action_bound=_UNBOUNDED)
+    builder = CONTROLLERS[YARDSTICK].build(None, SimpleNamespace(env=free))
+    batch = run_episodes(builder, free, episodes, informed=True)
+    if batch.diverged.any():
+        bad = [episodes.plants[i] for i in np.flatnonzero(batch.diverged)][:5]
+        raise RuntimeError(f"LQG on the true model diverged without an input bound on {bad}")
+    u = np.abs(np.nan_to_num(batch.u.reshape(len(episodes.seeds), spec.steps, -1)))
+    peaks = u.max(axis=(1, 2))
+    return round_up(margin * float(np.quantile(peaks, quantile))), peaks
