@@ -1,15 +1,14 @@
 """The ``stcgym`` command.
 
 ``stcgym bench`` (= ``stcgym bench --quick``, ``make bench``)
-    The self-tuning controller, the known-model and LQG oracles and PPO, SAC and RecurrentPPO
-    (3 training seeds each, trained on the spot through the task executor) on the nominal,
-    plant-family, parameter-jump and MIMO scenarios (on the quadruple tank: the
-    multivariable self-tuning LQ controller against the LQR oracle and the window RL agents);
-    under 10 minutes on 2 CPU cores.
-    ``stcgym bench --standard`` (about an hour) has the same scenarios and seeds, with the RL
-    Zoo's training budgets as caps; ``stcgym bench --full`` is the long
-    version (all catalogue plants, every MIMO plant, TD3 and A2C too, 5 training seeds, 20
-    evaluation seeds, long caps: about a day).
+    The self-tuning controllers, PPO, SAC and RecurrentPPO (3 runs each, trained on the spot
+    through the task executor), pole placement on the true model and zero input, all scored
+    against LQG on the true model, on the same episodes of the nominal, plant-family (test
+    split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on 2
+    CPU cores.
+    ``stcgym bench --standard`` (a few hours) has 5 runs, the whole test split, every
+    held-out variant and RL caps of 10^6 steps on the family; ``stcgym bench --full`` is the
+    long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about a day).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
     interrupted run without retraining its finished jobs.
@@ -58,20 +57,20 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
-        "--quick", action="store_true", help="the default: under 10 min on 2 CPU cores"
+        "--quick", action="store_true", help="the default: about 10 min on 2 CPU cores"
     )
     mode.add_argument(
         "--standard",
         action="store_true",
-        help="the quick scenarios and seeds, RL trained to the plateau with the RL Zoo's "
-        "Pendulum-v1 budgets as caps (family agents 1e5-3e5 steps): about an hour on 2 CPU "
-        "cores (the estimate is printed first)",
+        help="5 runs per controller, the whole test split and every held-out variant, RL "
+        "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
+        "RecurrentPPO (2e5 for SAC): a few hours on 2 CPU cores (the estimate is printed first)",
     )
     mode.add_argument(
         "--full",
         action="store_true",
-        help="all plants and agents, 5 training seeds, long caps (about a day; the estimate "
-        "is printed first)",
+        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about a day; the "
+        "estimate is printed first)",
     )
     p.add_argument(
         "--resume",
@@ -404,10 +403,11 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
         meta = json.loads(meta_file.read_text())
         spec = meta["train_spec"]
         trained = spec.get("plants") or []
-        order = get_plant(trained[0]).n if trained else None
+        mimo = spec.get("kind") == "mimo"
+        order = get_plant(trained[0]).n if trained and not mimo else None
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
-    if args.plant is not None and meta["train_spec"].get("kind") == "mimo":
+    if args.plant is not None and mimo:
         if args.plant != trained[0]:
             raise BenchInputError(
                 f"--plant {args.plant}: the agent was trained on the MIMO plant {trained[0]} "

@@ -62,15 +62,49 @@ def _env(plant: str = "stable2", steps: int = 100, **kw) -> gym.Env:
 
 # ------------------------------------------------------------------------------ wrapper
 def test_window_config_validates():
-    assert WindowConfig(window=4).n_features == 16
-    assert WindowConfig(window=4, include_error=False).n_features == 12
-    for bad in (dict(window=0), dict(window=2.5), dict(y_scale=0), dict(obs_clip=-1)):
+    assert WindowConfig(window=4).n_features == 17  # y, r, u, e windows and the integral
+    assert WindowConfig(window=4, include_integral=False).n_features == 16
+    assert WindowConfig(window=4, include_error=False).n_features == 13
+    assert WindowConfig(window=4).features_for(3, 2) == 4 * (3 * 3 + 2) + 3
+    bad_values = (
+        dict(window=0), dict(window=2.5), dict(y_scale=0), dict(obs_clip=-1),
+        dict(integral_gain=0.0), dict(integral_gain=float("nan")),
+    )  # fmt: skip
+    for bad in bad_values:
         with pytest.raises(ValueError):
             WindowConfig(**bad)
 
 
+def test_integral_feature_is_the_clipped_running_sum_of_the_error():
+    # by hand: z(k) = clip(z(k-1) + g (r(k) - y(k)) / y_scale, -clip, clip)
+    g, scale, clip = 0.5, 2.0, 1.5
+    config = WindowConfig(window=1, include_error=False, y_scale=scale, integral_gain=g,
+                          obs_clip=clip)  # fmt: skip
+    buf = HistoryBuffer(config, action_bound=1.0, batch=2)
+    obs = [
+        np.array([[0.0, 1.0], [0.0, -1.0]]),
+        np.array([[0.5, 1.0], [-2.0, -1.0]]),
+        np.array([[0.0, 4.0], [0.0, -1.0]]),
+        np.array([[0.0, 4.0], [0.0, -1.0]]),
+    ]
+    buf.start(obs[0])
+    z = np.zeros(2)
+    expected = []
+    for k, o in enumerate(obs):
+        if k:
+            buf.push_action([0.0, 0.0])
+            buf.push_obs(o)
+        z = np.clip(z + g * (o[:, 1] - o[:, 0]) / scale, -clip, clip)
+        expected.append(z.copy())
+        np.testing.assert_allclose(buf.features()[:, -1], z, rtol=1e-6)
+    assert expected[-1][0] == clip  # anti-windup: the integral stops at the clip
+    # a new episode on lane 1 only restarts its integral
+    buf.start(np.array([[0.0, 0.0], [1.0, 1.0]]), lanes=[False, True])
+    np.testing.assert_allclose(buf.features()[:, -1], [clip, 0.0], rtol=1e-6)
+
+
 def test_history_window_spaces_and_contents():
-    env = HistoryWindow(_env(), WindowConfig(window=3))
+    env = HistoryWindow(_env(), WindowConfig(window=3, include_integral=False))
     assert env.action_space.low[0] == -1 and env.action_space.high[0] == 1
     assert env.observation_space.shape == (12,) and env.observation_space.dtype == np.float32
     obs, _ = env.reset(seed=0)
@@ -107,15 +141,15 @@ def test_history_window_with_make_vec_and_sb3_vec_env():
         wrappers=[lambda e: HistoryWindow(e, WindowConfig(window=5))],
     )
     obs, _ = venv.reset(seed=0)
-    assert obs.shape == (2, 20)
+    assert obs.shape == (2, 21)
     obs, rew, *_ = venv.step(np.zeros((2, 1), dtype=np.float32))
-    assert obs.shape == (2, 20) and rew.shape == (2,)
+    assert obs.shape == (2, 21) and rew.shape == (2,)
     venv.close()
 
     from stable_baselines3.common.env_util import make_vec_env
 
     vec = make_vec_env(lambda: _env(), n_envs=2, seed=0, wrapper_class=HistoryWindow)
-    assert vec.reset().shape == (2, 40)
+    assert vec.reset().shape == (2, 41)
     vec.close()
 
 
@@ -323,7 +357,8 @@ def test_summarize():
 
 
 def test_history_buffer_start_mask():
-    buf = HistoryBuffer(WindowConfig(window=2, include_error=False), 10.0, batch=2)
+    config = WindowConfig(window=2, include_error=False, include_integral=False)
+    buf = HistoryBuffer(config, 10.0, batch=2)
     buf.start(np.array([[1.0, 2.0], [3.0, 4.0]]))
     buf.push_action([5.0, 10.0])
     buf.push_obs(np.array([[6.0, 7.0], [8.0, 9.0]]))

@@ -7,12 +7,13 @@ import csv
 import io
 import json
 
+import numpy as np
 import pytest
 
 import stcgym.agents.benchmark as benchmark
 from stcgym.agents.benchmark import METRIC_COLUMNS, BenchConfig, build_config, make_scenarios
 from stcgym.agents.benchmark import runner as runner_mod
-from stcgym.agents.benchmark.config import FULL, QUICK
+from stcgym.agents.benchmark.config import EVALUATIONS_PER_CAP, FULL, QUICK
 from stcgym.agents.benchmark.plan import (
     WORKER_START_SECONDS,
     curve_evaluations,
@@ -20,32 +21,39 @@ from stcgym.agents.benchmark.plan import (
     rl_tasks,
     schedule,
 )
+from stcgym.agents.benchmark.scenarios import training_envs
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 
-# A few hundred training steps, 2 training seeds, short episodes: the whole pipeline in seconds
-# (the SISO scenarios; tests/test_bench_mimo.py runs the mimo one).
+# A few hundred training steps, 2 runs, short episodes on a few test plants: the whole pipeline
+# in seconds (the SISO scenarios; tests/test_bench_mimo.py runs the mimo one).
 TINY = [
     "--scenarios",
-    "nominal,family,jump",
+    "nominal,family,ood,jump",
     "--train-steps",
     "300",
     "--eval-interval",
     "100",
     "--train-seeds",
     "2",
-    "--seeds",
-    "2",
+    "--test-plants",
+    "4",
+    "--nominal-episodes",
+    "3",
+    "--curve-episodes",
+    "3",
+    "--bound-plants",
+    "10",
     "--episode-steps",
     "120",
-    "--train-episode-steps",
-    "60",
     "--curve-points",
     "2",
     "--hp",
     "ppo.n_steps=64",
     "--hp",
     "ppo.n_envs=2",
+    "--hp",
+    "ppo.batch_size=64",
     "--hp",
     "sac.learning_starts=250",
     "--hp",
@@ -66,6 +74,13 @@ TINY = [
     "1",
     "--no-progress",
 ]
+SCENARIOS = {
+    "nominal:stable2": 3,
+    "family:test": 4,
+    "family:ood_near_zero": 4,
+    "family:ood_order3": 4,
+    "jump:test": 4,
+}
 
 
 def _rows(path):
@@ -102,10 +117,10 @@ def test_end_to_end_writes_every_file(tiny_run):
     pngs = {n for n in names if n.endswith(".png")}
     assert {
         "data_efficiency.png",
-        "theta_jump_timevarying2.png",
-        "jump_cost_jump_timevarying2.png",
+        "adaptation.png",
+        "theta_jump_test.png",
+        "traces_jump_test.png",
         "traces_nominal_stable2.png",
-        "traces_family_nonminphase2.png",
     } <= pngs
 
     header, rows = _rows(run / "metrics.csv")
@@ -113,88 +128,116 @@ def test_end_to_end_writes_every_file(tiny_run):
     per = {}
     for r in rows:
         per.setdefault((r["scenario"], r["controller"]), []).append(r)
-    scenarios = {
-        "nominal:stable2",
-        "family:lightly_damped2",
-        "family:nonminphase2",
-        "jump:timevarying2",
-    }
-    assert {s for s, _ in per} == scenarios
-    for s in scenarios:
-        for c in ("stc", "stc_lq", "stc_kfmils", "oracle", "lqg"):
-            assert len(per[(s, c)]) == 2  # evaluation seeds
-        assert len(per[(s, "ppo")]) == 4  # training seeds x evaluation seeds
-        # the recurrent agent is trained on the family: held-out plants and the jump only
-        assert len(per.get((s, "rppo"), [])) == (0 if s.startswith("nominal") else 4)
+    assert {s for s, _ in per} == set(SCENARIOS)
+    for s, episodes in SCENARIOS.items():
+        # every controller meets the same episodes: the same (plant, seed) pairs
+        units = {(r["plant"], r["seed"]) for r in per[(s, "lqg")]}
+        assert len(units) == episodes
+        for c in ("stc", "stc_lq", "stc_kfmils", "oracle", "lqg", "zero", "ppo", "rppo"):
+            if c == "rppo" and s.startswith("nominal"):
+                assert (s, c) not in per  # the recurrent agent trains on the family only
+                continue
+            runs = 2 if c in ("stc", "stc_lq", "stc_kfmils", "ppo", "rppo") else 1
+            assert len(per[(s, c)]) == runs * episodes, (s, c)
+            assert {(r["plant"], r["seed"]) for r in per[(s, c)]} == units
+            assert {r["run"] for r in per[(s, c)]} == {str(k) for k in range(runs)}
+        for r in per[(s, "lqg")]:
+            assert float(r["cost_ratio"]) == 1.0
+            assert r["score"] == "" or float(r["score"]) == 1.0
+        for r in per[(s, "zero")]:
+            assert r["score"] == "" or float(r["score"]) == 0.0
     for r in rows:
         assert float(r["cost"]) >= 0 and r["bounded"] in ("0", "1")
-        assert r["steady_ratio"] != "" and r["steps_to_oracle"] != ""
-        if r["kind"] == "jump":
-            assert r["post_jump_ratio"] != "" and r["reconverge_steps"] != ""
-        if r["controller"] == "oracle":
-            assert float(r["steady_ratio"]) == 1.0 and float(r["steps_to_oracle"]) == 0.0
+        assert r["cost_ratio"] != ""
+        if r["kind"] == "jump":  # the jump comes at a random time inside the episode
+            assert 0 < int(r["jump_step"]) < 120 and r["post_jump_ratio"] != ""
+        else:
+            assert r["jump_step"] == "" and r["post_jump_ratio"] == ""
         if r["family"] == "rl":
             assert int(r["train_steps"]) >= 300 and float(r["train_wall_s"]) > 0
             assert int(r["data_steps"]) == int(r["train_steps"])
+            if r["kind"] == "ood":  # the validation curve does not speak for another distribution
+                assert r["steps_to_target"] == ""
         elif r["controller"] in ("stc", "stc_lq", "stc_kfmils"):
             assert r["family"] == "adaptive"
-            assert int(r["data_steps"]) == int(r["steps_run"])
-            assert r["controller_seed"] == r["seed"]  # every episode its own controller seed
+            assert int(r["data_steps"]) == int(float(r["steps_run"]))
+            assert r["steps_to_target"] != ""
+    # the same episode gives the same LQG cost in every scenario that holds it (family:test and
+    # jump:test draw the same plants and seeds; only the jump differs)
+    family = {(r["plant"], r["seed"]): r for r in per[("family:test", "lqg")]}
+    jump = {(r["plant"], r["seed"]): r for r in per[("jump:test", "lqg")]}
+    assert family.keys() == jump.keys()
+    for key, r in jump.items():
+        J = int(r["jump_step"])
+        assert float(r["cost_start"]) == pytest.approx(float(family[key]["cost_start"])) or J < 12
 
     header, curves = _rows(run / "learning_curves.csv")
-    assert header == ["train_env", "algo", "train_seed", "steps", "cost", "cost_to_oracle"]
+    assert header == ["train_env", "algo", "train_seed", "steps", "score"]
     keys = {(c["train_env"], c["algo"]) for c in curves}
     assert keys == {("nominal:stable2", "ppo"), ("family", "ppo"), ("family", "rppo")}
 
     config = json.loads((run / "config.json").read_text())
-    assert config["bench"]["train_steps"] == {"ppo": 300, "rppo": 300}
-    assert config["bench"]["algo_configs"]["ppo"]["hyperparams"]["n_steps"] == 64
+    bench = config["bench"]
+    assert bench["train_steps"] == {"ppo": 300, "rppo": 300}
+    assert bench["algo_configs"]["ppo"]["hyperparams"]["n_steps"] == 64
+    assert set(bench["action_bounds"]) == {"nominal:stable2", "family"}
     assert "versions" in config and config["argv"][0] == "bench"
+    # one action bound per training distribution, for every scenario that uses it
+    for sc in config["scenarios"]:
+        assert sc["env"]["action_bound"] == bench["action_bounds"][sc["train_env"]]
 
     report = (run / "report.md").read_text()
-    for section in ("## Headline", "## Conclusions", "## Step response", "## Learning curves"):
+    for section in (
+        "## Protocol",
+        "## What each controller knows",
+        "## Headline",
+        "## Conclusions",
+        "## RL training",
+        "## Details per scenario",
+    ):
         assert section in report
-    assert "P(stc cost lower)" in report and "re-converge steps" in report
-    # the self-tuning LQ controller is reported against the RL agents, never counted as one
-    assert "P(stc_lq cost lower)" in report and "self-tuning LQ (stc_lq) ends at" in report
-    assert "stc_lq has the lower episode cost more often than not against" in report
-    assert "the best RL agent (stc_lq)" not in report
-    # and so is the self-tuning controller on the paper's KF-MILS estimator
-    assert "P(stc_kfmils cost lower)" in report
-    assert "self-tuning controller on the paper's KF-MILS estimator (stc_kfmils) ends at" in report
-    assert "stc_kfmils has the lower episode cost more often than not against" in report
-    assert "the best RL agent (stc_kfmils)" not in report
-    assert "training seed, evaluation seed" in report  # what the intervals cover
-
-    # how each RL agent's training ended, next to its figures: 300 steps are 3 evaluations
-    # of the rule, one too few for a plateau, so every run reached its cap
-    assert {r["train_stop"] for r in rows if r["family"] == "rl"} == {"cap"}
-    assert all(int(r["train_cap"]) == 300 for r in rows if r["family"] == "rl")
-    assert "RL training: stop (seeds); last > min. gain" in report
-    assert "| ppo | 4 |" in report and "cap 2/2; last gain at" in report
+    assert "| self-tuning | RL agent | P(self-tuning cost lower) |" in report
+    assert "Departures from the RL Zoo's settings" in report
+    assert "fixed before the test split was drawn" in report
+    assert "| ppo | 2 x 3 |" in report  # runs x episodes of nominal:stable2
     assert "has not improved on its best by more than 5 % in 3 consecutive" in report
-    # no win over an RL agent without saying, in the same sentence, that it was still improving
-    claims = [
-        part
-        for line in report.split("## Conclusions")[1].split("## Step response")[0].splitlines()
-        for part in line.split("; ")
-        if "more often than not against" in part
-        and any(f" {a}" in part.split(", not against")[0] for a in ("ppo", "rppo"))
-    ]
-    assert claims and all("at the training cap before a plateau" in c for c in claims)
+    # 300 steps are 3 evaluations of the rule, one too few for a plateau: every run reached its
+    # cap, and a conclusion that names an RL agent says so
+    assert {r["train_stop"] for r in rows if r["family"] == "rl"} == {"cap"}
+    conclusions = report.split("## Conclusions")[1].split("## RL training")[0]
+    for line in conclusions.splitlines():
+        if "lower cost more often than" in line or "neither" in line:
+            assert "reached its training cap before a plateau in 2/2 runs" in line
 
     # progress over the whole run, and the learning curve through SB3's logger
-    assert "job 1/" in log and "ETA" in log
+    assert "job 1/" in log and "ETA" in log and "action bound of family" in log
     events = list(tb.rglob("events.out.tfevents.*"))
     assert len(events) == 6  # one TensorBoard run per training job
-    assert any(b"eval/curve_cost" in e.read_bytes() for e in events)
+    assert any(b"eval/curve_score" in e.read_bytes() for e in events)
+
+
+def test_action_bound_is_the_lqg_input_range_on_training_episodes(tiny_run):
+    from stcgym.agents.benchmark.bounds import lqg_action_bound, round_up
+    from stcgym.agents.benchmark.scenarios import training_envs
+
+    run = tiny_run[0]
+    cfg = BenchConfig.from_dict(json.loads((run / "config.json").read_text())["bench"])
+    for key, env in training_envs(cfg, make_scenarios(cfg)).items():
+        bound, peaks = lqg_action_bound(env.train, env.bound_episodes)
+        assert bound == cfg.action_bounds[key] == round_up(1.5 * np.quantile(peaks, 0.99))
+        assert len(peaks) == 10 and env.train.action_bound == bound == env.curve.action_bound
 
 
 def test_saved_model_reloads_for_evaluation(tiny_run, capsys):
     model = tiny_run[0] / "models" / "nominal-stable2_ppo_s0"
     assert (model / "agent.json").is_file()
+    meta = json.loads((model / "agent.json").read_text())
+    assert len(meta["obs_norm"]["mean"]) == meta["config"]["window"].get("window", 10) * 4 + 1
     assert main(["eval", str(model), "--seeds", "2", "--episode-steps", "50"]) == 0
     assert "ppo (seed 0" in capsys.readouterr().out
+    family = tiny_run[0] / "models" / "family_rppo_s1"
+    assert main(["eval", str(family), "--seeds", "2", "--episode-steps", "50"]) == 0
+    assert "on siso2-v1 test" in capsys.readouterr().out
 
 
 def test_eval_reproduces_the_bench_numbers_of_a_saved_agent(tiny_run, capsys):
@@ -203,18 +246,18 @@ def test_eval_reproduces_the_bench_numbers_of_a_saved_agent(tiny_run, capsys):
     bench = {
         r["seed"]: float(r["cost"])
         for r in rows
-        if (r["scenario"], r["controller"], r["train_seed"]) == ("nominal:stable2", "ppo", "0")
+        if (r["scenario"], r["controller"], r["run"]) == ("nominal:stable2", "ppo", "0")
     }
-    assert len(bench) == 2
+    assert len(bench) == 3
     model = run / "models" / "nominal-stable2_ppo_s0"
-    assert main(["eval", str(model), "--seeds", "2", "--episode-steps", "120"]) == 0
+    assert main(["eval", str(model), "--seeds", "3", "--episode-steps", "120"]) == 0
     out = capsys.readouterr().out
     for seed, cost in bench.items():
-        assert f"seed {seed}: cost {cost:.4g} " in out
+        assert f"seed {seed}: cost {cost:.4g}" in out
 
 
 def _sorted_numbers(path):
-    key = lambda r: (r["scenario"], r["controller"], r["seed"], r["train_seed"])  # noqa: E731
+    key = lambda r: (r["scenario"], r["controller"], r["seed"], r["run"])  # noqa: E731
     return sorted(_numbers(path), key=key)
 
 
@@ -246,6 +289,7 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
         assert main(["bench", "--resume", str(run), "--no-plots"]) == 0
     assert len(trained) == 1  # the finished jobs were not trained again
     assert "5 finished RL jobs read back" in err.getvalue()
+    assert "action bound of" not in err.getvalue()  # the bounds were read back, not measured
     # the same table as the uninterrupted run (the retrained job reproduces its numbers)
     assert _sorted_numbers(run / "metrics.csv") == _sorted_numbers(source / "metrics.csv")
     assert (run / "report.md").is_file() and len(list((run / "jobs").glob("*.json"))) == 6
@@ -261,7 +305,7 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
 @pytest.mark.parametrize(
     "extra, message",
     [
-        (["--seeds", "3"], "drop --seeds"),
+        (["--test-plants", "3"], "drop --test-plants"),
         (["--standard"], "drop --standard"),
         (["--jobs", "0"], "--jobs must be a positive integer"),
     ],
@@ -286,10 +330,10 @@ def test_resume_takes_the_run_settings(tiny_run, tmp_path, capsys, extra, messag
     ],
 )
 def test_eval_options_are_checked(tiny_run, capsys, extra, message):
-    model = tiny_run[0] / "models" / "nominal-stable2_ppo_s0"
-    assert main(["eval", str(model), *extra]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message in err
+    for name in ("nominal-stable2_ppo_s0", "family_ppo_s0"):
+        assert main(["eval", str(tiny_run[0] / "models" / name), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err
 
 
 def _numbers(path):
@@ -302,7 +346,7 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
     args = [
         *TINY,
         "--agents",
-        "ppo,oracle",
+        "ppo,stc",
         "--scenarios",
         "nominal",
         "--train-seeds",
@@ -319,10 +363,11 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
     assert "plots written" in err.getvalue()
     assert (tmp_path / "b" / "traces_nominal_stable2.png").is_file()
     a, b = _numbers(tmp_path / "a" / "metrics.csv"), _numbers(tmp_path / "b" / "metrics.csv")
-    assert len(a) == 2 + 2 * 2  # the oracle on 2 seeds, 2 agents on 2 seeds
-    # the rows of the classical controllers (the oracle's: every ratio needs them) come first
-    assert [r["controller"] for r in b][:2] == ["oracle", "oracle"]
-    key = lambda r: (r["scenario"], r["controller"], r["seed"], r["train_seed"])  # noqa: E731
+    # lqg and zero (1 run), stc and ppo (2 runs each), on 3 episodes
+    assert len(a) == (1 + 1 + 2 + 2) * 3
+    # the rows of the yardstick and of zero input (every ratio and score needs them) come first
+    assert [r["controller"] for r in b][:6] == ["lqg"] * 3 + ["zero"] * 3
+    key = lambda r: (r["scenario"], r["controller"], r["seed"], r["run"])  # noqa: E731
     assert sorted(a, key=key) == sorted(b, key=key)
 
 
@@ -330,31 +375,24 @@ def test_identical_seeds_give_identical_numbers_in_process_and_in_the_pool(tmp_p
     "extra, message",
     [
         (["--plants", "stable2,nosuchplant"], "unknown plant"),
+        (["--plants", "timevarying2"], "time-invariant"),
         (["--agents", "ppo,dqn"], "unknown agent"),
         (["--train-steps", "0"], "positive integer"),
         (["--train-steps", "ppo=100,sac=0"], "positive integer"),
-        (["--seeds", "0"], "positive integer"),
+        (["--test-plants", "0"], "positive integer"),
+        (["--curve-episodes", "0"], "positive integer"),
         (["--first-seed", "-5"], "--first-seed"),
         (["--noise", "-1"], "--noise"),
+        (["--family", "no-such-family"], "--family"),
+        (["--ood", "ood_nope"], "unknown --ood variant"),
         (["--hp", "ppo.no_such_knob=1"], "no_such_knob"),
         (["--hp", "sac.batch_size=0"], "batch_size"),
         (["--hp", "ppo.learning_rate=abc"], "learning_rate"),
         (["--hp", "ppo.learning_rate=-1"], "learning_rate"),
         (["--hp", "ppo.tensorboard_log=tb"], "--tensorboard-log"),
         (["--hp", "ppo.policy_kwargs.bogus=1"], "SB3 rejects"),
-        (["--family-test", "stable2"], "held-out"),
-        (["--jump", "stable2:stable4"], "same order"),
-        # a jump is checked even when the jump scenario is not run
-        (
-            ["--scenarios", "nominal", "--agents", "stc", "--jump", "stable2:stable4"],
-            "--jump 'stable2:stable4'",
-        ),
-        (["--scenarios", "nominal", "--agents", "stc", "--jump", "stable2:"], "BEFORE:AFTER"),
-        (["--jump", "stable2:"], "BEFORE:AFTER"),
-        (["--jump", ":stable2"], "BEFORE:AFTER"),
-        (["--jump", "stable2:bogus"], "--jump 'stable2:bogus'"),
         (["--scenarios", "nominal,weird"], "scenarios"),
-        (["--scenarios", "nominal", "--agents", "rppo,stc"], "family and jump"),
+        (["--scenarios", "nominal", "--agents", "rppo,stc"], "family, ood or jump"),
         (["--jobs", "0"], "--jobs"),
         (["--executor", "slurm"], "--executor"),
         # a stopping rule that cannot be met
@@ -377,7 +415,7 @@ def test_bad_input_fails_before_any_work(tmp_path, monkeypatch, capsys, extra, m
         raise AssertionError("work started")
 
     monkeypatch.setattr("stcgym.agents.rl.sb3.train_agent", no_work)
-    monkeypatch.setattr(runner_mod, "evaluate", no_work)
+    monkeypatch.setattr(runner_mod, "run_episodes", no_work)
     rc = main(["bench", *TINY, "--out", str(tmp_path), "--run", "bad", *extra])
     assert rc == 2
     err = capsys.readouterr().err
@@ -406,7 +444,7 @@ def test_bare_bench_runs_the_quick_preset_that_help_describes(monkeypatch, capsy
     assert "has not improved on its best by more than 5 % in 3 consecutive" in help_text
 
 
-def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
+def test_standard_tier_meets_the_protocol(monkeypatch):
     seen = {}
 
     def fake_run(cfg, **kwargs):
@@ -417,80 +455,75 @@ def test_standard_tier_is_quick_with_zoo_caps_and_family_caps(monkeypatch):
     assert main(["bench", "--standard", "--out", "/nonexistent-never-written"]) == 130
     std, quick = seen["cfg"], build_config(run="q")
     assert std.mode == "standard"
-    same = ("plants", "family_train", "family_test", "jumps", "agents", "seeds")
-    for name in (*same, "train_seeds", "first_seed", "episode_steps"):
+    for name in ("plants", "family", "agents", "first_seed", "episode_steps", "scenarios"):
         assert getattr(std, name) == getattr(quick, name), name
-    # quick measures its learning curves at fewer points, on one episode per plant
-    assert (quick.curve_points, quick.curve_seeds) == (5, 1)
-    assert (std.curve_points, std.curve_seeds) == (10, 2)
-    assert std.scenarios == quick.scenarios == ["nominal", "family", "jump", "mimo"]
-    # the RL Zoo's Pendulum-v1 n_timesteps as single-plant caps, 1e5-3e5 on the family
-    assert std.train_steps == {"ppo": 100_000, "sac": 20_000, "rppo": 100_000}
-    assert std.family_train_steps == {"ppo": 300_000, "sac": 100_000, "rppo": 100_000}
-    assert (std.patience, std.min_improvement, std.min_train_fraction) == (3, 0.05, 0.25)
-    # each cap is bigger than the quick one, and a whole number of evaluation intervals
-    for algo, cap in std.train_steps.items():
-        assert cap > quick.train_steps[algo]
-    tasks = rl_tasks(std, make_scenarios(std), {}, {})
-    assert {(t["train_key"], t["algo"]): t["steps"] for t in tasks} == {
-        ("nominal:stable2", "ppo"): 100_000,
-        ("nominal:stable2", "sac"): 20_000,
-        ("mimo:quadruple_tank", "ppo"): 100_000,
-        ("mimo:quadruple_tank", "sac"): 20_000,
-        ("family", "ppo"): 300_000,
-        ("family", "sac"): 100_000,
-        ("family", "rppo"): 100_000,
-    }
-    rule = {"min_improvement": 0.05, "patience": 3, "min_fraction": 0.25}
-    assert all(t["plateau"] == rule for t in tasks)
-    # about an hour on 2 cores at the caps, the quick tier under its 10 minutes
-    assert 45 * 60 <= benchmark.estimate_seconds(std) <= 75 * 60
-    assert 6 * 60 <= benchmark.estimate_seconds(quick) <= 10 * 60
+    assert std.scenarios == ["nominal", "family", "ood", "jump", "mimo"]
+    # at least 5 training runs, every plant of the test split (200), every held-out variant
+    scenarios = make_scenarios(std)
+    assert std.train_seeds >= 5 and std.test_plants is None
+    from stcgym.envs.families import get_family
+
+    family = get_family(std.family)
+    assert set(std.ood) == set(family.variant_names)
+    test = next(sc for sc in scenarios if sc.name == "family:test")
+    assert len(test.episodes.seeds) >= 200 and test.episodes.units == (200, 1)
+    # PPO and RecurrentPPO get at least 1e6 env steps on the family; SAC what fits
+    assert std.family_train_steps["ppo"] >= 1_000_000
+    assert std.family_train_steps["rppo"] >= 1_000_000
+    assert std.family_train_steps["sac"] >= 100_000
+    tasks = rl_tasks(std, scenarios, training_envs(std, scenarios), {})
+    # outside the quick tier at most 20 evaluations of the plateau rule per cap
+    for t in tasks:
+        assert t["steps"] // t["eval_interval"] <= EVALUATIONS_PER_CAP
+        assert t["plateau"] == {"min_improvement": 0.05, "patience": 3, "min_fraction": 0.25}
+        assert len(t["curve_episodes"]["seeds"]) >= 20
+    # a few hours on 2 cores at the caps, the quick tier within about its 10 minutes
+    assert 2 * 3600 <= benchmark.estimate_seconds(std) <= 8 * 3600
+    assert 5 * 60 <= benchmark.estimate_seconds(quick) <= 12 * 60
 
 
 def test_stc_kfmils_is_stc_on_the_kf_mils_estimator_in_every_scenario(tmp_path):
     from stcgym.adaptive import SelfTuningController
-    from stcgym.envs.catalogue import get_plant
 
     for agents in (QUICK["agents"], FULL["agents"], BenchConfig(run="x").agents):
         assert "stc_kfmils" in agents
     info = CONTROLLERS["stc_kfmils"]
-    assert info.kind == "adaptive" and info.online
+    assert info.kind == "adaptive" and info.online and info.seeded
     cfg = build_config(
         quick=True,
         run="kf",
         out=str(tmp_path),
-        scenarios="nominal,family,jump",  # stc_kfmils is SISO-only
+        scenarios="nominal,family,ood,jump",  # stc_kfmils is SISO-only
         agents="stc,stc_lq,stc_kfmils,oracle,lqg",
-        seeds=2,
+        test_plants=2,
+        nominal_episodes=2,
+        bound_plants=5,
+        curve_episodes=2,
         episode_steps=120,
         plots=False,
         bootstrap_reps=50,
     )
     for sc in make_scenarios(cfg):
-        plant = get_plant(sc.plant)
-        ctl = info.build(cfg, sc)(plant, 7)
-        ref = CONTROLLERS["stc"].build(cfg, sc)(plant, 7)
+        plants = [object(), object()]
+        ctl = info.build(cfg, sc)(plants, [7, 8])
+        ref = CONTROLLERS["stc"].build(cfg, sc)(plants, [7, 8])
         assert isinstance(ctl, SelfTuningController) and ctl.estimator == "KF-MILS"
         assert ref.estimator == "ELS"  # otherwise built as stc: same design, bound and seed
         assert (ctl.n, ctl.design, ctl.action_bound) == (ref.n, ref.design, ref.action_bound)
-        assert list(ctl.seeds) == list(ref.seeds) == [7]
+        assert ctl.n == 2  # the training distribution's order, on the order-3 variant too
+        assert list(ctl.seeds) == list(ref.seeds) == [7, 8]
         assert list(ctl.poles) == list(ref.poles)
 
     runner_mod.run_bench(cfg, log=lambda msg: None)
     _, rows = _rows(tmp_path / "kf" / "metrics.csv")
     scenarios = {r["scenario"] for r in rows}
-    assert len(scenarios) == 4
+    assert len(scenarios) == 5
     for s in scenarios:
         ours = [r for r in rows if r["scenario"] == s and r["controller"] == "stc_kfmils"]
-        assert len(ours) == 2 and all(r["family"] == "adaptive" for r in ours)
+        assert len(ours) == 3 * 2 and all(r["family"] == "adaptive" for r in ours)
     report = (tmp_path / "kf" / "report.md").read_text()
-    assert "| P(stc cost lower) | P(stc_lq cost lower) | P(stc_kfmils cost lower) |" in report
-    assert "self-tuning controller on the paper's KF-MILS estimator (stc_kfmils) ends at" in report
-    # no RL agent in this run: the classical controllers are not rivals, nor the best RL agent
-    for name in ("stc_lq", "stc_kfmils"):
-        assert f"{name} has the lower episode cost" not in report
-    assert "the best RL agent" not in report
+    # no RL agent in this run: no paired comparison, no RL verdict
+    assert "P(self-tuning cost lower)" not in report and "more often than" not in report
 
 
 def test_unwritable_output_folder(tmp_path, capsys):
@@ -508,30 +541,36 @@ def test_existing_run_is_not_overwritten(tmp_path, capsys):
 
 
 class _Exploding:
-    """A controller that fails on its third episode."""
+    """A controller that fails on its second run."""
 
-    episodes = 0
+    runs = 0
+
+    def __init__(self, num_envs: int) -> None:
+        self.num_envs = num_envs
 
     def reset(self):
-        type(self).episodes += 1
-        if type(self).episodes == 3:
+        type(self).runs += 1
+        if type(self).runs == 2:
             raise KeyboardInterrupt
 
     def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        return [0.0], state
+        return np.zeros((self.num_envs, 1)), state
 
 
 def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
-    info = ControllerInfo("oracle", lambda cfg, sc: lambda plant, seed: _Exploding())
-    monkeypatch.setitem(CONTROLLERS, "boom", info)
-    _Exploding.episodes = 0
+    build = lambda cfg, sc: lambda plants, seeds: _Exploding(len(plants))  # noqa: E731
+    monkeypatch.setitem(CONTROLLERS, "boom", ControllerInfo("oracle", build))
+    _Exploding.runs = 0
     cfg = build_config(
         quick=True,
         run="int",
         out=str(tmp_path),
         agents="oracle,boom",
         scenarios="nominal,family",
-        seeds=2,
+        test_plants=2,
+        nominal_episodes=2,
+        bound_plants=5,
+        curve_episodes=2,
         episode_steps=50,
         plots=False,
         bootstrap_reps=50,
@@ -540,9 +579,18 @@ def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
         runner_mod.run_bench(cfg, log=lambda msg: None)
     header, rows = _rows(tmp_path / "int" / "metrics.csv")
     assert header == METRIC_COLUMNS
-    # Scenario 1: oracle and boom on 2 seeds; scenario 2: oracle, then boom blows up.
-    assert [r["controller"] for r in rows] == ["oracle", "oracle", "boom", "boom"] + ["oracle"] * 2
-    assert [r["scenario"] for r in rows] == ["nominal:stable2"] * 4 + ["family:lightly_damped2"] * 2
+    # lqg and zero on both scenarios first; then nominal: oracle and boom; family: oracle, then
+    # boom blows up
+    order = [(r["scenario"], r["controller"]) for r in rows][::2]
+    assert order == [
+        ("nominal:stable2", "lqg"),
+        ("nominal:stable2", "zero"),
+        ("family:test", "lqg"),
+        ("family:test", "zero"),
+        ("nominal:stable2", "oracle"),
+        ("nominal:stable2", "boom"),
+        ("family:test", "oracle"),
+    ]
     assert all(r["cost"] for r in rows)
     assert "INTERRUPTED" in (tmp_path / "int" / "report.md").read_text()
 
@@ -555,7 +603,8 @@ def test_curve_evaluations_count_the_points_each_training_measured(tiny_run):
     for r in curves:
         key = (r["train_env"], r["algo"], int(r["train_seed"]))
         measured[key] = measured.get(key, 0) + 1
-    tasks = rl_tasks(cfg, make_scenarios(cfg), {}, {})
+    scenarios = make_scenarios(cfg)
+    tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})
     assert {(t["train_key"], t["algo"], t["seed"]): curve_evaluations(t) for t in tasks} == measured
 
 
@@ -566,7 +615,8 @@ def test_schedule_gives_each_job_to_the_first_free_worker():
     assert schedule([7], 2) == [s + 7] and schedule([], 2) == []
     # longest first: the quick tier's RL jobs end within one short job of each other
     cfg = build_config(run="q")
-    tasks = rl_tasks(cfg, make_scenarios(cfg), {}, {})
+    scenarios = make_scenarios(cfg)
+    tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})
     weights = job_weights(cfg, [], tasks)
     cost = [weights[("rl", t["name"])] for t in tasks]
     assert cost == sorted(cost, reverse=True)

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from stcgym.agents.benchmark.evaluate import EnvSpec
+from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.rl import sb3 as sb3_mod
 from stcgym.agents.rl.configs import default_config
 from stcgym.agents.rl.sb3 import curve_checkpoints, train_agent
@@ -87,7 +87,7 @@ ROLLOUT = 128
 def _scripted(monkeypatch, costs):
     """Replace the learning-curve cost by COSTS[k - 1] at evaluation k (step k x ROLLOUT)."""
 
-    def fake_curve_cost(policy, spec, seeds, plants):
+    def fake_curve_cost(policy, spec, episodes, reference=None):
         step = policy.model.num_timesteps
         return 50.0 if step == 0 else costs[min(step // ROLLOUT, len(costs)) - 1]
 
@@ -170,10 +170,10 @@ def test_cap_below_one_interval_is_refused():
 
 
 def _rl_rows(stops):
-    """metrics.csv rows of one RL agent: two evaluation seeds per training seed."""
+    """metrics.csv rows of one RL agent: two episodes per training run."""
     return [
         {
-            "train_seed": ts,
+            "run": ts,
             "train_stop": status,
             "train_steps": steps,
             "train_last_improvement": last,
@@ -183,44 +183,46 @@ def _rl_rows(stops):
     ]
 
 
-def test_report_says_how_training_ended_and_names_capped_agents():
+def test_report_says_how_training_ended():
     from stcgym.agents.benchmark import report
+    from stcgym.agents.benchmark.headline import training_stops
 
-    mixed = report.training_stops(_rl_rows([("plateau", 51_200, 20_480), ("cap", 100_000, 92_160)]))
+    mixed = training_stops(_rl_rows([("plateau", 51_200, 20_480), ("cap", 100_000, 92_160)]))
     assert (mixed["seeds"], mixed["plateau"], mixed["cap"]) == (2, 1, 1)
-    assert report._training_cell({"training": mixed}) == (
-        "plateau 1/2, cap 1/2; last gain at 20.5k-92.2k"
-    )
-    converged = report.training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 3))
-    assert report._training_cell({"training": converged}) == "plateau 3/3; last gain at 10.2k"
-    hl = {"ppo": {"training": mixed}, "sac": {"training": converged}, "oracle": {}}
-    assert report._still_improving(hl, ["ppo", "sac", "oracle"]) == (
-        " (at the training cap before a plateau: ppo in 1/2 seeds)"
-    )
-    assert report._still_improving(hl, ["sac", "oracle"]) == ""
-    assert report._converged(hl["sac"]) == " (trained to its plateau in 3/3 seeds)"
-    assert report._converged(hl["ppo"]) == report._converged(hl["oracle"]) == ""
-    assert report._training_cell(hl["oracle"]) == "-"
+    assert mixed["last_improvement"] == [20_480, 92_160]
+    assert report._training_cell(mixed) == "plateau 1/2, cap 1/2"
+    converged = training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 3))
+    assert report._training_cell(converged) == "plateau 3/3"
+    assert report._training_cell(None) == "-"
 
 
 def test_conclusions_say_where_rl_wins_and_qualify_wins_over_capped_agents():
     from stcgym.agents.benchmark import report
+    from stcgym.agents.benchmark.headline import training_stops
     from stcgym.agents.benchmark.statistics import Estimate
 
-    capped = report.training_stops(_rl_rows([("cap", 100_000, 92_160)] * 2))
-    converged = report.training_stops(_rl_rows([("plateau", 40_960, 10_240)] * 2))
-    hl = {
-        "ppo": {"training": capped, "poi": Estimate(0.9, 0.8, 1.0)},  # stc wins
-        "sac": {"training": converged, "poi": Estimate(0.1, 0.0, 0.2)},  # sac wins
-        "lqg": {"poi": Estimate(0.2, 0.1, 0.3)},  # a classical controller is no RL agent
-    }
-    line = report._sentences("nominal:stable2", hl, jump=False)
-    parts = line.split("; ")
-    assert parts[0].endswith(
-        "stc has the lower episode cost more often than not against ppo "
-        "(at the training cap before a plateau: ppo in 2/2 seeds)"
-    )
-    assert parts[1] == (
-        "sac has the lower episode cost than stc more often than not "
-        "(sac trained to the plateau in every seed)."
-    )
+    capped = training_stops(_rl_rows([("cap", 100_000, 92_160)] * 2))
+    zero = Estimate(0.0, 0.0, 0.0)
+
+    def res(family, ratio):
+        return {"family": family, "ratio": Estimate(ratio, ratio * 0.9, ratio * 1.1),
+                "diverged": zero}  # fmt: skip
+
+    hl = {"ppo": res("rl", 2.0), "stc": res("adaptive", 1.5), "lqg": res("oracle", 1.0)}
+    pairs = [("stc", "ppo", {"probability": Estimate(0.9, 0.8, 1.0),
+                             "ratio": Estimate(0.7, 0.6, 0.8)})]  # fmt: skip
+    line = report._conclusion("family:test", hl, pairs, {"ppo": capped})
+    assert line.startswith("`family:test`: the lowest cost / LQG is stc's, 1.5 [1.35, 1.65]")
+    assert "stc has the lower cost more often than ppo: P = 0.9 [0.8, 1]" in line
+    assert "(ppo reached its training cap before a plateau in 2/2 runs)" in line
+    # where RL wins, the sentence says so, whichever way the numbers fall
+    hl["ppo"] = res("rl", 1.2)
+    pairs = [("stc", "ppo", {"probability": Estimate(0.2, 0.1, 0.3),
+                             "ratio": Estimate(1.3, 1.1, 1.5)})]  # fmt: skip
+    line = report._conclusion("family:test", hl, pairs, {})
+    assert "lowest cost / LQG is ppo's" in line
+    assert "ppo has the lower cost more often than stc" in line and "cap" not in line
+    # an interval across one half decides nothing
+    pairs = [("stc", "ppo", {"probability": Estimate(0.5, 0.3, 0.7),
+                             "ratio": Estimate(1.0, 0.8, 1.2)})]  # fmt: skip
+    assert "neither stc nor ppo" in report._conclusion("family:test", hl, pairs, {})

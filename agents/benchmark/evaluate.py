@@ -47,6 +47,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
@@ -70,6 +71,12 @@ __all__ = [
     "run_episode",
     "summarize",
 ]
+
+def _reset_episode(env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
+    options = None if plant is None else {"plant": plant}
+    obs, info = env.reset(seed=int(seed), options=options)
+    return obs, info, env.unwrapped.plant
+
 
 #: ``factory(plant, seed) -> policy``: the controller for one episode on ``plant`` (the
 #: catalogue plant in force at the start of the episode, which only the oracles may look at);
@@ -191,7 +198,7 @@ def run_episode(
     """
     env = spec.make()
     # a spec's own reset (a MIMO spec's); any object with make, steps and action_bound will do
-    obs, info, drawn = spec.reset_episode(env, seed, plant)
+    obs, info, drawn = getattr(spec, "reset_episode", _reset_episode)(env, seed, plant)
     name = drawn.name if drawn is not None else "?"
     if not hasattr(policy, "predict"):
         policy = policy(drawn, int(seed))

@@ -12,6 +12,7 @@ windows, and the settling steps of :func:`~stcgym.agents.benchmark.response.sett
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,9 +21,9 @@ from numpy.typing import NDArray
 
 from stcgym.agents.benchmark.evaluate import cost_metrics
 from stcgym.agents.benchmark.metrics_csv import TOLERANCE
-from stcgym.agents.benchmark.response import settling_step
+from stcgym.agents.benchmark.response import curve_settling_step, settling_step
 
-__all__ = ["Yardstick", "episode_rows"]
+__all__ = ["Yardstick", "episode_rows", "rl_steps_to_target"]
 
 
 @dataclass
@@ -51,6 +52,43 @@ class Yardstick:
 def _ratio(x: NDArray, ref: NDArray) -> NDArray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(ref > 0, x / ref, math.nan)
+
+
+def rl_steps_to_target(
+    curve: Sequence[tuple[float, float]],
+    test_ratios: NDArray,
+    in_distribution: bool,
+    tol: float = TOLERANCE,
+) -> float:
+    """An RL run's training steps to get within ``tol`` of the yardstick, for one scenario.
+
+    Read off the run's learning curve (``(step, score)`` with the score the median cost ratio
+    to the yardstick on the validation episodes: :func:`~stcgym.agents.benchmark.response.
+    curve_settling_step`), and only where that curve speaks for the scenario: ``nan`` when the
+    scenario's episodes are not drawn from the validation distribution (a held-out variant,
+    a single other plant), ``inf`` when the run is not within ``tol`` on the scenario's own
+    episodes either (median of ``test_ratios``, its cost ratios there), whatever its curve
+    says.
+
+    Examples
+    --------
+    A curve that reaches 1.1x of LQG at step 2000, and the test episodes at 1.05x or 50x:
+
+    >>> import numpy as np
+    >>> from stcgym.agents.benchmark.rows import rl_steps_to_target
+    >>> curve = [(0, 30.0), (1000, 2.0), (2000, 1.1), (3000, 1.05)]
+    >>> rl_steps_to_target(curve, np.array([1.0, 1.05, 1.1]), True)
+    2000.0
+    >>> rl_steps_to_target(curve, np.array([40.0, 50.0, 60.0]), True)
+    inf
+    >>> rl_steps_to_target(curve, np.array([1.0, 1.05, 1.1]), False)
+    nan
+    """
+    if not in_distribution:
+        return math.nan
+    if not float(np.median(test_ratios)) <= tol:
+        return math.inf
+    return curve_settling_step(curve, 1.0, tol)
 
 
 def episode_rows(

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import sys
 import threading
 import time
@@ -36,8 +35,7 @@ from stcgym.agents.benchmark.plan import (
     reference_weights,
     rl_tasks,
 )
-from stcgym.agents.benchmark.response import curve_settling_step
-from stcgym.agents.benchmark.rows import Yardstick, episode_rows
+from stcgym.agents.benchmark.rows import Yardstick, episode_rows, rl_steps_to_target
 from stcgym.agents.benchmark.rundir import (
     JOBS_FOLDER,
     check_runnable,
@@ -365,19 +363,13 @@ class _RunState:
             )
         self._write_curves()
         stop = self.data.stops[(key, algo, ts)] = result["stop"]
-        reached = curve_settling_step(result["curve"], 1.0, TOLERANCE)
         folder = Path(task["model_dir"])
         for ev in result["evaluations"]:
             sc = self.scenarios[ev["scenario"]]
             cost = np.load(folder / ev["costs"], allow_pickle=False).astype(float)
             yard = self.yard[sc.name]
-            # steps to the target from the validation curve: only where the test episodes come
-            # from the validation distribution, and only if this run is within the tolerance
-            # on them too (the curve's median ratio and the test episodes' must agree)
-            target = math.nan
-            if sc.in_distribution:
-                median = float(np.median(cost.mean(axis=1) / yard.metrics["cost"]))
-                target = reached if median <= TOLERANCE else math.inf
+            ratios = cost.mean(axis=1) / yard.metrics["cost"]
+            target = rl_steps_to_target(result["curve"], ratios, sc.in_distribution)
             extra = {
                 "train_steps": result["steps"],
                 "train_cap": stop["cap"],

@@ -188,7 +188,7 @@ _OFF_POLICY_BUDGETS: dict[str, int] = {
     "quick_steps": 6_000,
     "standard_steps": 50_000,
     "standard_family_steps": 200_000,
-    "full_steps": 1_000_000,
+    "full_steps": 200_000,
     "eval_interval": 2_000,
 }
 
@@ -280,10 +280,10 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         },
         n_envs=4,
         normalize_reward=True,
-        quick_steps=16_384,
+        quick_steps=20_480,
         standard_steps=1_000_000,
         standard_family_steps=1_000_000,
-        full_steps=2_000_000,
+        full_steps=1_000_000,
         eval_interval=20_480,  # 5 rollouts of 4 x 1024
         policy="MlpLstmPolicy",
         window={"window": 1},
