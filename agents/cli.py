@@ -189,6 +189,12 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         type=int,
         help=f"training episodes that set the action bound (default {defaults.bound_plants})",
     )
+    p.add_argument(
+        "--tune-trials",
+        type=int,
+        help="Optuna trials per RL agent and for the self-tuning controller (stc_tuned) on the "
+        f"family's validation split (full default {FULL['tune_trials']}; others none)",
+    )
     p.add_argument("--first-seed", type=int, default=1000, help="first test episode seed (>= 0)")
     p.add_argument(
         "--episode-steps",
@@ -301,6 +307,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             nominal_episodes=args.nominal_episodes,
             curve_episodes=args.curve_episodes,
             bound_plants=args.bound_plants,
+            tune_trials=args.tune_trials,
             first_seed=args.first_seed,
             episode_steps=args.episode_steps,
             noise_std=args.noise,

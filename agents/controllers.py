@@ -8,9 +8,11 @@ controllers look at it) with the controller seed ``seeds[i]``.
 * ``stc``: the self-tuning controller with its defaults (pole placement, extended least
   squares); ``stc_lq``: the same with the self-tuning LQ design (``design="lq"``) weighted by
   the bench's cost ``(y - r)^2 + control_cost u^2``; ``stc_kfmils``: ``stc`` on the paper's
-  KF-MILS estimator. Each is told the plant order of the scenario's training distribution
-  (also on a held-out distribution of another order) and nothing else; their options are the
-  library's defaults, fixed before any test plant was drawn.
+  KF-MILS estimator; ``stc_tuned``: ``stc`` with options tuned on the validation split with
+  the RL agents' Optuna budget (the full tier, :mod:`stcgym.agents.benchmark.tuning`). Each is
+  told the plant order of the scenario's training distribution (also on a held-out
+  distribution of another order) and nothing else; the others' options are the library's
+  defaults, fixed before any test plant was drawn.
 * ``lqg``: the yardstick, LQG on the true model for the bench's own cost (the steady-state
   LQ gain and Kalman filter, the reference fed forward through the steady state), told the new
   parameters at a jump; on a measured-state MIMO plant the LQR on the true ``(A, B)``
@@ -37,7 +39,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CONTROLLERS", "YARDSTICK", "ControllerInfo", "ZeroController", "controllers_for"]
+__all__ = [
+    "CONTROLLERS",
+    "YARDSTICK",
+    "ControllerInfo",
+    "ZeroController",
+    "controllers_for",
+    "self_tuning",
+]
 
 #: The controller every ratio is taken to.
 YARDSTICK = "lqg"
@@ -106,7 +115,7 @@ def _lanes(plants: Sequence[Any]) -> tuple[NDArray, NDArray]:
     return np.array([p.a for p in plants], dtype=float), np.array([p.b for p in plants])
 
 
-def _self_tuning(cfg: Any, sc: Any, **options: Any) -> Callable[[list[Any], list[int]], Any]:
+def self_tuning(cfg: Any, sc: Any, **options: Any) -> Callable[[list[Any], list[int]], Any]:
     """The self-tuning controller with its defaults and ``options``, told the order of the
     scenario's training distribution (``sc.controller_order``)."""
     from stcgym.adaptive import SelfTuningController
@@ -124,12 +133,21 @@ def _self_tuning(cfg: Any, sc: Any, **options: Any) -> Callable[[list[Any], list
 
 
 def _stc(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
-    return _self_tuning(cfg, sc)
+    return self_tuning(cfg, sc)
 
 
 def _stc_kfmils(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     # no estimator options: the controller picks its closed-loop settings for KF-MILS itself
-    return _self_tuning(cfg, sc, estimator="KF-MILS")
+    return self_tuning(cfg, sc, estimator="KF-MILS")
+
+
+def _stc_tuned(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    from stcgym.agents.benchmark.tuning import stc_options
+
+    tuned = cfg.tuned.get("stc")
+    if tuned is None:
+        raise ValueError("stc_tuned needs the tuning of the full tier (--tune-trials N)")
+    return self_tuning(cfg, sc, **stc_options(tuned["params"]))
 
 
 def _stc_lq(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
@@ -138,7 +156,7 @@ def _stc_lq(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
 
     # the LQ weights are the bench's own cost, as LQG's (q_i keeps the integrator)
     law = LawOptions(lq_weights=cost_weights(sc.env.control_cost))
-    return _self_tuning(cfg, sc, design="lq", law=law)
+    return self_tuning(cfg, sc, design="lq", law=law)
 
 
 def _oracle(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
@@ -214,6 +232,14 @@ CONTROLLERS: dict[str, ControllerInfo] = {
     ),
     "stc_lq": ControllerInfo(
         "adaptive", _stc_lq, True, "self-tuning LQ (design='lq')", seeded=True, knows=_ADAPTIVE
+    ),
+    "stc_tuned": ControllerInfo(
+        "adaptive",
+        _stc_tuned,
+        True,
+        "the self-tuning controller with options tuned on the validation split",
+        seeded=True,
+        knows={**_ADAPTIVE, "data": "the episode so far; options tuned on validation episodes"},
     ),
     "stc_kfmils": ControllerInfo(
         "adaptive",

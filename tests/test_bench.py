@@ -622,3 +622,53 @@ def test_schedule_gives_each_job_to_the_first_free_worker():
     assert cost == sorted(cost, reverse=True)
     busy = schedule(cost, 2)
     assert max(busy) - min(busy) <= min(cost)
+
+
+def test_tuning_gives_rl_and_the_self_tuning_controller_one_budget(tmp_path, monkeypatch):
+    from stcgym.agents.benchmark import tuning
+
+    def small(trial, algo):  # a tiny search space: the tiny run's rollouts stay short
+        lr = trial.suggest_float("learning_rate", 1e-4, 1e-3, log=True)
+        return {"hyperparams": {"learning_rate": lr, "n_steps": 64}, "net_width": 16}
+
+    monkeypatch.setattr(tuning, "sample_rl", small)
+    args = ["--scenarios", "family", "--agents", "ppo,stc_tuned", "--tune-trials", "2"]
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main(["bench", *TINY, *args, "--no-plots", "--out", str(tmp_path), "--run", "t"])
+    assert rc == 0, err.getvalue()
+    bench = json.loads((tmp_path / "t" / "config.json").read_text())["bench"]
+    tuned = bench["tuned"]
+    assert set(tuned) == {"ppo", "stc"}
+    for study in tuned.values():  # the same budget: trials on the validation episodes
+        assert len(study["trials"]) == 2 and study["best_value"] == min(study["trials"])
+    best = tuned["ppo"]["best_params"]["learning_rate"]
+    assert bench["algo_configs"]["ppo"]["hyperparams"]["learning_rate"] == best
+    assert bench["algo_configs"]["ppo"]["hyperparams"]["policy_kwargs"]["net_arch"] == [16, 16]
+    _, rows = _rows(tmp_path / "t" / "metrics.csv")
+    ours = [r for r in rows if r["controller"] == "stc_tuned"]
+    assert len(ours) == 2 * 4 and {r["family"] for r in ours} == {"adaptive"}
+    assert "## Tuning" in (tmp_path / "t" / "report.md").read_text()
+
+
+def test_tuned_settings_build_valid_agents_and_controllers():
+    import optuna
+
+    from stcgym.adaptive import SelfTuningController
+    from stcgym.agents.benchmark.tuning import apply_rl_params, sample_rl, sample_stc, stc_options
+    from stcgym.agents.rl.configs import default_config, validate_config
+
+    for k in range(5):
+        trial = optuna.trial.FixedTrial(
+            {"learning_rate": 3e-4, "gamma": 0.99, "net_width": 128, "n_steps": [256, 512][k % 2],
+             "gae_lambda": 0.9, "batch_size": 128, "tau": 0.01, "lstm_hidden_size": 64,
+             "pole": 0.3, "forgetting": 0.99, "probe_amplitude": 0.2, "change_threshold": 4.0,
+             "measurement_noise": 5.0}
+        )  # fmt: skip
+        for algo in ("ppo", "sac", "rppo"):
+            config = apply_rl_params(default_config(algo), sample_rl(trial, algo))
+            validate_config(config)
+            rollout = config.hyperparams.get("n_steps", 1) * config.n_envs
+            assert config.eval_interval % rollout == 0
+        ctl = SelfTuningController(2, **stc_options(sample_stc(trial)))
+        assert list(ctl.poles) == [0.3] * 3

@@ -287,7 +287,7 @@ def test_obs_norm_is_vec_normalize():
 
 def test_rl_trains_on_the_scored_cost_by_default():
     from stcgym.agents import TrainingReward, default_config
-    from stcgym.agents.rl.configs import DEFAULT_CONFIGS, ZOO_DEPARTURES
+    from stcgym.agents.rl.configs import ABLATIONS, DEFAULT_CONFIGS, ZOO_DEPARTURES
 
     env = TrainingReward(gym.make("stcgym/ObserverCanonical-v0", plant="stable2"), horizon=50)
     raw = gym.make("stcgym/ObserverCanonical-v0", plant="stable2")
@@ -299,7 +299,15 @@ def test_rl_trains_on_the_scored_cost_by_default():
         cfg = default_config(algo)
         assert cfg.cost_squash is None and cfg.normalize_obs
         assert cfg.hyperparams["gamma"] == 0.99
-        assert cfg.window.get("include_integral", True)
+        # the integral of the tracking error is an input, but in its ablation
+        assert cfg.window.get("include_integral", True) == (algo not in ABLATIONS)
+        if algo in ABLATIONS:  # an ablation is its agent with one thing changed
+            base = default_config(ABLATIONS[algo][0])
+            assert cfg.hyperparams == base.hyperparams and cfg.algo == algo
+            assert {**cfg.window, "include_integral": True} == {
+                **base.window,
+                "include_integral": True,
+            }
         # every departure from the Zoo is listed with a reason
         for _setting, zoo, ours, why in ZOO_DEPARTURES.get(algo, []):
             assert why and zoo != ours

@@ -122,6 +122,12 @@ class BenchConfig:
     #: the action bound of each training distribution (measured at the start of a run)
     action_bounds: dict[str, float] = field(default_factory=dict)
     curve_points: int = 5
+    #: Optuna trials per RL agent and for the self-tuning controller on the validation split
+    #: (0: no tuning), each RL trial training for tune_fraction of the agent's family cap
+    tune_trials: int = 0
+    tune_fraction: float = 0.1
+    #: the studies' results (filled by a run that tunes): agent -> summary and best params
+    tuned: dict[str, dict[str, Any]] = field(default_factory=dict)
     algo_configs: dict[str, dict[str, Any]] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)
     plots: bool = True
@@ -216,10 +222,11 @@ FULL = dict(
     mode="full",
     mimo_plants=mimo_plant_names(),
     plants=["stable2", "unstable2"],
-    agents=["ppo", "sac", "td3", "a2c", "rppo", *_CLASSICAL],
+    agents=["ppo", "ppo_noint", "sac", "td3", "a2c", "rppo", "stc_tuned", *_CLASSICAL],
     train_seeds=10,
     episodes_per_plant=2,
     curve_episodes=50,
+    tune_trials=20,
 )
 MODES = {"quick": QUICK, "standard": STANDARD, "full": FULL}
 
@@ -272,6 +279,7 @@ _PLAIN = (
     "noise_std",
     "curve_points",
     "eval_interval",
+    "tune_trials",
 )
 
 
@@ -308,8 +316,8 @@ def build_config(
     it ``quick`` picks quick or full); every list argument takes a comma-separated string or a
     sequence; ``plain`` takes the fields ``train_seeds``, ``test_plants``,
     ``episodes_per_plant``, ``nominal_episodes``, ``curve_episodes``, ``bound_plants``,
-    ``episode_steps``, ``noise_std``, ``curve_points`` and ``eval_interval`` (``None``: the
-    preset's). Nothing is trained or written here.
+    ``episode_steps``, ``noise_std``, ``curve_points``, ``eval_interval`` and ``tune_trials``
+    (``None``: the preset's). Nothing is trained or written here.
     """
     unknown = sorted(set(plain) - set(_PLAIN))
     if unknown:
@@ -406,6 +414,10 @@ def _check_names(cfg: BenchConfig) -> None:
         raise ValueError(f"unknown --ood variant(s) {bad}; {cfg.family} has {fam.variant_names}")
     if "ood" in cfg.scenarios and not cfg.ood:
         raise ValueError("the ood scenarios need at least one --ood variant")
+    if "stc_tuned" in cfg.agents and not (cfg.tune_trials or "stc" in cfg.tuned):
+        raise ValueError("stc_tuned needs tuning trials (--tune-trials N, N >= 1)")
+    if cfg.tune_trials and not {"family", "ood", "jump"} & set(cfg.scenarios):
+        raise ValueError("--tune-trials tunes on the family's validation split: add its scenarios")
     recurrent = [a for a in cfg.rl_agents if a in RECURRENT_ALGORITHMS]
     if recurrent and not {"family", "ood", "jump"} & set(cfg.scenarios):
         raise ValueError(
@@ -427,6 +439,14 @@ def _check_numbers(cfg: BenchConfig) -> None:
         setattr(cfg, name, _positive_int(getattr(cfg, name), f"--{name.replace('_', '-')}"))
     if cfg.test_plants is not None:
         cfg.test_plants = _positive_int(cfg.test_plants, "--test-plants")
+    if cfg.tune_trials:
+        cfg.tune_trials = _positive_int(cfg.tune_trials, "--tune-trials")
+        if not 0 < float(cfg.tune_fraction) <= 1:
+            raise ValueError(f"tune_fraction must be in (0, 1], got {cfg.tune_fraction!r}")
+        try:
+            import optuna  # noqa: F401
+        except ImportError:
+            raise ValueError("--tune-trials needs optuna (pip install 'stcgym[rl]')") from None
     if cfg.episode_steps is not None:
         cfg.episode_steps = _positive_int(cfg.episode_steps, "--episode-steps")
         if cfg.episode_steps < 20:
@@ -501,7 +521,8 @@ def _mimo_cap(config: Any, mode: str) -> int:
     """The default cap on a MIMO plant: the single-plant cap of standard and full, and in quick
     :data:`QUICK_MIMO_INTERVALS` evaluation intervals (at most ``quick_steps``)."""
     if mode == "quick":
-        return min(config.quick_steps, QUICK_MIMO_INTERVALS[config.algo] * config.eval_interval)
+        intervals = QUICK_MIMO_INTERVALS.get(config.algo, 1)
+        return min(config.quick_steps, intervals * config.eval_interval)
     return getattr(config, _MODE_CAPS[mode][0])
 
 

@@ -72,6 +72,7 @@ __all__ = [
     "summarize",
 ]
 
+
 def _reset_episode(env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
     options = None if plant is None else {"plant": plant}
     obs, info = env.reset(seed=int(seed), options=options)

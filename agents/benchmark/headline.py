@@ -63,7 +63,7 @@ DETAIL_COLUMNS = (
 )
 
 #: The self-tuning controllers, compared pairwise with every RL agent.
-SELF_TUNING = ("stc", "stc_lq", "stc_kfmils", "stc_mimo")
+SELF_TUNING = ("stc", "stc_lq", "stc_kfmils", "stc_tuned", "stc_mimo")
 
 _TABLE_COLUMNS = (
     "cost",

@@ -35,7 +35,14 @@ __all__ = [
 #: with the other worker (torch on one thread, the native vector env; learning-curve and
 #: evaluation episodes counted apart). Only the schedule, the ETA and the announced estimate
 #: use them.
-SECONDS_PER_STEP = {"ppo": 0.8e-3, "a2c": 0.8e-3, "sac": 8.0e-3, "td3": 7.5e-3, "rppo": 2.5e-3}
+SECONDS_PER_STEP = {
+    "ppo": 0.8e-3,
+    "ppo_noint": 0.8e-3,
+    "a2c": 0.8e-3,
+    "sac": 8.0e-3,
+    "td3": 7.5e-3,
+    "rppo": 2.5e-3,
+}
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
 #: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.
 SECONDS_PER_POLICY_STEP = {"rppo": 1.2e-3}

@@ -73,6 +73,10 @@ def _training_cell(res: dict[str, Any] | None) -> str:
     return ", ".join(parts) or "-"
 
 
+def _settings(params: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={_g(v) if isinstance(v, float) else v}" for k, v in params.items())
+
+
 def _knowledge_table(cfg: Any) -> list[str]:
     from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS
 
@@ -371,6 +375,24 @@ def write_report(
             out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
         sentences.append(_conclusion(sc.name, hl, pairs, stops))
     out += ["## Conclusions", "", *(s for s in sentences if s), ""]
+    if cfg.tuned:
+        out += [
+            "## Tuning",
+            "",
+            f"Optuna (TPE, seeded), {cfg.tune_trials} trials per study on the family's "
+            "validation episodes (median cost / LQG); an RL trial trains for "
+            f"{cfg.tune_fraction:g} of the agent's family cap. The best settings train every "
+            "run of the agent and configure `stc_tuned`.",
+            "",
+            "| study | trials | best validation score | best settings |",
+            "|---|---|---|---|",
+            *(
+                f"| {name} | {len(t['trials'])} | {_g(t['best_value'])} | "
+                f"{_settings(t['best_params'])} |"
+                for name, t in cfg.tuned.items()
+            ),
+            "",
+        ]
     training = _training_table(cfg, data, rows)
     if training:
         out += [

@@ -347,6 +347,50 @@ class _RunState:
                 raise _Stop
             self._classical_rows(sc, name, run, self._evaluate(sc, name, run))
 
+    # -- tuning ----------------------------------------------------------------------------
+    def tune(self, env: TrainingEnv) -> None:
+        """The studies of :mod:`~stcgym.agents.benchmark.tuning` on the family's validation
+        episodes: every RL agent's in the executor, the self-tuning controller's here; the best
+        settings go into ``cfg`` (and so ``config.json``)."""
+        from stcgym.agents.benchmark.tuning import apply_rl_params, tune_rl, tune_stc
+        from stcgym.agents.executors import run_tasks
+        from stcgym.agents.rl.configs import AlgoConfig
+
+        cfg, reference = self.cfg, self.data.curve_references["family"]
+        t0 = time.perf_counter()
+        tasks = [
+            {
+                "name": f"tune_{algo}",
+                "algo": algo,
+                "config": cfg.algo_configs[algo],
+                "train": env.train.to_dict(),
+                "curve": env.curve.to_dict(),
+                "curve_episodes": env.curve_episodes.to_dict(),
+                "reference": reference,
+                "trials": cfg.tune_trials,
+                "steps": max(1, int(cfg.tune_fraction * cfg.family_train_steps[algo])),
+                "seed": 0,
+            }
+            for algo in cfg.rl_agents
+        ]
+        tuned: dict[str, dict[str, Any]] = {}
+        runs = run_tasks(tune_rl, tasks, executor=cfg.executor, jobs=cfg.jobs,
+                         address=cfg.address, threads=1)  # fmt: skip
+        for out in runs:
+            if out.error is not None:
+                raise RuntimeError(f"tuning {out.task['algo']} failed:\n{out.error}")
+            tuned[out.task["algo"]] = out.result
+        if "stc_tuned" in cfg.agents:
+            tuned["stc"] = tune_stc(cfg, env, reference, cfg.tune_trials)
+        for algo in cfg.rl_agents:
+            base = AlgoConfig.from_dict(cfg.algo_configs[algo])
+            cfg.algo_configs[algo] = apply_rl_params(base, tuned[algo]["params"]).to_dict()
+        cfg.tuned = tuned
+        self.log(
+            f"tuned {', '.join(tuned)} on the validation split ({cfg.tune_trials} trials each, "
+            f"{time.perf_counter() - t0:.0f} s)"
+        )
+
     def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> None:
         for sc in scenarios:
             for name in controllers_for(self.cfg.classical, sc.env):  # those on its plants
@@ -412,6 +456,8 @@ class _RunState:
         for key, env in envs.items():
             self.data.curve_references[key] = self._curve_reference(env)
             progress.finish(("reference", key), f"yardstick on the {key} curve episodes")
+        if cfg.tune_trials and not cfg.tuned:
+            self.tune(envs["family"])
         for sc in scenarios:
             self._yardstick(sc)
         self.log("yardstick and zero input evaluated on every scenario")

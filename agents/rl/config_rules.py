@@ -152,15 +152,17 @@ def validate_config(cfg: AlgoConfig) -> None:
     Beyond single values: PPO-family rollouts need ``n_steps * n_envs > 1`` and PPO's
     minibatches ``batch_size > 1`` (SB3 asserts both only when the model is built).
     """
+    from stcgym.agents.rl.configs import ABLATIONS
     from stcgym.agents.rl.wrappers import WindowConfig
 
     name = cfg.algo
+    kind = ABLATIONS[name][0] if name in ABLATIONS else name  # an ablation: its agent's rules
     for key, (check, expected) in FIELD_RULES.items():
         value = getattr(cfg, key)
         if not check(value):
             raise ValueError(f"{name}.{key} must be {expected}, got {value!r}")
-    if cfg.policy not in POLICIES.get(name, (cfg.policy,)):
-        raise ValueError(f"{name}.policy must be one of {POLICIES[name]}, got {cfg.policy!r}")
+    if cfg.policy not in POLICIES.get(kind, (cfg.policy,)):
+        raise ValueError(f"{name}.policy must be one of {POLICIES[kind]}, got {cfg.policy!r}")
     try:
         WindowConfig(**cfg.window)
     except TypeError as exc:
@@ -172,11 +174,11 @@ def validate_config(cfg: AlgoConfig) -> None:
         if rule is not None and not rule[0](value):
             raise ValueError(f"{name}.{key} must be {rule[1]}, got {value!r}")
     hp = cfg.hyperparams
-    if name in ("ppo", "a2c", "rppo") and hp.get("n_steps", 2) * cfg.n_envs < 2:
+    if kind in ("ppo", "a2c", "rppo") and hp.get("n_steps", 2) * cfg.n_envs < 2:
         raise ValueError(f"{name}: n_steps * n_envs must be > 1 (SB3's rollout rule)")
-    if name in ("ppo", "rppo") and hp.get("batch_size", 2) < 2:
+    if kind in ("ppo", "rppo") and hp.get("batch_size", 2) < 2:
         raise ValueError(f"{name}.batch_size must be > 1 (PPO normalises advantages per batch)")
-    if name == "sac" and "ent_coef" in hp and not _ent_coef(hp["ent_coef"]):
+    if kind == "sac" and "ent_coef" in hp and not _ent_coef(hp["ent_coef"]):
         raise ValueError(f"{name}.ent_coef must be a number >= 0, 'auto' or 'auto_<init>'")
-    if name != "sac" and isinstance(hp.get("ent_coef"), str):
+    if kind != "sac" and isinstance(hp.get("ent_coef"), str):
         raise ValueError(f"{name}.ent_coef must be a number >= 0, got {hp['ent_coef']!r}")

@@ -48,6 +48,7 @@ from typing import Any
 from stcgym.agents.rl.config_rules import HYPERPARAMETER_RULES, RESERVED_ARGS, validate_config
 
 __all__ = [
+    "ABLATIONS",
     "ALGORITHMS",
     "HYPERPARAMETER_RULES",
     "RECURRENT_ALGORITHMS",
@@ -62,13 +63,20 @@ __all__ = [
     "parse_override",
 ]
 
-#: Algorithms the bench knows, with the Stable-Baselines3 (or sb3-contrib) class name.
+#: RL agents the bench knows, with the Stable-Baselines3 (or sb3-contrib) class name.
 ALGORITHMS: dict[str, str] = {
     "ppo": "PPO",
     "sac": "SAC",
     "td3": "TD3",
     "a2c": "A2C",
     "rppo": "RecurrentPPO",
+    "ppo_noint": "PPO",
+}
+
+#: Ablations: ``agent -> (the agent it varies, what differs)``, each with its own default
+#: config (the full tier runs them).
+ABLATIONS: dict[str, tuple[str, str]] = {
+    "ppo_noint": ("ppo", "PPO without the integral of the tracking error among its inputs"),
 }
 
 #: Recurrent (LSTM) agents: the adaptive-RL baseline. They are trained on the randomised plant
@@ -290,6 +298,16 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
     ),
 }
 
+
+def _ablation(agent: str, **window: Any) -> AlgoConfig:
+    base = copy.deepcopy(DEFAULT_CONFIGS[ABLATIONS[agent][0]])
+    base.algo = agent
+    base.window = {**base.window, **window}
+    return base
+
+
+DEFAULT_CONFIGS["ppo_noint"] = _ablation("ppo_noint", include_integral=False)
+
 #: Where a default config departs from the Zoo entry it follows: ``agent -> [(setting, Zoo
 #: value, ours, reason)]`` (the report prints it).
 ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
@@ -326,6 +344,7 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
          "identifying a plant from a family is harder than a pendulum's velocity"),
     ],
 }  # fmt: skip
+ZOO_DEPARTURES["ppo_noint"] = ZOO_DEPARTURES["ppo"]
 
 
 def default_config(algo: str) -> AlgoConfig:

@@ -1,0 +1,166 @@
+"""Hyperparameter tuning on the validation split: the same Optuna budget for every RL agent and
+for the self-tuning controller (the full tier; ``--tune-trials N``).
+
+Each study runs ``N`` trials of Optuna's TPE sampler (seeded) and scores a trial by the median
+cost ratio to the LQG yardstick on the training distribution's validation episodes, the score
+the plateau rule reads; the test episodes are never seen. An RL trial trains the agent with the
+sampled hyperparameters for a fraction of its cap (``tune_fraction``) and keeps its best
+validation score; a self-tuning controller trial runs the controller with the sampled options
+on the same validation episodes. The best trial's settings then train every run of the agent
+(:data:`~stcgym.agents.benchmark.config.BenchConfig.algo_configs`) and configure the tuned
+self-tuning controller ``stc_tuned`` (``BenchConfig.tuned``); ``config.json`` and the report
+keep every study's trials.
+
+The search spaces (:func:`sample_rl`, :func:`sample_stc`) follow the RL Zoo's samplers where it
+has one (learning rate, rollout length, discount, GAE, network size; ``rl_zoo3/hyperparams_opt.py``)
+and, for the self-tuning controller, span its documented options (closed-loop pole, forgetting
+factor, probe amplitude, change-detection threshold, the estimator's measurement noise).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+import numpy as np
+
+from stcgym.agents.benchmark.episodes import run_episodes
+from stcgym.agents.benchmark.scenarios import TrainingEnv
+from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
+
+__all__ = ["apply_rl_params", "sample_rl", "sample_stc", "stc_options", "tune_rl", "tune_stc"]
+
+
+def sample_rl(trial: Any, algo: str) -> dict[str, Any]:
+    """Sampled hyperparameters of ``algo``: ``{"hyperparams": {...}, "net": [w, w], ...}``."""
+    base = algo.split("_")[0]
+    hp: dict[str, Any] = {
+        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
+        "gamma": trial.suggest_categorical("gamma", [0.98, 0.99, 0.995]),
+    }
+    width = trial.suggest_categorical("net_width", [64, 128])
+    if base in ("sac", "td3"):
+        hp["batch_size"] = trial.suggest_categorical("batch_size", [128, 256, 512])
+        hp["tau"] = trial.suggest_categorical("tau", [0.005, 0.01, 0.02])
+    else:
+        hp["n_steps"] = trial.suggest_categorical("n_steps", [256, 512, 1024])
+        hp["gae_lambda"] = trial.suggest_categorical("gae_lambda", [0.9, 0.95, 0.98])
+    out: dict[str, Any] = {"hyperparams": hp, "net_width": width}
+    if algo in RECURRENT_ALGORITHMS:
+        out["lstm_hidden_size"] = trial.suggest_categorical("lstm_hidden_size", [64, 128, 256])
+    return out
+
+
+def apply_rl_params(config: AlgoConfig, params: dict[str, Any]) -> AlgoConfig:
+    """A copy of ``config`` with the sampled ``params`` of :func:`sample_rl` applied."""
+    out = copy.deepcopy(config)
+    out.hyperparams.update(params["hyperparams"])
+    kwargs = dict(out.hyperparams.get("policy_kwargs", {}))
+    width = int(params["net_width"])
+    if "lstm_hidden_size" in params:
+        kwargs["lstm_hidden_size"] = int(params["lstm_hidden_size"])
+        kwargs["net_arch"] = {"pi": [width], "vf": [width]}
+    else:
+        kwargs["net_arch"] = [width, width]
+    out.hyperparams["policy_kwargs"] = kwargs
+    # the evaluation interval stays a whole number of rollouts
+    rollout = int(out.hyperparams.get("n_steps", 1)) * int(out.n_envs)
+    out.eval_interval = max(rollout, (out.eval_interval // rollout) * rollout)
+    return out
+
+
+def sample_stc(trial: Any) -> dict[str, Any]:
+    """Sampled options of the self-tuning controller (:func:`stc_options` turns them into its
+    keyword arguments)."""
+    return {
+        "pole": trial.suggest_float("pole", 0.2, 0.85),
+        "forgetting": trial.suggest_float("forgetting", 0.98, 1.0),
+        "probe_amplitude": trial.suggest_float("probe_amplitude", 0.1, 1.0, log=True),
+        "change_threshold": trial.suggest_float("change_threshold", 3.0, 10.0),
+        "measurement_noise": trial.suggest_float("measurement_noise", 1.0, 100.0, log=True),
+    }
+
+
+def stc_options(params: dict[str, Any]) -> dict[str, Any]:
+    """The :class:`~stcgym.adaptive.SelfTuningController` keyword arguments of
+    :func:`sample_stc`'s ``params``."""
+    return {
+        "poles": float(params["pole"]),
+        "estimator_options": {
+            "forgetting": float(params["forgetting"]),
+            "measurement_noise": float(params["measurement_noise"]),
+        },
+        "startup": {"probe_amplitude": float(params["probe_amplitude"])},
+        "change_detection": {"threshold": float(params["change_threshold"])},
+    }
+
+
+def _study(seed: int) -> Any:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna.create_study(direction="minimize", sampler=optuna.samplers.TPESampler(seed=seed))
+
+
+def _summary(study: Any) -> dict[str, Any]:
+    return {
+        "best_value": float(study.best_value),
+        "best_params": dict(study.best_params),
+        "trials": [float(t.value) for t in study.trials if t.value is not None],
+    }
+
+
+def tune_rl(task: dict[str, Any]) -> dict[str, Any]:
+    """One RL agent's study (a JSON task, so the executor can run studies in parallel):
+    ``{"algo", "config", "env" (TrainingEnv as JSON), "reference", "trials", "steps", "seed"}``.
+    Returns the study's summary with the best trial's parameters (:func:`sample_rl` form)."""
+    from stcgym.agents.benchmark.env_spec import EnvSpec
+    from stcgym.agents.benchmark.episodes import EpisodeSet
+    from stcgym.agents.rl.sb3 import train_agent
+
+    config = AlgoConfig.from_dict(task["config"])
+    train, curve = EnvSpec.from_dict(task["train"]), EnvSpec.from_dict(task["curve"])
+    episodes = EpisodeSet.from_dict(task["curve_episodes"])
+    sampled: dict[int, dict[str, Any]] = {}
+
+    def objective(trial: Any) -> float:
+        params = sampled[trial.number] = sample_rl(trial, task["algo"])
+        agent = train_agent(
+            task["algo"], apply_rl_params(config, params), train, int(task["steps"]),
+            int(task["seed"]) + trial.number, curve_spec=curve, curve_episodes=episodes,
+            curve_points=2, curve_reference=task["reference"],
+        )  # fmt: skip
+        best = min(score for _, score in agent.curve)
+        return best if math.isfinite(best) else 1e12
+
+    study = _study(int(task["seed"]))
+    study.optimize(objective, n_trials=int(task["trials"]))
+    return {**_summary(study), "params": sampled[study.best_trial.number]}
+
+
+def tune_stc(cfg: Any, env: TrainingEnv, reference: list[float], trials: int, seed: int = 0):
+    """The self-tuning controller's study on ``env``'s validation episodes (the same number of
+    trials as each RL agent's); returns its summary with the best trial's parameters."""
+    from types import SimpleNamespace
+
+    from stcgym.agents.controllers import self_tuning
+
+    ref = np.asarray(reference, dtype=float)
+    sampled: dict[int, dict[str, Any]] = {}
+    sc = SimpleNamespace(env=env.curve, controller_order=env.curve.order)
+
+    def objective(trial: Any) -> float:
+        params = sampled[trial.number] = sample_stc(trial)
+        builder = self_tuning(cfg, sc, **stc_options(params))
+        shift = 7919 * trial.number  # every trial its own probe streams
+
+        def lanes(plants: list[Any], seeds: list[int]) -> Any:
+            return builder(plants, [int(s) + shift for s in seeds])
+
+        batch = run_episodes(lanes, env.curve, env.curve_episodes)
+        return float(np.median(batch.cost.mean(axis=1) / ref))
+
+    study = _study(seed)
+    study.optimize(objective, n_trials=int(trials))
+    return {**_summary(study), "params": sampled[study.best_trial.number]}
