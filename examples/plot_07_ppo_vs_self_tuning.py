@@ -18,20 +18,30 @@ comparison with confidence intervals.
 # Training
 # --------
 # ``train_agent`` takes the algorithm's default configuration (``default_config``: RL Zoo
-# Pendulum-style hyperparameters, an observation window, a compressed training reward) and
-# records a learning curve: the cost per step of the deterministic policy on validation
-# episodes at log-spaced training steps. Like the RL Zoo's best-model callback it keeps the
-# checkpoint with the lowest validation cost, which with so few steps may be an early one.
+# Pendulum-style hyperparameters, an observation window with the integral of the tracking
+# error, the scored cost as the training reward) and records a learning curve: the cost per
+# step of the deterministic policy on validation episodes at log-spaced training steps. Like
+# the RL Zoo's best-model callback it keeps the checkpoint with the lowest validation cost,
+# which with so few steps may be an early one.
 import matplotlib.pyplot as plt
 import numpy as np
 
 from stcgym.adaptive import KnownModelController, SelfTuningController
 from stcgym.agents import EnvSpec, default_config, run_episode, train_agent
+from stcgym.agents.benchmark.episodes import EpisodeSet
 
 spec = EnvSpec(plants=("stable2",), steps=300, noise_std=0.05, period=100)
 config = default_config("ppo")
+validation = EpisodeSet(plants=("stable2",), seeds=(10_000,))
 agent = train_agent(
-    "ppo", config, spec, steps=4096, seed=0, curve_points=3, curve_seeds=(10_000,), progress=False
+    "ppo",
+    config,
+    spec,
+    steps=4096,
+    seed=0,
+    curve_points=3,
+    curve_episodes=validation,
+    progress=False,
 )
 print(f"PPO: {agent.steps} environment steps in {agent.wall_s:.1f} s")
 for step, cost in agent.curve:
@@ -64,7 +74,7 @@ for name, eps in episodes.items():
 # Left: the noise-free output of each controller on seed 0. Right: PPO's validation cost
 # against its training steps, with the self-tuning controller's and the oracle's cost on
 # the same validation episode as lines (the self-tuning controller needs no training data).
-validation = {
+validation_cost = {
     name: run_episode(f, spec, 10_000).cost.mean()
     for name, f in controllers.items()
     if name != "PPO (short budget)"
@@ -80,7 +90,7 @@ ax.legend(fontsize=8)
 ax = axes[1]
 steps, costs = np.array(agent.curve).T
 ax.plot(np.maximum(steps, 1), costs, "o-", color="C0", label="PPO")
-for i, (name, cost) in enumerate(validation.items(), start=1):
+for i, (name, cost) in enumerate(validation_cost.items(), start=1):
     ax.axhline(cost, color=f"C{i}", ls="--", label=name)
 ax.set_xscale("log")
 ax.set_xlabel("training steps (step 0 drawn at 1)")
