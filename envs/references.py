@@ -426,21 +426,22 @@ class RandomSteps(Reference):
             self._seg[i] = 0
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
-        lanes = _lanes(lanes, self.num_lanes)
-        k = np.asarray(k, dtype=np.int64)
+        lanes, k = np.broadcast_arrays(_lanes(lanes, self.num_lanes), np.asarray(k, np.int64))
         seg = self._seg[lanes]
         start = np.where(seg > 0, self._ends[lanes, np.maximum(seg - 1, 0)], 0)
         moved = (seg >= self._count[lanes]) | (k >= self._ends[lanes, seg]) | (k < start)
         for j in np.flatnonzero(moved):  # a new level (or a first or backward look-up)
-            self._locate(int(lanes[j]), int(k[j]))
-        return self._levels[lanes, self._seg[lanes]]
+            seg[j] = self._locate(int(lanes[j]), int(k[j]))
+        return self._levels[lanes, seg]
 
-    def _locate(self, i: int, k: int) -> None:
-        """Point lane ``i`` at the level in force at step ``k``, drawing levels as needed."""
+    def _locate(self, i: int, k: int) -> int:
+        """The level of lane ``i`` in force at step ``k`` (remembered as the lane's current
+        level), drawing levels as needed."""
         while self._count[i] == 0 or self._ends[i, self._count[i] - 1] <= k:
             self._draw(i)
         c = int(self._count[i])
         self._seg[i] = np.searchsorted(self._ends[i, :c], k, side="right")
+        return int(self._seg[i])
 
     def _draw(self, i: int) -> None:
         """The next 64 levels and holds of lane ``i`` (levels first, then holds)."""
