@@ -282,9 +282,15 @@ def test_vector_env_options_per_lane_and_truncation():
     _, info = single.reset(seed=1, options={"plant": 22})
     obs, _ = venv.reset(seed=0, options={"plant": [21, 22, 23]})
     np.testing.assert_array_equal(obs[1], single.reset(seed=1, options={"plant": 22})[0])
+    venv.step(np.ones((3, 1)))
+    before = (venv.x.copy(), venv.t.copy(), venv.theta, list(venv.plants))
     for bad in ([21, 22], [21, 22, 5], "nope"):
         with pytest.raises(ValueError, match=r"options\['plant'\]"):
             venv.reset(seed=0, options={"plant": bad})
+        np.testing.assert_array_equal(venv.x, before[0])
+        np.testing.assert_array_equal(venv.t, before[1])
+        np.testing.assert_array_equal(venv.theta, before[2])
+        assert venv.plants == before[3]
     assert (
         gym.make_vec(ENV_ID, num_envs=2, family=SMALL, max_episode_steps=20).max_episode_steps == 20
     )
