@@ -424,29 +424,37 @@ class RandomSteps(_DrawnReference):
         super().allocate(num_lanes)  # _count: levels drawn this episode
         self._ends = np.zeros((self.num_lanes, self._CHUNK), dtype=np.int64)  # after level s
         self._levels = np.zeros((self.num_lanes, self._CHUNK))
-        self._seg = np.zeros(self.num_lanes, dtype=np.int64)  # level of the last step asked
+        # The level in force at the step last asked, and its steps [start, stop): most steps
+        # read these three arrays only.
+        self._now = np.zeros(self.num_lanes)
+        self._start = np.zeros(self.num_lanes, dtype=np.int64)
+        self._stop = np.zeros(self.num_lanes, dtype=np.int64)
 
     def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
         super().reset_lanes(lanes, rngs)
-        self._seg[lanes] = 0
+        self._start[lanes] = self._stop[lanes] = 0  # no level yet: the next look-up draws
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
-        lanes, k = np.broadcast_arrays(_lanes(lanes, self.num_lanes), np.asarray(k, np.int64))
-        seg = self._seg[lanes]
-        start = np.where(seg > 0, self._ends[lanes, np.maximum(seg - 1, 0)], 0)
-        moved = (seg >= self._count[lanes]) | (k >= self._ends[lanes, seg]) | (k < start)
-        for j in np.flatnonzero(moved):  # a new level (or a first or backward look-up)
-            seg[j] = self._locate(int(lanes[j]), int(k[j]))
-        return self._levels[lanes, seg]
+        lanes, k = _lanes(lanes, self.num_lanes), np.asarray(k, dtype=np.int64)
+        if lanes.shape != k.shape:
+            lanes, k = np.broadcast_arrays(lanes, k)
+        out = self._now[lanes]
+        moved = (k >= self._stop[lanes]) | (k < self._start[lanes])
+        if moved.any():  # a new level (or a first or backward look-up)
+            for j in np.flatnonzero(moved):
+                out[j] = self._locate(int(lanes[j]), int(k[j]))
+        return out
 
-    def _locate(self, i: int, k: int) -> int:
+    def _locate(self, i: int, k: int) -> float:
         """The level of lane ``i`` in force at step ``k`` (remembered as the lane's current
         level), drawing levels as needed."""
         while self._count[i] == 0 or self._ends[i, self._count[i] - 1] <= k:
             self._draw(i)
-        c = int(self._count[i])
-        self._seg[i] = np.searchsorted(self._ends[i, :c], k, side="right")
-        return int(self._seg[i])
+        s = int(np.searchsorted(self._ends[i, : self._count[i]], k, side="right"))
+        self._start[i] = self._ends[i, s - 1] if s else 0
+        self._stop[i] = self._ends[i, s]
+        self._now[i] = self._levels[i, s]
+        return float(self._now[i])
 
     def _draw(self, i: int) -> None:
         """The next 64 levels and holds of lane ``i`` (levels first, then holds)."""
