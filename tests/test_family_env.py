@@ -322,3 +322,17 @@ def test_envs_pickle_and_continue_identically(vector, clone):
             np.testing.assert_array_equal(value, value_twin)
         if not vector and (out[2] or out[3]):
             np.testing.assert_array_equal(env.reset()[0], twin.reset()[0])
+
+
+@pytest.mark.equality
+def test_native_vector_env_equals_gymnasiums_sync_vector_env():
+    """gym.make_vec's two routes give the same episodes: the native env and SyncVectorEnv of
+    single envs (whose truncation is the env's own, there being no TimeLimit)."""
+    kwargs = dict(family=SMALL, split="train")
+    sync = gym.make_vec(ENV_ID, num_envs=3, vectorization_mode="sync", **kwargs)
+    native = gym.make_vec(ENV_ID, num_envs=3, **kwargs)
+    np.testing.assert_array_equal(sync.reset(seed=4)[0], native.reset(seed=4)[0])
+    actions = np.random.default_rng(1).uniform(-1, 1, (150, 3, 1))
+    for a in actions:
+        for x, y in zip(sync.step(a)[:4], native.step(a)[:4], strict=True):
+            np.testing.assert_array_equal(x, y)
