@@ -228,7 +228,10 @@ def _members(
                 schedule=schedule,
             )
         )
-    return tuple(specs), (np.array(after) if after else None)
+    table = np.array(after) if after else None
+    if table is not None:
+        table.setflags(write=False)  # shared by every env of the split
+    return tuple(specs), table
 
 
 class _MemberJumps(RandomJump):

@@ -267,7 +267,31 @@ class Sine(Reference):
         return self.offset + self.amplitude * np.sin(2 * np.pi * k / self.period + self.phase)
 
 
-class PRBS(Reference):
+class _DrawnReference(Reference):
+    """A random reference whose lanes draw as they reach new steps, each from a generator of
+    its own made at reset from the one handed over (so that a lane draws exactly what the
+    single-lane reference reset with the same generator draws); ``_count`` counts each lane's
+    draws this episode. Before the first reset: the draws of generator seed 0."""
+
+    random = True
+    _CHUNK = 64
+
+    def _start(self) -> None:
+        self.allocate(1)
+        self.reset_lanes(_LANE0, [np.random.default_rng(0)])
+
+    def allocate(self, num_lanes: int) -> None:
+        super().allocate(num_lanes)
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        self._count = np.zeros(self.num_lanes, dtype=np.int64)
+
+    def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
+        for i, g in zip(lanes, rngs, strict=True):
+            self._rngs[i] = np.random.default_rng(g.integers(2**63))
+            self._count[i] = 0
+
+
+class PRBS(_DrawnReference):
     """Pseudo-random binary sequence: ``offset +- amplitude`` held for ``hold`` steps per bit.
 
     Each lane draws its bits from its own episode generator, 64 bits at a time as it reaches
@@ -306,26 +330,15 @@ class PRBS(Reference):
     True
     """
 
-    random = True
-    _CHUNK = 64
-
     def __init__(self, amplitude: float = 1.0, hold: int = 10, offset: float = 0.0) -> None:
         self.amplitude = real_number(amplitude, "amplitude")
         self.hold = integer(hold, "hold")
         self.offset = real_number(offset, "offset")
-        self.allocate(1)
-        self.reset_lanes(_LANE0, [np.random.default_rng(0)])
+        self._start()
 
     def allocate(self, num_lanes: int) -> None:
-        super().allocate(num_lanes)
-        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        super().allocate(num_lanes)  # _count: bits drawn this episode
         self._bits = np.zeros((self.num_lanes, 0), dtype=np.int8)  # +-1 per lane
-        self._count = np.zeros(self.num_lanes, dtype=np.int64)  # bits drawn this episode
-
-    def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
-        for i, g in zip(lanes, rngs, strict=True):
-            self._rngs[i] = np.random.default_rng(g.integers(2**63))
-            self._count[i] = 0
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
         lanes = _lanes(lanes, self.num_lanes)
@@ -356,7 +369,7 @@ class PRBS(Reference):
             self._count[i] = end
 
 
-class RandomSteps(Reference):
+class RandomSteps(_DrawnReference):
     """Random steps: a piecewise-constant ``r(k)`` with random levels held for random times.
 
     Each level is uniform in ``[offset - amplitude, offset + amplitude]`` and is held for a whole
@@ -399,48 +412,49 @@ class RandomSteps(Reference):
     True
     """
 
-    random = True
-    _CHUNK = 64
-
     def __init__(
         self, amplitude: float = 1.0, hold: int | Sequence[int] = (50, 150), offset: float = 0.0
     ) -> None:
         self.amplitude = non_negative(amplitude, "amplitude")
         self.hold = integer_range(hold, "hold")
         self.offset = real_number(offset, "offset")
-        self.allocate(1)
-        self.reset_lanes(_LANE0, [np.random.default_rng(0)])
+        self._start()
 
     def allocate(self, num_lanes: int) -> None:
-        super().allocate(num_lanes)
-        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        super().allocate(num_lanes)  # _count: levels drawn this episode
         self._ends = np.zeros((self.num_lanes, self._CHUNK), dtype=np.int64)  # after level s
         self._levels = np.zeros((self.num_lanes, self._CHUNK))
-        self._count = np.zeros(self.num_lanes, dtype=np.int64)  # levels drawn this episode
-        self._seg = np.zeros(self.num_lanes, dtype=np.int64)  # level of the last step asked
+        # The level in force at the step last asked, and its steps [start, stop): most steps
+        # read these three arrays only.
+        self._now = np.zeros(self.num_lanes)
+        self._start = np.zeros(self.num_lanes, dtype=np.int64)
+        self._stop = np.zeros(self.num_lanes, dtype=np.int64)
 
     def reset_lanes(self, lanes: NDArray, rngs: Sequence[np.random.Generator | None]) -> None:
-        for i, g in zip(lanes, rngs, strict=True):
-            self._rngs[i] = np.random.default_rng(g.integers(2**63))
-            self._count[i] = 0
-            self._seg[i] = 0
+        super().reset_lanes(lanes, rngs)
+        self._start[lanes] = self._stop[lanes] = 0  # no level yet: the next look-up draws
 
     def values(self, k: NDArray, lanes: NDArray | None = None) -> NDArray:
-        lanes = _lanes(lanes, self.num_lanes)
-        k = np.asarray(k, dtype=np.int64)
-        seg = self._seg[lanes]
-        start = np.where(seg > 0, self._ends[lanes, np.maximum(seg - 1, 0)], 0)
-        moved = (seg >= self._count[lanes]) | (k >= self._ends[lanes, seg]) | (k < start)
-        for j in np.flatnonzero(moved):  # a new level (or a first or backward look-up)
-            self._locate(int(lanes[j]), int(k[j]))
-        return self._levels[lanes, self._seg[lanes]]
+        lanes, k = _lanes(lanes, self.num_lanes), np.asarray(k, dtype=np.int64)
+        if lanes.shape != k.shape:
+            lanes, k = np.broadcast_arrays(lanes, k)
+        out = self._now[lanes]
+        moved = (k >= self._stop[lanes]) | (k < self._start[lanes])
+        if moved.any():  # a new level (or a first or backward look-up)
+            for j in np.flatnonzero(moved):
+                out[j] = self._locate(int(lanes[j]), int(k[j]))
+        return out
 
-    def _locate(self, i: int, k: int) -> None:
-        """Point lane ``i`` at the level in force at step ``k``, drawing levels as needed."""
+    def _locate(self, i: int, k: int) -> float:
+        """The level of lane ``i`` in force at step ``k`` (remembered as the lane's current
+        level), drawing levels as needed."""
         while self._count[i] == 0 or self._ends[i, self._count[i] - 1] <= k:
             self._draw(i)
-        c = int(self._count[i])
-        self._seg[i] = np.searchsorted(self._ends[i, :c], k, side="right")
+        s = int(np.searchsorted(self._ends[i, : self._count[i]], k, side="right"))
+        self._start[i] = self._ends[i, s - 1] if s else 0
+        self._stop[i] = self._ends[i, s]
+        self._now[i] = self._levels[i, s]
+        return float(self._now[i])
 
     def _draw(self, i: int) -> None:
         """The next 64 levels and holds of lane ``i`` (levels first, then holds)."""

@@ -17,6 +17,7 @@ from stcgym.envs import (
     PRBS,
     Jumps,
     Ramp,
+    RandomJump,
     RandomWalk,
     SquareWave,
     canonical_matrices,
@@ -377,6 +378,7 @@ def test_bad_actions_raise():
 LANE_REFERENCES = [
     SquareWave(period=7, amplitude=2.0, offset=0.5),
     PRBS(hold=3),
+    make_reference({"kind": "random_steps", "amplitude": 2.0, "hold": [1, 4], "offset": 0.5}),
     make_reference({"kind": "sine", "period": 11.5, "phase": 0.3}),
     make_reference({"kind": "step", "at": 4, "initial": -1.0}),
     make_reference([0.1, 0.2, 0.3]),
@@ -410,7 +412,12 @@ def test_references_give_each_lane_its_single_lane_values(ref):
 
 @pytest.mark.parametrize(
     "schedule",
-    [Jumps({5: [0.0, 1.0], 12: [2.0, 2.0]}), Ramp([1.0, -1.0], 3, 15), RandomWalk(0.1, start=2)],
+    [
+        Jumps({5: [0.0, 1.0], 12: [2.0, 2.0]}),
+        Ramp([1.0, -1.0], 3, 15),
+        RandomWalk(0.1, start=2),
+        RandomJump([0.0, 1.0], at=(2, 20), probability=0.7),
+    ],
     ids=lambda s: type(s).__name__,
 )
 def test_schedules_give_each_lane_its_single_lane_values(schedule):

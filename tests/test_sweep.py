@@ -213,6 +213,8 @@ def test_parse_controller():
         ({**FAMILY, "count": -1}, [], "count must be an integer >= 1"),
         ({**FAMILY, "shape": 1}, [], "unknown key"),
         ({**FAMILY, "poles": {"magnitude": [0.9, 0.2]}}, [], "poles.magnitude"),
+        ({**FAMILY, "jump": {"at": [0.3, 0.7]}}, [], "a sweep needs a fixed jump"),
+        ({**FAMILY, "jump": {"at": 0.5, "probability": 0.5}}, [], "a sweep needs a fixed jump"),
         (FAMILY, ["--controller", "stc:estimatr=KF-RLS"], "controller 'stc'"),
         (FAMILY, ["--controller", "x=pid"], "kind must be one of"),
         (FAMILY, ["--seeds", "0"], "seeds"),

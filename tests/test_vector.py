@@ -8,7 +8,7 @@ import pytest
 from gymnasium.vector import AutoresetMode
 
 import stcgym.envs  # noqa: F401 - registers the single envs
-from stcgym.envs.signals import Jumps, Ramp, RandomWalk
+from stcgym.envs.signals import Jumps, Ramp, RandomJump, RandomWalk
 from stcgym.envs.vector import (
     ObservabilityCanonicalVectorEnv,
     ObserverCanonicalVectorEnv,
@@ -44,6 +44,17 @@ CASES = [
         None,
     ),
     (ObservabilityCanonicalVectorEnv, dict(plant="stable4", noise_std=0.2, reference="sine"), None),
+    (
+        ObserverCanonicalVectorEnv,
+        dict(
+            plant=["stable2", "unstable2"],
+            noise_std=0.1,
+            reference={"kind": "random_steps", "hold": [2, 9]},
+            schedule=RandomJump([-1.2, 0.52, 0.9, 0.3], at=(10, 60), probability=0.5),
+            initial_state_std=0.5,
+        ),
+        None,
+    ),
     (
         ObservabilityCanonicalVectorEnv,
         dict(plant=["timevarying2", "unstable2"], noise_std=0.2, reference="step"),
