@@ -410,7 +410,23 @@ def write_report(
     for sc in scenarios:
         if sc.name in present:
             out += [f"### `{sc.name}`", "", *_detail_table(agg, sc.name, order), ""]
+    argv = getattr(data, "argv", None)
+    made_by = f" (`stcgym {' '.join(argv)}`)" if argv else ""
     out += [
+        "## Figures",
+        "",
+        f"Made by this run{made_by}; 800 px wide, one colour per controller in every figure.",
+        "",
+        "- `data_efficiency.png`: left, the RL learning curves (median cost / LQG on the "
+        "validation episodes against training env steps, median over runs with the range); "
+        "right, the online learners within one episode (cost / LQG per window against the step, "
+        "median over the test episodes and runs). Offline and online samples on separate axes.",
+        "- `adaptation.png`: cumulative cost above LQG against the step within the episode "
+        "(test split) and after the jump (`jump:test`), median with the interquartile band.",
+        "- `traces_<scenario>.png`: output, reference and input of the first episode, one row "
+        "per controller; `theta_jump_test.png`: a self-tuning controller's estimates against "
+        "the true parameters across the jump.",
+        "",
         "## Definitions",
         "",
         "- Windows: start = steps `[0, T/10)`, steady = `[T/2, T)` (with a jump at J: "

@@ -99,6 +99,8 @@ class Collected:
     bounds: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: (train_env, algo, train_seed) -> how training ended (StopSummary.to_dict())
     stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
+    #: the command line of the run (its first session's)
+    argv: list[str] | None = None
 
 
 def run_bench(
@@ -151,6 +153,7 @@ def run_bench(
         config_doc["argv"] = first.get("argv")
     writer = MetricsWriter(run_dir / "metrics.csv")
     state = _RunState(cfg, run_dir, writer, log, t_start)
+    state.data.argv = config_doc["argv"]
     scenarios: list[Scenario] = []
 
     def write_config() -> None:
