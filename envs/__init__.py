@@ -5,10 +5,10 @@
 ==================================  =============================================================
 id                                  plant
 ==================================  =============================================================
-``stcgym/ObserverCanonical-v0``      SISO observer canonical form (seed eq. (1)-(5))
-``stcgym/ObservabilityCanonical-v0`` SISO observability canonical form (seed eq. (146)-(147))
+``stcgym/ObserverCanonical-v0``      SISO observer canonical form, Ding & Ma (2014) eq. (1)-(5)
+``stcgym/ObservabilityCanonical-v0`` SISO observability canonical form, Ding & Ma (2014) (146)-(147)
 ``stcgym/StateSpace-v0``             MIMO ``(A, B, C, D)`` or any python-control system
-``stcgym/MultichannelStatic-v0``     static object ``y^T = u^T Theta + v`` (Voevoda-Troshina)
+``stcgym/MultichannelStatic-v0``     static ``y^T = u^T Theta + v``, Voevoda & Troshina (2017)
 ==================================  =============================================================
 
 The first three also have a native vector env (:mod:`stcgym.envs.vector`), the default of
@@ -23,6 +23,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 from stcgym.envs import catalogue as _catalogue
+from stcgym.envs import mimo_plants as _mimo_plants
 from stcgym.envs import plants as _plants
 from stcgym.envs.canonical import (
     canonical_matrices,
@@ -31,7 +32,7 @@ from stcgym.envs.canonical import (
     transfer_function_coefficients,
 )
 from stcgym.envs.catalogue import PlantSpec, get_plant, plant_names
-from stcgym.envs.mimo_plants import MIMO_PLANTS, MimoPlantSpec, get_mimo_plant, mimo_plant_names
+from stcgym.envs.mimo_plants import MimoPlantSpec, get_mimo_plant, mimo_plant_names
 from stcgym.envs.plants import (
     CanonicalPlantEnv,
     LinearPlantEnv,
@@ -66,6 +67,12 @@ from stcgym.envs.signals import (
 #: :mod:`stcgym.envs.catalogue` for their poles, zeros and gains). :func:`get_plant` looks a name
 #: up case-insensitively with a clear error.
 PLANTS: dict[str, PlantSpec] = _catalogue.PLANTS
+
+#: The MIMO catalogue plants, :class:`MimoPlantSpec` by name (``quadruple_tank``, ``he1``,
+#: ``ac1``: continuous-time models with measured state, discretised by zero-order hold; see
+#: :mod:`stcgym.envs.mimo_plants` for their sources, sample times and poles). Select one with
+#: ``gym.make("stcgym/StateSpace-v0", plant=name)``; :func:`get_mimo_plant` looks a name up.
+MIMO_PLANTS: dict[str, MimoPlantSpec] = _mimo_plants.MIMO_PLANTS
 
 #: The plant of ``gym.make("stcgym/StateSpace-v0")`` without matrices: a stable, coupled
 #: two-state, two-input plant (eigenvalues 0.9 and 0.8) with measured state (``C = I``, ``D = 0``).

@@ -33,6 +33,12 @@ class CanonicalPlantEnv(LinearPlantEnv):
     :class:`ObservabilityCanonicalEnv` (eq. (146)-(147)), which fix ``form``; the matrices are
     :func:`~stcgym.envs.canonical.canonical_matrices` of the parameters in force.
 
+    ``reset(options=...)`` also accepts ``"plant"`` (a catalogue name), ``"a"`` and ``"b"``, or
+    ``"theta"`` to set this episode's parameters (of the env's order ``n``). ``info`` carries the
+    true state ``"x"``, the noise-free output ``"y_clean"``, the true parameters in force
+    ``"theta"`` (also ``"a"``, ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the
+    current :class:`~stcgym.envs.catalogue.PlantSpec` (``None`` for user parameters).
+
     Parameters
     ----------
     plant : str or list of str, optional
@@ -64,12 +70,6 @@ class CanonicalPlantEnv(LinearPlantEnv):
         ``x(0)``; zero by default.
     render_mode : {None, "rgb_array"}, default None
         See :class:`LinearPlantEnv`.
-
-    ``reset(options=...)`` also accepts ``"plant"`` (a catalogue name), ``"a"`` and ``"b"``, or
-    ``"theta"`` to set this episode's parameters (of the env's order ``n``). ``info`` carries the
-    true state ``"x"``, the noise-free output ``"y_clean"``, the true parameters in force
-    ``"theta"`` (also ``"a"``, ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the
-    current :class:`~stcgym.envs.catalogue.PlantSpec` (``None`` for user parameters).
 
     Raises
     ------
