@@ -315,7 +315,8 @@ class ObserverCanonicalEnv(CanonicalPlantEnv):
     >>> obs  # [y(0), r(0)]: zero state, square-wave reference
     array([0., 1.])
     >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0]))
-    >>> obs, round(reward, 6), terminated, truncated  # y(1) = b1 u(0); -((y - r)^2 + 0.01 u^2)
+    >>> # y(1) = b1 u(0); reward -((y - r)^2 + 0.01 u^2)
+    >>> obs, round(reward, 6), terminated, truncated
     (array([0.5, 1. ]), -0.26, False, False)
     >>> info["theta"], info["x"]
     (array([-1.7 ,  0.66,  0.5 ,  0.3 ]), array([0.5, 0.3]))
@@ -350,8 +351,9 @@ class ObservabilityCanonicalEnv(CanonicalPlantEnv):
     >>> import gymnasium as gym
     >>> import numpy as np
     >>> import stcgym.envs
-    >>> env = gym.make("stcgym/ObservabilityCanonical-v0", plant="stable2", reference="zero")
-    >>> twin = gym.make("stcgym/ObserverCanonical-v0", plant="stable2", reference="zero")
+    >>> kwargs = dict(plant="stable2", reference="zero")
+    >>> env = gym.make("stcgym/ObservabilityCanonical-v0", **kwargs)
+    >>> twin = gym.make("stcgym/ObserverCanonical-v0", **kwargs)
     >>> env.unwrapped.b, twin.unwrapped.b
     (array([1., 2.]), array([1. , 0.5]))
     >>> _, _ = env.reset(seed=0), twin.reset(seed=0)

@@ -119,7 +119,10 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     >>> import numpy as np
     >>> import stcgym.envs
     >>> envs = gym.make_vec(
-    ...     "stcgym/ObserverCanonical-v0", num_envs=2, a=[[-0.5], [0.5]], b=[[1.0], [2.0]],
+    ...     "stcgym/ObserverCanonical-v0",
+    ...     num_envs=2,
+    ...     a=[[-0.5], [0.5]],
+    ...     b=[[1.0], [2.0]],
     ...     reference="zero",
     ... )
     >>> _ = envs.reset(seed=0)
@@ -307,7 +310,9 @@ class ObservabilityCanonicalVectorEnv(CanonicalPlantVectorEnv):
     --------
     >>> import gymnasium as gym
     >>> import stcgym.envs
-    >>> envs = gym.make_vec("stcgym/ObservabilityCanonical-v0", num_envs=2, plant="stable2")
+    >>> envs = gym.make_vec(
+    ...     "stcgym/ObservabilityCanonical-v0", num_envs=2, plant="stable2"
+    ... )
     >>> _ = envs.reset(seed=0)
     >>> envs.theta  # b as Markov parameters, every lane
     array([[-1.5,  0.7,  1. ,  2. ],

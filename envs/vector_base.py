@@ -543,7 +543,8 @@ class LinearPlantVectorEnv(VectorEnv):
         --------
         >>> import gymnasium as gym
         >>> import stcgym.envs
-        >>> envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=1000, noise_std=0.1)
+        >>> env_id = "stcgym/ObserverCanonical-v0"
+        >>> envs = gym.make_vec(env_id, num_envs=1000, noise_std=0.1)
         >>> _ = envs.reset(seed=0)
         >>> envs.memory_per_lane < 10_000
         True
