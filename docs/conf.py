@@ -92,5 +92,6 @@ sphinx_gallery_conf = {
 
 html_theme = "furo"
 html_title = "stcgym"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["stcgym.css"]  # local, no remote assets
 html_show_sourcelink = False
