@@ -12,6 +12,8 @@ single plant equals its lane of a batch bit for bit.
 from __future__ import annotations
 
 from stcgym.adaptive import flops
+from stcgym.adaptive import iterative as _iterative
+from stcgym.adaptive import recursive as _recursive
 from stcgym.adaptive.controller import (
     ChangeDetection,
     EstimatorOptions,
@@ -21,7 +23,7 @@ from stcgym.adaptive.controller import (
     StartupOptions,
 )
 from stcgym.adaptive.greybox import AffineStateSpace, GreyBoxRegression, NotLinearInParameters
-from stcgym.adaptive.iterative import ITERATIVE_NAMES, IterativeResult, fit_iterative
+from stcgym.adaptive.iterative import IterativeResult, fit_iterative
 from stcgym.adaptive.lqr import LQRController
 from stcgym.adaptive.multichannel import MatrixRLS, StateMatrixEstimator
 from stcgym.adaptive.multivariable import MultivariableSelfTuningController
@@ -35,7 +37,6 @@ from stcgym.adaptive.placement import (
 )
 from stcgym.adaptive.policy import Policy, reset_policy
 from stcgym.adaptive.recursive import (
-    ALGORITHMS,
     EstimatorSpec,
     NumericalHealthError,
     RecursiveEstimator,
@@ -43,6 +44,20 @@ from stcgym.adaptive.recursive import (
     parse_name,
 )
 from stcgym.adaptive.regression import RecursiveLeastSquares
+
+# The public data names are bound here with their doc comments: the API reference reads a data
+# name's text from the module that exports it.
+
+#: The 16 recursive estimators of Ding & Ma (2014) by name, ``<state>-[D-]<rule>``: state
+#: estimator ``O`` (open-loop observer) or ``KF`` (Kalman filter), ``D-`` for model
+#: decomposition, rule ``SG``, ``MISG``, ``RLS`` or ``MILS``. :func:`make_estimator` also accepts
+#: the closed-loop observer variants ``CO-...``.
+ALGORITHMS: tuple[str, ...] = _recursive.ALGORITHMS
+
+#: The 8 iterative (batch) estimators of Ding & Ma (2014), section 5, by name, for
+#: :func:`fit_iterative`: ``O`` or ``KF`` state re-estimation, ``D-`` for model decomposition,
+#: rule ``GI`` (gradient) or ``LSI`` (least squares).
+ITERATIVE_NAMES: tuple[str, ...] = _iterative.ITERATIVE_NAMES
 
 __all__ = [
     "ALGORITHMS",

@@ -10,8 +10,11 @@ import os
 import sys
 from pathlib import Path
 
+from sphinx.ext import autosummary
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the local extension below
+# the local extension below
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 project = "stcgym"
@@ -47,6 +50,13 @@ myst_heading_anchors = 3
 
 # API reference: one page per public name, generated from the docstrings at build time
 autosummary_generate = True
+# A summary line in the API tables is a docstring's first sentence, cut at the first ". ";
+# "Ding & Ma (2014) eq. (46)" does not end a sentence (tests/test_docs.py checks the tables).
+autosummary.WELL_KNOWN_ABBREVIATIONS = (
+    *autosummary.WELL_KNOWN_ABBREVIATIONS,
+    "eq.",
+    "eqs.",
+)
 autosummary_imported_members = True
 # members inherited from a base class are not documented again on a subclass's page (an explicit
 # "inherited-members": False here would also switch off the option where a page asks for it),
@@ -82,5 +92,6 @@ sphinx_gallery_conf = {
 
 html_theme = "furo"
 html_title = "stcgym"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["stcgym.css"]  # local, no remote assets
 html_show_sourcelink = False

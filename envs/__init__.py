@@ -5,10 +5,10 @@
 ==================================  =============================================================
 id                                  plant
 ==================================  =============================================================
-``stcgym/ObserverCanonical-v0``      SISO observer canonical form (seed eq. (1)-(5))
-``stcgym/ObservabilityCanonical-v0`` SISO observability canonical form (seed eq. (146)-(147))
+``stcgym/ObserverCanonical-v0``      SISO observer canonical form, Ding & Ma (2014) eq. (1)-(5)
+``stcgym/ObservabilityCanonical-v0`` SISO observability canonical form, Ding & Ma (2014) (146)-(147)
 ``stcgym/StateSpace-v0``             MIMO ``(A, B, C, D)`` or any python-control system
-``stcgym/MultichannelStatic-v0``     static object ``y^T = u^T Theta + v`` (Voevoda-Troshina)
+``stcgym/MultichannelStatic-v0``     static ``y^T = u^T Theta + v``, Voevoda & Troshina (2017)
 ``stcgym/PlantFamily-v0``            one split of a plant family, a plant drawn per episode
 ==================================  =============================================================
 
@@ -26,6 +26,7 @@ import gymnasium as gym
 
 from stcgym.envs import catalogue as _catalogue
 from stcgym.envs import families as _families
+from stcgym.envs import mimo_plants as _mimo_plants
 from stcgym.envs import plants as _plants
 from stcgym.envs.canonical import (
     canonical_matrices,
@@ -43,7 +44,7 @@ from stcgym.envs.families import (
     load_family,
 )
 from stcgym.envs.family_env import PlantFamilyEnv
-from stcgym.envs.mimo_plants import MIMO_PLANTS, MimoPlantSpec, get_mimo_plant, mimo_plant_names
+from stcgym.envs.mimo_plants import MimoPlantSpec, get_mimo_plant, mimo_plant_names
 from stcgym.envs.plants import (
     CanonicalPlantEnv,
     LinearPlantEnv,
@@ -85,6 +86,11 @@ PLANTS: dict[str, PlantSpec] = _catalogue.PLANTS
 #: :data:`stcgym.envs.families.FAMILIES`; ``"siso2-v1"`` is the benchmark's default family);
 #: :func:`get_family` looks a name up.
 FAMILIES: dict[str, dict] = _families.FAMILIES
+#: The MIMO catalogue plants, :class:`MimoPlantSpec` by name (``quadruple_tank``, ``he1``,
+#: ``ac1``: continuous-time models with measured state, discretised by zero-order hold; see
+#: :mod:`stcgym.envs.mimo_plants` for their sources, sample times and poles). Select one with
+#: ``gym.make("stcgym/StateSpace-v0", plant=name)``; :func:`get_mimo_plant` looks a name up.
+MIMO_PLANTS: dict[str, MimoPlantSpec] = _mimo_plants.MIMO_PLANTS
 
 #: The plant of ``gym.make("stcgym/StateSpace-v0")`` without matrices: a stable, coupled
 #: two-state, two-input plant (eigenvalues 0.9 and 0.8) with measured state (``C = I``, ``D = 0``).

@@ -33,6 +33,13 @@ class CanonicalPlantEnv(LinearPlantEnv):
     :class:`ObservabilityCanonicalEnv` (eq. (146)-(147)), which fix ``form``; the matrices are
     :func:`~stcgym.envs.canonical.canonical_matrices` of the parameters in force.
 
+    ``reset(options=...)`` also accepts ``"plant"`` (the name of one of this env's plants, a
+    catalogue name or a ``PlantSpec``), ``"a"`` and ``"b"``, or ``"theta"`` to set this
+    episode's parameters (of the env's order ``n``). ``info`` carries the
+    true state ``"x"``, the noise-free output ``"y_clean"``, the true parameters in force
+    ``"theta"`` (also ``"a"``, ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the
+    current :class:`~stcgym.envs.catalogue.PlantSpec` (``None`` for user parameters).
+
     Parameters
     ----------
     plant : str, PlantSpec or list of them, optional
@@ -67,13 +74,6 @@ class CanonicalPlantEnv(LinearPlantEnv):
         ``> 0``: ``x(0) ~ N(0, std^2 I)`` each episode (see :class:`LinearPlantEnv`).
     render_mode : {None, "rgb_array"}, default None
         See :class:`LinearPlantEnv`.
-
-    ``reset(options=...)`` also accepts ``"plant"`` (the name of one of this env's plants, a
-    catalogue name or a ``PlantSpec``), ``"a"`` and ``"b"``, or
-    ``"theta"`` to set this episode's parameters (of the env's order ``n``). ``info`` carries the
-    true state ``"x"``, the noise-free output ``"y_clean"``, the true parameters in force
-    ``"theta"`` (also ``"a"``, ``"b"``) and the step ``"t"``. ``env.unwrapped.plant`` is the
-    current :class:`~stcgym.envs.catalogue.PlantSpec` (``None`` for user parameters).
 
     Raises
     ------
@@ -356,7 +356,8 @@ class ObserverCanonicalEnv(CanonicalPlantEnv):
     >>> obs  # [y(0), r(0)]: zero state, square-wave reference
     array([0., 1.])
     >>> obs, reward, terminated, truncated, info = env.step(np.array([1.0]))
-    >>> obs, round(reward, 6), terminated, truncated  # y(1) = b1 u(0); -((y - r)^2 + 0.01 u^2)
+    >>> # y(1) = b1 u(0); reward -((y - r)^2 + 0.01 u^2)
+    >>> obs, round(reward, 6), terminated, truncated
     (array([0.5, 1. ]), -0.26, False, False)
     >>> info["theta"], info["x"]
     (array([-1.7 ,  0.66,  0.5 ,  0.3 ]), array([0.5, 0.3]))
@@ -391,8 +392,9 @@ class ObservabilityCanonicalEnv(CanonicalPlantEnv):
     >>> import gymnasium as gym
     >>> import numpy as np
     >>> import stcgym.envs
-    >>> env = gym.make("stcgym/ObservabilityCanonical-v0", plant="stable2", reference="zero")
-    >>> twin = gym.make("stcgym/ObserverCanonical-v0", plant="stable2", reference="zero")
+    >>> kwargs = dict(plant="stable2", reference="zero")
+    >>> env = gym.make("stcgym/ObservabilityCanonical-v0", **kwargs)
+    >>> twin = gym.make("stcgym/ObserverCanonical-v0", **kwargs)
     >>> env.unwrapped.b, twin.unwrapped.b
     (array([1., 2.]), array([1. , 0.5]))
     >>> _, _ = env.reset(seed=0), twin.reset(seed=0)

@@ -68,7 +68,9 @@ class Schedule:
 
     >>> import gymnasium as gym
     >>> import stcgym.envs
-    >>> env = gym.make("stcgym/ObserverCanonical-v0", a=[-0.9], b=[1.0], schedule=HalveGain())
+    >>> env = gym.make(
+    ...     "stcgym/ObserverCanonical-v0", a=[-0.9], b=[1.0], schedule=HalveGain()
+    ... )
     >>> _ = env.reset(seed=0)
     >>> for _ in range(5):
     ...     _, _, _, _, info = env.step(np.array([0.0]))

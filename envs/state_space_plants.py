@@ -29,6 +29,12 @@ DEFAULT_STATE_SPACE = {
 class StateSpaceEnv(LinearPlantEnv):
     """MIMO discrete plant ``x(k+1) = A x + B u + w``, ``y = C x + D u + v``.
 
+    ``reset(options=...)`` accepts ``"A"`` and ``"B"`` to override this episode's matrices.
+    ``info`` carries ``"x"``, ``"y_clean"``, ``"params"`` (``[A B]`` in force) and ``"t"``.
+    ``env.unwrapped.sys`` is the discrete python-control system of the nominal plant (built on
+    request: the env itself holds only arrays, so it pickles). Registered as
+    ``stcgym/StateSpace-v0``.
+
     Parameters
     ----------
     A, B, C, D : array_like, optional
@@ -55,12 +61,6 @@ class StateSpaceEnv(LinearPlantEnv):
     **kwargs
         Other keyword arguments as in :class:`LinearPlantEnv`; ``reference`` may be one spec
         for every output or a list with one per output.
-
-    ``reset(options=...)`` accepts ``"A"`` and ``"B"`` to override this episode's matrices.
-    ``info`` carries ``"x"``, ``"y_clean"``, ``"params"`` (``[A B]`` in force) and ``"t"``.
-    ``env.unwrapped.sys`` is the discrete python-control system of the nominal plant (built on
-    request: the env itself holds only arrays, so it pickles). Registered as
-    ``stcgym/StateSpace-v0``.
 
     Raises
     ------
@@ -242,9 +242,12 @@ class MultichannelStaticEnv(LinearPlantEnv):
     The action ``u(k)`` (``n_inputs`` values) produces ``y(k+1) = Theta^T u(k) + v(k+1)``; it is
     the state-space plant with no state and ``D = Theta^T``, so the timing convention of the
     module holds. Default ``Theta = [[1, 2], [0, 1]]`` and ``noise_std = 0.1`` (variance 0.01), the
-    seed's worked example. ``schedule`` acts on ``Theta``; ``reset(options={"theta": ...})``
+    paper's worked example. ``schedule`` acts on ``Theta``; ``reset(options={"theta": ...})``
     overrides it for one episode. The reward tracks the vector reference. Registered as
     ``stcgym/MultichannelStatic-v0`` (no vector env).
+
+    ``info`` carries ``"theta"`` (``Theta`` in force), ``"y_clean"``, ``"t"`` and an empty
+    ``"x"``.
 
     Parameters
     ----------
@@ -256,9 +259,6 @@ class MultichannelStaticEnv(LinearPlantEnv):
         ``reference``, ``schedule``, ``action_bound``, ``control_cost``, ``y_bound``,
         ``render_mode`` as in :class:`LinearPlantEnv`; ``reference`` may be a list with one
         spec per output.
-
-    ``info`` carries ``"theta"`` (``Theta`` in force), ``"y_clean"``, ``"t"`` and an empty
-    ``"x"``.
 
     Raises
     ------

@@ -122,7 +122,10 @@ class CanonicalPlantVectorEnv(LinearPlantVectorEnv):
     >>> import numpy as np
     >>> import stcgym.envs
     >>> envs = gym.make_vec(
-    ...     "stcgym/ObserverCanonical-v0", num_envs=2, a=[[-0.5], [0.5]], b=[[1.0], [2.0]],
+    ...     "stcgym/ObserverCanonical-v0",
+    ...     num_envs=2,
+    ...     a=[[-0.5], [0.5]],
+    ...     b=[[1.0], [2.0]],
     ...     reference="zero",
     ... )
     >>> _ = envs.reset(seed=0)
@@ -334,7 +337,9 @@ class ObservabilityCanonicalVectorEnv(CanonicalPlantVectorEnv):
     --------
     >>> import gymnasium as gym
     >>> import stcgym.envs
-    >>> envs = gym.make_vec("stcgym/ObservabilityCanonical-v0", num_envs=2, plant="stable2")
+    >>> envs = gym.make_vec(
+    ...     "stcgym/ObservabilityCanonical-v0", num_envs=2, plant="stable2"
+    ... )
     >>> _ = envs.reset(seed=0)
     >>> envs.theta  # b as Markov parameters, every lane
     array([[-1.5,  0.7,  1. ,  2. ],

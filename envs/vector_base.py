@@ -48,6 +48,9 @@ USER_SCHEDULE = "user schedule"  #: key of the schedule given to the constructor
 class LinearPlantVectorEnv(VectorEnv):
     """Base class: ``num_envs`` lanes of a :class:`~stcgym.envs.plants.LinearPlantEnv`.
 
+    Public state (leading axis = lane): ``x``, ``t``, ``params``, ``y_clean``, ``n_clipped``;
+    :attr:`memory_per_lane` in bytes.
+
     Parameters
     ----------
     num_envs
@@ -64,9 +67,6 @@ class LinearPlantVectorEnv(VectorEnv):
     **kwargs
         The single environment's arguments (``single_cls``); one prototype single env is built
         from them to validate them and to hold the shared configuration.
-
-    Public state (leading axis = lane): ``x``, ``t``, ``params``, ``y_clean``, ``n_clipped``;
-    :attr:`memory_per_lane` in bytes.
 
     Raises
     ------
@@ -546,7 +546,8 @@ class LinearPlantVectorEnv(VectorEnv):
         --------
         >>> import gymnasium as gym
         >>> import stcgym.envs
-        >>> envs = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=1000, noise_std=0.1)
+        >>> env_id = "stcgym/ObserverCanonical-v0"
+        >>> envs = gym.make_vec(env_id, num_envs=1000, noise_std=0.1)
         >>> _ = envs.reset(seed=0)
         >>> envs.memory_per_lane < 10_000
         True

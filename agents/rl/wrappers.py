@@ -248,6 +248,10 @@ class HistoryBuffer:
 class HistoryWindow(gym.Wrapper):
     """Window observation and ``[-1, 1]`` action space on a stcgym environment.
 
+    ``info["u"]`` carries the applied input in plant units (a float for one input, else an
+    array). Works under ``gym.make_vec`` and SB3's ``make_vec_env`` (pass it as
+    ``wrapper_class``).
+
     Parameters
     ----------
     env
@@ -256,10 +260,6 @@ class HistoryWindow(gym.Wrapper):
         and references, ``m`` inputs, one bound for every input).
     config
         :class:`WindowConfig` (or a dict of its fields); default ``WindowConfig()``.
-
-    ``info["u"]`` carries the applied input in plant units (a float for one input, else an
-    array). Works under ``gym.make_vec`` and
-    SB3's ``make_vec_env`` (pass it as ``wrapper_class``).
 
     Raises
     ------
