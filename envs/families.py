@@ -663,7 +663,8 @@ def load_family(source: str | os.PathLike | Mapping[str, Any]) -> FamilySpec:
 #: ``"siso2-v1"``, the benchmark's default: 1300 second-order plants, stable and unstable
 #: (a quarter with a real pole in 1.02-1.15), minimum and nonminimum phase (a quarter with a
 #: zero at radius 1.3-3), both gain signs (half negative, ``|DC gain|`` 0.5-5 log-uniform),
-#: output noise 0.05, random steps of amplitude 1 held 50-150 steps, ``x(0) ~ N(0, 0.25 I)``,
+#: output noise 0.05, random steps of amplitude 1 held 25-75 steps (on average as often as a
+#: square wave of period 100 changes), ``x(0) ~ N(0, 0.25 I)``,
 #: 1000-step episodes, half of which jump between 30 % and 70 % of the episode (poles scaled
 #: by 0.85-1.1 in radius and 0.8-1.2 in angle, gain by 0.5-2). Splits ``train`` (plants
 #: 0-999), ``validation`` (1000-1099) and ``test`` (1100-1299); out-of-distribution variants of
@@ -697,7 +698,7 @@ FAMILIES: dict[str, dict[str, Any]] = {
         "dc_gain": [0.5, 5.0],
         "negative_gain_share": 0.5,
         "noise_std": 0.05,
-        "reference": {"kind": "random_steps", "amplitude": 1.0, "hold": [50, 150]},
+        "reference": {"kind": "random_steps", "amplitude": 1.0, "hold": [25, 75]},
         "initial_state_std": 0.5,
         "steps": 1000,
         "control_cost": 0.01,

@@ -146,6 +146,7 @@ def test_headline_arranges_runs_plants_and_episodes():
                         seed=10 * p + e,
                         cost=r,
                         cost_ratio=r,
+                        steady_ratio=r,
                         score=1.0,
                         post_jump_ratio="",
                         steps_to_target=5.0,

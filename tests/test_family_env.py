@@ -90,7 +90,7 @@ def test_defaults_come_from_the_family_and_keywords_override_them():
     assert env.initial_state_std == 0.5 and env.steps == 1000
     assert env.jump_range == (300, 700) and env.jump_probability == 0.5
     assert type(env.reference[0]).__name__ == "RandomSteps"
-    assert env.reference[0].hold == (50, 150) and env.reference[0].amplitude == 1.0
+    assert env.reference[0].hold == (25, 75) and env.reference[0].amplitude == 1.0
     assert gym.make(ENV_ID).spec.max_episode_steps is None  # the env truncates itself
     env = gym.make(
         ENV_ID,

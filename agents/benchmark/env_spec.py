@@ -80,7 +80,7 @@ class EnvSpec:
         the family's own).
     reference
         A reference spec (:func:`stcgym.envs.signals.make_reference`, e.g. ``{"kind":
-        "random_steps", "amplitude": 1.0, "hold": [50, 150]}``), stored frozen; ``None``: the
+        "random_steps", "amplitude": 1.0, "hold": [25, 75]}``), stored frozen; ``None``: the
         square wave of ``period`` and ``amplitude``.
     initial_state_std
         ``x(0) ~ N(0, initial_state_std^2 I)`` in every episode (0: the zero state).
@@ -113,7 +113,7 @@ class EnvSpec:
     The test split of the benchmark's plant family, with random steps as the reference:
 
     >>> test = EnvSpec(family="siso2-v1", split="test", jump_probability=0.0,
-    ...                reference={"kind": "random_steps", "amplitude": 1.0, "hold": [50, 150]})
+    ...                reference={"kind": "random_steps", "amplitude": 1.0, "hold": [25, 75]})
     >>> test.order, len(test.plant_names()), test.plant_names()[0]
     (2, 200, 'siso2-v1/test/1100')
     """

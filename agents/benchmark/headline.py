@@ -5,7 +5,8 @@ controller (a run: one RL training seed, one self-tuning controller seed, the si
 deterministic controller) and :func:`headline` estimates, each with its 95 % interval
 (:mod:`stcgym.agents.benchmark.statistics`):
 
-* the cost ratio to the LQG yardstick on the same episode and the normalised score
+* the cost ratio to the LQG yardstick on the same episode (whole episode, and the steady
+  window: the second half, or before the jump) and the normalised score
   ``(C_zero - C) / (C_zero - C_LQG)``: interquartile means over (run, plant) of the per-plant
   means, with rliable's stratified bootstrap over runs (one stratum per test plant);
 * the divergence rate, with its own interval (runs and plants resampled);
@@ -68,6 +69,7 @@ SELF_TUNING = ("stc", "stc_lq", "stc_kfmils", "stc_tuned", "stc_mimo")
 _TABLE_COLUMNS = (
     "cost",
     "cost_ratio",
+    "steady_ratio",
     "score",
     "post_jump_ratio",
     "steps_to_target",
@@ -136,19 +138,22 @@ def headline(
 ) -> dict[str, dict[str, Any]]:
     """The estimates of one scenario (see the module docstring): ``controller -> {...}``.
 
-    Keys: ``runs``, ``episodes`` (per run), ``ratio`` and ``score`` (:class:`Estimate`, IQM),
+    Keys: ``runs``, ``episodes`` (per run), ``ratio``, ``steady`` (the steady window's ratio)
+    and ``score`` (:class:`Estimate`, IQM),
     ``ratio_mean`` (the mean over runs of each run's mean ratio), ``diverged``
     (:class:`Estimate`), ``post_jump`` (:class:`Estimate` or ``None``), ``to_target`` and
     ``reconverge`` (:func:`_median_reached` dicts).
     """
-    ratio_data, score_data = {}, {}
+    ratio_data, score_data, steady_data = {}, {}, {}
     for c, t in tables.items():
         ratio_data[c] = np.nanmean(t["cost_ratio"], axis=2)
+        steady_data[c] = np.nanmean(t["steady_ratio"], axis=2)
         score = t["score"]
         defined = ~np.isnan(score).any(axis=(0, 2))  # plants where it is defined
         score_data[c] = np.mean(score[:, defined], axis=2) if defined.any() else np.empty((0, 1))
     est_ratio = interval_estimates(ratio_data, pool_tasks=True, reps=reps, seed=seed)
     est_score = interval_estimates(score_data, pool_tasks=True, reps=reps, seed=seed)
+    est_steady = interval_estimates(steady_data, pool_tasks=True, reps=reps, seed=seed)
     post = {
         c: np.nanmean(t["post_jump_ratio"], axis=2)
         for c, t in tables.items()
@@ -166,6 +171,7 @@ def headline(
             "episodes": int(t["cost"][0].size),
             "ratio": est_ratio[c]["iqm"][0],
             "ratio_mean": float(np.mean(ratio_data[c])),
+            "steady": est_steady[c]["iqm"][0],
             "score": est_score[c]["iqm"][0],
             "diverged": rate_estimate(1.0 - t["bounded"], reps=reps, seed=seed),
             "post_jump": est_post[c]["iqm"][0] if c in est_post else None,

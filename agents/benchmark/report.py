@@ -170,6 +170,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool, stops: dict) -> l
         "controller",
         "runs x episodes",
         "cost / LQG, IQM",
+        "steady / LQG, IQM",
         "score, IQM",
         "diverged",
         "steps to <= 1.2x LQG (reached)",
@@ -183,6 +184,7 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool, stops: dict) -> l
             c,
             f"{res['runs']} x {res['episodes']}",
             res["ratio"].format(3),
+            res["steady"].format(3),
             res["score"].format(3),
             _pct(res["diverged"]),
             _steps(res["to_target"]),
@@ -343,8 +345,10 @@ def write_report(
         "## Headline",
         "",
         "Each cell: point estimate [95 % interval]. cost / LQG: interquartile mean (IQM) over "
-        "runs and test plants of the per-plant mean ratio to LQG on the same episodes; score: "
-        "the same for the normalised score (higher is better); diverged: share of episodes. "
+        "runs and test plants of the per-plant mean ratio to LQG on the same episodes, the "
+        "whole episode (start-up included) and its steady window (the second half; before "
+        "the jump in `jump:test`); score: the same for the normalised score (higher is "
+        "better); diverged: share of episodes. "
         "Steps to <= 1.2x LQG: for RL the training steps after which its validation score "
         "stays within 1.2x of LQG (in-distribution scenarios only, and only for runs within "
         "1.2x on the test episodes too), for the self-tuning controllers the adaptation steps "
