@@ -225,29 +225,23 @@ _ADAPTIVE = {
 }
 _KNOWN = {"order": "true", "model": "true (a, b), told the jump", "data": "none"}
 
+
+def _adaptive(build: Any, description: str, knows: dict[str, str] = _ADAPTIVE) -> ControllerInfo:
+    """A self-tuning controller's entry: online, seeded, SISO."""
+    return ControllerInfo("adaptive", build, True, description, seeded=True, knows=knows)
+
+
 #: Classical controllers by name (tests may register more).
 CONTROLLERS: dict[str, ControllerInfo] = {
-    "stc": ControllerInfo(
-        "adaptive", _stc, True, "self-tuning controller (defaults)", seeded=True, knows=_ADAPTIVE
-    ),
-    "stc_lq": ControllerInfo(
-        "adaptive", _stc_lq, True, "self-tuning LQ (design='lq')", seeded=True, knows=_ADAPTIVE
-    ),
-    "stc_tuned": ControllerInfo(
-        "adaptive",
+    "stc": _adaptive(_stc, "self-tuning controller (defaults)"),
+    "stc_lq": _adaptive(_stc_lq, "self-tuning LQ (design='lq')"),
+    "stc_tuned": _adaptive(
         _stc_tuned,
-        True,
         "the self-tuning controller with options tuned on the validation split",
-        seeded=True,
-        knows={**_ADAPTIVE, "data": "the episode so far; options tuned on validation episodes"},
+        {**_ADAPTIVE, "data": "the episode so far; options tuned on validation episodes"},
     ),
-    "stc_kfmils": ControllerInfo(
-        "adaptive",
-        _stc_kfmils,
-        True,
-        "the self-tuning controller on the paper's KF-MILS estimator",
-        seeded=True,
-        knows=_ADAPTIVE,
+    "stc_kfmils": _adaptive(
+        _stc_kfmils, "the self-tuning controller on the paper's KF-MILS estimator"
     ),
     "lqg": ControllerInfo(
         "oracle",
