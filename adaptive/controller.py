@@ -55,8 +55,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels import design as dz
-from stcgym.adaptive.kernels.estimator import EstimatorSpec
+from stcgym.adaptive.kernels.estimator_spec import EstimatorSpec
 from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
+from stcgym.adaptive.kernels.variants import DESIGNS, RULES, variant
 from stcgym.adaptive.options import (
     DEFAULT_POLE,
     ChangeDetection,
@@ -114,10 +115,13 @@ class SelfTuningController(SelfTuningLanes):
         ``"ELS"`` (default) or a paper name (``"O-RLS"``, ``"KF-MILS"``, ...; the SG, MISG and
         D- rules warn that they do not hold the loop on many plants).
     design
-        ``"pole_placement"`` (Ackermann on the integral-augmented model, ``poles``) or ``"lq"``
-        (one Riccati iteration per step, weights ``law.lq_weights``).
+        A name of :data:`~stcgym.adaptive.kernels.variants.DESIGNS` (each entry says what it
+        computes and its known-model oracle): ``"pole_placement"`` (Ackermann on the
+        integral-augmented model, ``poles``) or ``"lq"`` (one Riccati iteration per step,
+        weights ``law.lq_weights``).
     poles
-        A scalar (all ``n + 1`` poles) or ``n + 1`` values (``n`` without integral action).
+        A scalar (all ``n + 1`` poles) or ``n + 1`` values (``n`` without integral action);
+        a design that fixes the poles itself ignores it.
     action_bound
         Saturation (default: the env's, else
         :data:`~stcgym.adaptive.options.DEFAULT_ACTION_BOUND` = 10).
@@ -192,9 +196,10 @@ class SelfTuningController(SelfTuningLanes):
             n, num_envs=num_envs, action_bound=action_bound, form=form, env=env
         )
         self.B = self.num_lanes
-        if design not in ("pole_placement", "lq"):
-            raise ValueError(f"design must be 'pole_placement' or 'lq', got {design!r}")
+        if design not in DESIGNS:
+            raise ValueError(f"design must be one of {tuple(DESIGNS)}, got {design!r}")
         self.design = design
+        lq = DESIGNS[design].kernel == "lq"
         self.estimator_options = eo = option_group(
             estimator_options, EstimatorOptions, "estimator_options"
         )
@@ -205,12 +210,18 @@ class SelfTuningController(SelfTuningLanes):
         )
         self.law = lw = option_group(law, LawOptions, "law")
         m = n + int(lw.integral)
-        self.poles = check_poles(poles, m)
+        fixed = DESIGNS[design].poles
+        self.poles = check_poles(poles if fixed is None else fixed, m)
         self.seeds = self._lane_ints(seed, "seed")
         # -- estimator record
         if not isinstance(estimator, str):
             raise ValueError(f"estimator must be a name (str), got {estimator!r}")
-        self.estimator = estimator.upper()
+        self.estimator = estimator.strip().upper()
+        if self.estimator != "ELS":
+            try:
+                v = variant(estimator)
+            except ValueError as exc:
+                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
         # the canonical form the estimator identifies (ELS: always the observer form)
         plant_form = self.estimator != "ELS" and eo.estimation_form == "plant"
         self._estimation_form = self.form if plant_form else "observer"
@@ -221,20 +232,16 @@ class SelfTuningController(SelfTuningLanes):
             self._spec = None
             d = 3 * n
         else:
-            from stcgym.adaptive.kernels.estimator import parse_name
-
-            try:
-                state, decomposed, rule = parse_name(estimator)
-            except ValueError as exc:
-                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
-            if decomposed or rule in ("SG", "MISG"):
+            if v.decomposed or not v.rule.holds_loop:
+                slow = ", ".join(r for r, rule in RULES.items() if not rule.holds_loop)
+                good = [r for r, rule in RULES.items() if rule.holds_loop]
+                holding = [f"'{s}-{r}'" for s in ("KF", "O") for r in good]
                 warnings.warn(
                     f"estimator {estimator!r} does not hold the loop on a sizeable share of "
-                    "ordinary plants: the stochastic-gradient rules (SG, MISG) adapt too slowly "
-                    "for a cold start, and the decomposition rules (D-) update a and b as if "
-                    "their regressors were uncorrelated, which feedback makes them not "
-                    "(benchmarks/startup.py measures every name); 'KF-MILS', 'KF-RLS', 'O-RLS', "
-                    "'O-MILS' or the default 'ELS' hold it",
+                    f"ordinary plants: the gradient rules ({slow}) adapt too slowly for a cold "
+                    "start, and the decomposition rules (D-) update a and b as if their "
+                    "regressors were uncorrelated, which feedback makes them not; "
+                    f"{', '.join(holding)} or the default 'ELS' hold it",
                     UserWarning,
                     stacklevel=2,
                 )
@@ -242,14 +249,14 @@ class SelfTuningController(SelfTuningLanes):
                 "p0": self.p0, "form": self._estimation_form, "forgetting": eo.forgetting,
                 "theta0": np.zeros(2 * n),
             }  # fmt: skip
-            if rule in ("MISG", "MILS"):
+            if v.rule.multi_innovation:
                 kw["p"] = eo.p
-            if state != "CO":
+            if v.state.filtered_regressor:
                 kw["regressor"] = eo.regressor
-            if state == "O" and eo.regressor == "filtered":
+            if v.state.injection and eo.regressor == "filtered":
                 kw["injection"] = eo.injection
                 kw["injection_warmup"] = eo.injection_warmup
-            if state == "KF":
+            if v.state.name == "KF":
                 kw["process_noise"] = eo.process_noise_floor * np.eye(n)
                 kw["measurement_noise"] = eo.kf_measurement_noise
             self._spec = EstimatorSpec.build(estimator, n, **kw)
@@ -272,9 +279,7 @@ class SelfTuningController(SelfTuningLanes):
             if spec.state == "KF":
                 est_fields["Q_est"] = spec.offset("Q")
             est_scratch = spec.layout.fields["work"][1][0]
-        self._layout, at = kc.controller_record(
-            n, est_lay, est_fields, est_scratch, lq=design == "lq"
-        )
+        self._layout, at = kc.controller_record(n, est_lay, est_fields, est_scratch, lq=lq)
         self._at = at
         ps = self.startup.probe_steps
         probe_steps = 2 * n if ps is None else int(ps)
@@ -319,9 +324,9 @@ class SelfTuningController(SelfTuningLanes):
             self._est_at, self._est_cfg = spec.record(at.est), spec.config
         init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
         # the LQ weights, or None: the step compiled for pole placement contains no LQ design
-        self._lq_weights = _frozen(lw.lq_weights) if design == "lq" else None
-        self._version = (self._spec is not None, design == "lq")
-        if design == "lq":
+        self._lq_weights = _frozen(lw.lq_weights) if lq else None
+        self._version = (self._spec is not None, lq)
+        if lq:
             P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
             init[at.P_lq : at.P_lq + P_lq.size] = P_lq.ravel()
         init.setflags(write=False)

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels import design as dz
 from stcgym.adaptive.kernels.estimator import REGRESSORS
+from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS, variant
 from stcgym.envs.canonical import check_form
 from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
 
@@ -44,9 +45,9 @@ DEFAULT_POLE = 0.5
 #: Saturation of the input when neither ``action_bound`` nor an env gives one (the envs' default).
 DEFAULT_ACTION_BOUND = 10.0
 #: Default ``P(0) = p0 I`` of extended least squares and of the paper's ``O-`` estimators.
-P0_ELS = 300.0
+P0_ELS = STATE_ESTIMATORS["O"].controller_p0
 #: Default ``P(0) = p0 I`` of the paper's ``KF-`` estimators.
-P0_KF = 100.0
+P0_KF = STATE_ESTIMATORS["KF"].controller_p0
 
 
 @dataclass(frozen=True)
@@ -172,11 +173,15 @@ class EstimatorOptions:
         Returns
         -------
         float
-            ``p0`` if given, else :data:`P0_KF` for ``KF-`` names and :data:`P0_ELS` otherwise.
+            ``p0`` if given, else :data:`P0_ELS` for ``"ELS"`` and the state estimator's
+            ``controller_p0`` (:data:`~stcgym.adaptive.kernels.variants.STATE_ESTIMATORS`:
+            :data:`P0_KF` for ``KF-`` names, :data:`P0_ELS` for ``O-``) otherwise.
         """
         if self.p0 is not None:
             return float(self.p0)
-        return P0_KF if estimator.upper().startswith("KF-") else P0_ELS
+        if estimator.strip().upper() == "ELS":
+            return P0_ELS
+        return variant(estimator).state.controller_p0
 
 
 @dataclass(frozen=True)

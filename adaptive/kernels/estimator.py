@@ -126,11 +126,8 @@ from stcgym.adaptive.kernels.estimator_spec import (
     FROZEN_RATE,
     FROZEN_RATIO,
     REGRESSORS,
-    RULE_RLS,
     RULES,
-    STATE_CO,
     STATE_ESTIMATORS,
-    STATE_KF,
     EstimatorConfig,
     EstimatorRecord,
     EstimatorSpec,
@@ -155,6 +152,8 @@ from stcgym.adaptive.kernels.state_estimation import (
     kalman_step,
     observer_step,
 )
+from stcgym.adaptive.kernels.variants import RULES as _RULES
+from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.compiled import lane
 
 __all__ = [
@@ -177,6 +176,11 @@ __all__ = [
     "upper_cholesky",
 ]
 
+# ---- the variants' codes (compile-time constants; compared for equality only) ------------------
+RULE_SG, RULE_MISG = _RULES["SG"].code, _RULES["MISG"].code
+RULE_RLS, RULE_MILS = _RULES["RLS"].code, _RULES["MILS"].code
+STATE_CO, STATE_KF = _STATES["CO"].code, _STATES["KF"].code
+
 # ---- status bits (values, not offsets) -------------------------------------------------------
 ST_RESET, ST_PROJECTED, ST_RECOMPUTED, ST_FROZEN = 1, 2, 4, 8
 ST_STATE_RESET, ST_KF_RESET, ST_PD_LOST = 16, 32, 64
@@ -191,10 +195,10 @@ ST_STATE_RESET, ST_KF_RESET, ST_PD_LOST = 16, 32, 64
 def reset_covariance(rec: NDArray, at: EstimatorRecord, cfg: EstimatorConfig) -> None:
     """``P <- P(0)`` / ``r <- r(0)`` and an empty finite-history window; ``theta`` kept."""
     d = 2 * cfg.n
-    if cfg.rule >= RULE_RLS:
+    if cfg.covariance:
         for i in range(d * d):
             rec[at.S + i] = rec[at.S0 + i]
-    else:
+    if cfg.normaliser:
         rec[at.r] = rec[at.r0]
         rec[at.r + 1] = rec[at.r0 + 1]
     rec[at.count] = 0.0
@@ -234,18 +238,20 @@ def _rule_increment(
     for blk in range(nblocks):
         lo = 0 if nblocks == 1 else blk * n
         hi = d if nblocks == 1 else lo + n
-        if cfg.rule >= RULE_RLS:
+        if cfg.rule == RULE_RLS or cfg.rule == RULE_MILS:
             S = view2d(rec, at.S, d, d)
             alpha = least_squares_increment(
                 S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, K, w
             )
             ok = ok and alpha > 0.0 and math.isfinite(alpha) and block_trace_is_finite(S, lo, hi)
-        else:
+        elif cfg.rule == RULE_SG or cfg.rule == RULE_MISG:
             o = at.r + blk
             r = gradient_increment(rec[o], lo, hi, Phi, E, p, lam, cfg.stacked_r, delta)
             ok = ok and r > 0.0 and math.isfinite(r)
             if ok:
                 rec[o] = r
+        else:  # a rule without an increment here: report it, never apply stale scratch
+            ok = False
     return ok
 
 
@@ -399,7 +405,7 @@ def estimator_update(
     work = rec[at.work :]
     delta, K, w = work[:d], work[d : 2 * d], work[2 * d : 4 * d]
     theta_prev = work[4 * d : 5 * d]
-    least_squares = cfg.rule >= RULE_RLS
+    least_squares = cfg.covariance
     q = _gain(view2d(rec, at.S, d, d), phi) if least_squares else 0.0
     ok = _rule_increment(rec, at, cfg, Phi, E, delta, K, w)
     if windowed is not None and ok and cfg.window > 0:
@@ -551,7 +557,7 @@ def estimator_restart(
     """Restart at ``theta`` and ``P``; see the module docstring."""
     n = cfg.n
     d = 2 * n
-    if cfg.rule >= RULE_RLS:
+    if cfg.covariance:
         F = view2d(rec, at.work + 5 * d + 2 * cfg.p, d, d)
         if cfg.decomposed:
             F[:, :] = 0.0

@@ -28,6 +28,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.least_squares import upper_factor
+from stcgym.adaptive.kernels.variants import ALGORITHMS, Rule, parse_name, variant
+from stcgym.adaptive.kernels.variants import RULES as _RULES
+from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
 from stcgym.envs.compiled import Layout
 from stcgym.envs.validation import (
@@ -52,18 +55,12 @@ __all__ = [
     "upper_cholesky",
 ]
 
-RULES: tuple[str, ...] = ("SG", "MISG", "RLS", "MILS")
-STATE_ESTIMATORS: tuple[str, ...] = ("O", "KF", "CO")
+#: The rules' names (:data:`.variants.RULES` has what the code knows about each).
+RULES: tuple[str, ...] = tuple(_RULES)
+#: The state estimators' names (:data:`.variants.STATE_ESTIMATORS`).
+STATE_ESTIMATORS: tuple[str, ...] = tuple(_STATES)
 #: Which state estimate the regressor ``phi_hat`` is built from (see :meth:`EstimatorSpec.build`).
 REGRESSORS: tuple[str, ...] = ("predicted", "filtered")
-#: The 16 algorithms of the paper (``CO-...`` variants are accepted as well).
-ALGORITHMS: tuple[str, ...] = tuple(
-    f"{s}-{d}{r}" for d in ("", "D-") for r in RULES for s in ("O", "KF")
-)
-
-# Rule and state-estimator codes of the configuration (values, not offsets).
-RULE_SG, RULE_MISG, RULE_RLS, RULE_MILS = range(4)
-STATE_O, STATE_CO, STATE_KF = range(3)
 #: Frozen-signal defaults (see :mod:`.estimator`; calibrated in ``stcgym.adaptive.health``).
 FROZEN_RATE = 1e-3
 FROZEN_RATIO = 0.05
@@ -119,9 +116,11 @@ class EstimatorConfig(NamedTuple):
 
     n: int
     p: int  # innovation length
-    rule: int  # RULE_SG .. RULE_MILS
+    rule: int  # the rule's code (.variants.RULES)
+    covariance: bool  # the rule keeps P = S S^T
+    normaliser: bool  # the rule keeps the normalisers r
     decomposed: bool  # D- rule (a and b halves)
-    state: int  # STATE_O, STATE_CO or STATE_KF
+    state: int  # the state estimator's code (.variants.STATE_ESTIMATORS)
     observability: bool  # observability canonical form (else observer form)
     window: int  # finite history W (0: none)
     check_every: int  # factor health check every so many steps (0: never)
@@ -135,61 +134,26 @@ class EstimatorConfig(NamedTuple):
     frozen_rate: float
     frozen_ratio: float
     frozen_gain: float
+    rule_parameters: NDArray  # the rule's own parameters (.variants.Rule.parameters), in order
 
 
-def parse_name(name: str) -> tuple[str, bool, str]:
-    """Split a paper name into ``(state estimator, decomposed, rule)``.
+def _rule_parameters(rule: Rule, given: dict[str, Any]) -> tuple[float, ...]:
+    """The validated values of ``rule``'s own parameters (defaults where not ``given``); a
+    keyword of another rule is a ``ValueError``, a keyword of no rule a ``TypeError``."""
+    own = {q.name: q for q in rule.parameters}
+    for keyword in given:
+        if keyword not in own:
+            rules = [r.name for r in _RULES.values() if keyword in {q.name for q in r.parameters}]
+            if not rules:
+                raise TypeError(f"make_estimator() got an unexpected keyword argument {keyword!r}")
+            raise ValueError(f"{keyword} applies to {'/'.join(rules)} rules only, not {rule.name}")
+    return tuple(q.check(given.get(q.name, q.default)) for q in rule.parameters)
 
-    ``"KF-D-MILS" -> ("KF", True, "MILS")``; case-insensitive; the state estimator is one of
-    ``O``, ``KF``, ``CO`` (closed-loop observer, needs ``observer_gain``).
 
-    Parameters
-    ----------
-    name : str
-        ``"<state>-[D-]<rule>"``: state in :data:`STATE_ESTIMATORS`, rule in :data:`RULES`
-        (surrounding blanks ignored).
-
-    Returns
-    -------
-    state : str
-        ``"O"``, ``"KF"`` or ``"CO"``.
-    decomposed : bool
-        Whether the name has the ``D-`` (model decomposition) part.
-    rule : str
-        ``"SG"``, ``"MISG"``, ``"RLS"`` or ``"MILS"``.
-
-    Raises
-    ------
-    ValueError
-        ``name`` not a string of that form; the message lists the accepted names.
-
-    Examples
-    --------
-    >>> from stcgym.adaptive import parse_name
-    >>> parse_name("kf-d-mils")
-    ('KF', True, 'MILS')
-    >>> parse_name("O-RLS")
-    ('O', False, 'RLS')
-    >>> parse_name("O-LSI")
-    Traceback (most recent call last):
-    ...
-    ValueError: unknown algorithm 'O-LSI'; expected '<state>-[D-]<rule>' ...
-    """
-    if not isinstance(name, str):
-        raise ValueError(f"name must be a string such as 'KF-D-MILS', got {name!r}")
-    parts = name.strip().upper().split("-")
-    ok = (
-        len(parts) in (2, 3)
-        and parts[0] in STATE_ESTIMATORS
-        and parts[-1] in RULES
-        and (len(parts) == 2 or parts[1] == "D")
-    )
-    if not ok:
-        raise ValueError(
-            f"unknown algorithm {name!r}; expected '<state>-[D-]<rule>' with state in "
-            f"{STATE_ESTIMATORS} and rule in {RULES}, e.g. one of {ALGORITHMS}"
-        )
-    return parts[0], len(parts) == 3, parts[-1]
+def _read_only(values: tuple[float, ...]) -> NDArray:
+    arr = np.array(values, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
 
 
 def upper_cholesky(P: NDArray) -> NDArray:
@@ -275,6 +239,8 @@ class EstimatorSpec:
     regressor: str = "predicted"
     injection: float = 1.0
     injection_warmup: int = 0
+    #: the values of the rule's own parameters (:attr:`.variants.Rule.parameters`), in order
+    rule_parameters: tuple[float, ...] = ()
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
@@ -305,6 +271,7 @@ class EstimatorSpec:
         regressor: str = "predicted",
         injection: float = 1.0,
         injection_warmup: int = 0,
+        **rule_parameters: float,
     ) -> EstimatorSpec:
         """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument).
 
@@ -323,33 +290,33 @@ class EstimatorSpec:
             An unknown name, or an argument out of its range, of the wrong shape or not
             applying to the rule or state estimator.
         """
-        state, decomposed, rule = parse_name(name)
+        v = variant(name)
+        state, decomposed, rule = v.state.name, v.decomposed, v.rule.name
         n = integer(n, "n", 1)
         p = integer(p, "p", 1)
-        if rule in ("SG", "RLS") and p != 1:
+        if not v.rule.multi_innovation and p != 1:
+            multi = "/".join(r.name for r in _RULES.values() if r.multi_innovation)
             raise ValueError(
-                f"p (innovation length) applies to MISG/MILS; {rule} has p = 1, got p={p}"
+                f"p (innovation length) applies to {multi}; {rule} has p = 1, got p={p}"
             )
         p0 = positive(p0, "p0")
         form = check_form(form)
         lam = forgetting_factor(forgetting, "forgetting (lambda)")
-        least_squares = rule in ("RLS", "MILS")
+        given = {"P0": P0 is not None, "r0": r0 is not None, "stacked_r": bool(stacked_r)}
+        given["window"] = window is not None
+        for keyword, is_given in given.items():
+            if is_given and keyword not in v.rule.keywords:
+                rules = "/".join(r.name for r in _RULES.values() if keyword in r.keywords)
+                raise ValueError(f"{keyword} applies to {rules} rules only, not {rule}")
+        least_squares = v.rule.covariance
         if window is not None:
             window = integer(window, "window", 1)
-            if not least_squares:
-                raise ValueError("window (finite history) applies to RLS/MILS rules only")
             if lam != 1.0:
                 raise ValueError("window and forgetting < 1 are mutually exclusive")
         d = 2 * n
         theta0_arr = (
             np.full(d, 1.0 / p0) if theta0 is None else as_finite_vector(theta0, "theta0", length=d)
         )
-        if P0 is not None and not least_squares:
-            raise ValueError(f"P0 applies to RLS/MILS rules only, not {rule}")
-        if r0 is not None and least_squares:
-            raise ValueError(f"r0 applies to SG/MISG rules only, not {rule}")
-        if stacked_r and least_squares:
-            raise ValueError(f"stacked_r applies to SG/MISG rules only, not {rule}")
         P0_mat = None
         if least_squares:
             P0_mat = p0 * np.eye(d) if P0 is None else covariance(P0, d, "P0")
@@ -446,19 +413,15 @@ class EstimatorSpec:
             regressor=regressor,
             injection=injection,
             injection_warmup=injection_warmup,
+            rule_parameters=_rule_parameters(v.rule, rule_parameters),
         )
 
     def __post_init__(self) -> None:
         n, p, d = self.n, self.p, 2 * self.n
-        ls = self.rule in ("RLS", "MILS")
+        v = variant(self.name)
         W = self.window or 0
-        kf = self.state == "KF"
         shapes: dict[str, tuple[int, ...]] = {
             "theta": (d,),
-            "S": (d, d) if ls else (0,),
-            "S0": (d, d) if ls else (0,),
-            "r": (0,) if ls else (2,),
-            "r0": (0,) if ls else (2,),
             "x_hat": (n,),
             "x_init": (n,),
             "xs": (n, n) if self.form == "observability" else (0,),
@@ -466,27 +429,29 @@ class EstimatorSpec:
             "Phi": (p, d),
             "Y": (p,),
             "E": (p,),
-            "K": (n,) if self.state == "CO" else (0,),
-            "P1": (n, n) if kf else (0,),
-            "P1_init": (n, n) if kf else (0,),
-            "Q": (n, n) if kf else (0,),
-            "L1": (n,) if kf else (0,),
             "theta0": (d,) if W else (0,),
             "hist_Phi": (W, p, d) if W else (0,),
             "hist_Y": (W, p) if W else (0,),
             # delta, K, w (2d), theta_prev / replay; E, E_old; saved S; A, x_next, 2 n^2 (KF)
             # x_hat(t|t) of the filtered regressor (n)
             "work": (5 * d + 2 * p + d * d + 3 * n * n + 2 * n,),
+            **v.rule.fields(n, p),
+            **v.state.fields(n),
         }
+        # a field no variant of this configuration keeps is empty
+        for name in ("S", "S0", "r", "r0", "K", "P1", "P1_init", "Q", "L1"):
+            shapes.setdefault(name, (0,))
         layout = Layout()
         for name in FIELDS:
             layout.add(name, shapes.get(name, ()))
         config = EstimatorConfig(
             n=n,
             p=p,
-            rule=RULES.index(self.rule),
+            rule=v.rule.code,
+            covariance=v.rule.covariance,
+            normaliser=v.rule.normaliser,
             decomposed=bool(self.decomposed),
-            state={"O": STATE_O, "CO": STATE_CO, "KF": STATE_KF}[self.state],
+            state=v.state.code,
             observability=self.form == "observability",
             window=W,
             check_every=int(self.pd_check_every),
@@ -500,6 +465,7 @@ class EstimatorSpec:
             frozen_rate=float(self.frozen[0]),
             frozen_ratio=float(self.frozen[1]),
             frozen_gain=float(self.frozen[2]),
+            rule_parameters=_read_only(self.rule_parameters),
         )
         object.__setattr__(self, "layout", layout)
         object.__setattr__(self, "config", config)
@@ -519,8 +485,8 @@ class EstimatorSpec:
 
     @property
     def least_squares(self) -> bool:
-        """Whether the rule keeps a covariance ``P`` (RLS, MILS) rather than a normaliser ``r``."""
-        return self.rule in ("RLS", "MILS")
+        """Whether the rule keeps a covariance ``P = S S^T`` (RLS, MILS)."""
+        return variant(self.name).rule.covariance
 
     def offset(self, name: str) -> int:
         """Offset of the field ``name`` relative to the start of the estimator record.
@@ -584,7 +550,7 @@ class EstimatorSpec:
                 S0 = upper_cholesky(P)
             lay.view(rec, "S")[0] = S0
             lay.view(rec, "S0")[0] = S0
-        else:
+        if variant(self.name).rule.normaliser:
             lay.view(rec, "r")[0] = self.r0
             lay.view(rec, "r0")[0] = self.r0
         lay.view(rec, "x_hat")[0] = self.x_init
