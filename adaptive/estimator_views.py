@@ -145,7 +145,7 @@ class EstimatorViews:
     @property
     def r(self) -> NDArray | None:
         """``[r(t)]`` or ``[r1(t), r2(t)]`` (SG/MISG), else ``None``."""
-        if self.spec.least_squares:
+        if not self.spec.normaliser:
             return None
         r = self._field("r")
         return self._out(r[:, :2] if self.spec.decomposed else r[:, :1])

@@ -303,7 +303,7 @@ class EstimatorSpec:
         form = check_form(form)
         lam = forgetting_factor(forgetting, "forgetting (lambda)")
         given = {"P0": P0 is not None, "r0": r0 is not None, "stacked_r": bool(stacked_r)}
-        given["window"] = window is not None
+        given.update(window=window is not None, forgetting=lam != 1.0)
         for keyword, is_given in given.items():
             if is_given and keyword not in v.rule.keywords:
                 rules = "/".join(r.name for r in _RULES.values() if keyword in r.keywords)
@@ -482,6 +482,11 @@ class EstimatorSpec:
     def size(self) -> int:
         """Floats per lane record."""
         return self.layout.size
+
+    @property
+    def normaliser(self) -> bool:
+        """Whether the rule keeps the gradient normalisers ``r`` (SG, MISG)."""
+        return variant(self.name).rule.normaliser
 
     @property
     def least_squares(self) -> bool:

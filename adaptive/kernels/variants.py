@@ -117,8 +117,8 @@ def _nothing(n: int, p: int) -> dict[str, tuple[int, ...]]:
     return {}
 
 
-_LEAST_SQUARES = ("P0", "window")
-_GRADIENT = ("r0", "stacked_r")
+_LEAST_SQUARES = ("P0", "window", "forgetting")
+_GRADIENT = ("r0", "stacked_r", "forgetting")
 
 RULES: dict[str, Rule] = {
     rule.name: rule
