@@ -9,6 +9,8 @@ structure exploited, no health checks): the compiled lane functions of
   ``theta(t) = theta(t-1) + Phi E / r(t)``;
 * RLS (32)-(36): ``L = P phi / (lambda + phi^T P phi)``, ``P = (P - L phi^T P) / lambda``;
 * MILS (37)-(44): ``L = P Phi (lambda I + Phi^T P Phi)^{-1}``, ``P = (P - L Phi^T P) / lambda``;
+* NG, the normalised-gradient (projection) algorithm (Astrom & Wittenmark, not in the paper):
+  ``theta(t) = theta(t-1) + mu phi e / (alpha + phi^T phi)``;
 * D- rules (96)-(145): the same on ``a`` (rows ``0..n-1``) and ``b`` (rows ``n..2n-1``), both
   with the innovation computed from ``theta(t-1)``;
 * open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
@@ -47,6 +49,8 @@ class ReferenceEstimator:
         filtered: bool = False,
         injection: float = 1.0,
         injection_warmup: int = 0,
+        adaptation_gain: float = 1.0,
+        normalization_bias: float = np.finfo(float).eps,
     ) -> None:
         parts = name.upper().split("-")
         self.state, self.rule, self.decomposed = parts[0], parts[-1], len(parts) == 3
@@ -62,6 +66,7 @@ class ReferenceEstimator:
         self.R = R
         self.K = None if K is None else np.array(K, float)
         self.filtered = filtered
+        self.mu, self.alpha = adaptation_gain, normalization_bias
         self.injection, self.injection_warmup = injection, injection_warmup
         self.t = 0
         self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
@@ -88,6 +93,10 @@ class ReferenceEstimator:
                 inc = np.sum(Phi**2) if self.stacked_r else np.sum(Phi[:, 0] ** 2)
                 self.r[k] = lam * self.r[k] + inc
                 delta[blk] = Phi @ E / self.r[k]
+                continue
+            if self.rule == "NG":
+                phi = Phi[:, 0]
+                delta[blk] = self.mu * phi * E[0] / (self.alpha + phi @ phi)
                 continue
             P = self.P[blk, blk]
             if self.rule == "RLS":

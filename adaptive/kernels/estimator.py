@@ -141,6 +141,7 @@ from stcgym.adaptive.kernels.least_squares import (
     factor_is_healthy,
     gradient_increment,
     least_squares_increment,
+    projection_increment,
     upper_factor,
 )
 from stcgym.adaptive.kernels.linalg import matvec
@@ -179,6 +180,7 @@ __all__ = [
 # ---- the variants' codes (compile-time constants; compared for equality only) ------------------
 RULE_SG, RULE_MISG = _RULES["SG"].code, _RULES["MISG"].code
 RULE_RLS, RULE_MILS = _RULES["RLS"].code, _RULES["MILS"].code
+RULE_NG = _RULES["NG"].code
 STATE_CO, STATE_KF = _STATES["CO"].code, _STATES["KF"].code
 
 # ---- status bits (values, not offsets) -------------------------------------------------------
@@ -250,6 +252,9 @@ def _rule_increment(
             ok = ok and r > 0.0 and math.isfinite(r)
             if ok:
                 rec[o] = r
+        elif cfg.rule == RULE_NG:
+            norm = projection_increment(lo, hi, Phi[0], E[0], cfg.rule_parameters, delta)
+            ok = ok and norm > 0.0 and math.isfinite(norm)
         else:  # a rule without an increment here: report it, never apply stale scratch
             ok = False
     return ok

@@ -68,6 +68,7 @@ __all__ = [
     "least_squares_downdate",
     "least_squares_increment",
     "least_squares_step",
+    "projection_increment",
     "rank_one_update",
     "upper_factor",
 ]
@@ -230,6 +231,28 @@ def gradient_increment(
             acc += Phi[k, i] * E[k]
         delta[i] = acc * inv_r
     return r_new
+
+
+@lane
+def projection_increment(
+    lo: int, hi: int, phi: NDArray, e: float, parameters: NDArray, delta: NDArray
+) -> float:
+    """Normalised-gradient (projection) increment on the block ``[lo, hi)``: writes
+    ``mu phi e / (alpha + phi^T phi)`` into ``delta[lo:hi]`` and returns the denominator.
+
+    Astrom & Wittenmark, *Adaptive Control* (2nd ed., 1995), sec. 2.3, the projection
+    algorithm; MATLAB's ``recursiveLS`` ``"NormalizedGradient"``. ``parameters`` are the
+    rule's, in the order it declares them: ``mu`` (``adaptation_gain``, in ``(0, 2)``) and
+    ``alpha`` (``normalization_bias``, ``> 0``).
+    """
+    mu, alpha = parameters[0], parameters[1]
+    norm = alpha
+    for i in range(lo, hi):
+        norm += phi[i] * phi[i]
+    scale = mu * e / norm
+    for i in range(lo, hi):
+        delta[i] = phi[i] * scale
+    return norm
 
 
 @lane(entry=True)

@@ -20,11 +20,13 @@ compare codes for equality only (never an order between variants).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from stcgym.adaptive import flops as _flops
+from stcgym.envs.validation import real_in
 
 __all__ = [
     "ALGORITHMS",
@@ -140,6 +142,29 @@ RULES: dict[str, Rule] = {
             "MILS", 3, "(37)-(44), D-: (134)-(145)", True, True, _LEAST_SQUARES, _covariance,
             lambda n, p, s: _flops.mils(n, p), lambda n, p, s: _flops.d_mils(n, p),
             holds_loop=True,
+        ),
+        # the normalised-gradient (projection) algorithm, not in the paper: Astrom & Wittenmark,
+        # Adaptive Control (2nd ed., 1995), sec. 2.3; MATLAB recursiveLS "NormalizedGradient".
+        # Flops as sg(): e (4n), alpha + phi^T phi (4n), mu e / (.) (2), theta + phi (.) (4n);
+        # D-: the normaliser and the scaling once per half.
+        Rule(
+            "NG", 4, "theta += mu phi e / (alpha + phi^T phi)", False, False, (), _nothing,
+            lambda n, p, s: 12 * n + 2, lambda n, p, s: 12 * n + 4, holds_loop=False,
+            paper=False,
+            parameters=(
+                Parameter(
+                    "adaptation_gain", 1.0,
+                    lambda v: real_in(v, "adaptation_gain (mu)", 0, 2, lo_open=True, hi_open=True),
+                    "mu in (0, 2): the step along phi (1: the a-posteriori error of the update "
+                    "is alpha / (alpha + phi^T phi) of e)",
+                ),
+                Parameter(
+                    "normalization_bias", math.ulp(1.0),
+                    lambda v: real_in(v, "normalization_bias (alpha)", 0, lo_open=True),
+                    "alpha > 0: keeps the step finite for a vanishing regressor (default: "
+                    "machine epsilon, as MATLAB's)",
+                ),
+            ),
         ),
     )
 }  # fmt: skip
