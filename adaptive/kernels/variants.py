@@ -105,6 +105,14 @@ class Design:
     oracle_options: dict[str, Any] = field(default_factory=dict)
     poles: float | None = None  # every closed-loop pole fixed here (None: from `poles`)
 
+    def make_oracle(self, a: Any, b: Any, **options: Any) -> Any:
+        """The known-model oracle of this design on the true ``a``, ``b`` (``options``: the
+        oracle's own keywords, e.g. ``law``, ``num_envs``)."""
+        import stcgym.adaptive  # the oracles are built on these kernels
+
+        oracle = getattr(stcgym.adaptive, self.oracle)
+        return oracle(a, b, **self.oracle_options, **options)
+
 
 # ---- parameter rules ------------------------------------------------------------------------
 def _covariance(n: int, p: int) -> dict[str, tuple[int, ...]]:
@@ -211,6 +219,14 @@ DESIGNS: dict[str, Design] = {
             "lq", "lq",
             "one Riccati iteration a sample of the LQ problem on the integral-augmented model "
             "(weights `law.lq_weights`)", ("law.lq_weights",), "LQGController",
+        ),
+        # Astrom & Wittenmark, Adaptive Control (2nd ed., 1995), sec. 3.2: deadbeat control is
+        # pole placement with every closed-loop pole at the origin
+        Design(
+            "deadbeat", "place",
+            "Ackermann's formula with every closed-loop pole at z = 0: (A - b K)^(n+1) = 0 on "
+            "the integral-augmented model, the error of the estimated model dies in n + 1 "
+            "samples", (), "KnownModelController", {"poles": 0.0}, poles=0.0,
         ),
     )
 }  # fmt: skip
