@@ -196,7 +196,7 @@ class SelfTuningController(SelfTuningLanes):
             n, num_envs=num_envs, action_bound=action_bound, form=form, env=env
         )
         self.B = self.num_lanes
-        if design not in DESIGNS:
+        if not isinstance(design, str) or design not in DESIGNS:
             raise ValueError(f"design must be one of {tuple(DESIGNS)}, got {design!r}")
         self.design = design
         lq = DESIGNS[design].kernel == "lq"
