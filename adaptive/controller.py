@@ -71,7 +71,7 @@ from stcgym.adaptive.options import (
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.compiled import FixedTypes, set_lanes
 from stcgym.envs.validation import integer
 
 __all__ = [
@@ -262,23 +262,12 @@ class SelfTuningController(SelfTuningLanes):
             self._spec = EstimatorSpec.build(estimator, n, **kw)
             self.estimator = self._spec.name
             d = 2 * n
-        # the estimator's record ends with its scratch ("scratch" / "work"), shared with the design
-        absent = dict.fromkeys(("theta", "S", "E", "Q_est", "phi", "scratch"), -1)
-        if self._spec is None:
-            est_fields = {
-                **absent,
-                **{k: est_lay.offset(k) for k in ("theta", "S", "phi", "scratch")},
-            }
-            est_scratch = est_lay.fields["scratch"][1][0]
-        else:
-            spec = self._spec
-            est_lay = spec.layout
-            est_fields = {**absent, "theta": spec.offset("theta"), "E": spec.offset("E")}
-            if spec.least_squares:
-                est_fields["S"] = spec.offset("S")
-            if spec.state == "KF":
-                est_fields["Q_est"] = spec.offset("Q")
-            est_scratch = spec.layout.fields["work"][1][0]
+        # the ELS record ends with its scratch, shared with the design; a paper estimator keeps
+        # a lane state of its own (the ELS fields are then empty)
+        if self._spec is not None:
+            est_lay = extended_ls_layout(0, True)
+        est_fields = {k: est_lay.offset(k) for k in ("theta", "S", "phi", "scratch")}
+        est_scratch = est_lay.fields["scratch"][1][0] if self._spec is None else 0
         self._layout, at = kc.controller_record(n, est_lay, est_fields, est_scratch, lq=lq)
         self._at = at
         ps = self.startup.probe_steps
@@ -318,10 +307,12 @@ class SelfTuningController(SelfTuningLanes):
             init[at.S : at.S + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
             # no paper estimator: the step compiled for ELS (kernels.controller, compile-time
             # choices) contains none
-            self._est_at, self._est_cfg = None, None
+            self._est_init = self._est = self._est_work = self._est_cfg = None
         else:
-            init[at.est : at.est + spec.size] = spec.initial_record()
-            self._est_at, self._est_cfg = spec.record(at.est), spec.config
+            self._est_init = self._spec.initial_state()
+            self._est = self._spec.make_state(self.B)
+            self._est_work = self._spec.make_work(self.B)
+            self._est_cfg = self._spec.config
         init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
         # the LQ weights, or None: the step compiled for pole placement contains no LQ design
         self._lq_weights = _frozen(lw.lq_weights) if lq else None
@@ -348,15 +339,15 @@ class SelfTuningController(SelfTuningLanes):
         if self.B == 1:
             y, r = obs[0].tolist()  # Python floats: the cheapest arguments for numba's dispatch
             u[0] = _controller_step[self._version](
-                self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
-                self._lq_weights, y, r,
+                self._F[0], self._G[0], self._at, self._cfg, self._est, self._est_work, 0,
+                self._est_cfg, self._lq_weights, y, r,
             )  # fmt: skip
         else:
             y = np.ascontiguousarray(obs[:, 0])
             r = np.ascontiguousarray(obs[:, 1])
             _controllers_step[self._version](
-                self._F, self._G, self._at, self._cfg, self._est_at, self._est_cfg,
-                self._lq_weights, y, r, u,
+                self._F, self._G, self._at, self._cfg, self._est, self._est_work,
+                self._est_cfg, self._lq_weights, y, r, u,
             )  # fmt: skip
         return u.copy()
 
@@ -365,8 +356,11 @@ class SelfTuningController(SelfTuningLanes):
     def theta(self) -> NDArray:
         """``theta_hat = [a_hat; b_hat]`` in the plant's canonical form (per lane if batched)."""
         n = self.n
-        o = self._at.theta
-        th = self._F[:, o : o + 2 * n].copy()
+        if self._est is None:
+            o = self._at.theta
+            th = self._F[:, o : o + 2 * n].copy()
+        else:
+            th = self._est.theta.copy()
         if self.form == "observability" and self._estimation_form == "observer":
             for i in range(self.B):
                 if np.all(np.isfinite(th[i])):
@@ -405,8 +399,14 @@ class SelfTuningController(SelfTuningLanes):
 
     @property
     def nbytes_per_lane(self) -> int:
-        """Memory of one lane's records (float and int)."""
-        return self._F.shape[1] * 8 + self._G.shape[1] * 8
+        """Memory of one lane's records (float and int, and a paper estimator's state)."""
+        own = self._F.shape[1] * 8 + self._G.shape[1] * 8
+        return own + (0 if self._spec is None else self._spec.nbytes_per_lane)
+
+    def _reset_lanes(self, idx: NDArray) -> None:
+        super()._reset_lanes(idx)
+        if self._est is not None:
+            set_lanes(self._est, idx, self._est_init)
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

@@ -263,7 +263,8 @@ def run_blocks(loop: Callable[..., Any], args: Sequence[Any], min_lanes: int) ->
     contiguous blocks of rows on a thread pool (:func:`_blocks`), the first block on the calling
     thread. Each block writes only its own rows, and a lane's numbers never depend on the
     block it ran in. An exception in any block is raised after every block has finished."""
-    num_lanes = args[0].shape[0]
+    first = args[0]  # the lanes' records, or a lane state (whose first field has a row a lane)
+    num_lanes = (first if hasattr(first, "shape") else first[0]).shape[0]
     k = _blocks(num_lanes, min_lanes)
     if k == 1:
         loop(*args, 0, num_lanes)
@@ -352,6 +353,49 @@ class FixedTypes:
                 entry = internals.entry_point(self.fn, tuple(numba.typeof(a) for a in args))
             self.entry = entry
         return entry(*args)
+
+
+def lane_state(
+    fields: type[R],
+    shapes: dict[str, tuple[int, ...]],
+    num_lanes: int,
+    dtypes: dict[str, Any] | None = None,
+) -> R:
+    """A zeroed batch of named lane state: ``fields`` (a ``NamedTuple`` class) with field ``f``
+    an array of shape ``(num_lanes, *shapes[f])`` (``float64`` unless ``dtypes`` says
+    otherwise). Lane ``i`` of field ``f`` is ``state.f[i]`` (a row view); a field a
+    configuration does not use has a zero in its shape, so the lane functions loop over it
+    without a test. numba types the tuple by its fields' dtypes and dimensions, not their
+    sizes: one compiled function serves every order.
+
+    >>> from typing import NamedTuple
+    >>> class Pair(NamedTuple):
+    ...     theta: object
+    ...     t: object
+    >>> s = lane_state(Pair, {"theta": (4,), "t": ()}, 3, {"t": np.int64})
+    >>> s.theta.shape, s.t.dtype
+    ((3, 4), dtype('int64'))
+    """
+    names = fields._fields
+    if set(shapes) != set(names):
+        raise ValueError(f"shapes must name exactly the fields of {fields.__name__}: {names}")
+    types = dtypes or {}
+    num_lanes = int(num_lanes)
+    return fields(
+        *(np.zeros((num_lanes, *shapes[f]), dtype=types.get(f, np.float64)) for f in names)
+    )
+
+
+def set_lanes(dst: R, lanes: Any, src: R, row: Any = 0) -> None:
+    """``dst.f[lanes] = src.f[row]`` for every field ``f`` of two lane states (a reset, a copy
+    of some lanes)."""
+    for d, s in zip(dst, src, strict=True):
+        d[lanes] = s[row]
+
+
+def state_nbytes_per_lane(state: tuple) -> int:
+    """Bytes of one lane of a lane state (every field's row)."""
+    return sum(a[0].nbytes if a.shape[0] else 0 for a in state)
 
 
 class Layout:

@@ -32,7 +32,7 @@ from stcgym.adaptive.kernels.variants import ALGORITHMS, Rule, parse_name, varia
 from stcgym.adaptive.kernels.variants import RULES as _RULES
 from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.compiled import Layout
+from stcgym.envs.compiled import lane_state, state_nbytes_per_lane
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -44,13 +44,13 @@ from stcgym.envs.validation import (
 
 __all__ = [
     "ALGORITHMS",
-    "FIELDS",
     "REGRESSORS",
     "RULES",
     "STATE_ESTIMATORS",
     "EstimatorConfig",
-    "EstimatorRecord",
     "EstimatorSpec",
+    "EstimatorState",
+    "EstimatorWork",
     "parse_name",
     "upper_cholesky",
 ]
@@ -67,48 +67,72 @@ FROZEN_RATIO = 0.05
 FROZEN_GAIN = 1e-3
 
 
-class EstimatorRecord(NamedTuple):
-    """Fields of the estimator's lane record (offsets; sizes set by :class:`EstimatorSpec`)."""
+class EstimatorState(NamedTuple):
+    """The estimator's lane state: field ``f`` of lane ``i`` is ``state.f[i]`` (a batch of
+    ``B`` lanes holds ``(B, *shape)`` arrays; shapes in :meth:`EstimatorSpec.shapes`, ``d = 2n``,
+    a field the configuration does not use has a zero in its shape)."""
 
-    theta: int  # theta_hat(t) (2n)
-    S: int  # upper factor of P = S S^T (2n, 2n; empty for SG/MISG)
-    S0: int  # the factor of P(0), for the safe reset
-    r: int  # SG/MISG normalisers (2; empty for RLS/MILS)
-    r0: int  # r(0)
-    x_hat: int  # the state estimate x_hat(t) (n)
-    x_init: int  # x_hat(1), for the state reset
-    xs: int  # the last n state estimates (observability-form regressor (153))
-    phi: int  # the regressor phi_hat(t+1) (2n)
-    Phi: int  # the stacked Phi(p, t) (p, 2n)
-    Y: int  # the stacked Y(p, t) (p)
-    E: int  # the innovation E(p, t) (p)
-    y: int  # the last y(t)
-    K: int  # closed-loop observer gain (CO)
-    P1: int  # Kalman covariance (KF)
-    P1_init: int  # P1(1)
-    Q: int  # Kalman process noise (KF)
-    L1: int  # Kalman gain (KF)
-    theta0: int  # theta(0) (finite window)
-    hist_Phi: int  # the window's blocks (W, p, 2n)
-    hist_Y: int  # (W, p)
-    t: int  # time
-    phase: int  # 1 between update and predict
-    enabled: int  # adaptation switch
-    n_resets: int
-    n_state_resets: int
-    n_kf_resets: int
-    n_projections: int
-    n_window_recomputes: int
-    count: int  # blocks added to the window
-    ewma_e2: int  # frozen signal: running means of e^2, y^2 and the gain q
-    ewma_y2: int
-    ewma_q: int
-    frozen: int
-    work: int  # scratch
+    theta: NDArray  # theta_hat(t) (d)
+    S: NDArray  # upper factor of P = S S^T (d, d; covariance rules)
+    S0: NDArray  # the factor of P(0), for the safe reset
+    r: NDArray  # SG/MISG normalisers (2)
+    r0: NDArray  # r(0)
+    x_hat: NDArray  # the state estimate x_hat(t) (n)
+    x_init: NDArray  # x_hat(1), for the state reset
+    xs: NDArray  # the last n state estimates (n, n; observability-form regressor (153))
+    phi: NDArray  # the regressor phi_hat(t+1) (d)
+    Phi: NDArray  # the stacked Phi(p, t) (p, d)
+    Y: NDArray  # the stacked Y(p, t) (p)
+    E: NDArray  # the innovation E(p, t) (p)
+    y: NDArray  # the last y(t)
+    K: NDArray  # closed-loop observer gain (n; CO)
+    P1: NDArray  # Kalman covariance (n, n; KF)
+    P1_init: NDArray  # P1(1)
+    Q: NDArray  # Kalman process noise (n, n; KF)
+    L1: NDArray  # Kalman gain (n; KF)
+    theta0: NDArray  # theta(0) (d; finite window)
+    hist_Phi: NDArray  # the window's blocks (W, p, d)
+    hist_Y: NDArray  # (W, p)
+    t: NDArray  # time (int)
+    phase: NDArray  # True between update and predict
+    enabled: NDArray  # adaptation switch
+    n_resets: NDArray  # event counters (int)
+    n_state_resets: NDArray
+    n_kf_resets: NDArray
+    n_projections: NDArray
+    n_window_recomputes: NDArray
+    count: NDArray  # blocks added to the window (int)
+    ewma_e2: NDArray  # frozen signal: running means of e^2, y^2 and the gain q
+    ewma_y2: NDArray
+    ewma_q: NDArray
+    frozen: NDArray  # the frozen flag
 
 
-#: Record fields in layout order.
-FIELDS: tuple[str, ...] = EstimatorRecord._fields
+class EstimatorWork(NamedTuple):
+    """The estimator's scratch, one row a lane (its content is irrelevant between calls)."""
+
+    delta: NDArray  # the increment of theta (d)
+    K: NDArray  # the rule's gain vector P phi (d)
+    w: NDArray  # the least-squares blocks' scratch (2d)
+    theta_prev: NDArray  # theta(t-1) of the projection; the window's theta (d)
+    E_replay: NDArray  # the innovation of a replayed block (p)
+    E_old: NDArray  # the innovation of the block leaving the window (p)
+    S_saved: NDArray  # a copy of S (d, d): the window's downdate, a restart's factor
+    A: NDArray  # the model A_hat(t) (n, n)
+    x_next: NDArray  # x_hat(t+1) (n)
+    kalman: NDArray  # the Kalman step's scratch (2 n^2)
+    x_reg: NDArray  # x_hat(t|t) of the filtered regressor (n)
+
+
+#: Integer and boolean fields of :class:`EstimatorState` (the others are float64).
+STATE_DTYPES: dict[str, Any] = {
+    **dict.fromkeys(
+        ("t", "count", "n_resets", "n_state_resets", "n_kf_resets", "n_projections",
+         "n_window_recomputes"),
+        np.int64,
+    ),
+    **dict.fromkeys(("phase", "enabled", "frozen"), np.bool_),
+}  # fmt: skip
 
 
 class EstimatorConfig(NamedTuple):
@@ -417,43 +441,17 @@ class EstimatorSpec:
         )
 
     def __post_init__(self) -> None:
-        n, p, d = self.n, self.p, 2 * self.n
         v = variant(self.name)
-        W = self.window or 0
-        shapes: dict[str, tuple[int, ...]] = {
-            "theta": (d,),
-            "x_hat": (n,),
-            "x_init": (n,),
-            "xs": (n, n) if self.form == "observability" else (0,),
-            "phi": (d,),
-            "Phi": (p, d),
-            "Y": (p,),
-            "E": (p,),
-            "theta0": (d,) if W else (0,),
-            "hist_Phi": (W, p, d) if W else (0,),
-            "hist_Y": (W, p) if W else (0,),
-            # delta, K, w (2d), theta_prev / replay; E, E_old; saved S; A, x_next, 2 n^2 (KF)
-            # x_hat(t|t) of the filtered regressor (n)
-            "work": (5 * d + 2 * p + d * d + 3 * n * n + 2 * n,),
-            **v.rule.fields(n, p),
-            **v.state.fields(n),
-        }
-        # a field no variant of this configuration keeps is empty
-        for name in ("S", "S0", "r", "r0", "K", "P1", "P1_init", "Q", "L1"):
-            shapes.setdefault(name, (0,))
-        layout = Layout()
-        for name in FIELDS:
-            layout.add(name, shapes.get(name, ()))
         config = EstimatorConfig(
-            n=n,
-            p=p,
+            n=self.n,
+            p=self.p,
             rule=v.rule.code,
             covariance=v.rule.covariance,
             normaliser=v.rule.normaliser,
             decomposed=bool(self.decomposed),
             state=v.state.code,
             observability=self.form == "observability",
-            window=W,
+            window=self.window or 0,
             check_every=int(self.pd_check_every),
             stacked_r=bool(self.stacked_r),
             project_stable=bool(self.project_stable),
@@ -467,21 +465,64 @@ class EstimatorSpec:
             frozen_gain=float(self.frozen[2]),
             rule_parameters=_read_only(self.rule_parameters),
         )
-        object.__setattr__(self, "layout", layout)
         object.__setattr__(self, "config", config)
-        object.__setattr__(self, "at", layout.record(EstimatorRecord))
 
-    # ---- the record -----------------------------------------------------------------------
-    layout: Layout = field(init=False, repr=False)
     #: the lane functions' configuration
     config: EstimatorConfig = field(init=False, repr=False)
-    #: offsets of the record's fields in a lane record of its own
-    at: EstimatorRecord = field(init=False, repr=False)
+
+    def shapes(self) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+        """The shapes of one lane's :class:`EstimatorState` and :class:`EstimatorWork` fields:
+        the one place they are declared (a field the rule or state estimator does not keep
+        has a zero in its shape, with the dimensions the lane functions index it by)."""
+        n, p, d = self.n, self.p, 2 * self.n
+        v = variant(self.name)
+        W = self.window or 0
+        state: dict[str, tuple[int, ...]] = {
+            "theta": (d,),
+            "S": (0, 0),
+            "S0": (0, 0),
+            "r": (0,),
+            "r0": (0,),
+            "x_hat": (n,),
+            "x_init": (n,),
+            "xs": (n if self.form == "observability" else 0, n),
+            "phi": (d,),
+            "Phi": (p, d),
+            "Y": (p,),
+            "E": (p,),
+            "K": (0,),
+            "P1": (0, 0),
+            "P1_init": (0, 0),
+            "Q": (0, 0),
+            "L1": (0,),
+            "theta0": (d if W else 0,),
+            "hist_Phi": (W, p, d),
+            "hist_Y": (W, p),
+            **v.rule.fields(n, p),  # the rule's and the state estimator's own fields
+            **v.state.fields(n),
+        }
+        for scalar in EstimatorState._fields:
+            state.setdefault(scalar, ())
+        work = {
+            "delta": (d,), "K": (d,), "w": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
+            "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
+            "kalman": (2 * n * n,), "x_reg": (n,),
+        }  # fmt: skip
+        return state, work
+
+    def make_state(self, num_lanes: int) -> EstimatorState:
+        """A zeroed :class:`EstimatorState` of ``num_lanes`` lanes (:meth:`initial_state`
+        holds the values at ``t = 0``)."""
+        return lane_state(EstimatorState, self.shapes()[0], num_lanes, STATE_DTYPES)
+
+    def make_work(self, num_lanes: int) -> EstimatorWork:
+        """The scratch of ``num_lanes`` lanes."""
+        return lane_state(EstimatorWork, self.shapes()[1], num_lanes)
 
     @property
-    def size(self) -> int:
-        """Floats per lane record."""
-        return self.layout.size
+    def nbytes_per_lane(self) -> int:
+        """Bytes of one lane's state and scratch."""
+        return state_nbytes_per_lane(self.make_state(1)) + state_nbytes_per_lane(self.make_work(1))
 
     @property
     def normaliser(self) -> bool:
@@ -493,38 +534,10 @@ class EstimatorSpec:
         """Whether the rule keeps a covariance ``P = S S^T`` (RLS, MILS)."""
         return variant(self.name).rule.covariance
 
-    def offset(self, name: str) -> int:
-        """Offset of the field ``name`` relative to the start of the estimator record.
-
-        Parameters
-        ----------
-        name : str
-            A field of :attr:`layout`.
-
-        Returns
-        -------
-        int
-        """
-        return self.layout.offset(name)
-
-    def record(self, base: int = 0) -> EstimatorRecord:
-        """Offsets of the record's fields when it starts at ``base`` of a larger lane record
-        (the self-tuning controller embeds it at the start of its own).
-
-        Parameters
-        ----------
-        base : int, default 0
-            Offset of the estimator record inside the lane record.
-
-        Returns
-        -------
-        EstimatorRecord
-            The named offsets.
-        """
-        return self.layout.record(EstimatorRecord, base)
-
-    def initial_record(self, theta0: NDArray | None = None, P0: NDArray | None = None) -> NDArray:
-        """One lane's record at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
+    def initial_state(
+        self, theta0: NDArray | None = None, P0: NDArray | None = None
+    ) -> EstimatorState:
+        """One lane's state at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
         optionally with this lane's own ``theta0`` / ``P0``.
 
         Parameters
@@ -536,14 +549,14 @@ class EstimatorSpec:
 
         Returns
         -------
-        ndarray, shape (size,)
+        EstimatorState
+            One lane (row 0 of every field).
         """
-        lay = self.layout
-        rec = lay.empty(1)
+        s = self.make_state(1)
         th0 = self.theta0 if theta0 is None else theta0
-        lay.view(rec, "theta")[0] = th0
+        s.theta[0] = th0
         if self.window:
-            lay.view(rec, "theta0")[0] = th0
+            s.theta0[0] = th0
         if self.least_squares:
             P = self.P0 if P0 is None else P0
             n = self.n
@@ -553,18 +566,18 @@ class EstimatorSpec:
                 S0[n:, n:] = upper_cholesky(P[n:, n:])
             else:
                 S0 = upper_cholesky(P)
-            lay.view(rec, "S")[0] = S0
-            lay.view(rec, "S0")[0] = S0
-        if variant(self.name).rule.normaliser:
-            lay.view(rec, "r")[0] = self.r0
-            lay.view(rec, "r0")[0] = self.r0
-        lay.view(rec, "x_hat")[0] = self.x_init
-        lay.view(rec, "x_init")[0] = self.x_init
+            s.S[0] = S0
+            s.S0[0] = S0
+        if self.normaliser:
+            s.r[0] = self.r0
+            s.r0[0] = self.r0
+        s.x_hat[0] = self.x_init
+        s.x_init[0] = self.x_init
         if self.state == "KF":
-            lay.view(rec, "P1")[0] = self.P1_init
-            lay.view(rec, "P1_init")[0] = self.P1_init
-            lay.view(rec, "Q")[0] = self.Q
+            s.P1[0] = self.P1_init
+            s.P1_init[0] = self.P1_init
+            s.Q[0] = self.Q
         if self.state == "CO" and not callable(self.observer_gain):
-            lay.view(rec, "K")[0] = self.observer_gain
-        lay.view(rec, "enabled")[0] = float(self.enabled)
-        return rec[0]
+            s.K[0] = self.observer_gain
+        s.enabled[0] = self.enabled
+        return s
