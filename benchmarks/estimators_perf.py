@@ -9,7 +9,7 @@ Speed: O-RLS (n = 2) and KF-MILS (n = 2, p = 5), one ``update(y)`` + ``predict(u
 step. Rows: the public single estimator (``make_estimator``), the bare lane functions on a
 record (what a compiled controller step pays), the public batched estimator at ``B = 1e4``
 (``make_estimator(..., num_envs=B)``), and the dense-numpy reference of the paper's formulas
-(``tests/reference_estimators.py``: explicit ``P``, numpy calls) as the baseline of the ratios
+(``stcgym.adaptive.reference``: explicit ``P``, numpy calls) as the baseline of the ratios
 (the former numpy ``RecursiveEstimator`` is gone; it ran O-RLS at about 49 us per step on the
 development machine). Everything in the same run: ratios are meaningful on a loaded machine,
 absolute numbers are not. First-call compile time (or the on-disk cache load) is reported
@@ -19,14 +19,10 @@ separately.
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 import warnings
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 
 CASES = {"O-RLS": {}, "KF-MILS": {"p": 5, "process_noise": 1e-4}}
 
@@ -54,10 +50,9 @@ def _measure(
     name: str, kw: dict, u: np.ndarray, y: np.ndarray, U: np.ndarray, Y: np.ndarray
 ) -> None:
     """One estimator's rows of the table (closures bind this call's objects)."""
-    from reference_estimators import ReferenceEstimator
-
     from stcgym.adaptive import make_estimator
     from stcgym.adaptive.kernels.estimator_lanes import predict_lanes, run_lane, update_lanes
+    from stcgym.adaptive.reference import ReferenceEstimator
 
     T, B = u.size, U.shape[1]
     t0 = time.perf_counter()

@@ -1,5 +1,5 @@
 """The compiled estimator lane functions against the dense-numpy reference of the paper's
-formulas (tests/reference_estimators.py), single versus batched lanes, and the lifecycle of
+formulas (stcgym.adaptive.reference), single versus batched lanes, and the lifecycle of
 the one estimator class (pickle, deepcopy, failed calls, bad batched input)."""
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from lane_call import call
-from reference_estimators import ReferenceEstimator
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
 from stcgym.adaptive.kernels import estimator as K
@@ -27,6 +26,7 @@ from stcgym.adaptive.kernels.least_squares import (
     upper_factor,
 )
 from stcgym.adaptive.kernels.state_estimation import kalman_step
+from stcgym.adaptive.reference import ReferenceEstimator
 from stcgym.envs.canonical import canonical_matrices, companion_A
 from stcgym.envs.compiled import set_lanes
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from reference_estimators import ReferenceEstimator
 
 from stcgym.adaptive import SelfTuningController, make_estimator
 from stcgym.adaptive import flops as F
+from stcgym.adaptive.reference import ReferenceEstimator
 
 REF_RTOL = 1e-9
 

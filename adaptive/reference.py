@@ -1,8 +1,9 @@
-"""Readable dense-numpy reference of the recursive estimators of Ding & Ma (2014).
+"""The recursive estimators of Ding & Ma (2014) as the paper prints them, in dense numpy.
 
-The paper's formulas as printed, with ``P`` held explicitly (no square-root factor, no
-structure exploited, no health checks): the compiled lane functions of
-:mod:`stcgym.adaptive.kernels` are compared against this to a stated tolerance.
+A statement to read beside the paper: one method a half-step, ``P`` held explicitly (no
+square-root factor, no structure exploited, no health checks, no speed). The compiled lane
+functions of :mod:`stcgym.adaptive.kernels` never import it; the tests compare them against it
+to a stated tolerance (``tests/test_estimator_kernels.py``), so it is an independent check.
 
 * innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)`` (17), (38);
 * SG/MISG (12)-(22): ``r(t) = lambda r(t-1) + ||phi_hat(t)||^2`` (or ``||Phi||^2``, remark 1),
@@ -26,8 +27,18 @@ import numpy as np
 
 from stcgym.envs.canonical import companion_A
 
+__all__ = ["ReferenceEstimator"]
+
 
 class ReferenceEstimator:
+    """One plant's estimator ``name`` (``"KF-D-MILS"``, ``"O-NG"``, ...) of order ``n``.
+
+    The keywords mirror :func:`stcgym.adaptive.make_estimator` (``Q``, ``R``, ``K`` for its
+    ``process_noise``, ``measurement_noise``, ``observer_gain``; ``filtered`` for
+    ``regressor="filtered"``); the defaults are the paper's. :meth:`update` and
+    :meth:`predict` are the two half-steps, :meth:`run` a pass over recorded data.
+    """
+
     def __init__(
         self,
         name: str,
@@ -76,10 +87,13 @@ class ReferenceEstimator:
         self.y = 0.0
 
     def blocks(self):
+        """The parameter blocks a rule updates: ``theta`` whole, or ``a`` and ``b`` (D-)."""
         n, d = self.n, 2 * self.n
         return [slice(0, n), slice(n, d)] if self.decomposed else [slice(0, d)]
 
     def update(self, y: float) -> np.ndarray:
+        """Measurement step with ``y(t)``: ``Phi(p, t)``, ``Y(p, t)``, ``E(p, t)`` and the rule;
+        returns ``theta_hat(t)``."""
         self.Phi = np.column_stack([self.phi, self.Phi[:, :-1]])
         self.Y = np.r_[y, self.Y[:-1]]
         self.y = y
@@ -113,6 +127,8 @@ class ReferenceEstimator:
         return self.theta.copy()
 
     def predict(self, u: float) -> np.ndarray:
+        """State step with ``u(t)``: ``x_hat(t+1)`` by the state estimator on ``A_hat(t)``,
+        ``b_hat(t)``, and the regressor ``phi_hat(t+1)``; returns ``x_hat(t+1)``."""
         n = self.n
         A = companion_A(self.theta[:n], self.form)
         b = self.theta[n:]
@@ -150,6 +166,7 @@ class ReferenceEstimator:
         return x_next.copy()
 
     def run(self, u, y) -> np.ndarray:
+        """``update(y[k])``, ``predict(u[k])`` for every ``k``; the ``theta_hat`` of each step."""
         out = []
         for uk, yk in zip(u, y, strict=True):
             out.append(self.update(yk))
