@@ -29,20 +29,12 @@ window, no bootstrap estimator, no handover and no replay.
 Estimators
 ----------
 ``"ELS"`` (default): extended least squares on the ARMAX form
-(:mod:`stcgym.adaptive.kernels.extended_ls`), consistent in closed loop from any start. Any
-name of the seed paper (``"O-RLS"``, ``"KF-MILS"``, ... :data:`stcgym.adaptive.ALGORITHMS`)
-runs the paper's estimator with the closed-loop settings of :class:`EstimatorOptions`: the
-regressor is built from the measurement-corrected state ``x_hat(t|t)`` (``regressor=
-"filtered"``) instead of the paper's prediction ``x_hat(t|t-1)``, whose model-dependence loses
-about a quarter of ordinary plants from a cold start in closed loop. ``KF-`` estimators run
-their own Kalman filter with ``R = kf_measurement_noise`` and the controller's process noise
-``Q(t)``; ``O-`` estimators become the closed-loop observer (50) with the deadbeat output
-injection for the first ``injection_warmup = 50`` steps (least squares on measured outputs,
-which holds from a cold start but is biased by output noise: there is no noise model), then
-``injection = 0.4`` of it, so that the regressor keeps part of the model's noise-free
-prediction. Every estimator identifies the observer-form realization of the plant's transfer
-function (``estimation_form="observer"``); ``theta`` is reported in the plant's form.
-``benchmarks/startup.py`` prints every name's figures.
+(:mod:`stcgym.adaptive.kernels.extended_ls`), consistent in closed loop from any start. A name of
+the seed paper (``"O-RLS"``, ``"KF-MILS"``, ... :data:`stcgym.adaptive.ALGORITHMS`) runs the
+paper's estimator with the closed-loop settings of :class:`EstimatorOptions` (the regressor
+from ``x_hat(t|t)``, the ``KF-`` filters' own ``R``, the ``O-`` estimators' partial output
+injection). Every estimator identifies the observer-form realization of the plant's transfer
+function; ``theta`` is reported in the plant's form.
 """
 
 from __future__ import annotations

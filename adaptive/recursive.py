@@ -39,19 +39,7 @@ Numerical health and the "frozen on a wrong model" signal are described in
 :mod:`stcgym.adaptive.health`; the attributes read from the lane record, and the warnings of a
 step, are those of :class:`~stcgym.adaptive.estimator_views.EstimatorViews`;
 :func:`make_estimator` (:mod:`stcgym.adaptive.factory`) builds the estimators by name.
-
-Measured behaviour of the paper's algorithms (``tests/test_recursive.py``, 2nd-order plant,
-white input)
--------------------------------------------------------------------------------------------
-* D-RLS / D-MILS with a huge ``P(0)``: on the first informative step each half (``a`` and
-  ``b``) absorbs the whole innovation, so the prediction overshoots by ``e(t)``. Use
-  ``p0 <= 100``.
-* D- rules converge slowly in the observer form, where ``phi_a(t) = -x1(t-1..t-n)`` is
-  correlated with ``psi(t) = u(t-1..t-n)``; in the observability form they lose almost nothing.
-* With the default Kalman filter (``Q = 0``) and ``theta_hat(0) ~ 0`` the gain vanishes after
-  a few steps, so ``KF-*`` and ``O-*`` give practically the same estimates.
-* Lightly damped plants can make the observer-form estimators converge to biased values: this
-  is a pseudo-linear regression, whose convergence needs a positive-real-type condition.
+(the measured behaviour of the paper's algorithms: the design notes of the documentation).
 """
 
 from __future__ import annotations

@@ -196,7 +196,7 @@ def lane(
     and retypes the helper at every call site) only for the few helpers that return views of
     their arguments: a function compiled without NRT may return an array only where numba
     inlines it. numba's inlining was 10-12 of the 17-19 s of a cold ``place_design`` when every
-    helper used it (``benchmarks/README.md``, cold start).
+    helper used it (the cold-start page of the documentation).
     """
     return _jit(fn, allocates, inline=inline, returns_views=returns_views, entry=entry)
 
@@ -290,7 +290,7 @@ class LaneLoop:
     accelerator: a ``prange`` loop would compile the lane function twice more (numba's gufunc
     and the function around it, each optimising the whole step again: about four times the
     serial loop's cold compile for the controller step). Handing a block to a pool thread costs
-    about 35 us, hence ``min_lanes`` (``benchmarks/README.md`` has the measurements).
+    about 35 us, hence ``min_lanes`` (measured on the performance page of the documentation).
     """
 
     def __init__(self, py_func: Callable[..., Any], dispatcher: Any, min_lanes: int) -> None:

@@ -19,17 +19,12 @@ Every step, in this order:
    last good gains stay (:mod:`.design`: ``place_design``, ``lq_design``);
 4. **state estimate**: a Kalman filter on the estimated model, corrected by ``y(t)``
    (``x(t|t)``);
-5. **control**: for the first ``probe_steps`` samples (default ``2n``), or while no design has
-   been accepted, a small zero-mean probe ``+-probe_amplitude`` whose signs come from a
-   counter-based hash of ``(seed, episode, t)`` (reproducible per lane and per episode, never the
-   same sequence for every episode or lane). The probe is bounded by the observed output: with
-   ``y_max = max |y|`` seen so far, its amplitude is ``probe_amplitude * min(1, probe_output /
-   y_max)`` (a high-gain or unstable plant is probed gently), and it runs on past
-   ``probe_steps``, up to ``max_probe_steps`` (default ``5n``), while ``y_max < probe_output`` (a
-   low-gain plant whose response is still buried in the noise gets more data before the first
-   design is trusted). Afterwards the tracking law
-   ``u = sat(N r - K_x x(t|t) - k_i xi)`` with conditional-integration anti-windup
-   (``design.track``);
+5. **control**: for the first ``probe_steps`` samples, or while no design has been accepted,
+   a zero-mean probe ``+-probe_amplitude * min(1, probe_output / max |y|)`` whose signs come
+   from a counter-based hash of ``(seed, episode, t)``, extended up to ``max_probe_steps``
+   while ``max |y| < probe_output`` (:class:`~stcgym.adaptive.options.StartupOptions`);
+   afterwards the tracking law ``u = sat(N r - K_x x(t|t) - k_i xi)`` with
+   conditional-integration anti-windup (``law.track``);
 6. **process noise and state step**: ``Q(t)`` from the parameter covariance (the model error a
    wrong ``theta_hat`` injects into each state row), the Kalman time update with the applied
    ``u(t)`` (``state_estimation.kalman_step``), and the estimator's state step / regressor
@@ -41,14 +36,10 @@ Lane records: a ``float64`` record (fields :class:`ControllerRecord`, placed by
 :class:`ControllerInts`, offsets :data:`INTS`) with the step counter, the episode, the seed and
 the counters; the configuration is a :class:`ControllerConfig`.
 
-Compile only what is used: the estimator family and the design are compile-time choices, made
-by the *types* of two arguments. ``est_cfg`` is the paper estimator's configuration or ``None``
-(extended least squares); ``lq_weights`` is the LQ weights array or ``None`` (pole placement).
-numba removes a branch ``if arg is None`` on an argument's type before it types the function
-(its dead-branch pruning), so each of the four combinations is a separate compiled version of
-the same :func:`controller_step` that contains only its own estimator and design; the first
-``predict`` of a controller compiles one of them, not every branch. Single plant and batch call
-the same version, so a single plant still equals its lane bit for bit.
+Compile only what is used: ``est_cfg is None`` (extended least squares) and ``lq_weights is
+None`` (pole placement) are decided on the arguments' types, which numba prunes before typing,
+so each estimator family and design is a compiled version of its own; single plant and batch
+call the same version.
 """
 
 from __future__ import annotations

@@ -1,115 +1,37 @@
-"""The joint state/parameter estimator of Ding & Ma (2014) as two lane functions on a lane record.
+"""The joint state/parameter estimator of Ding & Ma (2014): the lane functions of one step.
 
-Published interface (used by the self-tuning controller's lane step)
-------------------------------------------------------------------
-``spec = EstimatorSpec.build(name, n, **make_estimator_keywords)`` (:mod:`.estimator_spec`)
-describes one configuration: ``spec.config`` (an :class:`EstimatorConfig`) and the record's
-offsets ``spec.at`` (an :class:`EstimatorRecord`; ``spec.record(base)`` for a record stored at
-``base`` of a larger lane record, such as the controller's).
+Lane ``i`` of the state ``s`` (an :class:`EstimatorState`) and the scratch ``w`` (an
+:class:`EstimatorWork`), with the configuration ``cfg`` of :class:`EstimatorSpec`:
 
-``status = estimator_update(rec, at, cfg, y, windowed=True)``
-    Measurement step at time ``t`` on the estimator record stored in ``rec`` at the offsets
-    ``at`` (``rec`` a 1-D float64 array, e.g. the controller's own lane record): shift the
-    stacked window ``Phi(p, t)``, ``Y(p, t)`` (eq. (19)-(20), (74)-(75)), compute the innovation
-    ``E(p, t) = Y(p, t) - Phi(p, t)^T theta_hat(t-1)`` and update ``theta_hat(t)`` with the rule:
-    SG (12)-(15), MISG (16)-(22), RLS (32)-(36), MILS (37)-(44), D-SG (96)-(103), D-MISG
-    (104)-(117), D-RLS (124)-(133), D-MILS (134)-(145); as a whole O-RLS (54)-(57), KF-MILS
-    (73)-(79). Returns a bit set of ``ST_*`` events (0: nothing happened).
-``status = estimator_predict(rec, at, cfg, u)``
-    State step with the applied ``u(t)``: ``A_hat(t)``, ``b_hat(t)`` from ``theta_hat(t)``
-    ((59)-(60), (83)-(84)), ``x_hat(t+1)`` by the open-loop observer (58), the closed-loop
-    observer (50) or the Kalman filter (80)-(82), and ``phi_hat(t+1)`` ((57)/(153)). Returns
-    ``ST_STATE_RESET`` / ``ST_KF_RESET`` bits or 0.
-    With ``regressor="filtered"`` (not the paper's default, see below) ``phi_hat(t+1)`` is
-    built from the measurement-corrected estimate ``x_hat(t|t)``.
-``ok = estimator_restart(rec, at, cfg, theta, P)``
-    Restart the parameter estimate at ``theta`` (2n) with covariance ``P`` (2n x 2n; only its
-    diagonal blocks for D- rules); SG/MISG: ``r <- r(0)``; empties the finite-history window.
-    Returns ``False`` and leaves the record untouched when ``P`` is not positive definite.
-``reset_covariance(rec, at, cfg)``
+``status = estimator_update(s, w, i, cfg, y, windowed=None)``
+    Measurement step at time ``t``: shift the stacked ``Phi(p, t)``, ``Y(p, t)`` ((19)-(20),
+    (74)-(75)), the innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta_hat(t-1)`` and the rule
+    of :data:`.variants.RULES`: SG (12)-(15), MISG (16)-(22), RLS (32)-(36), MILS (37)-(44),
+    their D- forms (96)-(145), NG (the projection algorithm); as a whole O-RLS (54)-(57),
+    KF-MILS (73)-(79). ``windowed=True`` compiles the finite-history downdate and replay.
+``status = estimator_predict(s, w, i, cfg, u)``
+    State step with ``u(t)``: ``A_hat(t)``, ``b_hat(t)`` ((59)-(60), (83)-(84)),
+    ``x_hat(t+1)`` by the open-loop observer (58), the closed-loop observer (50) or the Kalman
+    filter (80)-(82), and ``phi_hat(t+1)`` ((57)/(153)); with ``regressor="filtered"`` (not
+    the paper's) ``phi_hat`` is built from ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]``.
+``ok = estimator_restart(s, w, i, cfg, theta, P)``
+    Restart at ``theta`` with covariance ``P`` (only its diagonal blocks for D- rules); the
+    normalisers back to ``r(0)``; the window emptied. ``False`` (nothing changed) when ``P`` is
+    not positive definite.
+``reset_covariance(s, i, cfg)``
     ``P <- P(0)`` (``r <- r(0)``), window emptied, ``theta`` kept: the documented safe action.
 
-The batch loops over lanes and the ``T``-step loop of one lane are in :mod:`.estimator_lanes`.
+The batch loops and the ``T``-step loop of one lane are in :mod:`.estimator_lanes`.
 
-The record (floats only, so it embeds in any caller's float record) holds: the parameters,
-the factor of ``P`` and ``P(0)``'s factor (for the safe reset), the state estimate and
-``x_hat(1)``, the regressor ``phi_hat(t+1)``, the stacked ``Phi``, ``Y``, ``E``, the Kalman
-``P1``, ``P1(1)``, ``Q``, ``L1``, the finite-history buffer, event counters, the time ``t``, the
-adaptation switch and scratch space (``"work"``), so that a lane function never allocates.
-
-The regressor in closed loop (``regressor="filtered"``)
-------------------------------------------------------
-The paper builds ``phi_hat(t)`` from the state *predictions* ``x_hat(t-i)`` of (46)/(66):
-``x1_hat(t|t-1)`` is a simulation of the current model (the open-loop observer (46) has no
-output injection at all; the Kalman filter (66) weighs ``y`` only through ``L1``), so in closed
-loop an early wrong or unstable model feeds its own errors back into the regressor, and the
-estimate settles on a wrong model or the state estimate diverges with an unstable ``A_hat``.
-``benchmarks/startup.py`` measures it: with the paper's regressor the self-tuning controller
-loses about a quarter of a random family of second-order plants with O-RLS or KF-MILS.
-
-``regressor="filtered"`` takes the measured ``y(t)`` into the state estimate before it enters
-the regressor (the output injection of the filter-error method, R. E. Maine & K. W. Iliff,
-SIAM J. Appl. Math. 41(3), 1981; R. Ding & L. Zhuang, "Parameter and state estimator for
-state space models", 2014, eliminate the states and run least squares on input-output data for
-the same canonical models):
-``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` replaces ``x_hat(t)`` in (9)/(57)/(76) or
-(153), where
-
-* **Kalman filter**: ``g = P1(t) c^T / (R + c P1(t) c^T)``, the filtered estimate of the same
-  filter; (80)-(82) are unchanged, since ``x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)`` is what
-  (80) computes. While the model is uncertain (large ``P1``, e.g. with the controller's
-  process noise) ``x1_hat(t|t)`` follows ``y``; once it is good it follows the model, which
-  removes the noise from the regressor (no equation-error bias).
-* **open-loop observer**: the observer has no noise model, so it trusts ``y`` completely:
-  ``g = A_hat^{n-1} e_n`` (``e_1`` in the observer form), for which ``c g = 1``, i.e.
-  ``x1_hat(t|t) = y(t)``, and the state is propagated from it,
-  ``x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t)``: the closed-loop observer (50) with
-  ``K(t) = A_hat(t) g``, for which ``A_hat - K c`` is nilpotent (deadbeat) whatever
-  ``theta_hat``, so the state estimate cannot diverge with an unstable model. In the observer
-  form ``phi_hat`` then holds the measured outputs: equation-error least squares, consistent
-  only for white equation noise.
-
-  With output noise that bias costs the loop (``O-RLS`` settles at ``a = [-1.57, 0.53]`` on a
-  plant with ``a = [-1.7, 0.66]``), and the paper's regressor, unbiased where it converges, is
-  lost from a cold start. ``injection = gamma`` and ``injection_warmup = N`` sit between the
-  two: the whole injection for the first ``N`` steps (a cold start from ``theta = 0`` needs it),
-  then ``g <- gamma g``, i.e. the closed-loop observer (50) with ``K = gamma A_hat g``. In the
-  observer form its error dynamics ``A_hat (I - gamma g c)`` have the characteristic
-  polynomial ``z^n + (1 - gamma)(a_1 z^{n-1} + ... + a_n)``: every coefficient of ``A_hat``'s
-  shrunk by ``1 - gamma``, so the observer stays stable on moderately unstable models
-  (``a = [-1.7, 0.66]``, ``gamma = 0.4``: poles of magnitude 0.63), while the regressor
-  keeps ``1 - gamma`` of the model's noise-free prediction, which reduces the
-  equation-error bias (the stabilised output-error idea of the filter-error method).
-  ``benchmarks/startup.py`` measures it; the self-tuning controller takes ``gamma = 0.4``,
-  ``N = 50`` for the ``O-`` estimators.
-
-The default ``"predicted"`` is the paper's algorithm (tested against a dense reference of its
-formulas); the self-tuning controller uses ``"filtered"``.
-
-Status bits
------------
-``ST_RESET`` the covariance (normaliser) was reset to ``P(0)`` (``r(0)``) after an overflow or
-a failed health check (``ST_PD_LOST`` set as well when the factor check failed);
-``ST_PROJECTED`` an unstable ``A_hat`` was rejected (``project_stable``); ``ST_RECOMPUTED`` a
-finite-history downdate was ill-conditioned and the window estimate was recomputed by replay;
-``ST_FROZEN`` the "frozen on a wrong model" signal switched on (see below); ``ST_STATE_RESET``
-``x_hat(t+1)`` was not finite and was reset to ``x_hat(1)``; ``ST_KF_RESET`` the Kalman
-covariance was not finite and was reset to ``P1(1)``.
-
-Frozen-estimator signal
------------------------
-With the paper's ``p0 = 1e6`` an early unstable ``A_hat`` can drive the open-loop state estimate
-to huge values; the huge regressors collapse ``P`` before ``theta`` is right and with
-``lambda = 1`` it never recovers. Every least-squares update therefore tracks exponential means
-(rate ``FROZEN_RATE = 1e-3``, i.e. over about 1000 steps) of ``e(t)^2``, ``y(t)^2`` and the gain
-``q(t) = phi_hat(t)^T P(t-1) phi_hat(t)``. The ``frozen`` flag switches on when, after
-``2 / FROZEN_RATE`` steps, the mean gain is below ``FROZEN_GAIN = 1e-3`` (``theta`` absorbs at
-most 0.1 % of an innovation per step: ``P`` has collapsed) while the mean innovation power
-exceeds ``frozen_ratio`` (default ``FROZEN_RATIO = 0.05``) times the mean output power (the
-model explains less than 95 % of the output); it switches off below half that ratio (a
-frozen pseudo-linear regression's innovation is nearly uncorrelated with the last ``n``
-inputs, so their cross-correlation would not show it).
-Measurement: ``benchmarks/estimators_perf.py --frozen``.
+Status bits: ``ST_RESET`` (covariance or normaliser reset after an overflow or a failed health
+check; with ``ST_PD_LOST`` when the factor check failed), ``ST_PROJECTED`` (an unstable
+``A_hat`` rejected, ``project_stable``), ``ST_RECOMPUTED`` (an ill-conditioned downdate replaced
+by a replay), ``ST_FROZEN`` (the "frozen on a wrong model" signal switched on: the mean gain
+``phi^T P phi`` below ``FROZEN_GAIN`` while the mean innovation power exceeds ``frozen_ratio``
+times the mean output power, after ``2 / FROZEN_RATE`` steps; off below half that ratio),
+``ST_STATE_RESET`` (``x_hat(t+1)`` not finite: back to ``x_hat(1)``), ``ST_KF_RESET`` (the
+Kalman covariance not finite: back to ``P1(1)``). Why the filtered regressor and the frozen
+signal exist, and what was measured: the design notes of the documentation.
 """
 
 from __future__ import annotations

@@ -229,8 +229,8 @@ class EstimatorSpec:
     >>> spec = EstimatorSpec.build("kf-d-mils", 2, p=3)
     >>> spec.name, spec.state, spec.decomposed, spec.rule
     ('KF-D-MILS', 'KF', True, 'MILS')
-    >>> spec.initial_record().shape == (spec.size,)
-    True
+    >>> spec.initial_state().theta.shape  # one lane of EstimatorState
+    (1, 4)
     >>> EstimatorSpec.build("O-RLS", 2, r0=2.0)
     Traceback (most recent call last):
     ...
