@@ -39,6 +39,7 @@ function; ``theta`` is reported in the plant's form.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from typing import Any
 
@@ -319,9 +320,31 @@ class SelfTuningController(SelfTuningLanes):
         self._F = np.empty((self.B, self._layout.size))
         self._G = self._int_records()
         self._u = np.zeros(self.B)
+        self._step_one: Any = None  # the single plant's bound step (_act_one)
         self.reset()
 
     # ------------------------------------------------------------------ protocol
+    def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
+        """One plant's ``u(t)`` from ``[y(t), r(t)]`` (Python floats): the compiled step with
+        every other argument bound once (the lane's records and the configuration)."""
+        step = self._step_one
+        if step is None:  # the first call (or the first after unpickling)
+            self._act(observation[None, :], None, deterministic)
+            version = _controller_step[self._version]
+            self._step_one = functools.partial(
+                version.entry, self._F[0], self._G[0], self._at, self._cfg, self._est,
+                self._est_work, 0, self._est_cfg, self._lq_weights,
+            )  # fmt: skip
+            return self._u.copy()
+        u = self._u
+        u[0] = step(values[0], values[1])
+        return u.copy()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_step_one"] = None  # binds views of the records: rebuilt after unpickling
+        return state
+
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[y(t), r(t)]``; ``deterministic`` is ignored (the probe
         is part of the law)."""
