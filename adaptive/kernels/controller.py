@@ -286,7 +286,7 @@ def process_noise(S, n, y, u, q, q_floor, Q):
 
 
 # --------------------------------------------------------------------------------- the step
-@lane(entry=True)
+@lane(entry=True, inline=True)
 def controller_step(f, g, at, cfg, est, est_work, lane, est_cfg, lq_weights, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
