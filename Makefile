@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 PIP := $(BIN)/python -m pip
 STAMP := $(VENV)/.stcgym-installed
 
-.PHONY: install bench bench-standard bench-full test test-explore lint perf docs clean clean-cache
+.PHONY: install bench bench-standard bench-full test test-explore test-latest lint perf docs clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -46,6 +46,17 @@ test: install
 test-explore: install
 	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -q --hypothesis-profile=explore
 
+# The suite on the newest numba (and llvmlite) of the registry, past pyproject.toml's upper
+# bound: a numba release that breaks an assumption of stcgym.envs.numba_internals fails
+# tests/test_numba_internals.py here before it reaches a user. Its own venv and kernel cache.
+LATEST_VENV ?= .venv-latest
+test-latest:
+	$(MAKE) install VENV=$(LATEST_VENV)
+	$(LATEST_VENV)/bin/python -m pip install -q --upgrade numba llvmlite
+	$(LATEST_VENV)/bin/python -c "import numba; print('numba', numba.__version__)"
+	NUMBA_CACHE_DIR=$(CURDIR)/.numba-cache-latest MPLBACKEND=Agg \
+		$(LATEST_VENV)/bin/python -m pytest -n 2 --dist worksteal -q
+
 perf: install
 	$(BIN)/python benchmarks/perf.py
 
@@ -62,4 +73,4 @@ clean-cache:
 	find envs adaptive agents -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 clean: clean-cache
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis docs/_build docs/generated docs/gallery docs/sg_execution_times.rst
+	rm -rf $(VENV) .venv-latest .numba-cache-latest build *.egg-info .pytest_cache .hypothesis docs/_build docs/generated docs/gallery docs/sg_execution_times.rst

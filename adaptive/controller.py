@@ -29,24 +29,17 @@ window, no bootstrap estimator, no handover and no replay.
 Estimators
 ----------
 ``"ELS"`` (default): extended least squares on the ARMAX form
-(:mod:`stcgym.adaptive.kernels.extended_ls`), consistent in closed loop from any start. Any
-name of the seed paper (``"O-RLS"``, ``"KF-MILS"``, ... :data:`stcgym.adaptive.ALGORITHMS`)
-runs the paper's estimator with the closed-loop settings of :class:`EstimatorOptions`: the
-regressor is built from the measurement-corrected state ``x_hat(t|t)`` (``regressor=
-"filtered"``) instead of the paper's prediction ``x_hat(t|t-1)``, whose model-dependence loses
-about a quarter of ordinary plants from a cold start in closed loop. ``KF-`` estimators run
-their own Kalman filter with ``R = kf_measurement_noise`` and the controller's process noise
-``Q(t)``; ``O-`` estimators become the closed-loop observer (50) with the deadbeat output
-injection for the first ``injection_warmup = 50`` steps (least squares on measured outputs,
-which holds from a cold start but is biased by output noise: there is no noise model), then
-``injection = 0.4`` of it, so that the regressor keeps part of the model's noise-free
-prediction. Every estimator identifies the observer-form realization of the plant's transfer
-function (``estimation_form="observer"``); ``theta`` is reported in the plant's form.
-``benchmarks/startup.py`` prints every name's figures.
+(:mod:`stcgym.adaptive.kernels.extended_ls`), consistent in closed loop from any start. A name of
+the seed paper (``"O-RLS"``, ``"KF-MILS"``, ... :data:`stcgym.adaptive.ALGORITHMS`) runs the
+paper's estimator with the closed-loop settings of :class:`EstimatorOptions` (the regressor
+from ``x_hat(t|t)``, the ``KF-`` filters' own ``R``, the ``O-`` estimators' partial output
+injection). Every estimator identifies the observer-form realization of the plant's transfer
+function; ``theta`` is reported in the plant's form.
 """
 
 from __future__ import annotations
 
+import functools
 import warnings
 from typing import Any
 
@@ -55,8 +48,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels import design as dz
-from stcgym.adaptive.kernels.estimator import EstimatorSpec
+from stcgym.adaptive.kernels.estimator_spec import EstimatorSpec
 from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
+from stcgym.adaptive.kernels.variants import DESIGNS, RULES, variant
 from stcgym.adaptive.options import (
     DEFAULT_POLE,
     ChangeDetection,
@@ -70,7 +64,7 @@ from stcgym.adaptive.options import (
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.compiled import FixedTypes, set_lanes
 from stcgym.envs.validation import integer
 
 __all__ = [
@@ -114,10 +108,13 @@ class SelfTuningController(SelfTuningLanes):
         ``"ELS"`` (default) or a paper name (``"O-RLS"``, ``"KF-MILS"``, ...; the SG, MISG and
         D- rules warn that they do not hold the loop on many plants).
     design
-        ``"pole_placement"`` (Ackermann on the integral-augmented model, ``poles``) or ``"lq"``
-        (one Riccati iteration per step, weights ``law.lq_weights``).
+        A name of :data:`~stcgym.adaptive.kernels.variants.DESIGNS` (each entry says what it
+        computes and its known-model oracle): ``"pole_placement"`` (Ackermann on the
+        integral-augmented model, ``poles``) or ``"lq"`` (one Riccati iteration per step,
+        weights ``law.lq_weights``).
     poles
-        A scalar (all ``n + 1`` poles) or ``n + 1`` values (``n`` without integral action).
+        A scalar (all ``n + 1`` poles) or ``n + 1`` values (``n`` without integral action);
+        a design that fixes the poles itself ignores it.
     action_bound
         Saturation (default: the env's, else
         :data:`~stcgym.adaptive.options.DEFAULT_ACTION_BOUND` = 10).
@@ -192,9 +189,10 @@ class SelfTuningController(SelfTuningLanes):
             n, num_envs=num_envs, action_bound=action_bound, form=form, env=env
         )
         self.B = self.num_lanes
-        if design not in ("pole_placement", "lq"):
-            raise ValueError(f"design must be 'pole_placement' or 'lq', got {design!r}")
+        if not isinstance(design, str) or design not in DESIGNS:
+            raise ValueError(f"design must be one of {tuple(DESIGNS)}, got {design!r}")
         self.design = design
+        lq = DESIGNS[design].kernel == "lq"
         self.estimator_options = eo = option_group(
             estimator_options, EstimatorOptions, "estimator_options"
         )
@@ -205,12 +203,18 @@ class SelfTuningController(SelfTuningLanes):
         )
         self.law = lw = option_group(law, LawOptions, "law")
         m = n + int(lw.integral)
-        self.poles = check_poles(poles, m)
+        fixed = DESIGNS[design].poles
+        self.poles = check_poles(poles if fixed is None else fixed, m)
         self.seeds = self._lane_ints(seed, "seed")
         # -- estimator record
         if not isinstance(estimator, str):
             raise ValueError(f"estimator must be a name (str), got {estimator!r}")
-        self.estimator = estimator.upper()
+        self.estimator = estimator.strip().upper()
+        if self.estimator != "ELS":
+            try:
+                v = variant(estimator)
+            except ValueError as exc:
+                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
         # the canonical form the estimator identifies (ELS: always the observer form)
         plant_form = self.estimator != "ELS" and eo.estimation_form == "plant"
         self._estimation_form = self.form if plant_form else "observer"
@@ -221,20 +225,16 @@ class SelfTuningController(SelfTuningLanes):
             self._spec = None
             d = 3 * n
         else:
-            from stcgym.adaptive.kernels.estimator import parse_name
-
-            try:
-                state, decomposed, rule = parse_name(estimator)
-            except ValueError as exc:
-                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
-            if decomposed or rule in ("SG", "MISG"):
+            if v.decomposed or not v.rule.holds_loop:
+                slow = ", ".join(r for r, rule in RULES.items() if not rule.holds_loop)
+                good = [r for r, rule in RULES.items() if rule.holds_loop]
+                holding = [f"'{s}-{r}'" for s in ("KF", "O") for r in good]
                 warnings.warn(
                     f"estimator {estimator!r} does not hold the loop on a sizeable share of "
-                    "ordinary plants: the stochastic-gradient rules (SG, MISG) adapt too slowly "
-                    "for a cold start, and the decomposition rules (D-) update a and b as if "
-                    "their regressors were uncorrelated, which feedback makes them not "
-                    "(benchmarks/startup.py measures every name); 'KF-MILS', 'KF-RLS', 'O-RLS', "
-                    "'O-MILS' or the default 'ELS' hold it",
+                    f"ordinary plants: the gradient rules ({slow}) adapt too slowly for a cold "
+                    "start, and the decomposition rules (D-) update a and b as if their "
+                    "regressors were uncorrelated, which feedback makes them not; "
+                    f"{', '.join(holding)} or the default 'ELS' hold it",
                     UserWarning,
                     stacklevel=2,
                 )
@@ -242,39 +242,26 @@ class SelfTuningController(SelfTuningLanes):
                 "p0": self.p0, "form": self._estimation_form, "forgetting": eo.forgetting,
                 "theta0": np.zeros(2 * n),
             }  # fmt: skip
-            if rule in ("MISG", "MILS"):
+            if v.rule.multi_innovation:
                 kw["p"] = eo.p
-            if state != "CO":
+            if v.state.filtered_regressor:
                 kw["regressor"] = eo.regressor
-            if state == "O" and eo.regressor == "filtered":
+            if v.state.injection and eo.regressor == "filtered":
                 kw["injection"] = eo.injection
                 kw["injection_warmup"] = eo.injection_warmup
-            if state == "KF":
+            if v.state.name == "KF":
                 kw["process_noise"] = eo.process_noise_floor * np.eye(n)
                 kw["measurement_noise"] = eo.kf_measurement_noise
             self._spec = EstimatorSpec.build(estimator, n, **kw)
             self.estimator = self._spec.name
             d = 2 * n
-        # the estimator's record ends with its scratch ("scratch" / "work"), shared with the design
-        absent = dict.fromkeys(("theta", "S", "E", "Q_est", "phi", "scratch"), -1)
-        if self._spec is None:
-            est_fields = {
-                **absent,
-                **{k: est_lay.offset(k) for k in ("theta", "S", "phi", "scratch")},
-            }
-            est_scratch = est_lay.fields["scratch"][1][0]
-        else:
-            spec = self._spec
-            est_lay = spec.layout
-            est_fields = {**absent, "theta": spec.offset("theta"), "E": spec.offset("E")}
-            if spec.least_squares:
-                est_fields["S"] = spec.offset("S")
-            if spec.state == "KF":
-                est_fields["Q_est"] = spec.offset("Q")
-            est_scratch = spec.layout.fields["work"][1][0]
-        self._layout, at = kc.controller_record(
-            n, est_lay, est_fields, est_scratch, lq=design == "lq"
-        )
+        # the ELS record ends with its scratch, shared with the design; a paper estimator keeps
+        # a lane state of its own (the ELS fields are then empty)
+        if self._spec is not None:
+            est_lay = extended_ls_layout(0, True)
+        est_fields = {k: est_lay.offset(k) for k in ("theta", "S", "phi", "scratch")}
+        est_scratch = est_lay.fields["scratch"][1][0] if self._spec is None else 0
+        self._layout, at = kc.controller_record(n, est_lay, est_fields, est_scratch, lq=lq)
         self._at = at
         ps = self.startup.probe_steps
         probe_steps = 2 * n if ps is None else int(ps)
@@ -313,15 +300,17 @@ class SelfTuningController(SelfTuningLanes):
             init[at.S : at.S + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
             # no paper estimator: the step compiled for ELS (kernels.controller, compile-time
             # choices) contains none
-            self._est_at, self._est_cfg = None, None
+            self._est_init = self._est = self._est_work = self._est_cfg = None
         else:
-            init[at.est : at.est + spec.size] = spec.initial_record()
-            self._est_at, self._est_cfg = spec.record(at.est), spec.config
+            self._est_init = self._spec.initial_state()
+            self._est = self._spec.make_state(self.B)
+            self._est_work = self._spec.make_work(self.B)
+            self._est_cfg = self._spec.config
         init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
         # the LQ weights, or None: the step compiled for pole placement contains no LQ design
-        self._lq_weights = _frozen(lw.lq_weights) if design == "lq" else None
-        self._version = (self._spec is not None, design == "lq")
-        if design == "lq":
+        self._lq_weights = _frozen(lw.lq_weights) if lq else None
+        self._version = (self._spec is not None, lq)
+        if lq:
             P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
             init[at.P_lq : at.P_lq + P_lq.size] = P_lq.ravel()
         init.setflags(write=False)
@@ -331,9 +320,31 @@ class SelfTuningController(SelfTuningLanes):
         self._F = np.empty((self.B, self._layout.size))
         self._G = self._int_records()
         self._u = np.zeros(self.B)
+        self._step_one: Any = None  # the single plant's bound step (_act_one)
         self.reset()
 
     # ------------------------------------------------------------------ protocol
+    def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
+        """One plant's ``u(t)`` from ``[y(t), r(t)]`` (Python floats): the compiled step with
+        every other argument bound once (the lane's records and the configuration)."""
+        step = self._step_one
+        if step is None:  # the first call (or the first after unpickling)
+            self._act(observation[None, :], None, deterministic)
+            version = _controller_step[self._version]
+            self._step_one = functools.partial(
+                version.entry, self._F[0], self._G[0], self._at, self._cfg, self._est,
+                self._est_work, 0, self._est_cfg, self._lq_weights,
+            )  # fmt: skip
+            return self._u.copy()
+        u = self._u
+        u[0] = step(values[0], values[1])
+        return u.copy()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_step_one"] = None  # binds views of the records: rebuilt after unpickling
+        return state
+
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[y(t), r(t)]``; ``deterministic`` is ignored (the probe
         is part of the law)."""
@@ -343,15 +354,15 @@ class SelfTuningController(SelfTuningLanes):
         if self.B == 1:
             y, r = obs[0].tolist()  # Python floats: the cheapest arguments for numba's dispatch
             u[0] = _controller_step[self._version](
-                self._F[0], self._G[0], self._at, self._cfg, self._est_at, self._est_cfg,
-                self._lq_weights, y, r,
+                self._F[0], self._G[0], self._at, self._cfg, self._est, self._est_work, 0,
+                self._est_cfg, self._lq_weights, y, r,
             )  # fmt: skip
         else:
             y = np.ascontiguousarray(obs[:, 0])
             r = np.ascontiguousarray(obs[:, 1])
             _controllers_step[self._version](
-                self._F, self._G, self._at, self._cfg, self._est_at, self._est_cfg,
-                self._lq_weights, y, r, u,
+                self._F, self._G, self._at, self._cfg, self._est, self._est_work,
+                self._est_cfg, self._lq_weights, y, r, u,
             )  # fmt: skip
         return u.copy()
 
@@ -360,8 +371,11 @@ class SelfTuningController(SelfTuningLanes):
     def theta(self) -> NDArray:
         """``theta_hat = [a_hat; b_hat]`` in the plant's canonical form (per lane if batched)."""
         n = self.n
-        o = self._at.theta
-        th = self._F[:, o : o + 2 * n].copy()
+        if self._est is None:
+            o = self._at.theta
+            th = self._F[:, o : o + 2 * n].copy()
+        else:
+            th = self._est.theta.copy()
         if self.form == "observability" and self._estimation_form == "observer":
             for i in range(self.B):
                 if np.all(np.isfinite(th[i])):
@@ -400,8 +414,14 @@ class SelfTuningController(SelfTuningLanes):
 
     @property
     def nbytes_per_lane(self) -> int:
-        """Memory of one lane's records (float and int)."""
-        return self._F.shape[1] * 8 + self._G.shape[1] * 8
+        """Memory of one lane's records (float and int, and a paper estimator's state)."""
+        own = self._F.shape[1] * 8 + self._G.shape[1] * 8
+        return own + (0 if self._spec is None else self._spec.nbytes_per_lane)
+
+    def _reset_lanes(self, idx: NDArray) -> None:
+        super()._reset_lanes(idx)
+        if self._est is not None:
+            set_lanes(self._est, idx, self._est_init)
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

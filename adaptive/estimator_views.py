@@ -1,7 +1,8 @@
 """The read-only views and the health reporting of :class:`~stcgym.adaptive.RecursiveEstimator`.
 
-The estimator's whole state is one ``(B, size)`` lane record (``B = 1`` for a single plant);
-:class:`EstimatorViews` reads the named fields of that record (``theta_hat``, ``P = S S^T``,
+The estimator's whole state is one lane state of ``B`` lanes (``B = 1`` for a single plant,
+:class:`~stcgym.adaptive.kernels.estimator_spec.EstimatorState`); :class:`EstimatorViews` reads
+its named fields (``theta_hat``, ``P = S S^T``,
 ``x_hat``, the Kalman covariance, the innovation, the counters of numerical-health events) as
 copies, without the lane axis for a single plant, and turns the status bits of a step into the
 warnings or the :class:`~stcgym.adaptive.health.NumericalHealthError` that
@@ -18,58 +19,70 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.health import describe_events, health_error
 from stcgym.adaptive.kernels import estimator as _k
-from stcgym.adaptive.kernels.estimator import EstimatorSpec
+from stcgym.adaptive.kernels.estimator import EstimatorSpec, EstimatorState
+from stcgym.envs.compiled import set_lanes
 
 __all__ = ["EstimatorViews"]
 
 
 class EstimatorViews:
-    """The attributes of a recursive estimator read from its lane record.
+    """The attributes of a recursive estimator read from its lane state.
 
     A base of :class:`~stcgym.adaptive.RecursiveEstimator`, which sets ``spec``, ``n``,
-    ``name``, ``num_envs``, the record ``_rec``, the flop counts ``_flops`` and the health
-    bookkeeping ``_last_event`` / ``_frozen_warned``.
+    ``name``, ``num_envs``, the lane state ``_state``, the flop counts ``_flops`` and the
+    health bookkeeping ``_last_event`` / ``_frozen_warned``.
     """
 
     spec: EstimatorSpec
     name: str
     n: int
     num_envs: int | None
-    _rec: NDArray
+    _state: EstimatorState
     _flops: tuple[int, int]
     _last_event: str | None
     _frozen_warned: bool
 
-    # ---- record access ------------------------------------------------------------------------
+    # ---- state access -------------------------------------------------------------------------
     @property
     def _B(self) -> int:
-        return self._rec.shape[0]
+        return self._state.theta.shape[0]
 
     def _field(self, name: str) -> NDArray:
-        return self.spec.layout.view(self._rec, name)
+        return getattr(self._state, name)
 
     def _out(self, arr: NDArray) -> NDArray:
         """A copy, without the lane axis for a single plant."""
         return (arr[0] if self.num_envs is None else arr).copy()
 
     def _scalar_field(self, name: str, dtype: type = int) -> Any:
-        v = self._rec[:, self.spec.offset(name)]
+        v = self._field(name)
         if self.num_envs is None:
             return dtype(v[0])
         return v.astype(dtype)
 
     @property
-    def record(self) -> NDArray:
-        """The ``(B, size)`` lane record (a read-only view; layout: ``spec.layout``)."""
-        view = self._rec.view()
-        view.setflags(write=False)
-        return view
+    def state(self) -> EstimatorState:
+        """The lane state (read-only views of every field, one row a lane)."""
+        views = []
+        for field in self._state:
+            view = field.view()
+            view.setflags(write=False)
+            views.append(view)
+        return EstimatorState(*views)
+
+    def _snapshot(self) -> EstimatorState:
+        return EstimatorState(*(field.copy() for field in self._state))
+
+    def _restore(self, snapshot: EstimatorState) -> None:
+        set_lanes(self._state, slice(None), snapshot, slice(None))
 
     # ---- health -------------------------------------------------------------------------------
 
-    def _report(self, status: NDArray, snapshot: NDArray | None, times: bool = False) -> None:
+    def _report(
+        self, status: NDArray, snapshot: EstimatorState | None, times: bool = False
+    ) -> None:
         """Turn status bits into warnings / errors (``status`` per lane, or per step)."""
-        t = int(self._rec[0, self.spec.offset("t")])
+        t = int(self._state.t[0])
         single = self.num_envs is None
 
         def describe(mask: int) -> str | None:
@@ -78,7 +91,7 @@ class EstimatorViews:
         rule = describe(_k.ST_RESET)
         state = describe(_k.ST_STATE_RESET)
         if snapshot is not None and (rule or state):
-            self._rec[...] = snapshot
+            self._restore(snapshot)
             raise health_error(status, rule, state)
         if rule:
             self._last_event = f"{rule}: covariance reset"
@@ -145,7 +158,7 @@ class EstimatorViews:
     @property
     def r(self) -> NDArray | None:
         """``[r(t)]`` or ``[r1(t), r2(t)]`` (SG/MISG), else ``None``."""
-        if self.spec.least_squares:
+        if not self.spec.normaliser:
             return None
         r = self._field("r")
         return self._out(r[:, :2] if self.spec.decomposed else r[:, :1])
@@ -219,9 +232,8 @@ class EstimatorViews:
 
     @enabled.setter
     def enabled(self, value: Any) -> None:
-        o = self.spec.offset("enabled")
         if self.num_envs is None:
-            self._rec[0, o] = float(bool(value))
+            self._state.enabled[0] = bool(value)
             return
         arr = np.asarray(value)
         if arr.ndim == 0:
@@ -231,7 +243,7 @@ class EstimatorViews:
                 f"enabled must be a bool or one flag per lane, shape ({self._B},), got "
                 f"shape {arr.shape}"
             )
-        self._rec[:, o] = arr.astype(bool).astype(float)
+        self._state.enabled[:] = arr.astype(bool)
 
     @property
     def n_resets(self) -> Any:
@@ -279,5 +291,5 @@ class EstimatorViews:
 
     @property
     def nbytes_per_lane(self) -> int:
-        """Memory of one lane's record in bytes."""
-        return self.spec.layout.nbytes_per_lane
+        """Memory of one lane's state and scratch in bytes."""
+        return self.spec.nbytes_per_lane

@@ -103,6 +103,10 @@ def make_estimator(
         injection (default 0).
     num_envs : int, optional
         Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.
+    **rule_parameters
+        The parameters of a rule of its own: each rule of
+        :data:`stcgym.adaptive.kernels.variants.RULES` declares them (``Rule.parameters``:
+        name, default, range).
 
     Returns
     -------
@@ -160,12 +164,14 @@ def make_estimator(
 # One source of truth for the keywords: make_estimator takes EstimatorSpec.build's (which
 # validates them) plus num_envs; help() and inspect show that combined signature.
 _BUILD_SIGNATURE = inspect.signature(EstimatorSpec.build)
+_PARAMETERS = list(_BUILD_SIGNATURE.parameters.values())
 make_estimator.__signature__ = _BUILD_SIGNATURE.replace(  # type: ignore[attr-defined]
     parameters=[
-        *_BUILD_SIGNATURE.parameters.values(),
+        *_PARAMETERS[:-1],  # the last is the rules' own parameters (**rule_parameters)
         inspect.Parameter(
             "num_envs", inspect.Parameter.KEYWORD_ONLY, default=None, annotation="int | None"
         ),
+        _PARAMETERS[-1],
     ],
     return_annotation="RecursiveEstimator",
 )

@@ -149,35 +149,20 @@ def d_misg(n: int, p: int, *, stacked_r: bool = False) -> int:
     return 8 * n * p + 4 * n + 2 * p
 
 
-_RULE_FLOPS = {
-    ("SG", False): lambda n, p, s: sg(n),
-    ("MISG", False): lambda n, p, s: misg(n, p, stacked_r=s),
-    ("RLS", False): lambda n, p, s: rls(n),
-    ("MILS", False): lambda n, p, s: mils(n, p),
-    ("SG", True): lambda n, p, s: d_sg(n),
-    ("MISG", True): lambda n, p, s: d_misg(n, p, stacked_r=s),
-    ("RLS", True): lambda n, p, s: d_rls(n),
-    ("MILS", True): lambda n, p, s: d_mils(n, p),
-}
-_STATE_FLOPS = {"O": open_loop_observer, "CO": closed_loop_observer, "KF": kalman_filter}
-
-
 def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> tuple[int, int]:
     """``(parameter update, state estimate)`` flops per step of a named recursive algorithm
-    such as ``"KF-D-MILS"`` (state estimator ``O``, ``CO`` or ``KF``; ``p`` ignored by
-    SG/RLS)."""
-    parts = str(name).upper().split("-")
-    if (
-        len(parts) not in (2, 3)
-        or parts[0] not in _STATE_FLOPS
-        or (len(parts) == 3 and parts[1] != "D")
-    ):
-        raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS', got {name!r}")
-    key = (parts[-1], len(parts) == 3)
-    if key not in _RULE_FLOPS:
-        raise ValueError(f"unknown parameter rule {parts[-1]!r} in {name!r}")
+    such as ``"KF-D-MILS"`` (the counts each rule and state estimator declares in
+    :mod:`stcgym.adaptive.kernels.variants`; ``p`` ignored by the rules without
+    multi-innovation)."""
+    from stcgym.adaptive.kernels.variants import variant  # the registry refers to this module
+
+    try:
+        v = variant(name)
+    except ValueError as exc:
+        raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS': {exc}") from None
     _positive(n=n, p=p)
-    return _RULE_FLOPS[key](n, p, stacked_r), _STATE_FLOPS[parts[0]](n)
+    rule_flops = v.rule.decomposed_flops if v.decomposed else v.rule.flops
+    return rule_flops(n, p, stacked_r), v.state.flops(n)
 
 
 def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:

@@ -23,8 +23,8 @@ recovers while every numerical counter stays 0. The estimator therefore raises t
 flag (and one :class:`RuntimeWarning` when it first switches on) while, after the first 2000
 steps, the mean gain ``phi_hat^T P phi_hat`` is below ``1e-3`` and the innovation power exceeds
 ``frozen_ratio`` (default 0.05) times the output power (means over ~1000 steps; details in
-:mod:`stcgym.adaptive.kernels.estimator`). Measured with
-``python benchmarks/estimators_perf.py --frozen`` (O-RLS, O-MILS, O-D-RLS, KF-RLS, O-D-MILS,
+:mod:`stcgym.adaptive.kernels.estimator`). Measured (the design notes of the documentation
+say how; O-RLS, O-MILS, O-D-RLS, KF-RLS, O-D-MILS,
 ``p0`` = 1e6 and 100, three second-order plants incl. one with a zero at 4.64, three seeds,
 200 000 steps, white input, observer form): with output noise std 0.1 all 39 of 90 runs whose
 final parameter error exceeds 10 % are flagged at the end (41 of the 42 above 5 %), and 4 of

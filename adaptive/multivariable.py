@@ -253,8 +253,8 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         self.B = self.num_lanes
         self.seeds = self._lane_ints(seed, "seed")
         q = n + m
-        # the shortest probe was the cheapest on the random family of benchmarks/mimo.py
-        # (median episode ratio 1.022-1.024 against 1.036-1.039 with 2 (n + m), 3 seeds)
+        # the shortest probe was the cheapest on a random family of MIMO plants (median
+        # episode ratio 1.022-1.024 against 1.036-1.039 with 2 (n + m), 3 seeds)
         probe_steps = q + 1 if su.probe_steps is None else int(su.probe_steps)
         probe_max = 5 * q if su.max_probe_steps is None else int(su.max_probe_steps)
         self._cfg = km.MimoConfig(

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels import design as dz
 from stcgym.adaptive.kernels.estimator import REGRESSORS
+from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS, variant
 from stcgym.envs.canonical import check_form
 from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
 
@@ -44,51 +45,29 @@ DEFAULT_POLE = 0.5
 #: Saturation of the input when neither ``action_bound`` nor an env gives one (the envs' default).
 DEFAULT_ACTION_BOUND = 10.0
 #: Default ``P(0) = p0 I`` of extended least squares and of the paper's ``O-`` estimators.
-P0_ELS = 300.0
+P0_ELS = STATE_ESTIMATORS["O"].controller_p0
 #: Default ``P(0) = p0 I`` of the paper's ``KF-`` estimators.
-P0_KF = 100.0
+P0_KF = STATE_ESTIMATORS["KF"].controller_p0
 
 
 @dataclass(frozen=True)
 class EstimatorOptions:
     """Estimator settings of the self-tuning controller.
 
-    The defaults (``p0 = 300``, ``R = 10``, ``q = 0.01``) were chosen on the catalogue plants with
-    ``benchmarks/startup.py``: a larger ``R`` makes the filter trust the estimated model more
-    than the noisy sample (it keeps the 4th-order plant from chasing noise with an early
-    model), a larger ``p0`` lets the estimate move faster in the first samples.
-
-    The paper's estimators (``estimator="O-RLS"``, ``"KF-MILS"``, ...) in the loop:
-
-    * ``regressor``: ``"filtered"`` (default) builds ``phi_hat`` from the measurement-corrected
-      state ``x_hat(t|t)`` (see :func:`stcgym.adaptive.make_estimator`); ``"predicted"`` is the
-      paper's ``x_hat(t|t-1)``, which loses about a quarter of a random family of
-      second-order plants in closed loop (``benchmarks/startup.py``).
-    * ``kf_measurement_noise``: ``R`` of the ``KF-`` estimators' own Kalman filter, whose
-      process noise is the controller's ``Q`` above. ``0.005`` (twice the variance of the
-      benchmark's output noise): while ``P`` is large the filtered ``x1_hat(t|t)`` follows
-      ``y``, once it is small it follows the model, so the regressor loses the noise that
-      biases least squares on measured outputs (chosen with ``benchmarks/startup.py``; the
-      controller's own ``R = 10`` loses random plants).
-    * ``injection = 0.4``, ``injection_warmup = 50`` for the ``O-`` estimators: the whole
-      output injection of ``"filtered"`` for the first 50 steps, then 40 % of it, so that the
-      regressor keeps 60 % of the model's noise-free prediction (the whole injection turns the
-      estimator into least squares on the measured outputs, which output noise biases: on
-      ``lightly_damped2`` ``O-RLS`` cost 1.97x the oracle with it, 1.40x with these settings;
-      without a warm-up the partial injection loses a sixth of the random family from
-      ``theta = 0``). Chosen with ``benchmarks/startup.py`` on 300 random plants and the
-      catalogue; tried: ``injection`` 0.3 / 0.4 / 0.5 / 0.8 / 1 after 50 or 100 steps, 0.4
-      after 0 and 20 steps (20: ``stable4`` 2.1x).
-    * ``p0 = 100`` for ``KF-``; the ``O-`` estimators keep 300 (with 100 they lose a plant of
-      the random family).
-    * ``estimation_form``: the canonical form the estimator identifies. ``"observer"``
-      (default): the plant's transfer function in the observer form (1)-(9), whatever the
-      plant's form (the forms are interchangeable, section 4 of the paper; ``theta`` is
-      reported in the plant's form, like ELS's); ``"plant"``: the plant's own form. In the
-      observability form the regressor (153) holds the whole state ``x_hat(t-n)``, whose
-      components other than ``x1`` only the model can reconstruct: on ``unstable2`` of that
-      form KF-MILS held 3 of 4 seeds at 50-300x the oracle's cost, against every seed near
-      the oracle in the observer form.
+    The defaults were chosen on the closed loop of the catalogue plants and a random family
+    of second-order plants (the design notes of the documentation give the figures and the
+    values tried). For the paper's estimators (``estimator="O-RLS"``, ``"KF-MILS"``, ...):
+    ``regressor="filtered"`` builds ``phi_hat`` from the measurement-corrected state
+    ``x_hat(t|t)`` (:func:`stcgym.adaptive.make_estimator`; the paper's ``"predicted"``
+    ``x_hat(t|t-1)`` loses about a quarter of ordinary plants in closed loop);
+    ``kf_measurement_noise`` is ``R`` of the ``KF-`` estimators' own Kalman filter, whose
+    process noise is the controller's ``Q``; the ``O-`` estimators take the whole output
+    injection for ``injection_warmup`` steps, then ``injection`` of it (the regressor keeps
+    the rest of the model's noise-free prediction, which reduces the bias output noise gives
+    least squares on measured outputs); ``estimation_form="observer"`` identifies the plant's
+    transfer function in the observer form (1)-(9) whatever the plant's form (``theta`` is
+    reported in the plant's form), since in the observability form the regressor (153) holds
+    state components only the model can reconstruct.
 
     Parameters
     ----------
@@ -172,11 +151,15 @@ class EstimatorOptions:
         Returns
         -------
         float
-            ``p0`` if given, else :data:`P0_KF` for ``KF-`` names and :data:`P0_ELS` otherwise.
+            ``p0`` if given, else :data:`P0_ELS` for ``"ELS"`` and the state estimator's
+            ``controller_p0`` (:data:`~stcgym.adaptive.kernels.variants.STATE_ESTIMATORS`:
+            :data:`P0_KF` for ``KF-`` names, :data:`P0_ELS` for ``O-``) otherwise.
         """
         if self.p0 is not None:
             return float(self.p0)
-        return P0_KF if estimator.upper().startswith("KF-") else P0_ELS
+        if estimator.strip().upper() == "ELS":
+            return P0_ELS
+        return variant(estimator).state.controller_p0
 
 
 @dataclass(frozen=True)
@@ -187,9 +170,8 @@ class StartupOptions:
     min(1, probe_output / y_max(t))`` with ``y_max(t)`` the largest ``|y|`` seen so far; it
     goes on past ``probe_steps`` while ``y_max < probe_output``, for at most
     ``max_probe_steps`` samples. ``probe_output = inf`` with ``max_probe_steps = 0`` gives a
-    fixed probe, ``+-probe_amplitude`` for ``probe_steps`` samples. Defaults chosen with
-    ``benchmarks/startup.py`` (the scaled probe for high-gain plants, the extension for slow
-    ones such as ``stable4``).
+    fixed probe, ``+-probe_amplitude`` for ``probe_steps`` samples. The scaled probe is for
+    high-gain plants, the extension for slow ones such as ``stable4``.
 
     Parameters
     ----------
@@ -294,8 +276,8 @@ class ChangeDetection:
 
     When the short EWMA of ``e^2`` (rate ``short``) exceeds ``threshold`` x the long one
     (rate ``long``), in closed loop, at most once per ``holdoff`` steps: ``P <- inflation P``.
-    ``threshold = 5`` catches the bench's parameter jump with no false alarm on the 1000
-    random time-invariant plants of ``benchmarks/startup.py``.
+    ``threshold = 5`` catches the bench's parameter jump with no false alarm on 1000 random
+    time-invariant plants (design notes).
 
     Parameters
     ----------

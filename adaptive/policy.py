@@ -226,8 +226,12 @@ class LanePolicy(ABC):
             # the common single-plant call; a non-finite or too large value (the comparison
             # fails for nan and inf) takes the validating path below
             bound = min(self.observation_limit, _FLOAT_MAX)
-            if all([-bound <= v <= bound for v in observation.tolist()]):
-                return self._act(observation[None, :], None, deterministic), state
+            values = observation.tolist()
+            for v in values:
+                if not -bound <= v <= bound:
+                    break
+            else:
+                return self._act_one(observation, values, deterministic), state
         obs, single = self._observations(observation)
         starts = episode_starts(episode_start, self.num_lanes)
         actions = self._act(obs, starts if starts.any() else None, deterministic)
@@ -267,6 +271,12 @@ class LanePolicy(ABC):
         or ``(lanes, action_dim)``; a single plant's fast path returns it as it is, so a policy
         of ``action_dim > 1`` returns ``(action_dim,)`` there); a step that fails raises
         ``ValueError`` and changes nothing."""
+
+    def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
+        """The single plant's step on a validated observation (``values``: the same as Python
+        floats); by default :meth:`_act` on a batch of one. A policy whose one-plant step can
+        skip the batch's array handling overrides it (the cost every Gymnasium step pays)."""
+        return self._act(observation[None, :], None, deterministic)
 
     @abstractmethod
     def _reset_lanes(self, idx: NDArray) -> None:

@@ -39,19 +39,7 @@ Numerical health and the "frozen on a wrong model" signal are described in
 :mod:`stcgym.adaptive.health`; the attributes read from the lane record, and the warnings of a
 step, are those of :class:`~stcgym.adaptive.estimator_views.EstimatorViews`;
 :func:`make_estimator` (:mod:`stcgym.adaptive.factory`) builds the estimators by name.
-
-Measured behaviour of the paper's algorithms (``tests/test_recursive.py``, 2nd-order plant,
-white input)
--------------------------------------------------------------------------------------------
-* D-RLS / D-MILS with a huge ``P(0)``: on the first informative step each half (``a`` and
-  ``b``) absorbs the whole innovation, so the prediction overshoots by ``e(t)``. Use
-  ``p0 <= 100``.
-* D- rules converge slowly in the observer form, where ``phi_a(t) = -x1(t-1..t-n)`` is
-  correlated with ``psi(t) = u(t-1..t-n)``; in the observability form they lose almost nothing.
-* With the default Kalman filter (``Q = 0``) and ``theta_hat(0) ~ 0`` the gain vanishes after
-  a few steps, so ``KF-*`` and ``O-*`` give practically the same estimates.
-* Lightly damped plants can make the observer-form estimators converge to biased values: this
-  is a pseudo-linear regression, whose convergence needs a positive-real-type condition.
+(the measured behaviour of the paper's algorithms: the design notes of the documentation).
 """
 
 from __future__ import annotations
@@ -74,10 +62,11 @@ from stcgym.adaptive.kernels.estimator import (
     RULES,
     STATE_ESTIMATORS,
     EstimatorSpec,
+    EstimatorState,
     parse_name,
 )
 from stcgym.adaptive.kernels.state_estimation import is_schur_stable as _schur_lane
-from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.compiled import FixedTypes, set_lanes
 from stcgym.envs.validation import (
     finite_vector,
     lane_indices,
@@ -106,10 +95,9 @@ def is_schur_stable(a: ArrayLike) -> bool:
     return bool(_schur_lane(arr, arr.size, np.empty(arr.size)))
 
 
-# the single-lane steps with their argument types looked up once (a float64 record row, the
-# spec's named tuples, a float: see FixedTypes)
-_estimator_update = FixedTypes(_k.estimator_update)
-_estimator_predict = FixedTypes(_k.estimator_predict)
+# the steps of every lane (one for a single plant), their compiled version looked up once
+_update_lanes = FixedTypes(_lanes.update_lanes)
+_predict_lanes = FixedTypes(_lanes.predict_lanes)
 
 
 def _scalar(value: Any, name: str) -> float:
@@ -209,45 +197,23 @@ class RecursiveEstimator(EstimatorViews):
         self.name, self.n, self.p, self.form = spec.name, spec.n, spec.p, spec.form
         self.num_envs = num_envs
         B = 1 if num_envs is None else int(num_envs)
+        init = spec.make_state(B)
         if lane_theta0 is None and lane_P0 is None:
-            rec0 = np.tile(spec.initial_record(), (B, 1))
+            set_lanes(init, slice(None), spec.initial_state())
         else:
-            rec0 = np.stack(
-                [
-                    spec.initial_record(
-                        None if lane_theta0 is None else lane_theta0[i],
-                        None if lane_P0 is None else lane_P0[i],
-                    )
-                    for i in range(B)
-                ]
-            )
-        self._rec0 = rec0
-        self._set_record(rec0.copy())
+            for i in range(B):
+                th0 = None if lane_theta0 is None else lane_theta0[i]
+                P0 = None if lane_P0 is None else lane_P0[i]
+                set_lanes(init, i, spec.initial_state(th0, P0))
+        self._init = init
+        self._state = EstimatorState(*(field.copy() for field in init))
+        self._work = spec.make_work(B)
         self._status = np.zeros(B, dtype=np.int64)
+        self._signal = np.zeros(B)  # y(t) or u(t) of a single plant's step
         self._last_event: str | None = None
         self._frozen_warned = False  # the frozen signal warns once (until reset)
         self._flops = _flops.recursive_parts(spec.name, spec.n, spec.p, stacked_r=spec.stacked_r)
-
-    # ---- helpers ----------------------------------------------------------------------------
-
-    def _set_record(self, rec: NDArray) -> None:
-        self._rec = rec
-        self._lane0 = rec[0]  # the single plant's record (a view)
-        o = self.spec.offset("theta")
-        self._theta_slice = slice(o, o + 2 * self.n)
-        self._o_phase = self.spec.offset("phase")
-        o = self.spec.offset("x_hat")
-        self._x_slice = slice(o, o + self.n)
-        self._gain_fn = callable(self.spec.observer_gain)
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        del state["_lane0"]  # a view of _rec: rebuilt so that it stays one
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._set_record(self._rec)
+        self._gain_fn = callable(spec.observer_gain)
 
     # ---- lifecycle ----------------------------------------------------------------------------
 
@@ -266,10 +232,9 @@ class RecursiveEstimator(EstimatorViews):
             An index out of range or a mask of the wrong length.
         """
         idx = lane_indices(lanes, self._B)
-        oe = self.spec.offset("enabled")
-        enabled = self._rec[idx, oe].copy()
-        self._rec[idx] = self._rec0[idx]
-        self._rec[idx, oe] = enabled
+        enabled = self._state.enabled[idx].copy()
+        set_lanes(self._state, idx, self._init, idx)
+        self._state.enabled[idx] = enabled
         if lanes is None:
             self._last_event = None
             self._frozen_warned = False
@@ -289,7 +254,7 @@ class RecursiveEstimator(EstimatorViews):
             An index out of range or a mask of the wrong length.
         """
         for i in lane_indices(lanes, self._B):
-            _k.reset_covariance(self._rec[i], self.spec.at, self.spec.config)
+            _k.reset_covariance(self._state, i, self.spec.config)
 
     def restart(self, theta: ArrayLike, P: ArrayLike | None = None, lanes: Any = None) -> None:
         """Restart the parameter estimate at ``theta`` with covariance ``P`` (RLS/MILS; only
@@ -326,23 +291,24 @@ class RecursiveEstimator(EstimatorViews):
                 raise ValueError(f"P must have shape ({d}, {d}) or ({idx.size}, {d}, {d})")
         else:
             Pm = np.zeros((idx.size, d, d))
-        saved = self._rec[idx].copy()
+        saved = self._snapshot()
         for j, i in enumerate(idx):
             ok = _k.estimator_restart(
-                self._rec[i],
-                self.spec.at,
+                self._state,
+                self._work,
+                i,
                 self.spec.config,
                 np.ascontiguousarray(th[j]),
                 Pm[j].copy(),
             )
             if not ok:
-                self._rec[idx] = saved
+                self._restore(saved)
                 raise ValueError(f"P of lane {int(i)} is not symmetric positive definite")
 
     # ---- the two half-steps -------------------------------------------------------------------
 
-    def _check_phase(self, expected: float, what: str) -> None:
-        phase = self._rec[:, self._o_phase]
+    def _check_phase(self, expected: bool, what: str) -> None:
+        phase = self._state.phase
         if (phase[0] != expected) if self.num_envs is None else np.any(phase != expected):
             t = self._scalar_field("t")
             if what == "update":
@@ -384,22 +350,17 @@ class RecursiveEstimator(EstimatorViews):
             With ``on_failure="raise"``, a covariance or normaliser that lost positive
             definiteness or overflowed; the estimator is left as before the call.
         """
-        self._check_phase(0.0, "update")
-        spec = self.spec
-        rec = self._rec
-        snapshot = rec.copy() if spec.on_failure == "raise" else None
+        self._check_phase(False, "update")
         if self.num_envs is None:
-            y = _scalar(y_t, "y(t)")
-            status = _estimator_update(self._lane0, spec.at, spec.config, y, True)
-            if status:
-                self._status[0] = status
-                self._report(self._status, snapshot)
-            return self._lane0[self._theta_slice].copy()
-        y_arr = lane_vector(y_t, self._B, "y(t)")
-        _lanes.update_lanes(rec, spec.at, spec.config, y_arr, self._status)
+            self._signal[0] = _scalar(y_t, "y(t)")
+            y = self._signal
+        else:
+            y = lane_vector(y_t, self._B, "y(t)")
+        snapshot = self._snapshot() if self.spec.on_failure == "raise" else None
+        _update_lanes(self._state, self._work, self.spec.config, y, self._status)
         if self._status.any():
             self._report(self._status, snapshot)
-        return rec[:, self._theta_slice].copy()
+        return self._out(self._state.theta)
 
     def predict(self, u_t: ArrayLike, *, x_next: ArrayLike | None = None) -> NDArray:
         """State step: ``x_hat(t+1)`` from ``x_hat(t)``, ``u(t)``, ``y(t)`` and ``A_hat(t)``,
@@ -428,7 +389,7 @@ class RecursiveEstimator(EstimatorViews):
         NumericalHealthError
             With ``on_failure="raise"``, a non-finite state estimate or Kalman covariance.
         """
-        self._check_phase(1.0, "predict")
+        self._check_phase(True, "predict")
         spec = self.spec
         B = self._B
         if self.num_envs is None:
@@ -444,24 +405,18 @@ class RecursiveEstimator(EstimatorViews):
                 if known.shape != (B, self.n) or not np.all(np.isfinite(known)):
                     raise ValueError(f"x_next must be finite with shape ({B}, {self.n})")
         gains = self._observer_gains() if self._gain_fn else None
-        rec = self._rec
-        snapshot = rec.copy() if spec.on_failure == "raise" else None
+        snapshot = self._snapshot() if spec.on_failure == "raise" else None
         if gains is not None:
-            self._field("K")[...] = gains
+            self._state.K[...] = gains
         if self.num_envs is None:
-            status = _estimator_predict(self._lane0, spec.at, spec.config, u)
-            if known is not None:
-                self._lane0[self._x_slice] = known[0]
-            if status:
-                self._status[0] = status
-                self._report(self._status, snapshot)
-            return self._lane0[self._x_slice].copy()
-        _lanes.predict_lanes(rec, spec.at, spec.config, u, self._status)
+            self._signal[0] = u
+            u = self._signal
+        _predict_lanes(self._state, self._work, spec.config, u, self._status)
         if known is not None:
-            rec[:, self._x_slice] = known
+            self._state.x_hat[...] = known
         if self._status.any():
             self._report(self._status, snapshot)
-        return rec[:, self._x_slice].copy()
+        return self._out(self._state.x_hat)
 
     def _observer_gains(self) -> NDArray:
         """Evaluate a callable observer gain ``K(a_hat, b_hat)`` for every lane (50)."""
@@ -503,17 +458,16 @@ class RecursiveEstimator(EstimatorViews):
         if self.num_envs is not None or callable(self.spec.observer_gain):
             return self._run_steps(u, y)
         u_arr, y_arr = vector_pair(u, y, ("u", "y"), " (u[k], y[k] = u(t), y(t), t = k + 1)")
-        if self._rec[0, self.spec.offset("phase")] != 0.0:
+        if self._state.phase[0]:
             raise RuntimeError(f"{self.name}: run() called between update() and predict()")
         T = u_arr.size
         thetas = np.empty((T, 2 * self.n))
         status = np.zeros(T, dtype=np.int64)
         raising = self.spec.on_failure == "raise"
-        snapshot = self._rec.copy() if raising else None
+        snapshot = self._snapshot() if raising else None
         stop = (_k.ST_RESET | _k.ST_STATE_RESET) if raising else 0
-        spec = self.spec
         done = _lanes.run_lane(
-            self._rec[0], spec.at, spec.config, u_arr, y_arr, thetas, status, stop
+            self._state, self._work, 0, self.spec.config, u_arr, y_arr, thetas, status, stop
         )
         events = status[:done]
         if events.any():
@@ -530,7 +484,7 @@ class RecursiveEstimator(EstimatorViews):
                 f"u and y must have the same shape ((T,) single, (T, B) batch), got "
                 f"{u_arr.shape} and {y_arr.shape}"
             )
-        if np.any(self._rec[:, self.spec.offset("phase")] != 0.0):
+        if np.any(self._state.phase):
             raise RuntimeError(f"{self.name}: run() called between update() and predict()")
         out = []
         for k in range(u_arr.shape[0]):

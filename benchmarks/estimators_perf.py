@@ -9,7 +9,7 @@ Speed: O-RLS (n = 2) and KF-MILS (n = 2, p = 5), one ``update(y)`` + ``predict(u
 step. Rows: the public single estimator (``make_estimator``), the bare lane functions on a
 record (what a compiled controller step pays), the public batched estimator at ``B = 1e4``
 (``make_estimator(..., num_envs=B)``), and the dense-numpy reference of the paper's formulas
-(``tests/reference_estimators.py``: explicit ``P``, numpy calls) as the baseline of the ratios
+(``stcgym.adaptive.reference``: explicit ``P``, numpy calls) as the baseline of the ratios
 (the former numpy ``RecursiveEstimator`` is gone; it ran O-RLS at about 49 us per step on the
 development machine). Everything in the same run: ratios are meaningful on a loaded machine,
 absolute numbers are not. First-call compile time (or the on-disk cache load) is reported
@@ -19,14 +19,10 @@ separately.
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 import warnings
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 
 CASES = {"O-RLS": {}, "KF-MILS": {"p": 5, "process_noise": 1e-4}}
 
@@ -54,11 +50,9 @@ def _measure(
     name: str, kw: dict, u: np.ndarray, y: np.ndarray, U: np.ndarray, Y: np.ndarray
 ) -> None:
     """One estimator's rows of the table (closures bind this call's objects)."""
-    from reference_estimators import ReferenceEstimator
-
     from stcgym.adaptive import make_estimator
-    from stcgym.adaptive.kernels import estimator as K
-    from stcgym.adaptive.kernels.estimator_lanes import run_lane
+    from stcgym.adaptive.kernels.estimator_lanes import predict_lanes, run_lane, update_lanes
+    from stcgym.adaptive.reference import ReferenceEstimator
 
     T, B = u.size, U.shape[1]
     t0 = time.perf_counter()
@@ -89,19 +83,21 @@ def _measure(
             est.predict(u[k])
 
     t_single = _best(single_loop) / T
-    rec = est.spec.initial_record().copy()
-    at, cfg = est.spec.at, est.spec.config
+    state, work, cfg = est.spec.initial_state(), est.spec.make_work(1), est.spec.config
+    one, lane_status = np.zeros(1), np.zeros(1, dtype=np.int64)
 
     def lane_loop() -> None:
         for k in range(T):
-            K.estimator_update(rec, at, cfg, y[k], True)
-            K.estimator_predict(rec, at, cfg, u[k])
+            one[0] = y[k]
+            update_lanes(state, work, cfg, one, lane_status)
+            one[0] = u[k]
+            predict_lanes(state, work, cfg, one, lane_status)
 
     t_lane = _best(lane_loop) / T
     thetas = np.empty((T, 4))
     status = np.zeros(T, dtype=np.int64)
-    rec2 = est.spec.initial_record().copy()
-    t_run = _best(lambda: run_lane(rec2, at, cfg, u, y, thetas, status, 0)) / T
+    state2 = est.spec.initial_state()
+    t_run = _best(lambda: run_lane(state2, work, 0, cfg, u, y, thetas, status, 0)) / T
 
     def batch_loop() -> None:
         for k in range(20):
@@ -112,7 +108,7 @@ def _measure(
     rows = [
         ("dense-numpy reference (baseline)", t_ref),
         ("make_estimator: update + predict", t_single),
-        ("lane functions estimator_update/predict", t_lane),
+        ("lane loops update_lanes/predict_lanes, B = 1", t_lane),
         ("compiled T-step loop (run_lane, est.run)", t_run),
         (f"make_estimator(num_envs={B:.0e}), per lane", t_batch),
     ]

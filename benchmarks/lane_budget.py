@@ -270,8 +270,8 @@ def main(argv: list[str] | None = None) -> None:
     thetas, status = np.zeros((steps, 4)), np.zeros(steps, dtype=np.int64)
 
     def estimate(s: int) -> None:
-        rec = spec.initial_record()
-        run_lane(rec, spec.at, spec.config, u_in[:s], y_ol[:s], thetas, status, 0)
+        state, work = spec.initial_state(), spec.make_work(1)
+        run_lane(state, work, 0, spec.config, u_in[:s], y_ol[:s], thetas, status, 0)
 
     row("KF-MILS estimator, update + predict (p = 5, d = 4)", _best_ns(estimate, steps))
 

@@ -49,10 +49,9 @@ from typing import Any, TypeVar
 
 import numba
 import numpy as np
-from numba.core import event
-from numba.core.registry import CPUDispatcher
 from numpy.typing import NDArray
 
+from stcgym.envs import numba_internals as internals
 from stcgym.envs.kernel_cache import guard_cache
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -64,10 +63,10 @@ COMPILE_NOTICE_AFTER = 1.0
 logger = logging.getLogger("stcgym")
 
 
-class CompileNotice(event.Listener):
+class CompileNotice(internals.CompileListener):
     """Say once, on ``logger``, that kernels are compiling when a compile takes over ``after`` s.
 
-    A listener of numba's ``numba:compile`` events (numba's event API, ``numba.core.event``):
+    A listener of numba's ``numba:compile`` events (:func:`.numba_internals.listen_to_compiles`):
     when an outermost compile of a function that ``owns`` accepts starts, a timer is armed; if
     the compile still runs after ``after`` seconds the timer logs one warning (the user sees it
     while waiting), and a compile that ends later than ``after`` without it having fired logs
@@ -88,7 +87,7 @@ class CompileNotice(event.Listener):
         self._timer: threading.Timer | None = None
         self._lock = threading.Lock()
 
-    def on_start(self, ev: event.Event) -> None:
+    def on_start(self, ev: Any) -> None:
         self._depth += 1
         dispatcher = ev.data["dispatcher"]
         if self._depth == 1 and not self.announced and self.owns(dispatcher):
@@ -98,7 +97,7 @@ class CompileNotice(event.Listener):
             self._timer.daemon = True
             self._timer.start()
 
-    def on_end(self, ev: event.Event) -> None:
+    def on_end(self, ev: Any) -> None:
         self._depth -= 1
         if self._depth == 0 and self._timer is not None:
             self._timer.cancel()
@@ -124,20 +123,10 @@ def _is_stcgym_kernel(dispatcher: Any) -> bool:
 
 #: The installed notice (``NOTICE.after`` is :data:`COMPILE_NOTICE_AFTER`).
 NOTICE = CompileNotice(COMPILE_NOTICE_AFTER, _is_stcgym_kernel)
-event.register("numba:compile", NOTICE)
+internals.listen_to_compiles(NOTICE)
 
-
-class LaneHelper(CPUDispatcher):
-    """A lane function compiled for other lane functions only (:func:`lane` without
-    ``entry=True``): numba builds no CPython wrapper for it, so calling it from Python would
-    jump to a null address; this class raises instead."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        raise TypeError(
-            f"{self.py_func.__module__}.{self.py_func.__qualname__} is a lane helper, "
-            "compiled to be called from other lane functions only (declare it with "
-            "@lane(entry=True) to call it from Python)"
-        )
+#: A lane function compiled for other lane functions only (:func:`lane` without ``entry=True``).
+LaneHelper = internals.HelperDispatcher
 
 
 def _jit(
@@ -147,31 +136,22 @@ def _jit(
     returns_views: bool = False,
     entry: bool = True,
 ) -> Any:
-    # numba's cfunc wrapper (for first-class function use) is never used here
     options: dict[str, Any] = {
-        "nopython": True,  # as numba.njit: a typing error is an error, never object mode
         "nogil": True,
         "error_model": "numpy",
-        "no_cfunc_wrapper": True,
+        # LLVM's alwaysinline where asked, else never (numba would otherwise pass the flag on
+        # from an inlined caller to the helpers it compiles)
+        "forceinline": inline,
     }
-    # LLVM's alwaysinline where asked, else never (numba would otherwise pass the flag on from
-    # an inlined caller to the helpers it compiles)
-    options["forceinline"] = inline
     if returns_views:
         options["inline"] = "always"
-    if not allocates:
-        options["_nrt"] = False
-    if not entry:
-        options["no_cpython_wrapper"] = True
 
     def decorate(f: F) -> Any:
-        if numba.config.DISABLE_JIT:
+        if internals.jit_disabled():
             return f
-        cls = CPUDispatcher if entry else LaneHelper
-        dispatcher = cls(py_func=f, locals={}, targetoptions=options)
-        dispatcher.enable_caching()
-        guard_cache(dispatcher)
-        return dispatcher
+        compiled = internals.dispatcher(f, options, nrt=allocates, helper=not entry)
+        guard_cache(compiled)
+        return compiled
 
     return decorate if fn is None else decorate(fn)
 
@@ -190,13 +170,13 @@ def lane(
     so lane functions test their own denominators and report numerical trouble as status codes.
 
     Lane functions **never allocate**: their scratch lives in the lane record or in a work array
-    from the caller. They are therefore compiled without numba's reference-counting runtime
-    (NRT, numba's ``_nrt=False`` flag): with it every slice of a record increments and decrements an
-    atomic counter on the batch's memory block, and when a batch runs on several threads they all
+    from the caller. They are therefore compiled without numba's reference-counting runtime (NRT,
+    :func:`.numba_internals.dispatcher`): with it every slice of a record increments and decrements
+    an atomic counter on the batch's memory block, and when a batch runs on several threads they all
     hammer that one counter (measured on the plant step: 87 -> 30 ns per lane on one thread, 800 ->
     17 ns on two). Compiling an allocation (``np.empty``, ``.copy()``) then fails, which keeps the
-    rule honest. The few set-up helpers that do allocate (the solve-to-convergence
-    designs of a fresh model) say so with ``@lane(allocates=True)``.
+    rule honest. The few set-up helpers that do allocate (the solve-to-convergence designs of a
+    fresh model) say so with ``@lane(allocates=True)``.
 
     ``entry=True`` for the lane functions that Python calls (the controller step, the estimator
     steps, the designs, the plant steps...). The others are helpers of lane functions, compiled
@@ -216,7 +196,7 @@ def lane(
     and retypes the helper at every call site) only for the few helpers that return views of
     their arguments: a function compiled without NRT may return an array only where numba
     inlines it. numba's inlining was 10-12 of the 17-19 s of a cold ``place_design`` when every
-    helper used it (``benchmarks/README.md``, cold start).
+    helper used it (the cold-start page of the documentation).
     """
     return _jit(fn, allocates, inline=inline, returns_views=returns_views, entry=entry)
 
@@ -283,7 +263,8 @@ def run_blocks(loop: Callable[..., Any], args: Sequence[Any], min_lanes: int) ->
     contiguous blocks of rows on a thread pool (:func:`_blocks`), the first block on the calling
     thread. Each block writes only its own rows, and a lane's numbers never depend on the
     block it ran in. An exception in any block is raised after every block has finished."""
-    num_lanes = args[0].shape[0]
+    first = args[0]  # the lanes' records, or a lane state (whose first field has a row a lane)
+    num_lanes = (first if hasattr(first, "shape") else first[0]).shape[0]
     k = _blocks(num_lanes, min_lanes)
     if k == 1:
         loop(*args, 0, num_lanes)
@@ -309,7 +290,7 @@ class LaneLoop:
     accelerator: a ``prange`` loop would compile the lane function twice more (numba's gufunc
     and the function around it, each optimising the whole step again: about four times the
     serial loop's cold compile for the controller step). Handing a block to a pool thread costs
-    about 35 us, hence ``min_lanes`` (``benchmarks/README.md`` has the measurements).
+    about 35 us, hence ``min_lanes`` (measured on the performance page of the documentation).
     """
 
     def __init__(self, py_func: Callable[..., Any], dispatcher: Any, min_lanes: int) -> None:
@@ -327,7 +308,8 @@ class LaneLoop:
         if not hasattr(self.dispatcher, "compile"):  # the JIT is disabled: plain Python
             entry = self.dispatcher
         else:
-            entry = self.dispatcher.compile(tuple(arg_types) + (numba.int64, numba.int64))
+            types = tuple(arg_types) + (numba.int64, numba.int64)
+            entry = internals.entry_point(self.dispatcher, types)
         return functools.partial(_run_compiled, entry, self)
 
     def __reduce__(self) -> str:  # pickle by reference, like a function
@@ -368,9 +350,52 @@ class FixedTypes:
             if not hasattr(self.fn, "compile"):  # the JIT is disabled: plain Python
                 entry = self.fn
             else:
-                entry = self.fn.compile(tuple(numba.typeof(a) for a in args))
+                entry = internals.entry_point(self.fn, tuple(numba.typeof(a) for a in args))
             self.entry = entry
         return entry(*args)
+
+
+def lane_state(
+    fields: type[R],
+    shapes: dict[str, tuple[int, ...]],
+    num_lanes: int,
+    dtypes: dict[str, Any] | None = None,
+) -> R:
+    """A zeroed batch of named lane state: ``fields`` (a ``NamedTuple`` class) with field ``f``
+    an array of shape ``(num_lanes, *shapes[f])`` (``float64`` unless ``dtypes`` says
+    otherwise). Lane ``i`` of field ``f`` is ``state.f[i]`` (a row view); a field a
+    configuration does not use has a zero in its shape, so the lane functions loop over it
+    without a test. numba types the tuple by its fields' dtypes and dimensions, not their
+    sizes: one compiled function serves every order.
+
+    >>> from typing import NamedTuple
+    >>> class Pair(NamedTuple):
+    ...     theta: object
+    ...     t: object
+    >>> s = lane_state(Pair, {"theta": (4,), "t": ()}, 3, {"t": np.int64})
+    >>> s.theta.shape, s.t.dtype
+    ((3, 4), dtype('int64'))
+    """
+    names = fields._fields
+    if set(shapes) != set(names):
+        raise ValueError(f"shapes must name exactly the fields of {fields.__name__}: {names}")
+    types = dtypes or {}
+    num_lanes = int(num_lanes)
+    return fields(
+        *(np.zeros((num_lanes, *shapes[f]), dtype=types.get(f, np.float64)) for f in names)
+    )
+
+
+def set_lanes(dst: R, lanes: Any, src: R, row: Any = 0) -> None:
+    """``dst.f[lanes] = src.f[row]`` for every field ``f`` of two lane states (a reset, a copy
+    of some lanes)."""
+    for d, s in zip(dst, src, strict=True):
+        d[lanes] = s[row]
+
+
+def state_nbytes_per_lane(state: tuple) -> int:
+    """Bytes of one lane of a lane state (every field's row)."""
+    return sum(a[0].nbytes if a.shape[0] else 0 for a in state)
 
 
 class Layout:

@@ -130,8 +130,8 @@ __all__ = [
 #: Fewest lanes a thread of a plant batch loop gets: smaller batches run on the calling thread.
 #: The lane functions take no reference counts (no NRT), so threads do not contend for a
 #: counter; what remains is the cost of handing blocks to the pool's threads and waiting for
-#: them, which a plant step (about 30 ns per lane) only pays back for huge batches. Measured
-#: with ``python benchmarks/perf.py --threads``: see ``benchmarks/README.md``.
+#: them, which a plant step (about 30 ns per lane) only pays back for huge batches (the
+#: measurements: the performance page of the documentation).
 PARALLEL_MIN_LANES = 1 << 15
 
 

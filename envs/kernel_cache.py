@@ -37,8 +37,8 @@ __all__ = ["STAMP_NAME", "guard_cache", "kernel_fingerprint", "kernel_sources"]
 
 #: Name of the fingerprint file in each cache directory of stcgym kernels.
 STAMP_NAME = "stcgym-kernels.sha256"
-#: The source text that marks a module defining compiled functions.
-_KERNEL_MARKS = ("@lane", "njit(")
+#: The source text that marks a module defining compiled functions (or their lowering).
+_KERNEL_MARKS = ("@lane", "njit(", "@lower_builtin(")
 
 _checked: set[Path] = set()
 

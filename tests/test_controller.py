@@ -560,3 +560,25 @@ def test_known_model_oracle_poles() -> None:
 
 def test_catalogue_plants_exist_for_the_benchmark() -> None:
     assert {"stable2", "unstable2", "stable4", "timevarying2"} <= set(PLANTS)
+
+
+@pytest.mark.equality
+@pytest.mark.parametrize("estimator", ["ELS", "KF-MILS"])
+def test_the_bound_single_plant_step_is_the_batch_step_and_copies_do_not_share_it(estimator):
+    """A single plant's predict calls the compiled step with its records bound once: it gives
+    the bits of a batch of one, and a pickled or deep-copied controller continues on records of
+    its own (the bound step is rebuilt, never shared)."""
+    rng = np.random.default_rng(3)
+    obs = np.c_[rng.standard_normal(60), np.ones(60)]
+    single = SelfTuningController(2, estimator=estimator, seed=5)
+    batch = SelfTuningController(2, estimator=estimator, num_envs=1, seed=5)
+    for o in obs[:30]:
+        np.testing.assert_array_equal(single.predict(o)[0], batch.predict(o[None, :])[0][0])
+    clones = [copy.deepcopy(single), pickle.loads(pickle.dumps(single))]
+    for o in obs[30:]:
+        u = single.predict(o)[0]
+        np.testing.assert_array_equal(batch.predict(o[None, :])[0][0], u)
+        for c in clones:
+            np.testing.assert_array_equal(c.predict(o)[0], u)
+    clones[0].predict(obs[0])
+    assert clones[0].t == single.t + 1 and clones[1].t == single.t

@@ -1,5 +1,5 @@
 """The compiled estimator lane functions against the dense-numpy reference of the paper's
-formulas (tests/reference_estimators.py), single versus batched lanes, and the lifecycle of
+formulas (stcgym.adaptive.reference), single versus batched lanes, and the lifecycle of
 the one estimator class (pickle, deepcopy, failed calls, bad batched input)."""
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from lane_call import call
-from reference_estimators import ReferenceEstimator
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
 from stcgym.adaptive.kernels import estimator as K
 from stcgym.adaptive.kernels.canonical import companion_into
+from stcgym.adaptive.kernels.estimator_lanes import predict_lanes, update_lanes
 from stcgym.adaptive.kernels.least_squares import (
     OK,
     carlson_update,
@@ -26,7 +26,9 @@ from stcgym.adaptive.kernels.least_squares import (
     upper_factor,
 )
 from stcgym.adaptive.kernels.state_estimation import kalman_step
+from stcgym.adaptive.reference import ReferenceEstimator
 from stcgym.envs.canonical import canonical_matrices, companion_A
+from stcgym.envs.compiled import set_lanes
 
 FORMS = ("observer", "observability")
 A_TRUE, B_TRUE = np.array([-0.6, 0.2]), np.array([0.5, 1.0])
@@ -326,7 +328,8 @@ def test_single_estimator_equals_its_lane_bit_for_bit(name, kw):
         for i, s in enumerate(singles):
             np.testing.assert_array_equal(s.predict(U[k, i]), x[i])
     for i, s in enumerate(singles):
-        np.testing.assert_array_equal(s.record[0], batch.record[i])
+        for single_field, batch_field in zip(s.state, batch.state, strict=True):
+            np.testing.assert_array_equal(single_field[0], batch_field[i])
     # and run() (a compiled T-step loop) is the same lane function again
     again = make_estimator(name, 2, **kw)
     np.testing.assert_array_equal(again.run(U[:, 0], Y[:, 0])[-1], singles[0].theta)
@@ -375,26 +378,32 @@ def test_pickle_and_deepcopy_continue_identically(name, num_envs):
         for c in clones:
             np.testing.assert_array_equal(step(c, k), th)
     for c in clones:
-        np.testing.assert_array_equal(c.record, est.record)
+        assert_same_state(c, est)
+
+
+def assert_same_state(a, b):
+    """Every field of two estimators' lane states is equal (bit for bit)."""
+    for x, y in zip(a.state, b.state, strict=True):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_a_rejected_or_failed_call_leaves_the_estimator_unchanged():
     est = make_estimator("KF-MILS", 2, p=3, on_failure="raise")
     u, y = data(T=20)
     est.run(u, y)
-    before = est.record.copy()
+    before = copy.deepcopy(est)
     for bad, error in ((np.nan, ValueError), ("a", TypeError), ([1.0, 2.0], TypeError)):
         with pytest.raises(error, match=r"y\(t\) must be a finite real number"):
             est.update(bad)
-    np.testing.assert_array_equal(est.record, before)
+    assert_same_state(est, before)
     est._field("S")[0, 1, 1] = 0.0  # corrupt: rank lost
-    corrupted = est.record.copy()
+    corrupted = copy.deepcopy(est)
     with pytest.raises(NumericalHealthError):
         est.update(1.0)
-    np.testing.assert_array_equal(est.record, corrupted)
+    assert_same_state(est, corrupted)
     with pytest.raises(NumericalHealthError):  # run() is all-or-nothing too
         est.run(u, y)
-    np.testing.assert_array_equal(est.record, corrupted)
+    assert_same_state(est, corrupted)
 
 
 def test_batched_bad_input_names_the_argument():
@@ -446,17 +455,19 @@ def test_restart_reset_covariance_and_the_controller_interface():
     est.reset_covariance()
     np.testing.assert_allclose(est.P, 10.0 * np.eye(4), rtol=1e-14)
     spec = est.spec
-    rec = np.zeros(7 + spec.size)  # embedded at an offset in a caller's record
-    rec[7:] = spec.initial_record()
-    st = K.estimator_update(rec, spec.record(7), spec.config, 1.0)
-    K.estimator_predict(rec, spec.record(7), spec.config, 0.5)
+    state = spec.make_state(3)  # a caller's lane state of its own, lane 2 of it
+    set_lanes(state, 2, spec.initial_state())
+    status = np.zeros(3, dtype=np.int64)
+    y, u = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.5])
+    update_lanes(state, spec.make_work(3), spec.config, y, status)
+    predict_lanes(state, spec.make_work(3), spec.config, u, status)
     ref = make_estimator("KF-D-RLS", 2, p0=10.0, process_noise=0.01)
     ref.update(1.0)
     ref.predict(0.5)
-    assert st == 0
-    np.testing.assert_array_equal(rec[7:], ref.record[0])
-    o = spec.offset("theta")
-    np.testing.assert_array_equal(rec[7 + o : 7 + o + 4], ref.theta)
+    assert status[2] == 0
+    for field, ref_field in zip(state, ref.state, strict=True):
+        np.testing.assert_array_equal(field[2], ref_field[0])
+    np.testing.assert_array_equal(state.theta[2], ref.theta)
 
 
 def test_callable_observer_gain_runs_per_lane():

@@ -473,10 +473,11 @@ def test_state_overflow_is_reset_with_a_warning():
 def test_lost_positive_definiteness_is_detected():
     est = make_estimator("O-RLS", 2, on_failure="raise", pd_check_every=1)
     est._field("S")[0, :, 3] = 0.0  # corrupt the factor of P: singular
-    before = est.record.copy()
+    before = [field.copy() for field in est.state]
     with pytest.raises(NumericalHealthError, match="not symmetric positive definite"):
         est.update(1.0)
-    np.testing.assert_array_equal(est.record, before)  # left exactly as before the call
+    for field, saved in zip(est.state, before, strict=True):  # left exactly as before the call
+        np.testing.assert_array_equal(field, saved)
     lenient = make_estimator("O-RLS", 2, pd_check_every=1)
     lenient._field("S")[0, :, 3] = 0.0
     with pytest.warns(RuntimeWarning, match="P reset to P"):

@@ -19,17 +19,12 @@ Every step, in this order:
    last good gains stay (:mod:`.design`: ``place_design``, ``lq_design``);
 4. **state estimate**: a Kalman filter on the estimated model, corrected by ``y(t)``
    (``x(t|t)``);
-5. **control**: for the first ``probe_steps`` samples (default ``2n``), or while no design has
-   been accepted, a small zero-mean probe ``+-probe_amplitude`` whose signs come from a
-   counter-based hash of ``(seed, episode, t)`` (reproducible per lane and per episode, never the
-   same sequence for every episode or lane). The probe is bounded by the observed output: with
-   ``y_max = max |y|`` seen so far, its amplitude is ``probe_amplitude * min(1, probe_output /
-   y_max)`` (a high-gain or unstable plant is probed gently), and it runs on past
-   ``probe_steps``, up to ``max_probe_steps`` (default ``5n``), while ``y_max < probe_output`` (a
-   low-gain plant whose response is still buried in the noise gets more data before the first
-   design is trusted). Afterwards the tracking law
-   ``u = sat(N r - K_x x(t|t) - k_i xi)`` with conditional-integration anti-windup
-   (``design.track``);
+5. **control**: for the first ``probe_steps`` samples, or while no design has been accepted,
+   a zero-mean probe ``+-probe_amplitude * min(1, probe_output / max |y|)`` whose signs come
+   from a counter-based hash of ``(seed, episode, t)``, extended up to ``max_probe_steps``
+   while ``max |y| < probe_output`` (:class:`~stcgym.adaptive.options.StartupOptions`);
+   afterwards the tracking law ``u = sat(N r - K_x x(t|t) - k_i xi)`` with
+   conditional-integration anti-windup (``law.track``);
 6. **process noise and state step**: ``Q(t)`` from the parameter covariance (the model error a
    wrong ``theta_hat`` injects into each state row), the Kalman time update with the applied
    ``u(t)`` (``state_estimation.kalman_step``), and the estimator's state step / regressor
@@ -41,14 +36,10 @@ Lane records: a ``float64`` record (fields :class:`ControllerRecord`, placed by
 :class:`ControllerInts`, offsets :data:`INTS`) with the step counter, the episode, the seed and
 the counters; the configuration is a :class:`ControllerConfig`.
 
-Compile only what is used: the estimator family and the design are compile-time choices, made
-by the *types* of two arguments. ``est_cfg`` is the paper estimator's configuration or ``None``
-(extended least squares); ``lq_weights`` is the LQ weights array or ``None`` (pole placement).
-numba removes a branch ``if arg is None`` on an argument's type before it types the function
-(its dead-branch pruning), so each of the four combinations is a separate compiled version of
-the same :func:`controller_step` that contains only its own estimator and design; the first
-``predict`` of a controller compiles one of them, not every branch. Single plant and batch call
-the same version, so a single plant still equals its lane bit for bit.
+Compile only what is used: ``est_cfg is None`` (extended least squares) and ``lq_weights is
+None`` (pole placement) are decided on the arguments' types, which numba prunes before typing,
+so each estimator family and design is a compiled version of its own; single plant and batch
+call the same version.
 """
 
 from __future__ import annotations
@@ -64,7 +55,7 @@ from stcgym.adaptive.kernels.extended_ls import extended_ls_push, extended_ls_up
 from stcgym.adaptive.kernels.law import LAW, LAW_SIZE, track
 from stcgym.adaptive.kernels.lq import lq_design
 from stcgym.adaptive.kernels.pole_placement import place_design
-from stcgym.adaptive.kernels.records import view2d
+from stcgym.adaptive.kernels.records import copy_matrix, view2d
 from stcgym.adaptive.kernels.safe_set import OK, gain_size, work_size
 from stcgym.adaptive.kernels.state_estimation import filtered_state, kalman_step
 from stcgym.envs.compiled import Layout, lane, lanes
@@ -85,19 +76,16 @@ __all__ = [
 class ControllerRecord(NamedTuple):
     """Offsets of the fields of the controller's float lane record (:func:`controller_record`).
 
-    The estimator's record comes first (``est``); ``theta``, ``S``, ``E``, ``Q_est`` (paper
-    estimators) and ``phi``, ``scratch`` (ELS, with ``theta`` and ``S``: the fields the ELS
-    lane functions read) locate its fields the controller uses, ``-1`` where the estimator has
-    none. The scalar fields hold the controller's own state.
+    The extended-least-squares record comes first (``est``; empty with a paper estimator,
+    whose state is a lane state of its own): ``theta``, ``S``, ``phi``, ``scratch`` locate the
+    fields the ELS lane functions read. The scalar fields hold the controller's own state.
     """
 
-    est: int  # start of the estimator's record
-    theta: int  # theta_hat (2n, the first 2n of ELS's 3n)
-    S: int  # upper factor of the estimator's P = S S^T (-1: SG/MISG)
-    E: int  # innovation E(p, t) of a paper estimator (-1: ELS)
-    Q_est: int  # process-noise covariance of a paper KF estimator (-1: none)
-    phi: int  # ELS regressor (-1: paper estimator)
-    scratch: int  # ELS scratch (-1: paper estimator)
+    est: int  # start of the ELS record
+    theta: int  # ELS theta_hat (3n)
+    S: int  # upper factor of ELS's P = S S^T (3n, 3n)
+    phi: int  # ELS regressor
+    scratch: int  # ELS scratch
     work: int  # design and Kalman scratch f[work : work_end], shared with the estimator's
     work_end: int
     ews: int  # short EWMA of e(t)^2
@@ -172,15 +160,14 @@ class ControllerConfig(NamedTuple):
 def controller_record(
     n: int, est: Layout, est_fields: dict[str, int], est_scratch: int = 0, lq: bool = True
 ) -> tuple[Layout, ControllerRecord]:
-    """Float record of one lane (the estimator's record ``est`` first) and its offsets.
+    """Float record of one lane (the ELS record ``est`` first, empty for a paper estimator)
+    and its offsets.
 
-    ``est_fields``: offsets, inside ``est``, of ``theta``, ``S``, ``E``, ``Q_est``, ``phi``,
-    ``scratch`` (absent ones ``-1``). ``est_scratch``: the number of floats at the end of the
-    estimator's record that are pure scratch (its ``work`` field). The controller's own scratch
-    (design and Kalman step) starts there and only the part that does not fit is added: the
-    estimator's steps and the design never run at the same time, and sharing the scratch keeps
-    a lane small (memory per plant is what limits a sweep). ``lq=False`` leaves out the Riccati
-    matrix of ``design="lq"``.
+    ``est_fields``: offsets, inside ``est``, of ``theta``, ``S``, ``phi``, ``scratch``.
+    ``est_scratch``: the number of floats at the end of the ELS record that are pure scratch.
+    The controller's own scratch (design and Kalman step) starts there and only the part that
+    does not fit is added: the estimator's steps and the design never run at the same time.
+    ``lq=False`` leaves out the Riccati matrix of ``design="lq"``.
     """
     m = n + 1
     need = max(work_size(n), 2 * n * n)
@@ -201,7 +188,7 @@ def controller_record(
     lay.add("A", (n, n))
     lay.add("b", (n,))
     base = lay.offset("est")
-    inside = {k: (base + v if v >= 0 else -1) for k, v in est_fields.items()}
+    inside = {k: base + v for k, v in est_fields.items()}
     own = {k: lay.offset(k) for k in ControllerRecord._fields if k in lay.fields}
     own["work"] -= min(est_scratch, need)  # the scratch is f[work : work_end]
     own["work_end"] = lay.offset("ews")
@@ -256,11 +243,11 @@ def change_alarm(f, at, cfg, e2, update, t, closed_t, last_alarm):
 
 # ------------------------------------------------------------------------ parameter covariance
 @lane(inline=True)
-def covariance_entry(f, at, d, i, j):
-    """``P_ij = (S S^T)_ij`` of the estimator's square-root factor (0 for SG/MISG)."""
-    if at.S < 0:
+def covariance_entry(S, i, j):
+    """``P_ij = (S S^T)_ij`` of the estimator's square-root factor ``S`` (0 without one)."""
+    d = S.shape[0]
+    if d == 0:
         return 0.0
-    S = view2d(f, at.S, d, d)
     acc = 0.0
     for k in range(max(i, j), d):  # S upper triangular
         acc += S[i, k] * S[j, k]
@@ -268,17 +255,17 @@ def covariance_entry(f, at, d, i, j):
 
 
 @lane(inline=True)
-def inflate_covariance(f, at, d, factor):
-    """``P <- factor P`` (covariance resetting on a detected change): ``S <- sqrt(factor) S``."""
-    if at.S < 0:
-        return
+def inflate_covariance(S, factor):
+    """``P <- factor P`` (covariance resetting on a detected change): ``S <- sqrt(factor) S``
+    (nothing without a covariance)."""
     scale = math.sqrt(factor)
-    for i in range(d * d):
-        f[at.S + i] *= scale
+    for i in range(S.shape[0]):
+        for j in range(S.shape[1]):
+            S[i, j] *= scale
 
 
 @lane(inline=True)
-def process_noise(f, at, d, n, y, u, q, q_floor, Q):
+def process_noise(S, n, y, u, q, q_floor, Q):
     """``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + q_floor I``.
 
     Row ``i`` of the one-step model error is ``-(a_i - a_hat_i) x_1 + (b_i - b_hat_i) u`` (observer
@@ -288,11 +275,9 @@ def process_noise(f, at, d, n, y, u, q, q_floor, Q):
     for i in range(n):
         for j in range(i, n):
             v = q * (
-                y * y * covariance_entry(f, at, d, i, j)
-                + u * u * covariance_entry(f, at, d, n + i, n + j)
-                - y
-                * u
-                * (covariance_entry(f, at, d, i, n + j) + covariance_entry(f, at, d, j, n + i))
+                y * y * covariance_entry(S, i, j)
+                + u * u * covariance_entry(S, n + i, n + j)
+                - y * u * (covariance_entry(S, i, n + j) + covariance_entry(S, j, n + i))
             )
             if i == j:
                 v += q_floor
@@ -301,33 +286,37 @@ def process_noise(f, at, d, n, y, u, q, q_floor, Q):
 
 
 # --------------------------------------------------------------------------------- the step
-@lane(entry=True)
-def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
+@lane(entry=True, inline=True)
+def controller_step(f, g, at, cfg, est, est_work, lane, est_cfg, lq_weights, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
     ``f``/``g``: the lane's float and int records (offsets ``at``, a :class:`ControllerRecord`,
-    and :data:`INTS`); ``cfg``: a :class:`ControllerConfig`; ``est_at``/``est_cfg``: the paper
-    estimator's record offsets and configuration, both ``None`` for extended least squares;
-    ``lq_weights``: ``[q_y, q_i, rho]`` of the LQ design, ``None`` for pole placement. The two
-    ``is None`` tests are resolved at compile time (module docstring).
+    and :data:`INTS`); ``cfg``: a :class:`ControllerConfig`; ``est``/``est_work``/``est_cfg``:
+    the paper estimator's lane state, scratch and configuration (its lane ``lane``), all
+    ``None`` for extended least squares; ``lq_weights``: ``[q_y, q_i, rho]`` of the LQ design,
+    ``None`` for pole placement. The two ``is None`` tests are resolved at compile time
+    (module docstring).
     """
     n = cfg.n
     d = cfg.d
     m = n + (1 if cfg.integral else 0)
     t = g[INTS.t]
-    theta = f[at.theta : at.theta + 2 * n]
     # -- 1. estimator measurement step
     if est_cfg is None:  # extended least squares
+        theta = f[at.theta : at.theta + 2 * n]
+        S = view2d(f, at.S, d, d)
         e, eps = extended_ls_update(f, at, d, y, cfg.forgetting, cfg.p0)
     else:
-        g[INTS.est_status] |= estimator_update(f, est_at, est_cfg, y)
-        e = f[at.E]
+        theta = est.theta[lane]
+        S = est.S[lane]
+        g[INTS.est_status] |= estimator_update(est, est_work, lane, est_cfg, y)
+        e = est.E[lane][0]
         eps = e
     f[at.e] = e
     # -- 2. change detection: covariance resetting on a jump of the innovation variance
     closed_t = g[INTS.closed_t]
     if change_alarm(f, at, cfg, e * e, True, t, closed_t, g[INTS.last_alarm]):
-        inflate_covariance(f, at, d, cfg.inflation)
+        inflate_covariance(S, cfg.inflation)
         g[INTS.n_alarms] += 1
         g[INTS.last_alarm] = t
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
@@ -380,7 +369,7 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
     f[at.u] = u
     # -- 6. process noise, Kalman time update, estimator state step
     Q = view2d(f, at.Q, n, n)
-    process_noise(f, at, d, n, y, u, cfg.q_gain, cfg.q_floor, Q)
+    process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
     x_next = f[at.x_next : at.x_next + n]
     L1 = f[at.L1 : at.L1 + n]
     if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, L1, work) == 0:
@@ -395,16 +384,18 @@ def controller_step(f, g, at, cfg, est_at, est_cfg, lq_weights, y, r):
     if est_cfg is None:
         extended_ls_push(f, at, n, d, y, u, eps)
     else:
-        if at.Q_est >= 0:  # the paper's Kalman filter gets the same process noise
-            for i in range(n * n):
-                f[at.Q_est + i] = f[at.Q + i]
-        g[INTS.est_status] |= estimator_predict(f, est_at, est_cfg, u)
+        Q_est = est.Q[lane]
+        if Q_est.shape[0] == n:  # the paper's Kalman filter gets the same process noise
+            copy_matrix(Q, Q_est)
+        g[INTS.est_status] |= estimator_predict(est, est_work, lane, est_cfg, u)
     g[INTS.t] = t + 1
     return u
 
 
 @lanes
-def controllers_step(F, G, at, cfg, est_at, est_cfg, lq_weights, y, r, u, first, last):
+def controllers_step(F, G, at, cfg, est, est_work, est_cfg, lq_weights, y, r, u, first, last):
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in range(first, last):
-        u[i] = controller_step(F[i], G[i], at, cfg, est_at, est_cfg, lq_weights, y[i], r[i])
+        u[i] = controller_step(
+            F[i], G[i], at, cfg, est, est_work, i, est_cfg, lq_weights, y[i], r[i]
+        )

@@ -28,8 +28,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.least_squares import upper_factor
+from stcgym.adaptive.kernels.variants import ALGORITHMS, Rule, parse_name, variant
+from stcgym.adaptive.kernels.variants import RULES as _RULES
+from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.compiled import Layout
+from stcgym.envs.compiled import lane_state, state_nbytes_per_lane
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -41,77 +44,95 @@ from stcgym.envs.validation import (
 
 __all__ = [
     "ALGORITHMS",
-    "FIELDS",
     "REGRESSORS",
     "RULES",
     "STATE_ESTIMATORS",
     "EstimatorConfig",
-    "EstimatorRecord",
     "EstimatorSpec",
+    "EstimatorState",
+    "EstimatorWork",
     "parse_name",
     "upper_cholesky",
 ]
 
-RULES: tuple[str, ...] = ("SG", "MISG", "RLS", "MILS")
-STATE_ESTIMATORS: tuple[str, ...] = ("O", "KF", "CO")
+#: The rules' names (:data:`.variants.RULES` has what the code knows about each).
+RULES: tuple[str, ...] = tuple(_RULES)
+#: The state estimators' names (:data:`.variants.STATE_ESTIMATORS`).
+STATE_ESTIMATORS: tuple[str, ...] = tuple(_STATES)
 #: Which state estimate the regressor ``phi_hat`` is built from (see :meth:`EstimatorSpec.build`).
 REGRESSORS: tuple[str, ...] = ("predicted", "filtered")
-#: The 16 algorithms of the paper (``CO-...`` variants are accepted as well).
-ALGORITHMS: tuple[str, ...] = tuple(
-    f"{s}-{d}{r}" for d in ("", "D-") for r in RULES for s in ("O", "KF")
-)
-
-# Rule and state-estimator codes of the configuration (values, not offsets).
-RULE_SG, RULE_MISG, RULE_RLS, RULE_MILS = range(4)
-STATE_O, STATE_CO, STATE_KF = range(3)
 #: Frozen-signal defaults (see :mod:`.estimator`; calibrated in ``stcgym.adaptive.health``).
 FROZEN_RATE = 1e-3
 FROZEN_RATIO = 0.05
 FROZEN_GAIN = 1e-3
 
 
-class EstimatorRecord(NamedTuple):
-    """Fields of the estimator's lane record (offsets; sizes set by :class:`EstimatorSpec`)."""
+class EstimatorState(NamedTuple):
+    """The estimator's lane state: field ``f`` of lane ``i`` is ``state.f[i]`` (a batch of
+    ``B`` lanes holds ``(B, *shape)`` arrays; shapes in :meth:`EstimatorSpec.shapes`, ``d = 2n``,
+    a field the configuration does not use has a zero in its shape)."""
 
-    theta: int  # theta_hat(t) (2n)
-    S: int  # upper factor of P = S S^T (2n, 2n; empty for SG/MISG)
-    S0: int  # the factor of P(0), for the safe reset
-    r: int  # SG/MISG normalisers (2; empty for RLS/MILS)
-    r0: int  # r(0)
-    x_hat: int  # the state estimate x_hat(t) (n)
-    x_init: int  # x_hat(1), for the state reset
-    xs: int  # the last n state estimates (observability-form regressor (153))
-    phi: int  # the regressor phi_hat(t+1) (2n)
-    Phi: int  # the stacked Phi(p, t) (p, 2n)
-    Y: int  # the stacked Y(p, t) (p)
-    E: int  # the innovation E(p, t) (p)
-    y: int  # the last y(t)
-    K: int  # closed-loop observer gain (CO)
-    P1: int  # Kalman covariance (KF)
-    P1_init: int  # P1(1)
-    Q: int  # Kalman process noise (KF)
-    L1: int  # Kalman gain (KF)
-    theta0: int  # theta(0) (finite window)
-    hist_Phi: int  # the window's blocks (W, p, 2n)
-    hist_Y: int  # (W, p)
-    t: int  # time
-    phase: int  # 1 between update and predict
-    enabled: int  # adaptation switch
-    n_resets: int
-    n_state_resets: int
-    n_kf_resets: int
-    n_projections: int
-    n_window_recomputes: int
-    count: int  # blocks added to the window
-    ewma_e2: int  # frozen signal: running means of e^2, y^2 and the gain q
-    ewma_y2: int
-    ewma_q: int
-    frozen: int
-    work: int  # scratch
+    theta: NDArray  # theta_hat(t) (d)
+    S: NDArray  # upper factor of P = S S^T (d, d; covariance rules)
+    S0: NDArray  # the factor of P(0), for the safe reset
+    r: NDArray  # SG/MISG normalisers (2)
+    r0: NDArray  # r(0)
+    x_hat: NDArray  # the state estimate x_hat(t) (n)
+    x_init: NDArray  # x_hat(1), for the state reset
+    xs: NDArray  # the last n state estimates (n, n; observability-form regressor (153))
+    phi: NDArray  # the regressor phi_hat(t+1) (d)
+    Phi: NDArray  # the stacked Phi(p, t) (p, d)
+    Y: NDArray  # the stacked Y(p, t) (p)
+    E: NDArray  # the innovation E(p, t) (p)
+    y: NDArray  # the last y(t)
+    K: NDArray  # closed-loop observer gain (n; CO)
+    P1: NDArray  # Kalman covariance (n, n; KF)
+    P1_init: NDArray  # P1(1)
+    Q: NDArray  # Kalman process noise (n, n; KF)
+    L1: NDArray  # Kalman gain (n; KF)
+    theta0: NDArray  # theta(0) (d; finite window)
+    hist_Phi: NDArray  # the window's blocks (W, p, d)
+    hist_Y: NDArray  # (W, p)
+    t: NDArray  # time (int)
+    phase: NDArray  # True between update and predict
+    enabled: NDArray  # adaptation switch
+    n_resets: NDArray  # event counters (int)
+    n_state_resets: NDArray
+    n_kf_resets: NDArray
+    n_projections: NDArray
+    n_window_recomputes: NDArray
+    count: NDArray  # blocks added to the window (int)
+    ewma_e2: NDArray  # frozen signal: running means of e^2, y^2 and the gain q
+    ewma_y2: NDArray
+    ewma_q: NDArray
+    frozen: NDArray  # the frozen flag
 
 
-#: Record fields in layout order.
-FIELDS: tuple[str, ...] = EstimatorRecord._fields
+class EstimatorWork(NamedTuple):
+    """The estimator's scratch, one row a lane (its content is irrelevant between calls)."""
+
+    delta: NDArray  # the increment of theta (d)
+    K: NDArray  # the rule's gain vector P phi (d)
+    w: NDArray  # the least-squares blocks' scratch (2d)
+    theta_prev: NDArray  # theta(t-1) of the projection; the window's theta (d)
+    E_replay: NDArray  # the innovation of a replayed block (p)
+    E_old: NDArray  # the innovation of the block leaving the window (p)
+    S_saved: NDArray  # a copy of S (d, d): the window's downdate, a restart's factor
+    A: NDArray  # the model A_hat(t) (n, n)
+    x_next: NDArray  # x_hat(t+1) (n)
+    kalman: NDArray  # the Kalman step's scratch (2 n^2)
+    x_reg: NDArray  # x_hat(t|t) of the filtered regressor (n)
+
+
+#: Integer and boolean fields of :class:`EstimatorState` (the others are float64).
+STATE_DTYPES: dict[str, Any] = {
+    **dict.fromkeys(
+        ("t", "count", "n_resets", "n_state_resets", "n_kf_resets", "n_projections",
+         "n_window_recomputes"),
+        np.int64,
+    ),
+    **dict.fromkeys(("phase", "enabled", "frozen"), np.bool_),
+}  # fmt: skip
 
 
 class EstimatorConfig(NamedTuple):
@@ -119,9 +140,11 @@ class EstimatorConfig(NamedTuple):
 
     n: int
     p: int  # innovation length
-    rule: int  # RULE_SG .. RULE_MILS
+    rule: int  # the rule's code (.variants.RULES)
+    covariance: bool  # the rule keeps P = S S^T
+    normaliser: bool  # the rule keeps the normalisers r
     decomposed: bool  # D- rule (a and b halves)
-    state: int  # STATE_O, STATE_CO or STATE_KF
+    state: int  # the state estimator's code (.variants.STATE_ESTIMATORS)
     observability: bool  # observability canonical form (else observer form)
     window: int  # finite history W (0: none)
     check_every: int  # factor health check every so many steps (0: never)
@@ -135,61 +158,26 @@ class EstimatorConfig(NamedTuple):
     frozen_rate: float
     frozen_ratio: float
     frozen_gain: float
+    rule_parameters: NDArray  # the rule's own parameters (.variants.Rule.parameters), in order
 
 
-def parse_name(name: str) -> tuple[str, bool, str]:
-    """Split a paper name into ``(state estimator, decomposed, rule)``.
+def _rule_parameters(rule: Rule, given: dict[str, Any]) -> tuple[float, ...]:
+    """The validated values of ``rule``'s own parameters (defaults where not ``given``); a
+    keyword of another rule is a ``ValueError``, a keyword of no rule a ``TypeError``."""
+    own = {q.name: q for q in rule.parameters}
+    for keyword in given:
+        if keyword not in own:
+            rules = [r.name for r in _RULES.values() if keyword in {q.name for q in r.parameters}]
+            if not rules:
+                raise TypeError(f"make_estimator() got an unexpected keyword argument {keyword!r}")
+            raise ValueError(f"{keyword} applies to {'/'.join(rules)} rules only, not {rule.name}")
+    return tuple(q.check(given.get(q.name, q.default)) for q in rule.parameters)
 
-    ``"KF-D-MILS" -> ("KF", True, "MILS")``; case-insensitive; the state estimator is one of
-    ``O``, ``KF``, ``CO`` (closed-loop observer, needs ``observer_gain``).
 
-    Parameters
-    ----------
-    name : str
-        ``"<state>-[D-]<rule>"``: state in :data:`STATE_ESTIMATORS`, rule in :data:`RULES`
-        (surrounding blanks ignored).
-
-    Returns
-    -------
-    state : str
-        ``"O"``, ``"KF"`` or ``"CO"``.
-    decomposed : bool
-        Whether the name has the ``D-`` (model decomposition) part.
-    rule : str
-        ``"SG"``, ``"MISG"``, ``"RLS"`` or ``"MILS"``.
-
-    Raises
-    ------
-    ValueError
-        ``name`` not a string of that form; the message lists the accepted names.
-
-    Examples
-    --------
-    >>> from stcgym.adaptive import parse_name
-    >>> parse_name("kf-d-mils")
-    ('KF', True, 'MILS')
-    >>> parse_name("O-RLS")
-    ('O', False, 'RLS')
-    >>> parse_name("O-LSI")
-    Traceback (most recent call last):
-    ...
-    ValueError: unknown algorithm 'O-LSI'; expected '<state>-[D-]<rule>' ...
-    """
-    if not isinstance(name, str):
-        raise ValueError(f"name must be a string such as 'KF-D-MILS', got {name!r}")
-    parts = name.strip().upper().split("-")
-    ok = (
-        len(parts) in (2, 3)
-        and parts[0] in STATE_ESTIMATORS
-        and parts[-1] in RULES
-        and (len(parts) == 2 or parts[1] == "D")
-    )
-    if not ok:
-        raise ValueError(
-            f"unknown algorithm {name!r}; expected '<state>-[D-]<rule>' with state in "
-            f"{STATE_ESTIMATORS} and rule in {RULES}, e.g. one of {ALGORITHMS}"
-        )
-    return parts[0], len(parts) == 3, parts[-1]
+def _read_only(values: tuple[float, ...]) -> NDArray:
+    arr = np.array(values, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
 
 
 def upper_cholesky(P: NDArray) -> NDArray:
@@ -241,8 +229,8 @@ class EstimatorSpec:
     >>> spec = EstimatorSpec.build("kf-d-mils", 2, p=3)
     >>> spec.name, spec.state, spec.decomposed, spec.rule
     ('KF-D-MILS', 'KF', True, 'MILS')
-    >>> spec.initial_record().shape == (spec.size,)
-    True
+    >>> spec.initial_state().theta.shape  # one lane of EstimatorState
+    (1, 4)
     >>> EstimatorSpec.build("O-RLS", 2, r0=2.0)
     Traceback (most recent call last):
     ...
@@ -275,6 +263,8 @@ class EstimatorSpec:
     regressor: str = "predicted"
     injection: float = 1.0
     injection_warmup: int = 0
+    #: the values of the rule's own parameters (:attr:`.variants.Rule.parameters`), in order
+    rule_parameters: tuple[float, ...] = ()
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
@@ -305,6 +295,7 @@ class EstimatorSpec:
         regressor: str = "predicted",
         injection: float = 1.0,
         injection_warmup: int = 0,
+        **rule_parameters: float,
     ) -> EstimatorSpec:
         """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument).
 
@@ -323,33 +314,33 @@ class EstimatorSpec:
             An unknown name, or an argument out of its range, of the wrong shape or not
             applying to the rule or state estimator.
         """
-        state, decomposed, rule = parse_name(name)
+        v = variant(name)
+        state, decomposed, rule = v.state.name, v.decomposed, v.rule.name
         n = integer(n, "n", 1)
         p = integer(p, "p", 1)
-        if rule in ("SG", "RLS") and p != 1:
+        if not v.rule.multi_innovation and p != 1:
+            multi = "/".join(r.name for r in _RULES.values() if r.multi_innovation)
             raise ValueError(
-                f"p (innovation length) applies to MISG/MILS; {rule} has p = 1, got p={p}"
+                f"p (innovation length) applies to {multi}; {rule} has p = 1, got p={p}"
             )
         p0 = positive(p0, "p0")
         form = check_form(form)
         lam = forgetting_factor(forgetting, "forgetting (lambda)")
-        least_squares = rule in ("RLS", "MILS")
+        given = {"P0": P0 is not None, "r0": r0 is not None, "stacked_r": bool(stacked_r)}
+        given.update(window=window is not None, forgetting=lam != 1.0)
+        for keyword, is_given in given.items():
+            if is_given and keyword not in v.rule.keywords:
+                rules = "/".join(r.name for r in _RULES.values() if keyword in r.keywords)
+                raise ValueError(f"{keyword} applies to {rules} rules only, not {rule}")
+        least_squares = v.rule.covariance
         if window is not None:
             window = integer(window, "window", 1)
-            if not least_squares:
-                raise ValueError("window (finite history) applies to RLS/MILS rules only")
             if lam != 1.0:
                 raise ValueError("window and forgetting < 1 are mutually exclusive")
         d = 2 * n
         theta0_arr = (
             np.full(d, 1.0 / p0) if theta0 is None else as_finite_vector(theta0, "theta0", length=d)
         )
-        if P0 is not None and not least_squares:
-            raise ValueError(f"P0 applies to RLS/MILS rules only, not {rule}")
-        if r0 is not None and least_squares:
-            raise ValueError(f"r0 applies to SG/MISG rules only, not {rule}")
-        if stacked_r and least_squares:
-            raise ValueError(f"stacked_r applies to SG/MISG rules only, not {rule}")
         P0_mat = None
         if least_squares:
             P0_mat = p0 * np.eye(d) if P0 is None else covariance(P0, d, "P0")
@@ -446,49 +437,21 @@ class EstimatorSpec:
             regressor=regressor,
             injection=injection,
             injection_warmup=injection_warmup,
+            rule_parameters=_rule_parameters(v.rule, rule_parameters),
         )
 
     def __post_init__(self) -> None:
-        n, p, d = self.n, self.p, 2 * self.n
-        ls = self.rule in ("RLS", "MILS")
-        W = self.window or 0
-        kf = self.state == "KF"
-        shapes: dict[str, tuple[int, ...]] = {
-            "theta": (d,),
-            "S": (d, d) if ls else (0,),
-            "S0": (d, d) if ls else (0,),
-            "r": (0,) if ls else (2,),
-            "r0": (0,) if ls else (2,),
-            "x_hat": (n,),
-            "x_init": (n,),
-            "xs": (n, n) if self.form == "observability" else (0,),
-            "phi": (d,),
-            "Phi": (p, d),
-            "Y": (p,),
-            "E": (p,),
-            "K": (n,) if self.state == "CO" else (0,),
-            "P1": (n, n) if kf else (0,),
-            "P1_init": (n, n) if kf else (0,),
-            "Q": (n, n) if kf else (0,),
-            "L1": (n,) if kf else (0,),
-            "theta0": (d,) if W else (0,),
-            "hist_Phi": (W, p, d) if W else (0,),
-            "hist_Y": (W, p) if W else (0,),
-            # delta, K, w (2d), theta_prev / replay; E, E_old; saved S; A, x_next, 2 n^2 (KF)
-            # x_hat(t|t) of the filtered regressor (n)
-            "work": (5 * d + 2 * p + d * d + 3 * n * n + 2 * n,),
-        }
-        layout = Layout()
-        for name in FIELDS:
-            layout.add(name, shapes.get(name, ()))
+        v = variant(self.name)
         config = EstimatorConfig(
-            n=n,
-            p=p,
-            rule=RULES.index(self.rule),
+            n=self.n,
+            p=self.p,
+            rule=v.rule.code,
+            covariance=v.rule.covariance,
+            normaliser=v.rule.normaliser,
             decomposed=bool(self.decomposed),
-            state={"O": STATE_O, "CO": STATE_CO, "KF": STATE_KF}[self.state],
+            state=v.state.code,
             observability=self.form == "observability",
-            window=W,
+            window=self.window or 0,
             check_every=int(self.pd_check_every),
             stacked_r=bool(self.stacked_r),
             project_stable=bool(self.project_stable),
@@ -500,60 +463,81 @@ class EstimatorSpec:
             frozen_rate=float(self.frozen[0]),
             frozen_ratio=float(self.frozen[1]),
             frozen_gain=float(self.frozen[2]),
+            rule_parameters=_read_only(self.rule_parameters),
         )
-        object.__setattr__(self, "layout", layout)
         object.__setattr__(self, "config", config)
-        object.__setattr__(self, "at", layout.record(EstimatorRecord))
 
-    # ---- the record -----------------------------------------------------------------------
-    layout: Layout = field(init=False, repr=False)
     #: the lane functions' configuration
     config: EstimatorConfig = field(init=False, repr=False)
-    #: offsets of the record's fields in a lane record of its own
-    at: EstimatorRecord = field(init=False, repr=False)
+
+    def shapes(self) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+        """The shapes of one lane's :class:`EstimatorState` and :class:`EstimatorWork` fields:
+        the one place they are declared (a field the rule or state estimator does not keep
+        has a zero in its shape, with the dimensions the lane functions index it by)."""
+        n, p, d = self.n, self.p, 2 * self.n
+        v = variant(self.name)
+        W = self.window or 0
+        state: dict[str, tuple[int, ...]] = {
+            "theta": (d,),
+            "S": (0, 0),
+            "S0": (0, 0),
+            "r": (0,),
+            "r0": (0,),
+            "x_hat": (n,),
+            "x_init": (n,),
+            "xs": (n if self.form == "observability" else 0, n),
+            "phi": (d,),
+            "Phi": (p, d),
+            "Y": (p,),
+            "E": (p,),
+            "K": (0,),
+            "P1": (0, 0),
+            "P1_init": (0, 0),
+            "Q": (0, 0),
+            "L1": (0,),
+            "theta0": (d if W else 0,),
+            "hist_Phi": (W, p, d),
+            "hist_Y": (W, p),
+            **v.rule.fields(n, p),  # the rule's and the state estimator's own fields
+            **v.state.fields(n),
+        }
+        for scalar in EstimatorState._fields:
+            state.setdefault(scalar, ())
+        work = {
+            "delta": (d,), "K": (d,), "w": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
+            "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
+            "kalman": (2 * n * n,), "x_reg": (n,),
+        }  # fmt: skip
+        return state, work
+
+    def make_state(self, num_lanes: int) -> EstimatorState:
+        """A zeroed :class:`EstimatorState` of ``num_lanes`` lanes (:meth:`initial_state`
+        holds the values at ``t = 0``)."""
+        return lane_state(EstimatorState, self.shapes()[0], num_lanes, STATE_DTYPES)
+
+    def make_work(self, num_lanes: int) -> EstimatorWork:
+        """The scratch of ``num_lanes`` lanes."""
+        return lane_state(EstimatorWork, self.shapes()[1], num_lanes)
 
     @property
-    def size(self) -> int:
-        """Floats per lane record."""
-        return self.layout.size
+    def nbytes_per_lane(self) -> int:
+        """Bytes of one lane's state and scratch."""
+        return state_nbytes_per_lane(self.make_state(1)) + state_nbytes_per_lane(self.make_work(1))
+
+    @property
+    def normaliser(self) -> bool:
+        """Whether the rule keeps the gradient normalisers ``r`` (SG, MISG)."""
+        return variant(self.name).rule.normaliser
 
     @property
     def least_squares(self) -> bool:
-        """Whether the rule keeps a covariance ``P`` (RLS, MILS) rather than a normaliser ``r``."""
-        return self.rule in ("RLS", "MILS")
+        """Whether the rule keeps a covariance ``P = S S^T`` (RLS, MILS)."""
+        return variant(self.name).rule.covariance
 
-    def offset(self, name: str) -> int:
-        """Offset of the field ``name`` relative to the start of the estimator record.
-
-        Parameters
-        ----------
-        name : str
-            A field of :attr:`layout`.
-
-        Returns
-        -------
-        int
-        """
-        return self.layout.offset(name)
-
-    def record(self, base: int = 0) -> EstimatorRecord:
-        """Offsets of the record's fields when it starts at ``base`` of a larger lane record
-        (the self-tuning controller embeds it at the start of its own).
-
-        Parameters
-        ----------
-        base : int, default 0
-            Offset of the estimator record inside the lane record.
-
-        Returns
-        -------
-        EstimatorRecord
-            The named offsets.
-        """
-        return self.layout.record(EstimatorRecord, base)
-
-    def initial_record(self, theta0: NDArray | None = None, P0: NDArray | None = None) -> NDArray:
-        """One lane's record at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
+    def initial_state(
+        self, theta0: NDArray | None = None, P0: NDArray | None = None
+    ) -> EstimatorState:
+        """One lane's state at ``t = 0`` (``theta_hat(0)``, ``P(0)``, ``x_hat(1)``, ...),
         optionally with this lane's own ``theta0`` / ``P0``.
 
         Parameters
@@ -565,14 +549,14 @@ class EstimatorSpec:
 
         Returns
         -------
-        ndarray, shape (size,)
+        EstimatorState
+            One lane (row 0 of every field).
         """
-        lay = self.layout
-        rec = lay.empty(1)
+        s = self.make_state(1)
         th0 = self.theta0 if theta0 is None else theta0
-        lay.view(rec, "theta")[0] = th0
+        s.theta[0] = th0
         if self.window:
-            lay.view(rec, "theta0")[0] = th0
+            s.theta0[0] = th0
         if self.least_squares:
             P = self.P0 if P0 is None else P0
             n = self.n
@@ -582,18 +566,18 @@ class EstimatorSpec:
                 S0[n:, n:] = upper_cholesky(P[n:, n:])
             else:
                 S0 = upper_cholesky(P)
-            lay.view(rec, "S")[0] = S0
-            lay.view(rec, "S0")[0] = S0
-        else:
-            lay.view(rec, "r")[0] = self.r0
-            lay.view(rec, "r0")[0] = self.r0
-        lay.view(rec, "x_hat")[0] = self.x_init
-        lay.view(rec, "x_init")[0] = self.x_init
+            s.S[0] = S0
+            s.S0[0] = S0
+        if self.normaliser:
+            s.r[0] = self.r0
+            s.r0[0] = self.r0
+        s.x_hat[0] = self.x_init
+        s.x_init[0] = self.x_init
         if self.state == "KF":
-            lay.view(rec, "P1")[0] = self.P1_init
-            lay.view(rec, "P1_init")[0] = self.P1_init
-            lay.view(rec, "Q")[0] = self.Q
+            s.P1[0] = self.P1_init
+            s.P1_init[0] = self.P1_init
+            s.Q[0] = self.Q
         if self.state == "CO" and not callable(self.observer_gain):
-            lay.view(rec, "K")[0] = self.observer_gain
-        lay.view(rec, "enabled")[0] = float(self.enabled)
-        return rec[0]
+            s.K[0] = self.observer_gain
+        s.enabled[0] = self.enabled
+        return s

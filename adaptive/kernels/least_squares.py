@@ -34,14 +34,10 @@ arithmetic this is the paper's RLS/MILS; in floating point ``P`` stays symmetric
 definite by construction (the textbook update ``P - L phi^T P`` loses definiteness within ~10
 steps for ``p0 = 1e6`` and regressors of size 100).
 
-Health check (one, used everywhere)
------------------------------------
-``P = S S^T`` with ``S`` triangular is positive definite iff every diagonal entry of ``S`` is
-nonzero. :func:`factor_is_healthy` fails when an entry of ``S`` is not finite or a diagonal entry
-is not strictly positive (Carlson's rotations keep the diagonal positive, so a zero or negative
-diagonal means the factor lost rank, e.g. by underflow or corruption). It costs ``O(d^2)`` and
-runs after every update. Unlike a Cholesky test of ``P`` it does not fail for a legitimately
-ill-conditioned ``P`` (``cond(P) = 1e20`` is ``cond(S) = 1e10``, harmless in square-root form).
+Health check (one, used everywhere): :func:`factor_is_healthy` -- every entry of ``S`` finite
+and every diagonal entry strictly positive (``P = S S^T`` is then positive definite), ``O(d^2)``
+after every update; unlike a Cholesky test of ``P`` it does not fail for a legitimately
+ill-conditioned ``P``.
 
 Finite history downdate: ``P_new = P + P phi phi^T P / (1 - phi^T P phi)``, a rank-one *update*
 of the factor by Givens rotations (no cancellation) once ``g = 1 - phi^T P phi`` is known to be
@@ -68,6 +64,7 @@ __all__ = [
     "least_squares_downdate",
     "least_squares_increment",
     "least_squares_step",
+    "projection_increment",
     "rank_one_update",
     "upper_factor",
 ]
@@ -230,6 +227,28 @@ def gradient_increment(
             acc += Phi[k, i] * E[k]
         delta[i] = acc * inv_r
     return r_new
+
+
+@lane
+def projection_increment(
+    lo: int, hi: int, phi: NDArray, e: float, parameters: NDArray, delta: NDArray
+) -> float:
+    """Normalised-gradient (projection) increment on the block ``[lo, hi)``: writes
+    ``mu phi e / (alpha + phi^T phi)`` into ``delta[lo:hi]`` and returns the denominator.
+
+    Astrom & Wittenmark, *Adaptive Control* (2nd ed., 1995), sec. 2.3, the projection
+    algorithm; MATLAB's ``recursiveLS`` ``"NormalizedGradient"``. ``parameters`` are the
+    rule's, in the order it declares them: ``mu`` (``adaptation_gain``, in ``(0, 2)``) and
+    ``alpha`` (``normalization_bias``, ``> 0``).
+    """
+    mu, alpha = parameters[0], parameters[1]
+    norm = alpha
+    for i in range(lo, hi):
+        norm += phi[i] * phi[i]
+    scale = mu * e / norm
+    for i in range(lo, hi):
+        delta[i] = phi[i] * scale
+    return norm
 
 
 @lane(entry=True)

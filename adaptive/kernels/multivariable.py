@@ -238,7 +238,7 @@ def mimo_step(f, g, at, cfg, x, r, u):
     # sample at t = 0, before the first estimator update)
     closed_t = g[MIMO_INTS.closed_t]
     if change_alarm(f, at, cfg, e2, t > 0, t, closed_t, g[MIMO_INTS.last_alarm]):
-        inflate_covariance(f, at, q, cfg.inflation)
+        inflate_covariance(view2d(f, at.S, q, q), cfg.inflation)
         g[MIMO_INTS.n_alarms] += 1
         g[MIMO_INTS.last_alarm] = t
         g[MIMO_INTS.fresh] = 1

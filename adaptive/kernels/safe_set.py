@@ -37,12 +37,9 @@ code name               meaning
 
 ``STATUS_NAMES[code]`` gives the name.
 
-Work array ``work``
--------------------
-Scratch, float64, 1-D: ``work_size(n) = 5 (n+1)^2 + 9 (n+1)`` floats for ``place_design`` and
-``lq_design`` (72 at ``n = 2``), ``solve_work_size(n) = 13 (n+1)^2 + 9 (n+1)`` for ``lq_solve``
-(the solve-to-convergence variant, meant for a fresh model, not every step). Its content is
-irrelevant between calls; one per thread (or per lane) is enough, never shared by two lanes
+The designs' scratch ``work`` (float64, 1-D, its content irrelevant between calls):
+``work_size(n)`` floats for ``place_design`` / ``lq_design``, ``solve_work_size(n)`` for
+``lq_solve``; one per thread or per lane, never shared by two lanes.
 """
 
 from __future__ import annotations

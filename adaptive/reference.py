@@ -1,14 +1,17 @@
-"""Readable dense-numpy reference of the recursive estimators of Ding & Ma (2014).
+"""The recursive estimators of Ding & Ma (2014) as the paper prints them, in dense numpy.
 
-The paper's formulas as printed, with ``P`` held explicitly (no square-root factor, no
-structure exploited, no health checks): the compiled lane functions of
-:mod:`stcgym.adaptive.kernels` are compared against this to a stated tolerance.
+A statement to read beside the paper: one method a half-step, ``P`` held explicitly (no
+square-root factor, no structure exploited, no health checks, no speed). The compiled lane
+functions of :mod:`stcgym.adaptive.kernels` never import it; the tests compare them against it
+to a stated tolerance (``tests/test_estimator_kernels.py``), so it is an independent check.
 
 * innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)`` (17), (38);
 * SG/MISG (12)-(22): ``r(t) = lambda r(t-1) + ||phi_hat(t)||^2`` (or ``||Phi||^2``, remark 1),
   ``theta(t) = theta(t-1) + Phi E / r(t)``;
 * RLS (32)-(36): ``L = P phi / (lambda + phi^T P phi)``, ``P = (P - L phi^T P) / lambda``;
 * MILS (37)-(44): ``L = P Phi (lambda I + Phi^T P Phi)^{-1}``, ``P = (P - L Phi^T P) / lambda``;
+* NG, the normalised-gradient (projection) algorithm (Astrom & Wittenmark, not in the paper):
+  ``theta(t) = theta(t-1) + mu phi e / (alpha + phi^T phi)``;
 * D- rules (96)-(145): the same on ``a`` (rows ``0..n-1``) and ``b`` (rows ``n..2n-1``), both
   with the innovation computed from ``theta(t-1)``;
 * open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
@@ -24,8 +27,18 @@ import numpy as np
 
 from stcgym.envs.canonical import companion_A
 
+__all__ = ["ReferenceEstimator"]
+
 
 class ReferenceEstimator:
+    """One plant's estimator ``name`` (``"KF-D-MILS"``, ``"O-NG"``, ...) of order ``n``.
+
+    The keywords mirror :func:`stcgym.adaptive.make_estimator` (``Q``, ``R``, ``K`` for its
+    ``process_noise``, ``measurement_noise``, ``observer_gain``; ``filtered`` for
+    ``regressor="filtered"``); the defaults are the paper's. :meth:`update` and
+    :meth:`predict` are the two half-steps, :meth:`run` a pass over recorded data.
+    """
+
     def __init__(
         self,
         name: str,
@@ -47,6 +60,8 @@ class ReferenceEstimator:
         filtered: bool = False,
         injection: float = 1.0,
         injection_warmup: int = 0,
+        adaptation_gain: float = 1.0,
+        normalization_bias: float = np.finfo(float).eps,
     ) -> None:
         parts = name.upper().split("-")
         self.state, self.rule, self.decomposed = parts[0], parts[-1], len(parts) == 3
@@ -62,6 +77,7 @@ class ReferenceEstimator:
         self.R = R
         self.K = None if K is None else np.array(K, float)
         self.filtered = filtered
+        self.mu, self.alpha = adaptation_gain, normalization_bias
         self.injection, self.injection_warmup = injection, injection_warmup
         self.t = 0
         self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
@@ -71,10 +87,13 @@ class ReferenceEstimator:
         self.y = 0.0
 
     def blocks(self):
+        """The parameter blocks a rule updates: ``theta`` whole, or ``a`` and ``b`` (D-)."""
         n, d = self.n, 2 * self.n
         return [slice(0, n), slice(n, d)] if self.decomposed else [slice(0, d)]
 
     def update(self, y: float) -> np.ndarray:
+        """Measurement step with ``y(t)``: ``Phi(p, t)``, ``Y(p, t)``, ``E(p, t)`` and the rule;
+        returns ``theta_hat(t)``."""
         self.Phi = np.column_stack([self.phi, self.Phi[:, :-1]])
         self.Y = np.r_[y, self.Y[:-1]]
         self.y = y
@@ -88,6 +107,10 @@ class ReferenceEstimator:
                 inc = np.sum(Phi**2) if self.stacked_r else np.sum(Phi[:, 0] ** 2)
                 self.r[k] = lam * self.r[k] + inc
                 delta[blk] = Phi @ E / self.r[k]
+                continue
+            if self.rule == "NG":
+                phi = Phi[:, 0]
+                delta[blk] = self.mu * phi * E[0] / (self.alpha + phi @ phi)
                 continue
             P = self.P[blk, blk]
             if self.rule == "RLS":
@@ -104,6 +127,8 @@ class ReferenceEstimator:
         return self.theta.copy()
 
     def predict(self, u: float) -> np.ndarray:
+        """State step with ``u(t)``: ``x_hat(t+1)`` by the state estimator on ``A_hat(t)``,
+        ``b_hat(t)``, and the regressor ``phi_hat(t+1)``; returns ``x_hat(t+1)``."""
         n = self.n
         A = companion_A(self.theta[:n], self.form)
         b = self.theta[n:]
@@ -141,6 +166,7 @@ class ReferenceEstimator:
         return x_next.copy()
 
     def run(self, u, y) -> np.ndarray:
+        """``update(y[k])``, ``predict(u[k])`` for every ``k``; the ``theta_hat`` of each step."""
         out = []
         for uk, yk in zip(u, y, strict=True):
             out.append(self.update(yk))
