@@ -151,13 +151,15 @@ def identification_or_design(
             f"{counts['identification']}, for part of it in {counts['both']}, and for none of "
             f"it in {counts['design']} (where the model-based design carries it)"
         )
+    residual_text = ", `residual_ppo` PPO correcting the controller" if residual else ""
     out = [
         "Is the self-tuning controller's advantage on unseen plants the online "
         "identification, or the model-based design on top of it? `theta_ppo` is PPO given an "
-        "online estimate, `ppo` the same without it, `residual_ppo` PPO correcting the "
-        "controller. Paired on the same (plant, episode), cost ratios with 95 % intervals; "
-        "a ratio is lower or higher only when its interval excludes 1. `theta_ppo` is given "
-        "an O-RLS estimate, not the controller's own extended least squares.",
+        f"online estimate, `ppo` the same without it{residual_text}. Paired on the same "
+        "(plant, episode), cost ratios with 95 % intervals; a ratio is lower or higher only "
+        "when its interval excludes 1. `theta_ppo` is given the estimate of one of the "
+        "paper's estimators (the knowledge table names it), not the controller's own "
+        "extended least squares.",
         "",
         summary + ".",
         "",

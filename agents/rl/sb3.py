@@ -193,6 +193,12 @@ class SB3Policy(LanePolicy):
         # lanes whose next observation starts an episode (every lane before the first call)
         self._fresh = np.ones(self.num_lanes, dtype=bool)
 
+    @property
+    def lanes(self) -> Any:
+        """What the adapter keeps per lane: the interface's window, and its estimator
+        (``lanes.estimator``) or controller (``lanes.controller``); read-only use."""
+        return self._lanes
+
     def _build_lanes(self) -> Any:
         return self.interface.build(
             self.window, self.action_bound, self.num_lanes, self.channels, self.seeds
