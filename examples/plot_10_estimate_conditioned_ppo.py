@@ -80,7 +80,9 @@ for name in seen + unseen:
 # -----------------------
 # Left: both on the first episode of an unseen plant. Right: the estimate among the
 # agent's inputs on that episode (``policy.lanes.estimator``) against the true
-# parameters.
+# parameters. The estimator learns only from what the inputs excite: an agent whose
+# input barely moves the plant gives it little to go on, where the controller's
+# probe and steps give its own estimator a clear response.
 policy = agent.policy.with_lanes(None)
 policy.reset()
 env = test.make()

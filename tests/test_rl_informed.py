@@ -462,3 +462,15 @@ def test_identification_or_design_follows_the_numbers(costs, expected):
     if costs["theta_ppo"] == 1.41:
         assert "closes 50 % of the log-cost gap" in text
     assert identification_or_design([("family:test", _tables({"stc": 1.0}, rng))], reps=50) == []
+
+
+def test_a_single_env_adapter_returns_one_action_of_the_input_shape():
+    from stcgym.agents.rl.sb3 import SB3Policy
+
+    for kind in ("window", "estimate", "residual"):
+        policy = SB3Policy(_Recorder(), WINDOW, 2.0, interface=InterfaceSpec(kind, order=2))
+        obs = np.array([0.1, 1.0])
+        assert policy.predict(obs)[0].shape == (1,)  # the fast path of one env
+        assert policy.predict(obs, episode_start=True)[0].shape == (1,)
+        batch = policy.with_lanes(3, [1, 2, 3])
+        assert batch.predict(np.tile(obs, (3, 1)))[0].shape == (3, 1)

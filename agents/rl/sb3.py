@@ -247,7 +247,8 @@ class SB3Policy(LanePolicy):
             )
         else:
             a, _ = self.model.predict(features, deterministic=deterministic)
-        return self._lanes.to_input(a)
+        u = self._lanes.to_input(a)
+        return u[0] if self.num_envs is None else u  # one env: (m,), as LanePolicy's fast path
 
 
 @dataclass
