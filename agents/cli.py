@@ -110,8 +110,8 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "--agents",
         # ", " so that argparse can wrap the lists between names
         help=f"comma list of {', '.join([*ALGORITHMS, *CONTROLLERS])} (quick default: "
-        f"{', '.join(QUICK['agents'])}; full: {', '.join(FULL['agents'])}); lqg (the "
-        "yardstick) and zero are always evaluated",
+        f"{', '.join(QUICK['agents'])}; standard: {', '.join(STANDARD['agents'])}; full: "
+        f"{', '.join(FULL['agents'])}); lqg (the yardstick) and zero are always evaluated",
     )
     rule = PlateauRule()
     p.add_argument(
@@ -459,7 +459,9 @@ def _run_eval(args: argparse.Namespace) -> int:
     names = spec.plant_names()
     plants = tuple(names[i % len(names)] for i in range(args.seeds))
     episodes = EpisodeSet(plants, tuple(args.first_seed + i for i in range(args.seeds)))
-    batch = run_episodes(lambda lanes, seeds: agent.policy.with_lanes(len(lanes)), spec, episodes)
+    batch = run_episodes(
+        lambda lanes, seeds: agent.policy.with_lanes(len(lanes), seeds), spec, episodes
+    )
     costs = batch.cost.mean(axis=1)
     s = summarize(costs, batch.diverged)
     where = spec.plants[0] if spec.family is None else f"{spec.family} {spec.split}"

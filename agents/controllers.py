@@ -44,6 +44,7 @@ __all__ = [
     "YARDSTICK",
     "ControllerInfo",
     "ZeroController",
+    "controller_seeds",
     "controllers_for",
     "self_tuning",
 ]
@@ -108,6 +109,22 @@ class ControllerInfo:
     def runs_on(self, spec: Any) -> bool:
         """Whether the controller runs on the plants of the env spec ``spec``."""
         return spec.plant_kind in self.plants
+
+
+def controller_seeds(seeds: Sequence[int], run: int) -> list[int]:
+    """Controller seeds of run ``run`` on the episodes ``seeds``: every episode and run its own
+    stream (a pure function of both). The bench seeds the self-tuning controllers' probes with
+    them, and the residual RL agent the controller inside it, so that a run of each meets the
+    same probe on the same episode.
+
+    Examples
+    --------
+    >>> from stcgym.agents.controllers import controller_seeds
+    >>> a, b = controller_seeds([1000, 1001], run=0), controller_seeds([1000], run=1)
+    >>> a[0] != a[1] and a[0] != b[0], a == controller_seeds([1000, 1001], run=0)
+    (True, True)
+    """
+    return [int(np.random.SeedSequence([int(s), int(run)]).generate_state(1)[0]) for s in seeds]
 
 
 def _lanes(plants: Sequence[Any]) -> tuple[NDArray, NDArray]:

@@ -28,6 +28,7 @@ TIMEOUT_S = 900
 REQUIRES = {
     "plot_06_sweep.py": ("pandas",),
     "plot_07_ppo_vs_self_tuning.py": ("stable_baselines3", "torch"),
+    "plot_10_estimate_conditioned_ppo.py": ("stable_baselines3", "torch"),
 }
 
 # Runs the script as ``__main__`` and reports how many figures it left open.

@@ -14,7 +14,8 @@ Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their ch
 :mod:`~stcgym.agents.benchmark.evaluate` (the closed-loop evaluation of one episode,
 per-episode metrics), :mod:`~stcgym.agents.benchmark.response` (settling against the yardstick),
 :mod:`~stcgym.agents.benchmark.statistics` and :mod:`~stcgym.agents.benchmark.headline` (interval
-estimates with the run as the unit), :mod:`~stcgym.agents.benchmark.report`,
+estimates with the run as the unit), :mod:`~stcgym.agents.benchmark.report` and
+:mod:`~stcgym.agents.benchmark.attribution` (its answer to "identification or design?"),
 :mod:`~stcgym.agents.benchmark.plots` and :mod:`~stcgym.agents.benchmark.style` (output).
 
 Identical terms
@@ -34,13 +35,17 @@ Scenarios
 the plant family; RL trains on its training split, validated on its validation split),
 ``family:<variant>`` (a held-out variant of the family: out of distribution for everyone),
 ``jump:test`` (the test split with a parameter jump at a random time in every episode) and
-``mimo:P`` (a MIMO plant with measured state). Recurrent agents (``rppo``) train on the family
-only, with jumps in a share of their episodes.
+``mimo:P`` (a MIMO plant with measured state). Recurrent agents (``rppo``) and the agents that
+know what the estimator knows (``theta_ppo``, ``theta_sac``, ``residual_ppo``) train on the
+family only, with jumps in a share of their episodes.
 
 Controllers
 -----------
 ``ppo``, ``sac``, ``td3``, ``a2c``, ``rppo``: Stable-Baselines3 / sb3-contrib agents
-(:mod:`stcgym.agents.rl.sb3`), one model per training distribution and training run. The
+(:mod:`stcgym.agents.rl.sb3`), one model per training distribution and training run;
+``theta_ppo`` and ``theta_sac`` observe an estimator's online estimate besides their window,
+``residual_ppo`` corrects the self-tuning controller's input
+(:mod:`stcgym.agents.rl.interfaces`). The
 classical controllers (``stc``, ``stc_lq``, ``stc_kfmils``, ``stc_mimo``, the yardstick
 ``lqg``, ``oracle`` and ``zero``) are those of :mod:`stcgym.agents.controllers`.
 

@@ -28,7 +28,7 @@ from stcgym.agents.benchmark.mimo import check_mimo_plants
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 from stcgym.agents.rl.configs import (
     ALGORITHMS,
-    RECURRENT_ALGORITHMS,
+    FAMILY_ALGORITHMS,
     apply_overrides,
     default_config,
 )
@@ -187,12 +187,14 @@ class BenchConfig:
 
 
 _CLASSICAL = ["stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg", "zero"]
+#: RL agents that know what the estimator knows (stcgym.agents.rl.interfaces)
+_INFORMED = ["theta_ppo", "theta_sac", "residual_ppo"]
 QUICK = dict(
     mode="quick",
     scenarios=list(SCENARIO_KINDS),
     plants=["stable2"],
     ood=["ood_near_zero", "ood_order3"],
-    agents=["ppo", "sac", "rppo", *_CLASSICAL],
+    agents=["ppo", "sac", "rppo", "theta_ppo", *_CLASSICAL],
     train_seeds=3,
     test_plants=40,
     nominal_episodes=20,
@@ -204,6 +206,7 @@ QUICK = dict(
 STANDARD = dict(
     QUICK,
     mode="standard",
+    agents=["ppo", "sac", "rppo", *_INFORMED, *_CLASSICAL],
     ood=[
         "ood_fast_unstable",
         "ood_near_zero",
@@ -222,7 +225,7 @@ FULL = dict(
     mode="full",
     mimo_plants=mimo_plant_names(),
     plants=["stable2", "unstable2"],
-    agents=["ppo", "ppo_noint", "sac", "td3", "a2c", "rppo", "stc_tuned", *_CLASSICAL],
+    agents=["ppo", "ppo_noint", "sac", "td3", "a2c", "rppo", *_INFORMED, "stc_tuned", *_CLASSICAL],
     train_seeds=10,
     episodes_per_plant=2,
     curve_episodes=50,
@@ -418,10 +421,10 @@ def _check_names(cfg: BenchConfig) -> None:
         raise ValueError("stc_tuned needs tuning trials (--tune-trials N, N >= 1)")
     if cfg.tune_trials and not {"family", "ood", "jump"} & set(cfg.scenarios):
         raise ValueError("--tune-trials tunes on the family's validation split: add its scenarios")
-    recurrent = [a for a in cfg.rl_agents if a in RECURRENT_ALGORITHMS]
-    if recurrent and not {"family", "ood", "jump"} & set(cfg.scenarios):
+    family_only = [a for a in cfg.rl_agents if a in FAMILY_ALGORITHMS]
+    if family_only and not {"family", "ood", "jump"} & set(cfg.scenarios):
         raise ValueError(
-            f"{recurrent} train on the plant family: add the family, ood or jump scenario"
+            f"{family_only} train on the plant family: add the family, ood or jump scenario"
         )
 
 
@@ -499,11 +502,11 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     cfg.mimo_train_steps = {
         a: given.get(a, _mimo_cap(configs[a], cfg.mode))
         for a in cfg.rl_agents
-        if a not in RECURRENT_ALGORITHMS  # (trained on the SISO family only)
+        if a not in FAMILY_ALGORITHMS  # (trained on the SISO family only)
     }
     for a in cfg.rl_agents:
         caps = [cfg.family_train_steps[a]]
-        if a not in RECURRENT_ALGORITHMS:  # recurrent agents train on the family only
+        if a not in FAMILY_ALGORITHMS:  # these agents train on the family only
             caps.append(cfg.train_steps[a])
             if "mimo" in cfg.scenarios:
                 caps.append(cfg.mimo_train_steps[a])

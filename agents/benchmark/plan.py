@@ -42,6 +42,11 @@ SECONDS_PER_STEP = {
     "sac": 8.0e-3,
     "td3": 7.5e-3,
     "rppo": 2.5e-3,
+    # their estimator or controller on every lane: 1.05-1.2x their base agent's (measured
+    # against it in one process)
+    "theta_ppo": 0.9e-3,
+    "residual_ppo": 1.0e-3,
+    "theta_sac": 8.4e-3,
 }
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
 #: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.

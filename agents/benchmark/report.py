@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from stcgym.agents.benchmark.attribution import identification_or_design
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
     aggregate,
@@ -78,7 +79,7 @@ def _settings(params: dict[str, Any]) -> str:
 
 
 def _knowledge_table(cfg: Any) -> list[str]:
-    from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS
+    from stcgym.agents.rl.configs import agent_knowledge
 
     lines = [
         "| controller | plant order | integral action | model | data before the episode |",
@@ -93,18 +94,8 @@ def _knowledge_table(cfg: Any) -> list[str]:
                 f"{k.get('model', '-')} | {data} |"
             )
             continue
-        window = cfg.algo_configs[name]["window"]
-        w = window.get("window", 10)
-        memory = "an LSTM over the episode, " if name in RECURRENT_ALGORITHMS else ""
-        integral = (
-            "the integral of e = r - y as an input"
-            if window.get("include_integral", True)
-            else "none"
-        )
-        lines.append(
-            f"| {name} | none ({memory}a window of {w} past y, r, u, e) | {integral} | none | "
-            f"its training distribution's episodes (up to its cap) |"
-        )
+        k = agent_knowledge(name, cfg.algo_configs[name])
+        lines.append(f"| {name} | {k['order']} | {k['integral']} | {k['model']} | {k['data']} |")
     lines += [
         "",
         "Every controller gets the same observation `[y(k), r(k)]` and the same action bound "
@@ -356,6 +347,8 @@ def write_report(
         "",
     ]
     sentences = []
+    family: list[tuple[str, dict[str, Any]]] = []  # the plant family's scenarios' tables
+    family_stops: dict[str, Any] = {}
     for sc in scenarios:
         if sc.name not in present:
             continue
@@ -378,7 +371,13 @@ def write_report(
         if pairs:
             out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
         sentences.append(_conclusion(sc.name, hl, pairs, stops))
+        if sc.kind in ("family", "ood", "jump"):
+            family.append((sc.name, tables))
+            family_stops = family_stops or stops
     out += ["## Conclusions", "", *(s for s in sentences if s), ""]
+    answer = identification_or_design(family, reps=cfg.bootstrap_reps, stops=family_stops)
+    if answer:
+        out += ["## Identification or design?", "", *answer, ""]
     if cfg.tuned:
         out += [
             "## Tuning",

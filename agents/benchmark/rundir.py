@@ -9,7 +9,7 @@ from typing import Any
 
 from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
 from stcgym.agents.benchmark.scenarios import TrainingEnv, make_scenarios, training_envs
-from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
+from stcgym.agents.rl.configs import FAMILY_ALGORITHMS, RECURRENT_ALGORITHMS, AlgoConfig
 
 __all__ = ["JOBS_FOLDER", "check_runnable", "job_id", "prepare_run_dir", "versions"]
 
@@ -76,7 +76,7 @@ def _check_trainable(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> None:
     from stcgym.agents.rl.sb3 import check_trainable
 
     for algo in cfg.rl_agents:
-        key = "family" if algo in RECURRENT_ALGORITHMS else next(iter(envs))
+        key = "family" if algo in FAMILY_ALGORITHMS else next(iter(envs))
         try:
             check_trainable(algo, AlgoConfig.from_dict(cfg.algo_configs[algo]), envs[key].train)
         except ValueError as exc:

@@ -49,7 +49,7 @@ from stcgym.agents.benchmark.scenarios import (
     make_scenarios,
     training_envs,
 )
-from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controllers_for
+from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controller_seeds, controllers_for
 
 __all__ = [
     "METRIC_COLUMNS",
@@ -244,10 +244,9 @@ def _start_plots(
     return wait
 
 
-def _lane_seeds(seeds: Sequence[int], run: int) -> list[int]:
-    """Controller seeds of run ``run`` on the episodes ``seeds``: every episode and run its own
-    stream (a pure function of both)."""
-    return [int(np.random.SeedSequence([int(s), int(run)]).generate_state(1)[0]) for s in seeds]
+#: Controller seeds of run ``run`` on the episodes ``seeds`` (one definition, shared with the
+#: residual RL agent's controller).
+_lane_seeds = controller_seeds
 
 
 def _trace(batch: Any, count: int, theta: bool) -> dict[str, np.ndarray]:

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.episodes import EpisodeSet
-from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS
+from stcgym.agents.rl.configs import FAMILY_ALGORITHMS
 
 if TYPE_CHECKING:
     from stcgym.agents.benchmark.config import BenchConfig
@@ -79,7 +79,7 @@ class Scenario:
 
     def train_key_for(self, algo: str) -> str | None:
         """The training environment of ``algo``'s agents evaluated here (``None``: not here)."""
-        if algo in RECURRENT_ALGORITHMS:
+        if algo in FAMILY_ALGORITHMS:  # trained on the plant family only
             return self.train_key if self.train_key == "family" else None
         return self.train_key
 

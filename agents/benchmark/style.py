@@ -44,8 +44,11 @@ COLORS = {
     "td3": "#999933",
     "a2c": "#AA4499",
     "rppo": "#882255",
+    "theta_ppo": "#E69F00",
+    "theta_sac": "#44AA99",
+    "residual_ppo": "#332288",
 }
-_SPARE = ("#332288", "#117733", "#44AA99", "#E69F00", "#661100", "#6699CC")
+_SPARE = ("#117733", "#661100", "#6699CC", "#DDCC77", "#88CCEE", "#AA4466")
 
 
 def color(name: str) -> str:

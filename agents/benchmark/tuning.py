@@ -27,14 +27,14 @@ import numpy as np
 
 from stcgym.agents.benchmark.episodes import run_episodes
 from stcgym.agents.benchmark.scenarios import TrainingEnv
-from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig
+from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig, base_algorithm
 
 __all__ = ["apply_rl_params", "sample_rl", "sample_stc", "stc_options", "tune_rl", "tune_stc"]
 
 
 def sample_rl(trial: Any, algo: str) -> dict[str, Any]:
     """Sampled hyperparameters of ``algo``: ``{"hyperparams": {...}, "net": [w, w], ...}``."""
-    base = algo.split("_")[0]
+    base = base_algorithm(algo)
     hp: dict[str, Any] = {
         "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
         "gamma": trial.suggest_categorical("gamma", [0.98, 0.99, 0.995]),

@@ -133,6 +133,7 @@ FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "eval_interval": _COUNT,
     "policy": _rule(lambda v: isinstance(v, str) and bool(v), "a policy name such as MlpPolicy"),
     "window": _rule(lambda v: isinstance(v, dict), "a dict of WindowConfig fields"),
+    "interface": _rule(lambda v: isinstance(v, dict), "a dict of InterfaceSpec fields"),
     "hyperparams": _rule(lambda v: isinstance(v, dict), "a dict"),
 }
 
@@ -152,11 +153,12 @@ def validate_config(cfg: AlgoConfig) -> None:
     Beyond single values: PPO-family rollouts need ``n_steps * n_envs > 1`` and PPO's
     minibatches ``batch_size > 1`` (SB3 asserts both only when the model is built).
     """
-    from stcgym.agents.rl.configs import ABLATIONS
+    from stcgym.agents.rl.configs import base_algorithm
+    from stcgym.agents.rl.interfaces import InterfaceSpec
     from stcgym.agents.rl.wrappers import WindowConfig
 
     name = cfg.algo
-    kind = ABLATIONS[name][0] if name in ABLATIONS else name  # an ablation: its agent's rules
+    kind = base_algorithm(name)  # an ablation or informed agent: its base agent's rules
     for key, (check, expected) in FIELD_RULES.items():
         value = getattr(cfg, key)
         if not check(value):
@@ -167,6 +169,15 @@ def validate_config(cfg: AlgoConfig) -> None:
         WindowConfig(**cfg.window)
     except TypeError as exc:
         raise ValueError(f"{name}.window: {exc}") from None
+    bad = sorted(set(cfg.interface) & {"order", "run"})
+    if bad:
+        raise ValueError(f"{name}.interface.{bad[0]} is set by the bench, not a config value")
+    try:
+        InterfaceSpec(**cfg.interface)
+    except TypeError as exc:
+        raise ValueError(f"{name}.interface: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{name}.{exc}") from None
     for key, value in cfg.hyperparams.items():
         if key in RESERVED_ARGS:
             raise ValueError(f"{name}.{key} is not a hyperparameter ({RESERVED_ARGS[key]})")

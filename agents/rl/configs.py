@@ -50,6 +50,8 @@ from stcgym.agents.rl.config_rules import HYPERPARAMETER_RULES, RESERVED_ARGS, v
 __all__ = [
     "ABLATIONS",
     "ALGORITHMS",
+    "FAMILY_ALGORITHMS",
+    "INFORMED",
     "HYPERPARAMETER_RULES",
     "RECURRENT_ALGORITHMS",
     "RESERVED_ARGS",
@@ -57,8 +59,10 @@ __all__ = [
     "AlgoConfig",
     "DEFAULT_CONFIGS",
     "ZOO_DEPARTURES",
+    "agent_knowledge",
     "algorithm_class",
     "apply_overrides",
+    "base_algorithm",
     "default_config",
     "parse_override",
 ]
@@ -71,6 +75,9 @@ ALGORITHMS: dict[str, str] = {
     "a2c": "A2C",
     "rppo": "RecurrentPPO",
     "ppo_noint": "PPO",
+    "theta_ppo": "PPO",
+    "theta_sac": "SAC",
+    "residual_ppo": "PPO",
 }
 
 #: Ablations: ``agent -> (the agent it varies, what differs)``, each with its own default
@@ -83,6 +90,72 @@ ABLATIONS: dict[str, tuple[str, str]] = {
 #: family, never on one plant, and evaluated where adaptation is asked for (held-out plants,
 #: parameter jumps): the meta-RL recipe, where the memory must identify the plant in context.
 RECURRENT_ALGORITHMS: tuple[str, ...] = ("rppo",)
+
+#: Agents that know what a classical part knows (:mod:`stcgym.agents.rl.interfaces`): ``agent
+#: -> (the agent it extends, what it is given)``. The estimate-conditioned agents observe an
+#: estimator's online estimate besides their window; the residual agent corrects the
+#: self-tuning controller's input. They are trained on the randomised SISO plant family.
+INFORMED: dict[str, tuple[str, str]] = {
+    "theta_ppo": ("ppo", "PPO observing the online estimate of O-RLS (theta_hat, log10 diag P, "
+                  "the innovation) besides its window"),
+    "theta_sac": ("sac", "SAC observing the online estimate of O-RLS besides its window"),
+    "residual_ppo": ("ppo", "PPO correcting the self-tuning controller's input by at most a "
+                     "quarter of the action bound, starting at zero"),
+}  # fmt: skip
+
+#: Agents trained on the SISO plant family only (never on one plant or a MIMO plant).
+FAMILY_ALGORITHMS: tuple[str, ...] = (*RECURRENT_ALGORITHMS, *INFORMED)
+
+
+def base_algorithm(agent: str) -> str:
+    """The algorithm whose rules and tuning space ``agent`` follows (``ppo_noint``,
+    ``theta_ppo`` and ``residual_ppo``: ``ppo``; ``theta_sac``: ``sac``)."""
+    for table in (ABLATIONS, INFORMED):
+        if agent in table:
+            return table[agent][0]
+    return agent
+
+
+def agent_knowledge(agent: str, config: dict[str, Any]) -> dict[str, str]:
+    """What an RL agent of ``config`` (an :class:`AlgoConfig` as a dict) is given, for the
+    report's knowledge table: ``{"order", "integral", "model", "data"}``.
+
+    Examples
+    --------
+    >>> from stcgym.agents.rl.configs import agent_knowledge, default_config
+    >>> agent_knowledge("theta_ppo", default_config("theta_ppo").to_dict())["order"]
+    "the training distribution's n (its estimator's), a window of 10 past y, r, u, e"
+    """
+    window = config.get("window", {})
+    interface = config.get("interface", {})
+    kind = interface.get("kind", "window")
+    w = window.get("window", 10)
+    memory = "an LSTM over the episode, " if agent in RECURRENT_ALGORITHMS else ""
+    seen = f"a window of {w} past y, r, u, e"
+    integral = (
+        "the integral of e = r - y as an input" if window.get("include_integral", True) else "none"
+    )
+    data = "its training distribution's episodes (up to its cap)"
+    if kind == "estimate":
+        name = str(interface.get("estimator", "O-RLS")).upper()
+        return {
+            "order": f"the training distribution's n (its estimator's), {seen}",
+            "integral": integral,
+            "model": f"none: the online estimate of {name} on the same data (theta_hat, "
+            "log10 diag P, innovation) as an input",
+            "data": data,
+        }
+    if kind == "residual":
+        fraction = float(interface.get("fraction", 0.25))
+        return {
+            "order": f"the training distribution's n (the controller's), {seen}",
+            "integral": "the controller's, with anti-windup; " + integral,
+            "model": "none: the self-tuning controller inside (identified online), its input "
+            f"corrected by at most {fraction:g} x the action bound",
+            "data": data + "; the episode so far (the controller)",
+        }
+    return {"order": f"none ({memory}{seen})", "integral": integral, "model": "none",
+            "data": data}  # fmt: skip
 
 
 def algorithm_class(algo: str) -> type:
@@ -132,6 +205,9 @@ class AlgoConfig:
         SB3 policy class name.
     window : dict
         Fields of :class:`~stcgym.agents.WindowConfig` (its defaults when empty).
+    interface : dict
+        Fields of :class:`~stcgym.agents.rl.interfaces.InterfaceSpec` (empty: the window
+        alone; ``{"kind": "estimate"}``, ``{"kind": "residual", "fraction": 0.25}``).
 
     Examples
     --------
@@ -158,6 +234,7 @@ class AlgoConfig:
     eval_interval: int = 10_000
     policy: str = "MlpPolicy"
     window: dict[str, Any] = field(default_factory=dict)
+    interface: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The config as JSON data (a deep copy; :meth:`from_dict` reads it back)."""
@@ -308,6 +385,23 @@ def _ablation(agent: str, **window: Any) -> AlgoConfig:
 
 DEFAULT_CONFIGS["ppo_noint"] = _ablation("ppo_noint", include_integral=False)
 
+
+def _informed(agent: str, **interface: Any) -> AlgoConfig:
+    base = copy.deepcopy(DEFAULT_CONFIGS[INFORMED[agent][0]])
+    base.algo = agent
+    base.interface = dict(interface)
+    return base
+
+
+# The agent they extend with its interface: same recipe, same budgets.
+DEFAULT_CONFIGS["theta_ppo"] = _informed("theta_ppo", kind="estimate")
+DEFAULT_CONFIGS["theta_sac"] = _informed("theta_sac", kind="estimate")
+DEFAULT_CONFIGS["residual_ppo"] = _informed("residual_ppo", kind="residual", fraction=0.25)
+# Exploration around the controller's input (the Zoo's log_std_init -2 of A2C Pendulum and its
+# MuJoCo entries): with SB3's default the noise disturbs the controller's identification and
+# the first updates lose the loop.
+DEFAULT_CONFIGS["residual_ppo"].hyperparams["policy_kwargs"]["log_std_init"] = -2.0
+
 #: Where a default config departs from the Zoo entry it follows: ``agent -> [(setting, Zoo
 #: value, ours, reason)]`` (the report prints it).
 ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
@@ -342,9 +436,21 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
         ("net_arch", "default", "pi [64], vf [64] after the LSTM", "small heads, as PPO's"),
         ("n_timesteps", "1e5", "cap 1e6 on the family, plateau rule",
          "identifying a plant from a family is harder than a pendulum's velocity"),
+        ("normalize", "off (PendulumNoVel-v1; on in its other continuous entries)",
+         "observations and rewards", "as for PPO"),
     ],
 }  # fmt: skip
 ZOO_DEPARTURES["ppo_noint"] = ZOO_DEPARTURES["ppo"]
+ZOO_DEPARTURES["theta_ppo"] = ZOO_DEPARTURES["ppo"]
+ZOO_DEPARTURES["theta_sac"] = ZOO_DEPARTURES["sac"]
+ZOO_DEPARTURES["residual_ppo"] = [
+    *ZOO_DEPARTURES["ppo"],
+    ("action_net init", "orthogonal, gain 0.01", "zeros",
+     "the mean residual starts at exactly 0: the agent starts as the self-tuning controller"),
+    ("log_std_init", "0 (SB3's default)", "-2", "exploration around the controller's input: "
+     "with the default, the noise disturbs the controller's identification and the loop is "
+     "lost within 2e4 steps on the family"),
+]  # fmt: skip
 
 
 def default_config(algo: str) -> AlgoConfig:
@@ -373,7 +479,7 @@ def default_config(algo: str) -> AlgoConfig:
     >>> default_config("dqn")
     Traceback (most recent call last):
     ...
-    ValueError: RL algorithm must be one of ['a2c', 'ppo', 'rppo', 'sac', 'td3'], got 'dqn'
+    ValueError: RL algorithm must be one of ['a2c', 'ppo', ...], got 'dqn'
     """
     key = algo.lower()
     if key not in DEFAULT_CONFIGS:

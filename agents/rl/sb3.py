@@ -35,9 +35,10 @@ from stcgym.adaptive.policy import LanePolicy
 from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.episodes import EpisodeSet
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
+from stcgym.agents.rl.interfaces import InterfaceSpec
 from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
 from stcgym.agents.rl.stopping import PlateauRule, StopSummary
-from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig
+from stcgym.agents.rl.wrappers import WindowConfig
 from stcgym.envs.validation import integer
 
 __all__ = [
@@ -103,10 +104,13 @@ class ObsNorm:
 class SB3Policy(LanePolicy):
     """An SB3 model behind the shared policy protocol, fed with raw ``[y, r]`` observations.
 
-    The model was trained on :class:`~stcgym.agents.rl.wrappers.HistoryWindow` features; this
-    adapter rebuilds them itself from the raw observations it is given and the actions it
-    returned (a :class:`~stcgym.agents.rl.wrappers.HistoryBuffer` with one window per lane), and
-    rescales the model's ``[-1, 1]`` action to ``[-action_bound, action_bound]``.
+    The model was trained on :class:`~stcgym.agents.rl.wrappers.HistoryWindow` features (and
+    what its :class:`~stcgym.agents.rl.interfaces.InterfaceSpec` adds: an estimator's estimate,
+    a self-tuning controller's input); this adapter rebuilds them itself from the raw
+    observations it is given and the actions it returned (the interface's lanes: a
+    :class:`~stcgym.agents.rl.wrappers.HistoryBuffer` with one window per lane, the estimator
+    or controller batched over the lanes), and turns the model's ``[-1, 1]`` action into the
+    input (``a u_max``, or a residual agent's correction of the controller's input).
     ``episode_start`` (or :meth:`reset`) starts a new window on those lanes, and a new LSTM
     state for a recurrent model (sb3-contrib ``RecurrentPPO``), which the adapter carries from
     call to call. ``predict`` is :class:`~stcgym.adaptive.policy.LanePolicy`'s.
@@ -127,6 +131,12 @@ class SB3Policy(LanePolicy):
         ``(m,)`` (default one of each).
     obs_norm
         The observation normaliser the model was trained behind (``None``: none).
+    interface
+        What the model observes besides the window and how its action becomes the input
+        (:class:`~stcgym.agents.rl.interfaces.InterfaceSpec`; ``None``: the window alone).
+    seeds
+        The controller seed of each lane of a residual agent (default: from the lane indices
+        and the training run, :meth:`InterfaceSpec.build`).
 
     Raises
     ------
@@ -165,6 +175,8 @@ class SB3Policy(LanePolicy):
         num_envs: int | None = None,
         channels: tuple[int, int] = (1, 1),
         obs_norm: ObsNorm | None = None,
+        interface: InterfaceSpec | None = None,
+        seeds: Sequence[int] | None = None,
     ) -> None:
         self.model, self.window, self.action_bound = model, window, float(action_bound)
         self.obs_norm = obs_norm
@@ -172,16 +184,48 @@ class SB3Policy(LanePolicy):
         p, m = (integer(c, "channels", 1) for c in channels)
         self.channels, self.obs_dim, self.action_dim = (p, m), 2 * p, m
         self.recurrent = type(model).__name__ == "RecurrentPPO"
-        self._buf = HistoryBuffer(window, self.action_bound, self.num_lanes, p, m)
+        self.interface = InterfaceSpec() if interface is None else interface
+        if seeds is not None and len(seeds) != self.num_lanes:
+            raise ValueError(f"seeds must hold one seed per lane ({self.num_lanes}), got {seeds}")
+        self.seeds = None if seeds is None else [int(s) for s in seeds]
+        self._lanes = self._build_lanes()
         self._lstm: Any = None
         # lanes whose next observation starts an episode (every lane before the first call)
         self._fresh = np.ones(self.num_lanes, dtype=bool)
 
-    def with_lanes(self, num_envs: int | None) -> SB3Policy:
-        """The same model (shared, not copied) behind a fresh adapter for ``num_envs`` lanes."""
-        return SB3Policy(
-            self.model, self.window, self.action_bound, num_envs, self.channels, self.obs_norm
+    @property
+    def lanes(self) -> Any:
+        """What the adapter keeps per lane: the interface's window, and its estimator
+        (``lanes.estimator``) or controller (``lanes.controller``); read-only use."""
+        return self._lanes
+
+    def _build_lanes(self) -> Any:
+        return self.interface.build(
+            self.window, self.action_bound, self.num_lanes, self.channels, self.seeds
         )
+
+    def with_lanes(self, num_envs: int | None, seeds: Sequence[int] | None = None) -> SB3Policy:
+        """The same model (shared, not copied) behind a fresh adapter for ``num_envs`` lanes.
+
+        ``seeds``: the episode seeds of the lanes, from which a residual agent's controller
+        seeds follow (:func:`~stcgym.agents.controllers.controller_seeds` with the training
+        run, as the bench seeds its ``stc`` runs)."""
+        lanes = None
+        if seeds is not None and self.interface.kind == "residual":
+            from stcgym.agents.controllers import controller_seeds
+
+            lanes = controller_seeds(seeds, self.interface.run)
+        return SB3Policy(
+            self.model, self.window, self.action_bound, num_envs, self.channels, self.obs_norm,
+            self.interface, lanes,
+        )  # fmt: skip
+
+    def reset(self, lanes: Any = None) -> None:
+        """A new episode on every lane (a fresh estimator or controller too), or on ``lanes``
+        (indices or a boolean mask)."""
+        if lanes is None:
+            self._lanes = self._build_lanes()
+        super().reset(lanes)
 
     def _reset_lanes(self, idx: NDArray) -> None:
         """The next observation of the lanes ``idx`` starts a new window and LSTM state."""
@@ -189,12 +233,9 @@ class SB3Policy(LanePolicy):
 
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         starts = self._fresh.copy() if starts is None else starts | self._fresh
-        if np.any(starts):
-            self._buf.start(obs, starts)
-        if not np.all(starts):
-            self._buf.push_obs(obs, ~starts)
+        self._lanes.observe(obs, starts)
         self._fresh[:] = False
-        features = self._buf.features()
+        features = self._lanes.features()
         if self.obs_norm is not None:
             features = self.obs_norm.apply(features).astype(np.float32)
         if self.recurrent:
@@ -206,10 +247,8 @@ class SB3Policy(LanePolicy):
             )
         else:
             a, _ = self.model.predict(features, deterministic=deterministic)
-        u = np.clip(np.asarray(a, dtype=float).reshape(self.num_lanes, -1), -1.0, 1.0)
-        u *= self.action_bound
-        self._buf.push_action(u)
-        return u
+        u = self._lanes.to_input(a)
+        return u[0] if self.num_envs is None else u  # one env: (m,), as LanePolicy's fast path
 
 
 @dataclass
@@ -238,10 +277,18 @@ def _progress_bar_wanted(progress: bool | None) -> bool:
     return sys.stderr.isatty()
 
 
+def interface_of(config: AlgoConfig, train_spec: EnvSpec, seed: int) -> InterfaceSpec:
+    """The interface of an agent of ``config`` trained on ``train_spec`` with ``seed``: told
+    the training distribution's order, its run the seed."""
+    order = train_spec.order if config.interface.get("kind", "window") != "window" else None
+    return InterfaceSpec.of(config.interface, order, seed)
+
+
 def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: Any) -> Any:
     """``n_envs`` lanes of the native vector env of ``train_spec``, seeded ``seed + i``,
-    behind ``VecMonitor`` (raw returns into the file ``monitor``), the window and training
-    reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`) and ``VecNormalize``."""
+    behind ``VecMonitor`` (raw returns into the file ``monitor``), the window, the agent's
+    interface and the training reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`)
+    and ``VecNormalize``."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
@@ -250,7 +297,10 @@ def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: A
     lanes = SB3VecEnv(train_spec.make_vec(int(config.n_envs), info_keys=()))
     lanes.seed(int(seed))
     vec = VecMonitor(lanes, filename=monitor)
-    vec = VecHistoryWindow(vec, window, train_spec.steps, config.reward_scale, config.cost_squash)
+    vec = VecHistoryWindow(
+        vec, window, train_spec.steps, config.reward_scale, config.cost_squash,
+        interface=interface_of(config, train_spec, seed),
+    )  # fmt: skip
     if config.normalize_obs or config.normalize_reward:
         vec = VecNormalize(
             vec,
@@ -271,14 +321,20 @@ def build_model(
     tensorboard_log: str | None = None,
     hyperparams: dict[str, Any] | None = None,
 ) -> Any:
-    """The SB3 / sb3-contrib model of ``config`` on the vector env ``vec`` (CPU)."""
+    """The SB3 / sb3-contrib model of ``config`` on the vector env ``vec`` (CPU).
+
+    A residual agent's policy starts with a mean action of exactly zero: the last layer of
+    its mean (PPO's ``action_net``, SAC's and TD3's ``actor.mu``) is zeroed, so the
+    deterministic agent starts as the controller it corrects and learns from there (the
+    layer's gradient does not vanish: its input, the last hidden layer, is not zero).
+    """
     from stable_baselines3.common.noise import NormalActionNoise
 
     kwargs = dict(config.hyperparams if hyperparams is None else hyperparams)
     if config.noise_std > 0:
         dim = vec.action_space.shape[0]
         kwargs["action_noise"] = NormalActionNoise(np.zeros(dim), config.noise_std * np.ones(dim))
-    return algorithm_class(algo)(
+    model = algorithm_class(algo)(
         config.policy,
         vec,
         seed=int(seed),
@@ -286,6 +342,27 @@ def build_model(
         tensorboard_log=tensorboard_log,
         **kwargs,
     )
+    if config.interface.get("kind") == "residual":
+        _zero_mean_action(model.policy)
+    return model
+
+
+def _zero_mean_action(policy: Any) -> None:
+    """Zero the layer that outputs the policy's mean action (and its target copy)."""
+    import torch
+
+    layers = [getattr(policy, "action_net", None)]
+    for actor in ("actor", "actor_target"):
+        layers.append(getattr(getattr(policy, actor, None), "mu", None))
+    layers = [layer for layer in layers if layer is not None]
+    if not layers:
+        raise ValueError(f"{type(policy).__name__} has no mean-action layer to start at zero")
+    with torch.no_grad():
+        for layer in layers:
+            linear = [m for m in layer.modules() if isinstance(m, torch.nn.Linear)]
+            last = linear[-1]  # (TD3's mu ends with a tanh)
+            last.weight.zero_()
+            last.bias.zero_()
 
 
 def check_trainable(algo: str, config: AlgoConfig, train_spec: EnvSpec) -> None:
@@ -425,8 +502,10 @@ def train_agent(
 
     cspec = curve_spec or train_spec
     episodes = curve_episodes or EpisodeSet.of(cspec, 2, 10_000, max_plants=20)
-    channels = train_spec.channels
-    lanes = SB3Policy(model, window, train_spec.action_bound, len(episodes.seeds), channels)
+    lanes = SB3Policy(
+        model, window, train_spec.action_bound, None, train_spec.channels,
+        interface=interface_of(config, train_spec, seed),
+    ).with_lanes(len(episodes.seeds), episodes.seeds)  # fmt: skip
 
     def snapshot() -> ObsNorm | None:
         # the policy evaluated (and kept) is the network with the statistics of that moment
@@ -500,6 +579,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "obs_norm": None if norm is None else norm.to_dict(),
         "action_bound": agent.policy.action_bound,
         "channels": list(agent.policy.channels),
+        "interface": agent.policy.interface.to_dict(),
         "train_spec": agent.train_spec.to_dict(),
         "curve": [list(p) for p in agent.curve],
         "best_step": agent.best_step,
@@ -549,7 +629,11 @@ def load_agent(folder: str | Path) -> TrainedAgent:
     window = WindowConfig(**meta["window"])
     channels = tuple(meta.get("channels", (1, 1)))
     norm = ObsNorm.from_dict(meta.get("obs_norm"))
-    policy = SB3Policy(model, window, meta["action_bound"], channels=channels, obs_norm=norm)
+    interface = InterfaceSpec.from_dict(meta.get("interface"))
+    policy = SB3Policy(
+        model, window, meta["action_bound"], channels=channels, obs_norm=norm,
+        interface=interface,
+    )  # fmt: skip
     return TrainedAgent(
         meta["algo"],
         policy,

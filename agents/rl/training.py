@@ -117,7 +117,7 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
     for ev in task["evaluations"]:
         spec = EnvSpec.from_dict(ev["env"])
         batch = run_episodes(
-            lambda plants, seeds: agent.policy.with_lanes(len(plants)),
+            lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds),
             spec,
             EpisodeSet.from_dict(ev["episodes"]),
         )

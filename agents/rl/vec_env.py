@@ -1,5 +1,6 @@
 """Stable-Baselines3 ``VecEnv`` adapter of the native vector envs (:mod:`stcgym.envs.vector`),
-and the RL agents' observation window and training reward over all its lanes at once."""
+and the RL agents' observation window, interface and training reward over all its lanes at
+once."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from gymnasium.vector import AutoresetMode
 from numpy.typing import NDArray
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig, training_reward
+from stcgym.agents.rl.interfaces import InterfaceSpec
+from stcgym.agents.rl.wrappers import WindowConfig, training_reward
 from stcgym.envs.vector import LinearPlantVectorEnv
 
 __all__ = ["SB3VecEnv", "VecHistoryWindow"]
@@ -111,6 +113,10 @@ class VecHistoryWindow(VecEnvWrapper):
         Episode length the divergence charge runs to.
     reward_scale, cost_squash
         As :class:`~stcgym.agents.rl.wrappers.TrainingReward`.
+    interface : InterfaceSpec, optional
+        What the agent observes besides the window and how its action becomes the input
+        (:mod:`stcgym.agents.rl.interfaces`: an estimator's estimate, a self-tuning
+        controller's input corrected by the action); default the window alone.
 
     Examples
     --------
@@ -146,6 +152,8 @@ class VecHistoryWindow(VecEnvWrapper):
         horizon: int,
         reward_scale: float = 1.0,
         cost_squash: float | None = None,
+        *,
+        interface: InterfaceSpec | None = None,
     ) -> None:
         box = venv.action_space
         if not isinstance(box, spaces.Box) or len(box.shape) != 1 or np.ptp(box.high) != 0:
@@ -158,10 +166,11 @@ class VecHistoryWindow(VecEnvWrapper):
         p, m = shape[0] // 2, box.shape[0]
         self.config, self.action_bound = config, float(box.high[0])
         self.horizon, self.reward_scale, self.cost_squash = int(horizon), reward_scale, cost_squash
-        self._buf = HistoryBuffer(config, self.action_bound, venv.num_envs, p, m)
+        self.interface = InterfaceSpec() if interface is None else interface
+        self._lanes = self.interface.build(config, self.action_bound, venv.num_envs, (p, m))
         self._k = np.zeros(venv.num_envs, dtype=np.int64)
         self._u = np.zeros((venv.num_envs, m))
-        n_features = config.features_for(p, m)
+        n_features = self._lanes.n_features
         observation_space = spaces.Box(
             -config.obs_clip, config.obs_clip, shape=(n_features,), dtype=np.float32
         )
@@ -170,19 +179,17 @@ class VecHistoryWindow(VecEnvWrapper):
 
     def reset(self) -> NDArray:
         obs = self.venv.reset()
-        self._buf.start(obs)
+        self._lanes.observe(obs, np.ones(self.num_envs, dtype=bool))
         self._k[:] = 0
-        return self._buf.features()
+        return self._lanes.features()
 
     def step_async(self, actions: NDArray) -> None:
-        a = np.clip(np.asarray(actions, dtype=float).reshape(self.num_envs, -1), -1.0, 1.0)
-        self._u = a * self.action_bound
+        self._u = self._lanes.to_input(actions)
         self.venv.step_async(self._u)
 
     def step_wait(self) -> tuple[NDArray, NDArray, NDArray, list[dict[str, Any]]]:
         obs, rewards, dones, infos = self.venv.step_wait()
         self._k += 1
-        self._buf.push_action(self._u)
         done = np.asarray(dones, dtype=bool)
         diverged = np.array(
             [
@@ -197,12 +204,9 @@ class VecHistoryWindow(VecEnvWrapper):
             last = np.array(obs, dtype=float)
             for i in np.flatnonzero(done):
                 last[i] = infos[i]["terminal_observation"]
-            self._buf.push_obs(last, done)
-            final = self._buf.features()
+            final = self._lanes.terminal_features(last, done)
             for i in np.flatnonzero(done):
                 infos[i]["terminal_observation"] = final[i]
-            self._buf.start(obs, done)
             self._k[done] = 0
-        if not done.all():
-            self._buf.push_obs(obs, ~done)
-        return self._buf.features(), r.astype(np.float32), dones, infos
+        self._lanes.observe(obs, done)
+        return self._lanes.features(), r.astype(np.float32), dones, infos

@@ -1,0 +1,426 @@
+"""What an RL agent observes besides its window, and how its action becomes the plant input.
+
+Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.HistoryBuffer`
+(past outputs, references, inputs, errors and the integral of the tracking error). An
+:class:`InterfaceSpec` adds what a classical part running on the same data knows:
+
+``"window"`` (:class:`WindowInterface`)
+    The window alone; the action ``a`` in ``[-1, 1]`` is the input ``u = a u_max``.
+``"estimate"`` (:class:`EstimateInterface`): the estimate-conditioned agent
+    The window, then the online estimate of one of the recursive estimators of Ding & Ma
+    (2014) running on the same ``y(t)`` and applied ``u(t)``, batched over the lanes
+    (:func:`stcgym.adaptive.make_estimator`)::
+
+        [ window | theta_hat(t) (2n) | log10 diag P(t) (2n) | e(t) / y_scale ]
+
+    ``theta_hat(t)`` after the measurement update with ``y(t)`` (eq. (32)-(36) of the paper for
+    RLS), ``P(t)`` its covariance, ``e(t) = y(t) - phi_hat(t)^T theta_hat(t-1)`` the
+    innovation: identification is the estimator's, control is learned (the universal policy
+    with online system identification of Yu et al., RSS 2017). The default estimator is
+    ``O-RLS`` with the settings the self-tuning controller gives the paper's observer-form
+    estimators in closed loop (:class:`~stcgym.adaptive.EstimatorOptions`: the
+    measurement-corrected regressor ``"filtered"``, the output injection ``injection`` after
+    ``injection_warmup`` steps, ``P(0) = 300 I``, ``theta_hat(0) = 0``, no forgetting). Why
+    not the controller's own default, extended least squares: it exists only inside the
+    controller's compiled step, which identifies from the controller's own input, not from
+    an agent's; the ``KF-`` estimators take their process noise ``Q(t)`` from the controller
+    at every step, so without it they are another estimator than the controller's. ``O-RLS``
+    runs standalone exactly as the controller runs it; on the benchmark family's test plants
+    it is also the most accurate of the four closed-loop estimators standalone (the numbers
+    are in the RL-baselines page of the documentation). The estimator has no change
+    detection (the controller's, not the estimator's): after a parameter jump the innovation
+    is the agent's signal.
+``"residual"`` (:class:`ResidualInterface`): residual RL on the self-tuning controller
+    A :class:`~stcgym.adaptive.SelfTuningController` with its defaults, told the order ``n``,
+    runs on the same observations; the agent sees the window and the controller's input
+    ``u_stc(t) / u_max`` and its action ``a`` is a bounded correction::
+
+        u(t) = clip(u_stc(t) + fraction * u_max * a(t), -u_max, u_max)
+
+    (Johannink et al., ICRA 2019; Silver et al., 2018). The policy's mean action starts at
+    exactly zero (:func:`stcgym.agents.rl.sb3.build_model` zeroes its last layer), so the
+    deterministic agent starts as the controller. The controller's estimator identifies from
+    the controller's own input ``u_stc``: to it the residual is an input disturbance. Lane
+    ``i`` seeds the controller's probe with ``seeds[i]``; the bench passes
+    :func:`~stcgym.agents.controllers.controller_seeds` of the episode seeds and the training
+    run, the seeds its ``stc`` rows use, so a zero residual reproduces them exactly.
+
+One object serves training (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`, over the lanes
+of a vector env) and evaluation (:class:`~stcgym.agents.rl.sb3.SB3Policy`, from raw ``[y, r]``
+observations), so the two build the same features: per step, :meth:`WindowInterface.observe`
+takes the observation of every lane (``starts`` marks the lanes whose episode starts with it),
+:meth:`~WindowInterface.features` gives the network input and :meth:`~WindowInterface.to_input`
+turns the network's action into the input applied (and records it).
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig
+
+__all__ = [
+    "ESTIMATORS",
+    "KINDS",
+    "EstimateInterface",
+    "InterfaceSpec",
+    "ResidualInterface",
+    "WindowInterface",
+]
+
+#: Interface kinds (see the module docstring).
+KINDS = ("window", "estimate", "residual")
+#: Estimators of the estimate-conditioned agents: the paper's least-squares rules that hold a
+#: closed loop with the self-tuning controller's settings (its warning names the others).
+ESTIMATORS = ("O-RLS", "O-MILS", "KF-RLS", "KF-MILS")
+
+
+@dataclass(frozen=True)
+class InterfaceSpec:
+    """The interface of an agent (JSON-able; ``AlgoConfig.interface`` holds its fields).
+
+    Parameters
+    ----------
+    kind : {"window", "estimate", "residual"}
+        See the module docstring.
+    estimator : str, default "O-RLS"
+        ``"estimate"``: one of :data:`ESTIMATORS` (case-insensitive), run with the
+        self-tuning controller's closed-loop settings for it.
+    log_p, innovation : bool, default True
+        ``"estimate"``: append ``log10 diag P(t)`` and the innovation ``e(t)``.
+    fraction : float, default 0.25
+        ``"residual"``: the bound of the correction as a fraction of the action bound, in
+        ``[0, 1]`` (0: the controller alone).
+    order : int or None
+        The plant order ``n`` the estimator or controller is told (the training
+        distribution's; set by :func:`~stcgym.agents.rl.sb3.train_agent`).
+    run : int, default 0
+        The training run (its seed): with the episode seeds it gives the controller seeds.
+
+    Raises
+    ------
+    ValueError
+        On construction, naming the field out of range.
+
+    Examples
+    --------
+    >>> from stcgym.agents.rl.interfaces import InterfaceSpec
+    >>> from stcgym.agents import WindowConfig
+    >>> spec = InterfaceSpec("estimate", order=2)
+    >>> spec.n_features(WindowConfig(window=3))  # 13 window values, 4 + 4 + 1 of the estimate
+    22
+    >>> InterfaceSpec("residual", fraction=1.5)
+    Traceback (most recent call last):
+    ...
+    ValueError: interface.fraction must be a number in [0, 1], got 1.5
+    """
+
+    kind: str = "window"
+    estimator: str = "O-RLS"
+    log_p: bool = True
+    innovation: bool = True
+    fraction: float = 0.25
+    order: int | None = None
+    run: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"interface.kind must be one of {KINDS}, got {self.kind!r}")
+        name = str(self.estimator).upper()
+        if name not in ESTIMATORS:
+            raise ValueError(
+                f"interface.estimator must be one of {ESTIMATORS}, got {self.estimator!r}"
+            )
+        object.__setattr__(self, "estimator", name)
+        for key in ("log_p", "innovation"):
+            if not isinstance(getattr(self, key), bool):
+                raise ValueError(f"interface.{key} must be True or False")
+        f = self.fraction
+        if isinstance(f, bool) or not isinstance(f, (int, float)) or not 0 <= f <= 1:
+            raise ValueError(f"interface.fraction must be a number in [0, 1], got {f!r}")
+        n = self.order
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+            raise ValueError(f"interface.order must be None or an integer >= 1, got {n!r}")
+        if isinstance(self.run, bool) or not isinstance(self.run, int):
+            raise ValueError(f"interface.run must be an integer, got {self.run!r}")
+
+    @classmethod
+    def of(cls, data: dict[str, Any] | None, order: int | None = None, run: int = 0):
+        """The spec of an ``AlgoConfig.interface`` dict (``{}``: the window alone), told the
+        plant ``order`` and the training ``run``."""
+        return cls(**{**(data or {}), "order": order, "run": int(run)})
+
+    @property
+    def extra_features(self) -> int:
+        """Features after the window's."""
+        if self.kind == "estimate":
+            d = 2 * self._order()
+            return d + (d if self.log_p else 0) + int(self.innovation)
+        return 1 if self.kind == "residual" else 0
+
+    def n_features(self, window: WindowConfig, channels: tuple[int, int] = (1, 1)) -> int:
+        """Length of the observation with ``window`` on a plant of ``channels``."""
+        return window.features_for(*channels) + self.extra_features
+
+    def _order(self) -> int:
+        if self.order is None:
+            raise ValueError(f"the {self.kind!r} interface needs the plant order (order=n)")
+        return self.order
+
+    def build(
+        self,
+        window: WindowConfig,
+        action_bound: float,
+        batch: int = 1,
+        channels: tuple[int, int] = (1, 1),
+        seeds: ArrayLike | None = None,
+    ) -> WindowInterface:
+        """The interface for ``batch`` lanes; ``seeds``: the residual controller's seed per
+        lane (default: :func:`~stcgym.agents.controllers.controller_seeds` of the lane
+        indices and :attr:`run`)."""
+        if self.kind == "window":
+            return WindowInterface(window, action_bound, batch, channels)
+        if tuple(channels) != (1, 1):
+            raise ValueError(f"the {self.kind!r} interface runs on SISO plants, got {channels}")
+        if self.kind == "estimate":
+            return EstimateInterface(window, action_bound, batch, self)
+        if seeds is None:
+            from stcgym.agents.controllers import controller_seeds
+
+            seeds = controller_seeds(range(batch), self.run)
+        return ResidualInterface(window, action_bound, batch, self, seeds)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> InterfaceSpec:
+        return cls(**(data or {}))
+
+
+class WindowInterface:
+    """The window alone, for ``batch`` lanes: ``u = clip(a, -1, 1) u_max``.
+
+    Parameters
+    ----------
+    window : WindowConfig
+        The window's settings.
+    action_bound : float
+        ``u_max``.
+    batch : int
+        Lanes.
+    channels : (int, int)
+        Outputs and inputs ``(p, m)``.
+    """
+
+    def __init__(
+        self,
+        window: WindowConfig,
+        action_bound: float,
+        batch: int = 1,
+        channels: tuple[int, int] = (1, 1),
+    ) -> None:
+        self.window, self.action_bound, self.batch = window, float(action_bound), int(batch)
+        self.channels = (int(channels[0]), int(channels[1]))
+        self.buffer = HistoryBuffer(window, self.action_bound, self.batch, *self.channels)
+
+    @property
+    def n_features(self) -> int:
+        return self.window.features_for(*self.channels)
+
+    def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
+        """The observation ``[y(t), r(t)]`` of every lane; ``starts`` (a boolean mask) marks
+        the lanes whose episode starts with it (``None``: none)."""
+        if starts is not None and starts.any():
+            self.buffer.start(obs, starts)
+            if not starts.all():
+                self.buffer.push_obs(obs, ~starts)
+        else:
+            self.buffer.push_obs(obs)
+
+    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
+        """The features of the final observations ``last`` of the lanes ``lanes`` (a boolean
+        mask), whose next :meth:`observe` starts an episode (rows of other lanes: unused)."""
+        self.buffer.push_obs(last, lanes)
+        return self.buffer.features()
+
+    def features(self) -> NDArray:
+        """``(batch, n_features)`` float32 network input."""
+        return self.buffer.features()
+
+    def _record(self, u: NDArray) -> NDArray:
+        self.buffer.push_action(u)
+        return u
+
+    def to_input(self, action: ArrayLike) -> NDArray:
+        """The input ``(batch, m)`` applied for the network's ``action`` (recorded)."""
+        a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, -1), -1.0, 1.0)
+        return self._record(a * self.action_bound)
+
+    def _with_extra(self, window: NDArray, extra: NDArray) -> NDArray:
+        clip = self.window.obs_clip
+        extra = np.clip(np.nan_to_num(extra), -clip, clip).astype(np.float32)
+        return np.concatenate([window, extra], axis=1)
+
+
+class EstimateInterface(WindowInterface):
+    """The window and an estimator's ``theta_hat``, ``log10 diag P`` and innovation (module
+    docstring), the estimator batched over the lanes.
+
+    Examples
+    --------
+    The estimate in the features is the estimator's own, run on the same data:
+
+    >>> import numpy as np
+    >>> from stcgym.agents import WindowConfig
+    >>> from stcgym.agents.rl.interfaces import InterfaceSpec
+    >>> spec = InterfaceSpec("estimate", order=2)
+    >>> lanes = spec.build(WindowConfig(window=2), action_bound=5.0, batch=3)
+    >>> lanes.observe(np.array([[0.1, 1.0]] * 3), starts=np.ones(3, bool))
+    >>> u = lanes.to_input(np.array([[0.2], [0.0], [-0.4]]))
+    >>> lanes.observe(np.array([[0.3, 1.0], [0.0, 1.0], [-0.2, 1.0]]))
+    >>> f = lanes.features()
+    >>> f.shape, bool(np.allclose(f[:, 9:13], lanes.estimator.theta.astype(np.float32)))
+    ((3, 18), True)
+    """
+
+    def __init__(
+        self, window: WindowConfig, action_bound: float, batch: int, spec: InterfaceSpec
+    ) -> None:
+        super().__init__(window, action_bound, batch)
+        self.spec = spec
+        self.estimator = closed_loop_estimator(spec.estimator, spec._order(), self.batch)
+
+    @property
+    def n_features(self) -> int:
+        return super().n_features + self.spec.extra_features
+
+    def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
+        super().observe(obs, starts)
+        if starts is not None and starts.any():
+            self.estimator.reset(lanes=starts)
+        self._update(self.estimator, obs)
+
+    def _update(self, estimator: Any, obs: ArrayLike) -> None:
+        y = np.asarray(obs, dtype=float).reshape(self.batch, 2)[:, 0]
+        with warnings.catch_warnings():  # its health events: documented safe actions
+            warnings.simplefilter("ignore")
+            estimator.update(y)
+
+    def _estimate(self, estimator: Any) -> NDArray:
+        parts = [estimator.theta]
+        if self.spec.log_p:
+            S = estimator.S  # P = S S^T: diag P = row sums of S^2
+            parts.append(np.log10(np.maximum(np.sum(S * S, axis=2), 1e-300)))
+        if self.spec.innovation:
+            parts.append(estimator.e[:, None] / self.window.y_scale)
+        return np.concatenate(parts, axis=1)
+
+    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
+        window = super().terminal_features(last, lanes)
+        ahead = copy.deepcopy(self.estimator)  # the lanes restart: the real one stays
+        self._update(ahead, last)
+        return self._with_extra(window, self._estimate(ahead))
+
+    def features(self) -> NDArray:
+        return self._with_extra(super().features(), self._estimate(self.estimator))
+
+    def to_input(self, action: ArrayLike) -> NDArray:
+        u = super().to_input(action)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self.estimator.predict(u[:, 0])
+        return u
+
+
+def closed_loop_estimator(name: str, n: int, batch: int) -> Any:
+    """The estimator ``name`` (one of :data:`ESTIMATORS`) for ``batch`` lanes with the settings
+    :class:`~stcgym.adaptive.SelfTuningController` gives it in closed loop
+    (:class:`~stcgym.adaptive.EstimatorOptions`'s defaults), ``theta_hat(0) = 0``."""
+    from stcgym.adaptive import EstimatorOptions, make_estimator
+
+    eo = EstimatorOptions()
+    kw: dict[str, Any] = {
+        "p0": eo.initial_covariance(name), "forgetting": eo.forgetting,
+        "theta0": np.zeros(2 * n), "regressor": eo.regressor,
+    }  # fmt: skip
+    if name.endswith("MILS"):
+        kw["p"] = eo.p
+    if name.startswith("O-"):
+        kw.update(injection=eo.injection, injection_warmup=eo.injection_warmup)
+    else:
+        kw.update(
+            process_noise=eo.process_noise_floor * np.eye(n),
+            measurement_noise=eo.kf_measurement_noise,
+        )
+    return make_estimator(name, n, num_envs=batch, **kw)
+
+
+class ResidualInterface(WindowInterface):
+    """The window and the self-tuning controller's input; the action a bounded correction of
+    it (module docstring). ``controller`` is the :class:`~stcgym.adaptive.
+    SelfTuningController` of the lanes (seeded ``seeds``).
+
+    Examples
+    --------
+    With a zero action the input is the controller's:
+
+    >>> import numpy as np
+    >>> from stcgym.adaptive import SelfTuningController
+    >>> from stcgym.agents import WindowConfig
+    >>> from stcgym.agents.rl.interfaces import InterfaceSpec
+    >>> lanes = InterfaceSpec("residual", order=2).build(WindowConfig(window=2), 5.0, 2,
+    ...                                                  seeds=[7, 8])
+    >>> alone = SelfTuningController(2, num_envs=2, action_bound=5.0, seed=[7, 8])
+    >>> obs = np.array([[0.1, 1.0], [-0.3, 1.0]])
+    >>> lanes.observe(obs, starts=np.ones(2, bool))
+    >>> u = lanes.to_input(np.zeros((2, 1)))
+    >>> alone.reset()
+    >>> bool(np.array_equal(u, alone.predict(obs)[0]))
+    True
+    """
+
+    def __init__(
+        self,
+        window: WindowConfig,
+        action_bound: float,
+        batch: int,
+        spec: InterfaceSpec,
+        seeds: ArrayLike,
+    ) -> None:
+        from stcgym.adaptive import SelfTuningController
+
+        super().__init__(window, action_bound, batch)
+        self.spec = spec
+        self.seeds = [int(s) for s in seeds]
+        self.controller = SelfTuningController(
+            spec._order(), num_envs=self.batch, action_bound=self.action_bound, seed=self.seeds
+        )
+        self.u_base = np.zeros((self.batch, 1))
+
+    @property
+    def n_features(self) -> int:
+        return super().n_features + 1
+
+    def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
+        super().observe(obs, starts)
+        self.u_base = self.controller.predict(obs, episode_start=starts)[0]
+
+    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
+        window = super().terminal_features(last, lanes)
+        ahead = copy.deepcopy(self.controller)  # the lanes restart: the real one stays
+        return self._with_extra(window, ahead.predict(last)[0] / self.action_bound)
+
+    def features(self) -> NDArray:
+        return self._with_extra(super().features(), self.u_base / self.action_bound)
+
+    def to_input(self, action: ArrayLike) -> NDArray:
+        a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, 1), -1.0, 1.0)
+        bound = self.action_bound
+        return self._record(np.clip(self.u_base + self.spec.fraction * bound * a, -bound, bound))
