@@ -1,20 +1,19 @@
-"""The estimators' configuration on the Python side: names, validation, the record and the config.
+"""The estimators' configuration on the Python side: names, validation, the lane state and the config.
 
 ``spec = EstimatorSpec.build(name, n, **make_estimator_keywords)`` validates one estimator
 configuration exactly like :func:`stcgym.adaptive.make_estimator` (which builds one itself) and
 gives
 
-* ``spec.layout`` -- the :class:`~stcgym.envs.compiled.Layout` of the estimator's record
-  (fields :class:`EstimatorRecord`); ``spec.size`` floats per lane;
-* ``spec.at`` -- the offsets of its fields in a record of its own, ``spec.record(base)`` the
-  same inside a larger lane record starting at ``base``;
 * ``spec.config`` -- the :class:`EstimatorConfig` every lane function takes;
-* ``spec.initial_record()`` -- one lane's record at ``t = 0`` (shape ``(size,)``);
-* ``spec.offset(name)`` -- the offset of a field, e.g. ``"theta"`` (2n), ``"x_hat"`` (n),
-  ``"S"`` (2n x 2n, row-major: the upper-triangular factor of ``P = S S^T``; block-diagonal
-  ``diag(S_a, S_b)`` for D- rules; absent (size 0) for SG/MISG), ``"P1"`` (n x n), ``"Q"``
-  (n x n, the KF process-noise covariance, may be overwritten before every state step),
-  ``"E"`` (p, the innovation ``E(p, t)``), ``"r"`` (2, SG/MISG normalisers).
+* ``spec.make_state(B)`` / ``spec.make_work(B)`` -- the :class:`EstimatorState` and
+  :class:`EstimatorWork` of ``B`` lanes: named tuples of batched arrays, lane ``i``'s field
+  ``f`` being ``state.f[i]``, e.g. ``theta`` (2n), ``x_hat`` (n), ``S`` (2n x 2n: the
+  upper-triangular factor of ``P = S S^T``; block-diagonal ``diag(S_a, S_b)`` for D- rules;
+  size 0 for SG/MISG), ``P1`` (n x n), ``Q`` (n x n, the KF process-noise covariance, may be
+  overwritten before every state step), ``E`` (p, the innovation ``E(p, t)``), ``r`` (2,
+  SG/MISG normalisers);
+* ``spec.shapes()`` -- the shape of every field of both, declared once;
+* ``spec.initial_state()`` -- one lane's state at ``t = 0``.
 
 The lane functions themselves are in :mod:`stcgym.adaptive.kernels.estimator`.
 """
