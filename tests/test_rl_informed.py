@@ -293,7 +293,7 @@ def test_the_tiers_list_the_informed_agents():
     for tier in (STANDARD, FULL):
         assert {"theta_ppo", "theta_sac", "residual_ppo"} <= set(tier["agents"])
     assert set(QUICK["agents"]) <= set(STANDARD["agents"])
-    names = [*QUICK["agents"], "theta_ppo", "theta_sac", "residual_ppo"]
+    names = list(dict.fromkeys([*QUICK["agents"], "theta_ppo", "theta_sac", "residual_ppo"]))
     assert len({color(n) for n in names if n != "stc_mimo"}) == len(names) - 1
     assert all(color(n) == COLORS[n] for n in names)
 
