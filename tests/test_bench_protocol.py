@@ -326,3 +326,27 @@ def test_figures_are_readable_at_page_width_with_one_colour_per_controller():
              "a2c", "rppo"]  # fmt: skip
     assert len({color(n) for n in names}) == len(names)
     assert all(color(n) == COLORS[n] for n in names) and color("new_agent") == color("new_agent")
+
+
+def test_the_training_table_gives_each_training_env_its_own_wall_time():
+    from types import SimpleNamespace
+
+    from stcgym.agents.benchmark.report import _training_table
+
+    scenarios = [
+        SimpleNamespace(name="nominal:stable2", train_key="nominal:stable2"),
+        SimpleNamespace(name="family:test", train_key="family"),
+        SimpleNamespace(name="jump:test", train_key="family"),
+    ]
+    stop = {"status": "cap", "steps": 1000, "cap": 1000, "last_improvement_step": 500}
+    data = SimpleNamespace(
+        stops={("family", "ppo", 0): stop, ("nominal:stable2", "ppo", 0): stop}, curves=[]
+    )
+    rows = [
+        {"family": "rl", "controller": "ppo", "run": 0, "scenario": sc, "train_wall_s": w}
+        for sc, w in [("nominal:stable2", 11.0), ("family:test", 222.0), ("jump:test", 222.0)]
+    ]
+    cfg = SimpleNamespace(rl_agents=[])
+    table = _training_table(cfg, data, rows, scenarios)
+    assert "| family | ppo | 0 | cap |" in table[2] and table[2].endswith("| 222 |")
+    assert "| nominal:stable2 | ppo | 0 |" in table[3] and table[3].endswith("| 11 |")

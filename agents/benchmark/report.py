@@ -264,7 +264,9 @@ def _detail_table(agg: dict, name: str, controllers: Sequence[str]) -> list[str]
     return lines
 
 
-def _training_table(cfg: Any, data: Any, rows: Sequence[dict[str, Any]]) -> list[str]:
+def _training_table(
+    cfg: Any, data: Any, rows: Sequence[dict[str, Any]], scenarios: Sequence[Any]
+) -> list[str]:
     from stcgym.agents.rl.configs import ZOO_DEPARTURES
 
     lines = [
@@ -272,14 +274,16 @@ def _training_table(cfg: Any, data: Any, rows: Sequence[dict[str, Any]]) -> list
         "score | wall s |",
         "|---|---|---|---|---|---|---|---|",
     ]
+    # a training job's wall time is on every row it scored; its training env is the scenario's
+    train_key = {sc.name: sc.train_key for sc in scenarios}
     walls = {}
     for r in rows:
-        if r["family"] == "rl":
-            walls[(r["controller"], str(r["run"]), r["scenario"])] = r.get("train_wall_s")
+        if r["family"] == "rl" and r["scenario"] in train_key:
+            walls[(train_key[r["scenario"]], r["controller"], str(r["run"]))] = r.get("train_wall_s")
     for (key, algo, ts), stop in sorted(data.stops.items(), key=lambda kv: str(kv[0])):
         curve = [c["score"] for c in data.curves if (c["train_env"], c["algo"], c["train_seed"])
                  == (key, algo, ts)]  # fmt: skip
-        wall = next((w for (a, run, _), w in walls.items() if a == algo and run == str(ts)), None)
+        wall = walls.get((key, algo, str(ts)))
         lines.append(
             f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
             f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
@@ -396,7 +400,7 @@ def write_report(
             ),
             "",
         ]
-    training = _training_table(cfg, data, rows)
+    training = _training_table(cfg, data, rows, scenarios)
     if training:
         out += [
             "## RL training",
