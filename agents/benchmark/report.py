@@ -279,7 +279,8 @@ def _training_table(
     walls = {}
     for r in rows:
         if r["family"] == "rl" and r["scenario"] in train_key:
-            walls[(train_key[r["scenario"]], r["controller"], str(r["run"]))] = r.get("train_wall_s")
+            job = (train_key[r["scenario"]], r["controller"], str(r["run"]))
+            walls[job] = r.get("train_wall_s")
     for (key, algo, ts), stop in sorted(data.stops.items(), key=lambda kv: str(kv[0])):
         curve = [c["score"] for c in data.curves if (c["train_env"], c["algo"], c["train_seed"])
                  == (key, algo, ts)]  # fmt: skip
