@@ -41,9 +41,21 @@ def _slug(name: str) -> str:
 
 
 def _save(fig: Any, path: Path) -> None:
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:
+        fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     pyplot().close(fig)
+
+
+def _shared_legend(fig: Any, axes: Any) -> None:
+    """One legend for every panel, below them (never over data), each name once."""
+    entries: dict[str, Any] = {}
+    for ax in np.ravel(axes):
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if entries:
+        fig.legend(list(entries.values()), list(entries), loc="outside lower center",
+                   ncol=min(5, len(entries)))  # fmt: skip
 
 
 def _learners(data: Any, scenario: str) -> list[str]:
@@ -73,19 +85,25 @@ def plot_data_efficiency(
     plt = pyplot()
     keys = list(dict.fromkeys(c["train_env"] for c in curves))
     rows = max(1, len(keys))
-    fig, axes = plt.subplots(rows, 2, figsize=(WIDTH, 3.2 * rows), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, 2, figsize=(WIDTH, 3.2 * rows + 0.8), squeeze=False, layout="constrained"
+    )
     for ax, key in zip(axes[:, 0], keys or [None], strict=True):
         if key is None:
             ax.set_axis_off()
             continue
+        first = np.inf  # the first evaluation after step 0, over this panel's agents
         for algo in dict.fromkeys(c["algo"] for c in curves if c["train_env"] == key):
             runs: dict[int, list[tuple[float, float]]] = {}
             for c in curves:
                 if c["train_env"] == key and c["algo"] == algo:
                     runs.setdefault(c["train_seed"], []).append((c["steps"], c["score"]))
-            grid = np.unique([s for pts in runs.values() for s, _ in pts if s > 0])
+            # step 0 is the untrained policy: the checkpoint kept when training never beats it
+            grid = np.unique([s for pts in runs.values() for s, _ in pts])
             if grid.size == 0:
                 continue
+            if np.any(grid > 0):
+                first = min(first, float(grid[grid > 0].min()))
             # each run's curve held at its last point (a run stopped at its plateau)
             table = np.array(
                 [np.interp(grid, *zip(*sorted(pts), strict=True)) for pts in runs.values()]
@@ -94,9 +112,11 @@ def plot_data_efficiency(
             ax.fill_between(grid, table.min(axis=0), table.max(axis=0), color=color(algo),
                             alpha=0.2, lw=0)  # fmt: skip
         ax.axhline(1.0, color=color(YARDSTICK), lw=1, ls="--", label="LQG")
-        ax.set(xscale="log", yscale="log", xlabel="training env steps (offline)",
+        # linear from step 0 to the first evaluation, logarithmic after it
+        ax.set_xscale("symlog", linthresh=first if np.isfinite(first) else 1.0)
+        ax.set_xlim(left=0)
+        ax.set(yscale="log", xlabel="training env steps (offline)",
                ylabel="validation cost / LQG", title=f"RL learning curves: {key}")  # fmt: skip
-        ax.legend(loc="upper right")
     ax = axes[0, 1]
     if scenario is None:
         ax.set_axis_off()
@@ -111,9 +131,9 @@ def plot_data_efficiency(
         ax.axhline(1.0, color=color(YARDSTICK), lw=1, ls="--", label="LQG")
         ax.set(xscale="log", yscale="log", xlabel="step within the episode (online)",
                ylabel="window cost / LQG", title=f"within an episode: {scenario.name}")  # fmt: skip
-        ax.legend(loc="upper right")
     for ax in axes[1:, 1]:
         ax.set_axis_off()
+    _shared_legend(fig, axes)
     _save(fig, path)
 
 
@@ -141,9 +161,12 @@ def _excess(data: Any, scenario: str, name: str, align: bool) -> np.ndarray | No
 
 def plot_adaptation(path: Path, data: Any, panels: Sequence[Any]) -> None:
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(panels), figsize=(WIDTH, 3.6), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(WIDTH, 4.2), squeeze=False, layout="constrained"
+    )
     for ax, sc in zip(axes[0], panels, strict=True):
         align = sc.kind == "jump"
+        lowest = 0.0
         for name in _learners(data, sc.name):
             ex = _excess(data, sc.name, name, align)
             if ex is None:
@@ -154,11 +177,14 @@ def plot_adaptation(path: Path, data: Any, panels: Sequence[Any]) -> None:
             q = np.nanpercentile(ex, [25, 50, 75], axis=0)
             ax.plot(steps, q[1], color=color(name), lw=2, label=name)
             ax.fill_between(steps, q[0], q[2], color=color(name), alpha=0.15, lw=0)
+            lowest = min(lowest, float(np.nanmin(q[0])))
         ax.axhline(0.0, color=color(YARDSTICK), lw=1, ls="--", label="LQG")
-        ax.set(xscale="log", yscale="symlog",
+        ax.set_yscale("symlog", linthresh=1.0)  # below LQG only as far as some band goes
+        ax.set_ylim(bottom=lowest)
+        ax.set(xscale="log",
                xlabel="steps after the jump" if align else "step within the episode",
                ylabel="cumulative cost above LQG", title=sc.name)  # fmt: skip
-        ax.legend(loc="upper left")
+    _shared_legend(fig, axes)
     _save(fig, path)
 
 
