@@ -18,9 +18,14 @@ and writes ``u(t)``. Every step, in this order:
    gain stays;
 4. **control**: for the first ``probe_steps`` samples (default ``n + m + 1``), and until a
    design has been accepted, a zero-mean probe ``+-a`` on every input with signs hashed from
-   ``(seed, episode, t, input)`` and ``a = probe_amplitude min(1, probe_output / max |x|)``;
-   it runs on up to ``max_probe_steps`` (default ``5 (n + m)``) while ``max |x| <
-   probe_output``. Then ``u = sat(-K x + F r)`` (:func:`.mimo_lq.feedback_law`).
+   ``(seed, episode, t, input)`` and ``a = probe_amplitude min(1, probe_output / max |x|)``,
+   capped at ``sqrt(share c_max / trace(R))`` (``c_max`` the largest state cost
+   ``(x - r)^T Q (x - r)`` seen while probing) so that the probe's input cost is a small share
+   of the cost it is there to remove, on any scale of state and input. A capped probe stops
+   after ``probe_min`` samples (default ``n + m``, the fewest that give a full-rank estimate:
+   every further open-loop sample costs more than it adds); an uncapped one runs on up to
+   ``max_probe_steps`` (default ``5 (n + m)``) while ``max |x| < probe_output``. Then
+   ``u = sat(-K x + F r)`` (:func:`.mimo_lq.feedback_law`).
 
 Lane records: a ``float64`` record (fields :class:`MimoRecord`) with the estimator's fields
 first, and an ``int64`` record (:data:`MIMO_INTS`); configuration :class:`MimoConfig`.
@@ -80,6 +85,7 @@ class MimoRecord(NamedTuple):
     design: int  # design scratch (design_work_size)
     Qw: int  # LQ state weight (n, n)
     Rw: int  # LQ input weight (m, m)
+    Nw: int  # LQ cross weight (n, m)
     A: int  # model of the estimate (n, n)
     B: int  # (n, m)
     P_lq: int  # Riccati matrix of the gain in use (n, n)
@@ -91,6 +97,7 @@ class MimoRecord(NamedTuple):
     ews: int  # short EWMA of ||e||^2
     ewl: int  # long EWMA of ||e||^2
     ymax: int  # largest |x_i| seen while probing
+    cmax: int  # largest state cost (x - r)^T Q (x - r) seen while probing
 
 
 class MimoInts(NamedTuple):
@@ -120,12 +127,15 @@ class MimoConfig(NamedTuple):
     n: int
     m: int
     probe_steps: int
+    probe_min: int  # probe length when the probe is capped by the state cost
     probe_max: int
     detect: bool
     holdoff: int
     action_bound: float
     probe_amplitude: float
     probe_output: float
+    probe_cost_share: float  # the probe's input cost at most this share of the state cost
+    input_weight: float  # trace(R): the probe's input cost per unit amplitude squared
     threshold: float
     inflation: float
     ew_short: float
@@ -139,25 +149,30 @@ class MimoConfig(NamedTuple):
     solve_max_iter: int
 
 
-def mimo_record(n: int, m: int, Q: NDArray, R: NDArray) -> tuple[Layout, MimoRecord, NDArray]:
-    """Float record of one lane, its offsets and its initial value (weights ``Q``, ``R``)."""
+def mimo_record(
+    n: int, m: int, Q: NDArray, R: NDArray, N: NDArray
+) -> tuple[Layout, MimoRecord, NDArray]:
+    """Float record of one lane, its offsets and its initial value (weights ``Q``, ``R``,
+    ``N``)."""
     lay = state_matrix_layout(n, m)
     lay.add("design", (design_work_size(n, m),))
     lay.add("Qw", (n, n))
     lay.add("Rw", (m, m))
+    lay.add("Nw", (n, m))
     lay.add("A", (n, n))
     lay.add("B", (n, m))
     for name in ("P_lq", "P_try"):
         lay.add(name, (n, n))
     for name in ("K", "K_try", "F"):
         lay.add(name, (m, n))
-    for name in ("has_gain", "ews", "ewl", "ymax"):
+    for name in ("has_gain", "ews", "ewl", "ymax", "cmax"):
         lay.add(name)
     at = lay.record(MimoRecord)
     init = lay.empty(1)[0]
     state_matrix_initial(lay, init, n, m)
     init[at.Qw : at.Qw + n * n] = np.asarray(Q, dtype=float).ravel()
     init[at.Rw : at.Rw + m * m] = np.asarray(R, dtype=float).ravel()
+    init[at.Nw : at.Nw + n * m] = np.asarray(N, dtype=float).ravel()
     init[at.P_lq : at.P_lq + n * n] = np.asarray(Q, dtype=float).ravel()
     return lay, at, init
 
@@ -190,6 +205,7 @@ def _design(f, g, at, cfg):
     _model(f, at, n, m, A, B)
     Q = view2d(f, at.Qw, n, n)
     R = view2d(f, at.Rw, m, m)
+    N = view2d(f, at.Nw, n, m)
     P = view2d(f, at.P_try, n, n)
     K = view2d(f, at.K_try, m, n)
     work = f[at.design : at.Qw]  # the design scratch ends where the weights start
@@ -198,24 +214,36 @@ def _design(f, g, at, cfg):
         if not math.isfinite(f[at.theta + i]):
             return NONFINITE
     if fresh:
-        status = dare_solve(A, B, Q, R, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
+        status = dare_solve(A, B, Q, R, N, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
         if status != OK:
             return status
     else:
         _copy(f, at.P_lq, at.P_try, n * n)
-        riccati_step(A, B, Q, R, P, K, work)
+        riccati_step(A, B, Q, R, N, P, K, work)
         big = False
         for i in range(n * n):
             big = big or not abs(f[at.P_try + i]) <= P_MAX
-        if big or not lq_gain(A, B, R, P, K, work):
+        if big or not lq_gain(A, B, R, N, P, K, work):
             _copy(f, at.Qw, at.P_lq, n * n)  # restart the iteration at P = Q
             return NOT_STABILISABLE
-    status = design_checks(A, B, Q, R, K, view2d(f, at.F, m, n), cfg.b_min, cfg.gain_max, work)
+    F = view2d(f, at.F, m, n)
+    status = design_checks(A, B, Q, R, N, K, F, cfg.b_min, cfg.gain_max, work)
     if status == OK:
         _copy(f, at.P_try, at.P_lq, n * n)
         _copy(f, at.K_try, at.K, m * n)
         f[at.has_gain] = 1.0
     return status
+
+
+@lane(inline=True)
+def _state_cost(Q, x, r):
+    """``(x - r)^T Q (x - r)``."""
+    n = x.size
+    acc = 0.0
+    for i in range(n):
+        for j in range(n):
+            acc += (x[i] - r[i]) * Q[i, j] * (x[j] - r[j])
+    return acc
 
 
 @lane(entry=True)
@@ -254,15 +282,29 @@ def mimo_step(f, g, at, cfg, x, r, u):
     # -- 4. control: the probe while the loop is open, then the feedback law
     open_loop = closed_t < 0
     ymax = f[at.ymax]
+    cmax = f[at.cmax]
     if open_loop:
         for i in range(n):
             ymax = max(ymax, abs(x[i]))
         f[at.ymax] = ymax
+        cmax = max(cmax, _state_cost(view2d(f, at.Qw, n, n), x, r))
+        f[at.cmax] = cmax
     level = cfg.probe_output
-    probing = open_loop and (t < cfg.probe_steps or (t < cfg.probe_max and ymax < level))
+    amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
+    # the probe follows the scale of the state and the input: its input cost a^2 trace(R)
+    # stays a small share of the state cost it is there to remove (a plant at its reference
+    # is probed with the full amplitude)
+    capped = False
+    if cmax > 0.0:
+        cap = math.sqrt(cfg.probe_cost_share * cmax / cfg.input_weight)
+        if cap < amp:
+            amp = cap
+            capped = True
+    # an excited state needs no longer probe: the extension is for a plant near rest
+    extend = t < cfg.probe_max and ymax < level and not capped
+    probing = open_loop and (t < (cfg.probe_min if capped else cfg.probe_steps) or extend)
     bound = cfg.action_bound
     if probing or f[at.has_gain] <= 0.0:
-        amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
         seed = g[MIMO_INTS.seed]
         episode = g[MIMO_INTS.episode]
         for j in range(m):
