@@ -23,7 +23,10 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import make_estimator
+from stcgym.agents.benchmark import style
 from stcgym.envs import get_plant
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 T = 3000
 
@@ -96,26 +99,24 @@ names = list(runs)
 # (radius 0.84) make the open-loop state estimate forget a wrong start slowly; the filtered
 # regressor takes the state from the measurement and settles within a few hundred samples.
 labels = ["a1", "a2", "b1", "b2"]
-fig, axes = plt.subplots(2, 2, sharex=True, figsize=(8, 5))
+fig, axes = plt.subplots(2, 2, sharex=True, figsize=(style.WIDTH, 5.5), layout="constrained")
 for i, ax in enumerate(axes.flat):
     for name in names:
         ax.plot(histories[name][:, i], label=name)
     ax.axhline(theta_true[i], color="k", ls="--", lw=1, label="true")
     ax.set_title(labels[i])
     ax.set_ylim(theta_true[i] - 1.0, theta_true[i] + 1.0)
-axes[0, 1].legend(loc="lower right")
 for ax in axes[1]:
     ax.set_xlabel("t")
 fig.suptitle("stable2, open loop, noise 0.05")
-fig.tight_layout()
+fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4)
 
-fig, ax = plt.subplots(figsize=(7, 3.5))
+fig, ax = plt.subplots(figsize=(style.WIDTH, 3.5), layout="constrained")
 for name in names:
     ax.semilogy(relative_error(histories[name]), label=name)
 ax.set_xlabel("t")
 ax.set_ylabel("relative parameter error")
-ax.legend()
-fig.tight_layout()
+ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1))
 plt.show()
 
 # %%

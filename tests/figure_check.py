@@ -3,7 +3,8 @@
 The gallery shows a figure at its pixel width (``savefig.dpi`` x its width in inches, as
 sphinx-gallery saves it), shrunk to the page's :data:`PAGE_PX` when wider. A figure is
 readable when every text is at least ``style.MIN_FONT`` points at that rendered size, no
-legend lies on a plotting area, and a label names one colour in every panel of the figure.
+legend lies on a plotting area or on a title or axis label, and a label names one colour in
+every panel of the figure.
 """
 
 from __future__ import annotations
@@ -27,6 +28,11 @@ def _dpi(fig: Any) -> float:
     return fig.dpi if dpi == "figure" else float(dpi)
 
 
+def _overlap(a: Bbox, b: Bbox) -> bool:
+    both = Bbox.intersection(a, b)
+    return both is not None and both.width > 1 and both.height > 1
+
+
 def problems(fig: Any) -> list[str]:
     """What makes ``fig`` hard to read at :data:`PAGE_PX` (empty when nothing does)."""
     out = []
@@ -41,13 +47,19 @@ def problems(fig: Any) -> list[str]:
                 out.append(f"text {text.get_text()!r}: {size:.1f} pt at {PAGE_PX:.0f} px")
     axes = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
     legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes)]
+    titles = [*fig.texts, *(t for t in (fig._suptitle, fig._supxlabel, fig._supylabel) if t)]
+    for ax in axes:
+        titles += [ax.title, ax._left_title, ax._right_title, ax.xaxis.label, ax.yaxis.label]
+    titles = [t for t in dict.fromkeys(titles) if t.get_visible() and t.get_text().strip()]
     for legend in filter(None, legends):
         box = legend.get_window_extent(renderer)
+        names = [t.get_text() for t in legend.get_texts()]
         for ax in axes:
-            overlap = Bbox.intersection(box, ax.get_window_extent(renderer))
-            if overlap is not None and overlap.width > 1 and overlap.height > 1:
-                names = [t.get_text() for t in legend.get_texts()]
+            if _overlap(box, ax.get_window_extent(renderer)):
                 out.append(f"legend {names} lies on the plotting area of {ax.get_title()!r}")
+        for text in titles:
+            if _overlap(box, text.get_window_extent(renderer)):
+                out.append(f"legend {names} covers the text {text.get_text()!r}")
     seen: dict[str, str] = {}
     for ax in fig.axes:
         for line in ax.get_lines():
