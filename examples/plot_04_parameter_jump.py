@@ -22,7 +22,10 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import ChangeDetection, KnownModelController, SelfTuningController
+from stcgym.agents.benchmark import style
 from stcgym.envs import Jumps, get_plant
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 T, JUMP = 1500, 1000
 POLES = [0.5, 0.5, 0.5]
@@ -127,41 +130,47 @@ for name in ("self-tuning", "no change detection"):
     when = f"from step {first_good} on" if first_good < T else "not again in this episode"
     print(f"{name:20s} within 1.2x of the informed oracle per period: {when}")
 
-fig, axes = plt.subplots(2, 1, figsize=(8, 5.5), sharex=True)
+# Each controller has its colour of the benchmark figures (``stcgym.agents.benchmark.style``).
+COLORS = {
+    name: style.color(key) for name, key in zip(runs, ["stc", "stc_nocd", "oracle"], strict=True)
+}
+fig, axes = plt.subplots(2, 1, figsize=(style.WIDTH, 5.5), sharex=True, layout="constrained")
 ax = axes[0]
-ax.plot(runs["self-tuning"]["r"], "k--", lw=1, label="r")
-for name, color in zip(runs, ["C0", "C1", "0.5"], strict=True):
-    ax.plot(runs[name]["y"], color=color, lw=1, label=name)
-ax.axvline(JUMP, color="r", lw=1)
+ax.plot(runs["self-tuning"]["r"], "k--", lw=1, label="reference r")
+for name in runs:
+    ax.plot(runs[name]["y"], color=COLORS[name], lw=1, label=name)
+ax.axvline(JUMP, color="k", lw=3, alpha=0.25, label="jump")
 ax.set_xlim(800, T)
 ax.set_ylabel("y (noise-free)")
-ax.legend(loc="upper left", ncol=2, fontsize=8)
 ax = axes[1]
-for name, color in zip(["self-tuning", "no change detection"], ["C0", "C1"], strict=True):
+for name in ("self-tuning", "no change detection"):
     rel = per_period(runs[name]["cost"]) / per_period(oracle_cost)
-    ax.step(periods + 100, rel, where="pre", color=color, label=name)
-ax.axhline(1.2, color="k", ls=":", lw=1, label="1.2x")
-ax.axvline(JUMP, color="r", lw=1)
+    ax.step(periods + 100, rel, where="pre", color=COLORS[name], label=name)
+ax.axhline(1.2, color="k", ls=":", lw=1, label="1.2x the oracle")
+ax.axvline(JUMP, color="k", lw=3, alpha=0.25)
 ax.set_yscale("log")
 ax.set_ylabel("cost per period / oracle")
 ax.set_xlabel("step k")
-ax.legend(fontsize=8)
-fig.tight_layout()
+handles = {}
+for ax in axes:
+    handles.update(zip(*reversed(ax.get_legend_handles_labels()), strict=True))
+fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncol=3)
 
 # %%
 # The estimates follow the new parameters
 # ---------------------------------------
-# Self-tuning controller in blue, without change detection in orange, the truth dashed.
+# The self-tuning controller's and the one without change detection, the truth dashed.
 labels = ["a1", "a2", "b1", "b2"]
-fig, axes = plt.subplots(1, 4, figsize=(10, 2.8), sharex=True)
-for i, ax in enumerate(axes):
-    for name, color in zip(["self-tuning", "no change detection"], ["C0", "C1"], strict=True):
-        ax.plot(runs[name]["theta_hat"][:, i], color=color, lw=1)
+fig, axes = plt.subplots(2, 2, figsize=(style.WIDTH, 4.5), sharex=True, layout="constrained")
+for i, ax in enumerate(axes.flat):
+    for name in ("self-tuning", "no change detection"):
+        ax.plot(runs[name]["theta_hat"][:, i], color=COLORS[name], lw=1, label=name)
     truth = runs["self-tuning"]["theta"][:, i]
-    ax.plot(truth, "k--", lw=1)
+    ax.plot(truth, "k--", lw=1, label="true")
     ax.set_ylim(truth.min() - 0.4, truth.max() + 0.4)
     ax.set_title(labels[i])
     ax.set_xlim(800, T)
+for ax in axes[1]:
     ax.set_xlabel("t")
-fig.tight_layout()
+fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=3)
 plt.show()

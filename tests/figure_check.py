@@ -14,8 +14,8 @@ from typing import Any
 from matplotlib import colors as mcolors
 from matplotlib import rcParams
 from matplotlib.lines import Line2D
-from matplotlib.transforms import Bbox
 from matplotlib.text import Text
+from matplotlib.transforms import Bbox
 
 from stcgym.agents.benchmark import style
 
