@@ -22,7 +22,10 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import MatrixRLS
+from stcgym.agents.benchmark import style
 from stcgym.envs import SquareWave
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 N = 500
 P0 = np.array([[0.5, 0.4], [0.5, 1.0]])
@@ -90,18 +93,17 @@ for n, paper in PAPER.items():
 # Each panel is one entry of ``Theta``: the band holds 90 % of the runs with the paper's
 # ``P0``, the thin line is seed 0, the dashed line the truth and the dots the paper's run.
 t = np.arange(1, N + 1)
-fig, axes = plt.subplots(2, 2, sharex=True, figsize=(8, 5))
+fig, axes = plt.subplots(2, 2, sharex=True, figsize=(style.WIDTH, 5.5), layout="constrained")
 for i, ax in enumerate(axes.flat):
     lo, hi = np.percentile(runs[:, :, i], [5, 95], axis=0)
     ax.fill_between(t, lo, hi, color="C0", alpha=0.3, label="90 % of runs, paper's P0")
     ax.plot(t, runs[0, :, i], color="C0", lw=0.8, label="seed 0")
     ax.plot(t, flat[:, :, i].mean(axis=0), color="C1", lw=1, label="mean, P0 = 1e6 I")
-    ax.axhline(theta_true.ravel()[i], color="k", ls="--", lw=1)
+    ax.axhline(theta_true.ravel()[i], color="k", ls="--", lw=1, label="true")
     ax.plot(list(PAPER), [PAPER[n][i] for n in PAPER], "ro", ms=4, label="paper")
     ax.set_ylim(theta_true.ravel()[i] - 0.15, theta_true.ravel()[i] + 0.15)
     ax.set_title(names[i])
-axes[0, 0].legend(fontsize=7, loc="lower right")
 for ax in axes[1]:
     ax.set_xlabel("N (samples)")
-fig.tight_layout()
+fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=3)
 plt.show()

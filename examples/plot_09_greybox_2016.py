@@ -26,7 +26,10 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import AffineStateSpace, RecursiveLeastSquares
+from stcgym.agents.benchmark import style
 from stcgym.envs import SquareWave
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 THETA, P0, ROWS, NOISE_VAR = -0.5, 0.5, 500, 0.025
 PAPER_NOISE_FREE, PAPER_NOISY = -0.5008, -0.4613  # the paper's reported estimates
@@ -110,7 +113,7 @@ print(f"paper, one noisy run: {PAPER_NOISY}; runs at least as close to zero: {cl
 # The estimates against the row count
 # ------------------------------------
 rows = np.arange(1, ROWS + 1)
-fig, ax = plt.subplots(figsize=(8, 4))
+fig, ax = plt.subplots(figsize=(style.WIDTH, 4.5), layout="constrained")
 lo, hi = np.percentile(noisy, [5, 95], axis=0)
 ax.fill_between(rows, lo, hi, color="C1", alpha=0.3, label="noisy: 90 % of runs")
 for i, (label, history) in enumerate(runs.items()):
@@ -120,6 +123,5 @@ ax.plot([ROWS, ROWS], [PAPER_NOISE_FREE, PAPER_NOISY], "ko", mfc="none", label="
 ax.set_ylim(-0.7, 0.05)
 ax.set_xlabel("rows")
 ax.set_ylabel("theta_hat")
-ax.legend(fontsize=8, loc="center right")
-fig.tight_layout()
+fig.legend(loc="outside lower center", ncol=3)
 plt.show()
