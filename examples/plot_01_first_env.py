@@ -63,8 +63,10 @@ env.close()
 
 y, y_clean, r, u = np.array(y), np.array(y_clean), np.array(r), np.array(u)
 mean_cost = -total_reward / len(u)
-print(f"steps run {len(u)}, diverged {info['diverged']}, mean cost per step {mean_cost:.4f}")
-print(f"mean |y_clean - r| over the last 20 steps: {np.mean(np.abs(y_clean[-20:] - r[-20:])):.3f}")
+print(f"steps run {len(u)}, diverged {info['diverged']}")
+print(f"mean cost per step {mean_cost:.4f}")
+error = np.mean(np.abs(y_clean[-20:] - r[-20:]))
+print(f"mean |y_clean - r| over the last 20 steps: {error:.3f}")
 print(f"true parameters at the end (info['theta']): {info['theta']}")
 
 # %%
@@ -74,7 +76,9 @@ print(f"true parameters at the end (info['theta']): {info['theta']}")
 # enters ``u`` through the controller, and the plant's large gain turns it back into ripple
 # on the noise-free output ``y_clean`` (``info["y_clean"]``, the signal the reward scores):
 # gains fixed by hand trade tracking speed against that ripple.
-fig, (ax_y, ax_u) = plt.subplots(2, 1, sharex=True, figsize=(style.WIDTH, 5), layout="constrained")
+fig, (ax_y, ax_u) = plt.subplots(
+    2, 1, sharex=True, figsize=(style.WIDTH, 5), layout="constrained"
+)
 ax_y.plot(y, color="0.7", lw=0.8, label="y (measured)")
 ax_y.plot(y_clean, label="y_clean")
 ax_y.plot(r, "k--", label="reference r")

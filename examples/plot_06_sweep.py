@@ -31,7 +31,11 @@ family = {
     "seed": 0,
     "count": 200,
     "order": 2,
-    "poles": {"magnitude": [0.3, 0.95], "unstable_share": 0.2, "unstable_magnitude": [1.02, 1.2]},
+    "poles": {
+        "magnitude": [0.3, 0.95],
+        "unstable_share": 0.2,
+        "unstable_magnitude": [1.02, 1.2],
+    },
     "zeros": {"magnitude": [0.0, 0.9], "nonminimum_phase_share": 0.2},
     "dc_gain": [0.5, 5.0],
     "noise_std": 0.05,
@@ -39,7 +43,8 @@ family = {
     "steps": 600,
 }
 config = SweepConfig.build(family, ["stc", "oracle", "lqg"], seeds=1)
-print(f"{config.num_lanes} lanes (plant, seed), controllers {list(config.controllers)}")
+print(f"{config.num_lanes} lanes (plant, seed)")
+print(f"controllers {list(config.controllers)}")
 
 # %%
 # Run it
@@ -68,9 +73,13 @@ for name, rows in table.groupby("controller", sort=False):
     )
 stc = table[table["controller"] == "stc"]
 n_unstable, n_nmp = int(stc["unstable"].sum()), int(stc["nonminimum_phase"].sum())
-print(f"{n_unstable} of {len(stc)} plants open-loop unstable, {n_nmp} non-minimum phase")
+print(f"{n_unstable} of {len(stc)} plants open-loop unstable")
+print(f"{n_nmp} of {len(stc)} plants non-minimum phase")
 lost = stc[stc["bounded"] == 0]
-print(f"stc loses {len(lost)} plant(s), {int(lost['unstable'].sum())} of them open-loop unstable")
+n_lost_unstable = int(lost["unstable"].sum())
+print(
+    f"stc loses {len(lost)} plant(s), {n_lost_unstable} of them open-loop unstable"
+)
 
 # %%
 # The robustness map
@@ -92,7 +101,10 @@ ax.set_axis_off()
 # is a few lines: here the self-tuning controller's ratio against the largest pole
 # magnitude, open-loop unstable plants in orange.
 fig, ax = plt.subplots(figsize=(style.WIDTH, 3.5), layout="constrained")
-for unstable, color, label in ((0, "C0", "open-loop stable"), (1, "C1", "open-loop unstable")):
+for unstable, color, label in (
+    (0, "C0", "open-loop stable"),
+    (1, "C1", "open-loop unstable"),
+):
     rows = stc[stc["unstable"] == unstable]
     ax.scatter(rows["pole_mag_max"], rows["ratio"], color=color, s=12, label=label)
 ax.set_yscale("log")

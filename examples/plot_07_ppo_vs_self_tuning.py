@@ -49,7 +49,7 @@ agent = train_agent(
 print(f"PPO: {agent.steps} environment steps in {agent.wall_s:.1f} s")
 for step, cost in agent.curve:
     print(f"  after {step:5d} training steps: validation cost per step {cost:.4f}")
-print(f"checkpoint kept (lowest validation cost): after {agent.best_step} training steps")
+print(f"checkpoint kept (lowest validation cost): after {agent.best_step} steps")
 
 # %%
 # Evaluation on the same episodes
@@ -62,13 +62,19 @@ controllers = {
     "oracle": lambda p, seed: KnownModelController(p.a, p.b),
 }
 seeds = range(3)
-episodes = {name: [run_episode(f, spec, s) for s in seeds] for name, f in controllers.items()}
+episodes = {
+    name: [run_episode(f, spec, s) for s in seeds]
+    for name, f in controllers.items()
+}
 oracle = episodes["oracle"]
 for name, eps in episodes.items():
-    ratio = [e.cost.mean() / o.cost.mean() for e, o in zip(eps, oracle, strict=True)]
+    ratio = [
+        e.cost.mean() / o.cost.mean() for e, o in zip(eps, oracle, strict=True)
+    ]
     print(
         f"{name:20s} episode cost / oracle: mean {np.mean(ratio):.3f} "
-        f"(seeds {min(ratio):.3f}-{max(ratio):.3f}), diverged {sum(e.diverged for e in eps)}"
+        f"(seeds {min(ratio):.3f}-{max(ratio):.3f}), "
+        f"diverged {sum(e.diverged for e in eps)}"
     )
 
 # %%

@@ -107,7 +107,9 @@ ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
 ax = axes[1]
 labels = ["a1", "a2", "b1", "b2"]
 # colours unlike the controllers' of the left panel
-for j, (label, color) in enumerate(zip(labels, ["C4", "C5", "C2", "C3"], strict=True)):
+for j, (label, color) in enumerate(
+    zip(labels, ["C4", "C5", "C2", "C3"], strict=True)
+):
     ax.plot(estimates[:, j], color=color, lw=1.2, label=label)
     ax.axhline(info["theta"][j], color=color, ls="--", lw=1)
 ax.set(xlabel="step k", ylabel="O-RLS estimate", title="estimates (dashed: true)")
