@@ -47,9 +47,12 @@ def problems(fig: Any) -> list[str]:
                 out.append(f"text {text.get_text()!r}: {size:.1f} pt at {PAGE_PX:.0f} px")
     axes = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
     legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes)]
-    titles = [*fig.texts, *(t for t in (fig._suptitle, fig._supxlabel, fig._supylabel) if t)]
+    # matplotlib keeps the figure's super-title and the axes' side titles in private fields
+    sup = (getattr(fig, name, None) for name in ("_suptitle", "_supxlabel", "_supylabel"))
+    titles = [*fig.texts, *filter(None, sup)]
     for ax in axes:
-        titles += [ax.title, ax._left_title, ax._right_title, ax.xaxis.label, ax.yaxis.label]
+        sides = (getattr(ax, name, None) for name in ("_left_title", "_right_title"))
+        titles += [ax.title, *filter(None, sides), ax.xaxis.label, ax.yaxis.label]
     titles = [t for t in dict.fromkeys(titles) if t.get_visible() and t.get_text().strip()]
     for legend in filter(None, legends):
         box = legend.get_window_extent(renderer)
