@@ -59,6 +59,11 @@ R = TypeVar("R", bound=tuple)
 
 #: Seconds after which a compile of stcgym kernels still running is announced (once a process).
 COMPILE_NOTICE_AFTER = 1.0
+#: What the notice says a first run costs, in seconds: the first
+#: ``SelfTuningController(2).predict`` with an empty cache took 17 s on an idle 2-core machine,
+#: 16-18 s at load 4.5-4.9 and up to 36 s under heavier load (``benchmarks/cold_start.py``).
+#: A second estimator family or design adds 3-13 s when first used.
+FIRST_RUN_SECONDS = (15, 40)
 
 logger = logging.getLogger("stcgym")
 
@@ -70,8 +75,9 @@ class CompileNotice(internals.CompileListener):
     when an outermost compile of a function that ``owns`` accepts starts, a timer is armed; if
     the compile still runs after ``after`` seconds the timer logs one warning (the user sees it
     while waiting), and a compile that ends later than ``after`` without it having fired logs
-    it at the end. After the first line the listener stays silent. Loads from numba's on-disk
-    cache are not compiles and say nothing.
+    it at the end. The line says that stcgym compiles its kernels on first use, how long a
+    first run takes (:data:`FIRST_RUN_SECONDS`) and that the result is cached. After it the
+    listener stays silent. Loads from numba's on-disk cache are not compiles and say nothing.
     """
 
     def __init__(
@@ -110,10 +116,14 @@ class CompileNotice(internals.CompileListener):
             if self.announced:
                 return
             self.announced = True
+        low, high = FIRST_RUN_SECONDS
         self.log.warning(
-            "compiling stcgym kernels for %s (numba, first use in this environment); "
-            "cached after the first run",
+            "stcgym is compiling its kernels (numba) on first use in this environment, "
+            "starting with %s: this takes about %d-%d s, once; they are cached afterwards "
+            "and later runs start in about a second",
             self._name,
+            low,
+            high,
         )
 
 

@@ -54,6 +54,11 @@ class PlantFamilyEnv(ObserverCanonicalEnv):
     (:class:`~stcgym.envs.schedules.RandomJump`). A family ``drift`` becomes a
     :class:`~stcgym.envs.schedules.RandomWalk` of the parameters.
 
+    ``reset(options=...)`` takes the canonical envs' options; ``"plant"`` may also be a plant's
+    index ``i`` in the split. ``info`` carries ``"plant"`` (the plant's name; ``None`` for
+    parameters given as ``theta``/``a``/``b``), ``"theta"``, ``"a"``, ``"b"``, ``"x"``,
+    ``"y_clean"``, ``"t"``; ``env.unwrapped.plant`` is the plant's ``PlantSpec``.
+
     Parameters
     ----------
     family : str, path-like, dict or FamilySpec, default "siso2-v1"
@@ -88,11 +93,6 @@ class PlantFamilyEnv(ObserverCanonicalEnv):
         Chance of the jump per episode (0 without one).
     jump_range : tuple of int or None
         The steps ``(low, high)`` an episode's jump is drawn from; ``None`` without a jump.
-
-    ``reset(options=...)`` takes the canonical envs' options; ``"plant"`` may also be a plant's
-    index ``i`` in the split. ``info`` carries ``"plant"`` (the plant's name; ``None`` for
-    parameters given as ``theta``/``a``/``b``), ``"theta"``, ``"a"``, ``"b"``, ``"x"``,
-    ``"y_clean"``, ``"t"``; ``env.unwrapped.plant`` is the plant's ``PlantSpec``.
 
     Raises
     ------

@@ -19,7 +19,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import stcgym.envs  # noqa: F401  (registers the stcgym/ environments)
+from stcgym.agents.benchmark import style
 from stcgym.envs import get_plant
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 T = 300
 env = gym.make(
@@ -60,8 +63,10 @@ env.close()
 
 y, y_clean, r, u = np.array(y), np.array(y_clean), np.array(r), np.array(u)
 mean_cost = -total_reward / len(u)
-print(f"steps run {len(u)}, diverged {info['diverged']}, mean cost per step {mean_cost:.4f}")
-print(f"mean |y_clean - r| over the last 20 steps: {np.mean(np.abs(y_clean[-20:] - r[-20:])):.3f}")
+print(f"steps run {len(u)}, diverged {info['diverged']}")
+print(f"mean cost per step {mean_cost:.4f}")
+error = np.mean(np.abs(y_clean[-20:] - r[-20:]))
+print(f"mean |y_clean - r| over the last 20 steps: {error:.3f}")
 print(f"true parameters at the end (info['theta']): {info['theta']}")
 
 # %%
@@ -71,15 +76,16 @@ print(f"true parameters at the end (info['theta']): {info['theta']}")
 # enters ``u`` through the controller, and the plant's large gain turns it back into ripple
 # on the noise-free output ``y_clean`` (``info["y_clean"]``, the signal the reward scores):
 # gains fixed by hand trade tracking speed against that ripple.
-fig, (ax_y, ax_u) = plt.subplots(2, 1, sharex=True, figsize=(7, 5))
+fig, (ax_y, ax_u) = plt.subplots(
+    2, 1, sharex=True, figsize=(style.WIDTH, 5), layout="constrained"
+)
 ax_y.plot(y, color="0.7", lw=0.8, label="y (measured)")
 ax_y.plot(y_clean, label="y_clean")
-ax_y.plot(r, "k--", label="r")
+ax_y.plot(r, "k--", label="reference r")
 ax_y.set_ylabel("output")
-ax_y.legend(loc="upper right")
 ax_u.step(np.arange(len(u)), u, where="post", color="C2")
 ax_u.set_ylabel("u")
 ax_u.set_xlabel("step k")
 fig.suptitle("stable2 under a hand-written PI controller")
-fig.tight_layout()
+fig.legend(loc="outside lower center", ncol=3)
 plt.show()

@@ -23,13 +23,17 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import make_estimator
+from stcgym.agents.benchmark import style
 from stcgym.envs import get_plant
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 T = 3000
 
 
 def record(u, seed):
-    """The outputs ``y`` of ``stable2`` under the input record ``u``, and the last info."""
+    """The outputs ``y`` of ``stable2`` under the input record ``u``, and the last
+    info."""
     env = gym.make(
         "stcgym/ObserverCanonical-v0",
         plant="stable2",
@@ -50,7 +54,8 @@ rng = np.random.default_rng(0)
 u = rng.standard_normal(T)
 y, info = record(u, seed=0)
 theta_true = info["theta"]
-print(f"true theta = {theta_true}, pole radius {np.abs(get_plant('stable2').poles).max():.2f}")
+radius = np.abs(get_plant("stable2").poles).max()
+print(f"true theta = {theta_true}, pole radius {radius:.2f}")
 
 # %%
 # Two estimators over the record
@@ -72,7 +77,9 @@ runs = {
 
 
 def relative_error(history):
-    return np.linalg.norm(history - theta_true, axis=-1) / np.linalg.norm(theta_true)
+    return np.linalg.norm(history - theta_true, axis=-1) / np.linalg.norm(
+        theta_true
+    )
 
 
 histories = {}
@@ -83,7 +90,8 @@ for label, options in runs.items():
     print(f"{label:16s} theta_hat(T) = {np.round(histories[label][-1], 3)}")
     print(
         f"{'':16s} relative error at t = 300, 1000, {T}: "
-        f"{err[299]:.3f}, {err[999]:.3f}, {err[-1]:.4f}; {est.flops_per_step} flops per step"
+        f"{err[299]:.3f}, {err[999]:.3f}, {err[-1]:.4f}; "
+        f"{est.flops_per_step} flops per step"
     )
 names = list(runs)
 
@@ -96,26 +104,28 @@ names = list(runs)
 # (radius 0.84) make the open-loop state estimate forget a wrong start slowly; the filtered
 # regressor takes the state from the measurement and settles within a few hundred samples.
 labels = ["a1", "a2", "b1", "b2"]
-fig, axes = plt.subplots(2, 2, sharex=True, figsize=(8, 5))
+fig, axes = plt.subplots(
+    2, 2, sharex=True, figsize=(style.WIDTH, 5.5), layout="constrained"
+)
 for i, ax in enumerate(axes.flat):
     for name in names:
         ax.plot(histories[name][:, i], label=name)
     ax.axhline(theta_true[i], color="k", ls="--", lw=1, label="true")
     ax.set_title(labels[i])
     ax.set_ylim(theta_true[i] - 1.0, theta_true[i] + 1.0)
-axes[0, 1].legend(loc="lower right")
 for ax in axes[1]:
     ax.set_xlabel("t")
 fig.suptitle("stable2, open loop, noise 0.05")
-fig.tight_layout()
+fig.legend(
+    *axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4
+)
 
-fig, ax = plt.subplots(figsize=(7, 3.5))
+fig, ax = plt.subplots(figsize=(style.WIDTH, 3.5), layout="constrained")
 for name in names:
     ax.semilogy(relative_error(histories[name]), label=name)
 ax.set_xlabel("t")
 ax.set_ylabel("relative parameter error")
-ax.legend()
-fig.tight_layout()
+ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1))
 plt.show()
 
 # %%
@@ -128,4 +138,5 @@ u_binary = rng.choice([-1.0, 1.0], size=T)
 y_binary, _ = record(u_binary, seed=1)
 for label, options in runs.items():
     final = make_estimator(n=2, p0=100.0, **options).run(u_binary, y_binary)[-1]
-    print(f"binary input, {label:16s} relative error at t = {T}: {relative_error(final):.4f}")
+    error = relative_error(final)
+    print(f"binary input, {label:16s} relative error at t = {T}: {error:.4f}")

@@ -20,19 +20,34 @@ known-model pole-placement controller and LQG, the optimal linear controller for
 import matplotlib.pyplot as plt
 import numpy as np
 
-from stcgym.adaptive import KnownModelController, LawOptions, LQGController, SelfTuningController
+from stcgym.adaptive import (
+    KnownModelController,
+    LawOptions,
+    LQGController,
+    SelfTuningController,
+)
 from stcgym.agents import EnvSpec, run_episode
+from stcgym.agents.benchmark import style
 from stcgym.envs import get_plant
 
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
+
 plant = get_plant("lightly_damped2")
-print(f"lightly_damped2: poles {np.round(plant.poles, 3)} (radius {abs(plant.poles[0]):.3f})")
+radius = abs(plant.poles[0])
+print(f"lightly_damped2: poles {np.round(plant.poles, 3)} (radius {radius:.3f})")
 spec = EnvSpec(plants=("lightly_damped2",), steps=1000, noise_std=0.05, period=100)
 POLES = 0.5  # all three closed-loop poles of the pole-placement designs
 
 controllers = {
-    "self-tuning, pole placement": lambda p, seed: SelfTuningController(2, poles=POLES, seed=seed),
-    "self-tuning LQ": lambda p, seed: SelfTuningController(2, design="lq", seed=seed),
-    "known model, pole placement": lambda p, seed: KnownModelController(p.a, p.b, poles=POLES),
+    "self-tuning, pole placement": lambda p, seed: SelfTuningController(
+        2, poles=POLES, seed=seed
+    ),
+    "self-tuning LQ": lambda p, seed: SelfTuningController(
+        2, design="lq", seed=seed
+    ),
+    "known model, pole placement": lambda p, seed: KnownModelController(
+        p.a, p.b, poles=POLES
+    ),
     "LQG (known model)": lambda p, seed: LQGController(
         p.a, p.b, law=LawOptions(integral=False), noise_std=spec.noise_std
     ),
@@ -44,19 +59,28 @@ controllers = {
 # The cost is the mean per-step cost of the episode (start-up included) and of its second
 # half (steady state), each divided by LQG's on the same episode.
 seeds = range(5)
-episodes = {name: [run_episode(f, spec, s) for s in seeds] for name, f in controllers.items()}
+episodes = {
+    name: [run_episode(f, spec, s) for s in seeds]
+    for name, f in controllers.items()
+}
 lqg = episodes["LQG (known model)"]
 ratio = {}
 for name, eps in episodes.items():
-    whole = np.array([e.cost.mean() / q.cost.mean() for e, q in zip(eps, lqg, strict=True)])
+    whole = np.array(
+        [e.cost.mean() / q.cost.mean() for e, q in zip(eps, lqg, strict=True)]
+    )
     steady = np.array(
-        [e.cost[500:].mean() / q.cost[500:].mean() for e, q in zip(eps, lqg, strict=True)]
+        [
+            e.cost[500:].mean() / q.cost[500:].mean()
+            for e, q in zip(eps, lqg, strict=True)
+        ]
     )
     effort = np.mean([np.mean(e.u**2) for e in eps])
     ratio[name] = whole
     print(
-        f"{name:28s} episode cost / LQG {whole.mean():.3f} (seeds {whole.min():.3f}-"
-        f"{whole.max():.3f}), steady {steady.mean():.3f}, mean u^2 {effort:.3f}, "
+        f"{name:28s} episode cost / LQG {whole.mean():.3f} "
+        f"(seeds {whole.min():.3f}-{whole.max():.3f}), "
+        f"steady {steady.mean():.3f}, mean u^2 {effort:.3f}, "
         f"diverged {sum(e.diverged for e in eps)}"
     )
 
@@ -66,25 +90,39 @@ for name, eps in episodes.items():
 # Pole placement puts every closed-loop pole at 0.5 whatever the plant; LQ weighs tracking
 # against the input, so on this resonant plant it chooses a different compromise. The
 # self-tuning designs start from nothing and pay for their start-up in the episode cost.
-fig, axes = plt.subplots(1, 3, figsize=(11, 3.4), width_ratios=[2, 2, 1.4])
+# Each controller has its colour of the benchmark figures (``stcgym.agents.benchmark.style``).
+keys = ["stc", "stc_lq", "oracle", "lqg"]
+colors = {
+    name: style.color(key) for name, key in zip(controllers, keys, strict=True)
+}
+fig, axes = plt.subplot_mosaic(
+    [["y", "u"], ["cost", "cost"]],
+    figsize=(style.WIDTH, 6),
+    height_ratios=[3, 2],
+    layout="constrained",
+)
 k = np.arange(400, 501)
 ep0 = {name: eps[0] for name, eps in episodes.items()}
-axes[0].plot(k, ep0["LQG (known model)"].r[k], "k--", lw=1, label="r")
-for i, (name, e) in enumerate(ep0.items()):
-    axes[0].plot(k, e.y[k], color=f"C{i}", lw=1.2, label=name)
-    axes[1].step(k[:-1], e.u[k[:-1]], where="post", color=f"C{i}", lw=1.2)
-axes[0].set_title("y (noise-free), seed 0")
-axes[1].set_title("u")
-axes[0].legend(fontsize=7, loc="lower left")
-for ax in axes[:2]:
+axes["y"].plot(k, ep0["LQG (known model)"].r[k], "k--", lw=1, label="reference r")
+for i, (name, e) in enumerate(ep0.items()):  # the self-tuning controllers on top
+    axes["y"].plot(k, e.y[k], color=colors[name], lw=1.2, label=name, zorder=9 - i)
+    axes["u"].step(
+        k[:-1], e.u[k[:-1]], where="post", color=colors[name], lw=1.2, zorder=9 - i
+    )
+axes["y"].set_title("y (noise-free), seed 0")
+axes["u"].set_title("u")
+for ax in (axes["y"], axes["u"]):
     ax.set_xlabel("step k")
 names = list(ratio)
 for i, name in enumerate(names):
-    axes[2].scatter(np.full(len(ratio[name]), i), ratio[name], color=f"C{i}", s=14)
-    axes[2].hlines(ratio[name].mean(), i - 0.3, i + 0.3, color=f"C{i}")
-axes[2].set_xticks(range(len(names)), ["self-tuning\nPP", "self-tuning\nLQ", "known\nPP", "LQG"])
-axes[2].axhline(1.0, color="k", lw=0.8)
-axes[2].set_title("episode cost / LQG")
-axes[2].tick_params(axis="x", labelsize=7)
-fig.tight_layout()
+    axes["cost"].scatter(
+        np.full(len(ratio[name]), i), ratio[name], color=colors[name], s=14
+    )
+    axes["cost"].hlines(ratio[name].mean(), i - 0.3, i + 0.3, color=colors[name])
+axes["cost"].set_xticks(range(len(names)), [n.replace(", ", ",\n") for n in names])
+axes["cost"].axhline(1.0, color="k", lw=0.8)
+axes["cost"].set_ylabel("episode cost / LQG")
+fig.legend(
+    *axes["y"].get_legend_handles_labels(), loc="outside lower center", ncol=3
+)
 plt.show()

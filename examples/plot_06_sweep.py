@@ -21,14 +21,21 @@ import tempfile
 import matplotlib.pyplot as plt
 import numpy as np
 
+from stcgym.agents.benchmark import style
 from stcgym.agents.sweeps import SweepConfig, run_sweep
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 family = {
     "name": "gallery",
     "seed": 0,
     "count": 200,
     "order": 2,
-    "poles": {"magnitude": [0.3, 0.95], "unstable_share": 0.2, "unstable_magnitude": [1.02, 1.2]},
+    "poles": {
+        "magnitude": [0.3, 0.95],
+        "unstable_share": 0.2,
+        "unstable_magnitude": [1.02, 1.2],
+    },
     "zeros": {"magnitude": [0.0, 0.9], "nonminimum_phase_share": 0.2},
     "dc_gain": [0.5, 5.0],
     "noise_std": 0.05,
@@ -36,7 +43,8 @@ family = {
     "steps": 600,
 }
 config = SweepConfig.build(family, ["stc", "oracle", "lqg"], seeds=1)
-print(f"{config.num_lanes} lanes (plant, seed), controllers {list(config.controllers)}")
+print(f"{config.num_lanes} lanes (plant, seed)")
+print(f"controllers {list(config.controllers)}")
 
 # %%
 # Run it
@@ -65,19 +73,26 @@ for name, rows in table.groupby("controller", sort=False):
     )
 stc = table[table["controller"] == "stc"]
 n_unstable, n_nmp = int(stc["unstable"].sum()), int(stc["nonminimum_phase"].sum())
-print(f"{n_unstable} of {len(stc)} plants open-loop unstable, {n_nmp} non-minimum phase")
+print(f"{n_unstable} of {len(stc)} plants open-loop unstable")
+print(f"{n_nmp} of {len(stc)} plants non-minimum phase")
 lost = stc[stc["bounded"] == 0]
-print(f"stc loses {len(lost)} plant(s), {int(lost['unstable'].sum())} of them open-loop unstable")
+n_lost_unstable = int(lost["unstable"].sum())
+print(
+    f"stc loses {len(lost)} plant(s), {n_lost_unstable} of them open-loop unstable"
+)
 
 # %%
 # The robustness map
 # ------------------
 # Bounded share (top) and median cost ratio to the oracle (bottom) over the largest pole
 # magnitude and the absolute DC gain, one column per controller, as ``run_sweep`` drew it.
-fig, ax = plt.subplots(figsize=(9, 6.5))
+# The image is shown at its own size (800 px wide for two controllers, in the shared style of
+# ``stcgym.agents.benchmark.style``), so that its text stays as ``run_sweep`` wrote it.
+height, width = robustness.shape[:2]
+fig = plt.figure(figsize=(width / style.DPI, height / style.DPI), dpi=style.DPI)
+ax = fig.add_axes((0, 0, 1, 1))
 ax.imshow(robustness)
 ax.set_axis_off()
-fig.tight_layout()
 
 # %%
 # The same table, plant by plant
@@ -85,11 +100,15 @@ fig.tight_layout()
 # The table is a pandas DataFrame with the plant features on every row, so any other view
 # is a few lines: here the self-tuning controller's ratio against the largest pole
 # magnitude, open-loop unstable plants in orange.
-fig, ax = plt.subplots(figsize=(7, 3.5))
-colors = np.where(stc["unstable"] == 1, "C1", "C0")
-ax.scatter(stc["pole_mag_max"], stc["ratio"], c=colors, s=12)
+fig, ax = plt.subplots(figsize=(style.WIDTH, 3.5), layout="constrained")
+for unstable, color, label in (
+    (0, "C0", "open-loop stable"),
+    (1, "C1", "open-loop unstable"),
+):
+    rows = stc[stc["unstable"] == unstable]
+    ax.scatter(rows["pole_mag_max"], rows["ratio"], color=color, s=12, label=label)
 ax.set_yscale("log")
 ax.set_xlabel("largest pole magnitude")
 ax.set_ylabel("stc cost / oracle")
-fig.tight_layout()
+ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1))
 plt.show()

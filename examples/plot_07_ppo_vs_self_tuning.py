@@ -28,7 +28,10 @@ import numpy as np
 
 from stcgym.adaptive import KnownModelController, SelfTuningController
 from stcgym.agents import EnvSpec, default_config, run_episode, train_agent
+from stcgym.agents.benchmark import style
 from stcgym.agents.benchmark.episodes import EpisodeSet
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 spec = EnvSpec(plants=("stable2",), steps=300, noise_std=0.05, period=100)
 config = default_config("ppo")
@@ -46,7 +49,7 @@ agent = train_agent(
 print(f"PPO: {agent.steps} environment steps in {agent.wall_s:.1f} s")
 for step, cost in agent.curve:
     print(f"  after {step:5d} training steps: validation cost per step {cost:.4f}")
-print(f"checkpoint kept (lowest validation cost): after {agent.best_step} training steps")
+print(f"checkpoint kept (lowest validation cost): after {agent.best_step} steps")
 
 # %%
 # Evaluation on the same episodes
@@ -59,42 +62,56 @@ controllers = {
     "oracle": lambda p, seed: KnownModelController(p.a, p.b),
 }
 seeds = range(3)
-episodes = {name: [run_episode(f, spec, s) for s in seeds] for name, f in controllers.items()}
+episodes = {
+    name: [run_episode(f, spec, s) for s in seeds]
+    for name, f in controllers.items()
+}
 oracle = episodes["oracle"]
 for name, eps in episodes.items():
-    ratio = [e.cost.mean() / o.cost.mean() for e, o in zip(eps, oracle, strict=True)]
+    ratio = [
+        e.cost.mean() / o.cost.mean() for e, o in zip(eps, oracle, strict=True)
+    ]
     print(
         f"{name:20s} episode cost / oracle: mean {np.mean(ratio):.3f} "
-        f"(seeds {min(ratio):.3f}-{max(ratio):.3f}), diverged {sum(e.diverged for e in eps)}"
+        f"(seeds {min(ratio):.3f}-{max(ratio):.3f}), "
+        f"diverged {sum(e.diverged for e in eps)}"
     )
 
 # %%
 # Traces and the learning curve
 # -----------------------------
 # Left: the noise-free output of each controller on seed 0. Right: PPO's validation cost
-# against its training steps, with the self-tuning controller's and the oracle's cost on
-# the same validation episode as lines (the self-tuning controller needs no training data).
+# against its training steps (step 0 drawn at 1), with the self-tuning controller's and the
+# oracle's cost on the same validation episode as dashed lines (the self-tuning controller
+# needs no training data). Each controller has the colour it has in every figure of the
+# benchmark (``stcgym.agents.benchmark.style``).
+colors = {
+    "PPO (short budget)": style.color("ppo"),
+    "self-tuning": style.color("stc"),
+    "oracle": style.color("oracle"),
+}
 validation_cost = {
     name: run_episode(f, spec, 10_000).cost.mean()
     for name, f in controllers.items()
     if name != "PPO (short budget)"
 }
-fig, axes = plt.subplots(1, 2, figsize=(10, 3.5), width_ratios=[2, 1])
+fig, axes = plt.subplots(
+    1, 2, figsize=(style.WIDTH, 3.6), width_ratios=[2, 1], layout="constrained"
+)
 ax = axes[0]
-ax.plot(oracle[0].r, "k--", lw=1, label="r")
-for i, (name, eps) in enumerate(episodes.items()):
-    ax.plot(eps[0].y, color=f"C{i}", lw=1.2, label=name)
+ax.plot(oracle[0].r, "k--", lw=1, label="reference")
+for name, eps in episodes.items():
+    ax.plot(eps[0].y, color=colors[name], lw=1.2, label=name)
 ax.set_xlabel("step k")
 ax.set_ylabel("y (noise-free)")
-ax.legend(fontsize=8)
 ax = axes[1]
 steps, costs = np.array(agent.curve).T
-ax.plot(np.maximum(steps, 1), costs, "o-", color="C0", label="PPO")
-for i, (name, cost) in enumerate(validation_cost.items(), start=1):
-    ax.axhline(cost, color=f"C{i}", ls="--", label=name)
+ax.plot(np.maximum(steps, 1), costs, "o-", color=colors["PPO (short budget)"])
+for name, cost in validation_cost.items():
+    ax.axhline(cost, color=colors[name], ls="--")
 ax.set_xscale("log")
-ax.set_xlabel("training steps (step 0 drawn at 1)")
+ax.set_yscale("log")
+ax.set_xlabel("training steps")
 ax.set_ylabel("validation cost per step")
-ax.legend(fontsize=8)
-fig.tight_layout()
+fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncol=4)
 plt.show()

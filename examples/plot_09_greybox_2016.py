@@ -26,7 +26,10 @@ import numpy as np
 
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import AffineStateSpace, RecursiveLeastSquares
+from stcgym.agents.benchmark import style
 from stcgym.envs import SquareWave
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 THETA, P0, ROWS, NOISE_VAR = -0.5, 0.5, 500, 0.025
 PAPER_NOISE_FREE, PAPER_NOISY = -0.5008, -0.4613  # the paper's reported estimates
@@ -82,7 +85,10 @@ print(f"{len(z)} rows; regressor shape {phi.shape}")
 # The prior ``P0`` is one extra "observation" of ``theta0 = 0``, which pulls the estimate
 # towards zero; with ``P0 = 1e6`` the pull vanishes, and with ``P0 = 0`` the gain is zero
 # and the estimate never moves (the paper's remark).
-runs = {f"P0 = {p0:g}": RecursiveLeastSquares(1, P0=p0).run(phi, z)[:, 0] for p0 in (P0, 1e6, 0.0)}
+runs = {
+    f"P0 = {p0:g}": RecursiveLeastSquares(1, P0=p0).run(phi, z)[:, 0]
+    for p0 in (P0, 1e6, 0.0)
+}
 for label, history in runs.items():
     print(f"noise-free, {label:10s} theta_hat = {history[-1]:.4f}")
 print(f"paper, noise-free: {PAPER_NOISE_FREE}")
@@ -104,22 +110,26 @@ final = noisy[:, -1]
 spread = f"{final.mean():.4f} +- {final.std(ddof=1):.4f}"
 print(f"noisy (variance {NOISE_VAR}): {spread} over {len(seeds)} runs")
 closer = np.mean(final >= PAPER_NOISY)
-print(f"paper, one noisy run: {PAPER_NOISY}; runs at least as close to zero: {closer:.0%}")
+print(f"paper, one noisy run: {PAPER_NOISY}")
+print(f"runs at least as close to zero: {closer:.0%}")
 
 # %%
 # The estimates against the row count
 # ------------------------------------
 rows = np.arange(1, ROWS + 1)
-fig, ax = plt.subplots(figsize=(8, 4))
+fig, ax = plt.subplots(figsize=(style.WIDTH, 4.5), layout="constrained")
 lo, hi = np.percentile(noisy, [5, 95], axis=0)
 ax.fill_between(rows, lo, hi, color="C1", alpha=0.3, label="noisy: 90 % of runs")
 for i, (label, history) in enumerate(runs.items()):
-    ax.plot(rows, history, color=["C0", "C2", "C3"][i], label=f"noise-free, {label}")
+    ax.plot(
+        rows, history, color=["C0", "C2", "C3"][i], label=f"noise-free, {label}"
+    )
 ax.axhline(THETA, color="k", ls="--", lw=1, label="true theta")
-ax.plot([ROWS, ROWS], [PAPER_NOISE_FREE, PAPER_NOISY], "ko", mfc="none", label="paper")
+ax.plot(
+    [ROWS, ROWS], [PAPER_NOISE_FREE, PAPER_NOISY], "ko", mfc="none", label="paper"
+)
 ax.set_ylim(-0.7, 0.05)
 ax.set_xlabel("rows")
 ax.set_ylabel("theta_hat")
-ax.legend(fontsize=8, loc="center right")
-fig.tight_layout()
+fig.legend(loc="outside lower center", ncol=3)
 plt.show()

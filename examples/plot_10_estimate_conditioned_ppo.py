@@ -28,8 +28,11 @@ import numpy as np
 
 from stcgym.adaptive import SelfTuningController
 from stcgym.agents import EnvSpec, default_config, train_agent
+from stcgym.agents.benchmark import style
 from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.controllers import controller_seeds
+
+plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 
 seen = ("stable2", "unstable2", "integrator2")
 unseen = ("lightly_damped2", "nonminphase2")
@@ -94,19 +97,21 @@ for _ in range(test.steps):
     obs, *_ = env.step(action)
 estimates = np.array(estimates)
 
-fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+fig, axes = plt.subplots(1, 2, figsize=(style.WIDTH, 4.2), layout="constrained")
 ax = axes[0]
-ax.plot(rl.r[6], "k--", lw=1, label="r")
-ax.plot(rl.y[6], color="#E69F00", lw=1.2, label="theta_ppo")
-ax.plot(stc.y[6], color="#0072B2", lw=1.2, label="self-tuning")
+ax.plot(rl.r[6], "k--", lw=1, label="reference r")
+ax.plot(rl.y[6], color=style.color("theta_ppo"), lw=1.2, label="theta_ppo")
+ax.plot(stc.y[6], color=style.color("stc"), lw=1.2, label="self-tuning")
 ax.set(xlabel="step k", ylabel="y (noise-free)", title=f"{unseen[0]} (unseen)")
-ax.legend(fontsize=8)
+ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
 ax = axes[1]
 labels = ["a1", "a2", "b1", "b2"]
-for j, label in enumerate(labels):
-    ax.plot(estimates[:, j], color=f"C{j}", lw=1.2, label=f"{label} estimate")
-    ax.axhline(info["theta"][j], color=f"C{j}", ls="--", lw=1)
-ax.set(xlabel="step k", ylabel="O-RLS estimate (dashed: true)")
-ax.legend(fontsize=8, ncol=2)
-fig.tight_layout()
+# colours unlike the controllers' of the left panel
+for j, (label, color) in enumerate(
+    zip(labels, ["C4", "C5", "C2", "C3"], strict=True)
+):
+    ax.plot(estimates[:, j], color=color, lw=1.2, label=label)
+    ax.axhline(info["theta"][j], color=color, ls="--", lw=1)
+ax.set(xlabel="step k", ylabel="O-RLS estimate", title="estimates (dashed: true)")
+ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=4)
 plt.show()

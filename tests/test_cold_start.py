@@ -133,8 +133,10 @@ def test_compile_notice_says_it_once_for_a_slow_compile(notice_log) -> None:
     second(1)  # a third compile (an int signature)
     lines = [r.getMessage() for r in caplog.records if r.name == "stcgym.test-notice"]
     assert len(lines) == 1, lines
-    assert lines[0].startswith("compiling stcgym kernels for ")
-    assert "first" in lines[0] and "cached after the first run" in lines[0]
+    assert lines[0].startswith("stcgym is compiling its kernels (numba) on first use ")
+    low, high = compiled.FIRST_RUN_SECONDS
+    assert f"starting with {first.py_func.__qualname__}:" in lines[0]
+    assert f"about {low}-{high} s, once" in lines[0] and "cached afterwards" in lines[0]
     assert notice.announced
 
 
@@ -150,9 +152,10 @@ def test_compile_notice_is_quiet_for_quick_and_foreign_compiles(notice_log) -> N
     assert not compiled._is_stcgym_kernel(first)
 
 
-def test_installed_notice_prints_one_line_on_a_cold_start(tmp_path: Path) -> None:
+def test_installed_notice_prints_one_line_on_a_cold_start_only(tmp_path: Path) -> None:
     """A new environment (empty cache): the user sees one line on stderr, however many kernels
-    compile (here with the threshold at 0 s, so the plant step's short compile counts)."""
+    compile (here with the threshold at 0 s, so the plant step's short compile counts); the
+    next process loads the cache and prints nothing."""
     code = (
         "import stcgym.envs.compiled as c; c.NOTICE.after = 0.0\n"
         "import gymnasium as gym, numpy as np, stcgym.envs\n"
@@ -161,10 +164,16 @@ def test_installed_notice_prints_one_line_on_a_cold_start(tmp_path: Path) -> Non
         "import stcgym.envs.dynamics as d\n"
         "print(sum(len(f.stats.cache_misses) for f in vars(d).values() if hasattr(f, 'stats')))\n"
     )
-    done = _run(code, _copy_package(tmp_path / "pkg"), NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    lines = [ln for ln in done.stderr.splitlines() if "compiling stcgym kernels" in ln]
+    pkg, cache = _copy_package(tmp_path / "pkg"), str(tmp_path / "cache")
+    done = _run(code, pkg, NUMBA_CACHE_DIR=cache)
+    lines = [ln for ln in done.stderr.splitlines() if "compiling its kernels" in ln]
     assert len(lines) == 1, done.stderr
+    low, high = compiled.FIRST_RUN_SECONDS
+    assert f"about {low}-{high} s" in lines[0]
     assert int(done.stdout.split()[-1]) >= 2  # several kernels compiled, one line
+    cached = _run(code, pkg, NUMBA_CACHE_DIR=cache)
+    assert "compiling" not in cached.stderr, cached.stderr
+    assert int(cached.stdout.split()[-1]) == 0  # nothing compiled: all loaded from the cache
 
 
 # ------------------------------------------------------------------------ kernel cache

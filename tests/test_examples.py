@@ -31,7 +31,8 @@ REQUIRES = {
     "plot_10_estimate_conditioned_ppo.py": ("stable_baselines3", "torch"),
 }
 
-# Runs the script as ``__main__`` and reports how many figures it left open.
+# Runs the script as ``__main__`` and reports how many figures it left open, and what makes
+# them hard to read at the page's width (tests/figure_check.py), one line per problem.
 _RUNNER = textwrap.dedent(
     """
     import runpy, sys
@@ -40,6 +41,11 @@ _RUNNER = textwrap.dedent(
     import matplotlib.pyplot as plt
     runpy.run_path(sys.argv[1], run_name="__main__")
     print(f"open figures: {len(plt.get_fignums())}")
+    sys.path.insert(0, sys.argv[2])
+    from figure_check import problems
+    for number in plt.get_fignums():
+        for problem in problems(plt.figure(number)):
+            print(f"unreadable figure {number}: {problem}")
     sys.exit(0 if plt.get_fignums() else 3)
     """
 )
@@ -49,7 +55,7 @@ def run_example(script: Path, cwd: Path, timeout: float = TIMEOUT_S) -> subproce
     """Run ``script`` in a fresh interpreter in ``cwd``; the completed process (text output)."""
     env = {**os.environ, "MPLBACKEND": "Agg"}
     return subprocess.run(
-        [sys.executable, "-c", _RUNNER, str(script)],
+        [sys.executable, "-c", _RUNNER, str(script), str(Path(__file__).parent)],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -89,6 +95,8 @@ def test_example_runs(script, tmp_path):
     output = f"{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
     assert proc.returncode == 0, f"{script.name} failed (exit {proc.returncode})\n{output}"
     assert list(tmp_path.iterdir()) == [], f"{script.name} left files in its working directory"
+    unreadable = [ln for ln in proc.stdout.splitlines() if ln.startswith("unreadable figure")]
+    assert not unreadable, f"{script.name}: " + "\n".join(unreadable)
 
 
 def test_a_failing_or_figureless_example_is_caught(tmp_path):
@@ -101,3 +109,43 @@ def test_a_failing_or_figureless_example_is_caught(tmp_path):
     silent.write_text('"""\nSilent\n======\n\nNo figure.\n"""\nprint("hello")\n')
     proc = run_example(silent, tmp_path)
     assert proc.returncode == 3 and "open figures: 0" in proc.stdout
+
+
+def test_an_unreadable_figure_is_caught(tmp_path):
+    """Small text, a figure wider than the page, a legend on the data, a label in two colours
+    are each reported; the same figure in the shared style with its legend outside is not."""
+    pytest.importorskip("matplotlib")
+    script = tmp_path / "plot_unreadable.py"
+    script.write_text(
+        textwrap.dedent(
+            '''
+            """
+            Unreadable
+            ==========
+
+            Two figures.
+            """
+            import matplotlib.pyplot as plt
+            from stcgym.agents.benchmark import style
+
+            fig, axes = plt.subplots(1, 2, figsize=(12, 3))
+            for ax, color in zip(axes, ["C0", "C1"]):
+                ax.plot([0, 1, 2], [0, 1, 0], color=color, label="stc")
+                ax.set_title("panel", fontsize=7)
+            axes[0].legend(loc="center")
+            plt.rcParams.update(style.RC)
+            fig, axes = plt.subplots(1, 2, figsize=(style.WIDTH, 3), layout="constrained")
+            for ax in axes:
+                ax.plot([0, 1, 2], [0, 1, 0], color=style.color("stc"), label="stc")
+            fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center")
+            '''
+        )
+    )
+    proc = run_example(script, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("unreadable figure")]
+    assert all(ln.startswith("unreadable figure 1: ") for ln in lines), lines
+    problems = " ".join(lines)
+    assert "'panel': 4.7 pt at 800 px" in problems  # 7 pt shrunk from 1200 to 800 px
+    assert "legend ['stc'] lies on the plotting area" in problems
+    assert "'stc' is drawn in #1f77b4 and in #ff7f0e" in problems

@@ -36,6 +36,7 @@ COLORS = {
     "stc_lq": "#56B4E9",
     "stc_kfmils": "#009E73",
     "stc_mimo": "#0072B2",
+    "stc_nocd": "#CC6677",  # the self-tuning controller without change detection (gallery)
     "lqg": "#000000",
     "oracle": "#7F7F7F",
     "zero": "#BBBBBB",

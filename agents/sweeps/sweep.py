@@ -277,14 +277,18 @@ def robustness_map(
     bins: int = 8,
 ) -> Path:
     """Bounded % (top row) and median cost ratio to the oracle (bottom row) over features
-    ``x`` and ``y``, one column per controller (the oracle itself left out); saved atomically."""
+    ``x`` and ``y``, one column per controller (the oracle itself left out); saved atomically.
+
+    In the shared figure style (:mod:`stcgym.agents.benchmark.style`): 4 inches per column at
+    ``style.DPI``, so up to two controllers fit the 800 px of a page with text of 10 pt.
+    """
     import io
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
+
+    from stcgym.agents.benchmark import style
+
+    plt = style.pyplot()
 
     for feat in (x, y):
         if feat not in table.columns:
@@ -301,7 +305,7 @@ def robustness_map(
         else None
     )
     fig, axes = plt.subplots(
-        2, len(names), figsize=(3.6 * len(names) + 1, 6.4), squeeze=False, constrained_layout=True
+        2, len(names), figsize=(4.0 * len(names), 6.4), squeeze=False, layout="constrained"
     )
     for j, name in enumerate(names):
         sub = table[table["controller"] == name]
@@ -321,6 +325,7 @@ def robustness_map(
         axes[0, j].set_title(f"{name}: bounded %")
         axes[1, j].set_title(f"{name}: median cost / oracle")
         for ax in axes[:, j]:
+            ax.grid(False)  # the style's grid would hatch the cells
             ax.set_xlabel(x)
             ax.set_ylabel(y)
             if xlog:
@@ -330,7 +335,7 @@ def robustness_map(
         fig.colorbar(top, ax=axes[0, j])
         fig.colorbar(bottom, ax=axes[1, j])
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
+    fig.savefig(buf, format="png", dpi=style.DPI)
     plt.close(fig)
     path = Path(path)
     write_atomic(path, buf.getvalue())
