@@ -1,4 +1,4 @@
-"""The estimators' configuration on the Python side: names, validation, the lane state and the config.
+"""The estimators' configuration on the Python side: names, validation, lane state, config.
 
 ``spec = EstimatorSpec.build(name, n, **make_estimator_keywords)`` validates one estimator
 configuration exactly like :func:`stcgym.adaptive.make_estimator` (which builds one itself) and
