@@ -124,6 +124,9 @@ __all__ = [
     "state_space_plants_step",
     "canonical_outputs",
     "state_outputs",
+    "performance_reward",
+    "performance_rewards",
+    "noise_inputs",
     "PARALLEL_MIN_LANES",
 ]
 
@@ -346,6 +349,30 @@ def observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y):
     return reward_of(cost, effort, rho, diverged)
 
 
+@lane(entry=True)
+def performance_reward(x, u, r, Cz, Dz, rho):
+    """``-(||C_z x + D_z u - r||^2 + rho ||u||^2)``: the reward of a performance output
+    ``z = C_z x + D_z u`` at the state ``x`` the input ``u`` acts on (the LQ stage cost with
+    ``Q = C_z' C_z``, ``R = D_z' D_z + rho I``, ``N = C_z' D_z``); :data:`REWARD_FLOOR` when it
+    overflows."""
+    cost = 0.0
+    for i in range(Cz.shape[0]):
+        z = 0.0
+        for j in range(x.shape[0]):
+            z += Cz[i, j] * x[j]
+        for j in range(u.shape[0]):
+            z += Dz[i, j] * u[j]
+        e = z - r[i]
+        cost += e * e
+    effort = 0.0
+    for j in range(u.shape[0]):
+        effort += u[j] * u[j]
+    reward = -(cost + rho * effort)
+    if not np.isfinite(reward):
+        return REWARD_FLOOR
+    return reward
+
+
 # ----------------------------------------------------------------------------- env steps
 @lane(entry=True)
 def canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, form):
@@ -477,6 +504,20 @@ def state_space_plants_step(
             Y[i],
             TMP[i],
         )
+
+
+@lanes(min_lanes=PARALLEL_MIN_LANES)
+def performance_rewards(X, U, R, Cz, Dz, rho, reward, first, last):
+    """:func:`performance_reward` of every lane into ``reward`` (``(B,)``)."""
+    for i in range(first, last):
+        reward[i] = performance_reward(X[i], U[i], R[i], Cz, Dz, rho)
+
+
+@lanes(min_lanes=PARALLEL_MIN_LANES)
+def noise_inputs(Z, G, out, first, last):
+    """``out[i] = G Z[i]``: each lane's process noise through the noise input ``G``."""
+    for i in range(first, last):
+        matvec(G, Z[i], out[i])
 
 
 @lanes(min_lanes=PARALLEL_MIN_LANES)
