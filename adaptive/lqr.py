@@ -16,9 +16,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import mimo_lq as lq
-from stcgym.adaptive.kernels.safe_set import STATUS_NAMES
+from stcgym.adaptive.kernels.safe_set import NOT_STABILISABLE, STATUS_NAMES, UNIT_CIRCLE_MODE
 from stcgym.adaptive.multivariable import (
     OBSERVATION_LIMIT,
+    cross_weight,
     lq_weight_matrices,
     resolve_dimensions,
 )
@@ -28,27 +29,73 @@ from stcgym.envs.validation import matrix
 __all__ = ["LQRController", "lqr_design"]
 
 
-def lqr_design(A: ArrayLike, B: ArrayLike, Q: ArrayLike, R: ArrayLike) -> tuple[NDArray, NDArray]:
-    """``(K, F)`` of the infinite-horizon LQ problem on ``(A, B)`` with weights ``Q``, ``R``.
+def _pbh_modes(M: NDArray, E: NDArray, unit_circle: bool) -> str:
+    """The eigenvalues ``lambda`` of ``M`` on the unit circle (``unit_circle``), or on or
+    outside it, where the PBH matrix ``[M - lambda I, E]`` loses rank, as text ("" if none)."""
+    n = M.shape[0]
+    lam = np.linalg.eigvals(M)
+    mag = np.abs(lam)
+    tol = 1e-8 * max(1.0, float(np.max(mag, initial=0.0)))
+    near = np.abs(mag - 1.0) <= tol if unit_circle else mag >= 1.0 - tol
+    found = []
+    for mode in lam[near]:
+        s = np.linalg.svd(np.hstack((M - mode * np.eye(n), E)), compute_uv=False)
+        if s[-1] <= 1e-9 * max(1.0, float(s[0])):
+            found.append(f"{mode:.4g}")
+    return ", ".join(found)
 
-    Raises ``ValueError`` when ``(A, B)`` is not stabilisable for these weights or has no
-    equilibrium for some reference (an uncontrollable mode at ``z = 1``).
+
+def _no_solution_reason(
+    A: NDArray, B: NDArray, Q: NDArray, R: NDArray, N: NDArray, status: int
+) -> str:
+    """The real cause of a failed solve, by the PBH tests: ``[A - lambda I, B]`` for a mode on
+    or outside the unit circle (reachability), ``[A_N^T - lambda I, Q_N]`` for one on it
+    (observability through ``Q_N``)."""
+    stuck = _pbh_modes(A, B, unit_circle=False)
+    if status == NOT_STABILISABLE or stuck:
+        return (
+            f"(A, B) is not stabilisable: no input reaches the mode(s) {stuck or '?'} on or "
+            "outside the unit circle, so no gain stabilises the loop"
+        )
+    RNt = np.linalg.solve(R, N.T)
+    AN, QN = A - B @ RNt, Q - N @ RNt
+    hidden = _pbh_modes(AN.T, QN, unit_circle=True)
+    if status == UNIT_CIRCLE_MODE or hidden:
+        return (
+            f"the mode(s) {hidden or '?'} of A - B R^-1 N^T on the unit circle are unobservable "
+            "through the state weight Q - N R^-1 N^T: the optimal loop leaves them on the unit "
+            "circle, so no stabilising LQ solution exists (weight them in Q)"
+        )
+    return f"the Riccati solve failed ({STATUS_NAMES[status]})"
+
+
+def lqr_design(
+    A: ArrayLike, B: ArrayLike, Q: ArrayLike, R: ArrayLike, N: ArrayLike | None = None
+) -> tuple[NDArray, NDArray]:
+    """``(K, F)`` of the infinite-horizon LQ problem on ``(A, B)`` with the stage cost
+    ``x^T Q x + u^T R u + 2 x^T N u`` (``N`` default zero; python-control's ``dlqr``).
+
+    Raises ``ValueError`` naming the cause when no stabilising solution exists (``(A, B)`` not
+    stabilisable, or a mode on the unit circle unobservable through ``Q - N R^-1 N^T``) or when
+    there is no equilibrium for some reference (an uncontrollable mode at ``z = 1``).
     """
     A = np.ascontiguousarray(A, dtype=float)
     B = np.ascontiguousarray(B, dtype=float)
     Q = np.ascontiguousarray(Q, dtype=float)
     R = np.ascontiguousarray(R, dtype=float)
     n, m = B.shape
+    N = np.zeros((n, m)) if N is None else np.ascontiguousarray(N, dtype=float)
     work = np.zeros(lq.design_work_size(n, m))
     P = np.zeros((n, n))
     K = np.zeros((m, n))
-    status = lq.dare_solve(A, B, Q, R, P, K, work, 1e-12, 64)
+    status = lq.dare_solve(A, B, Q, R, N, P, K, work, 1e-12, 64)
     if status != 0:
         raise ValueError(
-            f"(A, B) has no stabilising LQ gain for these weights ({STATUS_NAMES[status]})"
+            "no stabilising LQ gain for these weights: "
+            + _no_solution_reason(A, B, Q, R, N, status)
         )
     F = np.zeros((m, n))
-    if not lq.steady_state_feedforward(A, B, Q, R, K, F, work):
+    if not lq.steady_state_feedforward(A, B, Q, R, N, K, F, work):
         raise ValueError("(A, B) has no equilibrium for some reference (a mode at z = 1)")
     return K, F
 
@@ -60,15 +107,17 @@ class LQRController(LanePolicy):
     ----------
     A, B
         True matrices, ``(n, n)`` and ``(n, m)``, or one per lane ``(B, n, n)``, ``(B, n, m)``.
-    env, num_envs, Q, R, action_bound
-        As for :class:`~stcgym.adaptive.MultivariableSelfTuningController`.
+    env, num_envs, Q, R, N, action_bound
+        As for :class:`~stcgym.adaptive.MultivariableSelfTuningController` (``Q`` positive
+        semidefinite: any weight for which the stabilising Riccati solution exists).
 
     Raises
     ------
     ValueError
         ``A`` and ``B`` not finite or of inconsistent shapes, settings that do not match
-        ``env``, malformed ``Q``/``R`` or ``action_bound``, or a model with no stabilising LQ
-        gain for these weights.
+        ``env``, malformed ``Q``/``R``/``N`` or ``action_bound``, or a model with no stabilising
+        LQ gain for these weights (the message names the cause: ``(A, B)`` not stabilisable, or
+        a mode on the unit circle unobservable through the state weight).
 
     Attributes
     ----------
@@ -105,6 +154,7 @@ class LQRController(LanePolicy):
         num_envs: int | None = None,
         Q: ArrayLike | float | None = None,
         R: ArrayLike | float | None = None,
+        N: ArrayLike | None = None,
         action_bound: float | None = None,
     ) -> None:
         A_arr = np.asarray(A, dtype=float)
@@ -132,10 +182,11 @@ class LQRController(LanePolicy):
         if not (np.all(np.isfinite(A_arr)) and np.all(np.isfinite(B_arr))):
             raise ValueError("A and B must be finite")
         self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
+        self.N = cross_weight(N, self.Q, self.R)
         self._K = np.zeros((lanes, m, n))
         self._F = np.zeros((lanes, m, n))
         for i in range(lanes):
-            self._K[i], self._F[i] = lqr_design(A_arr[i], B_arr[i], self.Q, self.R)
+            self._K[i], self._F[i] = lqr_design(A_arr[i], B_arr[i], self.Q, self.R, self.N)
         self._u = np.zeros((lanes, m))
 
     def _reset_lanes(self, idx: NDArray) -> None:

@@ -36,7 +36,12 @@ from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import integer, real_in
 
-__all__ = ["MultivariableSelfTuningController", "lq_weight_matrices", "mimo_env_settings"]
+__all__ = [
+    "MultivariableSelfTuningController",
+    "cross_weight",
+    "lq_weight_matrices",
+    "mimo_env_settings",
+]
 
 _step = FixedTypes(km.mimo_step)
 _steps = FixedTypes(km.mimo_steps)
@@ -110,6 +115,31 @@ def lq_weight_matrices(
     return Qm, Rm
 
 
+def cross_weight(N: Any, Q: NDArray, R: NDArray) -> NDArray:
+    """Validated cross weight ``N`` (``n x m``, default zero) of the stage cost
+    ``x^T Q x + u^T R u + 2 x^T N u`` (python-control's ``dlqr(A, B, Q, R, N)``), for validated
+    ``Q`` and ``R``: the joint weight ``[[Q, N], [N^T, R]]`` must be positive semidefinite, i.e.
+    ``Q - N R^{-1} N^T`` is (otherwise the cost is unbounded below). ``ValueError`` naming
+    ``N`` and the expected form otherwise."""
+    n, m = Q.shape[0], R.shape[0]
+    if N is None:
+        return np.zeros((n, m))
+    arr = np.asarray(N, dtype=float)
+    if arr.ndim == 1 and m == 1 and arr.shape == (n,):
+        arr = arr.reshape(n, 1)
+    if arr.shape != (n, m) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"N must be a finite {n} x {m} matrix (states x inputs), got {N!r}")
+    QN = Q - arr @ np.linalg.solve(R, arr.T)
+    QN = 0.5 * (QN + QN.T)
+    scale = max(1.0, float(np.max(np.abs(Q))))
+    if np.min(np.linalg.eigvalsh(QN)) < -1e-10 * scale:
+        raise ValueError(
+            "N must leave the joint weight [[Q, N], [N^T, R]] positive semidefinite "
+            f"(Q - N R^-1 N^T has the eigenvalue {np.min(np.linalg.eigvalsh(QN)):.3g}), got {N!r}"
+        )
+    return np.ascontiguousarray(arr)
+
+
 def resolve_dimensions(
     n_states: Any, n_inputs: Any, num_envs: Any, action_bound: Any, env: Any
 ) -> tuple[int, int, int | None, float, float]:
@@ -160,7 +190,12 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         ``None`` for one plant (``predict`` on ``(2 n,)`` gives ``(m,)``), or ``B`` lanes
         (``(B, 2 n)`` gives ``(B, m)``).
     Q, R
-        LQ weights (default the env's cost: ``Q = I``, ``R = control_cost I``).
+        LQ weights (default the env's cost: ``Q = I``, ``R = control_cost I``); ``Q`` positive
+        semidefinite, ``R`` positive definite.
+    N
+        Cross weight ``(n, m)`` of the stage cost ``e^T Q e + u^T R u + 2 e^T N u``, ``e = x - r``
+        (python-control's ``dlqr(A, B, Q, R, N)``; default zero); ``[[Q, N], [N^T, R]]`` must
+        be positive semidefinite.
     action_bound
         Saturation of every input (default the env's, else 10).
     seed
@@ -179,9 +214,9 @@ class MultivariableSelfTuningController(SelfTuningLanes):
     ------
     ValueError
         Dimensions missing or not matching ``env``, an env whose output is not the state,
-        malformed ``Q``/``R``, ``action_bound`` or ``seed``, ``forgetting`` outside ``(0, 1]``,
-        ``dependence_tol`` outside ``(0, 1)``, an option group or dict with a field out of
-        its range.
+        malformed ``Q``/``R``/``N``, ``action_bound`` or ``seed``, ``forgetting`` outside
+        ``(0, 1]``, ``dependence_tol`` outside ``(0, 1)``, an option group or dict with a field
+        out of its range.
 
     Attributes
     ----------
@@ -226,6 +261,7 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         num_envs: int | None = None,
         Q: ArrayLike | float | None = None,
         R: ArrayLike | float | None = None,
+        N: ArrayLike | None = None,
         action_bound: float | None = None,
         seed: int | ArrayLike = 0,
         forgetting: float = 1.0,
@@ -241,6 +277,7 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         self.obs_dim = 2 * n
         self.action_dim = m
         self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
+        self.N = cross_weight(N, self.Q, self.R)
         self.forgetting = real_in(forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
         self.dependence_tol = real_in(
             dependence_tol, "dependence_tol", lo=0.0, hi=1.0, lo_open=True, hi_open=True
@@ -280,7 +317,7 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             solve_max_iter=64,
         )
         # a reset lane starts here: C = 0, the minimum-norm phase from R = I, no gain, P_lq = Q
-        self._layout, self._at, init = km.mimo_record(n, m, self.Q, self.R)
+        self._layout, self._at, init = km.mimo_record(n, m, self.Q, self.R, self.N)
         init.setflags(write=False)
         self._init = init
         self._F = np.empty((self.B, self._layout.size))

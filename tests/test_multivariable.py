@@ -179,8 +179,8 @@ def test_lq_gain_equals_dlqr(seed):
     K = np.zeros((m, n))
     work = np.zeros(mimo_lq.design_work_size(n, m))
     for _ in range(3000):
-        call(mimo_lq.riccati_step, A, B, Q, R, P, K, work)
-    mimo_lq.lq_gain(A, B, R, P, K, work)
+        call(mimo_lq.riccati_step, A, B, Q, R, np.zeros((n, m)), P, K, work)
+    mimo_lq.lq_gain(A, B, R, np.zeros((n, m)), P, K, work)
     np.testing.assert_allclose(P, P_ref, rtol=1e-7)
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9)
 

@@ -80,6 +80,7 @@ class MimoRecord(NamedTuple):
     design: int  # design scratch (design_work_size)
     Qw: int  # LQ state weight (n, n)
     Rw: int  # LQ input weight (m, m)
+    Nw: int  # LQ cross weight (n, m)
     A: int  # model of the estimate (n, n)
     B: int  # (n, m)
     P_lq: int  # Riccati matrix of the gain in use (n, n)
@@ -139,12 +140,16 @@ class MimoConfig(NamedTuple):
     solve_max_iter: int
 
 
-def mimo_record(n: int, m: int, Q: NDArray, R: NDArray) -> tuple[Layout, MimoRecord, NDArray]:
-    """Float record of one lane, its offsets and its initial value (weights ``Q``, ``R``)."""
+def mimo_record(
+    n: int, m: int, Q: NDArray, R: NDArray, N: NDArray
+) -> tuple[Layout, MimoRecord, NDArray]:
+    """Float record of one lane, its offsets and its initial value (weights ``Q``, ``R``,
+    ``N``)."""
     lay = state_matrix_layout(n, m)
     lay.add("design", (design_work_size(n, m),))
     lay.add("Qw", (n, n))
     lay.add("Rw", (m, m))
+    lay.add("Nw", (n, m))
     lay.add("A", (n, n))
     lay.add("B", (n, m))
     for name in ("P_lq", "P_try"):
@@ -158,6 +163,7 @@ def mimo_record(n: int, m: int, Q: NDArray, R: NDArray) -> tuple[Layout, MimoRec
     state_matrix_initial(lay, init, n, m)
     init[at.Qw : at.Qw + n * n] = np.asarray(Q, dtype=float).ravel()
     init[at.Rw : at.Rw + m * m] = np.asarray(R, dtype=float).ravel()
+    init[at.Nw : at.Nw + n * m] = np.asarray(N, dtype=float).ravel()
     init[at.P_lq : at.P_lq + n * n] = np.asarray(Q, dtype=float).ravel()
     return lay, at, init
 
@@ -190,6 +196,7 @@ def _design(f, g, at, cfg):
     _model(f, at, n, m, A, B)
     Q = view2d(f, at.Qw, n, n)
     R = view2d(f, at.Rw, m, m)
+    N = view2d(f, at.Nw, n, m)
     P = view2d(f, at.P_try, n, n)
     K = view2d(f, at.K_try, m, n)
     work = f[at.design : at.Qw]  # the design scratch ends where the weights start
@@ -198,19 +205,20 @@ def _design(f, g, at, cfg):
         if not math.isfinite(f[at.theta + i]):
             return NONFINITE
     if fresh:
-        status = dare_solve(A, B, Q, R, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
+        status = dare_solve(A, B, Q, R, N, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
         if status != OK:
             return status
     else:
         _copy(f, at.P_lq, at.P_try, n * n)
-        riccati_step(A, B, Q, R, P, K, work)
+        riccati_step(A, B, Q, R, N, P, K, work)
         big = False
         for i in range(n * n):
             big = big or not abs(f[at.P_try + i]) <= P_MAX
-        if big or not lq_gain(A, B, R, P, K, work):
+        if big or not lq_gain(A, B, R, N, P, K, work):
             _copy(f, at.Qw, at.P_lq, n * n)  # restart the iteration at P = Q
             return NOT_STABILISABLE
-    status = design_checks(A, B, Q, R, K, view2d(f, at.F, m, n), cfg.b_min, cfg.gain_max, work)
+    F = view2d(f, at.F, m, n)
+    status = design_checks(A, B, Q, R, N, K, F, cfg.b_min, cfg.gain_max, work)
     if status == OK:
         _copy(f, at.P_try, at.P_lq, n * n)
         _copy(f, at.K_try, at.K, m * n)

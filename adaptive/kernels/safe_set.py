@@ -33,6 +33,9 @@ code name               meaning
                         test of its characteristic polynomial); the one-step
                         variant re-initialises ``P`` to the state weight ``Q``
 7    ``not_converged``  LQ solve: no convergence within ``max_iter`` doubling steps
+8    ``unit_circle_mode`` multi-input LQ solve (:mod:`.mimo_lq`): the model is stabilisable
+                        but a mode on the unit circle is unobservable through the state
+                        weight, so no stabilising Riccati solution exists
 ==== ================== ==============================================================
 
 ``STATUS_NAMES[code]`` gives the name.
@@ -85,6 +88,7 @@ DC_SINGULAR = 4
 GAIN_LARGE = 5
 NOT_STABILISABLE = 6
 NOT_CONVERGED = 7
+UNIT_CIRCLE_MODE = 8
 STATUS_NAMES = (
     "ok",
     "nonfinite",
@@ -94,6 +98,7 @@ STATUS_NAMES = (
     "gain_large",
     "not_stabilisable",
     "not_converged",
+    "unit_circle_mode",
 )
 
 #: Floors of the conditioning tests (below them a "solution" is rounding noise).
