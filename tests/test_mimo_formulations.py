@@ -177,3 +177,101 @@ def test_lqr_costs_far_less_than_zero_input_on_both_operating_points(name):
     # measured: 0.026 at P-, 0.32 at P+ (its zero at 0.013 rad/s limits the bandwidth)
     assert ratio < {"quadruple_tank": 0.05, "quadruple_tank_nmp": 0.45}[name]
     assert costs["zero"] > 1.0
+
+
+# ------------------------------------------------------------------ controlgym's he1 and ac1
+
+S = math.sqrt(0.5)
+# controlgym 1.0.0's Q = C1' C1, R = D12' D12 (ac1: max eig(D12' D12) I), S = C1' D12, from
+# C1, D12 of its he1.mat / ac1.mat, typed in here
+CONTROLGYM = {
+    "he1": dict(C1=[[2 * S, 0, 0, 0], [0, S, 0, 0]], D12=[[S, 0], [0, S]], R=0.5 * np.eye(2)),
+    "ac1": dict(C1=[[0, S, 0, 0, 0], [0, 0, S, 0, 0]], D12=[[S, 0, 0], [0, S, 0]],
+                R=0.5 * np.eye(3)),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", list(CONTROLGYM))
+def test_performance_output_is_controlgyms_stage_cost(name):
+    cg = CONTROLGYM[name]
+    C1, D12 = np.array(cg["C1"], dtype=float), np.array(cg["D12"], dtype=float)
+    Q, R, N = get_mimo_plant(name).lq_weights()
+    np.testing.assert_allclose(Q, C1.T @ C1, atol=1e-15)
+    np.testing.assert_allclose(R, cg["R"], atol=1e-15)
+    np.testing.assert_allclose(N, C1.T @ D12, atol=1e-15)
+    # the env's reward is -(x'Qx + u'Ru + 2 x'Nu) at the state the input acts on
+    env = _performance_env(plant=name, control_cost=0.0, reference="zero")
+    rng = np.random.default_rng(0)
+    x0, u = rng.standard_normal(len(Q)), rng.standard_normal(len(R))
+    env.reset(seed=0, options={"initial_state": x0})
+    _, reward, *_ = env.step(u)
+    assert reward == pytest.approx(-(x0 @ Q @ x0 + u @ R @ u + 2 * x0 @ N @ u), rel=1e-12)
+
+
+@pytest.mark.parametrize("name", list(CONTROLGYM))
+def test_noise_input_is_the_zero_order_hold_of_b1(name):
+    spec = get_mimo_plant(name)
+    A_c, B_c, B1_c = (np.array(M, dtype=float) for M in (spec.A_c, spec.B_c, spec.B1_c))
+    n, m, d = B1_c.shape[0], B_c.shape[1], B1_c.shape[1]
+    M = np.zeros((n + m + d, n + m + d))
+    M[:n, :n], M[:n, n : n + m], M[:n, n + m :] = A_c, B_c, B1_c
+    E = expm(M * 0.1)
+    np.testing.assert_allclose(spec.discrete()[1], E[:n, n : n + m], rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(spec.noise_input(), E[:n, n + m :], rtol=1e-10, atol=1e-15)
+    # measured output: controlgym's C
+    assert len(spec.C_y) == {"he1": 1, "ac1": 3}[name]
+
+
+def _steady_cost(env, policy, seeds=20, steps=1000, skip=100):
+    """Mean per-step cost after ``skip`` steps from x(0) = 0, and its standard error."""
+    costs = []
+    for seed in range(seeds):
+        obs, _ = env.reset(seed=seed)
+        policy.reset()
+        c = []
+        for _ in range(steps):
+            u, _ = policy.predict(obs)
+            obs, reward, *_ = env.step(u)
+            c.append(-reward)
+        costs.append(np.mean(c[skip:]))
+    return float(np.mean(costs)), float(np.std(costs) / math.sqrt(seeds))
+
+
+def test_lqr_and_lqg_oracles_cost_what_the_riccati_solutions_say_on_he1():
+    """LQR (state) and LQG (measured output, noise 0.1 on it) in controlgym's formulation of
+    he1, driven through the env: their steady cost per step against
+    ``tr(P W)`` and ``tr(P W) + tr(S_f K' (R + B'PB) K)`` from python-control's Riccati
+    solutions (``S_f`` the filtered error covariance)."""
+    from stcgym.adaptive import LQRController
+    from stcgym.agents.benchmark.mimo import OutputLQG
+
+    plant = get_mimo_plant("he1")
+    (A, B), G, C = plant.discrete(), plant.noise_input(), np.array(plant.C_y)
+    Q, R, N = plant.lq_weights()
+    W, V = 0.1 * G @ G.T, 0.01 * np.eye(1)
+    K, P, _ = control.dlqr(A, B, Q, R, N)
+    S_pred = control.dlqe(A, np.eye(4), C, W, V)[1]
+    S_f = S_pred - S_pred @ C.T @ np.linalg.inv(C @ S_pred @ C.T + V) @ C @ S_pred
+    j_lqr = np.trace(P @ W)
+    j_lqg = j_lqr + np.trace(S_f @ K.T @ (R + B.T @ P @ B) @ K)
+    kw = dict(plant="he1", control_cost=0.0, reference="zero", process_noise_std=math.sqrt(0.1),
+              action_bound=1e6)  # fmt: skip
+    lqr = LQRController(A, B, Q=Q, R=R, N=N, action_bound=1e6)
+    np.testing.assert_allclose(lqr.K, K, rtol=1e-8, atol=1e-10)
+    cost, se = _steady_cost(_performance_env(reference_in="state", **kw), lqr)
+    assert abs(cost - j_lqr) < 4 * se
+    lqg = OutputLQG(A, B, C, Q, R, N, W=W, V=V, action_bound=1e6)
+    cost, se = _steady_cost(_performance_env(measured="output", noise_std=0.1, **kw), lqg)
+    assert abs(cost - j_lqg) < 4 * se
+    assert j_lqg > 50 * j_lqr  # one measured state of four: the estimate costs most
+
+
+def test_ac1_has_no_lq_yardstick_for_controlgyms_cost_and_the_bench_says_so():
+    from stcgym.agents.benchmark.mimo import check_mimo_plants, has_yardstick
+
+    # Q - N R^-1 N' = 0: the integrator x1 (eigenvalue 1) is weighted by nothing
+    Q, R, N = get_mimo_plant("ac1").lq_weights()
+    np.testing.assert_allclose(Q - N @ np.linalg.solve(R, N.T), 0.0, atol=1e-15)
+    assert not has_yardstick("ac1") and has_yardstick("he1")
+    with pytest.raises(ValueError, match="no stabilising LQ solution"):
+        check_mimo_plants(["he1", "ac1"])

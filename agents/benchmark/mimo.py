@@ -66,10 +66,12 @@ __all__ = [
     "TANK_REFERENCE",
     "InformedLQR",
     "MimoEnvSpec",
+    "OutputLQG",
     "channel_metrics",
     "check_mimo_plants",
     "estimate_error",
     "formulation",
+    "has_yardstick",
     "mimo_scenarios",
     "mimo_spec",
 ]
@@ -275,6 +277,92 @@ class InformedLQR:
         self.policy = self._design()
 
 
+class OutputLQG:
+    """LQG on the true model from the measured output: the LQ gain of the cost
+    ``x' Q x + u' R u + 2 x' N u`` (:func:`stcgym.adaptive.lqr.lqr_design`) on the current
+    estimate of the steady-state Kalman filter for process noise ``W`` and output noise ``V``
+    (the Riccati solution of python-control's ``dlqe``), starting from ``x_hat = 0``.
+
+    At step ``k`` the env observes ``[y(k), r(k)]`` (the reference is ignored: regulation);
+    the filter corrects its prediction with ``y(k)``,
+    ``x_hat(k|k) = x_hat(k|k-1) + M (y(k) - C x_hat(k|k-1))``, ``M = S C' (C S C' + V)^-1``,
+    applies ``u(k) = -K x_hat(k|k)`` (clipped to ``action_bound``) and predicts
+    ``x_hat(k+1|k) = A x_hat(k|k) + B u(k)``.
+
+    Parameters
+    ----------
+    A, B, C : array_like
+        The true model (``(n, n)``, ``(n, m)``, ``(p, n)``).
+    Q, R, N : array_like
+        LQ weights (``N`` default zero).
+    W, V : array_like
+        Process and output noise covariances (``(n, n)``, ``(p, p)``; ``V`` positive definite).
+    num_envs : int or None
+        ``None``: one env (``predict`` on ``(p + p_r,)``); else that many lanes.
+    action_bound : float
+        Inputs are clipped to ``[-action_bound, action_bound]``.
+
+    Examples
+    --------
+    he1 in controlgym's formulation, measuring only its second state:
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> from stcgym.agents.benchmark.mimo import OutputLQG
+    >>> from stcgym.envs import get_mimo_plant
+    >>> plant = get_mimo_plant("he1")
+    >>> (A, B), G = plant.discrete(), plant.noise_input()
+    >>> Q, R, N = plant.lq_weights()
+    >>> lqg = OutputLQG(A, B, np.array(plant.C_y), Q, R, N, W=0.1 * G @ G.T, V=0.1 * np.eye(1))
+    >>> env = gym.make("stcgym/StateSpace-v0", plant="he1", cost="performance",
+    ...                measured="output", control_cost=0.0, reference="zero")
+    >>> obs, _ = env.reset(seed=0, options={"initial_state": [1.0, 0.0, 0.0, 0.0]})
+    >>> lqg.predict(obs)[0].shape
+    (2,)
+    """
+
+    def __init__(
+        self,
+        A: Any,
+        B: Any,
+        C: Any,
+        Q: Any,
+        R: Any,
+        N: Any = None,
+        *,
+        W: Any,
+        V: Any,
+        num_envs: int | None = None,
+        action_bound: float = 1e9,
+    ) -> None:
+        import control
+
+        from stcgym.adaptive.lqr import lqr_design
+
+        self.A, self.B, self.C = (np.array(M, dtype=float) for M in (A, B, C))
+        n, m = self.B.shape
+        self.K = lqr_design(self.A, self.B, Q, R, N)[0]
+        S = np.asarray(control.dlqe(self.A, np.eye(n), self.C, W, V)[1], dtype=float)
+        V = np.asarray(V, dtype=float)
+        self.M = S @ self.C.T @ np.linalg.inv(self.C @ S @ self.C.T + V)
+        self.num_envs, self.action_bound = num_envs, float(action_bound)
+        self._x_pred = np.zeros((1 if num_envs is None else int(num_envs), n))
+
+    def reset(self) -> None:
+        """``x_hat = 0`` on every lane."""
+        self._x_pred[:] = 0.0
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic=True
+    ) -> tuple[NDArray, None]:
+        obs = np.atleast_2d(np.asarray(observation, dtype=float))
+        y = obs[:, : self.C.shape[0]]
+        x_hat = self._x_pred + (y - self._x_pred @ self.C.T) @ self.M.T
+        u = np.clip(-x_hat @ self.K.T, -self.action_bound, self.action_bound)
+        self._x_pred = x_hat @ self.A.T + u @ self.B.T
+        return (u[0] if self.num_envs is None else u), None
+
+
 def check_mimo_plants(names: list[str]) -> None:
     """Raise ``ValueError`` naming ``--mimo-plants`` for names outside the MIMO catalogue."""
     bad = [p for p in names if p not in mimo_plant_names()]
@@ -284,6 +372,32 @@ def check_mimo_plants(names: list[str]) -> None:
         )
     if len(set(names)) != len(names):
         raise ValueError(f"--mimo-plants lists a plant twice: {names}")
+    bad = [p for p in names if not has_yardstick(p)]
+    if bad:
+        raise ValueError(
+            f"--mimo-plants: {bad} have no stabilising LQ solution for their cost, so no "
+            "yardstick (ac1: controlgym's cost leaves its integrator state unweighted)"
+        )
+
+
+def has_yardstick(plant: str) -> bool:
+    """Whether the LQR yardstick exists for ``plant``'s cost in its formulation.
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.mimo import has_yardstick
+    >>> has_yardstick("he1"), has_yardstick("ac1")
+    (True, False)
+    """
+    from stcgym.adaptive.lqr import lqr_design
+
+    spec = get_mimo_plant(plant)
+    rho = 0.0 if formulation(plant) == "controlgym" else 0.01
+    try:
+        lqr_design(*spec.discrete(), *spec.lq_weights(rho))
+    except ValueError:
+        return False
+    return True
 
 
 def mimo_spec(cfg: BenchConfig, plant: str, key: str | None = None) -> MimoEnvSpec:
