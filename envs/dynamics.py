@@ -58,6 +58,9 @@ Pieces (lane functions; arrays are float64 and C-contiguous, modified in place w
     The same for ``p`` outputs and ``m`` inputs (arrays; ``y`` and ``y_clean`` written).
 ``measure``, ``safe_output``, ``squared_error``, ``reward_of``, ``all_finite``
     The per-channel pieces of both ``observe`` functions.
+``performance_reward(x, u, r, Cz, Dz, rho) -> float``
+    ``-(||C_z x + D_z u - r||^2 + rho ||u||^2)``, the reward of a performance output at the
+    state ``x`` the input acts on (:data:`REWARD_FLOOR` on overflow).
 
 Whole env steps (what the environments call; returns start with ``(reward, clipped,
 diverged)``):
@@ -76,11 +79,13 @@ is 0; pass shape ``(B, 0)`` to a batch loop). Batch loops over lanes (leading ax
 row per lane; outputs ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` ``(B,)`` bool):
 :func:`canonical_plants_step` (``U_raw``, ``Z_v``, ``R``, ``U``, ``Y_clean``, ``Y`` of shape
 ``(B,)``), :func:`state_space_plants_step` (per-lane ``AB`` of shape ``(B, n, n + m)``, a
-last scratch argument ``TMP`` of shape ``(B, n)``), and at reset :func:`canonical_outputs` /
-:func:`state_outputs` for lanes ``idx``. Each batch loop splits its lanes over threads from
-:data:`PARALLEL_MIN_LANES` lanes a thread on and runs on the calling thread below
-(:class:`stcgym.envs.compiled.LaneLoop`). Lane functions take as few array views as possible:
-each view passed to a call is a dozen machine words, a noticeable share of a small plant's step.
+last scratch argument ``TMP`` of shape ``(B, n)``), :func:`performance_rewards` and
+:func:`noise_inputs` (``out[i] = G Z[i]``, process noise through a noise input), and at reset
+:func:`canonical_outputs` / :func:`state_outputs` for lanes ``idx``. Each batch loop splits
+its lanes over threads from :data:`PARALLEL_MIN_LANES` lanes a thread on and runs on the
+calling thread below (:class:`stcgym.envs.compiled.LaneLoop`). Lane functions take as few
+array views as possible: each view passed to a call is a dozen machine words, a noticeable
+share of a small plant's step.
 
 Reference values and parameters for a rollout
 ---------------------------------------------
