@@ -399,8 +399,8 @@ def write_report(
         if channels:
             out += [
                 "Per channel of the performance output (mean over runs and episodes): the RMS "
-                "tracking error of each channel and the cross-channel disturbance, the largest "
-                "error of a channel within a reference hold after another channel's step.",
+                "tracking error of each channel and the cross-channel disturbance, how far a "
+                "channel's error moves within a reference hold after another channel's step.",
                 "",
                 *channels,
                 "",
