@@ -219,15 +219,7 @@ class StateSpaceEnv(LinearPlantEnv):
         self.C, self.D = np.ascontiguousarray(C_), np.ascontiguousarray(D_)
         n, m = self.B_nominal.shape
         self._tmp = np.zeros(n)
-        self.C_z, self.D_z = _performance_output(C_z, D_z, n, m)
-        if reference_in not in ("output", "state"):
-            raise ValueError(f"reference_in must be 'output' or 'state', got {reference_in!r}")
-        if reference_in == "state" and (self.C_z is None or not np.array_equal(self.C, np.eye(n))):
-            raise ValueError("reference_in='state' needs a performance output and measured state")
-        self.reference_in = reference_in
-        # r_x = C_z^+ r: a state whose performance output is r (C_z of full row rank)
-        self._to_state = None if reference_in == "output" else np.linalg.pinv(self.C_z).T
-        self.noise_input = _noise_input(noise_input, n)
+        self._performance_settings(C_z, D_z, reference_in, noise_input)
         p_r = None if self.C_z is None else self.C_z.shape[0]
         super().__init__(
             n_states=n, n_inputs=m, n_outputs=self.C.shape[0], n_references=p_r, **kwargs
@@ -238,6 +230,21 @@ class StateSpaceEnv(LinearPlantEnv):
         self._no_reference = np.zeros(self.C.shape[0])
         self._z_w = np.zeros(n)
         self._set_params(np.hstack((self.A_nominal, self.B_nominal)))
+
+    def _performance_settings(
+        self, C_z: Any, D_z: Any, reference_in: str, noise_input: Any
+    ) -> None:
+        """``C_z``, ``D_z``, the observed reference's map and the noise input, checked."""
+        n, m = self.B_nominal.shape
+        self.C_z, self.D_z = _performance_output(C_z, D_z, n, m)
+        if reference_in not in ("output", "state"):
+            raise ValueError(f"reference_in must be 'output' or 'state', got {reference_in!r}")
+        if reference_in == "state" and (self.C_z is None or not np.array_equal(self.C, np.eye(n))):
+            raise ValueError("reference_in='state' needs a performance output and measured state")
+        self.reference_in = reference_in
+        # r_x = C_z^+ r: a state whose performance output is r (C_z of full row rank)
+        self._to_state = None if reference_in == "output" else np.linalg.pinv(self.C_z).T
+        self.noise_input = _noise_input(noise_input, n)
 
     @property
     def sys(self) -> Any:
@@ -323,7 +330,7 @@ def _clip(u_raw: NDArray, low: Any, high: Any) -> tuple[NDArray, bool]:
 
 
 def _catalogue_settings(
-    plant: Any, cost: str | None, measured: str | None, C_z: Any, D_z: Any, G: Any, rng: Any
+    plant: Any, cost: str | None, measured: str | None, C_z: Any, D_z: Any, G: Any, bounds: Any
 ) -> tuple[Any, Any, Any, Any, Any]:
     """``(C_z, D_z, noise_input, input_range, C)`` of a catalogue plant for ``cost`` and
     ``measured`` (values given explicitly win)."""
@@ -336,13 +343,13 @@ def _catalogue_settings(
         C_z = Cz if C_z is None else C_z
         D_z = Dz if D_z is None else D_z
         G = (plant.noise_input() if plant.B1_c is not None else None) if G is None else G
-        rng = plant.input_range if rng is None else rng
+        bounds = plant.input_range if bounds is None else bounds
     C = None
     if measured == "output":
         if plant.C_y is None:
             raise ValueError(f"plant {plant.name!r} has no measured output C_y (measured='state')")
         C = np.array(plant.C_y, dtype=float)
-    return C_z, D_z, G, rng, C
+    return C_z, D_z, G, bounds, C
 
 
 def _performance_output(C_z: Any, D_z: Any, n: int, m: int) -> tuple[Any, Any]:
@@ -365,20 +372,20 @@ def _noise_input(G: Any, n: int) -> NDArray | None:
     return np.ascontiguousarray(np.hstack((Gm, np.zeros((n, n - Gm.shape[1])))))
 
 
-def _input_range(rng: Any, m: int, bound: float) -> tuple[NDArray, NDArray] | None:
-    if rng is None:
+def _input_range(bounds: Any, m: int, bound: float) -> tuple[NDArray, NDArray] | None:
+    if bounds is None:
         return None
     try:
-        low, high = (real_array(v, "input_range").reshape(-1) for v in rng)
+        low, high = (real_array(v, "input_range").reshape(-1) for v in bounds)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"input_range must be a pair (low, high), got {rng!r}") from exc
+        raise ValueError(f"input_range must be a pair (low, high), got {bounds!r}") from exc
     if low.shape != (m,) or high.shape != (m,) or not np.all(low < high):
         raise ValueError(
-            f"input_range must be (low, high) with {m} values each and low < high, got {rng!r}"
+            f"input_range must be (low, high) with {m} values each and low < high, got {bounds!r}"
         )
     low, high = np.maximum(low, -bound), np.minimum(high, bound)
     if not np.all(low < high):
-        raise ValueError(f"input_range {rng!r} lies outside [-action_bound, action_bound]")
+        raise ValueError(f"input_range {bounds!r} lies outside [-action_bound, action_bound]")
     return np.ascontiguousarray(low), np.ascontiguousarray(high)
 
 
