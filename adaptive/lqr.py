@@ -22,6 +22,7 @@ from stcgym.adaptive.multivariable import (
     cross_weight,
     lq_weight_matrices,
     resolve_dimensions,
+    split_observation,
 )
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.validation import matrix
@@ -165,11 +166,11 @@ class LQRController(LanePolicy):
                 f"shapes {A_arr.shape} and {B_arr.shape}"
             )
         n, m = B_arr.shape[-2:]
-        n, m, self.num_envs, self.action_bound, cost = resolve_dimensions(
+        n, m, self.num_envs, self.action_bound, cost, self.obs_dim = resolve_dimensions(
             n, m, num_envs, action_bound, env
         )
         self.n_states, self.n_inputs = n, m
-        self.obs_dim, self.action_dim = 2 * n, m
+        self.action_dim = m
         lanes = self.num_lanes
         if A_arr.ndim == 2:
             A_arr = np.broadcast_to(matrix(A_arr, "A", (n, n)), (lanes, n, n))
@@ -193,9 +194,7 @@ class LQRController(LanePolicy):
         """The oracle has no state."""
 
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
-        n = self.n_states
-        X = np.ascontiguousarray(obs[:, :n])
-        Rr = np.ascontiguousarray(obs[:, n:])
+        X, Rr = split_observation(obs, self.n_states)
         lq.feedback_laws(self._K, self._F, X, Rr, float(self.action_bound), self._u)
         return self._u[0].copy() if self.num_envs is None else self._u.copy()
 

@@ -48,24 +48,35 @@ _steps = FixedTypes(km.mimo_steps)
 
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
+#: The start-up probe's input cost ``a^2 trace(R)`` is at most this share of the largest state
+#: cost ``(x - r)^T Q (x - r)`` seen while probing (``benchmarks/mimo_startup.py``).
+PROBE_COST_SHARE = 0.004
 #: ``P <- P0 I`` after a failed health check of the estimator's covariance.
 P0_RESTART = 100.0
 
 
-def mimo_env_settings(env: Any) -> dict[str, Any]:
-    """``n_states``, ``n_inputs``, ``action_bound``, ``control_cost``, ``num_envs`` of a
-    StateSpace env or vector env (or a wrapper of one), checking the state is measured.
+def mimo_env_settings(env: Any, n_states: Any = None) -> dict[str, Any]:
+    """``n_states``, ``n_inputs``, ``action_bound``, ``control_cost``, ``num_envs`` and
+    ``obs_dim`` of an env or vector env (or a wrapper of one).
 
-    Raises ``ValueError`` when the env's output is not the state (``C != I`` or ``D != 0``).
+    A ``stcgym/StateSpace-v0`` env is read from its plant (observation ``[x, r]``, ``obs_dim =
+    2 n``), checking the state is measured. Any other Gymnasium env needs a 1-D ``Box``
+    observation that is the state ``x`` (``obs_dim = n``, regulation to ``r = 0``) or ``[x,
+    r]`` (``obs_dim = 2 n``; give ``n_states`` to say which, default the state alone) and a 1-D
+    ``Box`` action space: ``n_inputs`` is its size, ``action_bound`` the largest symmetric
+    bound inside it, ``control_cost`` the default 0.01.
+
+    Raises ``ValueError`` when a StateSpace env's output is not the state (``C != I`` or
+    ``D != 0``), or when another env's spaces are not such ``Box`` spaces.
     """
     base = getattr(env, "unwrapped", env)
     C = getattr(base, "C", None)
     D = getattr(base, "D", None)
     n = getattr(base, "n_states", None)
+    num = getattr(env, "num_envs", None)
+    num = None if num is None else int(num)
     if C is None or n is None:
-        raise ValueError(
-            f"env must be a stcgym/StateSpace-v0 env or vector env (with A, B, C), got {env!r}"
-        )
+        return _gymnasium_env_settings(env, n_states, num)
     C = np.asarray(C, dtype=float)
     if C.shape != (n, n) or not np.array_equal(C, np.eye(n)):
         raise ValueError(
@@ -74,13 +85,56 @@ def mimo_env_settings(env: Any) -> dict[str, Any]:
         )
     if D is not None and np.any(np.asarray(D) != 0):
         raise ValueError("the multivariable controllers need D = 0 (the env's D is not zero)")
-    num = getattr(env, "num_envs", None)
     return {
         "n_states": int(n),
         "n_inputs": int(base.n_inputs),
         "action_bound": float(np.max(base.action_bound)),
         "control_cost": float(base.control_cost),
-        "num_envs": None if num is None else int(num),
+        "num_envs": num,
+        "obs_dim": 2 * int(n),
+    }
+
+
+def _gymnasium_env_settings(env: Any, n_states: Any, num_envs: int | None) -> dict[str, Any]:
+    """:func:`mimo_env_settings` of an env that is not stcgym's: read from its spaces."""
+    from gymnasium import spaces
+
+    obs_space = getattr(env, "single_observation_space", None) or getattr(
+        env, "observation_space", None
+    )
+    act_space = getattr(env, "single_action_space", None) or getattr(env, "action_space", None)
+    if not (isinstance(obs_space, spaces.Box) and len(obs_space.shape) == 1):
+        raise ValueError(
+            "env must be a stcgym/StateSpace-v0 env or a Gymnasium env whose observation space "
+            f"is a 1-D Box holding the state (or [state, reference]), got {obs_space!r}"
+        )
+    if not (isinstance(act_space, spaces.Box) and len(act_space.shape) == 1):
+        raise ValueError(
+            "the multivariable controllers need a 1-D Box action space (one entry per input), "
+            f"got {act_space!r}"
+        )
+    p = int(obs_space.shape[0])
+    n = p if n_states is None else integer(n_states, "n_states", 1)
+    if p not in (n, 2 * n):
+        raise ValueError(
+            f"the env's observation has {p} entries: with n_states={n} it must be the state "
+            f"({n}) or [state, reference] ({2 * n})"
+        )
+    low = np.asarray(act_space.low, dtype=float)
+    high = np.asarray(act_space.high, dtype=float)
+    bound = float(min(np.min(-low), np.min(high)))
+    if not bound > 0:
+        raise ValueError(
+            "the env's action space must contain a symmetric box around 0 (the controllers "
+            f"saturate every input at +-action_bound), got low={low}, high={high}"
+        )
+    return {
+        "n_states": n,
+        "n_inputs": int(act_space.shape[0]),
+        "action_bound": bound,
+        "control_cost": 0.01,
+        "num_envs": num_envs,
+        "obs_dim": p,
     }
 
 
@@ -142,11 +196,12 @@ def cross_weight(N: Any, Q: NDArray, R: NDArray) -> NDArray:
 
 def resolve_dimensions(
     n_states: Any, n_inputs: Any, num_envs: Any, action_bound: Any, env: Any
-) -> tuple[int, int, int | None, float, float]:
-    """``(n, m, num_envs, action_bound, control_cost)`` from the arguments and the env, checked
-    against each other (``ValueError`` naming the mismatch)."""
+) -> tuple[int, int, int | None, float, float, int]:
+    """``(n, m, num_envs, action_bound, control_cost, obs_dim)`` from the arguments and the
+    env, checked against each other (``ValueError`` naming the mismatch); ``obs_dim`` is
+    ``2 n`` (``[x, r]``) without an env (:func:`mimo_env_settings`)."""
 
-    es = None if env is None else mimo_env_settings(env)
+    es = None if env is None else mimo_env_settings(env, n_states)
     if es is None and (n_states is None or n_inputs is None):
         raise ValueError("give env=... or both n_states and n_inputs")
     n = es["n_states"] if n_states is None else integer(n_states, "n_states", 1)
@@ -173,7 +228,16 @@ def resolve_dimensions(
     bound = real_in(action_bound, "action_bound", lo=0.0, lo_open=True)
     if env_bound is not None and bound > env_bound:
         raise ValueError(f"action_bound={bound} exceeds the env's action_bound={env_bound}")
-    return n, m, num_envs, bound, cost
+    return n, m, num_envs, bound, cost, 2 * n if es is None else es["obs_dim"]
+
+
+def split_observation(obs: NDArray, n: int) -> tuple[NDArray, NDArray]:
+    """``(X, R)`` of a ``(lanes, obs_dim)`` batch: the states and the references (zero when
+    the observation is the state alone), C-contiguous."""
+    X = np.ascontiguousarray(obs[:, :n])
+    if obs.shape[1] == n:
+        return X, np.zeros_like(X)
+    return X, np.ascontiguousarray(obs[:, n:])
 
 
 class MultivariableSelfTuningController(SelfTuningLanes):
@@ -185,7 +249,11 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         Plant dimensions (read from ``env`` when given; they must match it).
     env
         A ``stcgym/StateSpace-v0`` env or vector env: dimensions, ``action_bound``,
-        ``control_cost`` (the default ``R``) and ``num_envs``. Its output must be the state.
+        ``control_cost`` (the default ``R``) and ``num_envs``; its output must be the state.
+        Or any Gymnasium env (or vector env) whose observation is a 1-D ``Box`` holding the
+        state ``x`` (regulation to zero) or ``[x, r]`` (give ``n_states``), with a 1-D ``Box``
+        action space: ``n_inputs`` and ``action_bound`` (the largest symmetric bound inside
+        it) are read from it (:func:`mimo_env_settings`).
     num_envs
         ``None`` for one plant (``predict`` on ``(2 n,)`` gives ``(m,)``), or ``B`` lanes
         (``(B, 2 n)`` gives ``(B, m)``).
@@ -207,7 +275,10 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         dependent on the past ones.
     startup, safe_set, change_detection
         Option groups of :mod:`stcgym.adaptive.options` (``probe_steps`` default ``n + m + 1``,
-        the fewest samples that give ``n + m`` regressors, a full-rank estimate;
+        one more than the fewest probe samples that give ``n + m`` regressors, a full-rank
+        estimate; the amplitude is also capped so that the probe's input cost ``a^2 trace(R)``
+        stays within :data:`PROBE_COST_SHARE` of the largest state cost ``(x - r)^T Q (x - r)``
+        seen while probing, and a capped default probe stops at ``n + m`` samples, unextended;
         ``max_probe_steps`` ``5 (n + m)``; the safe set uses ``b_min`` and ``gain_max``).
 
     Raises
@@ -270,11 +341,10 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         safe_set: SafeSet | dict | None = None,
         change_detection: ChangeDetection | dict | None = None,
     ) -> None:
-        n, m, self.num_envs, self.action_bound, cost = resolve_dimensions(
+        n, m, self.num_envs, self.action_bound, cost, self.obs_dim = resolve_dimensions(
             n_states, n_inputs, num_envs, action_bound, env
         )
         self.n_states, self.n_inputs = n, m
-        self.obs_dim = 2 * n
         self.action_dim = m
         self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
         self.N = cross_weight(N, self.Q, self.R)
@@ -291,19 +361,26 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         self.seeds = self._lane_ints(seed, "seed")
         q = n + m
         # the shortest probe was the cheapest on a random family of MIMO plants (median
-        # episode ratio 1.022-1.024 against 1.036-1.039 with 2 (n + m), 3 seeds)
+        # episode ratio 1.022-1.024 against 1.036-1.039 with 2 (n + m), 3 seeds); n + m probe
+        # samples give the n + m regressors [x; u] of a full-rank estimate, and a probe capped
+        # by the state cost stops there (every open-loop sample then costs more than the
+        # estimate gains from it: benchmarks/mimo_startup.py), an uncapped one takes one more
         probe_steps = q + 1 if su.probe_steps is None else int(su.probe_steps)
+        probe_min = q if su.probe_steps is None else probe_steps
         probe_max = 5 * q if su.max_probe_steps is None else int(su.max_probe_steps)
         self._cfg = km.MimoConfig(
             n=n,
             m=m,
             probe_steps=probe_steps,
+            probe_min=probe_min,
             probe_max=max(probe_max, probe_steps),
             detect=bool(cd.enabled),
             holdoff=int(cd.holdoff),
             action_bound=float(self.action_bound),
             probe_amplitude=float(su.probe_amplitude),
             probe_output=float(su.probe_output),
+            probe_cost_share=PROBE_COST_SHARE,
+            input_weight=float(np.trace(self.R)),
             threshold=float(cd.threshold),
             inflation=float(cd.inflation),
             ew_short=float(cd.short),
@@ -336,14 +413,10 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         """``u(t)`` of every lane from ``[x(t), r(t)]``."""
         if starts is not None:
             self._reset_lanes(np.flatnonzero(starts))
-        n = self.n_states
+        X, Rr = split_observation(obs, self.n_states)
         if self.num_envs is None:
-            x = np.ascontiguousarray(obs[0, :n])
-            r = np.ascontiguousarray(obs[0, n:])
-            _step(self._F[0], self._G[0], self._at, self._cfg, x, r, self._u[0])
+            _step(self._F[0], self._G[0], self._at, self._cfg, X[0], Rr[0], self._u[0])
             return self._u[0].copy()
-        X = np.ascontiguousarray(obs[:, :n])
-        Rr = np.ascontiguousarray(obs[:, n:])
         _steps(self._F, self._G, self._at, self._cfg, X, Rr, self._u)
         return self._u.copy()
 

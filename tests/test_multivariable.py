@@ -388,3 +388,66 @@ def test_unstabilisable_plant_keeps_the_bounded_probe():
     # rounding leaves a tiny coupling in B_hat: a huge gain or a diverging Riccati iterate
     assert diag["last_rejection"] in ("not_stabilisable", "gain_large")
     np.testing.assert_array_equal(ctl.K, np.zeros((1, 2)))
+
+
+# ------------------------------------------------------------------ any Gymnasium env
+
+
+class _TwoTanks(gym.Env):
+    """A hand-written plant that knows nothing of stcgym: ``x+ = A x + B u + w``, the state
+    observed, inputs within ``[-2, 3]``, cost ``|x|^2 + 0.01 |u|^2``."""
+
+    A = np.array([[1.02, 0.1], [0.0, 0.95]])
+    B = np.array([[0.1, 0.0], [0.05, 0.2]])
+
+    def __init__(self, with_reference: bool = False):
+        size = 4 if with_reference else 2
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (size,), dtype=np.float64)
+        self.action_space = gym.spaces.Box(-2.0, 3.0, (2,), dtype=np.float64)
+        self.with_reference = with_reference
+
+    def _obs(self):
+        return np.concatenate([self.x, np.zeros(2)]) if self.with_reference else self.x.copy()
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = self.np_random.normal(0.0, 1.0, 2)
+        return self._obs(), {}
+
+    def step(self, action):
+        u = np.clip(action, self.action_space.low, self.action_space.high)
+        cost = float(self.x @ self.x + 0.01 * u @ u)
+        self.x = self.A @ self.x + self.B @ u + self.np_random.normal(0.0, 1e-3, 2)
+        return self._obs(), -cost, False, False, {}
+
+
+@pytest.mark.parametrize("with_reference", [False, True])
+def test_controller_runs_on_any_gymnasium_env(with_reference):
+    env = _TwoTanks(with_reference)
+    n_states = 2 if with_reference else None
+    ctl = MultivariableSelfTuningController(n_states, env=env, seed=3)
+    assert (ctl.n_states, ctl.n_inputs, ctl.action_bound) == (2, 2, 2.0)
+    stc, _ = _episode(env, ctl, 0, 300)
+    ref = LQRController(env.A, env.B, env=env)
+    lqr, _ = _episode(env, ref, 0, 300)
+    assert np.all(np.abs(ctl.B_hat - env.B) < 0.02)
+    assert stc[100:].sum() / lqr[100:].sum() < 1.1
+    # a vector env of the same plant: one lane each
+    venv = gym.vector.SyncVectorEnv([lambda: _TwoTanks(with_reference)] * 2)
+    batch = MultivariableSelfTuningController(n_states, env=venv, seed=3)
+    obs, _ = venv.reset(seed=0)
+    u, _ = batch.predict(obs)
+    assert u.shape == (2, 2) and np.all(np.abs(u) <= 2.0)
+
+
+def test_gymnasium_env_with_the_wrong_spaces_is_refused():
+    env = _TwoTanks()
+    with pytest.raises(ValueError, match="observation has 2 entries"):
+        MultivariableSelfTuningController(3, env=env)
+    env.action_space = gym.spaces.Discrete(3)
+    with pytest.raises(ValueError, match="1-D Box action space"):
+        MultivariableSelfTuningController(env=env)
+    env = _TwoTanks()
+    env.action_space = gym.spaces.Box(0.0, 1.0, (2,))
+    with pytest.raises(ValueError, match="symmetric box around 0"):
+        MultivariableSelfTuningController(env=env)

@@ -18,9 +18,14 @@ and writes ``u(t)``. Every step, in this order:
    gain stays;
 4. **control**: for the first ``probe_steps`` samples (default ``n + m + 1``), and until a
    design has been accepted, a zero-mean probe ``+-a`` on every input with signs hashed from
-   ``(seed, episode, t, input)`` and ``a = probe_amplitude min(1, probe_output / max |x|)``;
-   it runs on up to ``max_probe_steps`` (default ``5 (n + m)``) while ``max |x| <
-   probe_output``. Then ``u = sat(-K x + F r)`` (:func:`.mimo_lq.feedback_law`).
+   ``(seed, episode, t, input)`` and ``a = probe_amplitude min(1, probe_output / max |x|)``,
+   capped at ``sqrt(share c_max / trace(R))`` (``c_max`` the largest state cost
+   ``(x - r)^T Q (x - r)`` seen while probing) so that the probe's input cost is a small share
+   of the cost it is there to remove, on any scale of state and input. A capped probe stops
+   after ``probe_min`` samples (default ``n + m``, the fewest that give a full-rank estimate:
+   every further open-loop sample costs more than it adds); an uncapped one runs on up to
+   ``max_probe_steps`` (default ``5 (n + m)``) while ``max |x| < probe_output``. Then
+   ``u = sat(-K x + F r)`` (:func:`.mimo_lq.feedback_law`).
 
 Lane records: a ``float64`` record (fields :class:`MimoRecord`) with the estimator's fields
 first, and an ``int64`` record (:data:`MIMO_INTS`); configuration :class:`MimoConfig`.
@@ -92,6 +97,7 @@ class MimoRecord(NamedTuple):
     ews: int  # short EWMA of ||e||^2
     ewl: int  # long EWMA of ||e||^2
     ymax: int  # largest |x_i| seen while probing
+    cmax: int  # largest state cost (x - r)^T Q (x - r) seen while probing
 
 
 class MimoInts(NamedTuple):
@@ -121,12 +127,15 @@ class MimoConfig(NamedTuple):
     n: int
     m: int
     probe_steps: int
+    probe_min: int  # probe length when the probe is capped by the state cost
     probe_max: int
     detect: bool
     holdoff: int
     action_bound: float
     probe_amplitude: float
     probe_output: float
+    probe_cost_share: float  # the probe's input cost at most this share of the state cost
+    input_weight: float  # trace(R): the probe's input cost per unit amplitude squared
     threshold: float
     inflation: float
     ew_short: float
@@ -156,7 +165,7 @@ def mimo_record(
         lay.add(name, (n, n))
     for name in ("K", "K_try", "F"):
         lay.add(name, (m, n))
-    for name in ("has_gain", "ews", "ewl", "ymax"):
+    for name in ("has_gain", "ews", "ewl", "ymax", "cmax"):
         lay.add(name)
     at = lay.record(MimoRecord)
     init = lay.empty(1)[0]
@@ -226,6 +235,17 @@ def _design(f, g, at, cfg):
     return status
 
 
+@lane(inline=True)
+def _state_cost(Q, x, r):
+    """``(x - r)^T Q (x - r)``."""
+    n = x.size
+    acc = 0.0
+    for i in range(n):
+        for j in range(n):
+            acc += (x[i] - r[i]) * Q[i, j] * (x[j] - r[j])
+    return acc
+
+
 @lane(entry=True)
 def mimo_step(f, g, at, cfg, x, r, u):
     """One sample of the controller (module docstring, steps 1-4): ``u(t)`` from ``x(t)``,
@@ -262,15 +282,29 @@ def mimo_step(f, g, at, cfg, x, r, u):
     # -- 4. control: the probe while the loop is open, then the feedback law
     open_loop = closed_t < 0
     ymax = f[at.ymax]
+    cmax = f[at.cmax]
     if open_loop:
         for i in range(n):
             ymax = max(ymax, abs(x[i]))
         f[at.ymax] = ymax
+        cmax = max(cmax, _state_cost(view2d(f, at.Qw, n, n), x, r))
+        f[at.cmax] = cmax
     level = cfg.probe_output
-    probing = open_loop and (t < cfg.probe_steps or (t < cfg.probe_max and ymax < level))
+    amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
+    # the probe follows the scale of the state and the input: its input cost a^2 trace(R)
+    # stays a small share of the state cost it is there to remove (a plant at its reference
+    # is probed with the full amplitude)
+    capped = False
+    if cmax > 0.0:
+        cap = math.sqrt(cfg.probe_cost_share * cmax / cfg.input_weight)
+        if cap < amp:
+            amp = cap
+            capped = True
+    # an excited state needs no longer probe: the extension is for a plant near rest
+    extend = t < cfg.probe_max and ymax < level and not capped
+    probing = open_loop and (t < (cfg.probe_min if capped else cfg.probe_steps) or extend)
     bound = cfg.action_bound
     if probing or f[at.has_gain] <= 0.0:
-        amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
         seed = g[MIMO_INTS.seed]
         episode = g[MIMO_INTS.episode]
         for j in range(m):

@@ -1,0 +1,177 @@
+"""Multivariable self-tuning LQ start-up on ``he1`` in controlgym's formulation, against LQR.
+
+Usage::
+
+    python benchmarks/mimo_startup.py [--seeds 10] [--steps 1000] [--out FILE.json]
+
+Setting (controlgym 1.0.0's linear-control task, Zhang et al. 2023, on COMPleib's HE1):
+``x(k+1) = A x(k) + B u(k) + B1 w(k)`` with ``(A, B)`` stcgym's ``he1`` (zero-order hold at
+0.1 s), ``B1`` COMPleib's disturbance matrix discretised with it, ``w(k) ~ N(0, 0.1 I)``,
+``x(0) ~ N(0, 0.1 I)``, regulation (``r = 0``), the state measured without noise, no input
+bound, and the stage cost ``||C1 x + D12 u||^2``, i.e. ``Q = C1' C1``, ``R = D12' D12``,
+``N = C1' D12`` (python-control's ``dlqr(A, B, Q, R, N)``) for both controllers. Episodes of
+``--steps`` samples; seed ``s`` draws the initial state and the noise of episode ``s`` (the
+same for every controller) and the self-tuning controller's probe seed.
+
+Rows: ``lqr`` (:class:`~stcgym.adaptive.LQRController` on the true ``(A, B)``),
+``stc`` (:class:`~stcgym.adaptive.MultivariableSelfTuningController` with the same weights and
+default options), ``stc_no_cross`` (the same without ``N``, for comparison), ``zero``
+(no input) and ``bound``: what identification costs at the least. ``[A B]`` has ``n + m``
+unknown columns, so no estimate exists before ``n + m`` regressors ``[x; u]``: the bound row
+applies the self-tuning controller's own probe for those ``n + m`` samples (open loop, as any
+controller without a model must) and then LQR with the *true* gain, i.e. a controller that
+identifies the model exactly from the fewest samples with the smallest excitation.
+
+An episode whose state leaves ``|x_i| < 1e6`` is charged ``inf`` (zero input on this unstable
+plant). Figures: whole-episode cost of each row per seed, its ratio to LQR's, the median over the
+seeds, and ``stc`` over ``bound``. Target: ``stc`` within 1.5x of LQR (median), or within
+1.2x of the bound where that bound exceeds 1.5x.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from typing import Any
+
+import control
+import numpy as np
+from numpy.typing import NDArray
+
+from stcgym.adaptive import LQRController, MultivariableSelfTuningController
+from stcgym.envs import get_mimo_plant
+
+#: COMPleib HE1 (Leibfritz 2004, as shipped by controlgym 1.0.0): disturbance input ``B1``
+#: (continuous), performance output ``z = C1 x + D12 u``.
+_S = float(np.sqrt(0.5))
+HE1_B1 = np.array([[0.04678, 0.0], [0.04572, 0.00988], [0.04369, 0.00111], [-0.02179, 0.0]])
+HE1_C1 = np.array([[2 * _S, 0.0, 0.0, 0.0], [0.0, _S, 0.0, 0.0]])
+HE1_D12 = np.array([[_S, 0.0], [0.0, _S]])
+#: controlgym's defaults: noise covariance and initial-state covariance ``0.1 I``.
+NOISE_COV = 0.1
+
+
+def he1_problem() -> dict[str, NDArray]:
+    """``A, B, B1`` (discrete) and ``Q, R, N`` of he1 in controlgym's formulation."""
+    spec = get_mimo_plant("he1")
+    n, m = spec.n_states, spec.n_inputs
+    Bc = np.hstack((np.array(spec.B_c), HE1_B1))
+    sysd = control.sample_system(
+        control.ss(np.array(spec.A_c), Bc, np.eye(n), np.zeros((n, Bc.shape[1]))), spec.dt
+    )
+    A, B = spec.discrete()
+    B1 = np.asarray(sysd.B)[:, m:]
+    return {
+        "A": A,
+        "B": B,
+        "B1": B1,
+        "C1": HE1_C1,
+        "D12": HE1_D12,
+        "Q": HE1_C1.T @ HE1_C1,
+        "R": HE1_D12.T @ HE1_D12,
+        "N": HE1_C1.T @ HE1_D12,
+    }
+
+
+def episode(
+    prob: dict[str, NDArray],
+    policy: Any,
+    seed: int,
+    steps: int,
+    probe: NDArray | None = None,
+) -> float:
+    """Whole-episode cost ``sum ||C1 x + D12 u||^2`` of ``policy`` (``None``: zero input);
+    with ``probe`` (``(k, m)``) the first ``k`` inputs are the probe's instead (the bound
+    row)."""
+    A, B, B1, C1, D12 = (prob[k] for k in ("A", "B", "B1", "C1", "D12"))
+    n, m = B.shape
+    rng = np.random.default_rng(np.random.SeedSequence([35, seed]))
+    x = rng.normal(0.0, np.sqrt(NOISE_COV), n)
+    W = rng.normal(0.0, np.sqrt(NOISE_COV), (steps, B1.shape[1]))
+    r = np.zeros(n)
+    cost = 0.0
+    for k in range(steps):
+        u = np.zeros(m) if policy is None else policy.predict(np.concatenate([x, r]))[0]
+        if probe is not None and k < len(probe):
+            u = probe[k]
+        z = C1 @ x + D12 @ u
+        cost += float(z @ z)
+        x = A @ x + B @ u + B1 @ W[k]
+        if not np.all(np.abs(x) < 1e6):
+            return float("inf")
+    return cost
+
+
+def probe_signal(prob: dict[str, NDArray], seed: int, steps: int) -> NDArray:
+    """The self-tuning controller's own probe on the episode of ``seed``, its first ``n + m``
+    samples: the fewest regressors ``[x; u]`` that determine ``[A B]``."""
+    A, B, B1 = prob["A"], prob["B"], prob["B1"]
+    n, m = B.shape
+    stc = _stc(prob, seed, cross=True)
+    rng = np.random.default_rng(np.random.SeedSequence([35, seed]))
+    x = rng.normal(0.0, np.sqrt(NOISE_COV), n)
+    W = rng.normal(0.0, np.sqrt(NOISE_COV), (steps, B1.shape[1]))
+    out = np.zeros((n + m, m))
+    for k in range(n + m):
+        out[k] = stc.predict(np.concatenate([x, np.zeros(n)]))[0]
+        x = A @ x + B @ out[k] + B1 @ W[k]
+    return out
+
+
+def _stc(prob: dict[str, NDArray], seed: int, cross: bool) -> MultivariableSelfTuningController:
+    n, m = prob["B"].shape
+    return MultivariableSelfTuningController(
+        n,
+        m,
+        Q=prob["Q"],
+        R=prob["R"],
+        N=prob["N"] if cross else None,
+        action_bound=np.inf,
+        seed=seed,
+    )
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--steps", type=int, default=1000)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    prob = he1_problem()
+    n, m = prob["B"].shape
+    lqr = LQRController(prob["A"], prob["B"], Q=prob["Q"], R=prob["R"], N=prob["N"],
+                        action_bound=np.inf)  # fmt: skip
+    K_ref = control.dlqr(prob["A"], prob["B"], prob["Q"], prob["R"], prob["N"])[0]
+    print(f"LQR gain against control.dlqr: max |dK| = {np.max(np.abs(lqr.K - K_ref)):.2e}")
+    rows: dict[str, list[float]] = {k: [] for k in ("lqr", "stc", "stc_no_cross", "zero", "bound")}
+    for s in range(args.seeds):
+        rows["lqr"].append(episode(prob, lqr, s, args.steps))
+        rows["stc"].append(episode(prob, _stc(prob, s, True), s, args.steps))
+        rows["stc_no_cross"].append(episode(prob, _stc(prob, s, False), s, args.steps))
+        rows["zero"].append(episode(prob, None, s, args.steps))
+        probe = probe_signal(prob, s, args.steps)
+        rows["bound"].append(episode(prob, lqr, s, args.steps, probe=probe))
+    lqr_cost = np.array(rows["lqr"])
+    print(f"he1 (controlgym formulation), {args.steps} steps, {args.seeds} seeds")
+    print(f"{'seed':>4} {'lqr':>9} " + " ".join(f"{k + '/lqr':>16}" for k in rows if k != "lqr"))
+    for s in range(args.seeds):
+        ratios = " ".join(f"{rows[k][s] / lqr_cost[s]:16.3f}" for k in rows if k != "lqr")
+        print(f"{s:4d} {lqr_cost[s]:9.3f} {ratios}")
+    medians = {k: float(np.median(np.array(v) / lqr_cost)) for k, v in rows.items()}
+    print("median " + " ".join(f"{k}/lqr={v:.3f}" for k, v in medians.items() if k != "lqr"))
+    to_bound = np.array(rows["stc"]) / np.array(rows["bound"])
+    medians["stc/bound"] = float(np.median(to_bound))
+    print(f"stc/bound per seed {np.round(to_bound, 3).tolist()}, median {np.median(to_bound):.3f}")
+    result = {"steps": args.steps, "seeds": args.seeds, "costs": rows, "median_ratio": medians}
+    if args.out:
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.out)) or ".")
+        with os.fdopen(fd, "w") as fh:
+            json.dump(result, fh, indent=1)
+        os.replace(tmp, args.out)
+    return result
+
+
+if __name__ == "__main__":
+    main()
