@@ -16,14 +16,16 @@ controllers look at it) with the controller seed ``seeds[i]``.
 * ``lqg``: the yardstick, LQG on the true model for the bench's own cost (the steady-state
   LQ gain and Kalman filter, the reference fed forward through the steady state), told the new
   parameters at a jump; on a measured-state MIMO plant the LQR on the true ``(A, B)``
-  (:class:`~stcgym.adaptive.LQRController`) with the same weights.
+  (:class:`~stcgym.agents.benchmark.mimo.InformedLQR`) with the weights of the scenario's
+  performance-output cost, told the new model at a valve switch.
 * ``oracle``: pole placement on the true model with the self-tuning controller's poles and
   integral action (:class:`~stcgym.adaptive.KnownModelController`), told the new parameters
   at a jump: the self-tuning controller's design with the identification problem removed.
 * ``zero``: zero input, the reference of the normalised score.
 * ``stc_mimo``: the multivariable self-tuning LQ controller
-  (:class:`~stcgym.adaptive.MultivariableSelfTuningController`) weighted by the bench's cost
-  ``||x - r||^2 + control_cost ||u||^2``.
+  (:class:`~stcgym.adaptive.MultivariableSelfTuningController`) weighted by the scenario's
+  cost ``||C_z x + D_z u - r||^2 + control_cost ||u||^2`` (``Q = C_z' C_z``,
+  ``R = D_z' D_z + control_cost I``, ``N = C_z' D_z``).
 
 Each declares the plants it runs on (``ControllerInfo.plants``): a scenario evaluates only the
 controllers that declare its kind (``EnvSpec.plant_kind``: ``"siso"`` or ``"mimo"``), and what
@@ -187,20 +189,12 @@ def _oracle(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
 
 
 def _lqg(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
-    from stcgym.adaptive import LawOptions, LQGController, LQRController
+    from stcgym.adaptive import LawOptions, LQGController
     from stcgym.adaptive.options import cost_weights
 
     env = sc.env
     if env.plant_kind == "mimo":  # measured state: the LQR on the true (A, B)
-
-        def lqr(plants: list[Any], seeds: list[int]) -> Any:
-            A, B = (np.array(m) for m in zip(*(p.discrete() for p in plants), strict=True))
-            return LQRController(
-                A, B, num_envs=len(plants), Q=1.0, R=env.control_cost,
-                action_bound=env.action_bound,
-            )  # fmt: skip
-
-        return lqr
+        return _mimo_lqr(env)
     # without integral action: the optimal linear controller for the bench's cost on the
     # known model
     law = LawOptions(integral=False, lq_weights=cost_weights(env.control_cost))
@@ -220,15 +214,33 @@ def _zero(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     return lambda plants, seeds: ZeroController(len(plants), m)
 
 
+def _mimo_weights(env: Any) -> dict[str, Any]:
+    """The LQ weights of a ``mimo`` scenario's cost: ``Q``, ``R`` and, where the performance
+    output has a feed-through, the cross weight ``N``."""
+    Q, R, N = env.plant.lq_weights(env.control_cost)
+    return dict(Q=Q, R=R) if not np.any(N) else dict(Q=Q, R=R, N=N)
+
+
+def _mimo_lqr(env: Any) -> Callable[[list[Any], list[int]], Any]:
+    from stcgym.agents.benchmark.mimo import InformedLQR
+
+    def lqr(plants: list[Any], seeds: list[int]) -> Any:
+        A, B = (np.array(m) for m in zip(*(p.discrete() for p in plants), strict=True))
+        return InformedLQR(A, B, action_bound=env.action_bound, **_mimo_weights(env))
+
+    return lqr
+
+
 def _stc_mimo(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     from stcgym.adaptive import MultivariableSelfTuningController
 
-    n, m = sc.env.order, sc.env.channels[1]
+    env = sc.env
+    n, m = env.order, env.channels[1]
 
     def builder(plants: list[Any], seeds: list[int]) -> Any:
         return MultivariableSelfTuningController(
-            n, m, num_envs=len(plants), Q=1.0, R=sc.env.control_cost,
-            action_bound=sc.env.action_bound, seed=[int(s) for s in seeds],
+            n, m, num_envs=len(plants), action_bound=env.action_bound,
+            seed=[int(s) for s in seeds], **_mimo_weights(env),
         )  # fmt: skip
 
     return builder

@@ -58,6 +58,9 @@ Pieces (lane functions; arrays are float64 and C-contiguous, modified in place w
     The same for ``p`` outputs and ``m`` inputs (arrays; ``y`` and ``y_clean`` written).
 ``measure``, ``safe_output``, ``squared_error``, ``reward_of``, ``all_finite``
     The per-channel pieces of both ``observe`` functions.
+``performance_reward(x, u, r, Cz, Dz, rho) -> float``
+    ``-(||C_z x + D_z u - r||^2 + rho ||u||^2)``, the reward of a performance output at the
+    state ``x`` the input acts on (:data:`REWARD_FLOOR` on overflow).
 
 Whole env steps (what the environments call; returns start with ``(reward, clipped,
 diverged)``):
@@ -76,11 +79,13 @@ is 0; pass shape ``(B, 0)`` to a batch loop). Batch loops over lanes (leading ax
 row per lane; outputs ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` ``(B,)`` bool):
 :func:`canonical_plants_step` (``U_raw``, ``Z_v``, ``R``, ``U``, ``Y_clean``, ``Y`` of shape
 ``(B,)``), :func:`state_space_plants_step` (per-lane ``AB`` of shape ``(B, n, n + m)``, a
-last scratch argument ``TMP`` of shape ``(B, n)``), and at reset :func:`canonical_outputs` /
-:func:`state_outputs` for lanes ``idx``. Each batch loop splits its lanes over threads from
-:data:`PARALLEL_MIN_LANES` lanes a thread on and runs on the calling thread below
-(:class:`stcgym.envs.compiled.LaneLoop`). Lane functions take as few array views as possible:
-each view passed to a call is a dozen machine words, a noticeable share of a small plant's step.
+last scratch argument ``TMP`` of shape ``(B, n)``), :func:`performance_rewards` and
+:func:`noise_inputs` (``out[i] = G Z[i]``, process noise through a noise input), and at reset
+:func:`canonical_outputs` / :func:`state_outputs` for lanes ``idx``. Each batch loop splits
+its lanes over threads from :data:`PARALLEL_MIN_LANES` lanes a thread on and runs on the
+calling thread below (:class:`stcgym.envs.compiled.LaneLoop`). Lane functions take as few
+array views as possible: each view passed to a call is a dozen machine words, a noticeable
+share of a small plant's step.
 
 Reference values and parameters for a rollout
 ---------------------------------------------
@@ -124,6 +129,9 @@ __all__ = [
     "state_space_plants_step",
     "canonical_outputs",
     "state_outputs",
+    "performance_reward",
+    "performance_rewards",
+    "noise_inputs",
     "PARALLEL_MIN_LANES",
 ]
 
@@ -346,6 +354,30 @@ def observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y):
     return reward_of(cost, effort, rho, diverged)
 
 
+@lane(entry=True)
+def performance_reward(x, u, r, Cz, Dz, rho):
+    """``-(||C_z x + D_z u - r||^2 + rho ||u||^2)``: the reward of a performance output
+    ``z = C_z x + D_z u`` at the state ``x`` the input ``u`` acts on (the LQ stage cost with
+    ``Q = C_z' C_z``, ``R = D_z' D_z + rho I``, ``N = C_z' D_z``); :data:`REWARD_FLOOR` when it
+    overflows."""
+    cost = 0.0
+    for i in range(Cz.shape[0]):
+        z = 0.0
+        for j in range(x.shape[0]):
+            z += Cz[i, j] * x[j]
+        for j in range(u.shape[0]):
+            z += Dz[i, j] * u[j]
+        e = z - r[i]
+        cost += e * e
+    effort = 0.0
+    for j in range(u.shape[0]):
+        effort += u[j] * u[j]
+    reward = -(cost + rho * effort)
+    if not np.isfinite(reward):
+        return REWARD_FLOOR
+    return reward
+
+
 # ----------------------------------------------------------------------------- env steps
 @lane(entry=True)
 def canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, form):
@@ -477,6 +509,20 @@ def state_space_plants_step(
             Y[i],
             TMP[i],
         )
+
+
+@lanes(min_lanes=PARALLEL_MIN_LANES)
+def performance_rewards(X, U, R, Cz, Dz, rho, reward, first, last):
+    """:func:`performance_reward` of every lane into ``reward`` (``(B,)``)."""
+    for i in range(first, last):
+        reward[i] = performance_reward(X[i], U[i], R[i], Cz, Dz, rho)
+
+
+@lanes(min_lanes=PARALLEL_MIN_LANES)
+def noise_inputs(Z, G, out, first, last):
+    """``out[i] = G Z[i]``: each lane's process noise through the noise input ``G``."""
+    for i in range(first, last):
+        matvec(G, Z[i], out[i])
 
 
 @lanes(min_lanes=PARALLEL_MIN_LANES)

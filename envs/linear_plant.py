@@ -113,6 +113,11 @@ class LinearPlantEnv(gym.Env):
         ``initial_state``.
     render_mode : {None, "rgb_array"}, default None
         ``"rgb_array"``: :meth:`render` draws the episode's traces (needs matplotlib).
+    n_references : int, optional
+        Reference channels ``p_r`` (set by a subclass whose cost weighs a performance output;
+        default ``n_outputs``): the observation is then ``[y(k), r(k)]`` of length
+        ``p + p_r`` (or ``p`` plus what the subclass's :meth:`_observed_reference` makes of
+        ``r(k)``).
 
     Raises
     ------
@@ -163,9 +168,11 @@ class LinearPlantEnv(gym.Env):
         initial_state: ArrayLike | None = None,
         initial_state_std: float = 0.0,
         render_mode: str | None = None,
+        n_references: int | None = None,
     ) -> None:
         super().__init__()
         self.n_states, self.n_inputs, self.n_outputs = n_states, n_inputs, n_outputs
+        self.n_references = n_outputs if n_references is None else int(n_references)
         self.noise_std = non_negative(noise_std, "noise_std")
         self.process_noise_std = non_negative(process_noise_std, "process_noise_std")
         self.control_cost = non_negative(control_cost, "control_cost")
@@ -174,7 +181,7 @@ class LinearPlantEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
-        self.reference: list[Reference] = make_references(reference, n_outputs)
+        self.reference: list[Reference] = make_references(reference, self.n_references)
         self.schedule: Schedule = make_schedule(schedule)
         self.initial_state = (
             None if initial_state is None else self._check_state(initial_state, "initial_state")
@@ -185,8 +192,9 @@ class LinearPlantEnv(gym.Env):
         self.action_space = spaces.Box(
             -self.action_bound, self.action_bound, shape=(n_inputs,), dtype=np.float64
         )
+        width = self._observed_reference(np.zeros((1, self.n_references))).shape[1]
         self.observation_space = spaces.Box(
-            -np.inf, np.inf, shape=(2 * n_outputs,), dtype=np.float64
+            -np.inf, np.inf, shape=(n_outputs + width,), dtype=np.float64
         )
         self.t = 0
         self._x = np.zeros(n_states)
@@ -261,6 +269,11 @@ class LinearPlantEnv(gym.Env):
     def _set_params(self, params: NDArray) -> None:
         self.params = np.ascontiguousarray(params, dtype=float)
         self.A, self.B, self.C, self.D = self._matrices(self.params)
+
+    def _observed_reference(self, r: NDArray) -> NDArray:
+        """What the observation carries of the references ``r`` (rows ``(lanes, p_r)``):
+        ``r`` itself unless a subclass says otherwise."""
+        return r
 
     def _r(self, k: int) -> NDArray:
         kk = np.array([k], dtype=np.int64)
@@ -359,7 +372,7 @@ class LinearPlantEnv(gym.Env):
         dynamics.add_noise(self._y, self.noise_std, self._v.next())
         r = self._r(0)
         self._trace = {"y": [self._y.copy()], "r": [r], "u": []}
-        return np.concatenate((self._y, r)), self._info()
+        return np.concatenate((self._y, self._observed_reference(r[None])[0])), self._info()
 
     def _action(self, action: ArrayLike) -> NDArray:
         u = real_array(action, "action")
@@ -413,7 +426,8 @@ class LinearPlantEnv(gym.Env):
             self._trace["y"].append(y)
             self._trace["r"].append(r)
             self._trace["u"].append(self._u.copy())
-        return np.concatenate((y, r)), float(reward), self._diverged, False, self._info()
+        obs = np.concatenate((y, self._observed_reference(r[None])[0]))
+        return obs, float(reward), self._diverged, False, self._info()
 
     def render(self) -> NDArray | None:
         """A picture of the episode so far (``y``, ``r`` and ``u`` traces), needs matplotlib.

@@ -9,12 +9,13 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.envs import dynamics
 from stcgym.envs.linear_plant import _EMPTY, LinearPlantEnv
 from stcgym.envs.mimo_plants import get_mimo_plant
-from stcgym.envs.validation import matrix, positive
+from stcgym.envs.validation import matrix, positive, real_array
 
 __all__ = ["DEFAULT_STATE_SPACE", "MultichannelStaticEnv", "StateSpaceEnv"]
 
@@ -58,6 +59,31 @@ class StateSpaceEnv(LinearPlantEnv):
         discretisation (SISO plants only).
     schedule : schedule spec, optional
         Acts on the stacked matrix ``[A B]`` (shape ``(n, n + m)``).
+    C_z, D_z : array_like, optional
+        A performance output ``z = C_z x + D_z u`` (``(p_z, n)``, ``(p_z, m)``; ``D_z``
+        default zero). With it the reference has ``p_z`` channels, the observation is
+        ``[y(k), r(k)]`` of length ``p + p_z``, and the reward of step ``k`` is the LQ stage
+        cost at the state the input acts on,
+        ``-(||C_z x(k) + D_z u(k) - r(k)||^2 + rho ||u(k)||^2)`` (weights ``Q = C_z' C_z``,
+        ``R = D_z' D_z + rho I``, cross weight ``N = C_z' D_z``), instead of the tracking cost
+        of the output ``y(k+1)``.
+    noise_input : array_like, optional
+        ``G`` (``(n, d)``, ``d <= n``): the process noise is ``w = process_noise_std G z``,
+        ``z ~ N(0, I_d)`` (default ``G = I``: independent noise on each state).
+    reference_in : {"output", "state"}, default "output"
+        With a performance output and measured state: ``"state"`` observes the reference as
+        the state ``r_x = C_z^+ r(k)`` (``n`` values, ``C_z r_x = r`` for ``C_z`` of full row
+        rank), so that a state-feedback design for ``Q = C_z' C_z`` tracking ``r_x`` tracks
+        ``r``: ``(x - r_x)' Q (x - r_x) = ||C_z x - r||^2``.
+    input_range : pair of array_like, optional
+        ``(low, high)``, one value per input (``low < high``): the inputs are clipped to
+        ``[max(low, -action_bound), min(high, action_bound)]``, the action space's bounds (an
+        asymmetric range around an operating point).
+    cost : {"tracking", "performance"}, default "tracking"
+        With ``plant``: ``"performance"`` takes ``C_z``, ``D_z``, the noise input ``B1`` and the
+        input range from the catalogue entry (:class:`~stcgym.envs.mimo_plants.MimoPlantSpec`).
+    measured : {"state", "output"}, default "state"
+        With ``plant``: ``"output"`` measures the entry's ``C_y x`` instead of the state.
     **kwargs
         Other keyword arguments as in :class:`LinearPlantEnv`; ``reference`` may be one spec
         for every output or a list with one per output.
@@ -87,6 +113,16 @@ class StateSpaceEnv(LinearPlantEnv):
     >>> obs  # y(1) = C x(1) = B u(0)
     array([1. , 0.5, 1. , 1. ])
 
+    The quadruple tank at its minimum-phase operating point, its cost on the two lower levels
+    (reference and cost in ``z = C_z x``, the state measured), pumps within their voltage range:
+
+    >>> env = gym.make("stcgym/StateSpace-v0", plant="quadruple_tank", cost="performance",
+    ...                reference="zero")
+    >>> env.observation_space.shape  # [x(k), r(k)]: four levels, two references
+    (6,)
+    >>> env.action_space.low, env.action_space.high
+    (array([-3., -3.]), array([7., 7.]))
+
     A continuous first-order lag ``1 / (s + 1)`` from python-control, sampled at ``dt = 0.1``:
 
     >>> import control
@@ -108,6 +144,13 @@ class StateSpaceEnv(LinearPlantEnv):
         sys: Any = None,
         dt: float | None = None,
         canonical: str | None = None,
+        C_z: ArrayLike | None = None,
+        D_z: ArrayLike | None = None,
+        noise_input: ArrayLike | None = None,
+        input_range: Any = None,
+        reference_in: str = "output",
+        cost: str | None = None,
+        measured: str | None = None,
         **kwargs: Any,
     ) -> None:
         import control
@@ -124,6 +167,13 @@ class StateSpaceEnv(LinearPlantEnv):
                 raise ValueError("give either plant (a MIMO catalogue name) or A, B (C, D), sys")
             A, B = self.mimo_plant.discrete()
             dt = self.mimo_plant.dt
+            C_z, D_z, noise_input, input_range, C = _catalogue_settings(
+                self.mimo_plant, cost, measured, C_z, D_z, noise_input, input_range
+            )
+        elif cost is not None or measured is not None:
+            raise ValueError(
+                "cost and measured select a MIMO catalogue plant's settings: give plant"
+            )
         if sys is not None:
             if A is not None or B is not None or C is not None or D is not None:
                 raise ValueError("give either sys or the matrices A, B (C, D), not both")
@@ -169,8 +219,32 @@ class StateSpaceEnv(LinearPlantEnv):
         self.C, self.D = np.ascontiguousarray(C_), np.ascontiguousarray(D_)
         n, m = self.B_nominal.shape
         self._tmp = np.zeros(n)
-        super().__init__(n_states=n, n_inputs=m, n_outputs=self.C.shape[0], **kwargs)
+        self._performance_settings(C_z, D_z, reference_in, noise_input)
+        p_r = None if self.C_z is None else self.C_z.shape[0]
+        super().__init__(
+            n_states=n, n_inputs=m, n_outputs=self.C.shape[0], n_references=p_r, **kwargs
+        )
+        self.input_range = _input_range(input_range, m, self.action_bound)
+        if self.input_range is not None:
+            self.action_space = spaces.Box(*self.input_range, dtype=np.float64)
+        self._no_reference = np.zeros(self.C.shape[0])
+        self._z_w = np.zeros(n)
         self._set_params(np.hstack((self.A_nominal, self.B_nominal)))
+
+    def _performance_settings(
+        self, C_z: Any, D_z: Any, reference_in: str, noise_input: Any
+    ) -> None:
+        """``C_z``, ``D_z``, the observed reference's map and the noise input, checked."""
+        n, m = self.B_nominal.shape
+        self.C_z, self.D_z = _performance_output(C_z, D_z, n, m)
+        if reference_in not in ("output", "state"):
+            raise ValueError(f"reference_in must be 'output' or 'state', got {reference_in!r}")
+        if reference_in == "state" and (self.C_z is None or not np.array_equal(self.C, np.eye(n))):
+            raise ValueError("reference_in='state' needs a performance output and measured state")
+        self.reference_in = reference_in
+        # r_x = C_z^+ r: a state whose performance output is r (C_z of full row rank)
+        self._to_state = None if reference_in == "output" else np.linalg.pinv(self.C_z).T
+        self.noise_input = _noise_input(noise_input, n)
 
     @property
     def sys(self) -> Any:
@@ -206,11 +280,34 @@ class StateSpaceEnv(LinearPlantEnv):
     def _plant_step(
         self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray
     ) -> tuple[float, bool, bool]:
-        return dynamics.state_space_plant_step(
+        clipped = False
+        if self.input_range is not None or self.C_z is not None:
+            u_raw, clipped = _clip(u_raw, *self._bounds())
+        if self.noise_input is not None and z_w.size:
+            dynamics.matvec(self.noise_input, z_w, self._z_w)
+            z_w = self._z_w
+        if self.C_z is not None:  # the LQ stage cost at x(k), before the step moves it
+            cost = dynamics.performance_reward(
+                self._x, u_raw, self._r(self.t), self.C_z, self.D_z, self.control_cost
+            )
+            r = self._no_reference
+        reward, kernel_clipped, diverged = dynamics.state_space_plant_step(
             self._x, self.params, self.C, self.D, u_raw, self.action_bound,
             self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
             self.y_bound, self._u, self._y_clean, self._y, self._tmp,
         )  # fmt: skip
+        if self.C_z is not None:
+            reward = cost
+        return reward, clipped or kernel_clipped, diverged
+
+    def _observed_reference(self, r: NDArray) -> NDArray:
+        return r if self._to_state is None else r @ self._to_state
+
+    def _bounds(self) -> tuple[Any, Any]:
+        """The input bounds ``(low, high)`` (arrays with an input range, else floats)."""
+        if self.input_range is not None:
+            return self.input_range
+        return -self.action_bound, self.action_bound
 
     def _reset_output(self) -> None:
         dynamics.matvec(self.C, self._x, self._y_clean)
@@ -225,6 +322,71 @@ class StateSpaceEnv(LinearPlantEnv):
             kwargs.update(A=self.A_nominal, B=self.B_nominal, C=self.C, D=self.D, dt=self.dt)
             state["spec"] = dataclasses.replace(spec, kwargs=kwargs)
         return state
+
+
+def _clip(u_raw: NDArray, low: Any, high: Any) -> tuple[NDArray, bool]:
+    u = np.clip(u_raw, low, high)
+    return u, bool(np.any(u != u_raw))
+
+
+def _catalogue_settings(
+    plant: Any, cost: str | None, measured: str | None, C_z: Any, D_z: Any, G: Any, bounds: Any
+) -> tuple[Any, Any, Any, Any, Any]:
+    """``(C_z, D_z, noise_input, input_range, C)`` of a catalogue plant for ``cost`` and
+    ``measured`` (values given explicitly win)."""
+    if cost not in (None, "tracking", "performance"):
+        raise ValueError(f"cost must be 'tracking' or 'performance', got {cost!r}")
+    if measured not in (None, "state", "output"):
+        raise ValueError(f"measured must be 'state' or 'output', got {measured!r}")
+    if cost == "performance":
+        Cz, Dz = plant.performance_output()
+        C_z = Cz if C_z is None else C_z
+        D_z = Dz if D_z is None else D_z
+        G = (plant.noise_input() if plant.B1_c is not None else None) if G is None else G
+        bounds = plant.input_range if bounds is None else bounds
+    C = None
+    if measured == "output":
+        if plant.C_y is None:
+            raise ValueError(f"plant {plant.name!r} has no measured output C_y (measured='state')")
+        C = np.array(plant.C_y, dtype=float)
+    return C_z, D_z, G, bounds, C
+
+
+def _performance_output(C_z: Any, D_z: Any, n: int, m: int) -> tuple[Any, Any]:
+    if C_z is None:
+        if D_z is not None:
+            raise ValueError("D_z needs C_z (the performance output z = C_z x + D_z u)")
+        return None, None
+    Cz = matrix(C_z, "C_z", (None, n))
+    Dz = np.zeros((Cz.shape[0], m)) if D_z is None else matrix(D_z, "D_z", (Cz.shape[0], m))
+    return Cz, np.ascontiguousarray(Dz)
+
+
+def _noise_input(G: Any, n: int) -> NDArray | None:
+    """``G`` padded with zero columns to ``(n, n)`` (the noise stream draws ``n`` normals)."""
+    if G is None:
+        return None
+    Gm = matrix(G, "noise_input", (n, None))
+    if Gm.shape[1] > n:
+        raise ValueError(f"noise_input must have at most n = {n} columns, got {Gm.shape[1]}")
+    return np.ascontiguousarray(np.hstack((Gm, np.zeros((n, n - Gm.shape[1])))))
+
+
+def _input_range(bounds: Any, m: int, bound: float) -> tuple[NDArray, NDArray] | None:
+    if bounds is None:
+        return None
+    try:
+        low, high = (real_array(v, "input_range").reshape(-1) for v in bounds)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"input_range must be a pair (low, high), got {bounds!r}") from exc
+    if low.shape != (m,) or high.shape != (m,) or not np.all(low < high):
+        raise ValueError(
+            f"input_range must be (low, high) with {m} values each and low < high, got {bounds!r}"
+        )
+    low, high = np.maximum(low, -bound), np.minimum(high, bound)
+    if not np.all(low < high):
+        raise ValueError(f"input_range {bounds!r} lies outside [-action_bound, action_bound]")
+    return np.ascontiguousarray(low), np.ascontiguousarray(high)
 
 
 def _canonical_form(sys: Any, form: str) -> Any:

@@ -61,6 +61,7 @@ from collections.abc import Hashable
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from numpy.typing import NDArray
 
 from stcgym.envs import dynamics
@@ -388,6 +389,13 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
         self.params[:] = self._AB0
         self.C, self.D = proto.C, proto.D
         self._tmp = np.zeros((self.num_envs, n))
+        self.C_z, self.D_z, self.input_range = proto.C_z, proto.D_z, proto.input_range
+        self.noise_input = proto.noise_input
+        if self.input_range is not None:
+            low, high = (np.broadcast_to(b, (self.num_envs, m)) for b in self.input_range)
+            self.action_space = spaces.Box(low, high, dtype=np.float64)
+        self._z_w = np.zeros((self.num_envs, n))
+        self._no_reference = np.zeros((self.num_envs, proto.n_outputs))
 
     def _parse_options(self, options: dict[str, Any]) -> Any:
         if "A" not in options and "B" not in options:
@@ -410,12 +418,33 @@ class StateSpaceVectorEnv(LinearPlantVectorEnv):
         return nominal, [USER_SCHEDULE if self._proto.schedule.time_varying else None] * k
 
     def _step_lanes(self, u_raw: NDArray, z_w: NDArray, z_v: NDArray, r: NDArray) -> None:
+        proto: StateSpaceEnv = self._proto  # type: ignore[assignment]
+        clipped = None
+        if self.input_range is not None or self.C_z is not None:
+            low, high = proto._bounds()
+            u = np.clip(u_raw, low, high)
+            clipped = np.any(u != u_raw, axis=1)
+            u_raw = np.ascontiguousarray(u)
+        if self.noise_input is not None and z_w.shape[1]:
+            dynamics.noise_inputs(z_w, self.noise_input, self._z_w)
+            z_w = self._z_w
+        if self.C_z is not None:  # the LQ stage cost at x(k), before the step moves it
+            cost = np.empty(self.num_envs)
+            r_k = np.ascontiguousarray(self._references(self.t))
+            dynamics.performance_rewards(
+                self.x, u_raw, r_k, self.C_z, self.D_z, self.control_cost, cost
+            )
+            r = self._no_reference
         dynamics.state_space_plants_step(
             self.x, self.params, self.C, self.D, u_raw, self.action_bound,
             self.process_noise_std, z_w, self.noise_std, z_v, r, self.control_cost,
             self.y_bound, self._u, self.y_clean, self._y, self._reward, self._clipped,
             self._diverged, self._tmp,
         )  # fmt: skip
+        if self.C_z is not None:
+            self._reward[:] = cost
+        if clipped is not None:
+            self._clipped |= clipped
 
     def _reset_outputs(self, idx: NDArray) -> NDArray:
         y = np.empty((len(idx), self.n_outputs))

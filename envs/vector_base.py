@@ -138,7 +138,9 @@ class LinearPlantVectorEnv(VectorEnv):
         )
         self.single_observation_space = proto.observation_space
         self.single_action_space = proto.action_space
-        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(B, 2 * p), dtype=np.float64)
+        self.n_references = proto.n_references
+        p_r = proto.observation_space.shape[0] - p  # the observed references' width
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(B, p + p_r), dtype=np.float64)
         self.action_space = spaces.Box(
             -self.action_bound, self.action_bound, shape=(B, m), dtype=np.float64
         )
@@ -171,7 +173,7 @@ class LinearPlantVectorEnv(VectorEnv):
         # Time-varying schedules: objects holding their lanes' state (see _make_schedule).
         self._lane_schedules = LaneSchedules(B)
         self._started = False
-        self._obs = np.zeros((B, 2 * p))
+        self._obs = np.zeros((B, p + p_r))
         self._init_params()
 
     # ------------------------------------------------------------------ subclass hooks
@@ -301,7 +303,9 @@ class LinearPlantVectorEnv(VectorEnv):
             for j in range(k):
                 dynamics.add_noise(y[j], self.noise_std, v0[j])
         self._obs[idx, : self.n_outputs] = y
-        self._obs[idx, self.n_outputs :] = self._references(self.t[idx], idx)
+        self._obs[idx, self.n_outputs :] = self._proto._observed_reference(
+            self._references(self.t[idx], idx)
+        )
 
     def reset(
         self,
@@ -368,8 +372,8 @@ class LinearPlantVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------ stepping
     def _references(self, k: NDArray, idx: NDArray | None = None) -> NDArray:
-        """``r(k)`` of lanes ``idx`` (all lanes when ``None``), shape ``(len, p)``."""
-        out = np.empty((len(k), self.n_outputs))
+        """``r(k)`` of lanes ``idx`` (all lanes when ``None``), shape ``(len, p_r)``."""
+        out = np.empty((len(k), self.n_references))
         for c, ref in enumerate(self.reference):
             out[:, c] = ref.values(k, idx)
         return out
@@ -429,7 +433,7 @@ class LinearPlantVectorEnv(VectorEnv):
             truncated = np.zeros(self.num_envs, dtype=bool)
         obs = self._obs
         obs[:, : self.n_outputs] = self._y
-        obs[:, self.n_outputs :] = r
+        obs[:, self.n_outputs :] = self._proto._observed_reference(r)
 
         final: dict[str, Any] = {}
         if any_reset:  # NEXT_STEP: lanes that ended last step start over instead
@@ -460,7 +464,7 @@ class LinearPlantVectorEnv(VectorEnv):
         """What the next ``steps`` calls of :meth:`step` would use, without changing the env.
 
         For a compiled rollout of ``T = steps`` steps of every lane (no lane resetting in
-        between). Returns a dict of arrays: ``"r"`` ``(B, T, p)`` with ``r[:, j] = r(t + 1 + j)``
+        between). Returns a dict of arrays: ``"r"`` ``(B, T, p_r)`` with ``r[:, j] = r(t + 1 + j)``
         (the reference returned with the observation of step ``j``), ``"z_v"`` ``(B, T, p)``
         and ``"z_w"`` ``(B, T, n)`` the standard normals of the output and process noise (zeros
         when that noise is off), and ``"params"``: ``None`` for constant plants, else
@@ -501,7 +505,7 @@ class LinearPlantVectorEnv(VectorEnv):
         refs = copy.deepcopy(self.reference)
         v, w = copy.deepcopy(self._v), copy.deepcopy(self._w)
         out: dict[str, Any] = {
-            "r": np.empty((B, T, p)),
+            "r": np.empty((B, T, self.n_references)),
             "z_v": np.zeros((B, T, p)),
             "z_w": np.zeros((B, T, n)),
             "params": None,

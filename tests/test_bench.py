@@ -455,10 +455,12 @@ def test_standard_tier_meets_the_protocol(monkeypatch):
     assert main(["bench", "--standard", "--out", "/nonexistent-never-written"]) == 130
     std, quick = seen["cfg"], build_config(run="q")
     assert std.mode == "standard"
-    for name in ("plants", "family", "first_seed", "episode_steps", "scenarios"):
+    for name in ("plants", "family", "first_seed", "episode_steps"):
         assert getattr(std, name) == getattr(quick, name), name
     assert set(quick.agents) <= set(std.agents)  # and the informed RL agents
-    assert std.scenarios == ["nominal", "family", "ood", "jump", "mimo"]
+    # the quick scenarios and the quadruple tank's valve switch
+    assert quick.scenarios == ["nominal", "family", "ood", "jump", "mimo"]
+    assert std.scenarios == [*quick.scenarios, "mimo_switch"]
     # at least 5 training runs, every plant of the test split (200), every held-out variant
     scenarios = make_scenarios(std)
     assert std.train_seeds >= 5 and std.test_plants is None

@@ -37,6 +37,7 @@ from stcgym.envs import MIMO_PLANTS, Jumps, get_mimo_plant
 def test_catalogue_table_matches_the_matrices():
     expected = {  # the module docstring's table: pole magnitudes, stability
         "quadruple_tank": ([0.805, 0.846, 0.923, 0.946], True),
+        "quadruple_tank_nmp": ([0.880, 0.915, 0.924, 0.946], True),
         "he1": ([0.813, 0.977, 1.028, 1.028], False),
         "ac1": ([0.925, 0.925, 0.998, 0.998, 1.0], False),
     }

@@ -51,7 +51,7 @@ __all__ = [
     "validate",
 ]
 
-SCENARIO_KINDS = ("nominal", "family", "ood", "jump", "mimo")
+SCENARIO_KINDS = ("nominal", "family", "ood", "jump", "mimo", "mimo_switch")
 #: Quick-tier RL cap in the mimo scenario: this many evaluation intervals (at most quick_steps).
 QUICK_MIMO_INTERVALS = {"ppo": 2, "a2c": 2, "sac": 1, "td3": 1}
 #: Outside the quick tier, evaluations of the plateau rule per cap at most.
@@ -76,7 +76,7 @@ class BenchConfig:
     family: str = "siso2-v1"
     #: the family's held-out variants tested (the ood scenarios)
     ood: list[str] = field(default_factory=lambda: ["ood_near_zero", "ood_order3"])
-    #: MIMO catalogue plants of the mimo scenario
+    #: MIMO catalogue plants of the mimo scenarios (mimo_switch: the quadruple tank's valves)
     mimo_plants: list[str] = field(default_factory=lambda: ["quadruple_tank"])
     agents: list[str] = field(
         default_factory=lambda: [
@@ -160,7 +160,7 @@ class BenchConfig:
 
     def cap(self, algo: str, train_key: str) -> int:
         """The training cap of ``algo``'s agents on the training env ``train_key``."""
-        if train_key.startswith("mimo:"):
+        if train_key.startswith("mimo"):
             return self.mimo_train_steps[algo]
         return (self.family_train_steps if train_key == "family" else self.train_steps)[algo]
 
@@ -191,7 +191,7 @@ _CLASSICAL = ["stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg", "zero"
 _INFORMED = ["theta_ppo", "theta_sac", "residual_ppo"]
 QUICK = dict(
     mode="quick",
-    scenarios=list(SCENARIO_KINDS),
+    scenarios=[k for k in SCENARIO_KINDS if k != "mimo_switch"],
     plants=["stable2"],
     ood=["ood_near_zero", "ood_order3"],
     agents=["ppo", "sac", "rppo", "theta_ppo", *_CLASSICAL],
@@ -206,6 +206,8 @@ QUICK = dict(
 STANDARD = dict(
     QUICK,
     mode="standard",
+    scenarios=list(SCENARIO_KINDS),
+    mimo_plants=["quadruple_tank", "quadruple_tank_nmp"],
     agents=["ppo", "sac", "rppo", *_INFORMED, *_CLASSICAL],
     ood=[
         "ood_fast_unstable",
@@ -223,7 +225,8 @@ STANDARD = dict(
 FULL = dict(
     STANDARD,
     mode="full",
-    mimo_plants=mimo_plant_names(),
+    # every MIMO plant with an LQ yardstick for its cost (not ac1: mimo.has_yardstick)
+    mimo_plants=[p for p in mimo_plant_names() if p != "ac1"],
     plants=["stable2", "unstable2"],
     agents=["ppo", "ppo_noint", "sac", "td3", "a2c", "rppo", *_INFORMED, "stc_tuned", *_CLASSICAL],
     train_seeds=10,
@@ -508,7 +511,7 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
         caps = [cfg.family_train_steps[a]]
         if a not in FAMILY_ALGORITHMS:  # these agents train on the family only
             caps.append(cfg.train_steps[a])
-            if "mimo" in cfg.scenarios:
+            if {"mimo", "mimo_switch"} & set(cfg.scenarios):
                 caps.append(cfg.mimo_train_steps[a])
         interval = configs[a].eval_interval
         if min(caps) < interval:

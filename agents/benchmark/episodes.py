@@ -242,12 +242,23 @@ def _run_batch(
     )
     policy = builder if hasattr(builder, "predict") else builder(lane_plants, list(episodes.seeds))
     B, T = len(episodes.seeds), spec.steps
-    p = obs.shape[1] // 2
+    p_y = env.n_outputs
+    # the traces hold the performance output z = C_z x where the cost weighs one, else y
+    C_z = getattr(env, "C_z", None)
+    p = p_y if C_z is None else C_z.shape[0]
+
+    def output() -> NDArray:
+        return env.y_clean if C_z is None else env.x @ C_z.T
+
+    def reference(obs_k: NDArray) -> NDArray:  # r of z (a target state observed: C_z r_x)
+        r_obs = obs_k[:, p_y:]
+        return r_obs if r_obs.shape[1] == p else r_obs @ C_z.T
+
     m = env.single_action_space.shape[0]
     y = np.full((B, T + 1, p), np.nan)
     r = np.full((B, T + 1, p), np.nan)
     u = np.full((B, T, m), np.nan)
-    y[:, 0], r[:, 0] = env.y_clean, obs[:, p:]
+    y[:, 0], r[:, 0] = output(), reference(obs)
     clipped = np.zeros((B, T), dtype=bool)
     params0 = env.params.copy()
     last = params0.copy()
@@ -266,14 +277,19 @@ def _run_batch(
         last[changed] = env.params[changed]
         if informed:
             n = spec.order
+            if spec.plant_kind == "mimo":  # [A B] of each lane
+                new = env.params[changed]
+                policy.set_model(new[:, :, :n], new[:, :, n:], lanes=changed)
+                return
             new = env.params[changed].reshape(int(changed.sum()), -1)
             policy.set_model(new[:, :n], new[:, n:], lanes=changed)
 
     def on_step(k: int, action: NDArray, obs_k: NDArray, info: dict[str, Any]) -> None:
         a = np.asarray(action, dtype=float).reshape(B, m)
-        clipped[:, k] = np.any(np.abs(a) > spec.action_bound, axis=1)
-        u[:, k] = np.clip(a, -spec.action_bound, spec.action_bound)
-        y[:, k + 1], r[:, k + 1] = env.y_clean, obs_k[:, p:]
+        low, high = env.action_space.low, env.action_space.high  # (B, m): the env's clip
+        clipped[:, k] = np.any((a < low) | (a > high), axis=1)
+        u[:, k] = np.clip(a, low, high)
+        y[:, k + 1], r[:, k + 1] = output(), reference(obs_k)
         if record_theta:
             theta[:, k + 1] = env.params.reshape(B, -1)
             est = getattr(policy, "theta", None)

@@ -204,11 +204,25 @@ def run_episode(
     if not hasattr(policy, "predict"):
         policy = policy(drawn, int(seed))
     T = spec.steps
-    p, m = len(obs) // 2, env.action_space.shape[0]  # outputs (and references), inputs
+    plant_env = env.unwrapped
+    p_y, m = plant_env.n_outputs, env.action_space.shape[0]  # outputs, inputs
+    # the traces hold the performance output z = C_z x where the cost weighs one, else y
+    C_z = getattr(plant_env, "C_z", None)
+    p = p_y if C_z is None else C_z.shape[0]
     out = () if p == 1 else (p,)  # a SISO plant keeps 1-D traces
+
+    def output(info: dict[str, Any]) -> NDArray:
+        z = info["y_clean"] if C_z is None else C_z @ info["x"]
+        return np.reshape(z, out)
+
+    def reference(obs: NDArray) -> NDArray:  # r of z (a target state observed: C_z r_x)
+        r_obs = obs[p_y:]
+        return np.reshape(r_obs if r_obs.size == p else C_z @ r_obs, out)
+
     y, r = np.zeros((T + 1, *out)), np.zeros((T + 1, *out))
     u = np.zeros((T, *(() if m == 1 else (m,))))
-    y[0], r[0] = np.reshape(info["y_clean"], out), np.reshape(obs[p:], out)
+    low, high = env.action_space.low, env.action_space.high
+    y[0], r[0] = output(info), reference(obs)
     n_clipped = 0
     theta = theta_hat = None
     if record_theta:
@@ -219,8 +233,8 @@ def run_episode(
 
     def record(k: int, action: NDArray, obs: NDArray, info: dict[str, Any]) -> None:
         nonlocal n_clipped
-        u[k] = np.clip(action, -spec.action_bound, spec.action_bound).reshape(u.shape[1:])
-        y[k + 1], r[k + 1] = np.reshape(info["y_clean"], out), np.reshape(obs[p:], out)
+        u[k] = np.clip(np.reshape(action, low.shape), low, high).reshape(u.shape[1:])
+        y[k + 1], r[k + 1] = output(info), reference(obs)
         n_clipped = int(info["n_clipped"])
         if record_theta:
             theta[k + 1] = np.ravel(info["theta"] if "theta" in info else info["params"])
@@ -347,7 +361,8 @@ def response_metrics(batch: Any, spec: EnvSpec) -> dict[str, NDArray]:
     ``clip_frac``, ``step_us`` (predict time per lane and step), and the step response of
     the second half (``overshoot_pct``, ``settling_steps``) and of the first reference step
     (``startup_settling_steps``; one output only, :func:`~stcgym.agents.benchmark.response.
-    step_response`)."""
+    step_response`); on a MIMO plant the tracking error per channel and the cross-channel
+    disturbance (:func:`~stcgym.agents.benchmark.mimo.channel_metrics`)."""
     B, T = batch.cost.shape
     lived = np.maximum(batch.steps_run, 1)
     u = np.nan_to_num(batch.u.reshape(B, T, -1))
@@ -369,6 +384,10 @@ def response_metrics(batch: Any, spec: EnvSpec) -> dict[str, NDArray]:
             out["overshoot_pct"][i] = steady["overshoot_pct"]
             out["settling_steps"][i] = steady["settling_steps"]
             out["startup_settling_steps"][i] = start["settling_steps"]
+    elif spec.plant_kind == "mimo":  # several channels: tracking per channel, cross-coupling
+        from stcgym.agents.benchmark.mimo import channel_metrics
+
+        out.update(channel_metrics(batch.y, batch.r, spec.span))
     return out
 
 

@@ -1,29 +1,57 @@
-"""The ``mimo`` scenario of ``stcgym bench``: multi-input plants with measured state.
+"""The ``mimo`` scenarios of ``stcgym bench``: multi-input plants posed as their literature
+poses them.
 
 Each plant of ``--mimo-plants`` (the MIMO catalogue, :data:`stcgym.envs.MIMO_PLANTS`) is one
-scenario ``mimo:<plant>`` on ``stcgym/StateSpace-v0``: ``x(k+1) = A x(k) + B u(k)``, observation
-``[x(k) + v(k), r(k)]``, the bench's square-wave reference on every state, its output noise,
-cost ``||x - r||^2 + control_cost ||u||^2`` and an action bound set from the yardstick's input
-range (:mod:`stcgym.agents.benchmark.bounds`). The controllers that declare ``"mimo"`` among
-their plants (:class:`~stcgym.agents.controllers.ControllerInfo`) run there: the multivariable
-self-tuning LQ controller (``stc_mimo``), and as the yardstick ``lqg`` the LQR on the true
-``(A, B)`` with the same weights and tracking law; the window RL agents are trained on the
-plant itself (their observation window then holds every state, reference and input). The
-SISO-only controllers and the recurrent agents (trained on the SISO family) are left out.
+scenario ``mimo:<plant>`` on ``stcgym/StateSpace-v0`` with ``cost="performance"``: the cost
+weighs the plant's performance output ``z = C_z x + D_z u``
+(``||z(k) - r(k)||^2 + control_cost ||u(k)||^2`` at the state the input acts on), the state is
+measured and the reference observed as a target state (``reference_in="state"``: the
+observation is ``[x(k) + v(k), r_x(k)]`` with ``r_x = C_z^+ r``), and the inputs are clipped
+to the plant's physical range as well as to the bench's action bound
+(:mod:`stcgym.agents.benchmark.bounds`). Two formulations (:func:`formulation`):
 
-:class:`MimoEnvSpec` is the scenario's environment, an :class:`~stcgym.agents.benchmark.
+``process`` (``quadruple_tank``, ``quadruple_tank_nmp``)
+    Johansson's quadruple tank at ``P-`` or ``P+``: references on the two lower levels,
+    independent random steps per channel (:data:`TANK_REFERENCE`, each channel its own levels
+    and hold times, so the steps are staggered), the bench's output noise and control cost,
+    pump voltages within ``[0, 10]`` V around the operating point.
+``controlgym`` (``he1``, ``ac1``)
+    controlgym 1.0.0's linear-control task: regulation (``r = 0``) from
+    ``x(0) ~ N(0, 0.1 I)``, process noise ``B1 w`` with ``w ~ N(0, 0.1 I)``, no output noise,
+    cost ``||C1 x + D12 u||^2`` (``control_cost = 0``), :data:`CONTROLGYM_STEPS` steps
+    (:data:`CONTROLGYM_SETTINGS`).
+
+``mimo_switch`` is the quadruple tank whose valves switch from ``P-`` to ``P+`` half-way
+through the episode (the linearised model jumps from ``quadruple_tank`` to
+``quadruple_tank_nmp``; the deviation variables are kept): the known-model yardstick is told
+the new model at the switch, the self-tuning controller must re-identify it, and the RL
+agents train on episodes with the switch.
+
+The controllers that declare ``"mimo"`` among their plants
+(:class:`~stcgym.agents.controllers.ControllerInfo`) run there: the multivariable self-tuning
+LQ controller (``stc_mimo``) and the yardstick ``lqg``, the LQR on the true ``(A, B)``
+(:class:`InformedLQR`), both weighted by the scenario's cost (``Q = C_z' C_z``,
+``R = D_z' D_z + control_cost I``, ``N = C_z' D_z``; tracking ``r_x`` with ``Q`` tracks ``r``);
+the window RL agents train on the scenario's own episodes and observe the same
+``[x, r_x]``. The SISO-only controllers and the recurrent agents (trained on the SISO family)
+are left out.
+
+:class:`MimoEnvSpec` is the scenarios' environment, an :class:`~stcgym.agents.benchmark.
 evaluate.EnvSpec` whose plant is a MIMO catalogue name, so the bench's evaluation loop, RL
 training and JSON tasks take it as they take a SISO spec.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
+from numpy.typing import NDArray
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.benchmark.env_spec import EnvSpec, thaw
 from stcgym.envs.mimo_plants import MimoPlantSpec, get_mimo_plant, mimo_plant_names
 
 if TYPE_CHECKING:
@@ -31,41 +59,87 @@ if TYPE_CHECKING:
     from stcgym.agents.benchmark.scenarios import Scenario
 
 __all__ = [
+    "CONTROLGYM_SETTINGS",
+    "CONTROLGYM_STEPS",
     "MIMO_ENV_ID",
+    "SWITCH",
+    "TANK_REFERENCE",
+    "InformedLQR",
     "MimoEnvSpec",
+    "OutputLQG",
+    "channel_metrics",
     "check_mimo_plants",
     "estimate_error",
+    "formulation",
+    "has_yardstick",
     "mimo_scenarios",
+    "mimo_spec",
 ]
 
 MIMO_ENV_ID = "stcgym/StateSpace-v0"
+#: The quadruple tank's references: each lower level its own random steps of up to 2 cm, held
+#: 50-150 samples (4-12.5 minutes at 5 s, a few of the slowest time constants), drawn
+#: independently per channel.
+TANK_REFERENCE = {"kind": "random_steps", "amplitude": 2.0, "hold": [50, 150]}
+#: controlgym 1.0.0's linear-control defaults: ``noise_cov = random_init_state_cov = 0.1``.
+CONTROLGYM_STEPS = 1000
+CONTROLGYM_SETTINGS = {
+    "steps": CONTROLGYM_STEPS,
+    "noise_std": 0.0,
+    "process_noise_std": math.sqrt(0.1),
+    "initial_state_std": math.sqrt(0.1),
+    "control_cost": 0.0,
+    "reference": {"kind": "zero"},
+}
+#: The valve switch of ``mimo_switch``: from ``P-`` to ``P+`` half-way through the episode.
+SWITCH = ("quadruple_tank", "quadruple_tank_nmp")
 
 
+def formulation(plant: str) -> str:
+    """``"controlgym"`` for a plant with a measured output and a noise input in its source
+    (``he1``, ``ac1``), else ``"process"``.
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.mimo import formulation
+    >>> formulation("he1"), formulation("quadruple_tank_nmp")
+    ('controlgym', 'process')
+    """
+    spec = get_mimo_plant(plant)
+    return "controlgym" if spec.B1_c is not None else "process"
+
+
+@dataclass(frozen=True)
 class MimoEnvSpec(EnvSpec):
-    """The environment of a ``mimo`` scenario: one MIMO catalogue plant, measured state.
+    """The environment of a ``mimo`` scenario: one MIMO catalogue plant, measured state, the
+    cost of its performance output.
 
-    The fields are :class:`~stcgym.agents.benchmark.evaluate.EnvSpec`'s; ``plants`` holds one
-    name of :data:`stcgym.envs.MIMO_PLANTS` and there is no parameter jump.
+    The fields are :class:`~stcgym.agents.benchmark.evaluate.EnvSpec`'s (``reference`` a spec
+    for every channel of ``z``), and ``process_noise_std`` (the env's), ``switch_to`` (a MIMO
+    catalogue plant the model jumps to at ``jump_step``).
 
     Raises
     ------
     ValueError
         On construction: not exactly one plant, an unknown MIMO plant (the message lists the
-        catalogue), ``steps`` not a positive integer, or a jump.
+        catalogue), ``steps`` not a positive integer, a switch outside the episode or to a
+        plant of other dimensions, ``jump_to`` or a family.
 
     Examples
     --------
-    >>> from stcgym.agents.benchmark.mimo import MimoEnvSpec
-    >>> spec = MimoEnvSpec("quadruple_tank", steps=200)
+    >>> from stcgym.agents.benchmark.mimo import MimoEnvSpec, TANK_REFERENCE
+    >>> spec = MimoEnvSpec("quadruple_tank", steps=200, reference=TANK_REFERENCE)
     >>> spec.channels, spec.order
     ((4, 2), 4)
     >>> obs, info = spec.make().reset(seed=0)
-    >>> obs.shape  # [x(0) + v(0), r(0)]
+    >>> obs.shape  # [x(0) + v(0), r_x(0)]: four levels and the target of each
     (8,)
     >>> EnvSpec.from_dict(spec.to_dict()) == spec
     True
     """
 
+    process_noise_std: float = 0.0
+    switch_to: str | None = None
     plant_kind: ClassVar[str] = "mimo"
 
     def __post_init__(self) -> None:
@@ -73,12 +147,24 @@ class MimoEnvSpec(EnvSpec):
         if len(plants) != 1:
             raise ValueError(f"a MIMO scenario runs on one MIMO plant, got {list(plants)}")
         object.__setattr__(self, "plants", (get_mimo_plant(plants[0]).name,))
+        from stcgym.agents.benchmark.env_spec import freeze
+
+        object.__setattr__(self, "reference", freeze(self.reference))
         if int(self.steps) != self.steps or self.steps < 1:
             raise ValueError(f"episode steps must be a positive integer, got {self.steps!r}")
-        if self.jump_step is not None or self.jump_to is not None:
-            raise ValueError("a MIMO scenario has no parameter jump (jump_step, jump_to)")
-        if self.family is not None or self.reference is not None:
-            raise ValueError("a MIMO scenario has one plant and a square-wave reference")
+        if self.jump_to is not None or self.family is not None:
+            raise ValueError("a MIMO scenario has one plant; its switch is switch_to, jump_step")
+        if (self.jump_step is None) != (self.switch_to is None):
+            raise ValueError("switch_to and jump_step go together")
+        if self.switch_to is not None:
+            other = get_mimo_plant(self.switch_to)
+            if (other.n_states, other.n_inputs) != (self.plant.n_states, self.plant.n_inputs):
+                raise ValueError(f"switch_to {self.switch_to!r} has other dimensions")
+            object.__setattr__(self, "switch_to", other.name)
+            if not 0 < self.jump_step < self.steps:
+                raise ValueError(
+                    f"jump_step must lie inside the episode (0, {self.steps}), got {self.jump_step}"
+                )
 
     @property
     def plant(self) -> MimoPlantSpec:
@@ -92,23 +178,37 @@ class MimoEnvSpec(EnvSpec):
 
     @property
     def channels(self) -> tuple[int, int]:
-        """``(outputs, inputs)``: the ``n`` measured states and the ``m`` inputs."""
+        """``(outputs, inputs)``: the ``n`` measured states (the observation ``[x, r_x]``)
+        and the ``m`` inputs."""
         return self.plant.n_states, self.plant.n_inputs
 
     def plant_names(self) -> list[str]:
         return list(self.plants)
 
-    def _kwargs(self) -> tuple[str, dict[str, Any]]:
-        from stcgym.envs.signals import SquareWave
+    def reference_spec(self) -> dict[str, Any]:
+        """The reference of every channel of ``z`` (zero when the spec has none)."""
+        return {"kind": "zero"} if self.reference is None else thaw(self.reference)
 
-        return MIMO_ENV_ID, dict(
+    def _kwargs(self) -> tuple[str, dict[str, Any]]:
+        kwargs: dict[str, Any] = dict(
             plant=self.plants[0],
+            cost="performance",
+            reference_in="state",
             noise_std=self.noise_std,
+            process_noise_std=float(self.process_noise_std),
             control_cost=self.control_cost,
             action_bound=self.action_bound,
             y_bound=self.y_bound,
-            reference=SquareWave(period=self.period, amplitude=self.amplitude),
+            reference=self.reference_spec(),
         )
+        if self.initial_state_std:
+            kwargs["initial_state_std"] = float(self.initial_state_std)
+        if self.switch_to is not None:
+            from stcgym.envs.signals import Jumps
+
+            A, B = get_mimo_plant(self.switch_to).discrete()
+            kwargs["schedule"] = Jumps({int(self.jump_step): np.hstack((A, B))})
+        return MIMO_ENV_ID, kwargs
 
     def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
         """``(obs, info, plant_spec)`` of ``env.reset(seed=seed)``; ``plant`` may only name the
@@ -129,6 +229,140 @@ class MimoEnvSpec(EnvSpec):
         return {**super().to_dict(), "kind": "mimo"}
 
 
+class InformedLQR:
+    """The yardstick of a ``mimo`` scenario: the LQR on the true ``(A, B)`` of each lane
+    (:class:`~stcgym.adaptive.LQRController`) with the scenario's weights, told the new model
+    whenever it changes (:meth:`set_model`, the valve switch). ``predict`` and ``reset`` are
+    the LQR's.
+
+    Parameters
+    ----------
+    A, B : array_like
+        Per-lane true matrices ``(lanes, n, n)``, ``(lanes, n, m)``.
+    Q, R, N : array_like
+        LQ weights (``N``, the cross weight, only where the cost has one).
+    action_bound : float
+        The bench's action bound.
+    """
+
+    def __init__(
+        self, A: Any, B: Any, *, Q: Any, R: Any, N: Any = None, action_bound: float
+    ) -> None:
+        self._A = np.array(A, dtype=float)
+        self._B = np.array(B, dtype=float)
+        self._weights = {"Q": Q, "R": R} if N is None else {"Q": Q, "R": R, "N": N}
+        self._bound = float(action_bound)
+        self.policy = self._design()
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic=True
+    ) -> tuple[NDArray, Any]:
+        return self.policy.predict(observation, state, episode_start, deterministic)
+
+    def reset(self) -> None:
+        """The LQR has no state."""
+        self.policy.reset()
+
+    def _design(self) -> Any:
+        from stcgym.adaptive import LQRController
+
+        return LQRController(
+            self._A, self._B, num_envs=len(self._A), action_bound=self._bound, **self._weights
+        )
+
+    def set_model(self, A: Any, B: Any, lanes: Any = None) -> None:
+        """The lanes ``lanes`` (a mask; default all) now run on ``(A, B)``, one per such lane."""
+        mask = np.ones(len(self._A), dtype=bool) if lanes is None else np.asarray(lanes, bool)
+        self._A[mask], self._B[mask] = A, B
+        self.policy = self._design()
+
+
+class OutputLQG:
+    """LQG on the true model from the measured output: the LQ gain of the cost
+    ``x' Q x + u' R u + 2 x' N u`` (:func:`stcgym.adaptive.lqr.lqr_design`) on the current
+    estimate of the steady-state Kalman filter for process noise ``W`` and output noise ``V``
+    (the Riccati solution of python-control's ``dlqe``), starting from ``x_hat = 0``.
+
+    At step ``k`` the env observes ``[y(k), r(k)]`` (the reference is ignored: regulation);
+    the filter corrects its prediction with ``y(k)``,
+    ``x_hat(k|k) = x_hat(k|k-1) + M (y(k) - C x_hat(k|k-1))``, ``M = S C' (C S C' + V)^-1``,
+    applies ``u(k) = -K x_hat(k|k)`` (clipped to ``action_bound``) and predicts
+    ``x_hat(k+1|k) = A x_hat(k|k) + B u(k)``.
+
+    Parameters
+    ----------
+    A, B, C : array_like
+        The true model (``(n, n)``, ``(n, m)``, ``(p, n)``).
+    Q, R, N : array_like
+        LQ weights (``N`` default zero).
+    W, V : array_like
+        Process and output noise covariances (``(n, n)``, ``(p, p)``; ``V`` positive definite).
+    num_envs : int or None
+        ``None``: one env (``predict`` on ``(p + p_r,)``); else that many lanes.
+    action_bound : float
+        Inputs are clipped to ``[-action_bound, action_bound]``.
+
+    Examples
+    --------
+    he1 in controlgym's formulation, measuring only its second state:
+
+    >>> import gymnasium as gym
+    >>> import numpy as np
+    >>> from stcgym.agents.benchmark.mimo import OutputLQG
+    >>> from stcgym.envs import get_mimo_plant
+    >>> plant = get_mimo_plant("he1")
+    >>> (A, B), G = plant.discrete(), plant.noise_input()
+    >>> Q, R, N = plant.lq_weights()
+    >>> lqg = OutputLQG(A, B, np.array(plant.C_y), Q, R, N, W=0.1 * G @ G.T, V=0.1 * np.eye(1))
+    >>> env = gym.make("stcgym/StateSpace-v0", plant="he1", cost="performance",
+    ...                measured="output", control_cost=0.0, reference="zero")
+    >>> obs, _ = env.reset(seed=0, options={"initial_state": [1.0, 0.0, 0.0, 0.0]})
+    >>> lqg.predict(obs)[0].shape
+    (2,)
+    """
+
+    def __init__(
+        self,
+        A: Any,
+        B: Any,
+        C: Any,
+        Q: Any,
+        R: Any,
+        N: Any = None,
+        *,
+        W: Any,
+        V: Any,
+        num_envs: int | None = None,
+        action_bound: float = 1e9,
+    ) -> None:
+        import control
+
+        from stcgym.adaptive.lqr import lqr_design
+
+        self.A, self.B, self.C = (np.array(M, dtype=float) for M in (A, B, C))
+        n, m = self.B.shape
+        self.K = lqr_design(self.A, self.B, Q, R, N)[0]
+        S = np.asarray(control.dlqe(self.A, np.eye(n), self.C, W, V)[1], dtype=float)
+        V = np.asarray(V, dtype=float)
+        self.M = S @ self.C.T @ np.linalg.inv(self.C @ S @ self.C.T + V)
+        self.num_envs, self.action_bound = num_envs, float(action_bound)
+        self._x_pred = np.zeros((1 if num_envs is None else int(num_envs), n))
+
+    def reset(self) -> None:
+        """``x_hat = 0`` on every lane."""
+        self._x_pred[:] = 0.0
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic=True
+    ) -> tuple[NDArray, None]:
+        obs = np.atleast_2d(np.asarray(observation, dtype=float))
+        y = obs[:, : self.C.shape[0]]
+        x_hat = self._x_pred + (y - self._x_pred @ self.C.T) @ self.M.T
+        u = np.clip(-x_hat @ self.K.T, -self.action_bound, self.action_bound)
+        self._x_pred = x_hat @ self.A.T + u @ self.B.T
+        return (u[0] if self.num_envs is None else u), None
+
+
 def check_mimo_plants(names: list[str]) -> None:
     """Raise ``ValueError`` naming ``--mimo-plants`` for names outside the MIMO catalogue."""
     bad = [p for p in names if p not in mimo_plant_names()]
@@ -138,34 +372,134 @@ def check_mimo_plants(names: list[str]) -> None:
         )
     if len(set(names)) != len(names):
         raise ValueError(f"--mimo-plants lists a plant twice: {names}")
+    bad = [p for p in names if not has_yardstick(p)]
+    if bad:
+        raise ValueError(
+            f"--mimo-plants: {bad} have no stabilising LQ solution for their cost, so no "
+            "yardstick (ac1: controlgym's cost leaves its integrator state unweighted)"
+        )
 
 
-def mimo_spec(cfg: BenchConfig, plant: str) -> MimoEnvSpec:
-    """The environment of ``mimo:<plant>`` (the bench's noise, cost and the plant's bound)."""
+def has_yardstick(plant: str) -> bool:
+    """Whether the LQR yardstick exists for ``plant``'s cost in its formulation.
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.mimo import has_yardstick
+    >>> has_yardstick("he1"), has_yardstick("ac1")
+    (True, False)
+    """
+    from stcgym.adaptive.lqr import lqr_design
+
+    spec = get_mimo_plant(plant)
+    rho = 0.0 if formulation(plant) == "controlgym" else 0.01
+    try:
+        lqr_design(*spec.discrete(), *spec.lq_weights(rho))
+    except ValueError:
+        return False
+    return True
+
+
+def mimo_spec(cfg: BenchConfig, plant: str, key: str | None = None) -> MimoEnvSpec:
+    """The environment of ``mimo:<plant>`` in its formulation (:func:`formulation`); ``key``
+    names the scenario whose action bound applies (default ``mimo:<plant>``)."""
     from stcgym.agents.benchmark.scenarios import _episode_settings
 
-    settings = _episode_settings(cfg)
+    bound = float(cfg.action_bounds.get(key or f"mimo:{plant}", 10.0))
+    if formulation(plant) == "controlgym":
+        settings = dict(CONTROLGYM_SETTINGS)
+        if cfg.episode_steps:
+            settings["steps"] = cfg.episode_steps
+        return MimoEnvSpec((plant,), action_bound=bound, **settings)
+    bench = _episode_settings(cfg)
     return MimoEnvSpec(
         (plant,),
-        steps=settings["steps"],
-        noise_std=settings["noise_std"],
-        control_cost=settings["control_cost"],
-        action_bound=float(cfg.action_bounds.get(f"mimo:{plant}", 10.0)),
+        steps=bench["steps"],
+        noise_std=bench["noise_std"],
+        control_cost=bench["control_cost"],
+        action_bound=bound,
+        reference=TANK_REFERENCE,
     )
 
 
 def mimo_scenarios(cfg: BenchConfig) -> list[Scenario]:
-    """One ``mimo:<plant>`` scenario per plant of ``cfg.mimo_plants``; its RL agents train on
-    the plant itself (training key ``mimo:<plant>``)."""
+    """One ``mimo:<plant>`` scenario per plant of ``cfg.mimo_plants`` (``"mimo"`` in
+    ``cfg.scenarios``) and ``mimo_switch`` (``"mimo_switch"``); the RL agents of each train on
+    its own episodes (training key: the scenario's name)."""
+    from dataclasses import replace
+
     from stcgym.agents.benchmark.episodes import EpisodeSet
     from stcgym.agents.benchmark.scenarios import Scenario
 
     out = []
     n = cfg.nominal_episodes
-    for p in cfg.mimo_plants:
-        env = mimo_spec(cfg, p)
-        eps = EpisodeSet((env.plants[0],) * n, tuple(range(cfg.first_seed, cfg.first_seed + n)))
-        out.append(Scenario(f"mimo:{p}", "mimo", env, eps, f"mimo:{p}", env.order))
+    seeds = tuple(range(cfg.first_seed, cfg.first_seed + n))
+    if "mimo" in cfg.scenarios:
+        for p in cfg.mimo_plants:
+            env = mimo_spec(cfg, p)
+            eps = EpisodeSet((env.plants[0],) * n, seeds)
+            out.append(Scenario(f"mimo:{p}", "mimo", env, eps, f"mimo:{p}", env.order))
+    if "mimo_switch" in cfg.scenarios:
+        first, then = SWITCH
+        base = mimo_spec(cfg, first, key="mimo_switch")
+        env = replace(base, switch_to=then, jump_step=base.steps // 2)
+        eps = EpisodeSet((first,) * n, seeds)
+        out.append(
+            Scenario("mimo_switch", "mimo_switch", env, eps, "mimo_switch", env.order,
+                     adaptation=True)
+        )  # fmt: skip
+    return out
+
+
+def channel_metrics(z: NDArray, r: NDArray, span: int) -> dict[str, NDArray]:
+    """Per-episode tracking figures of a multi-channel run.
+
+    ``track_rms_<i>`` (``i = 1, 2``): the RMS tracking error ``e_i = z_i - r_i`` of channel
+    ``i`` over the steps lived; ``cross_peak``: the cross-channel disturbance, how far a
+    channel's error moves, ``max |e_i(t) - e_i(k)|`` over the ``span`` steps after a reference
+    step of another channel ``j`` between ``k`` and ``k + 1`` while ``r_i`` holds, averaged
+    over such steps (``nan`` without one).
+
+    Parameters
+    ----------
+    z, r : ndarray, shape (B, T + 1, p)
+        Performance outputs and references (``nan`` after a divergence).
+    span : int
+        Steps after a reference step that belong to it.
+
+    Examples
+    --------
+    Channel 2 follows its reference exactly; channel 1 sits 0.2 off its reference and is
+    knocked a further 0.5 off when channel 2's reference steps after ``k = 2``:
+
+    >>> import numpy as np
+    >>> from stcgym.agents.benchmark.mimo import channel_metrics
+    >>> r = np.zeros((1, 8, 2)); r[0, 3:, 1] = 1.0
+    >>> z = r.copy(); z[0, :, 0] = 0.2; z[0, 4, 0] = 0.7
+    >>> m = channel_metrics(z, r, span=3)
+    >>> [round(float(m[key][0]), 4) for key in ("track_rms_1", "track_rms_2", "cross_peak")]
+    [0.3102, 0.0, 0.5]
+    """
+    B, T1, p = z.shape
+    e = z - r
+    out = {f"track_rms_{i + 1}": np.full(B, math.nan) for i in range(2)}
+    out["cross_peak"] = np.full(B, math.nan)
+    with np.errstate(invalid="ignore"):
+        for i in range(min(p, 2)):
+            out[f"track_rms_{i + 1}"] = np.sqrt(np.nanmean(e[:, :, i] ** 2, axis=1))
+    for b in range(B):
+        peaks = []
+        steps = np.diff(r[b], axis=0) != 0  # (T, p): r steps between k and k + 1
+        for k, j in zip(*np.nonzero(steps), strict=True):
+            stop = min(T1, k + 1 + span)
+            for i in range(p):
+                if i == j or steps[k : stop - 1, i].any():
+                    continue
+                moved = np.abs(e[b, k + 1 : stop, i] - e[b, k, i])
+                if moved.size and np.isfinite(moved).all():
+                    peaks.append(float(moved.max()))
+        if peaks:
+            out["cross_peak"][b] = float(np.mean(peaks))
     return out
 
 

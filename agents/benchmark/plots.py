@@ -254,7 +254,7 @@ def write_plots(
         written.append(path)
     order = [c for c in cfg.agents if c != "zero"]
     for sc in scenarios:
-        if sc.kind in ("nominal", "jump", "mimo"):
+        if sc.kind in ("nominal", "jump", "mimo", "mimo_switch"):
             path = run_dir / f"traces_{_slug(sc.name)}.png"
             plot_traces(path, sc, data, order)
             written.append(path)

@@ -18,6 +18,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from stcgym.agents.benchmark.attribution import identification_or_design
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
@@ -199,6 +201,29 @@ def _paired_table(pairs: list[tuple[str, str, dict[str, Estimate]]]) -> list[str
     return lines
 
 
+def _channel_table(
+    rows: Sequence[dict[str, Any]], scenario: str, order: Sequence[str]
+) -> list[str]:
+    """Per controller, the mean over its rows of the tracking error of each performance
+    channel and of the cross-channel disturbance (a MIMO scenario's columns)."""
+    cols = ("track_rms_1", "track_rms_2", "cross_peak")
+    lines = [
+        "| controller | RMS error z1 | RMS error z2 | cross-channel peak |",
+        "|---|---|---|---|",
+    ]
+    for c in order:
+        mine = [r for r in rows if r["scenario"] == scenario and r["controller"] == c]
+        if not mine:
+            continue
+        cells = []
+        for col in cols:
+            vals = [float(r[col]) for r in mine if r.get(col) not in (None, "")]
+            vals = [v for v in vals if math.isfinite(v)]
+            cells.append(_g(float(np.mean(vals))) if vals else "-")
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    return lines if len(lines) > 2 else []
+
+
 def _best(hl: dict[str, dict[str, Any]], names: Sequence[str]) -> str | None:
     present = [n for n in names if n in hl]
     return min(present, key=lambda n: hl[n]["ratio"].value) if present else None
@@ -375,6 +400,16 @@ def write_report(
         out += [f"### `{sc.name}`", "", *_headline_table(hl, sc.kind == "jump", stops), ""]
         if pairs:
             out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
+        channels = _channel_table(rows, sc.name, order) if sc.env.plant_kind == "mimo" else []
+        if channels:
+            out += [
+                "Per channel of the performance output (mean over runs and episodes): the RMS "
+                "tracking error of each channel and the cross-channel disturbance, how far a "
+                "channel's error moves within a reference hold after another channel's step.",
+                "",
+                *channels,
+                "",
+            ]
         sentences.append(_conclusion(sc.name, hl, pairs, stops))
         if sc.kind in ("family", "ood", "jump"):
             family.append((sc.name, tables))

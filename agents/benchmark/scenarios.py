@@ -20,7 +20,10 @@ lqg_action_bound`).
 ``jump:test``
     The test split with the parameter jump in every episode, at a random time.
 ``mimo:P``
-    The MIMO catalogue plant ``P`` with measured state (:mod:`stcgym.agents.benchmark.mimo`).
+    The MIMO catalogue plant ``P`` with measured state and the cost of its performance output
+    (:mod:`stcgym.agents.benchmark.mimo`).
+``mimo_switch``
+    The quadruple tank whose valves switch from ``P-`` to ``P+`` half-way through the episode.
 """
 
 from __future__ import annotations
@@ -170,7 +173,7 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
                 )
         if "jump" in cfg.scenarios:
             out.append(split_scenario("jump:test", "jump", "test", 1.0, adaptation=True))
-    if "mimo" in cfg.scenarios:
+    if {"mimo", "mimo_switch"} & set(cfg.scenarios):
         from stcgym.agents.benchmark.mimo import mimo_scenarios
 
         out += mimo_scenarios(cfg)
@@ -179,7 +182,8 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
 
 def training_envs(cfg: BenchConfig, scenarios: Sequence[Scenario]) -> dict[str, TrainingEnv]:
     """``train_key -> TrainingEnv`` for every key a scenario uses (and so RL, the action bound
-    and the learning curves): ``"nominal:<plant>"``, ``"family"`` or ``"mimo:<plant>"``.
+    and the learning curves): ``"nominal:<plant>"``, ``"family"``, ``"mimo:<plant>"`` or
+    ``"mimo_switch"``.
 
     Training episodes are evaluation episodes: the same length, noise, reference, initial
     state, jumps and bound; the family trains on its training split (jumps with the family's

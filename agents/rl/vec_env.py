@@ -106,7 +106,9 @@ class VecHistoryWindow(VecEnvWrapper):
     Parameters
     ----------
     venv : stable_baselines3.common.vec_env.VecEnv
-        Lanes observing ``[y, r]`` (``2 p`` values) with an ``(m,)`` action box of one bound.
+        Lanes observing ``[y, r]`` (``2 p`` values) with an ``(m,)`` action box; the action
+        bound is its largest magnitude (an asymmetric box, e.g. pumps within their voltage
+        range, is clipped to by the env).
     config : WindowConfig
         The window's settings.
     horizon : int
@@ -156,15 +158,16 @@ class VecHistoryWindow(VecEnvWrapper):
         interface: InterfaceSpec | None = None,
     ) -> None:
         box = venv.action_space
-        if not isinstance(box, spaces.Box) or len(box.shape) != 1 or np.ptp(box.high) != 0:
-            raise ValueError(f"VecHistoryWindow needs a 1-D action box with one bound, got {box}")
+        if not isinstance(box, spaces.Box) or len(box.shape) != 1:
+            raise ValueError(f"VecHistoryWindow needs a 1-D action box, got {box}")
+        bound = float(np.max(np.maximum(np.abs(box.low), np.abs(box.high))))
         shape = venv.observation_space.shape
         if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
             raise ValueError(f"VecHistoryWindow needs the observation [y, r], got shape {shape}")
         if int(horizon) != horizon or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
         p, m = shape[0] // 2, box.shape[0]
-        self.config, self.action_bound = config, float(box.high[0])
+        self.config, self.action_bound = config, bound
         self.horizon, self.reward_scale, self.cost_squash = int(horizon), reward_scale, cost_squash
         self.interface = InterfaceSpec() if interface is None else interface
         self._lanes = self.interface.build(config, self.action_bound, venv.num_envs, (p, m))

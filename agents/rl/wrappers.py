@@ -257,14 +257,15 @@ class HistoryWindow(gym.Wrapper):
     env
         An environment observing ``[y(k), r(k)]`` with an ``(m,)`` action box: every canonical
         stcgym environment (one output, one input), or ``stcgym/StateSpace-v0`` (``p`` outputs
-        and references, ``m`` inputs, one bound for every input).
+        and references, ``m`` inputs; actions are scaled by the box's largest magnitude and
+        the env clips them to its range).
     config
         :class:`WindowConfig` (or a dict of its fields); default ``WindowConfig()``.
 
     Raises
     ------
     ValueError
-        An action space that is not a 1-D box with one bound, an observation that is not
+        An action space that is not a 1-D box, an observation that is not
         ``[y, r]`` (an even length), or a ``config`` dict with a field out of range.
 
     Examples
@@ -298,17 +299,14 @@ class HistoryWindow(gym.Wrapper):
             config = WindowConfig(**config)
         self.config = config
         box = env.action_space
-        if (
-            not isinstance(box, spaces.Box)
-            or len(box.shape) != 1
-            or not np.all(box.high == box.high[0])
-        ):
-            raise ValueError(f"HistoryWindow needs a 1-D action box with one bound, got {box}")
+        if not isinstance(box, spaces.Box) or len(box.shape) != 1:
+            raise ValueError(f"HistoryWindow needs a 1-D action box, got {box}")
         shape = env.observation_space.shape
         if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
             raise ValueError(f"HistoryWindow needs the observation [y, r], got shape {shape}")
         self.n_outputs, self.n_inputs = shape[0] // 2, box.shape[0]
-        self.action_bound = float(box.high[0])
+        # the largest magnitude: an asymmetric box (pumps within their range) is the env's clip
+        self.action_bound = float(np.max(np.maximum(np.abs(box.low), np.abs(box.high))))
         self._buf = HistoryBuffer(config, self.action_bound, 1, self.n_outputs, self.n_inputs)
         n_features = config.features_for(self.n_outputs, self.n_inputs)
         self.observation_space = spaces.Box(

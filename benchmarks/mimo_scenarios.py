@@ -1,0 +1,82 @@
+"""The MIMO scenarios of ``stcgym bench`` without RL: LQR, zero input and ``stc_mimo``.
+
+Usage::
+
+    python benchmarks/mimo_scenarios.py [--episodes 10] [--first-seed 1000]
+
+Runs the standard tier's ``mimo:quadruple_tank``, ``mimo:quadruple_tank_nmp``, ``mimo_switch``
+and the full tier's ``mimo:he1`` (:mod:`stcgym.agents.benchmark.mimo`) with the bench's own
+controllers (``CONTROLLERS["lqg"]``, ``"zero"``, ``"stc_mimo"``) through
+:func:`~stcgym.agents.benchmark.episodes.run_episodes`, on ``--episodes`` episodes from seed
+``--first-seed`` (the bench's test seeds). Figures per scenario: mean cost per step of LQR and
+zero input, LQR / zero input (how far the scenario is from floor-bound), ``stc_mimo`` / LQR
+over the whole episode, its second half and last quarter; for ``mimo_switch`` the ratio in
+50-step windows (every 25 samples) after the switch and the samples after which every later
+window is within 1.2x (the mean over the episodes). ``docs/multivariable.md`` quotes them.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from stcgym.agents.benchmark import build_config, make_scenarios
+from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
+from stcgym.agents.controllers import CONTROLLERS
+
+WINDOW, STRIDE, TOLERANCE = 50, 25, 1.2
+
+
+def reconverged(stc: np.ndarray, lqr: np.ndarray) -> tuple[list[float], int | None]:
+    """Window ratios of the mean per-step costs after the switch and the first window start
+    from which every later window is within :data:`TOLERANCE`."""
+    starts = range(0, len(stc) - WINDOW + 1, STRIDE)
+    ratios = [stc[i : i + WINDOW].mean() / lqr[i : i + WINDOW].mean() for i in starts]
+    first = next(
+        (j * STRIDE for j in range(len(ratios)) if all(r <= TOLERANCE for r in ratios[j:])), None
+    )
+    return ratios, first
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=1000)
+    args = parser.parse_args()
+    cfg = build_config(
+        run="mimo-scenarios",
+        mode="standard",
+        scenarios="mimo,mimo_switch",
+        mimo_plants="quadruple_tank,quadruple_tank_nmp,he1",
+        agents="lqg,stc_mimo",
+    )
+    seeds = tuple(range(args.first_seed, args.first_seed + args.episodes))
+    for sc in make_scenarios(cfg):
+        eps = EpisodeSet((sc.env.plants[0],) * len(seeds), seeds)
+        runs = {
+            name: run_episodes(
+                CONTROLLERS[name].build(cfg, sc), sc.env, eps, informed=CONTROLLERS[name].informed
+            )
+            for name in ("lqg", "zero", "stc_mimo")
+        }
+        cost = {name: batch.cost for name, batch in runs.items()}
+        T = cost["lqg"].shape[1]
+        lqr, stc = cost["lqg"], cost["stc_mimo"]
+        diverged = int(runs["zero"].diverged.sum())
+        print(
+            f"{sc.name}: LQR {lqr.mean():.4g} per step, zero input {cost['zero'].mean():.4g} "
+            f"({diverged} diverged), LQR / zero {lqr.mean() / cost['zero'].mean():.3f}; "
+            f"stc_mimo / LQR: whole {stc.mean() / lqr.mean():.3f}, second half "
+            f"{stc[:, T // 2 :].mean() / lqr[:, T // 2 :].mean():.3f}, last quarter "
+            f"{stc[:, 3 * T // 4 :].mean() / lqr[:, 3 * T // 4 :].mean():.3f}"
+        )
+        if sc.env.switch_to is not None:
+            J = int(sc.env.jump_step)
+            ratios, first = reconverged(stc[:, J:].mean(axis=0), lqr[:, J:].mean(axis=0))
+            print(f"  after the switch at {J}: windows {np.round(ratios, 2).tolist()}")
+            print(f"  within {TOLERANCE}x of LQR from {first} samples after the switch on")
+
+
+if __name__ == "__main__":
+    main()
