@@ -56,15 +56,16 @@ P0_RESTART = 100.0
 
 
 def mimo_env_settings(env: Any, n_states: Any = None) -> dict[str, Any]:
-    """``n_states``, ``n_inputs``, ``action_bound``, ``control_cost``, ``num_envs`` and
-    ``obs_dim`` of an env or vector env (or a wrapper of one).
+    """``n_states``, ``n_inputs``, ``action_bound``, ``control_cost``, ``num_envs``,
+    ``obs_dim`` and ``input_range`` (``(low, high)`` or ``None``) of an env or vector env (or a
+    wrapper of one).
 
     A ``stcgym/StateSpace-v0`` env is read from its plant (observation ``[x, r]``, ``obs_dim =
     2 n``), checking the state is measured. Any other Gymnasium env needs a 1-D ``Box``
     observation that is the state ``x`` (``obs_dim = n``, regulation to ``r = 0``) or ``[x,
     r]`` (``obs_dim = 2 n``; give ``n_states`` to say which, default the state alone) and a 1-D
     ``Box`` action space: ``n_inputs`` is its size, ``action_bound`` the largest symmetric
-    bound inside it, ``control_cost`` the default 0.01.
+    bound inside it, ``input_range`` its bounds, ``control_cost`` the default 0.01.
 
     Raises ``ValueError`` when a StateSpace env's output is not the state (``C != I`` or
     ``D != 0``), or when another env's spaces are not such ``Box`` spaces.
@@ -92,6 +93,7 @@ def mimo_env_settings(env: Any, n_states: Any = None) -> dict[str, Any]:
         "control_cost": float(base.control_cost),
         "num_envs": num,
         "obs_dim": 2 * int(n),
+        "input_range": getattr(base, "input_range", None),
     }
 
 
@@ -135,6 +137,7 @@ def _gymnasium_env_settings(env: Any, n_states: Any, num_envs: int | None) -> di
         "control_cost": 0.01,
         "num_envs": num_envs,
         "obs_dim": p,
+        "input_range": (low, high),
     }
 
 
@@ -231,6 +234,31 @@ def resolve_dimensions(
     return n, m, num_envs, bound, cost, 2 * n if es is None else es["obs_dim"]
 
 
+def input_limits(
+    input_range: Any, m: int, bound: float, env_range: Any = None
+) -> tuple[NDArray, NDArray]:
+    """Every input's range ``(low, high)`` (``m`` values each): ``input_range`` (a pair of
+    numbers or of ``m`` values), else the env's, else ``[-bound, bound]``, always inside
+    ``[-bound, bound]``. ``ValueError`` naming ``input_range`` unless ``low < 0 < high`` (the
+    start-up probe is zero-mean around the operating point ``u = 0``)."""
+    given = env_range if input_range is None else input_range
+    if given is None:
+        return np.full(m, -bound), np.full(m, bound)
+    try:
+        low, high = (np.broadcast_to(np.asarray(v, dtype=float), (m,)).copy() for v in given)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"input_range must be a pair (low, high) of numbers or of {m} values, got "
+            f"{input_range!r}"
+        ) from exc
+    if not (np.all(low < 0) and np.all(high > 0)):
+        raise ValueError(
+            f"input_range must hold u = 0 inside every input's range (low < 0 < high), got "
+            f"low={low}, high={high}"
+        )
+    return np.maximum(low, -bound), np.minimum(high, bound)
+
+
 def split_observation(obs: NDArray, n: int) -> tuple[NDArray, NDArray]:
     """``(X, R)`` of a ``(lanes, obs_dim)`` batch: the states and the references (zero when
     the observation is the state alone), C-contiguous."""
@@ -266,6 +294,11 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         be positive semidefinite.
     action_bound
         Saturation of every input (default the env's, else 10).
+    input_range
+        ``(low, high)``: every input's range, numbers or ``m`` values each, with
+        ``low < 0 < high`` (default the env's input range or action space, else
+        ``+-action_bound``); kept inside ``+-action_bound``. The controller clips its input to
+        it, so that the estimator learns from the input the plant received.
     seed
         Probe seed: an int (lane ``i`` gets ``seed + i``) or one int per lane.
     forgetting
@@ -334,6 +367,7 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         R: ArrayLike | float | None = None,
         N: ArrayLike | None = None,
         action_bound: float | None = None,
+        input_range: tuple[Any, Any] | None = None,
         seed: int | ArrayLike = 0,
         forgetting: float = 1.0,
         dependence_tol: float = 1e-9,
@@ -346,6 +380,10 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         )
         self.n_states, self.n_inputs = n, m
         self.action_dim = m
+        env_range = None if env is None else mimo_env_settings(env, n_states)["input_range"]
+        self.input_low, self.input_high = input_limits(
+            input_range, m, float(self.action_bound), env_range
+        )
         self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
         self.N = cross_weight(N, self.Q, self.R)
         self.forgetting = real_in(forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
@@ -394,7 +432,9 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             solve_max_iter=64,
         )
         # a reset lane starts here: C = 0, the minimum-norm phase from R = I, no gain, P_lq = Q
-        self._layout, self._at, init = km.mimo_record(n, m, self.Q, self.R, self.N)
+        self._layout, self._at, init = km.mimo_record(
+            n, m, self.Q, self.R, self.N, self.input_low, self.input_high
+        )
         init.setflags(write=False)
         self._init = init
         self._F = np.empty((self.B, self._layout.size))

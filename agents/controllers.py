@@ -240,7 +240,8 @@ def _stc_mimo(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     def builder(plants: list[Any], seeds: list[int]) -> Any:
         return MultivariableSelfTuningController(
             n, m, num_envs=len(plants), action_bound=env.action_bound,
-            seed=[int(s) for s in seeds], **_mimo_weights(env),
+            input_range=env.plant.input_range, seed=[int(s) for s in seeds],
+            **_mimo_weights(env),
         )  # fmt: skip
 
     return builder

@@ -10,7 +10,11 @@ controllers (``CONTROLLERS["lqg"]``, ``"zero"``, ``"stc_mimo"``) through
 :func:`~stcgym.agents.benchmark.episodes.run_episodes`, on ``--episodes`` episodes from seed
 ``--first-seed`` (the bench's test seeds). Figures per scenario: mean cost per step of LQR and
 zero input, LQR / zero input (how far the scenario is from floor-bound), ``stc_mimo`` / LQR
-over the whole episode, its second half and last quarter; for ``mimo_switch`` the ratio in
+over the whole episode, its second half and last quarter, and ``bound`` / LQR and ``stc_mimo`` /
+``bound``, with ``bound`` what identification costs at the least: the self-tuning controller's
+own probe for the ``n + m`` samples without which no estimate of ``[A B]`` exists (open loop,
+as any controller without a model must run), then LQR with the true gain (a controller that
+identifies the model exactly from the fewest samples); for ``mimo_switch`` the ratio in
 50-step windows (every 25 samples) after the switch and the samples after which every later
 window is within 1.2x (the mean over the episodes). ``docs/multivariable.md`` quotes them.
 """
@@ -18,12 +22,40 @@ window is within 1.2x (the mean over the episodes). ``docs/multivariable.md`` qu
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import numpy as np
 
 from stcgym.agents.benchmark import build_config, make_scenarios
 from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.controllers import CONTROLLERS
+from stcgym.envs import get_mimo_plant
+
+
+class ProbeThenLQR:
+    """The ``bound`` row: ``stc``'s probe for its first ``samples`` steps of an episode, then
+    ``lqr`` (both are stepped every sample, so the probe is exactly the self-tuning
+    controller's)."""
+
+    def __init__(self, stc: Any, lqr: Any, samples: int) -> None:
+        self.stc, self.lqr, self.samples, self.t = stc, lqr, samples, 0
+
+    def predict(self, obs: Any, state: Any = None, episode_start: Any = None, deterministic=True):
+        if episode_start is not None and np.all(episode_start):
+            self.t = 0
+        probe, _ = self.stc.predict(obs, state, episode_start, deterministic)
+        u, _ = self.lqr.predict(obs, state, episode_start, deterministic)
+        self.t += 1
+        return (probe if self.t <= self.samples else u), None
+
+    def set_model(self, *args: Any, **kwargs: Any) -> None:
+        self.lqr.set_model(*args, **kwargs)
+
+    def reset(self) -> None:
+        self.t = 0
+        self.stc.reset()
+        self.lqr.reset()
+
 
 WINDOW, STRIDE, TOLERANCE = 50, 25, 1.2
 
@@ -60,6 +92,13 @@ def main() -> None:
             )
             for name in ("lqg", "zero", "stc_mimo")
         }
+        n, m = sc.env.channels
+        bound = ProbeThenLQR(
+            CONTROLLERS["stc_mimo"].build(cfg, sc)(eps.plants, list(seeds)),
+            CONTROLLERS["lqg"].build(cfg, sc)([get_mimo_plant(p) for p in eps.plants], list(seeds)),
+            n + m,
+        )
+        runs["bound"] = run_episodes(bound, sc.env, eps, informed=True)
         cost = {name: batch.cost for name, batch in runs.items()}
         T = cost["lqg"].shape[1]
         lqr, stc = cost["lqg"], cost["stc_mimo"]
@@ -69,7 +108,9 @@ def main() -> None:
             f"({diverged} diverged), LQR / zero {lqr.mean() / cost['zero'].mean():.3f}; "
             f"stc_mimo / LQR: whole {stc.mean() / lqr.mean():.3f}, second half "
             f"{stc[:, T // 2 :].mean() / lqr[:, T // 2 :].mean():.3f}, last quarter "
-            f"{stc[:, 3 * T // 4 :].mean() / lqr[:, 3 * T // 4 :].mean():.3f}"
+            f"{stc[:, 3 * T // 4 :].mean() / lqr[:, 3 * T // 4 :].mean():.3f}; bound / LQR "
+            f"{cost['bound'].mean() / lqr.mean():.3f}, stc_mimo / bound "
+            f"{stc.mean() / cost['bound'].mean():.3f}"
         )
         if sc.env.switch_to is not None:
             J = int(sc.env.jump_step)

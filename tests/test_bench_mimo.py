@@ -166,7 +166,8 @@ def test_stc_mimo_is_within_a_ratio_of_the_lqr_yardstick_on_the_quadruple_tank(t
     seeds = (1000, 1001, 1002)
     for seed, controller_seed in zip(seeds, _lane_seeds(seeds, 0), strict=True):
         stc = MultivariableSelfTuningController(4, 2, Q=Q, R=R, seed=controller_seed,
-                                                action_bound=bound)  # fmt: skip
+                                                action_bound=bound,
+                                                input_range=plant.input_range)  # fmt: skip
         lqr = LQRController(A, B, Q=Q, R=R, action_bound=bound)
         direct_stc = _direct_costs(stc, seed, 600, bound)
         direct_lqr = _direct_costs(lqr, seed, 600, bound)

@@ -451,3 +451,30 @@ def test_gymnasium_env_with_the_wrong_spaces_is_refused():
     env.action_space = gym.spaces.Box(0.0, 1.0, (2,))
     with pytest.raises(ValueError, match="symmetric box around 0"):
         MultivariableSelfTuningController(env=env)
+
+
+def test_inputs_stay_in_an_asymmetric_range_and_identify_the_plant():
+    # a plant whose inputs are clipped to [-0.2, 1] (pumps around an operating point): the
+    # controller clips to the same range, so its regressor holds the input the plant received
+    # and noise-free data give the true [A B] (an input clipped by the plant alone would not)
+    A, B = get_mimo_plant("quadruple_tank").discrete()
+    low, high = np.array([-0.2, -0.2]), np.array([1.0, 1.0])
+    ctl = MultivariableSelfTuningController(4, 2, input_range=(low, high), seed=3)
+    x, r = np.zeros(4), np.array([4.0, 3.0, 0.0, 0.0])  # needs more than the range allows
+    inputs = []
+    for _ in range(80):
+        u, _ = ctl.predict(np.concatenate([x, r]))
+        inputs.append(u)
+        x = A @ x + B @ np.clip(u, low, high)
+    inputs = np.array(inputs)
+    assert np.all(inputs >= low) and np.all(inputs <= high)
+    assert np.any(inputs == high)  # the range was reached
+    np.testing.assert_allclose(ctl.theta, np.hstack((A, B)), atol=1e-6)
+    env = gym.make("stcgym/StateSpace-v0", plant="quadruple_tank", input_range=((-3, -2), (7, 7)))
+    ctl = MultivariableSelfTuningController(env=env)  # the env's range is the default
+    np.testing.assert_array_equal(ctl.input_low, env.unwrapped.input_range[0])
+    np.testing.assert_array_equal(ctl.input_high, env.unwrapped.input_range[1])
+    with pytest.raises(ValueError, match="input_range must hold u = 0"):
+        MultivariableSelfTuningController(4, 2, input_range=(0.0, 1.0))
+    with pytest.raises(ValueError, match="input_range must be a pair"):
+        MultivariableSelfTuningController(4, 2, input_range=(0.0, 1.0, 2.0))

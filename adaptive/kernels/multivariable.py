@@ -98,6 +98,8 @@ class MimoRecord(NamedTuple):
     ewl: int  # long EWMA of ||e||^2
     ymax: int  # largest |x_i| seen while probing
     cmax: int  # largest state cost (x - r)^T Q (x - r) seen while probing
+    u_low: int  # lower end of every input's range (m)
+    u_high: int  # upper end of every input's range (m)
 
 
 class MimoInts(NamedTuple):
@@ -150,10 +152,10 @@ class MimoConfig(NamedTuple):
 
 
 def mimo_record(
-    n: int, m: int, Q: NDArray, R: NDArray, N: NDArray
+    n: int, m: int, Q: NDArray, R: NDArray, N: NDArray, low: NDArray, high: NDArray
 ) -> tuple[Layout, MimoRecord, NDArray]:
     """Float record of one lane, its offsets and its initial value (weights ``Q``, ``R``,
-    ``N``)."""
+    ``N``; input range ``[low, high]``, ``m`` values each)."""
     lay = state_matrix_layout(n, m)
     lay.add("design", (design_work_size(n, m),))
     lay.add("Qw", (n, n))
@@ -167,6 +169,8 @@ def mimo_record(
         lay.add(name, (m, n))
     for name in ("has_gain", "ews", "ewl", "ymax", "cmax"):
         lay.add(name)
+    lay.add("u_low", (m,))
+    lay.add("u_high", (m,))
     at = lay.record(MimoRecord)
     init = lay.empty(1)[0]
     state_matrix_initial(lay, init, n, m)
@@ -174,6 +178,8 @@ def mimo_record(
     init[at.Rw : at.Rw + m * m] = np.asarray(R, dtype=float).ravel()
     init[at.Nw : at.Nw + n * m] = np.asarray(N, dtype=float).ravel()
     init[at.P_lq : at.P_lq + n * n] = np.asarray(Q, dtype=float).ravel()
+    init[at.u_low : at.u_low + m] = np.asarray(low, dtype=float).ravel()
+    init[at.u_high : at.u_high + m] = np.asarray(high, dtype=float).ravel()
     return lay, at, init
 
 
@@ -303,19 +309,25 @@ def mimo_step(f, g, at, cfg, x, r, u):
     # an excited state needs no longer probe: the extension is for a plant near rest
     extend = t < cfg.probe_max and ymax < level and not capped
     probing = open_loop and (t < (cfg.probe_min if capped else cfg.probe_steps) or extend)
-    bound = cfg.action_bound
+    low = f[at.u_low : at.u_low + m]
+    high = f[at.u_high : at.u_high + m]
     if probing or f[at.has_gain] <= 0.0:
         seed = g[MIMO_INTS.seed]
         episode = g[MIMO_INTS.episode]
         for j in range(m):
-            u[j] = min(max(amp * probe_sign(seed, episode, t * m + j), -bound), bound)
+            u[j] = min(max(amp * probe_sign(seed, episode, t * m + j), low[j]), high[j])
         g[MIMO_INTS.n_probe] += 1
     else:
         if open_loop:
             g[MIMO_INTS.closed_t] = t
         K = view2d(f, at.K, m, n)
         F = view2d(f, at.F, m, n)
-        if feedback_law(K, F, x, r, bound, u) > 0:
+        saturated = feedback_law(K, F, x, r, cfg.action_bound, u)
+        for j in range(m):
+            if not low[j] <= u[j] <= high[j]:
+                u[j] = min(max(u[j], low[j]), high[j])
+                saturated += 1
+        if saturated > 0:
             g[MIMO_INTS.n_saturated] += 1
     # -- the next regressor z(t) = [x(t); u(t)]
     for i in range(n):
