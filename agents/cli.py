@@ -256,7 +256,8 @@ def _eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plant",
         help="catalogue plant of the training order (default: the training plant, or the test "
-        "split of the training family)",
+        "split of the training family; an agent of the quadruple-tank family also runs on "
+        "quadruple_tank or quadruple_tank_nmp)",
     )
     p.add_argument("--seeds", type=int, default=5, help="evaluation episodes (default 5)")
     p.add_argument("--first-seed", type=int, default=1000, help="first seed (>= 0)")
@@ -414,7 +415,15 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
         order = get_plant(trained[0]).n if trained and not mimo else None
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
-    if args.plant is not None and mimo:
+    if args.plant is not None and mimo and spec.get("family") is not None:
+        from stcgym.agents.benchmark.mimo import SWITCH
+
+        if args.plant not in SWITCH:  # the quadruple tank at P- and P+
+            raise BenchInputError(
+                f"--plant {args.plant}: the agent was trained on the quadruple tanks of "
+                f"{spec['family']} and runs on them or on {' or '.join(SWITCH)} only"
+            )
+    elif args.plant is not None and mimo:
         if args.plant != trained[0]:
             raise BenchInputError(
                 f"--plant {args.plant}: the agent was trained on the MIMO plant {trained[0]} "

@@ -234,7 +234,7 @@ def test_scenario_trains_on_the_training_split_and_is_scored_on_the_test_split()
         assert ev["env"] == sc.env.to_dict() and ev["episodes"] == sc.episodes.to_dict()
 
 
-def test_tiny_bench_run_scores_every_controller_on_the_test_plants(tmp_path):
+def test_tiny_bench_run_scores_every_controller_on_the_test_plants(tmp_path, capsys):
     args = (
         "--train-steps 200 --eval-interval 100 --train-seeds 1 --test-plants 3 "
         "--curve-episodes 2 --bound-plants 3 --episode-steps 120 --curve-points 2 "
@@ -269,3 +269,28 @@ def test_tiny_bench_run_scores_every_controller_on_the_test_plants(tmp_path):
         costs.append(-reward)
     assert sc.env.steps == 120
     assert np.mean(costs) == pytest.approx(float(row["cost"]), rel=1e-4)
+    # the saved agent reproduces its bench numbers on the test members, and runs on P+
+    capsys.readouterr()
+    model = str(tmp_path / "t" / "models" / "mimo_family_ppo_s0")
+    assert main(["eval", model, "--seeds", "3", "--episode-steps", "120"]) == 0
+    out = capsys.readouterr().out
+    for r in rows:
+        if r["controller"] == "ppo":
+            assert f"{r['plant']} seed {r['seed']}: cost {float(r['cost']):.4g}" in out
+    assert main(["eval", model, "--seeds", "1", "--plant", "quadruple_tank_nmp"]) == 0
+    assert main(["eval", model, "--plant", "he1"]) == 2
+    assert "quadruple tanks of quadruple_tank-v1" in capsys.readouterr().err
+
+
+def test_gymnasium_and_sb3_checkers_pass():
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        check_env(gym.make("stcgym/QuadrupleTankFamily-v0").unwrapped, skip_render_check=True)
+        sb3_check_env(gym.make("stcgym/QuadrupleTankFamily-v0").unwrapped, warn=False)
