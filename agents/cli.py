@@ -6,7 +6,7 @@
     against LQG on the true model, on the same episodes of the nominal, plant-family (test
     split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on 2
     CPU cores.
-    ``stcgym bench --standard`` (about 7 hours) has 5 runs, the whole test split, every
+    ``stcgym bench --standard`` (about 8.5 hours) has 5 runs, the whole test split, every
     held-out variant and RL caps of 10^6 steps on the family; ``stcgym bench --full`` is the
     long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about a day).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
@@ -64,7 +64,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="5 runs per controller, the whole test split and every held-out variant, RL "
         "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 7 hours on 2 CPU cores (the estimate is printed first)",
+        "RecurrentPPO (2e5 for SAC): about 8.5 hours on 2 CPU cores (the estimate is printed first)",
     )
     mode.add_argument(
         "--full",
