@@ -64,7 +64,8 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="5 runs per controller, the whole test split and every held-out variant, RL "
         "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 8.5 hours on 2 CPU cores (the estimate is printed first)",
+        "RecurrentPPO (2e5 for SAC): about 8.5 hours on 2 CPU cores (the estimate is printed "
+        "first)",
     )
     mode.add_argument(
         "--full",
