@@ -14,9 +14,9 @@ zero input, LQR / zero input (how far the scenario is from floor-bound), ``stc_m
 over the whole episode, its second half and last quarter; for ``mimo_switch`` the ratio in
 50-step windows (every 25 samples) after the switch and the samples after which every later
 window is within 1.2x (the mean over the episodes). ``mimo_family:test`` runs one episode on
-each of the first ``--family-plants`` test members (the bench's episodes: seeds from 0) and
-also prints the median over the members of each controller's ratio, for all of them and per
-phase (``gamma1 + gamma2`` above or below 1). ``docs/multivariable.md`` quotes them.
+each of the first ``--family-plants`` test members (the bench's test episodes, seeds 1000 on)
+and also prints the median over the members of each controller's ratio, for all of them and
+per phase (``gamma1 + gamma2`` above or below 1). ``docs/multivariable.md`` quotes them.
 """
 
 from __future__ import annotations
