@@ -6,7 +6,7 @@
     against LQG on the true model, on the same episodes of the nominal, plant-family (test
     split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on 2
     CPU cores.
-    ``stcgym bench --standard`` (about 7 hours) has 5 runs, the whole test split, every
+    ``stcgym bench --standard`` (about 8.5 hours) has 5 runs, the whole test split, every
     held-out variant and RL caps of 10^6 steps on the family; ``stcgym bench --full`` is the
     long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about a day).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
@@ -64,7 +64,8 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="5 runs per controller, the whole test split and every held-out variant, RL "
         "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 7 hours on 2 CPU cores (the estimate is printed first)",
+        "RecurrentPPO (2e5 for SAC): about 8.5 hours on 2 CPU cores (the estimate is printed "
+        "first)",
     )
     mode.add_argument(
         "--full",
@@ -256,7 +257,8 @@ def _eval_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plant",
         help="catalogue plant of the training order (default: the training plant, or the test "
-        "split of the training family)",
+        "split of the training family; an agent of the quadruple-tank family also runs on "
+        "quadruple_tank or quadruple_tank_nmp)",
     )
     p.add_argument("--seeds", type=int, default=5, help="evaluation episodes (default 5)")
     p.add_argument("--first-seed", type=int, default=1000, help="first seed (>= 0)")
@@ -414,7 +416,15 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
         order = get_plant(trained[0]).n if trained and not mimo else None
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
-    if args.plant is not None and mimo:
+    if args.plant is not None and mimo and spec.get("family") is not None:
+        from stcgym.agents.benchmark.mimo import SWITCH
+
+        if args.plant not in SWITCH:  # the quadruple tank at P- and P+
+            raise BenchInputError(
+                f"--plant {args.plant}: the agent was trained on the quadruple tanks of "
+                f"{spec['family']} and runs on them or on {' or '.join(SWITCH)} only"
+            )
+    elif args.plant is not None and mimo:
         if args.plant != trained[0]:
             raise BenchInputError(
                 f"--plant {args.plant}: the agent was trained on the MIMO plant {trained[0]} "

@@ -2,10 +2,11 @@
 
 Usage::
 
-    python benchmarks/mimo_scenarios.py [--episodes 10] [--first-seed 1000]
+    python benchmarks/mimo_scenarios.py [--episodes 10] [--first-seed 1000] [--family-plants 100]
 
-Runs the standard tier's ``mimo:quadruple_tank``, ``mimo:quadruple_tank_nmp``, ``mimo_switch``
-and the full tier's ``mimo:he1`` (:mod:`stcgym.agents.benchmark.mimo`) with the bench's own
+Runs the standard tier's ``mimo:quadruple_tank``, ``mimo:quadruple_tank_nmp``, ``mimo_switch``,
+``mimo_family:test`` and the full tier's ``mimo:he1`` (:mod:`stcgym.agents.benchmark.mimo`)
+with the bench's own
 controllers (``CONTROLLERS["lqg"]``, ``"zero"``, ``"stc_mimo"``) through
 :func:`~stcgym.agents.benchmark.episodes.run_episodes`, on ``--episodes`` episodes from seed
 ``--first-seed`` (the bench's test seeds). Figures per scenario: mean cost per step of LQR and
@@ -16,7 +17,10 @@ own probe for the ``n + m`` samples without which no estimate of ``[A B]`` exist
 as any controller without a model must run), then LQR with the true gain (a controller that
 identifies the model exactly from the fewest samples); for ``mimo_switch`` the ratio in
 50-step windows (every 25 samples) after the switch and the samples after which every later
-window is within 1.2x (the mean over the episodes). ``docs/multivariable.md`` quotes them.
+window is within 1.2x (the mean over the episodes). ``mimo_family:test`` runs one episode on
+each of the first ``--family-plants`` test members (the bench's test episodes, seeds 1000 on)
+and also prints the median over the members of each controller's ratio, for all of them and
+per phase (``gamma1 + gamma2`` above or below 1). ``docs/multivariable.md`` quotes them.
 """
 
 from __future__ import annotations
@@ -71,21 +75,49 @@ def reconverged(stc: np.ndarray, lqr: np.ndarray) -> tuple[list[float], int | No
     return ratios, first
 
 
+def family_medians(eps: EpisodeSet, cost: dict[str, np.ndarray]) -> None:
+    """Median over the members of zero input / LQR and ``stc_mimo`` / LQR (whole episode and
+    second half), for all members and per phase."""
+    from stcgym.envs.tank_family import TANK_FAMILY
+
+    sums = np.array([sum(TANK_FAMILY.gamma(int(p.rsplit("/", 1)[1]))) for p in eps.plants])
+    T = cost["lqg"].shape[1]
+    lqr, half = cost["lqg"].mean(axis=1), cost["lqg"][:, T // 2 :].mean(axis=1)
+    for label, rows in (
+        ("all", sums > 0),
+        ("minimum phase", sums > 1),
+        ("nonminimum phase", sums < 1),
+    ):
+        zero = np.median(cost["zero"].mean(axis=1)[rows] / lqr[rows])
+        stc = np.median(cost["stc_mimo"].mean(axis=1)[rows] / lqr[rows])
+        stc_half = np.median(cost["stc_mimo"][rows, T // 2 :].mean(axis=1) / half[rows])
+        print(
+            f"  {label} ({int(rows.sum())} members): LQR {lqr[rows].mean():.4g} per step; "
+            f"median zero / LQR {zero:.3g}, stc_mimo / LQR {stc:.3f} (second half "
+            f"{stc_half:.3f})"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=1000)
+    parser.add_argument("--family-plants", type=int, default=100)
     args = parser.parse_args()
     cfg = build_config(
         run="mimo-scenarios",
         mode="standard",
-        scenarios="mimo,mimo_switch",
+        scenarios="mimo,mimo_switch,mimo_family",
         mimo_plants="quadruple_tank,quadruple_tank_nmp,he1",
         agents="lqg,stc_mimo",
     )
     seeds = tuple(range(args.first_seed, args.first_seed + args.episodes))
     for sc in make_scenarios(cfg):
-        eps = EpisodeSet((sc.env.plants[0],) * len(seeds), seeds)
+        if sc.env.family is None:
+            eps = EpisodeSet((sc.env.plants[0],) * len(seeds), seeds)
+        else:
+            n = args.family_plants
+            eps = EpisodeSet(sc.episodes.plants[:n], sc.episodes.seeds[:n])
         runs = {
             name: run_episodes(
                 CONTROLLERS[name].build(cfg, sc), sc.env, eps, informed=CONTROLLERS[name].informed
@@ -112,6 +144,8 @@ def main() -> None:
             f"{cost['bound'].mean() / lqr.mean():.3f}, stc_mimo / bound "
             f"{stc.mean() / cost['bound'].mean():.3f}"
         )
+        if sc.env.family is not None:
+            family_medians(eps, cost)
         if sc.env.switch_to is not None:
             J = int(sc.env.jump_step)
             ratios, first = reconverged(stc[:, J:].mean(axis=0), lqr[:, J:].mean(axis=0))

@@ -10,6 +10,7 @@ id                                  plant
 ``stcgym/StateSpace-v0``             MIMO ``(A, B, C, D)`` or any python-control system
 ``stcgym/MultichannelStatic-v0``     static ``y^T = u^T Theta + v``, Voevoda & Troshina (2017)
 ``stcgym/PlantFamily-v0``            one split of a plant family, a plant drawn per episode
+``stcgym/QuadrupleTankFamily-v0``    quadruple tanks drawn from their valve settings, one split
 ==================================  =============================================================
 
 All but the static object also have a native vector env (:mod:`stcgym.envs.vector`,
@@ -107,6 +108,7 @@ ENV_IDS = {
     "stcgym/StateSpace-v0": "stcgym.envs.plants:StateSpaceEnv",
     "stcgym/MultichannelStatic-v0": "stcgym.envs.plants:MultichannelStaticEnv",
     "stcgym/PlantFamily-v0": "stcgym.envs.family_env:PlantFamilyEnv",
+    "stcgym/QuadrupleTankFamily-v0": "stcgym.envs.tank_family:QuadrupleTankFamilyEnv",
 }
 
 #: The native vector envs: ``gym.make_vec(id, num_envs=B)`` builds these by default (also with
@@ -117,6 +119,7 @@ VECTOR_ENTRY_POINTS = {
     "stcgym/ObservabilityCanonical-v0": "stcgym.envs.vector:ObservabilityCanonicalVectorEnv",
     "stcgym/StateSpace-v0": "stcgym.envs.vector:StateSpaceVectorEnv",
     "stcgym/PlantFamily-v0": "stcgym.envs.family_env:PlantFamilyVectorEnv",
+    "stcgym/QuadrupleTankFamily-v0": "stcgym.envs.tank_family:QuadrupleTankFamilyVectorEnv",
 }
 #: Ids that truncate their episodes themselves (registered without a ``TimeLimit``).
 _SELF_TRUNCATING = frozenset({"stcgym/PlantFamily-v0"})

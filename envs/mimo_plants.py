@@ -56,7 +56,13 @@ from functools import cache
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["MIMO_PLANTS", "MimoPlantSpec", "get_mimo_plant", "mimo_plant_names"]
+__all__ = [
+    "MIMO_PLANTS",
+    "MimoPlantSpec",
+    "get_mimo_plant",
+    "mimo_plant_names",
+    "quadruple_tank_spec",
+]
 
 
 Matrix = tuple[tuple[float, ...], ...]
@@ -119,13 +125,13 @@ class MimoPlantSpec:
 
     def discrete(self) -> tuple[NDArray, NDArray]:
         """``(A, B)`` of the zero-order-hold discretisation with ``dt`` (copies)."""
-        A, B, _ = _discretise(self.name)
+        A, B, _ = _discretise(self)
         return A.copy(), B.copy()
 
     def noise_input(self) -> NDArray:
         """``B1`` of the zero-order-hold discretisation (``(n, d)``; the identity without
         ``B1_c``): ``x(k+1) = A x + B u + B1 w``."""
-        return _discretise(self.name)[2].copy()
+        return _discretise(self)[2].copy()
 
     def performance_output(self) -> tuple[NDArray, NDArray]:
         """``(C_z, D_z)`` as arrays (``C_z = I``, ``D_z = 0`` when the entry has none)."""
@@ -162,10 +168,9 @@ class MimoPlantSpec:
 
 
 @cache
-def _discretise(name: str) -> tuple[NDArray, NDArray, NDArray]:
+def _discretise(spec: MimoPlantSpec) -> tuple[NDArray, NDArray, NDArray]:
     import control
 
-    spec = MIMO_PLANTS[name]
     n, m = spec.n_states, spec.n_inputs
     B1 = np.eye(n) if spec.B1_c is None else np.array(spec.B1_c, dtype=float)
     d = B1.shape[1]
@@ -193,10 +198,25 @@ PUMP_VOLTAGE_MAX = 10.0
 
 def _quadruple_tank(name: str, point: str, description: str) -> MimoPlantSpec:
     """Johansson (2000), eq. (2): the linearised tanks at the operating point ``point``."""
-    A1, A2, A3, A4 = _TANK_AREAS
     p = _TANK_POINTS[point]
-    T1, T2, T3, T4 = p["T"]
-    (k1, k2), (g1, g2), v0 = p["k"], p["gamma"], p["v0"]
+    return quadruple_tank_spec(name, p["T"], p["k"], p["gamma"], p["v0"], description)
+
+
+def quadruple_tank_spec(
+    name: str,
+    T: tuple[float, ...],
+    k: tuple[float, float],
+    gamma: tuple[float, float],
+    v0: tuple[float, float],
+    description: str,
+) -> MimoPlantSpec:
+    """Johansson (2000), eq. (2): the quadruple tank linearised at an operating point with
+    time constants ``T`` (s), pump gains ``k`` (cm^3/Vs), valve settings ``gamma`` and pump
+    voltages ``v0`` (V); performance output the two lower levels, pumps within
+    ``[0, PUMP_VOLTAGE_MAX]`` V, sampled at 5 s."""
+    A1, A2, A3, A4 = _TANK_AREAS
+    T1, T2, T3, T4 = T
+    (k1, k2), (g1, g2) = k, gamma
     A_c = (
         (-1 / T1, 0.0, A3 / (A1 * T3), 0.0),
         (0.0, -1 / T2, 0.0, A4 / (A2 * T4)),

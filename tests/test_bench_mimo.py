@@ -259,6 +259,7 @@ def test_every_tier_runs_mimo():
         "mimo:quadruple_tank",
         "mimo:quadruple_tank_nmp",
         "mimo_switch",
+        "mimo_family:test",
     ]
     assert standard.mimo_train_steps == {"ppo": 200_000, "sac": 50_000}  # single-plant caps
     full = build_config(mode="full", run="f")

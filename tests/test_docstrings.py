@@ -15,6 +15,7 @@ CHECKED_PACKAGES = (
     "stcgym.envs",
     "stcgym.envs.vector",
     "stcgym.envs.family_env",
+    "stcgym.envs.tank_family",
     "stcgym.adaptive",
     "stcgym.agents",
 )

@@ -23,6 +23,7 @@ MODULES = (
     "stcgym.agents",
     "stcgym.envs.vector",
     "stcgym.envs.family_env",
+    "stcgym.envs.tank_family",
 )
 OPTIONFLAGS = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 

@@ -59,7 +59,7 @@ with its own interval (:mod:`~stcgym.agents.benchmark.headline`).
 Tiers
 -----
 ``quick`` (the default, about 10 minutes on 2 cores: 3 runs, 40 test plants, two held-out
-variants, short RL caps), ``standard`` (about 7 hours: 5 runs, the whole test split of 200
+variants, short RL caps), ``standard`` (about 8.5 hours: 5 runs, the whole test split of 200
 plants, every held-out variant, RL caps of 10^6 env steps on the family for PPO and
 RecurrentPPO) and ``full`` (about a day: 10 runs, every MIMO plant, TD3 and A2C too). In every
 tier each RL agent trains until its learning curve on the validation episodes plateaus or it

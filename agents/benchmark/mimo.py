@@ -63,6 +63,7 @@ __all__ = [
     "CONTROLGYM_STEPS",
     "MIMO_ENV_ID",
     "SWITCH",
+    "TANK_FAMILY_ENV_ID",
     "TANK_REFERENCE",
     "InformedLQR",
     "MimoEnvSpec",
@@ -74,9 +75,11 @@ __all__ = [
     "has_yardstick",
     "mimo_scenarios",
     "mimo_spec",
+    "tank_family_spec",
 ]
 
 MIMO_ENV_ID = "stcgym/StateSpace-v0"
+TANK_FAMILY_ENV_ID = "stcgym/QuadrupleTankFamily-v0"
 #: The quadruple tank's references: each lower level its own random steps of up to 2 cm, held
 #: 50-150 samples (4-12.5 minutes at 5 s, a few of the slowest time constants), drawn
 #: independently per channel.
@@ -111,19 +114,22 @@ def formulation(plant: str) -> str:
 
 @dataclass(frozen=True)
 class MimoEnvSpec(EnvSpec):
-    """The environment of a ``mimo`` scenario: one MIMO catalogue plant, measured state, the
+    """The environment of a ``mimo`` scenario: one MIMO catalogue plant, or a split of the
+    quadruple-tank family (:data:`~stcgym.envs.tank_family.TANK_FAMILY`), measured state, the
     cost of its performance output.
 
     The fields are :class:`~stcgym.agents.benchmark.evaluate.EnvSpec`'s (``reference`` a spec
-    for every channel of ``z``), and ``process_noise_std`` (the env's), ``switch_to`` (a MIMO
-    catalogue plant the model jumps to at ``jump_step``).
+    for every channel of ``z``; ``family`` only the tank family's key, with its ``split``), and
+    ``process_noise_std`` (the env's), ``switch_to`` (a MIMO catalogue plant the model jumps to
+    at ``jump_step``).
 
     Raises
     ------
     ValueError
-        On construction: not exactly one plant, an unknown MIMO plant (the message lists the
-        catalogue), ``steps`` not a positive integer, a switch outside the episode or to a
-        plant of other dimensions, ``jump_to`` or a family.
+        On construction: not exactly one plant (or both a plant and a family), an unknown
+        MIMO plant (the message lists the catalogue), an unknown family or split, ``steps``
+        not a positive integer, a switch outside the episode, to a plant of other dimensions
+        or in a family, ``jump_to``.
 
     Examples
     --------
@@ -136,6 +142,13 @@ class MimoEnvSpec(EnvSpec):
     (8,)
     >>> EnvSpec.from_dict(spec.to_dict()) == spec
     True
+
+    The test split of the quadruple-tank family, a member drawn per episode:
+
+    >>> test = MimoEnvSpec(family="quadruple_tank-v1", split="test", steps=200,
+    ...                    reference=TANK_REFERENCE)
+    >>> len(test.plant_names()), test.plant_names()[0], test.channels
+    (100, 'quadruple_tank-v1/test/250', (4, 2))
     """
 
     process_noise_std: float = 0.0
@@ -143,16 +156,19 @@ class MimoEnvSpec(EnvSpec):
     plant_kind: ClassVar[str] = "mimo"
 
     def __post_init__(self) -> None:
-        plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
-        if len(plants) != 1:
-            raise ValueError(f"a MIMO scenario runs on one MIMO plant, got {list(plants)}")
-        object.__setattr__(self, "plants", (get_mimo_plant(plants[0]).name,))
         from stcgym.agents.benchmark.env_spec import freeze
 
+        plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
         object.__setattr__(self, "reference", freeze(self.reference))
         if int(self.steps) != self.steps or self.steps < 1:
             raise ValueError(f"episode steps must be a positive integer, got {self.steps!r}")
-        if self.jump_to is not None or self.family is not None:
+        if self.family is not None:
+            self._check_tank_family(plants)
+            return
+        if len(plants) != 1:
+            raise ValueError(f"a MIMO scenario runs on one MIMO plant, got {list(plants)}")
+        object.__setattr__(self, "plants", (get_mimo_plant(plants[0]).name,))
+        if self.jump_to is not None:
             raise ValueError("a MIMO scenario has one plant; its switch is switch_to, jump_step")
         if (self.jump_step is None) != (self.switch_to is None):
             raise ValueError("switch_to and jump_step go together")
@@ -166,9 +182,34 @@ class MimoEnvSpec(EnvSpec):
                     f"jump_step must lie inside the episode (0, {self.steps}), got {self.jump_step}"
                 )
 
+    def _check_tank_family(self, plants: tuple[str, ...]) -> None:
+        from stcgym.envs.tank_family import TANK_FAMILY
+
+        if self.family != TANK_FAMILY.key:
+            raise ValueError(f"a MIMO family must be {TANK_FAMILY.key!r}, got {self.family!r}")
+        if plants:
+            raise ValueError("give plants or a family, not both")
+        if self.split not in TANK_FAMILY.split_names:
+            raise ValueError(
+                f"split must be one of {TANK_FAMILY.split_names} of family {self.family!r}, "
+                f"got {self.split!r}"
+            )
+        if self.jump_to is not None or self.jump_step is not None or self.switch_to is not None:
+            raise ValueError("a MIMO family has no switch (jump_step, jump_to, switch_to)")
+        if self.jump_probability not in (None, 0.0):
+            raise ValueError(f"a MIMO family has no jumps, got {self.jump_probability!r}")
+
+    def _members(self) -> list[MimoPlantSpec]:
+        from stcgym.envs.tank_family import TANK_FAMILY
+
+        return TANK_FAMILY.members(self.split)
+
     @property
     def plant(self) -> MimoPlantSpec:
-        """The catalogue entry of the plant."""
+        """The catalogue entry of the plant (a family: its first member; the members share
+        the performance output, input range and dimensions, so the cost's weights)."""
+        if self.family is not None:
+            return self._members()[0]
         return get_mimo_plant(self.plants[0])
 
     @property
@@ -183,6 +224,8 @@ class MimoEnvSpec(EnvSpec):
         return self.plant.n_states, self.plant.n_inputs
 
     def plant_names(self) -> list[str]:
+        if self.family is not None:
+            return [p.name for p in self._members()]
         return list(self.plants)
 
     def reference_spec(self) -> dict[str, Any]:
@@ -191,8 +234,6 @@ class MimoEnvSpec(EnvSpec):
 
     def _kwargs(self) -> tuple[str, dict[str, Any]]:
         kwargs: dict[str, Any] = dict(
-            plant=self.plants[0],
-            cost="performance",
             reference_in="state",
             noise_std=self.noise_std,
             process_noise_std=float(self.process_noise_std),
@@ -208,11 +249,17 @@ class MimoEnvSpec(EnvSpec):
 
             A, B = get_mimo_plant(self.switch_to).discrete()
             kwargs["schedule"] = Jumps({int(self.jump_step): np.hstack((A, B))})
-        return MIMO_ENV_ID, kwargs
+        if self.family is not None:
+            return TANK_FAMILY_ENV_ID, {**kwargs, "split": self.split}
+        return MIMO_ENV_ID, {**kwargs, "plant": self.plants[0], "cost": "performance"}
 
     def reset_episode(self, env: gym.Env, seed: int, plant: str | None) -> tuple[Any, Any, Any]:
         """``(obs, info, plant_spec)`` of ``env.reset(seed=seed)``; ``plant`` may only name the
-        spec's own plant."""
+        spec's own plant (a family: one of the split's members; default the env's draw)."""
+        if self.family is not None:
+            options = None if plant is None else {"plant": plant}
+            obs, info = env.reset(seed=int(seed), options=options)
+            return obs, info, env.unwrapped.mimo_plant
         if plant is not None and plant.lower() != self.plants[0]:
             raise ValueError(f"plant must be {self.plants[0]!r} (the spec's), got {plant!r}")
         obs, info = env.reset(seed=int(seed))
@@ -221,6 +268,10 @@ class MimoEnvSpec(EnvSpec):
     def reset_lanes(
         self, env: Any, seeds: list[int], plants: list[str] | None
     ) -> tuple[np.ndarray, list[Any]]:
+        if self.family is not None:
+            options = None if plants is None else {"plant": list(plants)}
+            obs, _ = env.reset(seed=[int(s) for s in seeds], options=options)
+            return obs, list(env.plants)
         obs, _ = env.reset(seed=[int(s) for s in seeds])
         return obs, [self.plant] * len(seeds)
 
@@ -422,10 +473,31 @@ def mimo_spec(cfg: BenchConfig, plant: str, key: str | None = None) -> MimoEnvSp
     )
 
 
+def tank_family_spec(cfg: BenchConfig, split: str) -> MimoEnvSpec:
+    """The environment of ``mimo_family:<split>``: the quadruple-tank family's ``split`` with
+    the process formulation's episodes (as ``mimo:quadruple_tank``) and the action bound of
+    ``mimo_family``."""
+    from stcgym.agents.benchmark.scenarios import _episode_settings
+    from stcgym.envs.tank_family import TANK_FAMILY
+
+    bench = _episode_settings(cfg)
+    return MimoEnvSpec(
+        family=TANK_FAMILY.key,
+        split=split,
+        steps=bench["steps"],
+        noise_std=bench["noise_std"],
+        control_cost=bench["control_cost"],
+        action_bound=float(cfg.action_bounds.get("mimo_family", 10.0)),
+        reference=TANK_REFERENCE,
+    )
+
+
 def mimo_scenarios(cfg: BenchConfig) -> list[Scenario]:
     """One ``mimo:<plant>`` scenario per plant of ``cfg.mimo_plants`` (``"mimo"`` in
-    ``cfg.scenarios``) and ``mimo_switch`` (``"mimo_switch"``); the RL agents of each train on
-    its own episodes (training key: the scenario's name)."""
+    ``cfg.scenarios``), ``mimo_switch`` (``"mimo_switch"``) and ``mimo_family:test``
+    (``"mimo_family"``); the RL agents of each train on its own episodes (training key: the
+    scenario's name), those of ``mimo_family:test`` on the family's training split (training
+    key ``mimo_family``)."""
     from dataclasses import replace
 
     from stcgym.agents.benchmark.episodes import EpisodeSet
@@ -448,6 +520,10 @@ def mimo_scenarios(cfg: BenchConfig) -> list[Scenario]:
             Scenario("mimo_switch", "mimo_switch", env, eps, "mimo_switch", env.order,
                      adaptation=True)
         )  # fmt: skip
+    if "mimo_family" in cfg.scenarios:
+        env = tank_family_spec(cfg, "test")
+        eps = EpisodeSet.of(env, cfg.episodes_per_plant, cfg.first_seed, cfg.test_plants)
+        out.append(Scenario("mimo_family:test", "mimo_family", env, eps, "mimo_family", env.order))
     return out
 
 

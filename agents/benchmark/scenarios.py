@@ -24,6 +24,10 @@ lqg_action_bound`).
     (:mod:`stcgym.agents.benchmark.mimo`).
 ``mimo_switch``
     The quadruple tank whose valves switch from ``P-`` to ``P+`` half-way through the episode.
+``mimo_family:test``
+    The test split of the quadruple tanks drawn from their valve settings
+    (:data:`~stcgym.envs.tank_family.TANK_FAMILY`); RL agents train on its training split and
+    their learning curves read the validation split.
 """
 
 from __future__ import annotations
@@ -173,7 +177,7 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
                 )
         if "jump" in cfg.scenarios:
             out.append(split_scenario("jump:test", "jump", "test", 1.0, adaptation=True))
-    if {"mimo", "mimo_switch"} & set(cfg.scenarios):
+    if {"mimo", "mimo_switch", "mimo_family"} & set(cfg.scenarios):
         from stcgym.agents.benchmark.mimo import mimo_scenarios
 
         out += mimo_scenarios(cfg)
@@ -182,20 +186,26 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
 
 def training_envs(cfg: BenchConfig, scenarios: Sequence[Scenario]) -> dict[str, TrainingEnv]:
     """``train_key -> TrainingEnv`` for every key a scenario uses (and so RL, the action bound
-    and the learning curves): ``"nominal:<plant>"``, ``"family"``, ``"mimo:<plant>"`` or
-    ``"mimo_switch"``.
+    and the learning curves): ``"nominal:<plant>"``, ``"family"``, ``"mimo:<plant>"``,
+    ``"mimo_switch"`` or ``"mimo_family"``.
 
     Training episodes are evaluation episodes: the same length, noise, reference, initial
-    state, jumps and bound; the family trains on its training split (jumps with the family's
-    probability) and is validated on its validation split, drawn the same way.
+    state, jumps and bound; a family (the SISO one, the quadruple tanks) trains on its training
+    split (jumps with the family's probability) and is validated on its validation split,
+    drawn the same way.
     """
     keys = dict.fromkeys(sc.train_key for sc in scenarios)
     out: dict[str, TrainingEnv] = {}
     n = cfg.curve_episodes
     for key in keys:
-        if key == "family":
-            train = family_train_spec(cfg)
-            curve = family_spec(cfg, "validation", None)
+        if key in ("family", "mimo_family"):
+            if key == "family":
+                train = family_train_spec(cfg)
+                curve = family_spec(cfg, "validation", None)
+            else:
+                from stcgym.agents.benchmark.mimo import tank_family_spec
+
+                train, curve = tank_family_spec(cfg, "train"), tank_family_spec(cfg, "validation")
             curve_eps = EpisodeSet.of(curve, 1, CURVE_SEED, n)
             bound_eps = EpisodeSet.of(train, 1, BOUND_SEED, cfg.bound_plants)
         else:
