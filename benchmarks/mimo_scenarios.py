@@ -33,7 +33,6 @@ import numpy as np
 from stcgym.agents.benchmark import build_config, make_scenarios
 from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.controllers import CONTROLLERS
-from stcgym.envs import get_mimo_plant
 
 
 class ProbeThenLQR:
@@ -125,11 +124,12 @@ def main() -> None:
             for name in ("lqg", "zero", "stc_mimo")
         }
         n, m = sc.env.channels
-        bound = ProbeThenLQR(
-            CONTROLLERS["stc_mimo"].build(cfg, sc)(eps.plants, list(seeds)),
-            CONTROLLERS["lqg"].build(cfg, sc)([get_mimo_plant(p) for p in eps.plants], list(seeds)),
-            n + m,
-        )
+        stc, lqr = CONTROLLERS["stc_mimo"].build(cfg, sc), CONTROLLERS["lqg"].build(cfg, sc)
+
+        def bound(plants: list, lane_seeds: list, stc=stc, lqr=lqr, k=n + m) -> ProbeThenLQR:
+            # built by run_episodes with each batch's own plants and seeds, as every row is
+            return ProbeThenLQR(stc(plants, lane_seeds), lqr(plants, lane_seeds), k)
+
         runs["bound"] = run_episodes(bound, sc.env, eps, informed=True)
         cost = {name: batch.cost for name, batch in runs.items()}
         T = cost["lqg"].shape[1]
