@@ -8,7 +8,7 @@
     CPU cores.
     ``stcgym bench --standard`` (about 8.5 hours) has 5 runs, the whole test split, every
     held-out variant and RL caps of 10^6 steps on the family; ``stcgym bench --full`` is the
-    long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about a day).
+    long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about 38 hours).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
     interrupted run without retraining its finished jobs.
@@ -70,7 +70,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     mode.add_argument(
         "--full",
         action="store_true",
-        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about a day; the "
+        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 38 hours; the "
         "estimate is printed first)",
     )
     p.add_argument(

@@ -61,7 +61,7 @@ Tiers
 ``quick`` (the default, about 10 minutes on 2 cores: 3 runs, 40 test plants, two held-out
 variants, short RL caps), ``standard`` (about 8.5 hours: 5 runs, the whole test split of 200
 plants, every held-out variant, RL caps of 10^6 env steps on the family for PPO and
-RecurrentPPO) and ``full`` (about a day: 10 runs, every MIMO plant, TD3 and A2C too). In every
+RecurrentPPO) and ``full`` (about 38 hours: 10 runs, every MIMO plant, TD3 and A2C too). In every
 tier each RL agent trains until its learning curve on the validation episodes plateaus or it
 reaches its cap (:mod:`stcgym.agents.rl.stopping`), and the report says which, per run.
 
