@@ -49,7 +49,7 @@ _steps = FixedTypes(km.mimo_steps)
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
 #: The start-up probe's input cost ``a^2 trace(R)`` is at most this share of the largest state
-#: cost ``(x - r)^T Q (x - r)`` seen while probing (``benchmarks/mimo_startup.py``).
+#: cost ``(x - r)^T Q (x - r)`` seen while probing (measured: the multivariable page).
 PROBE_COST_SHARE = 0.004
 #: ``P <- P0 I`` after a failed health check of the estimator's covariance.
 P0_RESTART = 100.0
@@ -402,7 +402,7 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         # episode ratio 1.022-1.024 against 1.036-1.039 with 2 (n + m), 3 seeds); n + m probe
         # samples give the n + m regressors [x; u] of a full-rank estimate, and a probe capped
         # by the state cost stops there (every open-loop sample then costs more than the
-        # estimate gains from it: benchmarks/mimo_startup.py), an uncapped one takes one more
+        # estimate gains from it: the multivariable page), an uncapped one takes one more
         probe_steps = q + 1 if su.probe_steps is None else int(su.probe_steps)
         probe_min = q if su.probe_steps is None else probe_steps
         probe_max = 5 * q if su.max_probe_steps is None else int(su.max_probe_steps)

@@ -61,7 +61,7 @@ R = TypeVar("R", bound=tuple)
 COMPILE_NOTICE_AFTER = 1.0
 #: What the notice says a first run costs, in seconds: the first
 #: ``SelfTuningController(2).predict`` with an empty cache took 17 s on an idle 2-core machine,
-#: 16-18 s at load 4.5-4.9 and up to 36 s under heavier load (``benchmarks/cold_start.py``).
+#: 16-18 s at load 4.5-4.9 and up to 36 s under heavier load (the first-run page).
 #: A second estimator family or design adds 3-13 s when first used.
 FIRST_RUN_SECONDS = (15, 40)
 
