@@ -237,8 +237,9 @@ class EnvSpec:
         """The reference's amplitude (1 when the spec has none)."""
         return float(self.reference_spec().get("amplitude", 1.0))
 
-    def _kwargs(self) -> tuple[str, dict[str, Any]]:
-        """The env id and the keyword arguments of ``gym.make`` and ``gym.make_vec``."""
+    def _common_kwargs(self) -> dict[str, Any]:
+        """The keyword arguments every env of a spec takes (SISO or MIMO): noise, cost, bounds,
+        reference and the initial state's spread."""
         kwargs: dict[str, Any] = dict(
             noise_std=self.noise_std,
             control_cost=self.control_cost,
@@ -248,6 +249,11 @@ class EnvSpec:
         )
         if self.initial_state_std:
             kwargs["initial_state_std"] = float(self.initial_state_std)
+        return kwargs
+
+    def _kwargs(self) -> tuple[str, dict[str, Any]]:
+        """The env id and the keyword arguments of ``gym.make`` and ``gym.make_vec``."""
+        kwargs = self._common_kwargs()
         if self.family is not None:
             kwargs.update(family=self.family, split=self.split, steps=self.steps)
             if self.jump_probability is not None:

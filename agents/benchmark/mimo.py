@@ -234,16 +234,10 @@ class MimoEnvSpec(EnvSpec):
 
     def _kwargs(self) -> tuple[str, dict[str, Any]]:
         kwargs: dict[str, Any] = dict(
+            self._common_kwargs(),
             reference_in="state",
-            noise_std=self.noise_std,
             process_noise_std=float(self.process_noise_std),
-            control_cost=self.control_cost,
-            action_bound=self.action_bound,
-            y_bound=self.y_bound,
-            reference=self.reference_spec(),
         )
-        if self.initial_state_std:
-            kwargs["initial_state_std"] = float(self.initial_state_std)
         if self.switch_to is not None:
             from stcgym.envs.signals import Jumps
 
