@@ -256,6 +256,13 @@ def test_eval_reproduces_the_bench_numbers_of_a_saved_agent(tiny_run, capsys):
         assert f"seed {seed}: cost {cost:.4g}" in out
 
 
+def _classical_runs(path):
+    """The (scenario, controller, run) triples of the classical rows of a metrics.csv."""
+    _, rows = _rows(path)
+    classical = (r for r in rows if r["controller"] in CONTROLLERS)
+    return {(r["scenario"], r["controller"], r["run"]) for r in classical}
+
+
 def _sorted_numbers(path):
     key = lambda r: (r["scenario"], r["controller"], r["seed"], r["run"])  # noqa: E731
     return sorted(_numbers(path), key=key)
@@ -275,20 +282,32 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
     jobs = sorted((run / "jobs").glob("*.json"))
     assert len(jobs) == 6  # every RL training job kept its result
     jobs[0].unlink()  # as if the run had been killed before this job finished
+    kept = sorted((run / "jobs" / "classical").glob("*.npz"))
+    assert len(kept) == sum(1 for _ in _classical_runs(source / "metrics.csv"))
+    kept[0].unlink()  # nor had this classical evaluation
     (run / "report.md").unlink()
-    trained = []
+    trained, evaluated = [], []
     real = training.train_and_evaluate
+    real_episodes = runner_mod.run_episodes
 
     def counting(task):
         trained.append(task["name"])
         return real(task)
 
+    def counting_episodes(*args, **kwargs):
+        if "record_theta" in kwargs:  # a controller on a scenario, not a learning-curve reference
+            evaluated.append(args[1])
+        return real_episodes(*args, **kwargs)
+
     monkeypatch.setattr(training, "train_and_evaluate", counting)
+    monkeypatch.setattr(runner_mod, "run_episodes", counting_episodes)
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         assert main(["bench", "--resume", str(run), "--no-plots"]) == 0
     assert len(trained) == 1  # the finished jobs were not trained again
     assert "5 finished RL jobs read back" in err.getvalue()
+    assert len(evaluated) == 1  # nor the classical evaluations but the one removed
+    assert f"{len(kept) - 1} classical evaluations read back" in err.getvalue()
     assert "action bound of" not in err.getvalue()  # the bounds were read back, not measured
     # the same table as the uninterrupted run (the retrained job reproduces its numbers)
     assert _sorted_numbers(run / "metrics.csv") == _sorted_numbers(source / "metrics.csv")

@@ -9,6 +9,7 @@ Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their ch
 :mod:`~stcgym.agents.benchmark.plan` (the RL jobs and the ETA),
 :mod:`~stcgym.agents.benchmark.runner` (the run),
 :mod:`~stcgym.agents.benchmark.rundir` (the run folder, the checks before any work),
+:mod:`~stcgym.agents.benchmark.classical_store` (the classical episodes kept for ``--resume``),
 :mod:`~stcgym.agents.benchmark.rows` and :mod:`~stcgym.agents.benchmark.metrics_csv`
 (``metrics.csv``: one row per scenario, controller, run and episode),
 :mod:`~stcgym.agents.benchmark.evaluate` (the closed-loop evaluation of one episode,

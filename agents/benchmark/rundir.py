@@ -97,8 +97,9 @@ def versions() -> dict[str, str]:
 def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = False) -> Path:
     """Create ``<out>/<run>``; refuse to mix two runs in one folder.
 
-    ``overwrite`` starts the run afresh; ``resume`` keeps the finished RL jobs (``jobs/``) and
-    the trained agents, and rebuilds the tables and the report.
+    ``overwrite`` starts the run afresh; ``resume`` keeps the finished RL jobs (``jobs/``), the
+    classical controllers' episodes (``jobs/classical/``) and the trained agents, and rebuilds
+    the tables and the report.
     """
     run_dir = cfg.run_dir
     _check_writable(Path(cfg.out))
@@ -114,8 +115,11 @@ def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = Fa
         for name in ("metrics.csv", "learning_curves.csv", "report.md"):
             (run_dir / name).unlink(missing_ok=True)
     if overwrite:
+        from stcgym.agents.benchmark.classical_store import CLASSICAL_FOLDER, ClassicalStore
+
         for old in (run_dir / JOBS_FOLDER).glob("*.json"):
             old.unlink()
+        ClassicalStore(run_dir / JOBS_FOLDER / CLASSICAL_FOLDER).clear()
     return run_dir
 
 

@@ -18,6 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from stcgym.agents.benchmark.classical_store import (
+    CLASSICAL_FOLDER,
+    ClassicalEpisodes,
+    ClassicalStore,
+    classical_id,
+)
 from stcgym.agents.benchmark.config import BenchConfig
 from stcgym.agents.benchmark.episodes import run_episodes
 from stcgym.agents.benchmark.evaluate import response_metrics
@@ -123,10 +129,11 @@ def run_bench(
     ``metrics.csv`` run by run; on ``KeyboardInterrupt`` (or any error) the finished rows stay,
     a partial ``report.md`` is written and the exception is re-raised.
 
-    Each finished RL job is kept in ``jobs/<id>.json``. ``resume=True`` continues the run in
-    ``cfg.run_dir`` (``cfg`` read back from its ``config.json``, the action bounds included):
-    the classical controllers are evaluated again (deterministic, and cheap next to training),
-    the finished RL jobs are read back instead of retrained, and the rest are trained; the
+    Each finished RL job is kept in ``jobs/<id>.json``, each classical controller's episodes in
+    ``jobs/classical/`` (:mod:`~stcgym.agents.benchmark.classical_store`). ``resume=True``
+    continues the run in ``cfg.run_dir`` (``cfg`` read back from its ``config.json``, the action
+    bounds included): what is kept is read back instead of evaluated or trained again, and the
+    rest is run; the
     tables and the report are rebuilt, so they equal those of an uninterrupted run.
     """
     from stcgym.agents.benchmark.report import write_report
@@ -265,6 +272,9 @@ class _RunState:
         self.scenarios: dict[str, Scenario] = {}
         # set when the driver fails while the classical controllers run in a thread
         self.halt = threading.Event()
+        # the classical controllers' episodes, kept for a resumed run
+        self.classical_store = ClassicalStore(run_dir / JOBS_FOLDER / CLASSICAL_FOLDER)
+        self.classical_kept = 0  # how many were read back
 
     def log(self, msg: str) -> None:
         self._log(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
@@ -292,13 +302,13 @@ class _RunState:
 
     def _yardstick(self, sc: Scenario) -> None:
         """LQG and zero input on the scenario's episodes: the reference of every row."""
-        lqg = self._evaluate(sc, YARDSTICK, 0)
-        zero = self._evaluate(sc, "zero", 0)
+        lqg = self._evaluated(sc, YARDSTICK, 0)
+        zero = self._evaluated(sc, "zero", 0)
         self.yard[sc.name] = Yardstick(
-            lqg.cost, lqg.jump_step, zero.cost.mean(axis=1), ~np.asarray(zero.diverged)
+            lqg.cost, lqg.jump_step, zero.cost.mean(axis=1), zero.metrics["bounded"] > 0
         )
-        for name, batch in ((YARDSTICK, lqg), ("zero", zero)):
-            self._classical_rows(sc, name, 0, batch)
+        for name, episodes in ((YARDSTICK, lqg), ("zero", zero)):
+            self._classical_rows(sc, name, 0, episodes)
 
     def _curve_reference(self, env: TrainingEnv) -> list[float]:
         """The yardstick's mean cost per step on each learning-curve episode of ``env``."""
@@ -310,44 +320,66 @@ class _RunState:
         return [float(c) for c in batch.cost.mean(axis=1)]
 
     # -- classical controllers -------------------------------------------------------------
-    def _evaluate(self, sc: Scenario, name: str, run: int) -> Any:
+    def _evaluated(self, sc: Scenario, name: str, run: int) -> ClassicalEpisodes:
+        """Run ``run`` of the classical controller ``name`` on the scenario's episodes, or its
+        result kept by an earlier session of this run (``--resume``)."""
+        scenario = {
+            "name": sc.name,
+            "env": sc.env.to_dict(),
+            "episodes": sc.episodes.to_dict(),
+            "controller_order": sc.controller_order,
+        }
+        tid = classical_id(self.cfg.to_dict(), scenario, name, run)
+        label = f"{sc.name}.{name}.run{run}"
+        kept = self.classical_store.load(label, tid)
+        if kept is not None:
+            self.classical_kept += 1
+            return kept
         info = CONTROLLERS[name]
         seeds = dict(zip(sc.episodes.seeds, _lane_seeds(sc.episodes.seeds, run), strict=True))
         builder = info.build(self.cfg, sc)
-        return run_episodes(
+        batch = run_episodes(
             lambda plants, lanes: builder(plants, [seeds[s] for s in lanes]),
             sc.env,
             sc.episodes,
             informed=info.informed,
             record_theta=info.kind == "adaptive",
         )
+        episodes = ClassicalEpisodes(
+            cost=batch.cost,
+            jump_step=batch.jump_step,
+            metrics=response_metrics(batch, sc.env),
+            trace=_trace(batch, 2, info.kind == "adaptive") if run == 0 else {},
+        )
+        self.classical_store.save(label, tid, episodes)
+        return episodes
 
-    def _classical_rows(self, sc: Scenario, name: str, run: int, batch: Any) -> None:
+    def _classical_rows(self, sc: Scenario, name: str, run: int, episodes: ClassicalEpisodes):
         info = CONTROLLERS[name]
         rows = episode_rows(
             sc,
             name,
             info.kind,
             run,
-            batch.cost,
-            response_metrics(batch, sc.env),
+            episodes.cost,
+            episodes.metrics,
             self.yard[sc.name],
             online=info.online,
             extra={"train_steps": 0, "train_wall_s": 0.0},
         )
         self.writer.write(rows)
         self.data.costs.setdefault((sc.name, name), []).append(
-            RunRecord(run, batch.cost.astype(np.float32), batch.jump_step)
+            RunRecord(run, episodes.cost.astype(np.float32), episodes.jump_step)
         )
         if run == 0:
-            self.data.traces[(sc.name, name)] = _trace(batch, 2, info.kind == "adaptive")
+            self.data.traces[(sc.name, name)] = episodes.trace
 
     def _classical(self, sc: Scenario, name: str) -> None:
         runs = self.cfg.train_seeds if CONTROLLERS[name].seeded else 1
         for run in range(runs):
             if self.halt.is_set():
                 raise _Stop
-            self._classical_rows(sc, name, run, self._evaluate(sc, name, run))
+            self._classical_rows(sc, name, run, self._evaluated(sc, name, run))
 
     # -- tuning ----------------------------------------------------------------------------
     def tune(self, env: TrainingEnv) -> None:
@@ -399,6 +431,9 @@ class _RunState:
                 if name not in (YARDSTICK, "zero"):
                     self._classical(sc, name)
             progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
+        if self.classical_kept:
+            self.log(f"{self.classical_kept} classical evaluations read back from "
+                     f"{self.classical_store.folder}")  # fmt: skip
 
     # -- RL --------------------------------------------------------------------------------
     def _collect(self, task: dict[str, Any], result: dict[str, Any]) -> None:
