@@ -4,9 +4,9 @@
 its compiled lane step (:mod:`stcgym.adaptive.kernels.controller`) runs: estimator update ->
 change detection -> certainty-equivalence design (pole placement or LQ) in the safe set ->
 Kalman state estimate on the estimated model -> control (a short seeded probe, then the tracking
-law) -> process noise and state step. ``num_envs=B`` holds ``B`` lane records in one array and
-steps them in one batch loop; a single controller is the case ``B = 1`` of the same code, so a
-single plant equals its lane of a batch bit for bit.
+law) -> process noise and state step. ``num_envs=B`` holds ``B`` lanes of named state (a row of
+every field each) and steps them in one batch loop; a single controller is the case ``B = 1`` of
+the same code, so a single plant equals its lane of a batch bit for bit.
 
 Options are grouped like SB3's ``policy_kwargs`` (:mod:`stcgym.adaptive.options`):
 :class:`EstimatorOptions`, :class:`StartupOptions`, :class:`SafeSet`, :class:`ChangeDetection`,
@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.kernels import controller as kc
 from stcgym.adaptive.kernels import design as dz
 from stcgym.adaptive.kernels.estimator_spec import EstimatorSpec
-from stcgym.adaptive.kernels.extended_ls import extended_ls_layout
+from stcgym.adaptive.kernels.extended_ls import ExtendedLSConfig, make_extended_ls
 from stcgym.adaptive.kernels.variants import DESIGNS, RULES, variant
 from stcgym.adaptive.options import (
     DEFAULT_POLE,
@@ -64,7 +64,7 @@ from stcgym.adaptive.options import (
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.compiled import FixedTypes, set_lanes
+from stcgym.envs.compiled import FixedTypes, set_lanes, state_nbytes_per_lane
 from stcgym.envs.validation import integer
 
 __all__ = [
@@ -164,7 +164,6 @@ class SelfTuningController(SelfTuningLanes):
     """
 
     observation_limit = OBSERVATION_LIMIT
-    _INTS = kc.INTS
 
     def __init__(
         self,
@@ -206,7 +205,7 @@ class SelfTuningController(SelfTuningLanes):
         fixed = DESIGNS[design].poles
         self.poles = check_poles(poles if fixed is None else fixed, m)
         self.seeds = self._lane_ints(seed, "seed")
-        # -- estimator record
+        # -- estimator
         if not isinstance(estimator, str):
             raise ValueError(f"estimator must be a name (str), got {estimator!r}")
         self.estimator = estimator.strip().upper()
@@ -221,9 +220,7 @@ class SelfTuningController(SelfTuningLanes):
         #: ``P(0) = p0 I`` in use (``estimator_options.p0`` or the estimator's default)
         self.p0 = eo.initial_covariance(self.estimator)
         if self.estimator == "ELS":
-            est_lay = extended_ls_layout(n, True)
             self._spec = None
-            d = 3 * n
         else:
             if v.decomposed or not v.rule.holds_loop:
                 slow = ", ".join(r for r, rule in RULES.items() if not rule.holds_loop)
@@ -254,22 +251,12 @@ class SelfTuningController(SelfTuningLanes):
                 kw["measurement_noise"] = eo.kf_measurement_noise
             self._spec = EstimatorSpec.build(estimator, n, **kw)
             self.estimator = self._spec.name
-            d = 2 * n
-        # the ELS record ends with its scratch, shared with the design; a paper estimator keeps
-        # a lane state of its own (the ELS fields are then empty)
-        if self._spec is not None:
-            est_lay = extended_ls_layout(0, True)
-        est_fields = {k: est_lay.offset(k) for k in ("theta", "S", "phi", "scratch")}
-        est_scratch = est_lay.fields["scratch"][1][0] if self._spec is None else 0
-        self._layout, at = kc.controller_record(n, est_lay, est_fields, est_scratch, lq=lq)
-        self._at = at
         ps = self.startup.probe_steps
         probe_steps = 2 * n if ps is None else int(ps)
         pm = self.startup.max_probe_steps
         observability = self._estimation_form == "observability"
         self._cfg = kc.ControllerConfig(
             n=int(n),
-            d=int(d),
             integral=bool(lw.integral),
             feedforward=bool(lw.feedforward),
             anti_windup=bool(lw.anti_windup),
@@ -287,38 +274,39 @@ class SelfTuningController(SelfTuningLanes):
             R=float(eo.measurement_noise),
             threshold=float(cd.threshold),
             inflation=float(cd.inflation),
-            p0=float(self.p0),
-            forgetting=float(eo.forgetting),
             ew_short=float(cd.short),
             ew_long=float(cd.long),
             probe_output=float(self.startup.probe_output),
             safe=_frozen(self.safe_set.vector()),
             alpha=_frozen(characteristic_coefficients(self.poles)),
         )
-        init = self._layout.empty(1)[0]
         if self._spec is None:
-            init[at.S : at.S + d * d] = (np.sqrt(self.p0) * np.eye(d)).ravel()  # P = S S^T
-            # no paper estimator: the step compiled for ELS (kernels.controller, compile-time
-            # choices) contains none
-            self._est_init = self._est = self._est_work = self._est_cfg = None
+            # extended least squares (est_cfg None: the step compiled for it contains no paper
+            # estimator, and els_cfg None none of ELS, kernels.controller)
+            self._est_init, _ = make_extended_ls(n, 1, self.p0)
+            self._est, self._est_work = make_extended_ls(n, self.B, self.p0)
+            self._est_cfg = None
+            self._els_cfg = ExtendedLSConfig(float(eo.forgetting), float(self.p0))
         else:
             self._est_init = self._spec.initial_state()
             self._est = self._spec.make_state(self.B)
             self._est_work = self._spec.make_work(self.B)
             self._est_cfg = self._spec.config
-        init[at.P1 : at.P1 + n * n] = np.eye(n).ravel()
+            self._els_cfg = None
         # the LQ weights, or None: the step compiled for pole placement contains no LQ design
         self._lq_weights = _frozen(lw.lq_weights) if lq else None
         self._version = (self._spec is not None, lq)
+        # a reset lane starts here: Kalman filter at x(1) = 0, P1(1) = I; no gain; the loop
+        # open (the estimator at theta(0) = 0, P(0) = p0 I: _est_init)
+        init, _ = kc.make_controller_state(n, 1, lw.integral, lq)
+        init.P1[0] = np.eye(n)
         if lq:
-            P_lq = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
-            init[at.P_lq : at.P_lq + P_lq.size] = P_lq.ravel()
-        init.setflags(write=False)
-        # a reset lane starts here: estimator at theta(0) = 0, P(0) = p0 I; Kalman filter at
-        # x(1) = 0, P1(1) = I; no gain
+            init.P_lq[0] = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
+        init.closed_t[0] = -1
         self._init = init
-        self._F = np.empty((self.B, self._layout.size))
-        self._G = self._int_records()
+        self._state, self._work = kc.make_controller_state(n, self.B, lw.integral, lq)
+        self._state.seed[:] = self.seeds
+        self._state.episode[:] = -1  # the first reset starts episode 0
         self._u = np.zeros(self.B)
         self._step_one: Any = None  # the single plant's bound step (_act_one)
         self.reset()
@@ -326,14 +314,14 @@ class SelfTuningController(SelfTuningLanes):
     # ------------------------------------------------------------------ protocol
     def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
         """One plant's ``u(t)`` from ``[y(t), r(t)]`` (Python floats): the compiled step with
-        every other argument bound once (the lane's records and the configuration)."""
+        every other argument bound once (the lane state and the configuration)."""
         step = self._step_one
         if step is None:  # the first call (or the first after unpickling)
             self._act(observation[None, :], None, deterministic)
             version = _controller_step[self._version]
             self._step_one = functools.partial(
-                version.entry, self._F[0], self._G[0], self._at, self._cfg, self._est,
-                self._est_work, 0, self._est_cfg, self._lq_weights,
+                version.entry, self._state, self._work, self._cfg, self._est, self._est_work, 0,
+                self._est_cfg, self._els_cfg, self._lq_weights,
             )  # fmt: skip
             return self._u.copy()
         u = self._u
@@ -342,7 +330,7 @@ class SelfTuningController(SelfTuningLanes):
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_step_one"] = None  # binds views of the records: rebuilt after unpickling
+        state["_step_one"] = None  # binds the lane state's arrays: rebuilt after unpickling
         return state
 
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
@@ -354,15 +342,15 @@ class SelfTuningController(SelfTuningLanes):
         if self.B == 1:
             y, r = obs[0].tolist()  # Python floats: the cheapest arguments for numba's dispatch
             u[0] = _controller_step[self._version](
-                self._F[0], self._G[0], self._at, self._cfg, self._est, self._est_work, 0,
-                self._est_cfg, self._lq_weights, y, r,
+                self._state, self._work, self._cfg, self._est, self._est_work, 0, self._est_cfg,
+                self._els_cfg, self._lq_weights, y, r,
             )  # fmt: skip
         else:
             y = np.ascontiguousarray(obs[:, 0])
             r = np.ascontiguousarray(obs[:, 1])
             _controllers_step[self._version](
-                self._F, self._G, self._at, self._cfg, self._est, self._est_work,
-                self._est_cfg, self._lq_weights, y, r, u,
+                self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
+                self._els_cfg, self._lq_weights, y, r, u,
             )  # fmt: skip
         return u.copy()
 
@@ -371,11 +359,7 @@ class SelfTuningController(SelfTuningLanes):
     def theta(self) -> NDArray:
         """``theta_hat = [a_hat; b_hat]`` in the plant's canonical form (per lane if batched)."""
         n = self.n
-        if self._est is None:
-            o = self._at.theta
-            th = self._F[:, o : o + 2 * n].copy()
-        else:
-            th = self._est.theta.copy()
+        th = self._est.theta[:, : 2 * n].copy()
         if self.form == "observability" and self._estimation_form == "observer":
             for i in range(self.B):
                 if np.all(np.isfinite(th[i])):
@@ -385,43 +369,47 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def x_hat(self) -> NDArray:
         """The controller's state estimate ``x(t+1|t)`` (Kalman filter on the estimated model)."""
-        o = self._at.x
-        return self._lanes_out(self._F[:, o : o + self.n])
+        return self._lanes_out(self._state.x)
 
     @property
     def K(self) -> NDArray:
         """Gain in use ``[K_x, k_i]`` (zeros before the first accepted design)."""
-        o = self._at.gain
         m = self.n + int(self.law.integral)
-        return self._lanes_out(self._F[:, o : o + m])
+        return self._lanes_out(self._state.gain[:, :m])
 
     @property
     def N(self) -> NDArray | float:
         """Reference feed-forward gain in use."""
-        o = self._at.gain + self.n + 1
-        v = self._F[:, o].copy()
+        v = self._state.gain[:, self.n + 1].copy()
         return float(v[0]) if self.num_envs is None else v
 
     @property
     def diagnostics(self) -> dict[str, Any]:
         """Counters and flags per lane (scalars for a single controller)."""
-        G, ints = self._G, kc.INTS
-        has_gain = self._F[:, self._at.gain + self.n + 2] > 0
+        s = self._state
         return self._diagnostics(
-            {"has_gain": has_gain},
-            {"n_kf_resets": G[:, ints.n_kf_resets], "estimator_status": G[:, ints.est_status]},
+            {"has_gain": s.has_gain},
+            {"n_kf_resets": s.n_kf_resets, "estimator_status": s.est_status},
         )
 
     @property
     def nbytes_per_lane(self) -> int:
-        """Memory of one lane's records (float and int, and a paper estimator's state)."""
-        own = self._F.shape[1] * 8 + self._G.shape[1] * 8
-        return own + (0 if self._spec is None else self._spec.nbytes_per_lane)
+        """Memory of one lane's state and scratch (the controller's and the estimator's)."""
+        return sum(map(state_nbytes_per_lane, (self._state, self._work, self._est, self._est_work)))
+
+    def _counter(self, name: str) -> NDArray:
+        return getattr(self._state, name)
 
     def _reset_lanes(self, idx: NDArray) -> None:
-        super()._reset_lanes(idx)
-        if self._est is not None:
-            set_lanes(self._est, idx, self._est_init)
+        """A new episode on the lanes ``idx``: the state back to ``_init`` (the estimator's to
+        ``_est_init``), the lane's seed kept and its episode counter advanced, so its probe is a
+        new sequence."""
+        s = self._state
+        episodes = s.episode[idx] + 1
+        set_lanes(s, idx, self._init)
+        s.seed[idx] = self.seeds[idx]
+        s.episode[idx] = episodes
+        set_lanes(self._est, idx, self._est_init)
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

@@ -284,12 +284,14 @@ class LanePolicy(ABC):
 
 
 class SelfTuningLanes(LanePolicy):
-    """The lane records of the self-tuning controllers (SISO and MIMO).
+    """The lane counters of the self-tuning controllers (SISO and MIMO).
 
-    Lane ``i`` keeps a float record ``_F[i]`` (back to ``_init`` at a reset) and an int record
-    ``_G[i]`` with the fields of :attr:`_INTS`: the step ``t``, the ``episode``, the ``seed``
-    of the lane's probe, the step the loop closed at (``closed_t``, ``-1`` while open) and the
-    counters that :attr:`diagnostics` reports.
+    Every lane counts the step ``t``, the ``episode``, the step the loop closed at
+    (``closed_t``, ``-1`` while open) and the counters that :attr:`diagnostics` reports, and
+    keeps the ``seed`` of its probe; :meth:`_counter` gives one of them for every lane. By
+    default lane ``i`` keeps a float record ``_F[i]`` (back to ``_init`` at a reset) and an
+    int record ``_G[i]`` with the fields of :attr:`_INTS`; a controller whose lane state is a
+    named tuple of batched arrays overrides :meth:`_counter` and :meth:`_reset_lanes`.
     """
 
     #: Offsets of the int record's fields (a NamedTuple of ints, ``len(_INTS)`` of them).
@@ -318,6 +320,10 @@ class SelfTuningLanes(LanePolicy):
         G[:, self._INTS.episode] = -1
         return G
 
+    def _counter(self, name: str) -> NDArray:
+        """The counter ``name`` of every lane (``(lanes,)`` int64, a view)."""
+        return self._G[:, getattr(self._INTS, name)]
+
     def _reset_lanes(self, idx: NDArray) -> None:
         """Start a new episode on the lanes ``idx``: the float record back to ``_init``, the
         counters and ``t`` to 0, the loop open; each lane's episode counter advances, so its
@@ -337,7 +343,7 @@ class SelfTuningLanes(LanePolicy):
     @property
     def t(self) -> int | NDArray:
         """Samples since the lane's last reset."""
-        v = self._G[:, self._INTS.t].copy()
+        v = self._counter("t").copy()
         return int(v[0]) if self.num_envs is None else v
 
     def _diagnostics(
@@ -346,17 +352,17 @@ class SelfTuningLanes(LanePolicy):
         """:attr:`diagnostics`: ``t``, ``episode``, the controller's ``flags``, the loop's
         closing step and the shared counters, then the controller's own ``counters``; scalars
         for a single controller."""
-        G, ints = self._G, self._INTS
+        c = self._counter
         out = {
-            "t": G[:, ints.t],
-            "episode": G[:, ints.episode],
+            "t": c("t"),
+            "episode": c("episode"),
             **flags,
-            "closed_at": G[:, ints.closed_t],
-            "n_rejected": G[:, ints.n_rejected],
-            "last_rejection": np.array([STATUS_NAMES[c] for c in G[:, ints.last_reason]]),
-            "n_alarms": G[:, ints.n_alarms],
-            "n_saturated": G[:, ints.n_saturated],
-            "n_probe": G[:, ints.n_probe],
+            "closed_at": c("closed_t"),
+            "n_rejected": c("n_rejected"),
+            "last_rejection": np.array([STATUS_NAMES[code] for code in c("last_reason")]),
+            "n_alarms": c("n_alarms"),
+            "n_saturated": c("n_saturated"),
+            "n_probe": c("n_probe"),
             **counters,
         }
         if self.num_envs is None:

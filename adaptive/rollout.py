@@ -96,9 +96,9 @@ def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
 
 
 @lane(inline=True)
-def rollout_lane(f, g, at, cfg, est, est_work, lane, est_cfg, lq_weights, x, theta, theta_after,
-                 jump_at, form, bound, sigma_v, z, r, rho, y_bound, window, cost, y_tr, u_tr,
-                 traces):  # fmt: skip
+def rollout_lane(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, x, theta,
+                 theta_after, jump_at, form, bound, sigma_v, z, r, rho, y_bound, window, cost,
+                 y_tr, u_tr, traces):  # fmt: skip
     """``T = r.size - 1`` closed-loop steps of one lane; returns ``(steps_run, diverged)``."""
     T = r.shape[0] - 1
     none = z[0:0]  # no schedule: an empty view (lane functions never allocate)
@@ -106,7 +106,9 @@ def rollout_lane(f, g, at, cfg, est, est_work, lane, est_cfg, lq_weights, x, the
     if traces:
         y_tr[0] = y
     for k in range(T):
-        u_raw = controller_step(f, g, at, cfg, est, est_work, lane, est_cfg, lq_weights, y, r[k])
+        u_raw = controller_step(
+            s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r[k]
+        )
         th = theta_after if k >= jump_at else theta
         reward, _, diverged, u, _, y = canonical_plant_step(
             x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form
@@ -121,13 +123,13 @@ def rollout_lane(f, g, at, cfg, est, est_work, lane, est_cfg, lq_weights, x, the
 
 
 @lanes(min_lanes=1)  # a lane is a whole episode
-def rollout_lanes(F, G, at, cfg, est, est_work, est_cfg, lq_weights, X, Theta, Theta_after, jump_at,
-                  form, bound, sigma_v, Z, R, rho, y_bound, window, Cost, Y, U, traces,
-                  steps_run, diverged, first: int, last: int):  # fmt: skip
+def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, X, Theta,
+                  Theta_after, jump_at, form, bound, sigma_v, Z, R, rho, y_bound, window, Cost, Y,
+                  U, traces, steps_run, diverged, first: int, last: int):  # fmt: skip
     """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
     for i in range(first, last):
         steps_run[i], diverged[i] = rollout_lane(
-            F[i], G[i], at, cfg, est, est_work, i, est_cfg, lq_weights, X[i], Theta[i],
+            s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, X[i], Theta[i],
             Theta_after[i], jump_at, form, bound, sigma_v, Z[i], R[i], rho, y_bound, window,
             Cost[i], Y[i], U[i], traces,
         )  # fmt: skip
@@ -190,9 +192,10 @@ def rollout(
     c = controller
     # the compiled loop sums over windows of 1 step: the rule needs each lane's last cost
     rollout_lanes(
-        c._F, c._G, c._at, c._cfg, c._est, c._est_work, c._est_cfg, c._lq_weights, X, th, th_after,
-        jump_at, form, c.action_bound, float(noise_std), Z, R, float(control_cost),
-        float(y_bound), 1, step_cost, Y, U, bool(traces), steps_run, diverged,
+        c._state, c._work, c._cfg, c._est, c._est_work, c._est_cfg, c._els_cfg, c._lq_weights,
+        X, th, th_after, jump_at, form, c.action_bound, float(noise_std), Z, R,
+        float(control_cost), float(y_bound), 1, step_cost, Y, U, bool(traces), steps_run,
+        diverged,
     )  # fmt: skip
     charge_divergence(step_cost, steps_run)
     cost = np.add.reduceat(step_cost, np.arange(0, steps, window), axis=1)

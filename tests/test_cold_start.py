@@ -238,9 +238,9 @@ def test_edited_inlined_helper_is_recompiled_not_loaded_stale(tmp_path: Path) ->
     assert again["u"] == first["u"]
     law = pkg / "stcgym" / "adaptive" / "kernels" / "law.py"
     text = law.read_text()
-    assert text.count("    law[LAW.u_unsat] = u\n") == 1
-    edit = "    u += 0.25\n    law[LAW.u_unsat] = u\n"
-    law.write_text(text.replace("    law[LAW.u_unsat] = u\n", edit))
+    line = "    saturated = abs(u) > action_bound\n"
+    assert text.count(line) == 1
+    law.write_text(text.replace(line, "    u += 0.25\n" + line))
     edited = _json(_run(CLOSED_LOOP, pkg, NUMBA_CACHE_DIR=cache))
     assert "controller_step" in edited["compiled"] and edited["hits"] == 0
     closed = [i for i, (a, b) in enumerate(zip(first["u"], edited["u"], strict=True)) if a != b]

@@ -151,7 +151,7 @@ def test_lane_step_matches_dense_numpy_reference(gain: float, startup: dict) -> 
     b = tuple(gain * v for v in B_S2)
     noise = np.random.default_rng(0).standard_normal(steps + 1)
     ctl = SelfTuningController(2, seed=5, startup=startup)
-    ctl._G[:, 1] = -1  # episode 0 after the reset below, as in the reference
+    ctl._state.episode[:] = -1  # episode 0 after the reset below, as in the reference
     ctl.reset()
     got = _lane_run(ctl, A_S2, b, steps, noise)
     kw = {"level": startup.get("probe_output", 0.5), "max_probe": startup.get("max_probe_steps")}

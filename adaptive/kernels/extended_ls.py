@@ -23,10 +23,11 @@ estimates that are only as good as the current parameters, it needs no good init
 stays consistent when ``u`` is a feedback of ``y``. ``with_c = 0`` drops the ``c`` block: plain
 equation-error RLS (ARX), biased by output noise.
 
-The lane record (:class:`ExtendedLSRecord`, :func:`extended_ls_layout`): ``theta`` (``d``),
-``S`` (``d x d``, the upper factor of ``P``), ``phi`` (``d``) and ``scratch`` (``3 d + 2``),
-``d = 2n`` or ``3n``; the estimate is always in the observer canonical form (the controller
-designs on it; it converts to the env's form for display).
+The lane state (:class:`ExtendedLSState`) holds ``theta`` (``d``), ``S`` (``d x d``, the upper
+factor of ``P``) and the regressor ``Phi`` (``1 x d``, the one row of the least-squares block);
+its scratch (:class:`ExtendedLSWork`) the least-squares step's work and ``y(t)`` as a 1-block.
+``d = 2n`` or ``3n`` (:func:`extended_ls_shapes`); the estimate is always in the observer
+canonical form (the controller designs on it; it converts to the env's form for display).
 """
 
 from __future__ import annotations
@@ -34,52 +35,70 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
+from numpy.typing import NDArray
+
 from stcgym.adaptive.kernels.least_squares import OK, least_squares_step
-from stcgym.adaptive.kernels.records import view2d
-from stcgym.envs.compiled import Layout, lane
+from stcgym.envs.compiled import lane, lane_state
 
 __all__ = [
-    "ExtendedLSRecord",
-    "extended_ls_layout",
+    "ExtendedLSConfig",
+    "ExtendedLSState",
+    "ExtendedLSWork",
     "extended_ls_push",
-    "extended_ls_reset",
+    "extended_ls_shapes",
     "extended_ls_update",
+    "make_extended_ls",
 ]
 
 
-class ExtendedLSRecord(NamedTuple):
-    """Fields of the ELS lane record. The lane functions read any record ``at`` with these
-    fields (the controller's record locates them inside its own)."""
+class ExtendedLSState(NamedTuple):
+    """The ELS lane state: field ``f`` of lane ``i`` is ``state.f[i]`` (shapes in
+    :func:`extended_ls_shapes`)."""
 
-    theta: int  # [a; b; c] (d)
-    S: int  # upper-triangular factor of P = S S^T (d, d)
-    phi: int  # regressor phi(t) (d)
-    scratch: int  # least_squares_step's work (3 d + 1) and y(t)
+    theta: NDArray  # [a; b; c] (d)
+    S: NDArray  # upper-triangular factor of P = S S^T (d, d)
+    Phi: NDArray  # the regressor phi(t) as the one row of the block Phi(1, t) (1, d)
 
 
-def extended_ls_layout(n: int, with_c: bool) -> Layout:
-    """Record of one lane: ``theta``, ``S``, ``phi``, ``scratch``; ``d = 3n`` (``2n`` without c)."""
-    d = (3 if with_c else 2) * n
-    lay = Layout()
-    lay.add("theta", (d,))
-    lay.add("S", (d, d))
-    lay.add("phi", (d,))
-    lay.add("scratch", (3 * d + 2,))  # least_squares_step's work (p = 1) and y(t)
-    return lay
+class ExtendedLSConfig(NamedTuple):
+    """Configuration of the ELS lane functions."""
+
+    forgetting: float  # lambda
+    p0: float  # P(0) = p0 I, and P after numerical trouble
+
+
+class ExtendedLSWork(NamedTuple):
+    """The ELS scratch, one row a lane (its content is irrelevant between calls)."""
+
+    ls: NDArray  # least_squares_step's work (3 d + 1)
+    Y: NDArray  # y(t) as the one entry of the block Y(1, t) (1)
+
+
+def extended_ls_shapes(
+    n: int, with_c: bool = True
+) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """The shapes of one lane's :class:`ExtendedLSState` and :class:`ExtendedLSWork` fields,
+    ``d = 3n`` (``2n`` without ``c``): the one place they are declared."""
+    d = (3 if with_c else 2) * int(n)
+    state = {"theta": (d,), "S": (d, d), "Phi": (1, d)}
+    work = {"ls": (3 * d + 1,), "Y": (1,)}
+    return state, work
+
+
+def make_extended_ls(
+    n: int, num_lanes: int, p0: float, with_c: bool = True
+) -> tuple[ExtendedLSState, ExtendedLSWork]:
+    """The state of ``num_lanes`` lanes at ``t = 0`` and their scratch: ``theta(0) = 0``,
+    ``P(0) = p0 I`` (``S = sqrt(p0) I``), ``phi(1) = 0`` (every signal zero before t = 1)."""
+    shapes, work_shapes = extended_ls_shapes(n, with_c)
+    state = lane_state(ExtendedLSState, shapes, num_lanes)
+    state.S[:] = np.sqrt(p0) * np.eye(shapes["S"][0])
+    return state, lane_state(ExtendedLSWork, work_shapes, num_lanes)
 
 
 @lane(inline=True)
-def extended_ls_reset(f, at, d, p0):
-    """``theta(0) = 0``, ``P(0) = p0 I`` (``S = sqrt(p0) I``), ``phi(1) = 0`` (every signal zero
-    before t = 1)."""
-    for i in range(d):
-        f[at.theta + i] = 0.0
-        f[at.phi + i] = 0.0
-    extended_ls_restart(f, at, d, p0)
-
-
-@lane(inline=True)
-def extended_ls_update(f, at, d, y, lam, p0):
+def extended_ls_update(els, work, lane, y, lam, p0):
     """Measurement step with ``y(t)``: ``theta(t)``, ``P(t)``; returns ``(e(t), eps(t))``.
 
     A failed least-squares step (non-positive or non-finite denominator, unhealthy factor,
@@ -87,19 +106,20 @@ def extended_ls_update(f, at, d, y, lam, p0):
     innovation restarts ``P`` at ``p0 I`` and keeps ``theta`` (returns the prior residual for
     both).
     """
-    theta = f[at.theta : at.theta + d]
-    S = view2d(f, at.S, d, d)
-    Phi = view2d(f, at.phi, 1, d)  # the regressor as the one row of Phi (p = 1)
-    work = f[at.scratch : at.scratch + 3 * d + 1]
-    Y = f[at.scratch + 3 * d + 1 : at.scratch + 3 * d + 2]  # y(t) as a 1-block, after it
+    theta = els.theta[lane]
+    S = els.S[lane]
+    Phi = els.Phi[lane]
+    ls = work.ls[lane]
+    Y = work.Y[lane]
+    d = theta.size
     Y[0] = y
-    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, work) != OK:
+    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, ls) != OK:
         e = y
         for i in range(d):
             e -= Phi[0, i] * theta[i]
-        extended_ls_restart(f, at, d, p0)
+        extended_ls_restart(theta, S, p0)
         return e, e
-    e = work[2 * d]  # the innovation E(1, t) with theta(t-1), left there by the step
+    e = ls[2 * d]  # the innovation E(1, t) with theta(t-1), left there by the step
     eps = y
     for i in range(d):
         eps -= Phi[0, i] * theta[i]
@@ -107,11 +127,10 @@ def extended_ls_update(f, at, d, y, lam, p0):
 
 
 @lane(inline=True)
-def extended_ls_restart(f, at, d, p0):
+def extended_ls_restart(theta, S, p0):
     """``P = p0 I`` (numerical trouble; ``S = sqrt(p0) I``); a non-finite ``theta`` goes back to
     zero."""
-    theta = f[at.theta : at.theta + d]
-    S = view2d(f, at.S, d, d)
+    d = theta.size
     root = math.sqrt(p0)
     for i in range(d):
         if not math.isfinite(theta[i]):
@@ -121,9 +140,10 @@ def extended_ls_restart(f, at, d, p0):
 
 
 @lane(inline=True)
-def extended_ls_push(f, at, n, d, y, u, eps):
+def extended_ls_push(els, lane, n, y, u, eps):
     """Shift ``y(t)``, ``u(t)``, ``eps(t)`` into the regressor: it becomes ``phi(t+1)``."""
-    phi = f[at.phi : at.phi + d]
+    phi = els.Phi[lane, 0]
+    d = phi.size
     for k in range(n - 1, 0, -1):
         phi[k] = phi[k - 1]
         phi[n + k] = phi[n + k - 1]

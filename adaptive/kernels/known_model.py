@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from stcgym.adaptive.kernels.law import LAW_SIZE, track
+from stcgym.adaptive.kernels.law import LAW, LAW_SIZE, track
 from stcgym.adaptive.kernels.records import view2d
 from stcgym.adaptive.kernels.state_estimation import filtered_state, kalman_step
 from stcgym.envs.compiled import lane, lanes
@@ -41,7 +41,7 @@ class OracleRecord(NamedTuple):
     x_filt: int  # (n,) x(t|t)
     P: int  # (n, n) P(t) of the filter
     innov: int  # () last innovation
-    gain: int  # (n + 4,) gain record
+    gain: int  # (n + 3,) gain record
     law: int  # (3,)  tracking-law state
     t: int  # ()     steps taken
 
@@ -68,7 +68,7 @@ def known_model_propose(f, at, n, s, y, r, filtered, integral, anti_windup, acti
     R = f[at.R]
     x = f[at.x : at.x + n]
     P = view2d(f, at.P, n, n)
-    gain = f[at.gain : at.gain + n + 4]
+    gain = f[at.gain : at.gain + n + 3]
     law = f[at.law : at.law + LAW_SIZE]
     k = 2 * n + n * n
     x_next = s[0:n]
@@ -78,10 +78,14 @@ def known_model_propose(f, at, n, s, y, r, filtered, integral, anti_windup, acti
     L1 = s[k + 5 : k + 5 + n]
     work = s[k + 5 + n : k + 5 + n + 2 * n * n]
     innov = filtered_state(x, P, R, y, x_filt)
-    for i in range(LAW_SIZE):
-        law_next[i] = law[i]
     xc = x_filt if filtered else x
-    u = track(gain, law_next, xc, y, r, 0.0, action_bound, integral, anti_windup)
+    # a known model always has a gain (its design must succeed)
+    u, xi, saturated, u_unsat = track(
+        gain, True, law[LAW.xi], xc, y, r, 0.0, action_bound, integral, anti_windup
+    )
+    law_next[LAW.xi] = xi
+    law_next[LAW.saturated] = 1.0 if saturated else 0.0
+    law_next[LAW.u_unsat] = u_unsat
     for i in range(n):
         for j in range(n):
             P_next[i, j] = P[i, j]

@@ -1,8 +1,12 @@
 """The tracking law ``u = sat(N r - K_x x - k_i xi)`` with anti-windup, as a lane function.
 
-The law state is a 3-float record (:class:`LawState`: the integrator ``xi``, the saturation
-flag of the last step, the unsaturated input); ``gain`` is the gain record of
-:mod:`.safe_set` (``[K_x (n), k_i, N, has_gain, rcond]``).
+:func:`track` is a pure function of the law state, the integrator ``xi``: it returns the input,
+``xi(t+1)``, whether the input saturated and the input before saturation. ``gain`` is the gain
+record of :mod:`.safe_set` (``[K_x (n), k_i, N, rcond]``); whether a design has been accepted
+yet (``has_gain``) is the caller's, kept beside the record.
+
+A lane record that packs the law state into 3 floats (the known-model oracles' record) places
+them by :class:`LawState` (offsets :data:`LAW`).
 """
 
 from __future__ import annotations
@@ -16,42 +20,40 @@ __all__ = ["LAW", "LAW_SIZE", "LawState", "track"]
 
 
 class LawState(NamedTuple):
-    """Fields of the law state (offsets in its 3-float record)."""
+    """Fields of the law state packed in a 3-float record (offsets)."""
 
     xi: int  # integral of the tracking error
     saturated: int  # 1.0 when the last input was saturated
     u_unsat: int  # the last input before saturation
 
 
-#: Offsets of the law state's fields (``law[LAW.xi]``).
+#: Offsets of the packed law state's fields (``law[LAW.xi]``).
 LAW = LawState(*range(len(LawState._fields)))
 LAW_SIZE = len(LawState._fields)
 
 
 @lane(inline=True)
-def track(gain, law, x, y, r, excitation, action_bound, integral, anti_windup):
-    """``u(t) = sat(-K_x x(t) - k_i xi(t) + N r(t) + e(t))``; advances ``xi`` to ``xi(t+1)``.
+def track(gain, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_windup):
+    """``u(t) = sat(-K_x x(t) - k_i xi(t) + N r(t) + e(t))``; returns
+    ``(u(t), xi(t+1), saturated, u_unsat)``.
 
     ``xi(t+1) = xi(t) + r(t) - y(t)`` (integral of the measured tracking error), frozen while
     the input is saturated and the error would drive it further into saturation (conditional
-    integration: ``d u / d xi = -k_i``). Without a gain yet (``gain[n + 2] == 0``) only the
+    integration: ``d u / d xi = -k_i``). Without a gain yet (``has_gain`` false) only the
     excitation is applied and ``xi`` stays. ``action_bound = inf`` means no saturation.
     """
     n = x.size
-    has_gain = gain[n + 2] > 0.0
-    xi = law[LAW.xi]
     if has_gain:
         u = gain[n + 1] * r + excitation - gain[n] * xi
         for i in range(n):
             u -= gain[i] * x[i]
     else:
         u = excitation
-    law[LAW.u_unsat] = u
     saturated = abs(u) > action_bound
     u_sat = math.copysign(action_bound, u) if saturated else u
-    law[LAW.saturated] = 1.0 if saturated else 0.0
+    xi_next = xi
     if integral and has_gain:
         err = r - y
         if not (anti_windup and saturated and (-gain[n] * err) * u > 0.0):
-            law[LAW.xi] = xi + err
-    return u_sat
+            xi_next = xi + err
+    return u_sat, xi_next, saturated, u

@@ -271,7 +271,10 @@ def mimo_step(f, g, at, cfg, x, r, u):
     # -- 2. change detection: covariance resetting on a jump of the innovation variance (no
     # sample at t = 0, before the first estimator update)
     closed_t = g[MIMO_INTS.closed_t]
-    if change_alarm(f, at, cfg, e2, t > 0, t, closed_t, g[MIMO_INTS.last_alarm]):
+    alarm, f[at.ews], f[at.ewl] = change_alarm(
+        cfg, f[at.ews], f[at.ewl], e2, t > 0, t, closed_t, g[MIMO_INTS.last_alarm]
+    )
+    if alarm:
         inflate_covariance(view2d(f, at.S, q, q), cfg.inflation)
         g[MIMO_INTS.n_alarms] += 1
         g[MIMO_INTS.last_alarm] = t

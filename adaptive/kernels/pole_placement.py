@@ -89,7 +89,7 @@ def place_design(theta, form, integral, feedforward, alpha, safe, gain, work):
 def place_design_lanes(
     thetas, form, integral, feedforward, alpha, safe, gains, status, first, last
 ):
-    """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` ``(B, n + 4)``,
+    """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` ``(B, n + 3)``,
     ``status`` ``(B,)`` int64); each lane allocates its own scratch."""
     mm = thetas.shape[1] // 2 + 1
     for i in range(first, last):

@@ -5,11 +5,10 @@ the safe set in order (finite, ``b_min``, controllability, steady state, gain bo
 record written only on success, and the scratch layout of the designs.
 
 ``gain[0:n] = K_x``, ``gain[n] = k_i`` (0 without integral action), ``gain[n + 1] = N``
-(reference feed-forward, 0 when off), ``gain[n + 2] = 1.0`` once a design has succeeded
-(``has_gain``; 0.0 = no gain yet, the law then applies only the excitation) and
-``gain[n + 3]`` the reciprocal condition number of the accepted design's controllability matrix.
-The design functions write ``gain`` **only on success**: a rejected model keeps the last good
-gain.
+(reference feed-forward, 0 when off) and ``gain[n + 2]`` the reciprocal condition number of the
+accepted design's controllability matrix. The design functions write ``gain`` **only on
+success** (status ``OK``): a rejected model keeps the last good gain, and whether any design
+has succeeded yet is the caller's to keep.
 
 Safe set ``safe`` (float64, length 4; :func:`safe_set` builds and validates it)
 ------------------------------------------------------------------------------
@@ -147,8 +146,8 @@ N_VEC = len(VectorSlots._fields)
 
 
 def gain_size(n: int) -> int:
-    """Length of the gain record: ``[K_x (n), k_i, N, has_gain, rcond]``."""
-    return int(n) + 4
+    """Length of the gain record: ``[K_x (n), k_i, N, rcond]``."""
+    return int(n) + 3
 
 
 def work_size(n: int) -> int:
@@ -365,6 +364,5 @@ def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
         gain[i] = K[i]
     gain[n] = K[n] if integral else 0.0
     gain[n + 1] = N
-    gain[n + 2] = 1.0
-    gain[n + 3] = rcond
+    gain[n + 2] = rcond
     return OK
