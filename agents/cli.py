@@ -225,6 +225,13 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--executor", default="local", help=f"task executor: {' or '.join(EXECUTORS)}")
     p.add_argument("--address", help="Ray cluster address (with --executor ray), e.g. auto")
     p.add_argument(
+        "--time-limit",
+        metavar="DURATION",
+        help="wall-time limit of this session, e.g. 2h45m, 90m or 3600 (seconds): no job starts "
+        "that is not estimated to end in time; what is left is for --resume (a partial "
+        "report is written, exit status 0)",
+    )
+    p.add_argument(
         "--tensorboard-log",
         metavar="DIR",
         help="write TensorBoard logs of every RL training to DIR/<run>/ (learning curve "
@@ -283,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from stcgym.agents.benchmark import build_config, check_runnable, estimate_seconds, run_bench
-    from stcgym.agents.benchmark.plan import format_duration
+    from stcgym.agents.benchmark.plan import format_duration, parse_duration
 
     if args.resume is not None:
         cfg = _resumed_config(args)
@@ -323,6 +330,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             tensorboard_log=args.tensorboard_log,
             bootstrap_reps=args.bootstrap_reps,
         )
+    time_limit = None if args.time_limit is None else parse_duration(args.time_limit)
     check_runnable(cfg)
     print(
         f"stcgym bench: {cfg.mode} mode, estimated {format_duration(estimate_seconds(cfg))} on "
@@ -336,13 +344,14 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
         argv=list(argv),
         checked=True,
         resume=args.resume is not None,
+        time_limit=time_limit,
     )
     print(result.run_dir / "report.md")
     return 0
 
 
 #: The options ``--resume`` takes next to the run folder (the rest come from config.json).
-_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress")
+_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress", "time_limit")
 
 
 def _resumed_config(args: argparse.Namespace):

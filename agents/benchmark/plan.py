@@ -21,9 +21,11 @@ __all__ = [
     "SECONDS_PER_POLICY_STEP",
     "SECONDS_PER_STEP",
     "JobProgress",
+    "classical_seconds",
     "curve_evaluations",
     "estimate_seconds",
     "format_duration",
+    "parse_duration",
     "job_weights",
     "reference_weights",
     "rl_tasks",
@@ -73,7 +75,8 @@ def _batch_seconds(spec: EnvSpec, lanes: int, per_step: float, per_lane: float) 
     return spec.steps * (blocks * per_step + lanes * per_lane)
 
 
-def _classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
+def classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
+    """Estimated seconds of every run of the classical controller ``name`` on ``sc``."""
     from stcgym.agents.controllers import CONTROLLERS
 
     runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
@@ -103,7 +106,7 @@ def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence
     episodes of the policy, classical controllers on the scenarios."""
     out = {
         ("classical", sc.name): sum(
-            _classical_seconds(cfg, sc, name) for name in controllers_for(cfg.classical, sc.env)
+            classical_seconds(cfg, sc, name) for name in controllers_for(cfg.classical, sc.env)
         )
         for sc in scenarios
     }
@@ -168,6 +171,30 @@ def estimate_seconds(cfg: BenchConfig) -> float:
         train = max(schedule(rl, cfg.jobs)) + classical / cores
     output = OUTPUT_SECONDS_PER_SCENARIO * len(scenarios) * (1 if cores > 1 else 2)
     return references + train + output
+
+
+def parse_duration(text: str) -> float:
+    """Seconds of a duration written ``2h45m``, ``90m``, ``1h``, ``45s``, ``1.5h`` or ``3600``
+    (seconds); :class:`~stcgym.agents.benchmark.config.BenchInputError` otherwise."""
+    import re
+
+    from stcgym.agents.benchmark.config import BenchInputError
+
+    units = {"h": 3600.0, "m": 60.0, "s": 1.0}
+    spec = str(text).strip().lower()
+    parts = re.findall(r"(\d+(?:\.\d+)?)([hms])", spec)
+    if re.fullmatch(r"\d+(?:\.\d+)?", spec):
+        seconds = float(spec)
+    elif parts and "".join(f"{v}{u}" for v, u in parts) == spec:
+        seconds = sum(float(v) * units[u] for v, u in parts)
+    else:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise BenchInputError(
+            f"--time-limit must be a positive duration such as 2h45m, 90m or 3600 (seconds), "
+            f"got {text!r}"
+        )
+    return seconds
 
 
 def format_duration(seconds: float) -> str:
