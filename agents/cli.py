@@ -4,14 +4,16 @@
     The self-tuning controllers, PPO, SAC and RecurrentPPO (3 runs each, trained on the spot
     through the task executor), pole placement on the true model and zero input, all scored
     against LQG on the true model, on the same episodes of the nominal, plant-family (test
-    split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on 2
+    split and held-out variants), parameter-jump and MIMO scenarios; about 14 minutes on 2
     CPU cores.
-    ``stcgym bench --standard`` (about 8.5 hours) has 5 runs, the whole test split, every
-    held-out variant and RL caps of 10^6 steps on the family; ``stcgym bench --full`` is the
-    long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about 38 hours).
+    ``stcgym bench --standard`` (about 12 hours with every RL agent at its cap) has 5 runs,
+    the whole test split, every held-out variant and RL caps of 10^6 steps on the family;
+    ``stcgym bench --full`` is the long version (10 runs, every MIMO plant, TD3 and A2C too,
+    longer caps: about 48 hours).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
-    interrupted run without retraining its finished jobs.
+    interrupted run without retraining its finished jobs; ``--time-limit 2h45m`` starts only
+    the jobs estimated to end in time and leaves the rest for ``--resume``.
 ``stcgym eval MODEL_DIR``
     Re-evaluate a saved RL agent (a ``models/*`` folder of a bench run).
 ``stcgym sweep FAMILY``
@@ -57,28 +59,28 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
-        "--quick", action="store_true", help="the default: about 10 min on 2 CPU cores"
+        "--quick", action="store_true", help="the default: about 14 min on 2 CPU cores"
     )
     mode.add_argument(
         "--standard",
         action="store_true",
         help="5 runs per controller, the whole test split and every held-out variant, RL "
         "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 8.5 hours on 2 CPU cores (the estimate is printed "
-        "first)",
+        "RecurrentPPO (2e5 for SAC): about 12 hours on 2 CPU cores at the caps (the estimate is "
+        "printed first; the plateau rule stops most agents earlier)",
     )
     mode.add_argument(
         "--full",
         action="store_true",
-        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 38 hours; the "
+        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 48 hours; the "
         "estimate is printed first)",
     )
     p.add_argument(
         "--resume",
         metavar="RUN_DIR",
         help="continue the run in RUN_DIR (after Ctrl-C or a kill) with its config.json: "
-        "finished RL jobs are read back, not retrained; takes --jobs, --executor, --address, "
-        "--no-plots and --progress only",
+        "finished RL jobs and classical evaluations are read back, not run again; takes "
+        "--jobs, --executor, --address, --time-limit, --no-plots and --progress only",
     )
     p.add_argument(
         "--scenarios",

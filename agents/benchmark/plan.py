@@ -33,22 +33,23 @@ __all__ = [
 ]
 
 
-#: CPU seconds per training env step on the 2-core development machine, the other core busy
-#: with the other worker (torch on one thread, the native vector env; learning-curve and
-#: evaluation episodes counted apart). Only the schedule, the ETA and the announced estimate
-#: use them.
+#: Wall seconds per training env step of one worker on the 2-core development machine, the
+#: other core busy with the other worker (torch on one thread, the native vector env): measured
+#: on the quick tier's jobs (learning-curve and test episodes taken out) and on the standard
+#: run's RecurrentPPO jobs. Only the schedule, the ETA, the announced estimate and
+#: ``--time-limit`` use them.
 SECONDS_PER_STEP = {
-    "ppo": 0.8e-3,
-    "ppo_noint": 0.8e-3,
-    "a2c": 0.8e-3,
-    "sac": 8.0e-3,
-    "td3": 7.5e-3,
-    "rppo": 2.5e-3,
+    "ppo": 0.9e-3,
+    "ppo_noint": 0.9e-3,
+    "a2c": 0.9e-3,
+    "sac": 10.0e-3,
+    "td3": 9.5e-3,
+    "rppo": 5.5e-3,
     # their estimator or controller on every lane: 1.05-1.2x their base agent's (measured
     # against it in one process)
-    "theta_ppo": 0.9e-3,
-    "residual_ppo": 1.0e-3,
-    "theta_sac": 8.4e-3,
+    "theta_ppo": 1.0e-3,
+    "residual_ppo": 1.1e-3,
+    "theta_sac": 10.5e-3,
 }
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
 #: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.
