@@ -138,8 +138,8 @@ def run_bench(
     ``jobs/classical/`` (:mod:`~stcgym.agents.benchmark.classical_store`). ``resume=True``
     continues the run in ``cfg.run_dir`` (``cfg`` read back from its ``config.json``, the action
     bounds included): what is kept is read back instead of evaluated or trained again, and the
-    rest is run; the
-    tables and the report are rebuilt, so they equal those of an uninterrupted run.
+    rest is run; the tables and the report are rebuilt, so they equal those of an uninterrupted
+    run.
 
     ``time_limit`` (seconds from the call, e.g. a batch system's wall-time allocation): no RL
     job or classical evaluation starts unless its estimated duration
@@ -408,14 +408,15 @@ class _RunState:
         end = time.perf_counter() + TIME_LIMIT_MARGIN * seconds
         return end <= self.deadline - self._reserve
 
-    def _classical(self, sc: Scenario, name: str, seconds: float) -> bool:
-        """Every run of ``name`` on ``sc`` (each estimated at ``seconds``); False when the time
-        limit left some for a resumed run."""
+    def _classical(self, sc: Scenario, name: str) -> bool:
+        """Every run of ``name`` on ``sc``; False when the time limit left some for a resumed
+        run."""
         runs = self.cfg.train_seeds if CONTROLLERS[name].seeded else 1
+        each = classical_seconds(self.cfg, sc, name) / runs
         for run in range(runs):
             if self.halt.is_set():
                 raise _Stop
-            if not self.fits(seconds):
+            if not self.fits(each):
                 return False
             self._classical_rows(sc, name, run, self._evaluated(sc, name, run))
         return True
@@ -472,9 +473,7 @@ class _RunState:
             complete = True
             for name in controllers_for(self.cfg.classical, sc.env):  # those on its plants
                 if name not in (YARDSTICK, "zero"):
-                    runs = self.cfg.train_seeds if CONTROLLERS[name].seeded else 1
-                    each = classical_seconds(self.cfg, sc, name) / runs
-                    complete = self._classical(sc, name, each) and complete
+                    complete = self._classical(sc, name) and complete
             if complete:
                 progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
             unfinished += not complete
@@ -565,14 +564,7 @@ class _RunState:
         # the classical controllers run in a thread while the workers train; when the RL jobs
         # run in this process (one job, or jobs=1) they go first instead
         background = cfg.executor == "ray" or (cfg.jobs > 1 and len(todo) > 1)
-        failures, started = [], set()
-
-        def admit(task: dict[str, Any]) -> bool:
-            if not self.fits(weights[("rl", task["name"])]):
-                return False
-            started.add(task["name"])
-            return True
-
+        failures, ran = [], set()
         with ThreadPoolExecutor(1, thread_name_prefix="classical") as pool:
             if background:
                 classical = pool.submit(self._classical_all, scenarios, progress)
@@ -587,9 +579,10 @@ class _RunState:
                     jobs=cfg.jobs,
                     address=cfg.address,
                     threads=1,
-                    admit=admit,
+                    admit=lambda task: self.fits(weights[("rl", task["name"])]),
                 ):
                     name = out.task["name"]
+                    ran.add(name)
                     if out.error is not None:
                         failures.append(name)
                         self.log(f"RL job {name} FAILED:\n{out.error}")
@@ -611,7 +604,7 @@ class _RunState:
             self._collect(task, result)
         if failures:
             raise RuntimeError(f"{len(failures)} RL job(s) failed: {', '.join(failures)}")
-        self._leave(unfinished, [t["name"] for t in todo if t["name"] not in started])
+        self._leave(unfinished, [t["name"] for t in todo if t["name"] not in ran])
 
     def _leave(self, classical: int, rl: list[str]) -> None:
         """Note what the time limit left for a resumed run (``self.left``)."""
