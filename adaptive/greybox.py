@@ -9,51 +9,34 @@ with known ``Phi0``, ``Phi_i``, ``Gamma0``, ``Gamma_i`` (``n x n`` and ``n x m``
 measurement matrix ``H`` (``p x n``) and ``q`` unknown scalars ``theta``. :class:`AffineStateSpace`
 turns measured ``u(k)``, ``y(k)`` into a linear regression ``z(k) = phi(k) theta`` (exact when
 ``w = v = 0``) for :class:`~stcgym.adaptive.regression.RecursiveLeastSquares` or batch least
-squares, in one of two ways:
+squares (:meth:`AffineStateSpace.regression`), in one of two ways:
 
 ``method="state"`` (the state is measured: ``H`` square and invertible)
-    ``x(k) = H^{-1} y(k)`` and the state equation itself is the regression::
+    ``x(k) = H^{-1} y(k)`` and the state equation itself is the regression, linear in ``theta``
+    for every affine structure (``p = n`` equations per step)::
 
-        z(k) = x(k+1) - Phi0 x(k) - Gamma0 u(k),      phi_i(k) = Phi_i x(k) + Gamma_i u(k),
-
-    ``p = n`` equations per step. It is linear in ``theta`` for every affine structure.
+        z(k) = x(k+1) - Phi0 x(k) - Gamma0 u(k),      phi_i(k) = Phi_i x(k) + Gamma_i u(k).
 
 ``method="output"`` (the paper's way: eliminate the state, eq. (7)-(8))
-    By Cayley-Hamilton, ``chi(Phi) = 0`` for the characteristic polynomial
-    ``chi(s) = det(s I - Phi) = s^n + c_{n-1} s^{n-1} + ... + c_0``, so every trajectory,
-    whatever its initial state, satisfies the input-output equation::
-
-        sum_{i=0..n} c_i y(k+i) = sum_{l=0..n-1} beta_l u(k+l),   c_n = 1,
-
-    with ``beta_l = H M_{n-l} Gamma`` the numerator coefficients of ``H adj(sI - Phi) Gamma``
-    (``M_j`` the Faddeev-LeVerrier matrices, :func:`io_coefficients`). The coefficients
-    ``c_i(theta)``, ``beta_l(theta)`` are polynomials in ``theta``; when they are affine,
-    ``c = c^0 + sum_i theta_i c^i`` and ``beta = beta^0 + sum_i theta_i beta^i``, and::
+    By Cayley-Hamilton, ``chi(Phi) = 0`` for ``chi(s) = det(s I - Phi) = s^n + c_{n-1} s^{n-1}
+    + ... + c_0``, so every trajectory, whatever its initial state, satisfies
+    ``sum_{i=0..n} c_i y(k+i) = sum_{l=0..n-1} beta_l u(k+l)`` (``c_n = 1``), with
+    ``beta_l = H M_{n-l} Gamma`` the numerator coefficients of ``H adj(sI - Phi) Gamma``
+    (``M_j`` the Faddeev-LeVerrier matrices, :func:`io_coefficients`). When the coefficients are
+    affine in ``theta``, ``c = c^0 + sum_i theta_i c^i`` and ``beta = beta^0 + sum_i theta_i
+    beta^i``, and::
 
         z(k)     = sum_i c^0_i y(k+i) - sum_l beta^0_l u(k+l),
-        phi_j(k) = -sum_i c^j_i y(k+i) + sum_l beta^j_l u(k+l).
+        phi_j(k) = -sum_i c^j_i y(k+i) + sum_l beta^j_l u(k+l),
 
-    For the paper's object, ``Phi = [[0, 1], [-0.3, theta]]``, ``Gamma = [0, 1]^T``,
-    ``H = [1, 0]``: ``chi(s) = s^2 - theta s + 0.3`` and ``beta_0 = 1``, so
-    ``z(k) = y(k+2) + 0.3 y(k) - u(k)`` and ``phi(k) = y(k+1)``, the paper's (7)-(8).
-
-    When a coefficient is *not* affine (e.g. ``theta`` on the diagonal twice gives
-    ``chi(s) = (s - theta)^2``, with a ``theta^2`` term) the output does not depend linearly on
-    ``theta`` through any regression of this kind; :meth:`AffineStateSpace.regression` then
-    raises :class:`NotLinearInParameters` naming the coefficient and the offending product of
-    parameters, and suggests the alternatives (measure the state, or over-parametrise).
+    which for the paper's object is its (7)-(8) (the example of :class:`AffineStateSpace`). A
+    coefficient that is not affine (e.g. ``theta`` twice on the diagonal) raises
+    :class:`NotLinearInParameters`, naming the coefficient and the product of parameters.
 
 ``method="auto"`` (default) takes ``"state"`` when ``H`` is square and well conditioned and
-``"output"`` otherwise.
-
-Noise: with measurement noise ``v`` the regressor ``phi(k)`` is built from noisy ``y`` and is
-correlated with the equation error (an errors-in-variables problem), so least squares on the
-output route is biased towards zero by roughly ``E[phi_clean^2] / (E[phi_clean^2] + var v)`` (for
-one parameter whose regressor is one output sample); the equation error is also coloured
-(``sum_i c_i v(k+i)``). Process noise ``w`` enters the equation error through ``H`` and
-``Phi``, again correlated with the regressor in the output route. Instrumental variables or a
-joint state/parameter estimator (:func:`~stcgym.adaptive.make_estimator`) remove the bias; this
-module builds the paper's plain regression.
+``"output"`` otherwise. With noise the output route is an errors-in-variables problem and its
+least squares is biased (the Grey-box models section of the Estimators page of the
+documentation); this module builds the paper's plain regression.
 """
 
 from __future__ import annotations
@@ -356,7 +339,15 @@ class AffineStateSpace:
 
     # ---------------------------------------------------------------- regression
     def regression(self, method: Method = "auto") -> GreyBoxRegression:
-        """The linear regression of this structure (see the module docstring).
+        """The linear regression ``z(k) = phi(k) theta`` of this structure.
+
+        Parameters
+        ----------
+        method : {"auto", "state", "output"}
+            ``"state"``: the state equation on ``x(k) = H^{-1} y(k)`` (``H`` square and
+            invertible); ``"output"``: the input-output equation of Cayley-Hamilton, Voevoda &
+            Troshina (2016), eq. (7)-(8); ``"auto"`` (default): ``"state"`` when ``H`` is square
+            and well conditioned, else ``"output"``. The module docstring gives the equations.
 
         Raises
         ------

@@ -1,14 +1,16 @@
 """Recursive (online) joint state and parameter estimators of Ding & Ma (2014), sections 1-3,
 for either canonical form, for one plant or a batch of ``B`` plants.
 
-:func:`make_estimator` maps each paper name (``"O-SG"`` ... ``"KF-D-MILS"``, case-insensitive;
-``"CO-..."`` for the closed-loop observer) to one :class:`RecursiveEstimator`. There is one
-implementation: the lane functions of :mod:`stcgym.adaptive.kernels.estimator` (parameter rules
-in :mod:`~stcgym.adaptive.kernels.least_squares`, state estimators and regressors in
-:mod:`~stcgym.adaptive.kernels.state_estimation`). The estimator's whole state is one
-``(B, size)`` lane record (``B = 1`` for a single plant); ``make_estimator(..., num_envs=B)``
-returns the *same* class stepping ``B`` lanes with a batch loop over the same lane
-function, so a single estimator equals lane ``i`` of a batch bit for bit.
+:func:`make_estimator` (:mod:`stcgym.adaptive.factory`) maps each paper name (``"O-SG"`` ...
+``"KF-D-MILS"``, case-insensitive; ``"CO-..."`` for the closed-loop observer) to one
+:class:`RecursiveEstimator`. There is one implementation: the lane functions of
+:mod:`stcgym.adaptive.kernels.estimator` (parameter rules in
+:mod:`~stcgym.adaptive.kernels.least_squares`, state estimators and regressors in
+:mod:`~stcgym.adaptive.kernels.state_estimation`). The estimator's state is an
+:class:`~stcgym.adaptive.kernels.estimator_spec.EstimatorState` of batched arrays, one row per
+lane (``B = 1`` for a single plant); ``make_estimator(..., num_envs=B)`` returns the *same*
+class stepping ``B`` lanes with a batch loop over the same lane function, so a single estimator
+equals lane ``i`` of a batch bit for bit.
 
 * parameter rule: SG (12)-(15), MISG (16)-(22), RLS (32)-(36), MILS (37)-(44), each optionally
   model-decomposed (``D-``: separate ``a`` and ``b`` sub-updates sharing one innovation,
@@ -19,14 +21,10 @@ function, so a single estimator equals lane ``i`` of a batch bit for bit.
   ``phi_hat(t) = [-x1_hat(t-1), ..., -x1_hat(t-n), u(t-1), ..., u(t-n)]``; observability form
   (153) ``[-x_n_hat(t-n), ..., -x_1_hat(t-n), u(t-1), ..., u(t-n)]``.
 
-Time convention (paper)
------------------------
-``t = 1, 2, ...``; every signal, state estimate and regressor is zero for ``t <= 0``, also inside
-the stacked MISG/MILS windows. Defaults: ``theta_hat(0) = 1/p0``, ``P(0) = p0 I``,
-``x_hat(1) = 1/p0``, ``P1(1) = I``, ``r(0) = 1``, ``p0 = 1e6``.
-
-One step (O-RLS (54)-(62), KF-MILS (73)-(86)) is split in two so that a controller can act in
-between::
+Time convention (paper): ``t = 1, 2, ...``; every signal, state estimate and regressor is zero
+for ``t <= 0``, also inside the stacked MISG/MILS windows. Defaults: ``theta_hat(0) = 1/p0``,
+``P(0) = p0 I``, ``x_hat(1) = 1/p0``, ``P1(1) = I``, ``r(0) = 1``, ``p0 = 1e6``. One step
+(O-RLS (54)-(62), KF-MILS (73)-(86)) is split in two so that a controller can act in between::
 
     theta = est.update(y_t)   # phi_hat(t), Phi(p, t), Y(p, t); theta_hat(t), P(t)
     u_t = controller(theta, est.x_hat)
@@ -35,11 +33,9 @@ between::
 ``update`` twice without ``predict`` (or ``predict`` first) raises :class:`RuntimeError`.
 Batched: ``update(y (B,)) -> theta (B, 2n)``, ``predict(u (B,)) -> x_hat (B, n)``.
 
-Numerical health and the "frozen on a wrong model" signal are described in
-:mod:`stcgym.adaptive.health`; the attributes read from the lane record, and the warnings of a
-step, are those of :class:`~stcgym.adaptive.estimator_views.EstimatorViews`;
-:func:`make_estimator` (:mod:`stcgym.adaptive.factory`) builds the estimators by name.
-(the measured behaviour of the paper's algorithms: the design notes of the documentation).
+Numerical health and the "frozen on a wrong model" signal: :mod:`stcgym.adaptive.health`; the
+attributes and the warnings of a step: :class:`~stcgym.adaptive.estimator_views.EstimatorViews`;
+the measured behaviour of the paper's algorithms: the design notes of the documentation.
 """
 
 from __future__ import annotations

@@ -19,31 +19,13 @@ least-squares lane function (:func:`stcgym.adaptive.kernels.least_squares.least_
 ``P`` is kept as an upper-triangular square-root factor ``P = S S^T`` (Carlson's update), so it
 cannot lose symmetry or positive definiteness through cancellation.
 
-Options (keywords of :class:`RecursiveLeastSquares`)
----------------------------------------------------
-* ``P0``: positive scalar, vector (diagonal) or symmetric positive definite matrix; or exactly
-  ``0``, which freezes ``theta`` at ``theta0`` for ever (the gain (3) is zero), as Voevoda &
-  Troshina (2016) note after (4). Default ``1e4``, MATLAB's ``InitialParameterCovariance``.
-* ``forgetting``: ``lambda`` in ``(0, 1]``.
-* ``window``: finite history, the exact regularised estimate over the last ``W`` samples
-  (``P0^{-1}`` and ``theta0`` stay as the prior): each new sample is added and the one ``W``
-  steps old removed by an exact downdate; when the downdate would lose digits (a squared pivot
-  of ``I - phi P phi^T`` below ``kernels.regression.WINDOW_DOWNDATE_TOL = 1e-4``: the sample
-  carries nearly all the information in some direction) the estimate is recomputed by
-  replaying the stored window from the prior instead (counted in ``n_recomputes``). Needs a
-  positive definite ``P0``; exclusive with ``forgetting < 1``.
-* ``enabled``: ``False`` freezes ``theta`` and ``P`` (the innovation and ``y_hat`` are still
-  computed): MATLAB's ``EnableAdaptation``.
-* ``reset()`` (all lanes or some): back to ``theta0``, ``P0``, ``t = 0``.
-* Numerical health (the project's one check, after every step): the factor ``S`` finite with a
-  strictly positive diagonal, the gain denominator positive and finite, ``theta`` finite. On a
-  failure ``on_failure="reset"`` keeps the last ``theta``, resets ``P`` to ``P0`` (empties the
-  window), counts it in ``n_resets`` and warns; ``on_failure="raise"`` raises
-  :class:`~stcgym.adaptive.NumericalHealthError` and leaves the failing lanes as they were
-  before the failing step.
-* ``num_envs=B``: ``B`` independent lanes stepped together (arrays with a leading ``B`` axis,
-  one batch loop over lanes); a single estimator calls the same lane function, so lane ``i``
-  equals a single estimator fed lane ``i``'s data bit for bit.
+The options (initial covariance ``P0``, with ``0`` freezing ``theta`` as Voevoda & Troshina (2016)
+note after (4); forgetting; a finite-history window, kept by exact downdates or, where a
+downdate would lose digits, by replaying the stored window; MATLAB's ``EnableAdaptation``; the
+safe action on numerical trouble; ``num_envs=B`` lanes, each equal to a single estimator bit
+for bit) are the parameters of :class:`RecursiveLeastSquares`. The numerical health check is
+the project's one: the factor ``S`` finite with a strictly positive diagonal, the gain
+denominator positive and finite, ``theta`` finite, after every step.
 
 :meth:`RecursiveLeastSquares.run` steps a whole record (``T`` samples, all lanes) in compiled
 code; :meth:`~RecursiveLeastSquares.update` is one step, for an online loop.
@@ -110,7 +92,7 @@ def _initial_covariance(value: ArrayLike, d: int) -> tuple[NDArray, NDArray]:
 class RecursiveLeastSquares:
     """Recursive least squares ``y(t) = phi(t) theta + e(t)`` on user regressors.
 
-    See the module docstring for the equations and the options.
+    The module docstring gives the equations.
 
     Parameters
     ----------
@@ -122,19 +104,36 @@ class RecursiveLeastSquares:
     theta0 : array_like, shape (d,), optional
         Initial estimate (zeros).
     P0 : float, array_like (d,) or (d, d)
-        Initial covariance (``1e4``, MATLAB's default), positive definite, or ``0``: the gain
-        (3) is then zero and ``theta`` stays at ``theta0`` for ever.
+        Initial covariance (``1e4``, MATLAB's ``InitialParameterCovariance``): a positive
+        scalar, a vector (the diagonal) or a symmetric positive definite matrix; or exactly
+        ``0``: the gain (3) is then zero and ``theta`` stays at ``theta0`` for ever.
     forgetting : float
         ``lambda`` in ``(0, 1]`` (``1``: no forgetting).
     window : int, optional
         Finite history of ``W`` samples (needs ``forgetting = 1`` and a positive definite
-        ``P0``).
+        ``P0``): the exact regularised estimate over the last ``W`` samples (``P0^{-1}`` and
+        ``theta0`` stay as the prior). Each new sample is added and the one ``W`` steps old
+        removed by an exact downdate; when the downdate would lose digits (a squared pivot of
+        ``I - phi P phi^T`` below ``kernels.regression.WINDOW_DOWNDATE_TOL = 1e-4``: the
+        sample carries nearly all the information in some direction) the estimate is
+        recomputed by replaying the stored window from the prior instead (counted in
+        :attr:`n_recomputes`).
     enabled : bool
-        Adaptation switch (settable later through :attr:`enabled`).
+        Adaptation switch (settable later through :attr:`enabled`), MATLAB's
+        ``EnableAdaptation``: ``False`` freezes ``theta`` and ``P`` (the innovation and
+        ``y_hat`` are still computed).
     on_failure : {"reset", "raise"}
-        Safe action on numerical trouble (see the module docstring).
+        Safe action when the health check fails after a step (the factor of ``P`` not finite
+        or its diagonal not strictly positive, the gain denominator not positive and finite,
+        ``theta`` not finite): ``"reset"`` keeps the last ``theta``, resets ``P`` to ``P0``
+        (empties the window), counts it in :attr:`n_resets` and warns; ``"raise"`` raises
+        :class:`~stcgym.adaptive.NumericalHealthError` and leaves the failing lanes as they
+        were before the failing step.
     num_envs : int, optional
-        Number of lanes ``B``; ``None`` for a single estimator (no leading axis).
+        Number of lanes ``B``; ``None`` for a single estimator (no leading axis). The lanes
+        are independent and stepped together by one batch loop over the same lane function
+        as a single estimator, so lane ``i`` equals a single estimator fed lane ``i``'s data
+        bit for bit.
 
     Raises
     ------

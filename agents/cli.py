@@ -4,14 +4,16 @@
     The self-tuning controllers, PPO, SAC and RecurrentPPO (3 runs each, trained on the spot
     through the task executor), pole placement on the true model and zero input, all scored
     against LQG on the true model, on the same episodes of the nominal, plant-family (test
-    split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on 2
+    split and held-out variants), parameter-jump and MIMO scenarios; about 14 minutes on 2
     CPU cores.
-    ``stcgym bench --standard`` (about 8.5 hours) has 5 runs, the whole test split, every
-    held-out variant and RL caps of 10^6 steps on the family; ``stcgym bench --full`` is the
-    long version (10 runs, every MIMO plant, TD3 and A2C too, longer caps: about 38 hours).
+    ``stcgym bench --standard`` (about 12 hours with every RL agent at its cap) has 5 runs,
+    the whole test split, every held-out variant and RL caps of 10^6 steps on the family;
+    ``stcgym bench --full`` is the long version (10 runs, every MIMO plant, TD3 and A2C too,
+    longer caps: about 48 hours).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
-    interrupted run without retraining its finished jobs.
+    interrupted run without retraining its finished jobs; ``--time-limit 2h45m`` starts only
+    the jobs estimated to end in time and leaves the rest for ``--resume``.
 ``stcgym eval MODEL_DIR``
     Re-evaluate a saved RL agent (a ``models/*`` folder of a bench run).
 ``stcgym sweep FAMILY``
@@ -57,28 +59,28 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
-        "--quick", action="store_true", help="the default: about 10 min on 2 CPU cores"
+        "--quick", action="store_true", help="the default: about 14 min on 2 CPU cores"
     )
     mode.add_argument(
         "--standard",
         action="store_true",
         help="5 runs per controller, the whole test split and every held-out variant, RL "
         "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 8.5 hours on 2 CPU cores (the estimate is printed "
-        "first)",
+        "RecurrentPPO (2e5 for SAC): about 12 hours on 2 CPU cores at the caps (the estimate is "
+        "printed first; the plateau rule stops most agents earlier)",
     )
     mode.add_argument(
         "--full",
         action="store_true",
-        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 38 hours; the "
+        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 48 hours; the "
         "estimate is printed first)",
     )
     p.add_argument(
         "--resume",
         metavar="RUN_DIR",
         help="continue the run in RUN_DIR (after Ctrl-C or a kill) with its config.json: "
-        "finished RL jobs are read back, not retrained; takes --jobs, --executor, --address, "
-        "--no-plots and --progress only",
+        "finished RL jobs and classical evaluations are read back, not run again; takes "
+        "--jobs, --executor, --address, --time-limit, --no-plots and --progress only",
     )
     p.add_argument(
         "--scenarios",
@@ -225,6 +227,13 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--executor", default="local", help=f"task executor: {' or '.join(EXECUTORS)}")
     p.add_argument("--address", help="Ray cluster address (with --executor ray), e.g. auto")
     p.add_argument(
+        "--time-limit",
+        metavar="DURATION",
+        help="wall-time limit of this session, e.g. 2h45m, 90m or 3600 (seconds): no job starts "
+        "that is not estimated to end in time; what is left is for --resume (a partial "
+        "report is written, exit status 0)",
+    )
+    p.add_argument(
         "--tensorboard-log",
         metavar="DIR",
         help="write TensorBoard logs of every RL training to DIR/<run>/ (learning curve "
@@ -283,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
     from stcgym.agents.benchmark import build_config, check_runnable, estimate_seconds, run_bench
-    from stcgym.agents.benchmark.plan import format_duration
+    from stcgym.agents.benchmark.plan import format_duration, parse_duration
 
     if args.resume is not None:
         cfg = _resumed_config(args)
@@ -323,6 +332,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             tensorboard_log=args.tensorboard_log,
             bootstrap_reps=args.bootstrap_reps,
         )
+    time_limit = None if args.time_limit is None else parse_duration(args.time_limit)
     check_runnable(cfg)
     print(
         f"stcgym bench: {cfg.mode} mode, estimated {format_duration(estimate_seconds(cfg))} on "
@@ -336,13 +346,14 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
         argv=list(argv),
         checked=True,
         resume=args.resume is not None,
+        time_limit=time_limit,
     )
     print(result.run_dir / "report.md")
     return 0
 
 
 #: The options ``--resume`` takes next to the run folder (the rest come from config.json).
-_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress")
+_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress", "time_limit")
 
 
 def _resumed_config(args: argparse.Namespace):

@@ -5,14 +5,16 @@ part of ``stcgym bench`` (one task per training env x agent x seed) both go thro
 
 API
 ---
-``run_tasks(fn, tasks, *, executor="local", jobs=None, address=None, done=(), progress=None)``
+``run_tasks(fn, tasks, *, executor="local", jobs=None, address=None, done=(), ...)``
     Call ``fn(task)`` for every task and yield a :class:`TaskOutcome`
     ``(index, task, result, error, seconds)`` as each one completes (not in input order;
     ``index`` is the task's position in ``tasks``). A task that raises does not stop the others:
     its outcome has ``result=None`` and ``error`` = the traceback text (the driver reports it
     with ``task``, the config). ``done`` is a collection of :func:`task_id` values to skip
-    (resume). ``fn`` must be a module-level function and ``tasks`` and results picklable (they
-    travel to worker processes or Ray workers); results should be small (rows, not traces).
+    (resume); ``progress`` is updated after every task; ``admit(task)`` decides, as each worker
+    frees up, whether a task may still start (a time limit). ``fn`` must be a module-level
+    function and ``tasks`` and results picklable (they travel to worker processes or Ray
+    workers); results should be small (rows, not traces).
 
     * ``executor="local"`` (default, no extra dependency): ``jobs`` worker processes
       (``concurrent.futures.ProcessPoolExecutor``, spawn start method so that numba's threads
@@ -218,6 +220,7 @@ def run_tasks(
     done: Collection[str] = (),
     progress: Progress | None = None,
     threads: int | None = None,
+    admit: Callable[[Any], bool] | None = None,
 ) -> Iterator[TaskOutcome]:
     """Run ``fn`` on every task not in ``done`` and yield outcomes as they complete.
 
@@ -240,22 +243,38 @@ def run_tasks(
         Updated after every task.
     threads
         numba threads per task (default 1, see the module docstring).
+    admit
+        Asked, each time a worker is free, of the tasks not started yet in their order: the
+        first it admits starts. A task it refuses is asked again at the next free worker;
+        when no task is running and it admits none of those left, the call ends without
+        them (they are neither run nor yielded). For a time limit: admit a task while its
+        estimated duration fits in the time left. Default: every task, in order.
     """
     _check(executor, jobs)
     skip = set(done)
     todo = [(i, t) for i, t in enumerate(tasks) if not skip or task_id(t) not in skip]
     threads = 1 if threads is None else int(threads)
+    admit = admit or (lambda task: True)
     if executor == "ray":
-        yield from _run_ray(fn, todo, jobs, address, progress, threads)
+        yield from _run_ray(fn, todo, jobs, address, progress, threads, admit)
         return
     jobs = int(jobs or os.cpu_count() or 1)
     if jobs == 1 or len(todo) <= 1:
-        for i, task in todo:
+        while (nxt := _next_admitted(todo, admit)) is not None:
+            i, task = nxt
             out = TaskOutcome(i, task, *_call(fn, task, threads))
             _tick(progress, out)
             yield out
         return
-    yield from _run_pool(fn, todo, jobs, progress, threads)
+    yield from _run_pool(fn, todo, jobs, progress, threads, admit)
+
+
+def _next_admitted(queue: list[tuple[int, Any]], admit: Callable[[Any], bool]) -> Any:
+    """Take the first task of ``queue`` that ``admit`` admits out of it (``None``: none)."""
+    for k, (_, task) in enumerate(queue):
+        if admit(task):
+            return queue.pop(k)
+    return None
 
 
 def _tick(progress: Progress | None, out: TaskOutcome) -> None:
@@ -269,18 +288,23 @@ def _run_pool(
     jobs: int,
     progress: Progress | None,
     threads: int,
+    admit: Callable[[Any], bool],
 ) -> Iterator[TaskOutcome]:
     ctx = get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as pool:
-        futures: dict[Future, tuple[int, Any]] = {
-            pool.submit(_call, fn, task, threads): (i, task) for i, task in todo
-        }
+    queue = list(todo)
+    workers = min(jobs, len(todo))
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        # one task per free worker, each admitted when it starts (not all submitted at once)
+        futures: dict[Future, tuple[int, Any]] = {}
         try:
-            pending = set(futures)
-            while pending:
-                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            while True:
+                while len(futures) < workers and (nxt := _next_admitted(queue, admit)):
+                    futures[pool.submit(_call, fn, nxt[1], threads)] = nxt
+                if not futures:
+                    return
+                finished, _ = wait(futures, return_when=FIRST_COMPLETED)
                 for fut in finished:
-                    i, task = futures[fut]
+                    i, task = futures.pop(fut)
                     try:
                         out = TaskOutcome(i, task, *fut.result())
                     except BrokenProcessPool as exc:  # a worker died (killed, out of memory)
@@ -316,18 +340,20 @@ def _run_ray(
     address: str | None,
     progress: Progress | None,
     threads: int,
+    admit: Callable[[Any], bool],
 ) -> Iterator[TaskOutcome]:
     ray = connect_ray(address, jobs)
     remote = ray.remote(num_cpus=1, max_retries=0)(_call)
     fn_ref = ray.put(fn)
-    queue = list(reversed(todo))
+    queue = list(todo)
     running: dict[Any, tuple[int, Any]] = {}
     cap = len(todo) if jobs is None else int(jobs)
     try:
-        while queue or running:
-            while queue and len(running) < cap:
-                i, task = queue.pop()
-                running[remote.remote(fn_ref, task, threads)] = (i, task)
+        while True:
+            while len(running) < cap and (nxt := _next_admitted(queue, admit)):
+                running[remote.remote(fn_ref, nxt[1], threads)] = nxt
+            if not running:
+                return
             ready, _ = ray.wait(list(running), num_returns=1)
             for ref in ready:
                 i, task = running.pop(ref)

@@ -7,23 +7,15 @@ that plant's arrays, and a *batch loop* is ``for i in range(first, last): lane_f
 A single env therefore equals lane ``i`` of the vector env bit for bit, on any CPU: the same
 machine code runs on the same numbers (no BLAS inside; the small loops are written out).
 
-Plants (seed paper: Ding & Ma 2014)
------------------------------------
-* observer canonical form, eq. (1)-(5) (``form = OBSERVER = 0``):
-  ``x(t+1) = A(a) x(t) + b u(t) + w(t)``, ``A(a)`` with ``-a`` in its first column and ones on
-  the superdiagonal, ``y(t) = c x(t) + v(t)``, ``c = [1, 0, ..., 0]``;
-* observability canonical form, eq. (146)-(147) (``form = OBSERVABILITY = 1``): ``A(a)`` a shift
-  with last row ``[-a_n, ..., -a_1]``, ``b`` the first ``n`` Markov parameters, same ``c``;
-* a general state space ``x(k+1) = A x + B u + w``, ``y = C x + D u + v`` (MIMO);
-* the multichannel static object ``y^T = u^T Theta + v^T`` (Voevoda & Troshina 2017): no state.
+Plants (Ding & Ma 2014): the observer canonical form, eq. (1)-(5) (``form = OBSERVER``), and the
+observability canonical form, eq. (146)-(147) (``form = OBSERVABILITY``), both with
+``theta = [a1..an, b1..bn]`` and ``c = [1, 0, ..., 0]`` (:func:`shift_transition`); a general
+state space ``x(k+1) = A x + B u + w``, ``y = C x + D u + v`` (MIMO); the multichannel static
+object ``y^T = u^T Theta + v^T`` of Voevoda & Troshina (2017), without state.
 
-Both canonical forms share the parameter vector ``theta = [a1..an, b1..bn]``.
-
-Timing and reward (the environments' contract)
------------------------------------------------
-At step ``k`` the input ``u(k)`` is clipped to ``[-action_bound, action_bound]``, the state
-advances with the parameters in force at ``k``, and the output is
-``y(k+1) = C x(k+1) + D u(k) + sigma_v z_v``; the reward is
+Timing and reward (the environments' contract): at step ``k`` the input ``u(k)`` is clipped to
+``[-action_bound, action_bound]``, the state advances with the parameters in force at ``k``, and
+the output is ``y(k+1) = C x(k+1) + D u(k) + sigma_v z_v``; the reward is
 ``-(||clip(y_clean, +-y_bound) - r(k+1)||^2 + rho ||u(k)||^2)`` on the noise-free output
 ``y_clean``. ``diverged`` is true when an output leaves ``[-y_bound, y_bound]``, the state or
 output stops being finite (then ``y`` and ``y_clean`` are replaced by their clipped values, NaN
@@ -31,75 +23,21 @@ by 0, so the observation stays finite) or the reward overflows (then the reward 
 :data:`REWARD_FLOOR`, the most negative finite float): an episode never returns a non-finite
 reward or observation.
 
-Published signatures (also used by the compiled rollout of :mod:`stcgym.adaptive`)
-----------------------------------------------------------------------------------
-Pieces (lane functions; arrays are float64 and C-contiguous, modified in place where noted):
+Entry points (published signatures, also used by the compiled rollout of :mod:`stcgym.adaptive`;
+arrays float64 and C-contiguous; each function's docstring gives its arguments):
 
-``clip_input(u_raw, bound) -> (u, clipped)`` / ``clip_action(u_raw, bound, u) -> clipped``
-    ``u = clip(u_raw, -bound, bound)`` for one value / element by element.
-``shift_transition(x, a, a0, b, b0, u, form)``
-    ``x <- A(a) x + b u`` in place with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` read in place
-    (``u`` a float; ``form`` 0 observer, 1 observability; no array views: e.g.
-    ``shift_transition(x, theta, 0, theta, n, u, form)`` for ``theta = [a; b]``).
-``canonical_output(x) -> float``
-    ``y_clean = c x = x[0]`` (``D = 0`` in both canonical forms).
-``add_noise(x, sigma, z)``
-    ``x <- x + sigma z`` in place (nothing when ``sigma == 0``).
-``state_space_transition(x, AB, u, tmp)``
-    ``x <- A x + B u`` in place for ``AB = [A B]`` of shape ``(n, n + m)`` (``tmp``: ``n`` floats).
-``linear_output(x, C, D, u, y)`` / ``matvec(C, x, y)``
-    ``y = C x + D u`` / ``y = C x``.
-``static_output(theta, u, y)``
-    ``y = Theta^T u`` for ``Theta`` of shape ``(m, p)``.
-``observe_scalar(x, y_clean, sigma_v, z_v, r, u, rho, y_bound) -> (y, y_clean, reward, diverged)``
-    One output, one input (floats): output noise, the divergence test, the safe replacement of
-    non-finite values and the reward.
-``observe(x, y_clean, sigma_v, z_v, r, u, rho, y_bound, y) -> (reward, diverged)``
-    The same for ``p`` outputs and ``m`` inputs (arrays; ``y`` and ``y_clean`` written).
-``measure``, ``safe_output``, ``squared_error``, ``reward_of``, ``all_finite``
-    The per-channel pieces of both ``observe`` functions.
-``performance_reward(x, u, r, Cz, Dz, rho) -> float``
-    ``-(||C_z x + D_z u - r||^2 + rho ||u||^2)``, the reward of a performance output at the
-    state ``x`` the input acts on (:data:`REWARD_FLOOR` on overflow).
+* whole env steps, returning ``(reward, clipped, diverged, ...)``: :func:`canonical_plant_step`
+  (SISO, floats), :func:`state_space_plant_step`, :func:`static_plant_step`;
+* their pieces: clipping, transitions (:func:`shift_transition`, ...), outputs, noise,
+  :func:`observe` (divergence test, safe replacement, reward), :func:`performance_reward`;
+* batch loops over lanes ``[first, last)``: :func:`canonical_plants_step`,
+  :func:`state_space_plants_step`, :func:`performance_rewards`, :func:`noise_inputs`, and at
+  reset :func:`canonical_outputs` / :func:`state_outputs`, threaded from
+  :data:`PARALLEL_MIN_LANES` lanes a thread on (:class:`stcgym.envs.compiled.LaneLoop`).
 
-Whole env steps (what the environments call; returns start with ``(reward, clipped,
-diverged)``):
-
-``canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound,
-form) -> (reward, clipped, diverged, u, y_clean, y)``
-    SISO: ``u_raw``, ``z_v``, ``r`` and the returned ``u``, ``y_clean``, ``y`` are floats.
-``state_space_plant_step(x, AB, C, D, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound,
-u, y_clean, y, tmp)``
-    Arrays; ``u`` receives the clipped input, ``y_clean`` and ``y`` the outputs.
-``static_plant_step(theta, u_raw, bound, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, none)``
-    (``none`` an empty float array: the object has no state).
-
-``z_w`` and ``z_v`` are standard normals (unused, and may be empty, when the matching ``sigma``
-is 0; pass shape ``(B, 0)`` to a batch loop). Batch loops over lanes (leading axis ``B``, one
-row per lane; outputs ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` ``(B,)`` bool):
-:func:`canonical_plants_step` (``U_raw``, ``Z_v``, ``R``, ``U``, ``Y_clean``, ``Y`` of shape
-``(B,)``), :func:`state_space_plants_step` (per-lane ``AB`` of shape ``(B, n, n + m)``, a
-last scratch argument ``TMP`` of shape ``(B, n)``), :func:`performance_rewards` and
-:func:`noise_inputs` (``out[i] = G Z[i]``, process noise through a noise input), and at reset
-:func:`canonical_outputs` / :func:`state_outputs` for lanes ``idx``. Each batch loop splits
-its lanes over threads from :data:`PARALLEL_MIN_LANES` lanes a thread on and runs on the
-calling thread below (:class:`stcgym.envs.compiled.LaneLoop`). Lane functions take as few
-array views as possible: each view passed to a call is a dozen machine words, a noticeable
-share of a small plant's step.
-
-Reference values and parameters for a rollout
----------------------------------------------
-References and schedules (:mod:`stcgym.envs.signals`) produce values for a vector of lanes
-themselves: ``ref.values(k, lanes)`` gives ``r`` at steps ``k`` (int array, one per lane) and
-``schedule.values(k, lanes)`` the parameters in force, ``(len(lanes), *shape)`` (a lane may
-repeat with increasing ``k``). A rollout of ``T`` steps for ``B`` lanes takes them from the
-vector env with :meth:`stcgym.envs.vector.LinearPlantVectorEnv.lookahead`, a dict of arrays:
-``"r"`` ``(B, T, p)`` with ``r[:, j] = r(t + 1 + j)`` (the reference returned with step ``j``'s
-observation), ``"z_v"`` ``(B, T, p)`` and ``"z_w"`` ``(B, T, n)`` the standard normals of those
-steps, and ``"params"``: ``None`` for constant plants, else ``(B, T, *shape)`` with the
-parameters in force at step ``t + j``. Feeding them to :func:`canonical_plant_step` reproduces
-the env bit for bit (``tests/test_vector.py`` checks it) until a lane ends its episode. For one
-plant, use a one-lane vector env: lane 0 equals the single env with the same seed.
+``z_w``, ``z_v`` are standard normals (may be empty when the matching ``sigma`` is 0); those of
+a rollout's next steps, with its references and parameters, come from
+:meth:`stcgym.envs.vector.LinearPlantVectorEnv.lookahead` and reproduce the env bit for bit.
 """
 
 from __future__ import annotations
@@ -177,9 +115,16 @@ def clip_action(u_raw, bound, u):
 def shift_transition(x, a, a0, b, b0, u, form):
     """``x <- A(a) x + b u`` in place with ``a = a[a0:a0+n]``, ``b = b[b0:b0+n]`` (no views).
 
-    Observer form, eq. (1): ``x_i(t+1) = -a_i x_1(t) + x_{i+1}(t) + b_i u(t)``, ``x_{n+1} = 0``.
-    Observability form, eq. (146): ``x_i(t+1) = x_{i+1}(t) + b_i u(t)`` for ``i < n`` and
-    ``x_n(t+1) = -(a_n x_1 + ... + a_1 x_n) + b_n u(t)``.
+    Observer form, eq. (1) (``form == OBSERVER``, ``A(a)`` with ``-a`` in its first column and
+    ones on the superdiagonal): ``x_i(t+1) = -a_i x_1(t) + x_{i+1}(t) + b_i u(t)``,
+    ``x_{n+1} = 0``. Observability form, eq. (146) (``form == OBSERVABILITY``, ``A(a)`` a shift
+    with last row ``[-a_n, ..., -a_1]``, ``b`` the first ``n`` Markov parameters):
+    ``x_i(t+1) = x_{i+1}(t) + b_i u(t)`` for ``i < n`` and
+    ``x_n(t+1) = -(a_n x_1 + ... + a_1 x_n) + b_n u(t)``. ``u`` is a float.
+
+    ``a`` and ``b`` are read in place at offsets rather than passed as views (each view passed to
+    a call is a dozen machine words, a noticeable share of a small plant's step): e.g.
+    ``shift_transition(x, theta, 0, theta, n, u, form)`` for ``theta = [a; b]``.
     """
     n = x.shape[0]
     if form == 0:
@@ -206,7 +151,7 @@ def add_noise(x, sigma, z):
 
 @lane(entry=True)
 def canonical_output(x):
-    """``y = c x = x_1``: the output row of both canonical forms (eq. (2), (147))."""
+    """``y = c x = x_1``: the output row of both canonical forms (eq. (2), (147); ``D = 0``)."""
     return x[0]
 
 
@@ -383,7 +328,9 @@ def performance_reward(x, u, r, Cz, Dz, rho):
 def canonical_plant_step(x, theta, u_raw, bound, sigma_w, z_w, sigma_v, z_v, r, rho, y_bound, form):
     """One step of a canonical plant (``theta = [a; b]``, SISO: scalar input, noise, reference).
 
-    Returns ``(reward, clipped, diverged, u, y_clean, y)`` (``u`` the clipped input).
+    Returns ``(reward, clipped, diverged, u, y_clean, y)`` (``u`` the clipped input). ``u_raw``,
+    ``z_v``, ``r`` and the returned ``u``, ``y_clean``, ``y`` are floats; ``z_w`` has ``n``
+    standard normals (may be empty when ``sigma_w == 0``).
     """
     n = x.shape[0]
     u, clipped = clip_input(u_raw, bound)
@@ -413,7 +360,10 @@ def state_space_plant_step(
 
 @lane(entry=True)
 def static_plant_step(theta, u_raw, bound, sigma_v, z_v, r, rho, y_bound, u, y_clean, y, none):
-    """One step of the static object ``y = Theta^T u + v``; ``(reward, clipped, diverged)``."""
+    """One step of the static object ``y = Theta^T u + v``; ``(reward, clipped, diverged)``.
+
+    ``none`` is an empty float array (the object has no state).
+    """
     clipped = clip_action(u_raw, bound, u)
     static_output(theta, u, y_clean)
     reward, diverged = observe(none, y_clean, sigma_v, z_v, r, u, rho, y_bound, y)
@@ -445,7 +395,8 @@ def canonical_plants_step(
     last,
 ):
     """:func:`canonical_plant_step` for every lane; ``U_raw``, ``Z_v``, ``R``, ``U``,
-    ``Y_clean``, ``Y`` of shape ``(B,)``, ``Z_w`` ``(B, n)`` (``(B, 0)`` when unused)."""
+    ``Y_clean``, ``Y`` of shape ``(B,)``, ``Z_w`` ``(B, n)`` (``(B, 0)`` when unused); outputs
+    ``reward`` ``(B,)`` float64, ``clipped`` and ``diverged`` ``(B,)`` bool."""
     for i in range(first, last):
         reward[i], clipped[i], diverged[i], U[i], Y_clean[i], Y[i] = canonical_plant_step(
             X[i],
@@ -488,7 +439,11 @@ def state_space_plants_step(
     first,
     last,
 ):
-    """:func:`state_space_plant_step` for every lane, lane ``i`` with its own ``AB[i]``."""
+    """:func:`state_space_plant_step` for every lane, lane ``i`` with its own ``AB[i]``.
+
+    ``AB`` of shape ``(B, n, n + m)``, the scratch ``TMP`` ``(B, n)``; outputs ``reward``
+    ``(B,)`` float64, ``clipped`` and ``diverged`` ``(B,)`` bool.
+    """
     for i in range(first, last):
         reward[i], clipped[i], diverged[i] = state_space_plant_step(
             X[i],

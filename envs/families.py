@@ -1,71 +1,23 @@
 """Plant families: random n-th-order SISO plants drawn reproducibly from a small spec.
 
-A family spec is data (a YAML or JSON file, or a dict). Every key is optional except ``count``;
-unknown keys, negative counts, impossible ranges, overlapping splits and clashing names raise
-:class:`FamilySpecError` (naming the key) before any work starts. Example (YAML)::
+A family spec is data (a YAML or JSON file, or a dict) with the keys of :data:`DEFAULT_FAMILY`,
+each optional except ``count``: the order, the ranges and shares of stable and unstable poles,
+minimum- and nonminimum-phase zeros and DC gains, the episode settings (noise, reference,
+initial state, length, cost, bounds), an optional per-episode ``jump`` or ``drift`` of the
+parameters, named ``splits`` and ``variants``. Unknown keys, negative counts, impossible ranges,
+overlapping splits and clashing names raise :class:`FamilySpecError` (naming the key) before any
+work starts. Every key, annotated: "Writing a family spec" in the Environments page of the
+documentation.
 
-    name: demo
-    version: 1           # an integer >= 1; name and version name the family ("demo-v1")
-    seed: 0              # family seed: plant i is drawn from SeedSequence([seed, i])
-    count: 200           # number of plants
-    order: 2             # n: poles (and n - 1 zeros) of (b1 z^{n-1} + ... + bn) / A(z)
-    poles:
-      magnitude: [0.3, 0.95]         # radius of the stable poles (uniform)
-      angle: [0.05, 0.5]             # angle of complex poles, as a fraction of pi (uniform)
-      complex_share: 0.5             # chance that each pole pair is complex
-      unstable_share: 0.2            # share of plants with one real pole outside the unit circle
-      unstable_magnitude: [1.02, 1.2]
-    zeros:
-      magnitude: [0.0, 0.9]          # |zero| of the minimum-phase zeros (real, random sign)
-      nonminimum_phase_share: 0.2    # share of plants with one zero outside the unit circle
-      nonminimum_phase_magnitude: [1.2, 3.0]
-    dc_gain: [0.5, 5.0]              # B(1)/A(1), log-uniform; both ends of one sign
-    negative_gain_share: 0.0         # chance that the drawn plant's gain sign is flipped
-    noise_std: 0.05                  # output noise standard deviation
-    reference: {kind: square, period: 100, amplitude: 1.0}
-                                     # square, step, sine, zero, random_steps (amplitude, hold)
-    initial_state_std: 0.0           # x(0) ~ N(0, std^2 I) each episode
-    steps: 1000                      # episode length
-    control_cost: 0.01               # rho in the cost (y - r)^2 + rho u^2
-    action_bound: 10.0
-    y_bound: 100.0                   # |y| beyond this ends the episode (not bounded)
-    jump:                            # optional: parameters jump once per episode
-      at: 0.5                        # fraction of the episode (or a step number >= 1), or a
-                                     # range [low, high] of either: each episode draws its step
-      probability: 1.0               # chance that an episode has the jump
-      magnitude_scale: [0.8, 1.1]    # stable pole radii scaled by this (capped below 1)
-      angle_scale: [0.8, 1.2]
-      dc_gain_scale: [0.5, 2.0]      # log-uniform
-    drift: {std: 0.0005}             # optional, instead of jump: random walk on [a; b]
-    splits:                          # optional: named, disjoint index ranges [start, stop)
-      train: [0, 150]                # default: {all: [0, count]}
-      test: [150, 200]
-    variants:                        # optional: other families derived from this one
-      unstable: {count: 50, poles: {unstable_share: 1.0}}
-
-Drawing (:func:`draw_plant`): the poles are ``n // 2`` pairs, each complex with probability
-``complex_share`` (radius and angle uniform in their ranges), else two real poles of uniform
-radius; odd ``n`` adds one real pole. With probability ``unstable_share`` the largest real pole
-(or, for an all-complex draw, the first pair, made real) is replaced by an unstable real pole.
-The ``n - 1`` zeros are real, of uniform magnitude and random sign; with probability
-``nonminimum_phase_share`` the first one lies outside the unit circle (order 1: no zeros).
-The numerator is scaled so that ``B(1) / A(1)`` is the drawn DC gain. The jump's target plant
-is drawn next by scaling the plant's poles and gain; last, with probability
-``negative_gain_share``, the signs of the gain and of ``b`` (before and after the jump) flip.
-Everything a plant is comes from ``numpy.random.SeedSequence([seed, index])``: plant ``i`` of
-a family is the same whether drawn alone, in a chunk of 10^4, in any split or on another
-machine. Only the jump's time (and whether an episode has it) is drawn per episode, by the
-environment (:class:`~stcgym.envs.schedules.RandomJump`).
+:func:`draw_plant` draws plant ``i`` from ``numpy.random.SeedSequence([seed, i])`` alone, so a
+plant is the same whether drawn alone, in a chunk of 10^4, in any split or on another machine;
+only the jump's time (and whether an episode has it) is drawn per episode, by the environment
+(:class:`~stcgym.envs.schedules.RandomJump`).
 
 **Splits** name disjoint ranges of plant indices (:meth:`FamilySpec.split_indices`), e.g. train,
 validation and test. **Variants** are other families derived from this one
-(:meth:`FamilySpec.variant`), e.g. out-of-distribution test plants: each is a partial spec,
-deep-merged over this spec's keys (``reference`` and ``splits`` are replaced whole, never
-merged), that must give its own ``count``. A variant keeps neither the splits nor the variants
-of its base (its plants form the split ``all`` unless it names splits of its own); its ``name``
-is ``"<base name>.<variant>"`` and its ``seed``, unless given, is ``base seed * 2**32 +
-zlib.crc32(variant name)``, so its plants differ from the base's and from another variant's.
-Where a family is used by split name (:meth:`FamilySpec.members`, the ``split`` of
+(:meth:`FamilySpec.variant`), e.g. out-of-distribution test plants. Where a family is used by
+split name (:meth:`FamilySpec.members`, the ``split`` of
 :class:`~stcgym.envs.family_env.PlantFamilyEnv`), a variant's name means all its plants; split
 and variant names must therefore differ.
 
@@ -166,8 +118,9 @@ _MAX_STABLE_RADIUS = 0.995
 class FamilySpec:
     """A validated family spec: ``data`` holds every key (defaults filled in), JSON-able.
 
-    Build one with :meth:`from_dict`, :func:`load_family` or :func:`get_family`; the module
-    docstring lists the keys. ``spec["key"]`` reads a key.
+    Build one with :meth:`from_dict`, :func:`load_family` or :func:`get_family`; the keys are
+    those of :data:`DEFAULT_FAMILY` (annotated: "Writing a family spec" in the Environments page
+    of the documentation). ``spec["key"]`` reads a key.
 
     Examples
     --------
@@ -291,7 +244,14 @@ class FamilySpec:
         return self.members(name)[1]
 
     def variant(self, name: str) -> FamilySpec:
-        """The variant ``name`` as a family of its own (see the module docstring).
+        """The variant ``name`` as a family of its own.
+
+        The variant's partial spec is deep-merged over this spec's keys (``reference`` and
+        ``splits`` are replaced whole, never merged) and must give its own ``count``. It keeps
+        neither the splits nor the variants of its base (its plants form the split ``all``
+        unless it names splits of its own); its ``name`` is ``"<base name>.<variant>"`` and its
+        ``seed``, unless given, is ``base seed * 2**32 + zlib.crc32(variant name)``, so its
+        plants differ from the base's and from another variant's.
 
         Raises
         ------
@@ -331,7 +291,7 @@ class FamilySpec:
 
     @classmethod
     def from_dict(cls, spec: Mapping[str, Any]) -> FamilySpec:
-        """Validate ``spec`` (see the module docstring) and fill in defaults."""
+        """Validate ``spec`` (the keys of :data:`DEFAULT_FAMILY`) and fill in defaults."""
         return cls(_validate(spec))
 
 
@@ -864,7 +824,19 @@ def _jumped(
 
 
 def draw_plant(family: FamilySpec, index: int) -> Plant:
-    """Plant ``index`` of ``family``: a pure function of ``(family, family.seed, index)``."""
+    """Plant ``index`` of ``family``: a pure function of ``(family, family.seed, index)``.
+
+    Everything is drawn from ``numpy.random.SeedSequence([seed, index])``. The poles are
+    ``n // 2`` pairs, each complex with probability ``complex_share`` (radius and angle uniform
+    in their ranges), else two real poles of uniform radius; odd ``n`` adds one real pole. With
+    probability ``unstable_share`` the largest real pole (or, for an all-complex draw, the first
+    pair, made real) is replaced by an unstable real pole. The ``n - 1`` zeros are real, of
+    uniform magnitude and random sign; with probability ``nonminimum_phase_share`` the first one
+    lies outside the unit circle (order 1: no zeros). The numerator is scaled so that
+    ``B(1) / A(1)`` is the drawn DC gain (log-uniform). The jump's target plant is drawn next by
+    scaling the plant's poles and gain; last, with probability ``negative_gain_share``, the
+    signs of the gain and of ``b`` (before and after the jump) flip.
+    """
     if not 0 <= int(index) < family.count:
         raise ValueError(f"index must be in [0, {family.count}), got {index!r}")
     rng = np.random.default_rng(np.random.SeedSequence([family["seed"], int(index)]))

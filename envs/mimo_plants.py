@@ -3,16 +3,9 @@
 Each entry is a continuous-time model ``dx/dt = A_c x + B_c u (+ B1_c w)`` from a published
 source, discretised by zero-order hold (``control.sample_system``) with the sample time ``dt``
 stated below, and measured state (``C = I``). Select one with
-``gym.make("stcgym/StateSpace-v0", plant="he1")``.
-
-======================  ======  ======  =====  =====================================  ==========
-name                    states  inputs  dt     discrete poles (magnitude)             stability
-======================  ======  ======  =====  =====================================  ==========
-``quadruple_tank``      4       2       5 s    0.923, 0.946, 0.805, 0.846             stable
-``quadruple_tank_nmp``  4       2       5 s    0.924, 0.946, 0.880, 0.915             stable
-``he1``                 4       2       0.1 s  1.028 (complex pair), 0.977, 0.813     unstable
-``ac1``                 5       3       0.1 s  1.0, 0.998 (complex pair), 0.925 (pair)  integrator
-======================  ======  ======  =====  =====================================  ==========
+``gym.make("stcgym/StateSpace-v0", plant="he1")``. The plants (``quadruple_tank``,
+``quadruple_tank_nmp``, ``he1``, ``ac1``), their sizes, sample times and discrete poles are
+tabled in the Multivariable plants page of the documentation (the tests check the poles).
 
 Besides ``(A_c, B_c)`` an entry may carry its source's performance output ``z = C_z x + D_z u``
 (the quantities the cost weighs), measured output ``y = C_y x``, process-noise input ``B1_c``
@@ -24,7 +17,7 @@ Sources
 ``quadruple_tank``, ``quadruple_tank_nmp``
     K. H. Johansson, "The quadruple-tank process: a multivariable laboratory process with an
     adjustable zero", IEEE Trans. Control Systems Technology 8(3), 2000, eq. (2) linearised at
-    the operating points of Table I/II: ``P-`` (``quadruple_tank``, minimum phase:
+    the operating points of Table I/II, sampled at 5 s: ``P-`` (``quadruple_tank``, minimum phase:
     ``T = (62, 90, 23, 30)`` s, ``k = (3.33, 3.35)`` cm^3/Vs, ``gamma = (0.70, 0.60)``, pump
     voltages ``v0 = (3.00, 3.00)`` V) and ``P+`` (``quadruple_tank_nmp``, a transmission zero in
     the right half plane: ``T = (63, 91, 39, 56)`` s, ``k = (3.14, 3.29)``,
@@ -44,8 +37,6 @@ Sources
     ``D12' D12 = diag(0.5, 0.5, 0)``; the entry's ``D_z`` has a third row
     ``[0, 0, sqrt(0.5)]`` (``C_z`` a zero row) so that ``||C_z x + D_z u||^2`` is controlgym's
     stage cost ``x' Q x + u' R u + 2 x' S u`` exactly.
-
-The table is checked against the matrices by the tests.
 """
 
 from __future__ import annotations

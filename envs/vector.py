@@ -22,31 +22,13 @@ spawn_key=(j,))``, identical to ``spawn(5)[j]``), and noise is drawn per lane in
 only sets memory use: a numpy ``Generator`` gives the same normals whether drawn in one block of
 512 or in smaller pieces.
 
-Reset seeds follow :class:`gymnasium.vector.SyncVectorEnv`: ``seed=s`` gives lane ``i`` the seed
-``s + i``; a list gives one seed per lane; ``None`` keeps each lane's generator (fresh entropy on
-first use).
-
-Autoreset
----------
-``autoreset_mode`` (constructor argument, also in ``metadata["autoreset_mode"]``) is Gymnasium's
-``NEXT_STEP`` by default: after a lane ends, the next ``step`` ignores that lane's action, resets
-it (next episode of the lane's generator) and returns its first observation with reward 0 and
-both flags false. ``SAME_STEP`` resets in the same call and reports ``infos["final_obs"]`` /
-``infos["final_info"]`` (what Stable-Baselines3 needs: :class:`stcgym.agents.rl.vec_env.SB3VecEnv`
-switches to it); ``DISABLED`` leaves resets to the caller (``reset(options={"reset_mask":
-mask})``). ``max_episode_steps`` truncates like ``TimeLimit``.
-An autoreset starts the lane's next episode like ``env.reset()`` without options, as
-``SyncVectorEnv`` does: parameters given through ``reset(options=...)`` last one episode (a
-``UserWarning`` says so the first time such a lane autoresets); give per-lane ``a``/``b`` to the
-constructor to keep them.
-
-Infos are Gymnasium vector infos: one array per key with a boolean ``"_key"`` mask; the keys are
-those of the single env (``info_keys=(...)`` keeps a subset, ``()`` none: cheaper for many lanes).
-
-Options of ``reset`` are those of the single environment and apply to every lane being reset;
-parameter options (``"theta"``, ``"a"``/``"b"``, ``"initial_state"``, state-space ``"A"``/``"B"``)
-may also be given per lane with a leading axis of length ``num_envs``. Unknown keys raise
-``ValueError``; every bad argument raises before any lane changes.
+Reset seeds follow :class:`gymnasium.vector.SyncVectorEnv` (``seed=s`` gives lane ``i`` the seed
+``s + i``), and so do autoresets: ``autoreset_mode`` is Gymnasium's ``NEXT_STEP`` by default
+(``SAME_STEP`` and ``DISABLED`` on request), and an autoreset starts the lane's next episode like
+``env.reset()`` without options. Infos are Gymnasium vector infos (one array per key with a
+``"_key"`` mask); ``reset`` options may be given per lane (leading axis ``num_envs``); unknown
+keys raise ``ValueError``, and every bad argument raises before any lane changes. The whole
+contract: the Vector environments section of the Environments page of the documentation.
 
 For a compiled rollout of ``T`` steps, :meth:`LinearPlantVectorEnv.lookahead` returns the
 references, parameters and noise the next ``T`` steps would use, without changing the env.

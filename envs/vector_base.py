@@ -58,7 +58,10 @@ class LinearPlantVectorEnv(VectorEnv):
     max_episode_steps
         Truncation after this many steps (``gym.make_vec`` passes the registered value).
     autoreset_mode
-        ``"NextStep"`` (default), ``"SameStep"`` or ``"Disabled"``; see :mod:`stcgym.envs.vector`.
+        ``"NextStep"`` (default: the step after a lane ends resets it and returns its first
+        observation), ``"SameStep"`` (resets in the same step, with ``infos["final_obs"]``
+        and ``infos["final_info"]``) or ``"Disabled"`` (resets left to the caller:
+        ``reset(options={"reset_mask": mask})``).
     noise_buffer_bytes
         Memory for each noise buffer (all lanes); sets how many draws per lane are refilled
         at once (16 to 512). Results do not depend on it.

@@ -48,6 +48,27 @@ def test_done_tasks_are_skipped():
     _check_outcomes(list(run_tasks(math.sqrt, TASKS, jobs=1, done=done)), skipped=(1, 3))
 
 
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_admit_is_asked_as_workers_free_up_and_refused_tasks_never_run(jobs):
+    # a budget of 3 starts: each admitted task uses one, so the rest are refused
+    budget = {"left": 3}
+    asked = []
+
+    def admit(task):
+        asked.append(task)
+        if task == 16.0 or budget["left"] == 0:
+            return False
+        budget["left"] -= 1
+        return True
+
+    got = _by_index(run_tasks(math.sqrt, TASKS, jobs=jobs, admit=admit))
+    assert sorted(got) == [0, 1, 2]  # in order, 4.0, 9.0, -1.0; the rest never started
+    assert 16.0 in asked and 2.25 in asked
+    # without the budget, the refused task is skipped and the one after it starts
+    got = _by_index(run_tasks(math.sqrt, TASKS, jobs=jobs, admit=lambda t: t != 16.0))
+    assert sorted(got) == [0, 1, 2, 4]
+
+
 def test_ray_runs_the_same_tasks():
     ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, include_dashboard=False)

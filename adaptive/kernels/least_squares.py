@@ -31,17 +31,10 @@ place so that ``S_new S_new^T = P - P phi phi^T P / alpha_d`` (the numerator and
 multi-innovation update (39)-(40) ``P(t) = [lam P^{-1}(t-1) + Phi^T Phi]^{-1}`` is ``p`` such
 rank-one updates, and its increment is ``L(t) E(p, t) = P(t) Phi^T E(p, t)`` (41). In exact
 arithmetic this is the paper's RLS/MILS; in floating point ``P`` stays symmetric positive
-definite by construction (the textbook update ``P - L phi^T P`` loses definiteness within ~10
-steps for ``p0 = 1e6`` and regressors of size 100).
-
-Health check (one, used everywhere): :func:`factor_is_healthy` -- every entry of ``S`` finite
-and every diagonal entry strictly positive (``P = S S^T`` is then positive definite), ``O(d^2)``
-after every update; unlike a Cholesky test of ``P`` it does not fail for a legitimately
-ill-conditioned ``P``.
-
-Finite history downdate: ``P_new = P + P phi phi^T P / (1 - phi^T P phi)``, a rank-one *update*
-of the factor by Givens rotations (no cancellation) once ``g = 1 - phi^T P phi`` is known to be
-safely positive (``g > DOWNDATE_TOL``).
+definite by construction. Finite history downdate: ``P_new = P + P phi phi^T P / g`` with
+``g = 1 - phi^T P phi``, a Givens rank-one *update* of the factor once ``g > DOWNDATE_TOL``.
+Health check (one, used everywhere, ``O(d^2)`` after every update): :func:`factor_is_healthy`.
+Design notes: square-root covariance, the one health check.
 """
 
 from __future__ import annotations
@@ -127,7 +120,8 @@ def rank_one_update(S: NDArray, lo: int, hi: int, v: NDArray) -> None:
 @lane(entry=True)
 def factor_is_healthy(S: NDArray, lo: int, hi: int) -> bool:
     """The one positive-definiteness check: every entry of the block finite, every diagonal
-    entry strictly positive (see the module docstring)."""
+    entry strictly positive (``P = S S^T`` is then positive definite). Unlike a Cholesky test
+    of ``P`` it does not fail for a legitimately ill-conditioned ``P``."""
     for j in range(lo, hi):
         if not S[j, j] > 0.0:  # also False for NaN
             return False

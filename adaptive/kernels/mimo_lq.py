@@ -13,36 +13,18 @@ convention; the StateSpace env's cost is ``Q = I``, ``R = rho I``, ``N = 0``), t
     symmetric positive semidefinite): the warm-started per-sample design of the self-tuning
     controller.
 ``dare_solve``
-    The stabilising solution of the discrete algebraic Riccati equation. The cross weight is
-    removed first (``A_N = A - B R^{-1} N^T``, ``Q_N = Q - N R^{-1} N^T``; the gain is then
-    ``K = K_N + R^{-1} N^T``), then the structure-preserving doubling algorithm (``A_0 = A_N``,
-    ``G_0 = B R^{-1} B^T``, ``H_0 = Q_N``; ``W = I + G_k H_k``, ``A_{k+1} = A_k W^{-1} A_k``,
-    ``G_{k+1} = G_k + A_k W^{-1} G_k A_k^T``, ``H_{k+1} = H_k + A_k^T H_k W^{-1} A_k``,
-    ``H_k -> P``) solves it. Doubling converges to the stabilising solution only when the dual
-    equation has one too, i.e. when ``(Q_N, A_N)`` is detectable; with a positive semidefinite
-    ``Q_N`` that leaves an unstable mode unweighted it stops at another solution. Its closed loop
-    is then not Schur stable, and the solve falls back on Newton's method (Hewer 1971,
-    "An iterative technique for the computation of the steady state gains for the discrete
-    optimal regulator", IEEE TAC 16(4)): from the stabilising gain of the regularised weight
-    ``Q_N + delta I`` (doubling again, always detectable), ``P_k`` solves the Stein equation
-    ``P = (A - B K_k)^T P (A - B K_k) + [I; -K_k]^T W [I; -K_k]`` (Smith's doubling:
-    ``X_{j+1} = X_j + F_j^T X_j F_j``, ``F_{j+1} = F_j^2``) and ``K_{k+1}`` is the gain of
-    ``P_k``. The iterates stay stabilising and decrease to the largest solution, quadratically
-    when it is stabilising: it exists whenever ``(A, B)`` is stabilisable and no mode on the unit
-    circle is unobservable through ``Q_N``. The full solve for a fresh model and the known-model
-    oracle (tested against python-control's ``dlqr``). The iteration itself, ``doubling``, also
-    serves the single-input :func:`.lq.dare`.
+    The stabilising solution of the discrete algebraic Riccati equation: the structure-preserving
+    doubling algorithm (:func:`doubling`, also used by the single-input :func:`.lq.dare`) on
+    the problem without cross weight (state weight ``Q_N = Q - N R^{-1} N^T``), with Newton's
+    method (Hewer 1971) from a regularised weight where doubling stops at a solution that is not
+    stabilising. The full solve for a fresh model and the known-model oracle (tested against
+    python-control's ``dlqr``).
 ``steady_state_feedforward``
-    For a constant reference ``r`` the cheapest equilibrium ``(x_s, u_s)``: minimise
-    ``[x_s - r; u_s]^T W [x_s - r; u_s]`` subject to ``(A - I) x_s + B u_s = 0`` (the
-    stationary point of the average-cost LQ tracking problem), from the KKT system
-    ``[[Q, N, (A - I)^T], [N^T, R, B^T], [A - I, B, 0]] [x_s; u_s; mu] = [Q r; N^T r; 0]``.
-    Linear in ``r``: ``x_s = M_x r``, ``u_s = M_u r``, and the law ``u = u_s - K (x - x_s)`` is
-    ``u = -K x + F r`` with ``F = M_u + K M_x``. With fewer inputs than states not every
-    reference is an equilibrium; this is the equilibrium nearest to it in the cost.
+    For a constant reference ``r`` the cheapest equilibrium ``(x_s, u_s)``, from the KKT system
+    of the average-cost LQ tracking problem; linear in ``r`` (``x_s = M_x r``, ``u_s = M_u r``),
+    so the law ``u = u_s - K (x - x_s)`` is ``u = -K x + F r`` with ``F = M_u + K M_x``.
 ``schur_stable``
-    ``rho(M) < 1`` tested by repeated squaring: ``||M^(2^k)||_F < 1/2`` for some ``k <= 40``
-    (stable), a norm above ``1e100`` or not finite (unstable); undecided counts as unstable.
+    ``rho(M) < 1`` tested by repeated squaring; undecided counts as unstable.
 ``feedback_law``
     ``u = sat(-K x + F r)``, saturated per input.
 
@@ -189,7 +171,11 @@ def riccati_step(A, B, Q, R, N, P, K, work):
 
 @lane
 def schur_stable(M, work):
-    """Spectral radius of ``M`` below 1, by repeated squaring (module docstring)."""
+    """Spectral radius of ``M`` below 1, by repeated squaring.
+
+    Stable when ``||M^(2^k)||_F < 1/2`` for some ``k <= MAX_SQUARINGS``; unstable when a norm
+    exceeds ``1e100`` or is not finite; undecided counts as unstable.
+    """
     n = M.shape[0]
     X = _slot(work, 7, n, n)
     Y = _slot(work, 8, n, n)
@@ -316,7 +302,7 @@ def _stein(F0, X, tol, max_iter, work):
 
 @lane
 def _newton(A, B, Q, R, N, P, K, work, tol, max_iter):
-    """Newton's method (Hewer's iteration, module docstring) from the stabilising gain ``K``
+    """Newton's method (Hewer's iteration, :func:`dare_solve`) from the stabilising gain ``K``
     (slot 11 ``P``, slot 9 ``K``; uses slots 0-8, 10, 15). Returns ``OK`` with the stabilising
     solution in ``P`` and its gain in ``K``, ``UNIT_CIRCLE_MODE`` when the limit's closed loop
     is not Schur stable, or ``NOT_CONVERGED``."""
@@ -358,11 +344,27 @@ def _newton(A, B, Q, R, N, P, K, work, tol, max_iter):
 
 @lane(entry=True)
 def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
-    """Stabilising DARE solution ``P`` and its gain ``K`` (module docstring: doubling, with
-    Newton's method when ``Q_N`` leaves an unstable mode unweighted); returns ``OK``,
-    ``NOT_STABILISABLE`` (``(A, B)`` not stabilisable, or ``R`` singular),
+    """Stabilising DARE solution ``P`` and its gain ``K``.
+
+    The cross weight is removed first (``A_N = A - B R^{-1} N^T``, ``Q_N = Q - N R^{-1} N^T``;
+    the gain is then ``K = K_N + R^{-1} N^T``), then the structure-preserving doubling algorithm
+    (:func:`doubling` from ``A_0 = A_N``, ``G_0 = B R^{-1} B^T``, ``H_0 = Q_N``) solves it.
+    Doubling converges to the stabilising solution only when the dual equation has one too,
+    i.e. when ``(Q_N, A_N)`` is detectable; with a positive semidefinite ``Q_N`` that leaves an
+    unstable mode unweighted it stops at another solution. Its closed loop is then not Schur
+    stable, and the solve falls back on Newton's method (Hewer 1971, "An iterative technique for
+    the computation of the steady state gains for the discrete optimal regulator", IEEE TAC
+    16(4)): from the stabilising gain of the regularised weight ``Q_N + delta I`` (doubling
+    again, always detectable), ``P_k`` solves the Stein equation
+    ``P = (A - B K_k)^T P (A - B K_k) + [I; -K_k]^T W [I; -K_k]`` (:func:`_stein`) and
+    ``K_{k+1}`` is the gain of ``P_k``. The iterates stay stabilising and decrease to the
+    largest solution, quadratically when it is stabilising: it exists whenever ``(A, B)`` is
+    stabilisable and no mode on the unit circle is unobservable through ``Q_N``.
+
+    Returns ``OK``, ``NOT_STABILISABLE`` (``(A, B)`` not stabilisable, or ``R`` singular),
     ``UNIT_CIRCLE_MODE`` (a mode on the unit circle unobservable through ``Q_N``) or
-    ``NOT_CONVERGED``. ``P`` and ``K`` are written only on ``OK``."""
+    ``NOT_CONVERGED``. ``P`` and ``K`` are written only on ``OK``.
+    """
     n = A.shape[0]
     m = B.shape[1]
     Rinv = _slot(work, 10, m, m)
@@ -422,9 +424,18 @@ def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
 
 @lane(entry=True)
 def steady_state_feedforward(A, B, Q, R, N, K, F, work):
-    """``F = M_u + K M_x`` of the cheapest equilibrium (module docstring); ``False`` when the
-    KKT matrix is singular (no equilibrium for some reference: an uncontrollable mode at
-    ``z = 1``). ``F`` is written only on success."""
+    """``F = M_u + K M_x`` of the cheapest equilibrium; ``False`` when the KKT matrix is
+    singular (no equilibrium for some reference: an uncontrollable mode at ``z = 1``). ``F`` is
+    written only on success.
+
+    For a constant reference ``r``: minimise ``[x_s - r; u_s]^T W [x_s - r; u_s]`` subject to
+    ``(A - I) x_s + B u_s = 0`` (the stationary point of the average-cost LQ tracking problem),
+    from the KKT system
+    ``[[Q, N, (A - I)^T], [N^T, R, B^T], [A - I, B, 0]] [x_s; u_s; mu] = [Q r; N^T r; 0]``,
+    linear in ``r``: ``x_s = M_x r``, ``u_s = M_u r``, and the law ``u = u_s - K (x - x_s)`` is
+    ``u = -K x + F r``. With fewer inputs than states not every reference is an equilibrium;
+    this is the equilibrium nearest to it in the cost.
+    """
     n = A.shape[0]
     m = B.shape[1]
     s = 2 * n + m

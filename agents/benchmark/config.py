@@ -202,7 +202,7 @@ QUICK = dict(
     curve_points=5,
 )
 #: Five training runs, the whole test split, every held-out variant, RL caps of 1e6 steps on
-#: the family for PPO and RecurrentPPO (about 8.5 hours on 2 cores).
+#: the family for PPO and RecurrentPPO (about 12 hours on 2 cores at the caps).
 STANDARD = dict(
     QUICK,
     mode="standard",

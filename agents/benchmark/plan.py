@@ -21,9 +21,11 @@ __all__ = [
     "SECONDS_PER_POLICY_STEP",
     "SECONDS_PER_STEP",
     "JobProgress",
+    "classical_seconds",
     "curve_evaluations",
     "estimate_seconds",
     "format_duration",
+    "parse_duration",
     "job_weights",
     "reference_weights",
     "rl_tasks",
@@ -31,22 +33,23 @@ __all__ = [
 ]
 
 
-#: CPU seconds per training env step on the 2-core development machine, the other core busy
-#: with the other worker (torch on one thread, the native vector env; learning-curve and
-#: evaluation episodes counted apart). Only the schedule, the ETA and the announced estimate
-#: use them.
+#: Wall seconds per training env step of one worker on the 2-core development machine, the
+#: other core busy with the other worker (torch on one thread, the native vector env): measured
+#: on the quick tier's jobs (learning-curve and test episodes taken out) and on the standard
+#: run's RecurrentPPO jobs. Only the schedule, the ETA, the announced estimate and
+#: ``--time-limit`` use them.
 SECONDS_PER_STEP = {
-    "ppo": 0.8e-3,
-    "ppo_noint": 0.8e-3,
-    "a2c": 0.8e-3,
-    "sac": 8.0e-3,
-    "td3": 7.5e-3,
-    "rppo": 2.5e-3,
+    "ppo": 0.9e-3,
+    "ppo_noint": 0.9e-3,
+    "a2c": 0.9e-3,
+    "sac": 10.0e-3,
+    "td3": 9.5e-3,
+    "rppo": 5.5e-3,
     # their estimator or controller on every lane: 1.05-1.2x their base agent's (measured
     # against it in one process)
-    "theta_ppo": 0.9e-3,
-    "residual_ppo": 1.0e-3,
-    "theta_sac": 8.4e-3,
+    "theta_ppo": 1.0e-3,
+    "residual_ppo": 1.1e-3,
+    "theta_sac": 10.5e-3,
 }
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
 #: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.
@@ -73,7 +76,8 @@ def _batch_seconds(spec: EnvSpec, lanes: int, per_step: float, per_lane: float) 
     return spec.steps * (blocks * per_step + lanes * per_lane)
 
 
-def _classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
+def classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
+    """Estimated seconds of every run of the classical controller ``name`` on ``sc``."""
     from stcgym.agents.controllers import CONTROLLERS
 
     runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
@@ -103,7 +107,7 @@ def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence
     episodes of the policy, classical controllers on the scenarios."""
     out = {
         ("classical", sc.name): sum(
-            _classical_seconds(cfg, sc, name) for name in controllers_for(cfg.classical, sc.env)
+            classical_seconds(cfg, sc, name) for name in controllers_for(cfg.classical, sc.env)
         )
         for sc in scenarios
     }
@@ -168,6 +172,30 @@ def estimate_seconds(cfg: BenchConfig) -> float:
         train = max(schedule(rl, cfg.jobs)) + classical / cores
     output = OUTPUT_SECONDS_PER_SCENARIO * len(scenarios) * (1 if cores > 1 else 2)
     return references + train + output
+
+
+def parse_duration(text: str) -> float:
+    """Seconds of a duration written ``2h45m``, ``90m``, ``1h``, ``45s``, ``1.5h`` or ``3600``
+    (seconds); :class:`~stcgym.agents.benchmark.config.BenchInputError` otherwise."""
+    import re
+
+    from stcgym.agents.benchmark.config import BenchInputError
+
+    units = {"h": 3600.0, "m": 60.0, "s": 1.0}
+    spec = str(text).strip().lower()
+    parts = re.findall(r"(\d+(?:\.\d+)?)([hms])", spec)
+    if re.fullmatch(r"\d+(?:\.\d+)?", spec):
+        seconds = float(spec)
+    elif parts and "".join(f"{v}{u}" for v, u in parts) == spec:
+        seconds = sum(float(v) * units[u] for v, u in parts)
+    else:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise BenchInputError(
+            f"--time-limit must be a positive duration such as 2h45m, 90m or 3600 (seconds), "
+            f"got {text!r}"
+        )
+    return seconds
 
 
 def format_duration(seconds: float) -> str:

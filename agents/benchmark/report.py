@@ -340,10 +340,12 @@ def write_report(
     wall_s: float,
     *,
     interrupted: bool = False,
+    time_limited: bool = False,
     sessions: int = 1,
 ) -> Path:
-    """Write ``report.md`` from the metric rows (also a partial one after an interrupt);
-    ``wall_s`` is the run's wall time over its ``sessions`` (the first and each ``--resume``)."""
+    """Write ``report.md`` from the metric rows (also a partial one after an interrupt, or when
+    the time limit left jobs for ``--resume``: ``time_limited``); ``wall_s`` is the run's wall
+    time over its ``sessions`` (the first and each ``--resume``)."""
     from stcgym.agents.executors import write_atomic
 
     agg = aggregate(rows)
@@ -352,6 +354,12 @@ def write_report(
     out = [f"# stcgym bench: `{cfg.run}`", ""]
     if interrupted:
         out += ["**INTERRUPTED: partial results (the rows finished before the interrupt).**", ""]
+    elif time_limited:
+        out += [
+            "**PARTIAL: the time limit left jobs to run; `stcgym bench --resume "
+            f"{run_dir}` continues the run.**",
+            "",
+        ]
     out += [
         f"Tier `{cfg.mode}`. Wall time {wall_s:.0f} s on {cfg.jobs} worker(s)"
         f"{f' over {sessions} sessions (resumed)' if sessions > 1 else ''}. Exact "

@@ -34,7 +34,9 @@ from stcgym.agents.benchmark.metrics_csv import (
     format_value,
 )
 from stcgym.agents.benchmark.plan import (
+    OUTPUT_SECONDS_PER_SCENARIO,
     JobProgress,
+    classical_seconds,
     estimate_seconds,
     format_duration,
     job_weights,
@@ -76,6 +78,8 @@ class BenchResult:
     rows: list[dict[str, Any]]
     curves: list[dict[str, Any]]
     wall_s: float
+    #: False when the time limit stopped the run first (``--resume`` continues it)
+    complete: bool = True
 
 
 @dataclass
@@ -117,6 +121,7 @@ def run_bench(
     argv: Sequence[str] | None = None,
     checked: bool = False,
     resume: bool = False,
+    time_limit: float | None = None,
 ) -> BenchResult:
     """Run the bench described by a validated ``cfg`` (see :func:`build_config`).
 
@@ -133,8 +138,16 @@ def run_bench(
     ``jobs/classical/`` (:mod:`~stcgym.agents.benchmark.classical_store`). ``resume=True``
     continues the run in ``cfg.run_dir`` (``cfg`` read back from its ``config.json``, the action
     bounds included): what is kept is read back instead of evaluated or trained again, and the
-    rest is run; the
-    tables and the report are rebuilt, so they equal those of an uninterrupted run.
+    rest is run; the tables and the report are rebuilt, so they equal those of an uninterrupted
+    run.
+
+    ``time_limit`` (seconds from the call, e.g. a batch system's wall-time allocation): no RL
+    job or classical evaluation starts unless its estimated duration
+    (:func:`~stcgym.agents.benchmark.plan.job_weights`, times :data:`TIME_LIMIT_MARGIN`) ends
+    before the limit, less the time to write the report; jobs are then taken longest first
+    among those that fit. What could not start is left for ``--resume``: the report is
+    written as partial, without plots, and ``BenchResult.complete`` is False. A job already
+    running when the limit passes is not stopped.
     """
     from stcgym.agents.benchmark.report import write_report
     from stcgym.agents.executors import write_atomic
@@ -160,6 +173,8 @@ def run_bench(
         config_doc["argv"] = first.get("argv")
     writer = MetricsWriter(run_dir / "metrics.csv")
     state = _RunState(cfg, run_dir, writer, log, t_start)
+    if time_limit is not None:
+        state.deadline = t_start + float(time_limit)
     state.data.argv = config_doc["argv"]
     scenarios: list[Scenario] = []
 
@@ -177,7 +192,7 @@ def run_bench(
         ]
         write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
 
-    def report(interrupted: bool) -> None:
+    def report(interrupted: bool, time_limited: bool = False) -> None:
         # the wall time of every session so far, kept in config.json for the next --resume
         config_doc["wall_s"] = wall_before + time.perf_counter() - t_start
         config_doc["sessions"] = sessions
@@ -190,6 +205,7 @@ def run_bench(
             state.data,
             config_doc["wall_s"],
             interrupted=interrupted,
+            time_limited=time_limited,
             sessions=sessions,
         )
 
@@ -209,6 +225,12 @@ def run_bench(
             log(f"could not write the partial report: {report_exc!r}")
         raise
     writer.close()
+    if state.left:
+        report(False, time_limited=True)
+        wall = time.perf_counter() - t_start
+        log(f"time limit: stopped after {format_duration(wall)} with {state.left} left "
+            f"(partial report); continue with: stcgym bench --resume {run_dir}")  # fmt: skip
+        return BenchResult(run_dir, writer.rows, state.data.curves, wall, complete=False)
     plots = _start_plots(run_dir, cfg, scenarios, writer.rows, state) if cfg.plots else None
     t0 = time.perf_counter()
     report(False)
@@ -275,6 +297,10 @@ class _RunState:
         # the classical controllers' episodes, kept for a resumed run
         self.classical_store = ClassicalStore(run_dir / JOBS_FOLDER / CLASSICAL_FOLDER)
         self.classical_kept = 0  # how many were read back
+        # the time limit (perf_counter), and what it left for a resumed run ("" when nothing)
+        self.deadline: float | None = None
+        self.left = ""
+        self._reserve = 0.0  # seconds kept for the report and the tables at the end
 
     def log(self, msg: str) -> None:
         self._log(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
@@ -374,12 +400,26 @@ class _RunState:
         if run == 0:
             self.data.traces[(sc.name, name)] = episodes.trace
 
-    def _classical(self, sc: Scenario, name: str) -> None:
+    def fits(self, seconds: float) -> bool:
+        """Whether work estimated at ``seconds`` ends before the time limit (always without
+        one)."""
+        if self.deadline is None:
+            return True
+        end = time.perf_counter() + TIME_LIMIT_MARGIN * seconds
+        return end <= self.deadline - self._reserve
+
+    def _classical(self, sc: Scenario, name: str) -> bool:
+        """Every run of ``name`` on ``sc``; False when the time limit left some for a resumed
+        run."""
         runs = self.cfg.train_seeds if CONTROLLERS[name].seeded else 1
+        each = classical_seconds(self.cfg, sc, name) / runs
         for run in range(runs):
             if self.halt.is_set():
                 raise _Stop
+            if not self.fits(each):
+                return False
             self._classical_rows(sc, name, run, self._evaluated(sc, name, run))
+        return True
 
     # -- tuning ----------------------------------------------------------------------------
     def tune(self, env: TrainingEnv) -> None:
@@ -425,15 +465,22 @@ class _RunState:
             f"{time.perf_counter() - t0:.0f} s)"
         )
 
-    def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> None:
+    def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> int:
+        """The classical controllers on every scenario; returns the scenarios the time limit
+        left unfinished."""
+        unfinished = 0
         for sc in scenarios:
+            complete = True
             for name in controllers_for(self.cfg.classical, sc.env):  # those on its plants
                 if name not in (YARDSTICK, "zero"):
-                    self._classical(sc, name)
-            progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
+                    complete = self._classical(sc, name) and complete
+            if complete:
+                progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
+            unfinished += not complete
         if self.classical_kept:
             self.log(f"{self.classical_kept} classical evaluations read back from "
                      f"{self.classical_store.folder}")  # fmt: skip
+        return unfinished
 
     # -- RL --------------------------------------------------------------------------------
     def _collect(self, task: dict[str, Any], result: dict[str, Any]) -> None:
@@ -498,8 +545,9 @@ class _RunState:
         for sc in scenarios:
             self._yardstick(sc)
         self.log("yardstick and zero input evaluated on every scenario")
+        self._reserve = OUTPUT_SECONDS_PER_SCENARIO * len(scenarios) + REPORT_RESERVE_SECONDS
         if not planned:
-            self._classical_all(scenarios, progress)
+            self._leave(self._classical_all(scenarios, progress), [])
             return
         tasks = rl_tasks(cfg, scenarios, envs, self.data.curve_references, self.run_dir)
         store = ResultStore(self.run_dir / JOBS_FOLDER)
@@ -516,14 +564,13 @@ class _RunState:
         # the classical controllers run in a thread while the workers train; when the RL jobs
         # run in this process (one job, or jobs=1) they go first instead
         background = cfg.executor == "ray" or (cfg.jobs > 1 and len(todo) > 1)
-        failures = []
+        failures, ran = [], set()
         with ThreadPoolExecutor(1, thread_name_prefix="classical") as pool:
             if background:
                 classical = pool.submit(self._classical_all, scenarios, progress)
             else:
                 classical = Future()
-                self._classical_all(scenarios, progress)
-                classical.set_result(None)
+                classical.set_result(self._classical_all(scenarios, progress))
             try:
                 for out in run_tasks(
                     train_and_evaluate,
@@ -532,8 +579,10 @@ class _RunState:
                     jobs=cfg.jobs,
                     address=cfg.address,
                     threads=1,
+                    admit=lambda task: self.fits(weights[("rl", task["name"])]),
                 ):
                     name = out.task["name"]
+                    ran.add(name)
                     if out.error is not None:
                         failures.append(name)
                         self.log(f"RL job {name} FAILED:\n{out.error}")
@@ -550,11 +599,21 @@ class _RunState:
                 # own error, if any, is dropped
                 self.halt.set()
                 raise
-            classical.result()
+            unfinished = classical.result()
         for task, result in ready:
             self._collect(task, result)
         if failures:
             raise RuntimeError(f"{len(failures)} RL job(s) failed: {', '.join(failures)}")
+        self._leave(unfinished, [t["name"] for t in todo if t["name"] not in ran])
+
+    def _leave(self, classical: int, rl: list[str]) -> None:
+        """Note what the time limit left for a resumed run (``self.left``)."""
+        parts = []
+        if rl:
+            parts.append(f"{len(rl)} RL job{'s' if len(rl) > 1 else ''} ({', '.join(rl)})")
+        if classical:
+            parts.append(f"the classical controllers on {classical} scenario(s)")
+        self.left = " and ".join(parts)
 
     def _write_curves(self) -> None:
         from stcgym.agents.executors import write_atomic
@@ -564,6 +623,14 @@ class _RunState:
         for row in self.data.curves:
             lines.append(",".join(str(format_value(row[c])) for c in cols))
         write_atomic(self.run_dir / "learning_curves.csv", "\n".join(lines) + "\n")
+
+
+#: Estimated durations are multiplied by this before a job is started under a time limit (the
+#: estimates are for the 2-core development machine and vary with the load).
+TIME_LIMIT_MARGIN = 1.25
+#: Seconds kept at the end of a time-limited run for the tables and the report, besides
+#: ``OUTPUT_SECONDS_PER_SCENARIO`` per scenario.
+REPORT_RESERVE_SECONDS = 30.0
 
 
 class _Stop(Exception):
