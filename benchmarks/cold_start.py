@@ -16,7 +16,7 @@ Scenarios:
   ``stcgym.envs`` and ``stcgym.adaptive``; ``gym.make`` + ``reset`` + the first plant step;
   the first ``SelfTuningController(2).predict``; then the first predict of a second estimator
   (``KF-MILS``), of ``design="lq"``, of a batch of 4 lanes and of the compiled rollout;
-* ``README example 1-3``: the ``python`` blocks under the README's ``## Three examples``
+* ``README example 1-3``: the ``python`` blocks under the README's :data:`README_SECTION`
   heading (a plant as an environment; an estimator of the paper online; the self-tuning
   controller against PPO and the known-model oracle), each run as a script (wall time of the
   whole process, interpreter start included).
@@ -136,6 +136,10 @@ def child_api() -> dict:
 
 
 # ------------------------------------------------------------------------ parent process
+#: The README section whose ``python`` blocks are timed as scripts.
+README_SECTION = "## Quick start: three examples"
+
+
 def readme_blocks(heading: str) -> list[str]:
     """The ``python`` code blocks of the README section under ``heading``."""
     text = (ROOT / "README.md").read_text()
@@ -215,7 +219,7 @@ def main(argv: list[str] | None = None) -> None:
     for (label, c), (_, w) in zip(cold["steps"], warm["steps"], strict=True):
         row(label, c, w)
     row("api sequence, whole process", cold_wall, warm_wall)
-    for k, code in enumerate(readme_blocks("## Three examples"), start=1):
+    for k, code in enumerate(readme_blocks(README_SECTION), start=1):
         with tempfile.TemporaryDirectory() as cache:
             c = script_run(code, cache)
             w = script_run(code, cache)

@@ -265,3 +265,17 @@ def test_read_only_package_caches_in_the_user_directory(tmp_path: Path) -> None:
     assert runs[0]["hits"] == 0 and runs[1]["hits"] == 1
     assert runs[1]["y"] == runs[0]["y"]
     assert not list(pkg.rglob("*.nbi"))
+
+
+def test_cold_start_script_finds_the_readme_examples() -> None:
+    """``benchmarks/cold_start.py`` times the README's three quick-start examples: its section
+    heading must still be the README's (a renamed heading stopped the script after the api rows)."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "cold_start.py"
+    spec = importlib.util.spec_from_file_location("cold_start_script", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    blocks = module.readme_blocks(module.README_SECTION)
+    assert len(blocks) == 3
+    assert all("import" in block for block in blocks)
