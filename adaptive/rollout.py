@@ -15,33 +15,6 @@ per-step cost, the one of step ``k``, for every step ``k + 1 .. T - 1`` it did n
 cost is at least about ``(y_bound - |r|)^2`` per step, so a diverged run never looks better than
 one that stayed bounded at any sensible cost, every figure stays finite, and the episode's mean
 or sum is over all ``T`` steps whatever happened.
-
-API
----
-``rollout(controller, theta, steps, *, reference, noise_std=0.05, seed=0, z=None,
-control_cost=0.01, y_bound=100.0, x0=None, window=None, traces=False, jump=None)
--> RolloutResult``
-
-* ``controller``: a :class:`~stcgym.adaptive.controller.SelfTuningController` with
-  ``num_envs = B`` (or ``None`` for one plant); its lane records are advanced in place (call
-  ``controller.reset()`` first for a fresh episode) and its ``action_bound`` is the plant's.
-* ``theta``: plant parameters ``[a; b]`` in the controller's canonical form, shape ``(2n,)``
-  (every lane) or ``(B, 2n)``.
-* ``reference``: ``r(0..T)`` as an array of shape ``(T + 1,)`` (every lane) or ``(B, T + 1)``;
-  the controller sees ``r(k)`` at step ``k``, the cost of step ``k`` is
-  ``(y_clean(k+1) - r(k+1))^2 + rho u(k)^2`` (the env's ``-reward``).
-* noise: output noise ``noise_std * z`` with ``z`` of shape ``(B, T + 1)`` standard normals
-  (``z[:, 0]`` for ``y(0)``), drawn from ``numpy.random.default_rng(seed)`` unless given.
-* ``x0``: initial plant state ``(n,)`` or ``(B, n)`` (zeros by default).
-* ``jump=(step, theta_after)``: parameters switch to ``theta_after`` at ``step`` (a jump test).
-* ``window``: the result's ``cost`` holds sums over consecutive windows of this many steps
-  (default: one window, the whole episode), shape ``(B, ceil(T / window))``.
-* ``traces=True``: also ``y`` (measured, ``(B, T + 1)``) and ``u`` (applied, ``(B, T)``).
-
-``RolloutResult``: ``step_cost`` ``(B, T)`` (per step, a diverged lane charged by the rule
-above), ``cost`` (its window sums), ``diverged`` ``(B,)`` bool, ``steps_run`` ``(B,)``, and
-``y``/``u`` (or ``None``). For one plant (``num_envs=None``) the leading lane axis is kept
-(``B = 1``).
 """
 
 from __future__ import annotations
@@ -162,7 +135,55 @@ def rollout(
     traces: bool = False,
     jump: tuple[int, ArrayLike] | None = None,
 ) -> RolloutResult:
-    """Run ``steps`` closed-loop steps of ``controller`` on canonical plants (module docstring)."""
+    """Run ``steps`` closed-loop steps of ``controller`` on canonical plants, in one compiled
+    call.
+
+    Parameters
+    ----------
+    controller
+        A :class:`~stcgym.adaptive.controller.SelfTuningController` with ``num_envs = B`` (or
+        ``None`` for one plant); its lane state is advanced in place (call
+        ``controller.reset()`` first for a fresh episode) and its ``action_bound`` is the
+        plant's.
+    theta
+        Plant parameters ``[a; b]`` in the controller's canonical form, ``(2n,)`` (every lane)
+        or ``(B, 2n)``.
+    steps
+        ``T``, the closed-loop steps.
+    reference
+        ``r(0..T)``, ``(T + 1,)`` (every lane) or ``(B, T + 1)``; the controller sees ``r(k)``
+        at step ``k``, and the cost of step ``k`` is ``(y_clean(k+1) - r(k+1))^2 + rho u(k)^2``
+        (the env's ``-reward``, ``rho = control_cost``).
+    noise_std, seed, z
+        Output noise ``noise_std * z``, ``z`` ``(B, T + 1)`` standard normals (``z[:, 0]`` for
+        ``y(0)``), drawn from ``numpy.random.default_rng(seed)`` unless given.
+    control_cost
+        ``rho``.
+    y_bound
+        Divergence bound: a lane stops at its first ``|y| > y_bound`` (module docstring).
+    x0
+        Initial plant state ``(n,)`` or ``(B, n)`` (zeros by default).
+    window
+        The result's ``cost`` holds sums over consecutive windows of this many steps (default:
+        one window, the whole episode), ``(B, ceil(T / window))``.
+    traces
+        Also return ``y`` (measured, ``(B, T + 1)``) and ``u`` (applied, ``(B, T)``).
+    jump
+        ``(step, theta_after)``: the parameters switch to ``theta_after`` at ``step``.
+
+    Returns
+    -------
+    RolloutResult
+        ``step_cost`` ``(B, T)`` (a diverged lane charged by :func:`charge_divergence`),
+        ``cost`` (its window sums), ``diverged`` ``(B,)`` bool, ``steps_run`` ``(B,)``, and
+        ``y``/``u`` (or ``None``); for one plant the leading lane axis is kept (``B = 1``).
+
+    Raises
+    ------
+    ValueError
+        ``controller`` not a ``SelfTuningController``; an array of the wrong shape, a
+        negative ``noise_std`` or a ``window`` below 1 (naming the parameter).
+    """
     if not isinstance(controller, SelfTuningController):
         raise ValueError(f"controller must be a SelfTuningController, got {controller!r}")
     steps = integer(steps, "steps")

@@ -1,47 +1,37 @@
 """The safe set every certainty-equivalence design passes, and the gain record it writes.
 
-Shared by pole placement (:mod:`.pole_placement`) and the LQ designs (:mod:`.lq`): the tests of
-the safe set in order (finite, ``b_min``, controllability, steady state, gain bound), the gain
-record written only on success, and the scratch layout of the designs.
-
-``gain[0:n] = K_x``, ``gain[n] = k_i`` (0 without integral action), ``gain[n + 1] = N``
-(reference feed-forward, 0 when off) and ``gain[n + 2]`` the reciprocal condition number of the
-accepted design's controllability matrix. The design functions write ``gain`` **only on
-success** (status ``OK``): a rejected model keeps the last good gain, and whether any design
-has succeeded yet is the caller's to keep.
+Shared by pole placement (:mod:`.pole_placement`) and the LQ designs (:mod:`.lq`): the tests
+of the safe set in order, the gain record ``[K_x, k_i, N, rcond]`` (:func:`gain_size`), written
+**only on success** (a rejected model keeps the last good gain), and the designs' scratch
+(:func:`work_size`, :func:`split_work`).
 
 Safe set ``safe`` (float64, length 4; :func:`safe_set` builds and validates it)
 ------------------------------------------------------------------------------
 ``[b_min, rcond_min, dc_rcond_min, gain_max]`` (:class:`SafeSetBounds`, read by name through
 :func:`safe_bounds`), tested in this order, first failure reported:
 
-==== ================== ==============================================================
-code name               meaning
-==== ================== ==============================================================
-0    ``ok``             gain accepted and written
-1    ``nonfinite``      ``theta`` is not finite
-2    ``b_small``        ``max |b| < b_min``
-3    ``uncontrollable`` reciprocal 1-norm condition of the column-normalised controllability
-                        matrix of the (augmented) model ``<= max(rcond_min, 1e-14)``
-4    ``dc_singular``    feed-forward on and the steady-state (Rosenbrock) matrix
-                        ``[[A - I, b], [c, 0]]`` has rcond ``< max(dc_rcond_min, 1e-13)``
-                        (a zero at ``z = 1``: no steady state for a constant reference)
-5    ``gain_large``     ``max(|K|, |N|) > gain_max`` (or non-finite)
-6    ``not_stabilisable`` LQ: the Riccati iterate / doubling blew up (``> 1e150``) or the
-                        converged gain does not give a Schur-stable closed loop (Schur-Cohn
-                        test of its characteristic polynomial); the one-step
-                        variant re-initialises ``P`` to the state weight ``Q``
-7    ``not_converged``  LQ solve: no convergence within ``max_iter`` doubling steps
-8    ``unit_circle_mode`` multi-input LQ solve (:mod:`.mimo_lq`): the model is stabilisable
-                        but a mode on the unit circle is unobservable through the state
-                        weight, so no stabilising Riccati solution exists
-==== ================== ==============================================================
+==== ====================== ==========================================================
+code name                   meaning
+==== ====================== ==========================================================
+0    ``ok``                 gain accepted and written
+1    ``nonfinite``          ``theta`` is not finite
+2    ``b_small``            ``max |b| < b_min``
+3    ``uncontrollable``     reciprocal 1-norm condition of the column-normalised
+                            controllability matrix of the (augmented) model
+                            ``<= max(rcond_min, 1e-14)``
+4    ``dc_singular``        feed-forward on and the steady-state (Rosenbrock) matrix
+                            ``[[A - I, b], [c, 0]]`` has rcond
+                            ``< max(dc_rcond_min, 1e-13)`` (a zero at ``z = 1``)
+5    ``gain_large``         ``max(|K|, |N|) > gain_max`` (or non-finite)
+6    ``not_stabilisable``   LQ: the Riccati iterate or doubling blew up (``> 1e150``)
+                            or the gain's closed loop is not Schur stable; the
+                            one-step variant restarts ``P`` at the state weight ``Q``
+7    ``not_converged``      LQ solve: no convergence within ``max_iter`` steps
+8    ``unit_circle_mode``   multi-input LQ (:mod:`.mimo_lq`): stabilisable, but a mode
+                            on the unit circle is unobservable through the state weight
+==== ====================== ==========================================================
 
 ``STATUS_NAMES[code]`` gives the name.
-
-The designs' scratch ``work`` (float64, 1-D, its content irrelevant between calls):
-``work_size(n)`` floats for ``place_design`` / ``lq_design``, ``solve_work_size(n)`` for
-``lq_solve``; one per thread or per lane, never shared by two lanes.
 """
 
 from __future__ import annotations
@@ -146,13 +136,18 @@ N_VEC = len(VectorSlots._fields)
 
 
 def gain_size(n: int) -> int:
-    """Length of the gain record: ``[K_x (n), k_i, N, rcond]``."""
+    """Length of the gain record ``[K_x (n), k_i, N, rcond]``: the state gain, the integral gain
+    ``k_i`` (0 without integral action), the reference feed-forward ``N`` (0 when off) and the
+    reciprocal condition number of the accepted design's controllability matrix. Whether any
+    design has succeeded yet is the caller's to keep."""
     return int(n) + 3
 
 
 def work_size(n: int) -> int:
     """Scratch length of ``place_design``, ``lq_design`` (and ``ackermann_gain``,
-    ``steady_state``) for order ``n``: ``5 (n+1)^2 + 9 (n+1)``."""
+    ``steady_state``) for order ``n``: ``5 (n+1)^2 + 9 (n+1)``. The scratch is float64, 1-D,
+    its content irrelevant between calls, one per thread or per lane, never shared by two
+    lanes."""
     mm = int(n) + 1
     return N_MAT * mm * mm + N_VEC * mm
 
