@@ -240,16 +240,11 @@ def iterative(name: str, n: int, L: int) -> int:
     Tables 5-8 for LSI, D-LSI, O-LSI and KF-D-LSI; the counts above for the others. Plain names
     (``"GI"``, ``"LSI"``, ...) are the parameter update alone, as used with known states.
     """
-    key = str(name).upper()
+    from stcgym.adaptive.iterative import parse_iterative_name  # that module imports this one
+
+    states, rule = parse_iterative_name(name)
+    key = rule if states is None else f"{states}-{rule}"
     if key in _ITERATIVE_TABLES:
         return _ITERATIVE_TABLES[key](n, L)
-    if key in _ITERATIVE_UPDATES:
-        return _ITERATIVE_UPDATES[key](n, L)
-    states, _, rule = key.partition("-")
-    if states in _ITERATIVE_STATES and rule in _ITERATIVE_UPDATES:
-        return _ITERATIVE_UPDATES[rule](n, L) + _ITERATIVE_STATES[states](n, L)
-    names = [
-        *_ITERATIVE_UPDATES,
-        *(f"{s}-{r}" for s in _ITERATIVE_STATES for r in _ITERATIVE_UPDATES),
-    ]
-    raise ValueError(f"name must be one of {sorted(names)}, got {name!r}")
+    update = _ITERATIVE_UPDATES[rule](n, L)
+    return update if states is None else update + _ITERATIVE_STATES[states](n, L)

@@ -44,7 +44,13 @@ from stcgym.adaptive.recursive import NumericalHealthError
 from stcgym.envs.canonical import check_form, companion_A
 from stcgym.envs.validation import integer, non_negative, positive, vector_pair
 
-__all__ = ["ITERATIVE_NAMES", "IterativeResult", "NumericalHealthError", "fit_iterative"]
+__all__ = [
+    "ITERATIVE_NAMES",
+    "IterativeResult",
+    "NumericalHealthError",
+    "fit_iterative",
+    "parse_iterative_name",
+]
 
 _RULES = ("GI", "D-GI", "LSI", "D-LSI")
 # State estimates beyond this magnitude count as overflow: their Gram matrices (sums of L
@@ -118,8 +124,13 @@ class IterativeResult:
 
 
 # ---------------------------------------------------------------------------------- helpers
-def _parse_name(name: str) -> tuple[str | None, str]:
-    """Return ``(state estimator or None, rule)``; accepts ``O-LSI``, ``LSI-KF``, ``lsi``..."""
+def parse_iterative_name(name: str) -> tuple[str | None, str]:
+    """The one parser of iterative algorithm names: ``(state estimator or None, rule)``.
+
+    Accepts ``"KF-D-LSI"``, the paper's ``"D-LSI-KF"`` order, ``"lsi"`` (a plain rule: known
+    states, state estimator ``None``), case-insensitive, ``_`` or blanks for ``-``. Raises
+    ``ValueError`` listing the accepted names otherwise.
+    """
     key = str(name).strip().upper().replace("_", "-").replace(" ", "-")
     for se in _STATE_ESTIMATORS:
         if key.startswith(se + "-") and key[len(se) + 1 :] in _RULES:
@@ -346,7 +357,7 @@ def fit_iterative(
     ...
     ValueError: the plain rule 'LSI' needs the true states x (shape (L, n)); ...
     """
-    state_est, rule = _parse_name(name)
+    state_est, rule = parse_iterative_name(name)
     canonical = rule if state_est is None else f"{state_est}-{rule}"
     form = check_form(form)
     n = integer(n, "n")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stcgym.adaptive.kernels.variants import variant
 from stcgym.envs.canonical import companion_A
 
 __all__ = ["ReferenceEstimator"]
@@ -63,8 +64,8 @@ class ReferenceEstimator:
         adaptation_gain: float = 1.0,
         normalization_bias: float = np.finfo(float).eps,
     ) -> None:
-        parts = name.upper().split("-")
-        self.state, self.rule, self.decomposed = parts[0], parts[-1], len(parts) == 3
+        v = variant(name)  # the registry's parser: the names only, none of the kernels' math
+        self.state, self.rule, self.decomposed = v.state.name, v.rule.name, v.decomposed
         self.n, self.p, self.form, self.lam = n, p, form, forgetting
         d = 2 * n
         self.theta = np.full(d, 1.0 / p0) if theta0 is None else np.array(theta0, float)

@@ -240,6 +240,21 @@ def test_observer_and_kalman_d_lsi_count_the_same_parameter_update(n, L):
     assert o_update == kf_update == flops.d_lsi(n, L)
 
 
+def test_flop_counts_read_names_with_the_fitting_functions_parser():
+    """``flops.iterative`` and ``fit_iterative`` share one name parser: every spelling the fit
+    accepts (the paper's ``D-LSI-KF`` order, lower case) counts the same, and a name neither
+    accepts raises the same ``ValueError``."""
+    n, L = 2, 40
+    assert flops.iterative("D-LSI-KF", n, L) == flops.iterative("KF-D-LSI", n, L)
+    assert flops.iterative("gi_o", n, L) == flops.iterative("O-GI", n, L)
+    with pytest.raises(ValueError, match="name must be one of") as flops_error:
+        flops.iterative("KF-RLS", n, L)
+    u, y = np.zeros(L), np.zeros(L)
+    with pytest.raises(ValueError) as fit_error:
+        fit_iterative("KF-RLS", u, y, n)
+    assert str(flops_error.value) == str(fit_error.value)
+
+
 @pytest.mark.parametrize(("n", "L"), [(1, 10), (2, 50), (3, 100)])
 def test_result_reports_table_flops(n, L):
     rng = np.random.default_rng(n)
