@@ -46,7 +46,7 @@ def _pbh_modes(M: NDArray, E: NDArray, unit_circle: bool) -> str:
     return ", ".join(found)
 
 
-def _no_solution_reason(
+def lq_failure_reason(
     A: NDArray, B: NDArray, Q: NDArray, R: NDArray, N: NDArray, status: int
 ) -> str:
     """The real cause of a failed solve, by the PBH tests: ``[A - lambda I, B]`` for a mode on
@@ -62,10 +62,11 @@ def _no_solution_reason(
     AN, QN = A - B @ RNt, Q - N @ RNt
     hidden = _pbh_modes(AN.T, QN, unit_circle=True)
     if status == UNIT_CIRCLE_MODE or hidden:
+        a, q = ("A - B R^-1 N^T", "Q - N R^-1 N^T") if np.any(N) else ("A", "Q")
         return (
-            f"the mode(s) {hidden or '?'} of A - B R^-1 N^T on the unit circle are unobservable "
-            "through the state weight Q - N R^-1 N^T: the optimal loop leaves them on the unit "
-            "circle, so no stabilising LQ solution exists (weight them in Q)"
+            f"the mode(s) {hidden or '?'} of {a} on the unit circle are unobservable through "
+            f"the state weight {q}: the optimal loop leaves them on the unit circle, so no "
+            "stabilising LQ solution exists (weight them in Q)"
         )
     return f"the Riccati solve failed ({STATUS_NAMES[status]})"
 
@@ -92,8 +93,7 @@ def lqr_design(
     status = lq.dare_solve(A, B, Q, R, N, P, K, work, 1e-12, 64)
     if status != 0:
         raise ValueError(
-            "no stabilising LQ gain for these weights: "
-            + _no_solution_reason(A, B, Q, R, N, status)
+            "no stabilising LQ gain for these weights: " + lq_failure_reason(A, B, Q, R, N, status)
         )
     F = np.zeros((m, n))
     if not lq.steady_state_feedforward(A, B, Q, R, N, K, F, work):

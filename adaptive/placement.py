@@ -29,6 +29,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.kernels import design as _design
+from stcgym.adaptive.kernels import mimo_lq as _mimo_lq
+from stcgym.adaptive.lqr import lq_failure_reason
 from stcgym.envs.validation import finite_vector, matrix, positive, square_matrix
 
 __all__ = [
@@ -328,10 +330,12 @@ def lq_gain(
     """Infinite-horizon LQ state feedback of the single-input pair ``(A, b)``.
 
     Minimises ``sum x^T Q x + R u^2`` with ``u = -K x``: ``K = (R + b^T P b)^{-1} b^T P A`` with
-    ``P`` the stabilising solution of the discrete algebraic Riccati equation, computed by the
-    structure-preserving doubling algorithm of the lane function
-    :func:`stcgym.adaptive.kernels.design.dare` (the same code the self-tuning LQ design runs).
-    Equivalent to ``control.dlqr(A, b, Q, R)[:2]``.
+    ``P`` the stabilising solution of the discrete algebraic Riccati equation, computed by
+    :func:`stcgym.adaptive.kernels.mimo_lq.dare_solve` (structure-preserving doubling, with
+    Newton's method where ``Q`` leaves an unstable mode unweighted; the solve of
+    :class:`~stcgym.adaptive.LQRController`). Equivalent to ``control.dlqr(A, b, Q, R)[:2]``
+    for every positive semidefinite ``Q`` for which the stabilising solution exists: ``(A, b)``
+    stabilisable and no mode on the unit circle unobservable through ``Q``.
 
     Parameters
     ----------
@@ -344,9 +348,9 @@ def lq_gain(
     R : float
         Input weight, ``> 0``.
     tol : float, default 1e-12
-        Relative convergence tolerance of the doubling iteration.
+        Relative convergence tolerance of the doubling (and Newton) iteration.
     max_iter : int, default 64
-        Most doubling steps.
+        Most doubling (and Newton) steps.
 
     Returns
     -------
@@ -359,8 +363,9 @@ def lq_gain(
         Malformed ``A``, ``b``, ``Q`` (not square / symmetric positive semidefinite / finite) or
         ``R <= 0``.
     UncontrollableError
-        No stabilising solution: ``(A, b)`` not stabilisable or ``(A, Q)`` not detectable
-        (the doubling diverges or the closed loop is not stable), or no convergence.
+        No stabilising solution, the message naming the cause: ``(A, b)`` not stabilisable
+        (with the modes no input reaches), or a mode on the unit circle unobservable through
+        ``Q``; or no convergence.
 
     Examples
     --------
@@ -384,14 +389,15 @@ def lq_gain(
     ):
         raise ValueError("Q must be symmetric positive semidefinite")
     R = positive(R, "R (input weight)")
+    B = np.ascontiguousarray(b.reshape(m, 1))
+    R_mat, N = np.array([[R]]), np.zeros((m, 1))
+    Q = np.ascontiguousarray(Q, dtype=float)
     P = np.zeros((m, m))
-    K = np.zeros(m)
-    char_A = np.ascontiguousarray(np.real(np.poly(A))[1:])  # det(zI - A), for the stability test
-    work = np.zeros(_design.solve_work_size(m - 1))
-    status = _design.dare(A, b, Q, R, char_A, P, K, work, tol, int(max_iter))
+    K = np.zeros((1, m))
+    work = np.zeros(_mimo_lq.design_work_size(m, 1))
+    status = _mimo_lq.dare_solve(A, B, Q, R_mat, N, P, K, work, tol, int(max_iter))
     if status != _design.OK:
         raise UncontrollableError(
-            f"no stabilising LQ solution ({_design.STATUS_NAMES[status]}): (A, b) is not "
-            "stabilisable or (A, Q) not detectable"
+            "no stabilising LQ solution: " + lq_failure_reason(A, B, Q, R_mat, N, status)
         )
-    return K, P
+    return K[0].copy(), P

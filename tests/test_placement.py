@@ -247,6 +247,44 @@ def test_lq_gain_rejects_unstabilisable_and_bad_input() -> None:
         lq_gain(A, np.array([1.0]), np.eye(2), 1.0)
 
 
+def test_lq_gain_accepts_a_weight_that_leaves_an_unstable_mode_unweighted() -> None:
+    """A positive semidefinite ``Q`` blind to an unstable mode still has a stabilising DARE
+    solution (it mirrors that mode into the unit circle): ``control.dlqr`` gives it and so
+    must ``lq_gain``; only a mode on the unit circle that ``Q`` does not see has none."""
+    K, P = lq_gain(np.array([[2.0]]), np.array([1.0]), np.array([[0.0]]), 1.0)
+    np.testing.assert_allclose(K, [1.5], rtol=1e-12)
+    np.testing.assert_allclose(P, [[3.0]], rtol=1e-12)
+    A, b, Q = np.diag([1.05, 0.5]), np.array([1.0, 1.0]), np.diag([0.0, 1.0])
+    K, P = lq_gain(A, b, Q, 0.01)
+    K_ref, P_ref, _ = control.dlqr(A, b.reshape(-1, 1), Q, [[0.01]])
+    np.testing.assert_allclose(K, np.ravel(K_ref), rtol=1e-8)
+    np.testing.assert_allclose(P, P_ref, rtol=1e-8)
+    with pytest.raises(UncontrollableError, match=r"mode\(s\) 1 of A on the unit circle"):
+        lq_gain(np.array([[1.0]]), np.array([1.0]), np.array([[0.0]]), 1.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(1, 4), seed=st.integers(0, 2**31 - 1), form=st.sampled_from(FORMS))
+def test_lq_gain_equals_dlqr_with_singular_weights(n: int, seed: int, form: str) -> None:
+    """Property: with a random rank-deficient ``Q`` (and the model's unstable modes often
+    unweighted) ``lq_gain`` equals python-control's ``dlqr`` to 1e-8."""
+    rng = np.random.default_rng(seed)
+    A, b = _random_pair(rng, n, form)
+    L = rng.normal(size=(n, rng.integers(0, n)))
+    Q = L @ L.T
+    R = float(rng.uniform(1e-2, 10.0))
+    try:
+        K_ref, P_ref, _ = control.dlqr(A, b.reshape(-1, 1), Q, [[R]])
+    except (ValueError, np.linalg.LinAlgError):
+        return  # no stabilising solution (a mode on the unit circle): nothing to compare
+    K, P = lq_gain(A, b, Q, R)
+    scale = max(1.0, np.abs(P_ref).max())
+    np.testing.assert_allclose(P, P_ref, rtol=1e-8, atol=1e-8 * scale)
+    np.testing.assert_allclose(
+        K, np.ravel(K_ref), rtol=1e-8, atol=1e-8 * max(1.0, np.abs(K_ref).max())
+    )
+
+
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(1, 5), seed=st.integers(0, 2**31 - 1), form=st.sampled_from(FORMS))
 def test_lq_gain_solves_the_riccati_equation(n: int, seed: int, form: str) -> None:
