@@ -34,7 +34,7 @@ from stcgym.adaptive.options import (
     option_group,
 )
 from stcgym.adaptive.policy import SelfTuningLanes
-from stcgym.envs.compiled import FixedTypes, set_lanes
+from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import integer, real_in
 
 __all__ = [
@@ -430,9 +430,9 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             gain_max=float(ss.gain_max),
             solve_tol=1e-12,
             solve_max_iter=64,
-        )
-        self._weights = km.MimoWeights(
-            *(np.array(w, dtype=float) for w in (self.Q, self.R, self.N))
+            Q=np.array(self.Q, dtype=float),
+            R=np.array(self.R, dtype=float),
+            N=np.array(self.N, dtype=float),
         )
         # a reset lane starts here: C = 0, the minimum-norm phase from R = I, no gain, P_lq = Q
         self._est_init, _ = make_state_matrix(n, m, 1)
@@ -451,26 +451,12 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         self.reset()
 
     # ------------------------------------------------------------------ protocol
-    def _counter(self, name: str) -> NDArray:
-        return getattr(self._state, name)
-
-    def _reset_lanes(self, idx: NDArray) -> None:
-        """A new episode on the lanes ``idx``: the state back to ``_init`` (the estimator's to
-        ``_est_init``) with a fresh model to design for, the lane's seed kept and its episode
-        counter advanced, so its probe is a new sequence."""
-        s = self._state
-        episodes = s.episode[idx] + 1
-        set_lanes(s, idx, self._init)
-        s.seed[idx] = self.seeds[idx]
-        s.episode[idx] = episodes
-        set_lanes(self._est, idx, self._est_init)
-
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[x(t), r(t)]``."""
         if starts is not None:
             self._reset_lanes(np.flatnonzero(starts))
         X, Rr = split_observation(obs, self.n_states)
-        args = (self._state, self._work, self._est, self._est_work, self._weights)
+        args = (self._state, self._work, self._est, self._est_work)
         if self.num_envs is None:
             _step(*args, 0, self._cfg, X[0], Rr[0], self._u[0])
             return self._u[0].copy()

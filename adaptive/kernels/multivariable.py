@@ -30,8 +30,8 @@ and writes ``u(t)``. Every step, in this order:
 Lane state: :class:`MimoState` (the controller's fields and counters) and its scratch
 :class:`MimoWork`, named tuples of batched arrays (lane ``i``'s field ``f`` is ``state.f[i]``;
 shapes in :func:`mimo_shapes`); the estimator's state and scratch are its own
-(:class:`.state_matrix.StateMatrixState`). The LQ weights, the same for every lane, are a
-:class:`MimoWeights` of plain matrices; configuration :class:`MimoConfig`.
+(:class:`.state_matrix.StateMatrixState`). The configuration :class:`MimoConfig`, the same
+for every lane, holds the LQ weights ``Q``, ``R``, ``N``.
 """
 
 from __future__ import annotations
@@ -61,7 +61,6 @@ __all__ = [
     "COUNTERS",
     "MimoConfig",
     "MimoState",
-    "MimoWeights",
     "MimoWork",
     "make_mimo_state",
     "mimo_shapes",
@@ -106,15 +105,6 @@ class MimoWork(NamedTuple):
     """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
 
     design: NDArray  # the design's scratch (mimo_lq.design_work_size(n, m))
-
-
-class MimoWeights(NamedTuple):
-    """The LQ weights of the stage cost ``e^T Q e + u^T R u + 2 e^T N u``, one set for every
-    lane (plain matrices, not lane state)."""
-
-    Q: NDArray  # (n, n)
-    R: NDArray  # (m, m)
-    N: NDArray  # (n, m)
 
 
 #: The integer fields of :class:`MimoState` (the counters; the others are float64 except the
@@ -177,6 +167,9 @@ class MimoConfig(NamedTuple):
     gain_max: float
     solve_tol: float
     solve_max_iter: int
+    Q: NDArray  # LQ weights of the stage cost e^T Q e + u^T R u + 2 e^T N u: (n, n)
+    R: NDArray  # (m, m)
+    N: NDArray  # (n, m)
 
 
 @lane(inline=True)
@@ -191,13 +184,15 @@ def _model(theta, A, B):
 
 
 @lane
-def _design(s, w, est, weights, lane, cfg):
+def _design(s, w, est, lane, cfg):
     """Step 3: a candidate gain (Riccati step or full solve), accepted in the safe set."""
     theta = est.theta[lane]
     A = s.A[lane]
     B = s.B[lane]
     _model(theta, A, B)
-    Q, R, N = weights
+    Q = cfg.Q
+    R = cfg.R
+    N = cfg.N
     P = s.P_try[lane]
     K = s.K_try[lane]
     P_lq = s.P_lq[lane]
@@ -242,13 +237,13 @@ def _state_cost(Q, x, r):
 
 
 @lane(entry=True)
-def mimo_step(s, w, est, est_work, weights, lane, cfg, x, r, u):
+def mimo_step(s, w, est, est_work, lane, cfg, x, r, u):
     """One sample of lane ``lane`` of the controller (module docstring, steps 1-4): ``u(t)``
     from ``x(t)``, ``r(t)`` (1-D arrays of ``n``, ``n`` and ``m`` floats).
 
     ``s``/``w``: the controllers' :class:`MimoState` and :class:`MimoWork`; ``est``/``est_work``:
-    the estimator's :class:`.state_matrix.StateMatrixState` and its scratch; ``weights``: the
-    :class:`MimoWeights`; ``cfg``: a :class:`MimoConfig`.
+    the estimator's :class:`.state_matrix.StateMatrixState` and its scratch; ``cfg``: a
+    :class:`MimoConfig`.
     """
     n = cfg.n
     m = cfg.m
@@ -277,7 +272,7 @@ def mimo_step(s, w, est, est_work, weights, lane, cfg, x, r, u):
         s.fresh[lane] = True
     # -- 3. certainty-equivalence design once the estimate has full rank
     if est.rank[lane] >= q:
-        status = _design(s, w, est, weights, lane, cfg)
+        status = _design(s, w, est, lane, cfg)
         s.last_reason[lane] = status
         if status == OK:
             s.fresh[lane] = False
@@ -292,7 +287,7 @@ def mimo_step(s, w, est, est_work, weights, lane, cfg, x, r, u):
         for i in range(n):
             ymax = max(ymax, abs(x[i]))
         s.ymax[lane] = ymax
-        cmax = max(cmax, _state_cost(weights.Q, x, r))
+        cmax = max(cmax, _state_cost(cfg.Q, x, r))
         s.cmax[lane] = cmax
     level = cfg.probe_output
     amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
@@ -336,7 +331,7 @@ def mimo_step(s, w, est, est_work, weights, lane, cfg, x, r, u):
 
 
 @lanes
-def mimo_steps(s, w, est, est_work, weights, cfg, X, Rr, U, first, last):
+def mimo_steps(s, w, est, est_work, cfg, X, Rr, U, first, last):
     """:func:`mimo_step` for every lane (``X``, ``Rr`` ``(B, n)``, ``U`` ``(B, m)``)."""
     for i in range(first, last):
-        mimo_step(s, w, est, est_work, weights, i, cfg, X[i], Rr[i], U[i])
+        mimo_step(s, w, est, est_work, i, cfg, X[i], Rr[i], U[i])

@@ -109,9 +109,16 @@ def make_state_matrix(n: int, m: int, num_lanes: int) -> tuple[StateMatrixState,
 
 
 @lane(inline=True)
-def _switch_to_rls(theta, S, gram, cross, M, Ginv, T, p0):
-    """``P = G^{-1}`` (19) and ``Theta = G^{-1} H`` (11); a singular ``G`` keeps ``Theta`` and
-    starts ``P`` at ``p0 I``."""
+def _switch_to_rls(est, work, lane, p0):
+    """``P = G^{-1}`` (19) and ``Theta = G^{-1} H`` (11) of lane ``lane``; a singular ``G`` keeps
+    ``Theta`` and starts ``P`` at ``p0 I``."""
+    theta = est.theta[lane]
+    S = est.S[lane]
+    gram = est.gram[lane]
+    cross = est.cross[lane]
+    M = work.M[lane]
+    Ginv = work.Ginv[lane]
+    T = work.T[lane]
     q, n = theta.shape
     for i in range(q):
         for j in range(q):
@@ -203,5 +210,5 @@ def state_matrix_update(est, work, lane, x_next, lam, tol, p0):
     rank += 1
     est.rank[lane] = rank
     if rank == q:
-        _switch_to_rls(theta, S, gram, cross, work.M[lane], work.Ginv[lane], work.T[lane], p0)
+        _switch_to_rls(est, work, lane, p0)
     return OK
