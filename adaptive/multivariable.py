@@ -463,6 +463,17 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         _steps(*args, self._cfg, X, Rr, self._u)
         return self._u.copy()
 
+    def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
+        """One plant's ``u(t)`` from ``[x(t), r(t)]``: the compiled step on the two halves of
+        the observation (contiguous views), without the batch's array handling."""
+        n = self.n_states
+        if self.obs_dim == n or not observation.flags.c_contiguous:  # r = 0, or a strided view
+            return self._act(observation[None, :], None, deterministic)
+        u = self._u[0]
+        _step(self._state, self._work, self._est, self._est_work, 0, self._cfg,
+              observation[:n], observation[n:], u)  # fmt: skip
+        return u.copy()
+
     # ------------------------------------------------------------------ views
     @property
     def K(self) -> NDArray:

@@ -264,6 +264,7 @@ def test_single_equals_its_lane_bit_for_bit_and_pickles():
     venv = gym.make_vec("stcgym/StateSpace-v0", num_envs=B, plant="he1", noise_std=0.02)
     batch = MultivariableSelfTuningController(env=venv, seed=5)
     singles = [MultivariableSelfTuningController(4, 2, seed=5 + i) for i in range(B)]
+    strided = MultivariableSelfTuningController(4, 2, seed=5)  # fed a non-contiguous view
     obs, _ = venv.reset(seed=0)
     seen, actions = [], []
     for t in range(80):
@@ -271,6 +272,9 @@ def test_single_equals_its_lane_bit_for_bit_and_pickles():
         assert u.shape == (B, 2)
         for i, s in enumerate(singles):
             np.testing.assert_array_equal(s.predict(obs[i])[0], u[i])
+        column = np.zeros((obs.shape[1], 2))
+        column[:, 0] = obs[0]
+        np.testing.assert_array_equal(strided.predict(column[:, 0])[0], u[0])
         if t == 39:
             copy = pickle.loads(pickle.dumps(batch))
         if t >= 40:
