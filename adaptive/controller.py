@@ -64,7 +64,7 @@ from stcgym.adaptive.options import (
 from stcgym.adaptive.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.policy import SelfTuningLanes
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.compiled import FixedTypes, set_lanes, state_nbytes_per_lane
+from stcgym.envs.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.envs.validation import integer
 
 __all__ = [
@@ -396,20 +396,6 @@ class SelfTuningController(SelfTuningLanes):
     def nbytes_per_lane(self) -> int:
         """Memory of one lane's state and scratch (the controller's and the estimator's)."""
         return sum(map(state_nbytes_per_lane, (self._state, self._work, self._est, self._est_work)))
-
-    def _counter(self, name: str) -> NDArray:
-        return getattr(self._state, name)
-
-    def _reset_lanes(self, idx: NDArray) -> None:
-        """A new episode on the lanes ``idx``: the state back to ``_init`` (the estimator's to
-        ``_est_init``), the lane's seed kept and its episode counter advanced, so its probe is a
-        new sequence."""
-        s = self._state
-        episodes = s.episode[idx] + 1
-        set_lanes(s, idx, self._init)
-        s.seed[idx] = self.seeds[idx]
-        s.episode[idx] = episodes
-        set_lanes(self._est, idx, self._est_init)
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

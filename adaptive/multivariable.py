@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels import multivariable as km
+from stcgym.adaptive.kernels.state_matrix import make_state_matrix
 from stcgym.adaptive.options import (
     ChangeDetection,
     SafeSet,
@@ -354,7 +355,6 @@ class MultivariableSelfTuningController(SelfTuningLanes):
     """
 
     observation_limit = OBSERVATION_LIMIT
-    _INTS = km.MIMO_INTS
 
     def __init__(
         self,
@@ -430,56 +430,65 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             gain_max=float(ss.gain_max),
             solve_tol=1e-12,
             solve_max_iter=64,
+            Q=np.array(self.Q, dtype=float),
+            R=np.array(self.R, dtype=float),
+            N=np.array(self.N, dtype=float),
         )
         # a reset lane starts here: C = 0, the minimum-norm phase from R = I, no gain, P_lq = Q
-        self._layout, self._at, init = km.mimo_record(
-            n, m, self.Q, self.R, self.N, self.input_low, self.input_high
-        )
-        init.setflags(write=False)
+        self._est_init, _ = make_state_matrix(n, m, 1)
+        self._est, self._est_work = make_state_matrix(n, m, self.B)
+        init, _ = km.make_mimo_state(n, m, 1)
+        init.P_lq[0] = self.Q
+        init.u_low[0] = self.input_low
+        init.u_high[0] = self.input_high
+        init.closed_t[0] = -1
+        init.fresh[0] = True  # a fresh model to design for
         self._init = init
-        self._F = np.empty((self.B, self._layout.size))
-        self._G = self._int_records()
+        self._state, self._work = km.make_mimo_state(n, m, self.B)
+        self._state.seed[:] = self.seeds
+        self._state.episode[:] = -1  # the first reset starts episode 0
         self._u = np.zeros((self.B, m))
         self.reset()
 
     # ------------------------------------------------------------------ protocol
-    def _reset_lanes(self, idx: NDArray) -> None:
-        """A new episode on the lanes ``idx`` (:meth:`SelfTuningLanes._reset_lanes`), with a
-        fresh model to design for."""
-        super()._reset_lanes(idx)
-        self._G[idx, km.MIMO_INTS.fresh] = 1
-
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[x(t), r(t)]``."""
         if starts is not None:
             self._reset_lanes(np.flatnonzero(starts))
         X, Rr = split_observation(obs, self.n_states)
+        args = (self._state, self._work, self._est, self._est_work)
         if self.num_envs is None:
-            _step(self._F[0], self._G[0], self._at, self._cfg, X[0], Rr[0], self._u[0])
+            _step(*args, 0, self._cfg, X[0], Rr[0], self._u[0])
             return self._u[0].copy()
-        _steps(self._F, self._G, self._at, self._cfg, X, Rr, self._u)
+        _steps(*args, self._cfg, X, Rr, self._u)
         return self._u.copy()
 
-    # ------------------------------------------------------------------ views
-    def _matrix(self, name: str, rows: int, cols: int) -> NDArray:
-        return self._lanes_out(self._layout.view(self._F, name).reshape(self.B, rows, cols))
+    def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
+        """One plant's ``u(t)`` from ``[x(t), r(t)]``: the compiled step on the two halves of
+        the observation (contiguous views), without the batch's array handling."""
+        n = self.n_states
+        if self.obs_dim == n or not observation.flags.c_contiguous:  # r = 0, or a strided view
+            return self._act(observation[None, :], None, deterministic)
+        u = self._u[0]
+        _step(self._state, self._work, self._est, self._est_work, 0, self._cfg,
+              observation[:n], observation[n:], u)  # fmt: skip
+        return u.copy()
 
+    # ------------------------------------------------------------------ views
     @property
     def K(self) -> NDArray:
         """Gain in use, ``(m, n)`` (``(B, m, n)`` for lanes); zeros before the first design."""
-        return self._matrix("K", self.n_inputs, self.n_states)
+        return self._lanes_out(self._state.K)
 
     @property
     def F(self) -> NDArray:
         """Reference feed-forward in use (``u = -K x + F r``), shapes as :attr:`K`."""
-        return self._matrix("F", self.n_inputs, self.n_states)
+        return self._lanes_out(self._state.F)
 
     @property
     def theta(self) -> NDArray:
         """The estimate ``[A_hat B_hat]``, ``(n, n + m)`` (``(B, n, n + m)`` for lanes)."""
-        n, m = self.n_states, self.n_inputs
-        th = self._layout.view(self._F, "theta").reshape(self.B, n + m, n)
-        return self._lanes_out(np.swapaxes(th, 1, 2))
+        return self._lanes_out(np.swapaxes(self._est.theta, 1, 2))
 
     @property
     def A_hat(self) -> NDArray:
@@ -499,11 +508,8 @@ class MultivariableSelfTuningController(SelfTuningLanes):
     def diagnostics(self) -> dict[str, Any]:
         """Counters and flags per lane (scalars for a single controller)."""
         q = self.n_states + self.n_inputs
-        flags = {
-            "has_gain": self._layout.view(self._F, "has_gain") > 0,
-            "full_rank": self._layout.view(self._F, "rank") >= q,
-        }
-        return self._diagnostics(flags, {"n_resets": self._G[:, km.MIMO_INTS.n_resets]})
+        flags = {"has_gain": self._state.has_gain, "full_rank": self._est.rank >= q}
+        return self._diagnostics(flags, {"n_resets": self._state.n_resets})
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

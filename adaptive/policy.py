@@ -43,6 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.kernels.safe_set import STATUS_NAMES
 from stcgym.adaptive.recursive import lane_indices
+from stcgym.envs.compiled import set_lanes
 
 __all__ = [
     "LanePolicy",
@@ -284,20 +285,22 @@ class LanePolicy(ABC):
 
 
 class SelfTuningLanes(LanePolicy):
-    """The lane counters of the self-tuning controllers (SISO and MIMO).
+    """The lane state and counters of the self-tuning controllers (SISO and MIMO).
 
     Every lane counts the step ``t``, the ``episode``, the step the loop closed at
     (``closed_t``, ``-1`` while open) and the counters that :attr:`diagnostics` reports, and
-    keeps the ``seed`` of its probe; :meth:`_counter` gives one of them for every lane. By
-    default lane ``i`` keeps a float record ``_F[i]`` (back to ``_init`` at a reset) and an
-    int record ``_G[i]`` with the fields of :attr:`_INTS`; a controller whose lane state is a
-    named tuple of batched arrays overrides :meth:`_counter` and :meth:`_reset_lanes`.
+    keeps the ``seed`` of its probe; :meth:`_counter` gives one of them for every lane. A
+    controller holds its lane state ``_state`` (a named tuple of batched arrays with those
+    counters as fields, :func:`stcgym.envs.compiled.lane_state`) and its estimator's ``_est``;
+    a reset copies one lane's initial values ``_init`` and ``_est_init`` into them.
     """
 
-    #: Offsets of the int record's fields (a NamedTuple of ints, ``len(_INTS)`` of them).
-    _INTS: Any
     #: One seed per lane.
     seeds: NDArray
+    _state: Any
+    _init: Any
+    _est: Any
+    _est_init: Any
 
     def _lane_ints(self, value: Any, name: str) -> NDArray:
         """``value + 0..B-1`` for an int, else ``B`` ints (one per lane), as int64."""
@@ -312,29 +315,20 @@ class SelfTuningLanes(LanePolicy):
             raise ValueError(f"{name} must be an int or {B} ints (one per lane), got {value!r}")
         return arr.astype(np.int64)
 
-    def _int_records(self) -> NDArray:
-        """A fresh int record of every lane: its seed, and episode ``-1`` (the first reset
-        starts episode 0)."""
-        G = np.zeros((self.num_lanes, len(self._INTS)), dtype=np.int64)
-        G[:, self._INTS.seed] = self.seeds
-        G[:, self._INTS.episode] = -1
-        return G
-
     def _counter(self, name: str) -> NDArray:
         """The counter ``name`` of every lane (``(lanes,)`` int64, a view)."""
-        return self._G[:, getattr(self._INTS, name)]
+        return getattr(self._state, name)
 
     def _reset_lanes(self, idx: NDArray) -> None:
-        """Start a new episode on the lanes ``idx``: the float record back to ``_init``, the
-        counters and ``t`` to 0, the loop open; each lane's episode counter advances, so its
-        probe is a new sequence."""
-        self._F[idx] = self._init
-        G, ints = self._G, self._INTS
-        episodes = G[idx, ints.episode] + 1
-        G[idx] = 0
-        G[idx, ints.seed] = self.seeds[idx]
-        G[idx, ints.episode] = episodes
-        G[idx, ints.closed_t] = -1
+        """A new episode on the lanes ``idx``: the state back to ``_init`` (the estimator's to
+        ``_est_init``), the lane's seed kept and its episode counter advanced, so its probe is a
+        new sequence."""
+        s = self._state
+        episodes = s.episode[idx] + 1
+        set_lanes(s, idx, self._init)
+        s.seed[idx] = self.seeds[idx]
+        s.episode[idx] = episodes
+        set_lanes(self._est, idx, self._est_init)
 
     def _lanes_out(self, arr: NDArray) -> NDArray:
         """A copy of lane 0 of ``arr`` for a single plant, else of every lane."""

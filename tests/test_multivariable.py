@@ -22,12 +22,7 @@ from scipy.linalg import null_space
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import LQRController, MultivariableSelfTuningController
 from stcgym.adaptive.kernels import mimo_lq
-from stcgym.adaptive.kernels.state_matrix import (
-    StateMatrixRecord,
-    state_matrix_initial,
-    state_matrix_layout,
-    state_matrix_update,
-)
+from stcgym.adaptive.kernels.state_matrix import make_state_matrix, state_matrix_update
 from stcgym.adaptive.multichannel import StateMatrixEstimator
 from stcgym.envs import MIMO_PLANTS, Jumps, get_mimo_plant
 
@@ -70,18 +65,15 @@ def test_state_space_env_takes_a_catalogue_name():
 
 
 def _estimator(n, m):
-    lay = state_matrix_layout(n, m)
-    rec = lay.empty(1)[0]
-    state_matrix_initial(lay, rec, n, m)
-    return lay, lay.record(StateMatrixRecord), rec
+    """One lane of the estimator's state and scratch."""
+    return make_state_matrix(n, m, 1)
 
 
-def _feed(lay, at, rec, n, m, X, U, lam=1.0):
-    q = n + m
+def _feed(est, work, X, U, lam=1.0):
     for k in range(len(U)):
-        rec[at.z : at.z + q] = np.concatenate((X[k], U[k]))
-        call(state_matrix_update, rec, at, n, m, np.ascontiguousarray(X[k + 1]), lam, 1e-9, 100.0)
-    return lay.view(rec, "theta").T  # C = [A B]
+        est.z[0] = np.concatenate((X[k], U[k]))
+        call(state_matrix_update, est, work, 0, np.ascontiguousarray(X[k + 1]), lam, 1e-9, 100.0)
+    return est.theta[0].T  # C = [A B]
 
 
 @pytest.mark.parametrize("forgetting", [1.0, 0.98])
@@ -94,23 +86,23 @@ def test_estimator_equals_batch_least_squares(forgetting):
     X = np.zeros((T + 1, n))
     for k in range(T):
         X[k + 1] = A @ X[k] + B @ U[k] + 0.05 * rng.standard_normal(n)
-    lay, at, rec = _estimator(n, m)
+    est, work = _estimator(n, m)
     # minimum-norm phase: C = X Z^+ (Kunik et al. (10)) and the Python estimator
     q = n + m
     Z = np.hstack((X[:-1], U))
-    C_mn = _feed(lay, at, rec, n, m, X[: q - 1], U[: q - 2])
+    C_mn = _feed(est, work, X[: q - 1], U[: q - 2])
     ref = StateMatrixEstimator(n, m)
     for k in range(q - 2):
         ref.update(X[k], U[k], X[k + 1])
     np.testing.assert_allclose(C_mn, X[1 : q - 1].T @ np.linalg.pinv(Z[: q - 2].T), atol=1e-10)
     np.testing.assert_allclose(C_mn, ref.C, atol=1e-10)
     # the whole record: weighted batch least squares
-    lay, at, rec = _estimator(n, m)
-    C = _feed(lay, at, rec, n, m, X, U, forgetting)
+    est, work = _estimator(n, m)
+    C = _feed(est, work, X, U, forgetting)
     w = np.sqrt(forgetting ** np.arange(T - 1, -1, -1))[:, None]
     expected = np.linalg.lstsq(w * Z, w * X[1:], rcond=None)[0].T
     np.testing.assert_allclose(C, expected, rtol=1e-8, atol=1e-10)
-    assert rec[at.rank] == q
+    assert est.rank[0] == q
 
 
 @settings(max_examples=30, deadline=None)
@@ -127,8 +119,8 @@ def test_estimator_property_batch_least_squares(n, m, extra, forgetting, seed):
     T = n + m + extra
     X = rng.standard_normal((T + 1, n))
     U = rng.standard_normal((T, m))
-    lay, at, rec = _estimator(n, m)
-    C = _feed(lay, at, rec, n, m, X, U, forgetting)
+    est, work = _estimator(n, m)
+    C = _feed(est, work, X, U, forgetting)
     Z = np.hstack((X[:-1], U))
     w = np.sqrt(forgetting ** np.arange(T - 1, -1, -1))[:, None]
     expected = np.linalg.lstsq(w * Z, w * X[1:], rcond=None)[0].T
@@ -142,13 +134,13 @@ def test_estimator_counts_dependent_regressors_in_the_switch():
     Z = rng.standard_normal((4, 3))
     Z[1] = 2.0 * Z[0]
     Y = rng.standard_normal((4, 2))
-    lay, at, rec = _estimator(n, m)
+    est, work = _estimator(n, m)
     for k in range(4):
-        rec[at.z : at.z + 3] = Z[k]
-        status = call(state_matrix_update, rec, at, n, m, Y[k].copy(), 1.0, 1e-9, 100.0)
+        est.z[0] = Z[k]
+        status = call(state_matrix_update, est, work, 0, Y[k].copy(), 1.0, 1e-9, 100.0)
         assert status == (1 if k == 1 else 0)
     expected = np.linalg.lstsq(Z, Y, rcond=None)[0].T
-    np.testing.assert_allclose(lay.view(rec, "theta").T, expected, atol=1e-10)
+    np.testing.assert_allclose(est.theta[0].T, expected, atol=1e-10)
 
 
 # ------------------------------------------------------------------ design kernels
@@ -272,6 +264,7 @@ def test_single_equals_its_lane_bit_for_bit_and_pickles():
     venv = gym.make_vec("stcgym/StateSpace-v0", num_envs=B, plant="he1", noise_std=0.02)
     batch = MultivariableSelfTuningController(env=venv, seed=5)
     singles = [MultivariableSelfTuningController(4, 2, seed=5 + i) for i in range(B)]
+    strided = MultivariableSelfTuningController(4, 2, seed=5)  # fed a non-contiguous view
     obs, _ = venv.reset(seed=0)
     seen, actions = [], []
     for t in range(80):
@@ -279,6 +272,9 @@ def test_single_equals_its_lane_bit_for_bit_and_pickles():
         assert u.shape == (B, 2)
         for i, s in enumerate(singles):
             np.testing.assert_array_equal(s.predict(obs[i])[0], u[i])
+        column = np.zeros((obs.shape[1], 2))
+        column[:, 0] = obs[0]
+        np.testing.assert_array_equal(strided.predict(column[:, 0])[0], u[0])
         if t == 39:
             copy = pickle.loads(pickle.dumps(batch))
         if t >= 40:

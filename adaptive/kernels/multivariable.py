@@ -27,14 +27,17 @@ and writes ``u(t)``. Every step, in this order:
    ``max_probe_steps`` (default ``5 (n + m)``) while ``max |x| < probe_output``. Then
    ``u = sat(-K x + F r)`` (:func:`.mimo_lq.feedback_law`).
 
-Lane records: a ``float64`` record (fields :class:`MimoRecord`) with the estimator's fields
-first, and an ``int64`` record (:data:`MIMO_INTS`); configuration :class:`MimoConfig`.
+Lane state: :class:`MimoState` (the controller's fields and counters) and its scratch
+:class:`MimoWork`, named tuples of batched arrays (lane ``i``'s field ``f`` is ``state.f[i]``;
+shapes in :func:`mimo_shapes`); the estimator's state and scratch are its own
+(:class:`.state_matrix.StateMatrixState`). The configuration :class:`MimoConfig`, the same
+for every lane, holds the LQ weights ``Q``, ``R``, ``N``.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,78 +52,93 @@ from stcgym.adaptive.kernels.mimo_lq import (
     lq_gain,
     riccati_step,
 )
-from stcgym.adaptive.kernels.records import view2d
+from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.kernels.safe_set import NONFINITE, NOT_STABILISABLE, OK
-from stcgym.adaptive.kernels.state_matrix import (
-    RESET,
-    state_matrix_initial,
-    state_matrix_layout,
-    state_matrix_update,
-)
-from stcgym.envs.compiled import Layout, lane, lanes
+from stcgym.adaptive.kernels.state_matrix import RESET, state_matrix_update
+from stcgym.envs.compiled import lane, lane_state, lanes
 
 __all__ = [
-    "MIMO_INTS",
+    "COUNTERS",
     "MimoConfig",
-    "MimoInts",
-    "MimoRecord",
-    "mimo_record",
+    "MimoState",
+    "MimoWork",
+    "make_mimo_state",
+    "mimo_shapes",
     "mimo_step",
     "mimo_steps",
 ]
 
 
-class MimoRecord(NamedTuple):
-    """Offsets of the fields of the controller's float lane record (:func:`mimo_record`)."""
+class MimoState(NamedTuple):
+    """The controller's lane state: field ``f`` of lane ``i`` is ``state.f[i]`` (a batch of
+    ``B`` lanes holds ``(B, *shape)`` arrays; shapes in :func:`mimo_shapes`)."""
 
-    theta: int  # estimator: Theta = [A B]^T (q, n)
-    S: int
-    R: int
-    gram: int
-    cross: int
-    z: int  # [x(t); u(t)], the next regressor
-    e: int  # innovation (n)
-    rank: int
-    work: int  # the estimator's scratch
-    design: int  # design scratch (design_work_size)
-    Qw: int  # LQ state weight (n, n)
-    Rw: int  # LQ input weight (m, m)
-    Nw: int  # LQ cross weight (n, m)
-    A: int  # model of the estimate (n, n)
-    B: int  # (n, m)
-    P_lq: int  # Riccati matrix of the gain in use (n, n)
-    P_try: int  # candidate Riccati matrix (n, n)
-    K: int  # gain in use (m, n)
-    K_try: int  # candidate gain (m, n)
-    F: int  # reference feed-forward in use (m, n)
-    has_gain: int  # 1.0 once a design was accepted
-    ews: int  # short EWMA of ||e||^2
-    ewl: int  # long EWMA of ||e||^2
-    ymax: int  # largest |x_i| seen while probing
-    cmax: int  # largest state cost (x - r)^T Q (x - r) seen while probing
-    u_low: int  # lower end of every input's range (m)
-    u_high: int  # upper end of every input's range (m)
-
-
-class MimoInts(NamedTuple):
-    """Fields of the controller's ``int64`` lane record."""
-
-    t: int
-    episode: int
-    seed: int
-    n_rejected: int  # designs rejected by the safe set
-    n_alarms: int  # detected changes (covariance resets)
-    n_saturated: int  # samples with a saturated input
-    closed_t: int  # sample at which the loop closed (-1: still open)
-    last_alarm: int
-    last_reason: int  # status code of the last design
-    n_probe: int
-    n_resets: int  # estimator covariance restarts (health check)
-    fresh: int  # 1: the next design is a full solve
+    A: NDArray  # model of the estimate A_hat (n, n)
+    B: NDArray  # B_hat (n, m)
+    P_lq: NDArray  # Riccati matrix of the gain in use (n, n)
+    P_try: NDArray  # candidate Riccati matrix (n, n)
+    K: NDArray  # gain in use (m, n)
+    K_try: NDArray  # candidate gain (m, n)
+    F: NDArray  # reference feed-forward in use (m, n)
+    has_gain: NDArray  # a design has been accepted since the reset (bool)
+    ews: NDArray  # short EWMA of ||e||^2
+    ewl: NDArray  # long EWMA of ||e||^2
+    ymax: NDArray  # largest |x_i| seen while probing
+    cmax: NDArray  # largest state cost (x - r)^T Q (x - r) seen while probing
+    u_low: NDArray  # lower end of every input's range (m)
+    u_high: NDArray  # upper end of every input's range (m)
+    fresh: NDArray  # the next design is a full solve (bool)
+    t: NDArray  # samples since the last reset (int)
+    episode: NDArray  # episodes started (int; the probe's sequence)
+    seed: NDArray  # the probe's seed (int)
+    n_rejected: NDArray  # designs rejected by the safe set
+    n_alarms: NDArray  # detected changes (covariance resets)
+    n_saturated: NDArray  # samples with a saturated input
+    closed_t: NDArray  # sample at which the loop closed (-1: still open)
+    last_alarm: NDArray  # the sample of the last detected change
+    last_reason: NDArray  # status code of the last design
+    n_probe: NDArray  # probe samples applied
+    n_resets: NDArray  # estimator covariance restarts (health check)
 
 
-#: Offsets of the int record's fields (``g[MIMO_INTS.t]``).
-MIMO_INTS = MimoInts(*range(len(MimoInts._fields)))
+class MimoWork(NamedTuple):
+    """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
+
+    design: NDArray  # the design's scratch (mimo_lq.design_work_size(n, m))
+
+
+#: The integer fields of :class:`MimoState` (the counters; the others are float64 except the
+#: flags ``has_gain`` and ``fresh``).
+COUNTERS = MimoState._fields[MimoState._fields.index("t") :]
+_DTYPES: dict[str, Any] = {
+    **dict.fromkeys(COUNTERS, np.int64),
+    "has_gain": np.bool_,
+    "fresh": np.bool_,
+}
+
+
+def mimo_shapes(n: int, m: int) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """The shapes of one lane's :class:`MimoState` and :class:`MimoWork` fields for ``n``
+    states and ``m`` inputs: the one place they are declared."""
+    n, m = int(n), int(m)
+    state: dict[str, tuple[int, ...]] = {
+        **dict.fromkeys(("A", "P_lq", "P_try"), (n, n)),
+        "B": (n, m),
+        **dict.fromkeys(("K", "K_try", "F"), (m, n)),
+        **dict.fromkeys(("u_low", "u_high"), (m,)),
+    }
+    for scalar in MimoState._fields:
+        state.setdefault(scalar, ())
+    return state, {"design": (design_work_size(n, m),)}
+
+
+def make_mimo_state(n: int, m: int, num_lanes: int) -> tuple[MimoState, MimoWork]:
+    """A zeroed :class:`MimoState` of ``num_lanes`` lanes and their scratch."""
+    shapes, work = mimo_shapes(n, m)
+    return (
+        lane_state(MimoState, shapes, num_lanes, _DTYPES),
+        lane_state(MimoWork, work, num_lanes),
+    )
 
 
 class MimoConfig(NamedTuple):
@@ -149,45 +167,15 @@ class MimoConfig(NamedTuple):
     gain_max: float
     solve_tol: float
     solve_max_iter: int
-
-
-def mimo_record(
-    n: int, m: int, Q: NDArray, R: NDArray, N: NDArray, low: NDArray, high: NDArray
-) -> tuple[Layout, MimoRecord, NDArray]:
-    """Float record of one lane, its offsets and its initial value (weights ``Q``, ``R``,
-    ``N``; input range ``[low, high]``, ``m`` values each)."""
-    lay = state_matrix_layout(n, m)
-    lay.add("design", (design_work_size(n, m),))
-    lay.add("Qw", (n, n))
-    lay.add("Rw", (m, m))
-    lay.add("Nw", (n, m))
-    lay.add("A", (n, n))
-    lay.add("B", (n, m))
-    for name in ("P_lq", "P_try"):
-        lay.add(name, (n, n))
-    for name in ("K", "K_try", "F"):
-        lay.add(name, (m, n))
-    for name in ("has_gain", "ews", "ewl", "ymax", "cmax"):
-        lay.add(name)
-    lay.add("u_low", (m,))
-    lay.add("u_high", (m,))
-    at = lay.record(MimoRecord)
-    init = lay.empty(1)[0]
-    state_matrix_initial(lay, init, n, m)
-    init[at.Qw : at.Qw + n * n] = np.asarray(Q, dtype=float).ravel()
-    init[at.Rw : at.Rw + m * m] = np.asarray(R, dtype=float).ravel()
-    init[at.Nw : at.Nw + n * m] = np.asarray(N, dtype=float).ravel()
-    init[at.P_lq : at.P_lq + n * n] = np.asarray(Q, dtype=float).ravel()
-    init[at.u_low : at.u_low + m] = np.asarray(low, dtype=float).ravel()
-    init[at.u_high : at.u_high + m] = np.asarray(high, dtype=float).ravel()
-    return lay, at, init
+    Q: NDArray  # LQ weights of the stage cost e^T Q e + u^T R u + 2 e^T N u: (n, n)
+    R: NDArray  # (m, m)
+    N: NDArray  # (n, m)
 
 
 @lane(inline=True)
-def _model(f, at, n, m, A, B):
+def _model(theta, A, B):
     """``[A_hat B_hat] = Theta^T``."""
-    q = n + m
-    theta = view2d(f, at.theta, q, n)
+    n, m = B.shape
     for i in range(n):
         for j in range(n):
             A[i, j] = theta[j, i]
@@ -195,49 +183,45 @@ def _model(f, at, n, m, A, B):
             B[i, j] = theta[n + j, i]
 
 
-@lane(inline=True)
-def _copy(f, src, dst, size):
-    for i in range(size):
-        f[dst + i] = f[src + i]
-
-
 @lane
-def _design(f, g, at, cfg):
+def _design(s, w, est, lane, cfg):
     """Step 3: a candidate gain (Riccati step or full solve), accepted in the safe set."""
-    n = cfg.n
-    m = cfg.m
-    A = view2d(f, at.A, n, n)
-    B = view2d(f, at.B, n, m)
-    _model(f, at, n, m, A, B)
-    Q = view2d(f, at.Qw, n, n)
-    R = view2d(f, at.Rw, m, m)
-    N = view2d(f, at.Nw, n, m)
-    P = view2d(f, at.P_try, n, n)
-    K = view2d(f, at.K_try, m, n)
-    work = f[at.design : at.Qw]  # the design scratch ends where the weights start
-    fresh = g[MIMO_INTS.fresh] != 0 or f[at.has_gain] <= 0.0
-    for i in range((n + m) * n):
-        if not math.isfinite(f[at.theta + i]):
-            return NONFINITE
+    theta = est.theta[lane]
+    A = s.A[lane]
+    B = s.B[lane]
+    _model(theta, A, B)
+    Q = cfg.Q
+    R = cfg.R
+    N = cfg.N
+    P = s.P_try[lane]
+    K = s.K_try[lane]
+    P_lq = s.P_lq[lane]
+    work = w.design[lane]
+    fresh = s.fresh[lane] or not s.has_gain[lane]
+    q, n = theta.shape
+    for i in range(q):
+        for j in range(n):
+            if not math.isfinite(theta[i, j]):
+                return NONFINITE
     if fresh:
         status = dare_solve(A, B, Q, R, N, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
         if status != OK:
             return status
     else:
-        _copy(f, at.P_lq, at.P_try, n * n)
+        copy_matrix(P_lq, P)
         riccati_step(A, B, Q, R, N, P, K, work)
         big = False
-        for i in range(n * n):
-            big = big or not abs(f[at.P_try + i]) <= P_MAX
+        for i in range(n):
+            for j in range(n):
+                big = big or not abs(P[i, j]) <= P_MAX
         if big or not lq_gain(A, B, R, N, P, K, work):
-            _copy(f, at.Qw, at.P_lq, n * n)  # restart the iteration at P = Q
+            copy_matrix(Q, P_lq)  # restart the iteration at P = Q
             return NOT_STABILISABLE
-    F = view2d(f, at.F, m, n)
-    status = design_checks(A, B, Q, R, N, K, F, cfg.b_min, cfg.gain_max, work)
+    status = design_checks(A, B, Q, R, N, K, s.F[lane], cfg.b_min, cfg.gain_max, work)
     if status == OK:
-        _copy(f, at.P_try, at.P_lq, n * n)
-        _copy(f, at.K_try, at.K, m * n)
-        f[at.has_gain] = 1.0
+        copy_matrix(P, P_lq)
+        copy_matrix(K, s.K[lane])
+        s.has_gain[lane] = True
     return status
 
 
@@ -253,51 +237,58 @@ def _state_cost(Q, x, r):
 
 
 @lane(entry=True)
-def mimo_step(f, g, at, cfg, x, r, u):
-    """One sample of the controller (module docstring, steps 1-4): ``u(t)`` from ``x(t)``,
-    ``r(t)`` (1-D arrays of ``n``, ``n`` and ``m`` floats)."""
+def mimo_step(s, w, est, est_work, lane, cfg, x, r, u):
+    """One sample of lane ``lane`` of the controller (module docstring, steps 1-4): ``u(t)``
+    from ``x(t)``, ``r(t)`` (1-D arrays of ``n``, ``n`` and ``m`` floats).
+
+    ``s``/``w``: the controllers' :class:`MimoState` and :class:`MimoWork`; ``est``/``est_work``:
+    the estimator's :class:`.state_matrix.StateMatrixState` and its scratch; ``cfg``: a
+    :class:`MimoConfig`.
+    """
     n = cfg.n
     m = cfg.m
     q = n + m
-    t = g[MIMO_INTS.t]
+    t = s.t[lane]
     # -- 1. estimator update with the sample (z(t-1), x(t))
     e2 = 0.0
     if t > 0:
-        status = state_matrix_update(f, at, n, m, x, cfg.forgetting, cfg.dependence_tol, cfg.p0)
+        status = state_matrix_update(est, est_work, lane, x, cfg.forgetting, cfg.dependence_tol,
+                                     cfg.p0)  # fmt: skip
         if status == RESET:
-            g[MIMO_INTS.n_resets] += 1
+            s.n_resets[lane] += 1
+        e = est.e[lane]
         for i in range(n):
-            e2 += f[at.e + i] * f[at.e + i]
+            e2 += e[i] * e[i]
     # -- 2. change detection: covariance resetting on a jump of the innovation variance (no
     # sample at t = 0, before the first estimator update)
-    closed_t = g[MIMO_INTS.closed_t]
-    alarm, f[at.ews], f[at.ewl] = change_alarm(
-        cfg, f[at.ews], f[at.ewl], e2, t > 0, t, closed_t, g[MIMO_INTS.last_alarm]
+    closed_t = s.closed_t[lane]
+    alarm, s.ews[lane], s.ewl[lane] = change_alarm(
+        cfg, s.ews[lane], s.ewl[lane], e2, t > 0, t, closed_t, s.last_alarm[lane]
     )
     if alarm:
-        inflate_covariance(view2d(f, at.S, q, q), cfg.inflation)
-        g[MIMO_INTS.n_alarms] += 1
-        g[MIMO_INTS.last_alarm] = t
-        g[MIMO_INTS.fresh] = 1
+        inflate_covariance(est.S[lane], cfg.inflation)
+        s.n_alarms[lane] += 1
+        s.last_alarm[lane] = t
+        s.fresh[lane] = True
     # -- 3. certainty-equivalence design once the estimate has full rank
-    if f[at.rank] >= q:
-        status = _design(f, g, at, cfg)
-        g[MIMO_INTS.last_reason] = status
+    if est.rank[lane] >= q:
+        status = _design(s, w, est, lane, cfg)
+        s.last_reason[lane] = status
         if status == OK:
-            g[MIMO_INTS.fresh] = 0
+            s.fresh[lane] = False
         else:
-            g[MIMO_INTS.n_rejected] += 1
-            g[MIMO_INTS.fresh] = 1
+            s.n_rejected[lane] += 1
+            s.fresh[lane] = True
     # -- 4. control: the probe while the loop is open, then the feedback law
     open_loop = closed_t < 0
-    ymax = f[at.ymax]
-    cmax = f[at.cmax]
+    ymax = s.ymax[lane]
+    cmax = s.cmax[lane]
     if open_loop:
         for i in range(n):
             ymax = max(ymax, abs(x[i]))
-        f[at.ymax] = ymax
-        cmax = max(cmax, _state_cost(view2d(f, at.Qw, n, n), x, r))
-        f[at.cmax] = cmax
+        s.ymax[lane] = ymax
+        cmax = max(cmax, _state_cost(cfg.Q, x, r))
+        s.cmax[lane] = cmax
     level = cfg.probe_output
     amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
     # the probe follows the scale of the state and the input: its input cost a^2 trace(R)
@@ -312,36 +303,35 @@ def mimo_step(f, g, at, cfg, x, r, u):
     # an excited state needs no longer probe: the extension is for a plant near rest
     extend = t < cfg.probe_max and ymax < level and not capped
     probing = open_loop and (t < (cfg.probe_min if capped else cfg.probe_steps) or extend)
-    low = f[at.u_low : at.u_low + m]
-    high = f[at.u_high : at.u_high + m]
-    if probing or f[at.has_gain] <= 0.0:
-        seed = g[MIMO_INTS.seed]
-        episode = g[MIMO_INTS.episode]
+    low = s.u_low[lane]
+    high = s.u_high[lane]
+    if probing or not s.has_gain[lane]:
+        seed = s.seed[lane]
+        episode = s.episode[lane]
         for j in range(m):
             u[j] = min(max(amp * probe_sign(seed, episode, t * m + j), low[j]), high[j])
-        g[MIMO_INTS.n_probe] += 1
+        s.n_probe[lane] += 1
     else:
         if open_loop:
-            g[MIMO_INTS.closed_t] = t
-        K = view2d(f, at.K, m, n)
-        F = view2d(f, at.F, m, n)
-        saturated = feedback_law(K, F, x, r, cfg.action_bound, u)
+            s.closed_t[lane] = t
+        saturated = feedback_law(s.K[lane], s.F[lane], x, r, cfg.action_bound, u)
         for j in range(m):
             if not low[j] <= u[j] <= high[j]:
                 u[j] = min(max(u[j], low[j]), high[j])
                 saturated += 1
         if saturated > 0:
-            g[MIMO_INTS.n_saturated] += 1
+            s.n_saturated[lane] += 1
     # -- the next regressor z(t) = [x(t); u(t)]
+    z = est.z[lane]
     for i in range(n):
-        f[at.z + i] = x[i]
+        z[i] = x[i]
     for j in range(m):
-        f[at.z + n + j] = u[j]
-    g[MIMO_INTS.t] = t + 1
+        z[n + j] = u[j]
+    s.t[lane] = t + 1
 
 
 @lanes
-def mimo_steps(F, G, at, cfg, X, Rr, U, first, last):
+def mimo_steps(s, w, est, est_work, cfg, X, Rr, U, first, last):
     """:func:`mimo_step` for every lane (``X``, ``Rr`` ``(B, n)``, ``U`` ``(B, m)``)."""
     for i in range(first, last):
-        mimo_step(F[i], G[i], at, cfg, X[i], Rr[i], U[i])
+        mimo_step(s, w, est, est_work, i, cfg, X[i], Rr[i], U[i])
