@@ -54,6 +54,12 @@ OBSERVATION_LIMIT = 1e100
 PROBE_COST_SHARE = 0.004
 #: ``P <- P0 I`` after a failed health check of the estimator's covariance.
 P0_RESTART = 100.0
+#: The design solves the Riccati equation to convergence, instead of one warm-started step, when
+#: the model moved by less than ``SETTLE_TOL`` of its largest entry since the last sample while
+#: that step moved ``P`` by more than ``LAG_TOL`` of its largest entry (measured on he1 and the
+#: quadruple tank: the multivariable page).
+SETTLE_TOL = 0.01
+LAG_TOL = 0.05
 
 
 def mimo_env_settings(env: Any, n_states: Any = None) -> dict[str, Any]:
@@ -430,6 +436,8 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             gain_max=float(ss.gain_max),
             solve_tol=1e-12,
             solve_max_iter=64,
+            settle_tol=SETTLE_TOL,
+            lag_tol=LAG_TOL,
             Q=np.array(self.Q, dtype=float),
             R=np.array(self.R, dtype=float),
             N=np.array(self.N, dtype=float),
@@ -509,7 +517,9 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         """Counters and flags per lane (scalars for a single controller)."""
         q = self.n_states + self.n_inputs
         flags = {"has_gain": self._state.has_gain, "full_rank": self._est.rank >= q}
-        return self._diagnostics(flags, {"n_resets": self._state.n_resets})
+        return self._diagnostics(
+            flags, {"n_resets": self._state.n_resets, "n_catch_up": self._state.n_catch_up}
+        )
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

@@ -258,6 +258,35 @@ def test_closed_loop_cost_near_the_oracle(plant, estimate_tol):
     assert ctl.diagnostics["has_gain"] and ctl.diagnostics["n_alarms"] == 0
 
 
+def test_lagging_iteration_on_a_settled_model_is_solved_to_convergence():
+    # noise-free: the estimate is exact once it has full rank, so the model stops moving; a
+    # Riccati matrix far from the fixed point then makes the next design a full solve, whose
+    # gain is the model's LQ gain (one warm-started step from 10 P would not be)
+    plant = get_mimo_plant("he1")
+    A, B = plant.discrete()
+    n, m = B.shape
+    ctl = MultivariableSelfTuningController(n, m, seed=3)
+    x = np.full(n, 0.1)
+    for _ in range(40):
+        u = ctl.predict(np.concatenate([x, np.zeros(n)]))[0]
+        x = A @ x + B @ u
+    np.testing.assert_allclose(ctl.theta, np.hstack((A, B)), atol=1e-9)
+    K_ref = control.dlqr(A, B, ctl.Q, ctl.R)[0]
+    np.testing.assert_allclose(ctl.K, K_ref, rtol=1e-6, atol=1e-9)
+    before = ctl.diagnostics["n_catch_up"]
+    ctl._state.P_lq[0] *= 10.0
+    ctl._state.K[0] = 0.0
+    ctl.predict(np.concatenate([x, np.zeros(n)]))
+    assert ctl.diagnostics["n_catch_up"] == before + 1
+    np.testing.assert_allclose(ctl.K, K_ref, rtol=1e-8, atol=1e-10)
+    # a moving model is filtered by the warm start instead: no full solve
+    ctl._state.P_lq[0] *= 10.0
+    ctl._state.A[0] += 0.1
+    ctl.predict(np.concatenate([x, np.zeros(n)]))
+    assert ctl.diagnostics["n_catch_up"] == before + 1
+    assert np.max(np.abs(ctl.K - K_ref)) > 1e-3
+
+
 @pytest.mark.equality
 def test_single_equals_its_lane_bit_for_bit_and_pickles():
     B = 3

@@ -11,8 +11,12 @@ and writes ``u(t)``. Every step, in this order:
    ``threshold`` times the long one (closed loop, at most once per ``holdoff`` steps) ``P`` is
    multiplied by ``inflation`` (covariance resetting) and the next design is a full solve;
 3. **design** (certainty equivalence, once the estimate has full rank): one Riccati iteration
-   warm-started from the last ``P`` (:func:`.mimo_lq.riccati_step`), or the full doubling solve
-   for a fresh model (the first design, after an alarm or a rejected design); the gain is used
+   warm-started from the last ``P`` (:func:`.mimo_lq.riccati_step`), or the full solve
+   (:func:`.mimo_lq.dare_solve`) for a fresh model (the first design, after an alarm or a
+   rejected design) and when the iteration lags a settled model (the model moved by less than
+   ``settle_tol`` of its largest entry since the last sample, yet the iteration step moved
+   ``P`` by more than ``lag_tol`` of its largest entry: the warm start filters a model that
+   still moves, and would only slowly reach the solution of one that has stopped); the gain is used
    only inside the **safe set** (finite, ``max |B_hat| >= b_min``, ``A_hat - B_hat K`` Schur
    stable, an equilibrium for every reference, ``max |K|, |F| <= gain_max``), else the last good
    gain stays;
@@ -99,6 +103,7 @@ class MimoState(NamedTuple):
     last_reason: NDArray  # status code of the last design
     n_probe: NDArray  # probe samples applied
     n_resets: NDArray  # estimator covariance restarts (health check)
+    n_catch_up: NDArray  # full solves for an iteration lagging a settled model
 
 
 class MimoWork(NamedTuple):
@@ -167,9 +172,42 @@ class MimoConfig(NamedTuple):
     gain_max: float
     solve_tol: float
     solve_max_iter: int
+    settle_tol: float  # the model counts as settled when it moved less than this (relative)
+    lag_tol: float  # the iteration lags when one step moves P by more than this (relative)
     Q: NDArray  # LQ weights of the stage cost e^T Q e + u^T R u + 2 e^T N u: (n, n)
     R: NDArray  # (m, m)
     N: NDArray  # (n, m)
+
+
+@lane(inline=True)
+def _model_change(theta, A, B):
+    """``max |[A_hat B_hat] - Theta^T| / max |[A_hat B_hat]|``: how far the estimate ``Theta``
+    moved from the last design's model (``inf`` when that model is zero)."""
+    n, m = B.shape
+    change = 0.0
+    size = 0.0
+    for i in range(n):
+        for j in range(n):
+            change = max(change, abs(A[i, j] - theta[j, i]))
+            size = max(size, abs(A[i, j]))
+        for j in range(m):
+            change = max(change, abs(B[i, j] - theta[n + j, i]))
+            size = max(size, abs(B[i, j]))
+    return change / size if size > 0.0 else math.inf
+
+
+@lane(inline=True)
+def _lagging(P, P_prev, tol):
+    """``max |P - P_prev| > tol max |P_prev|``: the Riccati iteration is still far from its
+    fixed point."""
+    n = P.shape[0]
+    step = 0.0
+    size = 0.0
+    for i in range(n):
+        for j in range(n):
+            step = max(step, abs(P[i, j] - P_prev[i, j]))
+            size = max(size, abs(P_prev[i, j]))
+    return step > tol * size
 
 
 @lane(inline=True)
@@ -189,6 +227,7 @@ def _design(s, w, est, lane, cfg):
     theta = est.theta[lane]
     A = s.A[lane]
     B = s.B[lane]
+    settled = _model_change(theta, A, B) < cfg.settle_tol
     _model(theta, A, B)
     Q = cfg.Q
     R = cfg.R
@@ -217,6 +256,11 @@ def _design(s, w, est, lane, cfg):
         if big or not lq_gain(A, B, R, N, P, K, work):
             copy_matrix(Q, P_lq)  # restart the iteration at P = Q
             return NOT_STABILISABLE
+        if settled and _lagging(P, P_lq, cfg.lag_tol):
+            s.n_catch_up[lane] += 1
+            status = dare_solve(A, B, Q, R, N, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
+            if status != OK:
+                return status
     status = design_checks(A, B, Q, R, N, K, s.F[lane], cfg.b_min, cfg.gain_max, work)
     if status == OK:
         copy_matrix(P, P_lq)
