@@ -11,10 +11,7 @@ single plant equals its lane of a batch bit for bit.
 
 from __future__ import annotations
 
-from stcgym.adaptive import flops
-from stcgym.adaptive import iterative as _iterative
-from stcgym.adaptive import recursive as _recursive
-from stcgym.adaptive.controller import (
+from stcgym.adaptive.control.controller import (
     ChangeDetection,
     EstimatorOptions,
     LawOptions,
@@ -22,28 +19,35 @@ from stcgym.adaptive.controller import (
     SelfTuningController,
     StartupOptions,
 )
-from stcgym.adaptive.greybox import AffineStateSpace, GreyBoxRegression, NotLinearInParameters
-from stcgym.adaptive.iterative import IterativeResult, fit_iterative
-from stcgym.adaptive.lqr import LQRController
-from stcgym.adaptive.multichannel import MatrixRLS, StateMatrixEstimator
-from stcgym.adaptive.multivariable import MultivariableSelfTuningController
-from stcgym.adaptive.oracles import KalmanObserver, KnownModelController, LQGController
-from stcgym.adaptive.placement import (
+from stcgym.adaptive.control.oracles import KalmanObserver, KnownModelController, LQGController
+from stcgym.adaptive.control.placement import (
     UncontrollableError,
     ackermann,
     augment_integral,
     lq_gain,
     place_poles,
 )
-from stcgym.adaptive.policy import Policy, reset_policy
-from stcgym.adaptive.recursive import (
+from stcgym.adaptive.estimation import flops
+from stcgym.adaptive.estimation import iterative as _iterative
+from stcgym.adaptive.estimation import recursive as _recursive
+from stcgym.adaptive.estimation.iterative import IterativeResult, fit_iterative
+from stcgym.adaptive.estimation.recursive import (
     EstimatorSpec,
     NumericalHealthError,
     RecursiveEstimator,
     make_estimator,
     parse_name,
 )
-from stcgym.adaptive.regression import RecursiveLeastSquares
+from stcgym.adaptive.multivariable.controller import MultivariableSelfTuningController
+from stcgym.adaptive.multivariable.lqr import LQRController
+from stcgym.adaptive.multivariable.multichannel import MatrixRLS, StateMatrixEstimator
+from stcgym.adaptive.policy import Policy, reset_policy
+from stcgym.adaptive.regression.greybox import (
+    AffineStateSpace,
+    GreyBoxRegression,
+    NotLinearInParameters,
+)
+from stcgym.adaptive.regression.rls import RecursiveLeastSquares
 
 # The public data names are bound here with their doc comments: the API reference reads a data
 # name's text from the module that exports it.

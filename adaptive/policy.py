@@ -41,8 +41,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.kernels.safe_set import STATUS_NAMES
-from stcgym.adaptive.recursive import lane_indices
+from stcgym.adaptive.control.safe_set import STATUS_NAMES
+from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.envs.compiled import set_lanes
 
 __all__ = [

@@ -2,12 +2,13 @@
 
 :func:`run_closed_loop` starts a new episode of a controller on an environment that has just
 been reset and runs it for a given number of steps; it returns the per-step cost of every lane
-scored by the one divergence rule of :func:`stcgym.adaptive.rollout.charge_divergence`: a lane
+scored by the one divergence rule of :func:`stcgym.adaptive.control.rollout.charge_divergence`: a
+lane
 that diverges (``|y| > y_bound``) is flagged and charged its last per-step cost for every step
 it did not live, so a diverged run never looks better than a bounded one and every figure stays
 finite. Two routes, the same numbers:
 
-* the compiled rollout (:func:`stcgym.adaptive.rollout.rollout`) when the controller is the
+* the compiled rollout (:func:`stcgym.adaptive.control.rollout.rollout`) when the controller is the
   compiled :class:`~stcgym.adaptive.SelfTuningController` on a native canonical vector env
   whose next steps it can take whole (:meth:`~stcgym.envs.vector.LinearPlantVectorEnv.lookahead`:
   references, noise, and parameters that are constant or jump once, at the same step for every
@@ -29,8 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from stcgym.adaptive.control.rollout import charge_divergence
 from stcgym.adaptive.policy import reset_policy
-from stcgym.adaptive.rollout import charge_divergence
 
 __all__ = ["LoopResult", "run_closed_loop"]
 
@@ -130,7 +131,7 @@ def _predict_loop(
 
 
 def _rollout_inputs(policy: Any, env: Any, obs: NDArray, steps: int) -> dict[str, Any] | None:
-    """What :func:`~stcgym.adaptive.rollout.rollout` needs to take ``env``'s next ``steps``
+    """What :func:`~stcgym.adaptive.control.rollout.rollout` needs to take ``env``'s next ``steps``
     steps whole, or ``None`` when the compiled route does not apply."""
     from stcgym.adaptive import SelfTuningController
     from stcgym.envs.vector import CanonicalPlantVectorEnv
@@ -179,7 +180,7 @@ def _rollout_inputs(policy: Any, env: Any, obs: NDArray, steps: int) -> dict[str
 
 
 def _compiled(policy: Any, steps: int, inputs: dict[str, Any]) -> LoopResult:
-    from stcgym.adaptive.rollout import rollout
+    from stcgym.adaptive.control.rollout import rollout
 
     res = rollout(policy, inputs.pop("theta"), steps, **inputs)
     return LoopResult(res.step_cost, res.diverged, res.steps_run)

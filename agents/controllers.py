@@ -171,7 +171,7 @@ def _stc_tuned(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
 
 def _stc_lq(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     from stcgym.adaptive import LawOptions
-    from stcgym.adaptive.options import cost_weights
+    from stcgym.adaptive.control.options import cost_weights
 
     # the LQ weights are the bench's own cost, as LQG's (q_i keeps the integrator)
     law = LawOptions(lq_weights=cost_weights(sc.env.control_cost))
@@ -190,7 +190,7 @@ def _oracle(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
 
 def _lqg(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     from stcgym.adaptive import LawOptions, LQGController
-    from stcgym.adaptive.options import cost_weights
+    from stcgym.adaptive.control.options import cost_weights
 
     env = sc.env
     if env.plant_kind == "mimo":  # measured state: the LQR on the true (A, B)

@@ -75,7 +75,7 @@ def _steps() -> list[tuple[str, object]]:
         import numpy as np
 
         from stcgym.adaptive import SelfTuningController
-        from stcgym.adaptive.rollout import rollout
+        from stcgym.adaptive.control.rollout import rollout
         from stcgym.envs import PLANTS
 
         ctl = SelfTuningController(2, num_envs=4)

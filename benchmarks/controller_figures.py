@@ -39,9 +39,9 @@ import gymnasium as gym
 import numpy as np
 
 import stcgym.envs  # noqa: F401  (registers the envs)
-from stcgym.adaptive.controller import SelfTuningController
-from stcgym.adaptive.options import LawOptions
-from stcgym.adaptive.oracles import KnownModelController, LQGController
+from stcgym.adaptive.control.controller import SelfTuningController
+from stcgym.adaptive.control.options import LawOptions
+from stcgym.adaptive.control.oracles import KnownModelController, LQGController
 from stcgym.agents.closed_loop import run_closed_loop
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import canonical_matrices

@@ -9,7 +9,8 @@ Speed: O-RLS (n = 2) and KF-MILS (n = 2, p = 5), one ``update(y)`` + ``predict(u
 step. Rows: the public single estimator (``make_estimator``), the bare lane functions on a
 record (what a compiled controller step pays), the public batched estimator at ``B = 1e4``
 (``make_estimator(..., num_envs=B)``), and the dense-numpy reference of the paper's formulas
-(``stcgym.adaptive.reference``: explicit ``P``, numpy calls) as the baseline of the ratios
+(``stcgym.adaptive.estimation.reference``: explicit ``P``, numpy calls) as the baseline of the
+ratios
 (the former numpy ``RecursiveEstimator`` is gone; it ran O-RLS at about 49 us per step on the
 development machine). Everything in the same run: ratios are meaningful on a loaded machine,
 absolute numbers are not. First-call compile time (or the on-disk cache load) is reported
@@ -51,8 +52,8 @@ def _measure(
 ) -> None:
     """One estimator's rows of the table (closures bind this call's objects)."""
     from stcgym.adaptive import make_estimator
-    from stcgym.adaptive.kernels.estimator_lanes import predict_lanes, run_lane, update_lanes
-    from stcgym.adaptive.reference import ReferenceEstimator
+    from stcgym.adaptive.estimation.estimator_lanes import predict_lanes, run_lane, update_lanes
+    from stcgym.adaptive.estimation.reference import ReferenceEstimator
 
     T, B = u.size, U.shape[1]
     t0 = time.perf_counter()
@@ -118,7 +119,8 @@ def _measure(
 
 
 def frozen(T: int, seeds: int) -> None:
-    """How well ``health["frozen"]`` marks wrong estimates (see stcgym.adaptive.health)."""
+    """How well ``health["frozen"]`` marks wrong estimates (see
+    stcgym.adaptive.estimation.health)."""
     from stcgym.adaptive import make_estimator
     from stcgym.envs.canonical import canonical_matrices
 

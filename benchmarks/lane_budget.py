@@ -51,10 +51,10 @@ import numpy as np
 from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.kernels.design import place_design, work_size
-from stcgym.adaptive.kernels.estimator import EstimatorSpec
-from stcgym.adaptive.kernels.estimator_lanes import run_lane
-from stcgym.adaptive.kernels.least_squares import least_squares_increment
+from stcgym.adaptive.control.design import place_design, work_size
+from stcgym.adaptive.estimation.estimator import EstimatorSpec
+from stcgym.adaptive.estimation.estimator_lanes import run_lane
+from stcgym.adaptive.estimation.least_squares import least_squares_increment
 from stcgym.envs import PLANTS
 from stcgym.envs.dynamics import canonical_plant_step
 

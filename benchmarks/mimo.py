@@ -10,7 +10,7 @@ period 100 and amplitude 1 on every state, measurement noise std ``--noise``, ``
 10, ``control_cost`` 0.01 (LQ weights ``Q = I``, ``R = 0.01 I``, the env's cost, for both
 controllers). Cost of step ``k`` is the env's ``-reward``; a diverged lane (``|x_i| > 100``) is
 flagged and charged its last per-step cost for every step it did not live (the divergence rule
-of :func:`stcgym.adaptive.rollout.charge_divergence`, through
+of :func:`stcgym.adaptive.control.rollout.charge_divergence`, through
 :func:`stcgym.agents.closed_loop.run_closed_loop`). The controller and the oracle
 (:class:`~stcgym.adaptive.LQRController` on the true ``(A, B)``) run on the same plants, noise
 and references (the same reset seed); every lane gets its own probe seed.

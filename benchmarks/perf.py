@@ -13,7 +13,7 @@ meaningful on a loaded machine (absolute numbers do not).
   KF-MILS (p = 5) + ``control.place`` on the integral-augmented estimated model every step;
 * ``predict``: ``SelfTuningController(2).predict(obs)`` through the Python API (one call per
   step, plant in numpy);
-* ``rollout``: :func:`stcgym.adaptive.rollout.rollout`, plant + controller fused in one
+* ``rollout``: :func:`stcgym.adaptive.control.rollout.rollout`, plant + controller fused in one
   compiled call, ``B`` lanes in one batch loop;
 * ``vector env``: the public batched route, ``gym.make_vec(..., num_envs=B)`` +
   ``SelfTuningController(2, num_envs=B)``, one ``predict`` and one ``step`` per sample;
@@ -56,7 +56,7 @@ def _naive(steps: int) -> float:
 
     import stcgym.envs  # noqa: F401 - registers the envs
     from stcgym.adaptive import make_estimator
-    from stcgym.adaptive.placement import augment_integral
+    from stcgym.adaptive.control.placement import augment_integral
     from stcgym.envs.canonical import companion_A
 
     env = gym.make("stcgym/ObserverCanonical-v0", plant="stable2", noise_std=0.1)
@@ -109,11 +109,12 @@ def _predict_us(steps: int, estimator: str) -> float:
 
 
 def rollout_rate(n: int, B: int, steps: int, estimator: str) -> float:
-    """Plant-steps/s of one :func:`~stcgym.adaptive.rollout.rollout` call (``B`` lanes, ``steps``
+    """Plant-steps/s of one :func:`~stcgym.adaptive.control.rollout.rollout` call (``B`` lanes,
+    ``steps``
     steps, the order-``n`` test plant, the square-wave reference); also used by
     ``lane_budget.py``."""
     from stcgym.adaptive import SelfTuningController
-    from stcgym.adaptive.rollout import rollout
+    from stcgym.adaptive.control.rollout import rollout
 
     ctl = SelfTuningController(
         n, num_envs=None if B == 1 else B, estimator=estimator, estimator_options={"p": 5}
@@ -193,12 +194,12 @@ def plant_batch_ns(B: int, threads: int, steps: int, n: int = 2) -> float:
 
 def controller_batch_ns(B: int, threads: int, steps: int) -> float:
     """Nanoseconds per lane of one batch step of ``SelfTuningController(2, num_envs=B)`` (the
-    compiled loop :func:`stcgym.adaptive.kernels.controller.controllers_step`) on ``threads``
+    compiled loop :func:`stcgym.adaptive.control.controller_step.controllers_step`) on ``threads``
     threads, after 200 steps (the loop closed on every lane)."""
     import numba
 
     from stcgym.adaptive import SelfTuningController
-    from stcgym.adaptive.kernels import controller as kc
+    from stcgym.adaptive.control import controller_step as kc
 
     c = SelfTuningController(2, num_envs=B)
     u, y, r = np.zeros(B), np.full(B, 0.1), np.ones(B)

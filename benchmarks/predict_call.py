@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.rollout import rollout
+from stcgym.adaptive.control.rollout import rollout
 
 CONTROLLERS = {
     "ELS": {},

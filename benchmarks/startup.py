@@ -10,10 +10,10 @@ Setting: ``stcgym/ObserverCanonical-v0``, square-wave reference of period 100, o
 0.05, ``action_bound`` 10, ``control_cost`` 0.01. Cost of step ``k`` is the env's ``-reward``;
 episode cost is the sum over the episode, start included; a diverged episode (``|y| > 100``)
 is flagged and charged its last per-step cost for every step it did not live (the divergence
-rule of :func:`stcgym.adaptive.rollout.charge_divergence`, the same as ``stcgym bench`` and
+rule of :func:`stcgym.adaptive.control.rollout.charge_divergence`, the same as ``stcgym bench`` and
 ``stcgym sweep``). Every episode and every lane gets its own controller seed.
 
-Costs come from the compiled rollout (:func:`stcgym.adaptive.rollout.rollout`, the env's own
+Costs come from the compiled rollout (:func:`stcgym.adaptive.control.rollout.rollout`, the env's own
 plant step) for the controller and from the oracles stepped on the same plant and noise.
 
 Sections
@@ -61,7 +61,7 @@ from stcgym.adaptive import (
     LQGController,
     SelfTuningController,
 )
-from stcgym.adaptive.rollout import charge_divergence, rollout
+from stcgym.adaptive.control.rollout import charge_divergence, rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import companion_A
 

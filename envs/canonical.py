@@ -56,7 +56,7 @@ def companion_A(a: NDArray, form: str = "observer") -> NDArray:
     Observability form, eq. (146): ones on the superdiagonal, last row ``[-a_n .. -a_1]``.
 
     This is the numpy face used by every module outside the lane functions; compiled code
-    fills the same matrix with ``stcgym.adaptive.kernels.state_estimation.companion_into`` or
+    fills the same matrix with ``stcgym.adaptive.estimation.state_estimation.companion_into`` or
     applies it without forming it (``stcgym.envs.dynamics.shift_transition``).
 
     Parameters

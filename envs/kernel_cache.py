@@ -15,7 +15,8 @@ Its machine code also contains the functions it calls and inlines from other mod
 numba does not check, so after an edit or an upgrade of such a module the old machine code
 would still be loaded. stcgym therefore stamps each cache directory of its kernels with a
 fingerprint of the kernel sources (:func:`kernel_fingerprint` of :func:`kernel_sources`:
-every module that defines compiled functions, and the kernels package). When a kernel is
+every module that defines compiled functions or the named tuples they run on, and the kernels
+package). When a kernel is
 declared (import time, before anything is loaded from the cache) and the directory's stamp
 differs, the directory's numba cache files are deleted and the new stamp written
 (:func:`guard_cache`), once per directory and process: the kernels then compile afresh on
@@ -37,8 +38,10 @@ __all__ = ["STAMP_NAME", "guard_cache", "kernel_fingerprint", "kernel_sources"]
 
 #: Name of the fingerprint file in each cache directory of stcgym kernels.
 STAMP_NAME = "stcgym-kernels.sha256"
-#: The source text that marks a module defining compiled functions (or their lowering).
-_KERNEL_MARKS = ("@lane", "njit(", "@lower_builtin(")
+#: The source text that marks a module defining compiled functions (or their lowering), or the
+#: named tuples of lane state and configuration that kernels are compiled for (and constants
+#: beside them, such as the estimator specification's).
+_KERNEL_MARKS = ("@lane", "njit(", "@lower_builtin(", "NamedTuple")
 
 _checked: set[Path] = set()
 
@@ -57,10 +60,11 @@ def kernel_sources() -> tuple[Path, ...]:
     """The modules whose text the compiled kernels depend on, sorted.
 
     Every module of ``stcgym.envs`` and ``stcgym.adaptive`` that defines compiled functions
-    (decorated ``@lane``/``@lanes`` or ``numba.njit``), and every module of the kernels package
-    ``stcgym.adaptive.kernels`` (their record and configuration classes and constants, such as
-    ``estimator_spec``): the functions a kernel calls or inlines and the constants it reads are
-    defined there. Kernels read no constant from elsewhere; the Python classes around them
+    (decorated ``@lane``/``@lanes`` or ``numba.njit``) or named tuples (the lane state and
+    configuration kernels run on, and the constants beside them, such as
+    ``estimation.estimator_spec``'s), and every module of the shared kernels package
+    ``stcgym.adaptive.kernels``: the functions a kernel calls or inlines and the constants it
+    reads are defined there. Kernels read no constant from elsewhere; the Python classes around them
     (``SelfTuningController``, validation, options) are not part of the fingerprint, so editing
     them keeps the cache.
     """

@@ -306,8 +306,8 @@ def test_every_controller_meets_the_same_episode():
 
 
 def test_self_tuning_controller_and_oracle_through_the_harness():
-    from stcgym.adaptive.controller import SelfTuningController
-    from stcgym.adaptive.oracles import KnownModelController
+    from stcgym.adaptive.control.controller import SelfTuningController
+    from stcgym.adaptive.control.oracles import KnownModelController
 
     spec = EnvSpec(("stable2",), steps=400)
     stc = evaluate(lambda p, s: SelfTuningController(p.n, action_bound=10.0), spec, [0, 0])

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import stcgym.envs  # noqa: F401  (registers the envs)
-from stcgym.adaptive.controller import SelfTuningController
-from stcgym.adaptive.kernels import controller as kc
+from stcgym.adaptive.control import controller_step as kc
+from stcgym.adaptive.control.controller import SelfTuningController
 
 
 def _closed_loop(ctls: list, venv: gym.vector.VectorEnv, steps: int, batched: bool) -> np.ndarray:

@@ -10,10 +10,10 @@ import gymnasium as gym
 import numpy as np
 from family_envs import single_family_env
 
-import stcgym.adaptive.rollout as rollout_module
+import stcgym.adaptive.control.rollout as rollout_module
 import stcgym.envs  # noqa: F401  (registers the ids)
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.rollout import charge_divergence, rollout
+from stcgym.adaptive.control.rollout import charge_divergence, rollout
 from stcgym.agents.benchmark.evaluate import run_episode
 from stcgym.agents.closed_loop import run_closed_loop
 from stcgym.agents.sweeps.chunk import _vector_env, closed_loop

@@ -24,7 +24,7 @@ from numba.core import event
 
 import stcgym.adaptive
 import stcgym.envs
-from stcgym.adaptive.kernels import controller as kc
+from stcgym.adaptive.control import controller_step as kc
 from stcgym.envs import compiled, kernel_cache
 
 PACKAGES = {
@@ -41,7 +41,7 @@ from numba.core import event
 rec = event.RecordingListener()
 event.register("numba:compile", rec)
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.kernels import controller as kc
+from stcgym.adaptive.control import controller_step as kc
 ctl = SelfTuningController(2)
 A = np.array([[1.5, 1.0], [-0.56, 0.0]]); b = np.array([1.0, 0.5])
 x = np.zeros(2); us = []
@@ -178,16 +178,24 @@ def test_installed_notice_prints_one_line_on_a_cold_start_only(tmp_path: Path) -
 
 # ------------------------------------------------------------------------ kernel cache
 def test_kernel_sources_cover_the_modules_kernels_inline_and_read() -> None:
-    names = {p.relative_to(p.parents[1]).as_posix() for p in kernel_cache.kernel_sources()}
+    root = Path(kernel_cache.__file__).resolve().parents[1]  # holds envs/ and adaptive/
+    names = {p.relative_to(root).as_posix() for p in kernel_cache.kernel_sources()}
     for expected in (
-        "kernels/controller.py",  # defines kernels
-        "kernels/law.py",  # inlined into the controller step
-        "kernels/estimator_spec.py",  # no kernel, but its constants are compiled in
+        "adaptive/control/controller_step.py",  # defines kernels
+        "adaptive/control/law.py",  # inlined into the controller step
+        "adaptive/estimation/estimator_spec.py",  # no kernel, but its constants are compiled in
+        "adaptive/kernels/variants.py",
         "envs/compiled.py",
-        "adaptive/rollout.py",
+        "adaptive/control/rollout.py",
     ):
         assert expected in names, names
-    for python_only in ("adaptive/options.py", "adaptive/controller.py", "envs/validation.py"):
+    for python_only in (
+        "adaptive/control/options.py",
+        "adaptive/control/controller.py",
+        "adaptive/estimation/recursive.py",
+        "envs/validation.py",
+    ):
+        assert (root / python_only).is_file()
         assert python_only not in names  # no kernel reads them: editing them keeps the cache
 
 
@@ -236,7 +244,7 @@ def test_edited_inlined_helper_is_recompiled_not_loaded_stale(tmp_path: Path) ->
     again = _json(_run(CLOSED_LOOP, pkg, NUMBA_CACHE_DIR=cache))
     assert again["hits"] == 1 and "controller_step" not in again["compiled"]
     assert again["u"] == first["u"]
-    law = pkg / "stcgym" / "adaptive" / "kernels" / "law.py"
+    law = pkg / "stcgym" / "adaptive" / "control" / "law.py"
     text = law.read_text()
     line = "    saturated = abs(u) > action_bound\n"
     assert text.count(line) == 1
@@ -251,7 +259,9 @@ def test_read_only_package_caches_in_the_user_directory(tmp_path: Path) -> None:
     """A read-only installation: numba cannot write next to the sources and caches in the
     user-wide directory (``$XDG_CACHE_HOME/numba``); the second process loads from there."""
     pkg = _copy_package(tmp_path / "pkg")
-    for name in ("envs", "adaptive", "adaptive/kernels"):
+    folders = ("envs", "adaptive", "adaptive/kernels", "adaptive/estimation", "adaptive/control",
+               "adaptive/multivariable", "adaptive/regression")  # fmt: skip
+    for name in folders:
         (pkg / "stcgym" / name / "__pycache__").write_text("")  # no cache directory possible
     for path in [pkg, *pkg.rglob("*")]:
         path.chmod(path.stat().st_mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))

@@ -1,4 +1,4 @@
-"""Self-tuning controller (stcgym.adaptive.controller and its lane step) and the oracles."""
+"""Self-tuning controller (stcgym.adaptive.control.controller and its lane step) and the oracles."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import stcgym.envs  # noqa: F401  (registers the envs)
-from stcgym.adaptive.controller import SelfTuningController
-from stcgym.adaptive.options import LawOptions
-from stcgym.adaptive.oracles import KnownModelController, LQGController
-from stcgym.adaptive.rollout import rollout
+from stcgym.adaptive.control.controller import SelfTuningController
+from stcgym.adaptive.control.options import LawOptions
+from stcgym.adaptive.control.oracles import KnownModelController, LQGController
+from stcgym.adaptive.control.rollout import rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import companion_A
 

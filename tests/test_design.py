@@ -1,4 +1,4 @@
-"""Certainty-equivalence design lane functions (stcgym.adaptive.kernels.design).
+"""Certainty-equivalence design lane functions (stcgym.adaptive.control.design).
 
 References: python-control's ``acker`` / ``dlqr`` on the integral-augmented canonical model, the
 steady-state equations solved with numpy, and the tracking law written out by hand.
@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from lane_call import call
 
-from stcgym.adaptive.kernels import design as d
-from stcgym.adaptive.placement import augment_integral, controllability_matrix
+from stcgym.adaptive.control import design as d
+from stcgym.adaptive.control.placement import augment_integral, controllability_matrix
 from stcgym.envs.canonical import companion_A
 
 FORMS = {"observer": d.OBSERVER, "observability": d.OBSERVABILITY}
@@ -421,8 +421,8 @@ def test_kalman_covariance_lanes_match_dlqe(form: str) -> None:
 
 def test_the_safe_set_and_weight_vectors_are_read_by_name() -> None:
     """The one accessor of each vector gives its entries under the names the designs use."""
-    from stcgym.adaptive.kernels.lq import weight_fields
-    from stcgym.adaptive.kernels.safe_set import safe_bounds
+    from stcgym.adaptive.control.lq import weight_fields
+    from stcgym.adaptive.control.safe_set import safe_bounds
 
     safe = d.safe_set(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3, gain_max=4.0)
     assert call(safe_bounds, safe) == d.SafeSetBounds(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3,

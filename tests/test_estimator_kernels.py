@@ -1,5 +1,5 @@
 """The compiled estimator lane functions against the dense-numpy reference of the paper's
-formulas (stcgym.adaptive.reference), single versus batched lanes, and the lifecycle of
+formulas (stcgym.adaptive.estimation.reference), single versus batched lanes, and the lifecycle of
 the one estimator class (pickle, deepcopy, failed calls, bad batched input)."""
 
 from __future__ import annotations
@@ -15,18 +15,18 @@ from hypothesis import strategies as st
 from lane_call import call
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
-from stcgym.adaptive.kernels import estimator as K
-from stcgym.adaptive.kernels.canonical import companion_into
-from stcgym.adaptive.kernels.estimator_lanes import predict_lanes, update_lanes
-from stcgym.adaptive.kernels.least_squares import (
+from stcgym.adaptive.estimation import estimator as K
+from stcgym.adaptive.estimation.estimator_lanes import predict_lanes, update_lanes
+from stcgym.adaptive.estimation.least_squares import (
     OK,
     carlson_update,
     least_squares_step,
     rank_one_update,
     upper_factor,
 )
-from stcgym.adaptive.kernels.state_estimation import kalman_step
-from stcgym.adaptive.reference import ReferenceEstimator
+from stcgym.adaptive.estimation.reference import ReferenceEstimator
+from stcgym.adaptive.estimation.state_estimation import kalman_step
+from stcgym.adaptive.kernels.canonical import companion_into
 from stcgym.envs.canonical import canonical_matrices, companion_A
 from stcgym.envs.compiled import set_lanes
 

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive.greybox import (
+from stcgym.adaptive.regression.greybox import (
     AffineStateSpace,
     NotLinearInParameters,
     io_coefficients,

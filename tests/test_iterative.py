@@ -15,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive import flops
-from stcgym.adaptive.iterative import (
+from stcgym.adaptive.estimation import flops
+from stcgym.adaptive.estimation.iterative import (
     ITERATIVE_NAMES,
     IterativeResult,
     NumericalHealthError,

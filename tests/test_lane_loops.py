@@ -104,6 +104,6 @@ def test_fixed_types_runs_the_loop_compiled_for_the_first_call():
 def test_a_batch_loop_pickles_by_reference():
     import pickle
 
-    from stcgym.adaptive.kernels import controller
+    from stcgym.adaptive.control import controller_step as controller
 
     assert pickle.loads(pickle.dumps(controller.controllers_step)) is controller.controllers_step

@@ -1,4 +1,4 @@
-"""Tests of the multi-input LQ design (:func:`stcgym.adaptive.kernels.mimo_lq.dare_solve`):
+"""Tests of the multi-input LQ design (:func:`stcgym.adaptive.multivariable.mimo_lq.dare_solve`):
 every positive semidefinite state weight with a stabilising solution, the cross weight ``N``,
 and the cause named when no stabilising solution exists.
 
@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from lane_call import call
 
 from stcgym.adaptive import LQRController, MultivariableSelfTuningController
-from stcgym.adaptive.kernels import mimo_lq
-from stcgym.adaptive.kernels.safe_set import OK, UNIT_CIRCLE_MODE
+from stcgym.adaptive.control.safe_set import OK, UNIT_CIRCLE_MODE
+from stcgym.adaptive.multivariable import mimo_lq
 
 
 def _solve(A, B, Q, R, N=None):

@@ -14,7 +14,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive.multichannel import MatrixRLS, NumericalHealthError, StateMatrixEstimator
+from stcgym.adaptive.multivariable.multichannel import (
+    MatrixRLS,
+    NumericalHealthError,
+    StateMatrixEstimator,
+)
 
 # ------------------------------------------------------------------ MatrixRLS
 

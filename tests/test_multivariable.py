@@ -21,9 +21,9 @@ from scipy.linalg import null_space
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import LQRController, MultivariableSelfTuningController
-from stcgym.adaptive.kernels import mimo_lq
-from stcgym.adaptive.kernels.state_matrix import make_state_matrix, state_matrix_update
-from stcgym.adaptive.multichannel import StateMatrixEstimator
+from stcgym.adaptive.multivariable import mimo_lq
+from stcgym.adaptive.multivariable.multichannel import StateMatrixEstimator
+from stcgym.adaptive.multivariable.state_matrix import make_state_matrix, state_matrix_update
 from stcgym.envs import MIMO_PLANTS, Jumps, get_mimo_plant
 
 # ------------------------------------------------------------------ plants

@@ -1,4 +1,5 @@
-"""Known-model oracles (stcgym.adaptive.oracles): against a dense numpy loop written from the
+"""Known-model oracles (stcgym.adaptive.control.oracles): against a dense numpy loop written from
+the
 equations with python-control's gains, batched lanes against single plants, lifecycle and bad
 input."""
 
@@ -15,9 +16,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import stcgym.envs  # noqa: F401  (registers the envs)
-from stcgym.adaptive.controller import SelfTuningController
-from stcgym.adaptive.options import DEFAULT_ACTION_BOUND, LawOptions
-from stcgym.adaptive.oracles import KalmanObserver, KnownModelController, LQGController
+from stcgym.adaptive.control.controller import SelfTuningController
+from stcgym.adaptive.control.options import DEFAULT_ACTION_BOUND, LawOptions
+from stcgym.adaptive.control.oracles import KalmanObserver, KnownModelController, LQGController
 from stcgym.adaptive.policy import Policy
 from stcgym.envs.canonical import companion_A, observer_to_observability_b
 

@@ -1,4 +1,4 @@
-"""Pole placement and LQ gains (stcgym.adaptive.placement) against python-control."""
+"""Pole placement and LQ gains (stcgym.adaptive.control.placement) against python-control."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive.placement import (
+from stcgym.adaptive.control.placement import (
     UncontrollableError,
     ackermann,
     augment_integral,

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stcgym.adaptive import SelfTuningController, make_estimator
-from stcgym.adaptive import flops as F
-from stcgym.adaptive.reference import ReferenceEstimator
+from stcgym.adaptive.estimation import flops as F
+from stcgym.adaptive.estimation.reference import ReferenceEstimator
 
 REF_RTOL = 1e-9
 

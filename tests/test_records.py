@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from lane_call import call
 
+from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
-from stcgym.adaptive.kernels.state_estimation import is_schur_stable
 from stcgym.envs.compiled import FixedTypes, Layout, lane
 
 

@@ -21,8 +21,8 @@ from true_state import (
     simulate,
 )
 
-from stcgym.adaptive import flops
-from stcgym.adaptive.recursive import (
+from stcgym.adaptive.estimation import flops
+from stcgym.adaptive.estimation.recursive import (
     ALGORITHMS,
     NumericalHealthError,
     RecursiveEstimator,

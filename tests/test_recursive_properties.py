@@ -9,12 +9,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from lane_call import call
 
-from stcgym.adaptive.kernels.least_squares import (
+from stcgym.adaptive.estimation.least_squares import (
     least_squares_downdate,
     least_squares_step,
     upper_factor,
 )
-from stcgym.adaptive.recursive import is_schur_stable, make_estimator
+from stcgym.adaptive.estimation.recursive import is_schur_stable, make_estimator
 from stcgym.envs.canonical import canonical_matrices
 
 SETTINGS = settings(

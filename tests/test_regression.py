@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive.regression import NumericalHealthError, RecursiveLeastSquares
+from stcgym.adaptive.regression.rls import NumericalHealthError, RecursiveLeastSquares
 
 
 def batch_ls(Phi, Y, P0, theta0, lam=1.0):

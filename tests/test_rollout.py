@@ -1,12 +1,13 @@
-"""Compiled rollout (stcgym.adaptive.rollout): plant + controller fused, one plant or a batch."""
+"""Compiled rollout (stcgym.adaptive.control.rollout): plant + controller fused, one plant or a
+batch."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stcgym.adaptive.controller import SelfTuningController
-from stcgym.adaptive.rollout import rollout
+from stcgym.adaptive.control.controller import SelfTuningController
+from stcgym.adaptive.control.rollout import rollout
 from stcgym.envs import PLANTS
 from stcgym.envs.canonical import companion_A
 

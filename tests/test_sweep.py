@@ -16,7 +16,7 @@ from family_envs import single_family_env
 import stcgym.agents.sweeps.chunk as chunk
 import stcgym.envs  # noqa: F401
 from stcgym.adaptive import KnownModelController, LawOptions, LQGController
-from stcgym.adaptive.options import cost_weights
+from stcgym.adaptive.control.options import cost_weights
 from stcgym.agents.sweeps import SweepConfig, SweepError, run_sweep
 from stcgym.agents.sweeps.chunk import closed_loop
 from stcgym.agents.sweeps.cli import main, parse_controller

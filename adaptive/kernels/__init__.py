@@ -1,7 +1,8 @@
-"""Lane functions of the estimators and the self-tuning controller.
+"""Lane-function helpers every concept shares: small dense linear algebra (:mod:`.linalg`), 2-D
+views into lane records (:mod:`.records`), the canonical-form model of an estimate
+(:mod:`.canonical`) and the registry of variants (:mod:`.variants`).
 
-See :mod:`stcgym.envs.compiled` for the convention.
-
-Each module holds the paper's equations for one plant as compiled lane functions; the public
-classes in :mod:`stcgym.adaptive` own the lane records and call these for one plant or a batch.
+See :mod:`stcgym.envs.compiled` for the lane-function convention. The compiled steps themselves
+live with their concept: :mod:`stcgym.adaptive.estimation`, :mod:`stcgym.adaptive.control`,
+:mod:`stcgym.adaptive.multivariable` and :mod:`stcgym.adaptive.regression`.
 """

@@ -13,7 +13,8 @@ error integral ``xi(t+1) = xi(t) + r(t) - y(t)`` is
     A_aug = [[A, 0], [-c, 1]],  b_aug = [b; 0]    (m = n + 1 states),
 
 and ``det(zI - A_aug) = det(zI - A) (z - 1)`` (block triangular). The numpy faces are
-:func:`stcgym.envs.canonical.companion_A` and :func:`stcgym.adaptive.placement.augment_integral`.
+:func:`stcgym.envs.canonical.companion_A` and
+:func:`stcgym.adaptive.control.placement.augment_integral`.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from stcgym.adaptive import flops as _flops
+from stcgym.adaptive.estimation import flops as _flops
 from stcgym.envs.validation import real_in
 
 __all__ = [

@@ -32,7 +32,8 @@ r(k+1))^2 + rho u(k)^2``:
 * ``step_us``: wall time of one ``predict`` call, microseconds (mean over the episode).
 
 The loop is :func:`stcgym.agents.closed_loop.run_closed_loop`: a diverged episode ends early
-and is charged by its divergence rule (:func:`stcgym.adaptive.rollout.charge_divergence`: its
+and is charged by its divergence rule (:func:`stcgym.adaptive.control.rollout.charge_divergence`:
+its
 last step's cost for every step it did not live), so failed runs rank worst in every statistic
 and all numbers stay finite.
 

@@ -324,7 +324,8 @@ class InformedLQR:
 
 class OutputLQG:
     """LQG on the true model from the measured output: the LQ gain of the cost
-    ``x' Q x + u' R u + 2 x' N u`` (:func:`stcgym.adaptive.lqr.lqr_design`) on the current
+    ``x' Q x + u' R u + 2 x' N u`` (:func:`stcgym.adaptive.multivariable.lqr.lqr_design`) on the
+    current
     estimate of the steady-state Kalman filter for process noise ``W`` and output noise ``V``
     (the Riccati solution of python-control's ``dlqe``), starting from ``x_hat = 0``.
 
@@ -382,7 +383,7 @@ class OutputLQG:
     ) -> None:
         import control
 
-        from stcgym.adaptive.lqr import lqr_design
+        from stcgym.adaptive.multivariable.lqr import lqr_design
 
         self.A, self.B, self.C = (np.array(M, dtype=float) for M in (A, B, C))
         n, m = self.B.shape
@@ -434,7 +435,7 @@ def has_yardstick(plant: str) -> bool:
     >>> has_yardstick("he1"), has_yardstick("ac1")
     (True, False)
     """
-    from stcgym.adaptive.lqr import lqr_design
+    from stcgym.adaptive.multivariable.lqr import lqr_design
 
     spec = get_mimo_plant(plant)
     rho = 0.0 if formulation(plant) == "controlgym" else 0.01

@@ -339,7 +339,7 @@ class TrainingReward(gym.Wrapper):
     cost than a well-controlled one and an agent would learn to blow the loop up. On divergence
     (``terminated`` with ``info["diverged"]``) the terminal step's cost is charged once more for
     every step left until ``horizon``, the convention the evaluation scores failed runs by
-    (:func:`stcgym.adaptive.rollout.charge_divergence`).
+    (:func:`stcgym.adaptive.control.rollout.charge_divergence`).
 
     ``reward_scale`` then multiplies every reward (a constant rescaling; a running one is
     SB3's ``VecNormalize``). ``cost_squash=s`` optionally compresses the per-step cost,

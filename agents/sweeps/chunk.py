@@ -43,7 +43,7 @@ def make_controller(
         LQGController,
         SelfTuningController,
     )
-    from stcgym.adaptive.options import cost_weights
+    from stcgym.adaptive.control.options import cost_weights
 
     opts = {k: v for k, v in kw.items() if k != "kind"}
     opts.setdefault("action_bound", family["action_bound"])

@@ -1,0 +1,406 @@
+"""Self-tuning controller: one class for one plant or a batch of plants.
+
+:class:`SelfTuningController` is the indirect self-tuning regulator of the mission. Every sample
+its compiled lane step (:mod:`stcgym.adaptive.control.controller_step`) runs: estimator update ->
+change detection -> certainty-equivalence design (pole placement or LQ) in the safe set ->
+Kalman state estimate on the estimated model -> control (a short seeded probe, then the tracking
+law) -> process noise and state step. ``num_envs=B`` holds ``B`` lanes of named state (a row of
+every field each) and steps them in one batch loop; a single controller is the case ``B = 1`` of
+the same code, so a single plant equals its lane of a batch bit for bit.
+
+Options are grouped like SB3's ``policy_kwargs`` (:mod:`stcgym.adaptive.control.options`):
+:class:`EstimatorOptions`, :class:`StartupOptions`, :class:`SafeSet`, :class:`ChangeDetection`,
+:class:`LawOptions` (frozen dataclasses, validated on construction; the known-model oracles
+take the same ``law``); the common settings are plain keywords. ``predict`` and ``reset`` are
+those of :class:`~stcgym.adaptive.policy.LanePolicy`.
+
+Start-up
+--------
+The estimator runs from the first sample on measured data with a moderate ``P(0) = p0 I``; for
+the first ``probe_steps = 2n`` samples the input is a small zero-mean probe whose signs are a
+counter-based hash of ``(seed, episode, t)`` (a new sequence for every lane and every episode,
+reproducible) and whose amplitude is bounded by the observed output,
+``probe_amplitude * min(1, probe_output / max |y|)`` (a high-gain or unstable plant is probed
+gently). While ``max |y|`` stays below ``probe_output`` (a low-gain plant whose response is
+still buried in the noise) the probe runs on, up to ``max_probe_steps = 5n`` samples; then the
+loop closes with the tracking law as soon as a design is in the safe set. There is no open-loop
+window, no bootstrap estimator, no handover and no replay.
+
+Estimators
+----------
+``"ELS"`` (default): extended least squares on the ARMAX form
+(:mod:`stcgym.adaptive.control.extended_ls`), consistent in closed loop from any start. A name of
+the seed paper (``"O-RLS"``, ``"KF-MILS"``, ... :data:`stcgym.adaptive.ALGORITHMS`) runs the
+paper's estimator with the closed-loop settings of :class:`EstimatorOptions` (the regressor
+from ``x_hat(t|t)``, the ``KF-`` filters' own ``R``, the ``O-`` estimators' partial output
+injection). Every estimator identifies the observer-form realization of the plant's transfer
+function; ``theta`` is reported in the plant's form.
+"""
+
+from __future__ import annotations
+
+import functools
+import warnings
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.adaptive.control import controller_step as kc
+from stcgym.adaptive.control import design as dz
+from stcgym.adaptive.control.extended_ls import ExtendedLSConfig, make_extended_ls
+from stcgym.adaptive.control.options import (
+    DEFAULT_POLE,
+    ChangeDetection,
+    EstimatorOptions,
+    LawOptions,
+    SafeSet,
+    StartupOptions,
+    option_group,
+    plant_settings,
+)
+from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
+from stcgym.adaptive.kernels.variants import DESIGNS, RULES, variant
+from stcgym.adaptive.policy import SelfTuningLanes
+from stcgym.envs.canonical import observer_to_observability_b
+from stcgym.envs.compiled import FixedTypes, state_nbytes_per_lane
+from stcgym.envs.validation import integer
+
+__all__ = [
+    "DEFAULT_POLE",
+    "OBSERVATION_LIMIT",
+    "ChangeDetection",
+    "EstimatorOptions",
+    "LawOptions",
+    "SafeSet",
+    "SelfTuningController",
+    "StartupOptions",
+]
+
+#: Observations beyond this magnitude are rejected (squares would overflow inside the step).
+OBSERVATION_LIMIT = 1e100
+
+# The controller step with its argument types looked up once (see FixedTypes), one lookup per
+# compiled version: (paper estimator, LQ design) -> step; the types differ between versions.
+_VERSIONS = [(paper, lq) for paper in (False, True) for lq in (False, True)]
+_controller_step = {v: FixedTypes(kc.controller_step) for v in _VERSIONS}
+_controllers_step = {v: FixedTypes(kc.controllers_step) for v in _VERSIONS}
+#: Estimator names besides the paper's: extended least squares on the ARMAX form.
+EXTRA_ESTIMATORS = ("ELS",)
+
+
+def _frozen(values: Any) -> NDArray:
+    """A read-only ``float64`` copy: a configuration array of the lane functions."""
+    arr = np.array(values, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
+class SelfTuningController(SelfTuningLanes):
+    """Indirect self-tuning regulator for one plant (``num_envs=None``) or ``B`` plants.
+
+    Parameters
+    ----------
+    n
+        Plant order.
+    estimator
+        ``"ELS"`` (default) or a paper name (``"O-RLS"``, ``"KF-MILS"``, ...; the SG, MISG and
+        D- rules warn that they do not hold the loop on many plants).
+    design
+        A name of :data:`~stcgym.adaptive.kernels.variants.DESIGNS` (each entry says what it
+        computes and its known-model oracle): ``"pole_placement"`` (Ackermann on the
+        integral-augmented model, ``poles``) or ``"lq"`` (one Riccati iteration per step,
+        weights ``law.lq_weights``).
+    poles
+        A scalar (all ``n + 1`` poles) or ``n + 1`` values (``n`` without integral action);
+        a design that fixes the poles itself ignores it.
+    action_bound
+        Saturation (default: the env's, else
+        :data:`~stcgym.adaptive.control.options.DEFAULT_ACTION_BOUND` = 10).
+    num_envs
+        ``None`` for one plant (``predict`` on ``(2,)`` gives ``(1,)``), or ``B`` lanes
+        (``predict`` on ``(B, 2)`` gives ``(B, 1)``).
+    seed
+        Probe seed: an int (lane ``i`` gets ``seed + i``) or one int per lane.
+    form
+        Canonical form of the plant (``theta`` is reported in it); default the env's, else
+        ``"observer"``.
+    env
+        Optional env or vector env to check ``n``, ``form``, ``action_bound``, ``num_envs``.
+    estimator_options, startup, safe_set, change_detection, law
+        Option groups (instances or dicts; :mod:`stcgym.adaptive.control.options`). ``law`` is
+        shared
+        with the known-model oracles.
+
+    Raises
+    ------
+    ValueError
+        Any setting outside its documented range (the message names it).
+
+    Examples
+    --------
+    On the open-loop unstable ``unstable2`` without noise, the estimate reaches the true
+    parameters while the loop holds:
+
+    >>> import gymnasium as gym
+    >>> import stcgym.envs
+    >>> from stcgym.adaptive import SelfTuningController
+    >>> env = gym.make("stcgym/ObserverCanonical-v0", plant="unstable2", noise_std=0.0)
+    >>> ctl = SelfTuningController(2, env=env)
+    >>> obs, info = env.reset(seed=0)
+    >>> for _ in range(300):
+    ...     action, _ = ctl.predict(obs)
+    ...     obs, reward, terminated, truncated, info = env.step(action)
+    >>> terminated, np.round(ctl.theta, 3), info["theta"]
+    (False, array([-1.699,  0.659,  0.5  ,  0.3  ]), array([-1.7 ,  0.66,  0.5 ,  0.3 ]))
+    >>> ctl.K.shape  # [K_x, k_i] on the integral-augmented model
+    (3,)
+
+    One controller for ``B`` lanes of a vector env takes one observation row per lane:
+
+    >>> batch = SelfTuningController(2, num_envs=3, seed=1)
+    >>> batch.predict(np.zeros((3, 2)))[0].shape
+    (3, 1)
+    """
+
+    observation_limit = OBSERVATION_LIMIT
+
+    def __init__(
+        self,
+        n: int,
+        *,
+        estimator: str = "ELS",
+        design: str = "pole_placement",
+        poles: ArrayLike = DEFAULT_POLE,
+        action_bound: float | None = None,
+        num_envs: int | None = None,
+        seed: int | ArrayLike = 0,
+        form: str | None = None,
+        env: Any = None,
+        estimator_options: EstimatorOptions | dict | None = None,
+        startup: StartupOptions | dict | None = None,
+        safe_set: SafeSet | dict | None = None,
+        change_detection: ChangeDetection | dict | None = None,
+        law: LawOptions | dict | None = None,
+    ) -> None:
+        self.n = n = integer(n, "n (plant order)", 1)
+        self.num_envs, self.action_bound, self.form = plant_settings(
+            n, num_envs=num_envs, action_bound=action_bound, form=form, env=env
+        )
+        self.B = self.num_lanes
+        if not isinstance(design, str) or design not in DESIGNS:
+            raise ValueError(f"design must be one of {tuple(DESIGNS)}, got {design!r}")
+        self.design = design
+        lq = DESIGNS[design].kernel == "lq"
+        self.estimator_options = eo = option_group(
+            estimator_options, EstimatorOptions, "estimator_options"
+        )
+        self.startup = option_group(startup, StartupOptions, "startup")
+        self.safe_set = option_group(safe_set, SafeSet, "safe_set")
+        self.change_detection = cd = option_group(
+            change_detection, ChangeDetection, "change_detection"
+        )
+        self.law = lw = option_group(law, LawOptions, "law")
+        m = n + int(lw.integral)
+        fixed = DESIGNS[design].poles
+        self.poles = check_poles(poles if fixed is None else fixed, m)
+        self.seeds = self._lane_ints(seed, "seed")
+        # -- estimator
+        if not isinstance(estimator, str):
+            raise ValueError(f"estimator must be a name (str), got {estimator!r}")
+        self.estimator = estimator.strip().upper()
+        if self.estimator != "ELS":
+            try:
+                v = variant(estimator)
+            except ValueError as exc:
+                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
+        # the canonical form the estimator identifies (ELS: always the observer form)
+        plant_form = self.estimator != "ELS" and eo.estimation_form == "plant"
+        self._estimation_form = self.form if plant_form else "observer"
+        #: ``P(0) = p0 I`` in use (``estimator_options.p0`` or the estimator's default)
+        self.p0 = eo.initial_covariance(self.estimator)
+        if self.estimator == "ELS":
+            self._spec = None
+        else:
+            if v.decomposed or not v.rule.holds_loop:
+                slow = ", ".join(r for r, rule in RULES.items() if not rule.holds_loop)
+                good = [r for r, rule in RULES.items() if rule.holds_loop]
+                holding = [f"'{s}-{r}'" for s in ("KF", "O") for r in good]
+                warnings.warn(
+                    f"estimator {estimator!r} does not hold the loop on a sizeable share of "
+                    f"ordinary plants: the gradient rules ({slow}) adapt too slowly for a cold "
+                    "start, and the decomposition rules (D-) update a and b as if their "
+                    "regressors were uncorrelated, which feedback makes them not; "
+                    f"{', '.join(holding)} or the default 'ELS' hold it",
+                    UserWarning,
+                    stacklevel=2,
+                )
+            kw: dict[str, Any] = {
+                "p0": self.p0, "form": self._estimation_form, "forgetting": eo.forgetting,
+                "theta0": np.zeros(2 * n),
+            }  # fmt: skip
+            if v.rule.multi_innovation:
+                kw["p"] = eo.p
+            if v.state.filtered_regressor:
+                kw["regressor"] = eo.regressor
+            if v.state.injection and eo.regressor == "filtered":
+                kw["injection"] = eo.injection
+                kw["injection_warmup"] = eo.injection_warmup
+            if v.state.name == "KF":
+                kw["process_noise"] = eo.process_noise_floor * np.eye(n)
+                kw["measurement_noise"] = eo.kf_measurement_noise
+            self._spec = EstimatorSpec.build(estimator, n, **kw)
+            self.estimator = self._spec.name
+        ps = self.startup.probe_steps
+        probe_steps = 2 * n if ps is None else int(ps)
+        pm = self.startup.max_probe_steps
+        observability = self._estimation_form == "observability"
+        self._cfg = kc.ControllerConfig(
+            n=int(n),
+            integral=bool(lw.integral),
+            feedforward=bool(lw.feedforward),
+            anti_windup=bool(lw.anti_windup),
+            filtered=bool(lw.filtered),
+            probe_steps=probe_steps,
+            probe_max=max(5 * n if pm is None else int(pm), probe_steps),
+            detect=bool(cd.enabled),
+            holdoff=int(cd.holdoff),
+            # ELS estimates the observer-form transfer function
+            form=dz.OBSERVABILITY if observability else dz.OBSERVER,
+            action_bound=float(self.action_bound),
+            probe_amplitude=float(self.startup.probe_amplitude),
+            q_gain=float(eo.process_noise_gain),
+            q_floor=float(eo.process_noise_floor),
+            R=float(eo.measurement_noise),
+            threshold=float(cd.threshold),
+            inflation=float(cd.inflation),
+            ew_short=float(cd.short),
+            ew_long=float(cd.long),
+            probe_output=float(self.startup.probe_output),
+            safe=_frozen(self.safe_set.vector()),
+            alpha=_frozen(characteristic_coefficients(self.poles)),
+        )
+        if self._spec is None:
+            # extended least squares (est_cfg None: the step compiled for it contains no paper
+            # estimator, and els_cfg None none of ELS, kernels.controller)
+            self._est_init, _ = make_extended_ls(n, 1, self.p0)
+            self._est, self._est_work = make_extended_ls(n, self.B, self.p0)
+            self._est_cfg = None
+            self._els_cfg = ExtendedLSConfig(float(eo.forgetting), float(self.p0))
+        else:
+            self._est_init = self._spec.initial_state()
+            self._est = self._spec.make_state(self.B)
+            self._est_work = self._spec.make_work(self.B)
+            self._est_cfg = self._spec.config
+            self._els_cfg = None
+        # the LQ weights, or None: the step compiled for pole placement contains no LQ design
+        self._lq_weights = _frozen(lw.lq_weights) if lq else None
+        self._version = (self._spec is not None, lq)
+        # a reset lane starts here: Kalman filter at x(1) = 0, P1(1) = I; no gain; the loop
+        # open (the estimator at theta(0) = 0, P(0) = p0 I: _est_init)
+        init, _ = kc.make_controller_state(n, 1, lw.integral, lq)
+        init.P1[0] = np.eye(n)
+        if lq:
+            init.P_lq[0] = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
+        init.closed_t[0] = -1
+        self._init = init
+        self._state, self._work = kc.make_controller_state(n, self.B, lw.integral, lq)
+        self._state.seed[:] = self.seeds
+        self._state.episode[:] = -1  # the first reset starts episode 0
+        self._u = np.zeros(self.B)
+        self._step_one: Any = None  # the single plant's bound step (_act_one)
+        self.reset()
+
+    # ------------------------------------------------------------------ protocol
+    def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
+        """One plant's ``u(t)`` from ``[y(t), r(t)]`` (Python floats): the compiled step with
+        every other argument bound once (the lane state and the configuration)."""
+        step = self._step_one
+        if step is None:  # the first call (or the first after unpickling)
+            self._act(observation[None, :], None, deterministic)
+            version = _controller_step[self._version]
+            self._step_one = functools.partial(
+                version.entry, self._state, self._work, self._cfg, self._est, self._est_work, 0,
+                self._est_cfg, self._els_cfg, self._lq_weights,
+            )  # fmt: skip
+            return self._u.copy()
+        u = self._u
+        u[0] = step(values[0], values[1])
+        return u.copy()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_step_one"] = None  # binds the lane state's arrays: rebuilt after unpickling
+        return state
+
+    def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
+        """``u(t)`` of every lane from ``[y(t), r(t)]``; ``deterministic`` is ignored (the probe
+        is part of the law)."""
+        if starts is not None:
+            self._reset_lanes(np.flatnonzero(starts))
+        u = self._u
+        if self.B == 1:
+            y, r = obs[0].tolist()  # Python floats: the cheapest arguments for numba's dispatch
+            u[0] = _controller_step[self._version](
+                self._state, self._work, self._cfg, self._est, self._est_work, 0, self._est_cfg,
+                self._els_cfg, self._lq_weights, y, r,
+            )  # fmt: skip
+        else:
+            y = np.ascontiguousarray(obs[:, 0])
+            r = np.ascontiguousarray(obs[:, 1])
+            _controllers_step[self._version](
+                self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
+                self._els_cfg, self._lq_weights, y, r, u,
+            )  # fmt: skip
+        return u.copy()
+
+    # ------------------------------------------------------------------ views
+    @property
+    def theta(self) -> NDArray:
+        """``theta_hat = [a_hat; b_hat]`` in the plant's canonical form (per lane if batched)."""
+        n = self.n
+        th = self._est.theta[:, : 2 * n].copy()
+        if self.form == "observability" and self._estimation_form == "observer":
+            for i in range(self.B):
+                if np.all(np.isfinite(th[i])):
+                    th[i, n:] = observer_to_observability_b(th[i, :n], th[i, n:])
+        return self._lanes_out(th)
+
+    @property
+    def x_hat(self) -> NDArray:
+        """The controller's state estimate ``x(t+1|t)`` (Kalman filter on the estimated model)."""
+        return self._lanes_out(self._state.x)
+
+    @property
+    def K(self) -> NDArray:
+        """Gain in use ``[K_x, k_i]`` (zeros before the first accepted design)."""
+        m = self.n + int(self.law.integral)
+        return self._lanes_out(self._state.gain[:, :m])
+
+    @property
+    def N(self) -> NDArray | float:
+        """Reference feed-forward gain in use."""
+        v = self._state.gain[:, self.n + 1].copy()
+        return float(v[0]) if self.num_envs is None else v
+
+    @property
+    def diagnostics(self) -> dict[str, Any]:
+        """Counters and flags per lane (scalars for a single controller)."""
+        s = self._state
+        return self._diagnostics(
+            {"has_gain": s.has_gain},
+            {"n_kf_resets": s.n_kf_resets, "estimator_status": s.est_status},
+        )
+
+    @property
+    def nbytes_per_lane(self) -> int:
+        """Memory of one lane's state and scratch (the controller's and the estimator's)."""
+        return sum(map(state_nbytes_per_lane, (self._state, self._work, self._est, self._est_work)))
+
+    def __repr__(self) -> str:
+        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
+        return (
+            f"SelfTuningController(n={self.n}, estimator={self.estimator!r}, "
+            f"design={self.design!r}{lanes})"
+        )

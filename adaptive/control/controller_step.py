@@ -1,0 +1,401 @@
+"""The self-tuning controller step, written once as a compiled lane function.
+
+One call of :func:`controller_step` advances one plant's controller by one sample
+(convention of :mod:`stcgym.envs.compiled`): it reads ``y(t)``, ``r(t)`` and returns ``u(t)``.
+Every step, in this order:
+
+1. **estimator measurement step** with ``y(t)``: ``theta_hat(t)`` and the innovation ``e(t)``
+   (a paper estimator of :mod:`.estimator` -- O-RLS, KF-MILS, ... -- or extended least squares
+   on the ARMAX form, :mod:`.extended_ls`);
+2. **change detection**: a short and a long EWMA of ``e(t)^2``; when the short one exceeds
+   ``threshold`` times the long one (in closed loop, at most once per ``holdoff`` steps) ``P``
+   is multiplied by ``inflation`` (covariance resetting, Astrom & Wittenmark sec. 11.2);
+3. **design** (certainty equivalence) on ``A_hat, b_hat`` of ``theta_hat(t)`` (observer
+   canonical form, Ding & Ma 2014 eq. (1)-(5)): Ackermann pole placement or one Riccati
+   iteration of the LQ problem on the integral-augmented model, accepted only inside the **safe
+   set** (:mod:`.safe_set`), else the last good gain stays;
+4. **state estimate**: a Kalman filter on the estimated model, corrected by ``y(t)``
+   (``x(t|t)``);
+5. **control**: for the first ``probe_steps`` samples, or while no design has been accepted,
+   a zero-mean probe ``+-probe_amplitude * min(1, probe_output / max |y|)`` with signs from a
+   counter-based hash of ``(seed, episode, t)``, extended up to ``probe_max`` samples while
+   ``max |y| < probe_output``; afterwards the tracking law ``u = sat(N r - K_x x(t|t) - k_i
+   xi)`` with conditional-integration anti-windup (:func:`.law.track`);
+6. **process noise and state step**: ``Q(t)`` from the parameter covariance, the Kalman time
+   update with the applied ``u(t)`` (``state_estimation.kalman_step``), the estimator's state
+   step / regressor shift (a paper KF estimator's filter gets the same ``Q(t)``).
+
+Lane state: :class:`ControllerState` (the controller's own fields and counters) and its scratch
+:class:`ControllerWork`, named tuples of batched arrays (lane ``i``'s field ``f`` is
+``state.f[i]``; shapes in :func:`controller_shapes`); the estimator's state and scratch are its
+own (:class:`.estimator_spec.EstimatorState` or :class:`.extended_ls.ExtendedLSState`).
+The estimator (``est_cfg`` or ``els_cfg`` is ``None``) and the design (``lq_weights is None``:
+pole placement) are decided on the arguments' types: numba prunes a branch under ``x is not
+None`` before typing when ``x`` is ``None``, so each estimator family and design is a compiled
+version of its own, shared by single plant and batch.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from stcgym.adaptive.control.extended_ls import extended_ls_push, extended_ls_update
+from stcgym.adaptive.control.law import track
+from stcgym.adaptive.control.lq import lq_design
+from stcgym.adaptive.control.pole_placement import place_design
+from stcgym.adaptive.control.safe_set import OK, gain_size, work_size
+from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
+from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
+from stcgym.adaptive.kernels.canonical import model_matrices
+from stcgym.adaptive.kernels.records import copy_matrix
+from stcgym.envs.compiled import lane, lane_state, lanes
+
+__all__ = [
+    "COUNTERS",
+    "ControllerConfig",
+    "ControllerState",
+    "ControllerWork",
+    "change_alarm",
+    "controller_shapes",
+    "controller_step",
+    "controllers_step",
+    "hash32",
+    "make_controller_state",
+    "probe_sign",
+]
+
+
+class ControllerState(NamedTuple):
+    """The controller's lane state: field ``f`` of lane ``i`` is ``state.f[i]`` (a batch of
+    ``B`` lanes holds ``(B, *shape)`` arrays; shapes in :func:`controller_shapes`)."""
+
+    ews: NDArray  # short EWMA of e(t)^2
+    ewl: NDArray  # long EWMA of e(t)^2
+    e: NDArray  # the last innovation e(t)
+    u: NDArray  # the last applied input u(t)
+    ymax: NDArray  # the largest |y| seen while the loop was open
+    x: NDArray  # x(t+1|t) of the controller's Kalman filter (n)
+    P1: NDArray  # its covariance (n, n)
+    xf: NDArray  # x(t|t) (n)
+    x_next: NDArray  # the time update's x(t+1|t) (n)
+    L1: NDArray  # the filter's gain (n)
+    Q: NDArray  # its process noise Q(t) (n, n)
+    A: NDArray  # the model in force A_hat(t) (n, n)
+    b: NDArray  # b_hat(t) (n)
+    gain: NDArray  # the last accepted gain record [K_x (n), k_i, N, rcond] (n + 3)
+    has_gain: NDArray  # a design has been accepted since the reset (bool)
+    P_lq: NDArray  # Riccati matrix of the LQ design (m, m; (0, 0) for pole placement)
+    xi: NDArray  # the tracking law's integrator xi(t)
+    saturated: NDArray  # the last input was saturated (bool)
+    u_unsat: NDArray  # the last input before saturation
+    t: NDArray  # samples since the last reset (int)
+    episode: NDArray  # episodes started (int; the probe's sequence)
+    seed: NDArray  # the probe's seed (int)
+    closed_t: NDArray  # the sample the loop closed at (-1: still open)
+    last_alarm: NDArray  # the sample of the last detected change
+    last_reason: NDArray  # the status code of the last design
+    n_rejected: NDArray  # designs rejected by the safe set
+    n_alarms: NDArray  # detected changes (covariance resets)
+    n_saturated: NDArray  # saturated inputs
+    n_probe: NDArray  # probe samples applied
+    n_kf_resets: NDArray  # resets of the Kalman filter on numerical trouble
+    est_status: NDArray  # the estimator's status bits, or-ed
+
+
+class ControllerWork(NamedTuple):
+    """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
+
+    design: NDArray  # the design's scratch (safe_set.work_size(n))
+    kalman: NDArray  # the Kalman time update's scratch (2 n^2)
+
+
+#: The integer fields of :class:`ControllerState` (the counters; the others are float64
+#: except the flags ``has_gain``, ``saturated``).
+COUNTERS = ControllerState._fields[ControllerState._fields.index("t") :]
+_DTYPES: dict[str, Any] = {
+    **dict.fromkeys(COUNTERS, np.int64),
+    "has_gain": np.bool_,
+    "saturated": np.bool_,
+}
+
+
+def controller_shapes(
+    n: int, integral: bool, lq: bool
+) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """The shapes of one lane's :class:`ControllerState` and :class:`ControllerWork` fields for
+    order ``n``: the one place they are declared (``m = n + integral``; ``lq=False`` leaves
+    out the Riccati matrix of the LQ design)."""
+    n = int(n)
+    m = n + int(bool(integral))
+    state: dict[str, tuple[int, ...]] = {
+        **dict.fromkeys(("x", "xf", "x_next", "L1", "b"), (n,)),
+        **dict.fromkeys(("P1", "Q", "A"), (n, n)),
+        "gain": (gain_size(n),),
+        "P_lq": (m, m) if lq else (0, 0),
+    }
+    for scalar in ControllerState._fields:
+        state.setdefault(scalar, ())
+    work = {"design": (work_size(n),), "kalman": (2 * n * n,)}
+    return state, work
+
+
+def make_controller_state(
+    n: int, num_lanes: int, integral: bool, lq: bool
+) -> tuple[ControllerState, ControllerWork]:
+    """A zeroed :class:`ControllerState` of ``num_lanes`` lanes and their scratch."""
+    shapes, work = controller_shapes(n, integral, lq)
+    return (
+        lane_state(ControllerState, shapes, num_lanes, _DTYPES),
+        lane_state(ControllerWork, work, num_lanes),
+    )
+
+
+class ControllerConfig(NamedTuple):
+    """Configuration of :func:`controller_step` (built once by the Python controller)."""
+
+    n: int
+    integral: bool
+    feedforward: bool
+    anti_windup: bool
+    filtered: bool  # the law acts on x(t|t) (else x(t|t-1))
+    probe_steps: int
+    probe_max: int  # longest probe (samples) while the output stays below probe_output
+    detect: bool  # change detection on
+    holdoff: int
+    form: int  # canonical form of theta_hat (OBSERVER / OBSERVABILITY)
+    action_bound: float
+    probe_amplitude: float
+    q_gain: float  # process noise from the parameter covariance
+    q_floor: float
+    R: float  # measurement-noise variance of the controller's filter
+    threshold: float  # change detection: ews > threshold * ewl
+    inflation: float  # P <- inflation P on a detected change
+    ew_short: float  # EWMA rates of e^2
+    ew_long: float
+    probe_output: float  # output level that scales the probe down and ends it early
+    safe: NDArray  # [b_min, rcond_min, dc_rcond_min, gain_max]
+    alpha: NDArray  # closed-loop characteristic polynomial (m; pole placement)
+
+
+# ---------------------------------------------------------------------------------- probe
+@lane(inline=True)
+def hash32(x):
+    """32-bit integer hash (``lowbias32``, C. Wellons): a counter-based random generator."""
+    x = x & 0xFFFFFFFF
+    x ^= x >> 16
+    x = (x * 0x7FEB352D) & 0xFFFFFFFF
+    x ^= x >> 15
+    x = (x * 0x846CA68B) & 0xFFFFFFFF
+    x ^= x >> 16
+    return x
+
+
+@lane(inline=True)
+def probe_sign(seed, episode, t):
+    """``+-1`` from ``hash(seed, episode, t)``: a fresh, reproducible sequence per lane/episode."""
+    h = hash32(hash32(hash32(seed) ^ (episode & 0xFFFFFFFF)) ^ (t & 0xFFFFFFFF))
+    return 1.0 if (h >> 7) & 1 else -1.0
+
+
+# ------------------------------------------------------------------------ change detection
+@lane(inline=True)
+def change_alarm(cfg, ews, ewl, e2, update, t, closed_t, last_alarm):
+    """Step 2 of both controllers: the innovation-power test of covariance resetting.
+
+    Returns ``(alarm, ews, ewl)``. With ``update``, the short and long exponentially weighted
+    means ``ews``, ``ewl`` of ``e2 = |e(t)|^2`` take the sample (weights ``cfg.ew_short``,
+    ``cfg.ew_long``). An alarm when detection is on (``cfg.detect``), the loop closed at
+    ``closed_t >= 0``, more than ``cfg.holdoff`` steps have passed since then and since
+    ``last_alarm``, and the short mean exceeds ``cfg.threshold`` times the long mean before this
+    sample.
+    """
+    ewl_prev = ewl
+    if update:
+        ews += cfg.ew_short * (e2 - ews)
+        ewl = ewl_prev + cfg.ew_long * (e2 - ewl_prev)
+    alarm = (
+        cfg.detect
+        and closed_t >= 0
+        and t - closed_t > cfg.holdoff
+        and t - last_alarm > cfg.holdoff
+        and ews > cfg.threshold * ewl_prev
+    )
+    return alarm, ews, ewl
+
+
+# ------------------------------------------------------------------------ parameter covariance
+@lane(inline=True)
+def covariance_entry(S, i, j):
+    """``P_ij = (S S^T)_ij`` of the estimator's square-root factor ``S`` (0 without one)."""
+    d = S.shape[0]
+    if d == 0:
+        return 0.0
+    acc = 0.0
+    for k in range(max(i, j), d):  # S upper triangular
+        acc += S[i, k] * S[j, k]
+    return acc
+
+
+@lane(inline=True)
+def inflate_covariance(S, factor):
+    """``P <- factor P`` (covariance resetting on a detected change): ``S <- sqrt(factor) S``
+    (nothing without a covariance)."""
+    scale = math.sqrt(factor)
+    for i in range(S.shape[0]):
+        for j in range(S.shape[1]):
+            S[i, j] *= scale
+
+
+@lane(inline=True)
+def process_noise(S, n, y, u, q, q_floor, Q):
+    """``Q = q [y^2 P_aa + u^2 P_bb - y u (P_ab + P_ba)] + q_floor I``.
+
+    Row ``i`` of the one-step model error is ``-(a_i - a_hat_i) x_1 + (b_i - b_hat_i) u`` (observer
+    form; a scale for the observability form), with ``Cov(theta - theta_hat) ~ P`` and
+    ``x_1 ~ y``: large while the parameters are uncertain (the filter follows ``y``), vanishing
+    as ``P`` shrinks (the filter becomes the noise-free observer of the oracle)."""
+    for i in range(n):
+        for j in range(i, n):
+            v = q * (
+                y * y * covariance_entry(S, i, j)
+                + u * u * covariance_entry(S, n + i, n + j)
+                - y * u * (covariance_entry(S, i, n + j) + covariance_entry(S, j, n + i))
+            )
+            if i == j:
+                v += q_floor
+            Q[i, j] = v
+            Q[j, i] = v
+
+
+# --------------------------------------------------------------------------------- the step
+@lane(entry=True, inline=True)
+def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r):
+    """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
+
+    ``s``/``w``: the controllers' :class:`ControllerState` and :class:`ControllerWork`, of
+    which this call reads and writes lane ``lane`` only; ``cfg``: a :class:`ControllerConfig`;
+    ``est``/``est_work``: the estimator's lane state and scratch, either an ``EstimatorState``
+    and ``EstimatorWork`` with the paper estimator's configuration ``est_cfg`` (``els_cfg``
+    ``None``), or an ``ExtendedLSState`` and ``ExtendedLSWork`` with extended least squares'
+    ``els_cfg`` (``est_cfg`` ``None``); ``lq_weights``: ``[q_y, q_i, rho]`` of the LQ design,
+    ``None`` for pole placement. The ``None`` arguments are resolved at compile time (module
+    docstring).
+    """
+    n = cfg.n
+    t = s.t[lane]
+    theta = est.theta[lane][: 2 * n]  # [a; b] (extended least squares: of [a; b; c])
+    S = est.S[lane]
+    # -- 1. estimator measurement step (each branch compiled only in its own version)
+    e = eps = 0.0
+    if els_cfg is not None:  # extended least squares
+        e, eps = extended_ls_update(est, est_work, lane, y, els_cfg.forgetting, els_cfg.p0)
+    if est_cfg is not None:  # a paper estimator
+        s.est_status[lane] |= estimator_update(est, est_work, lane, est_cfg, y)
+        e = est.E[lane][0]
+        eps = e
+    s.e[lane] = e
+    # -- 2. change detection: covariance resetting on a jump of the innovation variance
+    closed_t = s.closed_t[lane]
+    alarm, s.ews[lane], s.ewl[lane] = change_alarm(
+        cfg, s.ews[lane], s.ewl[lane], e * e, True, t, closed_t, s.last_alarm[lane]
+    )
+    if alarm:
+        inflate_covariance(S, cfg.inflation)
+        s.n_alarms[lane] += 1
+        s.last_alarm[lane] = t
+    # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
+    gain = s.gain[lane]
+    if lq_weights is None:
+        status = place_design(
+            theta, cfg.form, cfg.integral, cfg.feedforward, cfg.alpha, cfg.safe, gain,
+            w.design[lane],
+        )  # fmt: skip
+    else:
+        status = lq_design(
+            theta, cfg.form, cfg.integral, cfg.feedforward, lq_weights, cfg.safe,
+            s.P_lq[lane], gain, w.design[lane],
+        )  # fmt: skip
+    s.last_reason[lane] = status
+    if status == OK:
+        s.has_gain[lane] = True
+    else:
+        s.n_rejected[lane] += 1
+    # -- 4. state estimate x(t|t): Kalman filter on the estimated model
+    A = s.A[lane]
+    b = s.b[lane]
+    model_matrices(theta, cfg.form, A, b)
+    x = s.x[lane]
+    P1 = s.P1[lane]
+    xf = s.xf[lane]
+    filtered_state(x, P1, cfg.R, y, xf)
+    # -- 5. control: the probe while the loop is open, then the tracking law
+    u = control(s, lane, cfg, y, r, xf if cfg.filtered else x)
+    s.u[lane] = u
+    # -- 6. process noise, Kalman time update, estimator state step
+    Q = s.Q[lane]
+    process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
+    x_next = s.x_next[lane]
+    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[lane], w.kalman[lane]) == 0:
+        for i in range(n):
+            x[i] = x_next[i]
+    else:  # numerical trouble in the filter: back to x(1) = 0, P1(1) = I (counted)
+        s.n_kf_resets[lane] += 1
+        for i in range(n):
+            x[i] = 0.0
+            for j in range(n):
+                P1[i, j] = 1.0 if i == j else 0.0
+    if els_cfg is not None:
+        extended_ls_push(est, lane, n, y, u, eps)
+    if est_cfg is not None:
+        Q_est = est.Q[lane]
+        if Q_est.shape[0] == n:  # the paper's Kalman filter gets the same process noise
+            copy_matrix(Q, Q_est)
+        s.est_status[lane] |= estimator_predict(est, est_work, lane, est_cfg, u)
+    s.t[lane] = t + 1
+    return u
+
+
+@lane(inline=True)
+def control(s, lane, cfg, y, r, xc):
+    """Step 5: the probe while the loop is open (and while no design has been accepted), else
+    the tracking law on the state estimate ``xc``; returns ``u(t)``, closes the loop on its
+    first law sample (``closed_t``) and counts probe and saturated samples."""
+    t = s.t[lane]
+    closed_t = s.closed_t[lane]
+    bound = cfg.action_bound
+    level = cfg.probe_output
+    open_loop = closed_t < 0
+    ymax = s.ymax[lane]
+    if open_loop:
+        ymax = max(ymax, abs(y))
+        s.ymax[lane] = ymax
+    probing = open_loop and (t < cfg.probe_steps or (t < cfg.probe_max and ymax < level))
+    if probing or not s.has_gain[lane]:
+        # the probe is scaled down once the output exceeds the probe level
+        amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
+        u = min(max(amp * probe_sign(s.seed[lane], s.episode[lane], t), -bound), bound)
+        s.n_probe[lane] += 1
+        s.saturated[lane] = False
+        return u
+    if open_loop:
+        s.closed_t[lane] = t
+    u, s.xi[lane], saturated, s.u_unsat[lane] = track(
+        s.gain[lane], True, s.xi[lane], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
+    )
+    s.saturated[lane] = saturated
+    if saturated:
+        s.n_saturated[lane] += 1
+    return u
+
+
+@lanes
+def controllers_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, r, u, first, last):
+    """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
+    for i in range(first, last):
+        u[i] = controller_step(
+            s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, y[i], r[i]
+        )

@@ -1,0 +1,129 @@
+"""Certainty-equivalence design and tracking law: the lane functions, gathered by concept.
+
+Every function works on one plant's small arrays (see :mod:`stcgym.envs.compiled` for the lane
+convention: no BLAS/LAPACK, small dense loops written out, status codes instead of
+exceptions). The self-tuning controller, the known-model oracles
+(:mod:`stcgym.adaptive.control.oracles`) and the public numpy helpers of
+:mod:`stcgym.adaptive.control.placement` all call these, for one plant or inside a batch loop over
+lanes. Each piece has one home:
+
+* :mod:`.canonical` -- the canonical-form model ``(A, b)`` of ``theta = [a; b]`` and its
+  integral augmentation;
+* :mod:`.linalg` -- the small dense linear algebra the designs use;
+* :mod:`.safe_set` -- the safe set every design passes (status codes, ``safe_set()``), the gain
+  record it writes on success and the design scratch (``work_size``, ``solve_work_size``);
+* :mod:`.pole_placement` -- Ackermann's formula (``place_design``, ``ackermann_gain``);
+* :mod:`.lq` -- the one-step and solved LQ designs, the DARE, the steady-state Kalman
+  covariance;
+* :mod:`.law` -- the tracking law with anti-windup (``track``);
+* :mod:`.known_model` -- the oracles' step on a known model;
+* :mod:`.state_estimation` -- the Kalman filter (``kalman_step``, ``filtered_state``).
+
+This module re-exports their public names, so ``design.place_design`` and the like keep
+working.
+"""
+
+from __future__ import annotations
+
+from stcgym.adaptive.control.known_model import (
+    OracleRecord,
+    known_model_commit,
+    known_model_commit_lanes,
+    known_model_propose,
+    known_model_propose_lanes,
+    oracle_scratch_size,
+)
+from stcgym.adaptive.control.law import LAW, LAW_SIZE, LawState, track
+from stcgym.adaptive.control.lq import (
+    DEFAULT_LQ_WEIGHTS,
+    P_MAX,
+    LQWeights,
+    dare,
+    kalman_covariance,
+    kalman_covariance_lanes,
+    lq_design,
+    lq_initial_P,
+    lq_solve,
+    lq_solve_lanes,
+    lq_weights,
+)
+from stcgym.adaptive.control.pole_placement import (
+    ackermann_gain,
+    place_design,
+    place_design_lanes,
+)
+from stcgym.adaptive.control.safe_set import (
+    B_SMALL,
+    DC_RCOND_FLOOR,
+    DC_SINGULAR,
+    GAIN_LARGE,
+    NONFINITE,
+    NOT_CONVERGED,
+    NOT_STABILISABLE,
+    OK,
+    RCOND_FLOOR,
+    STATUS_NAMES,
+    UNCONTROLLABLE,
+    SafeSetBounds,
+    gain_size,
+    safe_set,
+    solve_work_size,
+    steady_state,
+    work_size,
+)
+from stcgym.adaptive.estimation.state_estimation import filtered_state
+from stcgym.adaptive.kernels.canonical import (
+    OBSERVABILITY,
+    OBSERVER,
+    model_matrices,
+    model_matrices_lanes,
+)
+
+__all__ = [
+    "B_SMALL",
+    "DC_RCOND_FLOOR",
+    "DC_SINGULAR",
+    "DEFAULT_LQ_WEIGHTS",
+    "GAIN_LARGE",
+    "LAW",
+    "LAW_SIZE",
+    "NONFINITE",
+    "NOT_CONVERGED",
+    "NOT_STABILISABLE",
+    "OBSERVABILITY",
+    "OBSERVER",
+    "OK",
+    "P_MAX",
+    "RCOND_FLOOR",
+    "STATUS_NAMES",
+    "UNCONTROLLABLE",
+    "LQWeights",
+    "LawState",
+    "OracleRecord",
+    "SafeSetBounds",
+    "ackermann_gain",
+    "dare",
+    "filtered_state",
+    "gain_size",
+    "kalman_covariance",
+    "kalman_covariance_lanes",
+    "known_model_commit",
+    "known_model_commit_lanes",
+    "known_model_propose",
+    "known_model_propose_lanes",
+    "lq_design",
+    "lq_initial_P",
+    "lq_solve",
+    "lq_solve_lanes",
+    "lq_weights",
+    "model_matrices",
+    "model_matrices_lanes",
+    "oracle_scratch_size",
+    "place_design",
+    "place_design_lanes",
+    "safe_set",
+    "solve_work_size",
+    "steady_state",
+    "track",
+    "work_size",
+]

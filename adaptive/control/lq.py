@@ -1,0 +1,375 @@
+"""Linear-quadratic designs on the (integral-augmented) model: lane functions.
+
+``lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work) -> int``
+    Self-tuning LQ: **one** Riccati iteration per call on the (augmented) model of ``theta``,
+    warm-started from ``P`` (``m x m``, C-contiguous 2-D, updated in place); the gain is the LQ
+    gain of the updated ``P``. ``weights`` (``[q_y, q_i, rho]``, :class:`LQWeights`; built by
+    :func:`lq_weights`):
+    state weight ``Q = q_y c^T c`` (+ ``q_i`` on the integrator), input weight ``rho``;
+    defaults ``DEFAULT_LQ_WEIGHTS = (1, 1e-4, 1e-2)``, explained in
+    :class:`stcgym.adaptive.control.options.LawOptions`. Initialise ``P`` with :func:`lq_initial_P`
+    (``= Q``) or a converged solution; a ``P`` that is not finite on entry restarts from ``Q``.
+``lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter)``
+    ``-> int``: the same design solved to convergence (structured doubling, for a fresh model);
+``dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter) -> int``
+    The discrete algebraic Riccati equation of a general single-input pair (status 0 / 6 / 7;
+    ``char_A`` the coefficients of ``det(zI - A)``), on ``solve_work_size(m - 1)`` floats.
+``kalman_covariance(theta, form, W, R, P, tol, max_iter) -> int``
+    The steady-state Kalman filter covariance of the canonical model of ``theta``: :func:`dare`
+    on the dual problem.
+
+Batch loops ``lq_solve_lanes`` and ``kalman_covariance_lanes`` (each lane allocates its own
+scratch). Status codes and the gain record: :mod:`.safe_set`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from stcgym.adaptive.control.safe_set import (
+    MAT,
+    N_MAT,
+    N_MAT_SOLVE,
+    N_VEC,
+    NOT_STABILISABLE,
+    OK,
+    VEC,
+    design_start,
+    finish,
+    split_work,
+)
+from stcgym.adaptive.estimation.state_estimation import is_schur_stable
+from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
+from stcgym.adaptive.kernels.linalg import all_finite, matmul, max_abs
+from stcgym.adaptive.kernels.records import copy_matrix
+from stcgym.adaptive.multivariable.mimo_lq import P_MAX, doubling
+from stcgym.envs.compiled import lane, lanes
+from stcgym.envs.validation import real_in
+
+__all__ = [
+    "DEFAULT_LQ_WEIGHTS",
+    "P_MAX",
+    "LQWeights",
+    "weight_fields",
+    "dare",
+    "kalman_covariance",
+    "kalman_covariance_lanes",
+    "lq_design",
+    "lq_initial_P",
+    "lq_solve",
+    "lq_solve_lanes",
+    "lq_weights",
+]
+
+
+class LQWeights(NamedTuple):
+    """The entries of the LQ weight vector by name (:func:`weight_fields` reads them)."""
+
+    q_y: float  # output: Q = q_y c^T c
+    q_i: float  # integrator state (augmented model)
+    rho: float  # input
+
+
+DEFAULT_LQ_WEIGHTS = (1.0, 1e-4, 1e-2)
+
+
+@lane(inline=True)
+def weight_fields(weights):
+    """The weight vector ``weights`` (float64, length 3) as an :class:`LQWeights`: the one place
+    that knows the order of its entries (a vector, not the named tuple, is what the lane
+    functions take, for the reason given in :func:`.safe_set.safe_bounds`)."""
+    return LQWeights(weights[0], weights[1], weights[2])
+
+
+def lq_weights(
+    q_y: float = DEFAULT_LQ_WEIGHTS[0],
+    q_i: float = DEFAULT_LQ_WEIGHTS[1],
+    rho: float = DEFAULT_LQ_WEIGHTS[2],
+    *,
+    integral: bool = True,
+) -> NDArray[np.float64]:
+    """Validated LQ weight vector ``[q_y, q_i, rho]`` for :func:`lq_design` / :func:`lq_solve`.
+
+    ``q_y`` (output) and ``rho`` (input) must be finite and > 0; ``q_i`` (integrator) > 0 with
+    integral action (with ``q_i = 0`` the integrator is invisible to the cost, so no LQ gain
+    stabilises it) and >= 0 without. Raises ``ValueError`` naming the weight.
+    """
+    weights = LQWeights(
+        real_in(q_y, "LQ weight q_y", 0.0, math.inf, lo_open=True, hi_open=True),
+        real_in(q_i, "LQ weight q_i", 0.0, math.inf, lo_open=bool(integral), hi_open=True),
+        real_in(rho, "LQ weight rho", 0.0, math.inf, lo_open=True, hi_open=True),
+    )
+    return np.array(weights, dtype=np.float64)
+
+
+def lq_initial_P(n: int, integral: bool, weights: ArrayLike) -> NDArray[np.float64]:
+    """Cold start of the one-step Riccati iteration: ``P = Q`` (``m x m``; ``weights`` any
+    sequence ``(q_y, q_i, rho)``)."""
+    w = LQWeights(*weights)
+    m = int(n) + int(bool(integral))
+    P = np.zeros((m, m))
+    P[0, 0] = w.q_y
+    if integral:
+        P[n, n] = w.q_i
+    return P
+
+
+@lane(inline=True)
+def _lq_gain(A, b, rho, P, K):
+    """``K = (rho + b^T P b)^{-1} b^T P A``; returns ``rho + b^T P b``."""
+    m = A.shape[0]
+    s = rho
+    for i in range(m):
+        for j in range(m):
+            s += b[i] * P[i, j] * b[j]
+    for j in range(m):
+        acc = 0.0
+        for i in range(m):
+            Pb_i = 0.0
+            for k in range(m):
+                Pb_i += P[i, k] * b[k]
+            acc += Pb_i * A[i, j]
+        K[j] = acc / s
+    return s
+
+
+@lane(inline=True)
+def _riccati_step(A, b, Q, rho, P, K, Acl, T):
+    """``P <- Q + (A - b K)^T P (A - b K) + rho K^T K`` with ``K`` the gain of ``P`` (the
+    Joseph form of the Riccati difference equation: stays symmetric positive semidefinite)."""
+    m = A.shape[0]
+    _lq_gain(A, b, rho, P, K)
+    for i in range(m):
+        for j in range(m):
+            Acl[i, j] = A[i, j] - b[i] * K[j]
+    matmul(P, Acl, T)  # T = P Acl
+    for i in range(m):
+        for j in range(i, m):
+            acc = 0.0
+            for k in range(m):
+                acc += Acl[k, i] * T[k, j]
+            v = Q[i, j] + acc + rho * K[i] * K[j]
+            P[i, j] = v
+    for i in range(m):
+        for j in range(i):
+            P[i, j] = P[j, i]
+
+
+@lane(returns_views=True)
+def _weight_matrix(n, integral, weights, Ws, m):
+    """The state weight ``Q = q_y c^T c (+ q_i on the integrator)``, ``m x m``, written into
+    matrix slot ``m2`` (the controllability scratch, dead once the safe set has passed)."""
+    w = weight_fields(weights)
+    Q = Ws[MAT.m2, :m, :m]
+    for i in range(m):
+        for j in range(m):
+            Q[i, j] = 0.0
+    Q[0, 0] = w.q_y
+    if integral:
+        Q[n, n] = w.q_i
+    return Q
+
+
+@lane(entry=True)
+def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
+    """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
+
+    Returns the status code; ``gain`` is written only on ``OK``. A Riccati matrix that is not
+    finite on entry or blows up (``> P_MAX``: the model is not stabilisable) is re-initialised
+    to ``Q`` and ``NOT_STABILISABLE`` returned.
+    """
+    status, rcond, Ws, Vs, Ad, bd, K = design_start(theta, form, integral, safe, work, N_MAT)
+    if status != OK:
+        return status
+    m = Ad.shape[0]
+    Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
+    if not all_finite(P):
+        for i in range(m):
+            for j in range(m):
+                P[i, j] = Q[i, j]
+    Acl = Ws[MAT.m0, :m, :m]
+    T = Ws[MAT.m1, :m, :m]
+    rho = weight_fields(weights).rho
+    _riccati_step(Ad, bd, Q, rho, P, K, Acl, T)
+    if not (max_abs(P) <= P_MAX):
+        for i in range(m):
+            for j in range(m):
+                P[i, j] = Q[i, j]
+        return NOT_STABILISABLE
+    _lq_gain(Ad, bd, rho, P, K)
+    return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
+
+
+@lane(inline=True)
+def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
+    """Every root of ``det(zI - A + b K)`` strictly inside the unit circle.
+
+    ``det(zI - A + b K) = det(zI - A) + K adj(zI - A) b`` with ``adj(zI - A) = sum_k z^{m-1-k}
+    E_k``, ``E_0 = I``, ``E_k = A E_{k-1} + a_k I``; so the coefficients are
+    ``c_k = a_k + K v_{k-1}``, ``v_0 = b``, ``v_k = A v_{k-1} + a_k b`` (``char_A = [a_1..a_m]``
+    of ``det(zI - A)``, known exactly from ``theta``), followed by the Schur-Cohn test. Unlike an
+    eigenvalue routine this stays accurate for the nearly defective closed loops of a large
+    gain.
+    """
+    m = A.shape[0]
+    for i in range(m):
+        v[i] = b[i]
+    for k in range(m):
+        acc = char_A[k]
+        for i in range(m):
+            acc += K[i] * v[i]
+        c[k] = acc
+        for i in range(m):
+            t = char_A[k] * b[i]
+            for j in range(m):
+                t += A[i, j] * v[j]
+            w[i] = t
+        for i in range(m):
+            v[i] = w[i]
+    return is_schur_stable(c, m, c)
+
+
+@lane
+def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
+    """Stabilising solution of ``P = Q + A^T P A - A^T P b (rho + b^T P b)^{-1} b^T P A`` by the
+    structure-preserving doubling algorithm (quadratic convergence; :func:`.mimo_lq.doubling`):
+
+        W = I + G_k H_k,  A_{k+1} = A_k W^{-1} A_k,  G_{k+1} = G_k + A_k W^{-1} G_k A_k^T,
+        H_{k+1} = H_k + A_k^T H_k W^{-1} A_k,    A_0 = A, G_0 = b b^T / rho, H_0 = Q -> P.
+    """
+    m = A.shape[0]
+    Ak = Ws[MAT.m3, :m, :m]
+    Gk = Ws[MAT.m4, :m, :m]
+    Hk = Ws[MAT.m5, :m, :m]
+    W = Ws[MAT.m6, :m, :m]
+    Winv = Ws[MAT.m7, :m, :m]
+    T1 = Ws[MAT.m8, :m, :m]
+    T2 = Ws[MAT.m9, :m, :m]
+    T3 = Ws[MAT.m0, :m, :m]
+    for i in range(m):
+        for j in range(m):
+            Ak[i, j] = A[i, j]
+            Gk[i, j] = b[i] * b[j] / rho
+            Hk[i, j] = 0.5 * (Q[i, j] + Q[j, i])
+    status = doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter)
+    if status != OK:
+        return status
+    copy_matrix(Hk, P)
+    _lq_gain(A, b, rho, P, K)
+    v = Vs[VEC.v1, :m]
+    w = Vs[VEC.v2, :m]
+    c = Vs[VEC.v4, :m]
+    if not _closed_loop_is_stable(A, b, char_A, K, v, w, c):
+        return NOT_STABILISABLE
+    return OK
+
+
+@lane(entry=True)
+def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
+    """Discrete algebraic Riccati equation of a general single-input pair (see :func:`_dare`).
+
+    ``char_A = [a_1, ..., a_m]``: the characteristic polynomial ``det(zI - A)`` (for the test
+    of the closed loop). Writes the stabilising ``P`` and the gain ``K`` on success; returns ``OK``,
+    ``NOT_STABILISABLE`` (diverging doubling or a closed loop that is not Schur: no stabilising
+    solution) or ``NOT_CONVERGED``.
+    """
+    mm = A.shape[0]
+    Ws, Vs = split_work(work, mm, N_MAT_SOLVE)
+    return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
+
+
+@lane(entry=True)
+def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter):
+    """The LQ design of :func:`lq_design` solved to convergence (doubling) for a fresh model.
+
+    ``work`` of ``solve_work_size(n)`` floats; ``tol`` (e.g. ``1e-12``) bounds the last
+    doubling increment of ``P`` relative to ``max(1, max |P|)``, ``max_iter`` (e.g. 64) the
+    number of doubling steps (each squares the horizon).
+
+    Writes the Riccati solution into ``P`` and the gain into ``gain`` on ``OK``; both are left
+    untouched otherwise.
+    """
+    status, rcond, Ws, Vs, Ad, bd, K = design_start(theta, form, integral, safe, work, N_MAT_SOLVE)
+    if status != OK:
+        return status
+    m = Ad.shape[0]
+    Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
+    Psol = Ws[MAT.m10, :m, :m]
+    # _dare uses slots m0, m3..m9; Q lives in m2 and the solution in m10 until the
+    # safe set has accepted the gain.
+    char_A = Vs[VEC.v5, :m]
+    augmented_characteristic(theta, integral, char_A)
+    status = _dare(Ad, bd, Q, weight_fields(weights).rho, char_A, Psol, K, Ws, Vs, tol, max_iter)
+    if status != OK:
+        return status
+    status = finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
+    if status == OK:
+        for i in range(m):
+            for j in range(m):
+                P[i, j] = Psol[i, j]
+    return status
+
+
+@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
+def lq_solve_lanes(
+    thetas,
+    form,
+    integral,
+    feedforward,
+    weights,
+    safe,
+    Ps,
+    gains,
+    status,
+    tol,
+    max_iter,
+    first,
+    last,
+):
+    """:func:`lq_solve` for every lane (``Ps`` ``(B, m, m)``)."""
+    mm = thetas.shape[1] // 2 + 1
+    for i in range(first, last):
+        work = np.empty(N_MAT_SOLVE * mm * mm + N_VEC * mm)
+        status[i] = lq_solve(
+            thetas[i],
+            form,
+            integral,
+            feedforward,
+            weights,
+            safe,
+            Ps[i],
+            gains[i],
+            work,
+            tol,
+            max_iter,
+        )
+
+
+@lane(allocates=True, entry=True)
+def kalman_covariance(theta, form, W, R, P, tol, max_iter):
+    """Steady-state (a-priori) Kalman filter covariance of the canonical model of ``theta``:
+    the stabilising solution of the dual Riccati equation ``dare(A^T, c^T, W, R)`` (``W``
+    ``(n, n)`` process noise, ``R`` the measurement variance; ``P`` ``(n, n)`` out). Returns
+    the status of :func:`dare`."""
+    n = theta.size // 2
+    A = np.empty((n, n))
+    b = np.empty(n)
+    model_matrices(theta, form, A, b)
+    At = np.ascontiguousarray(A.T)
+    c = np.zeros(n)
+    c[0] = 1.0
+    char_A = np.ascontiguousarray(theta[:n])  # det(zI - A^T) = z^n + a_1 z^{n-1} + ...
+    K = np.empty(n)
+    work = np.empty(N_MAT_SOLVE * n * n + N_VEC * n)
+    return dare(At, c, W, R, char_A, P, K, work, tol, max_iter)
+
+
+@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
+def kalman_covariance_lanes(thetas, form, W, R, Ps, status, tol, max_iter, first, last):
+    """:func:`kalman_covariance` for every lane (``W``, ``Ps`` ``(B, n, n)``)."""
+    for i in range(first, last):
+        status[i] = kalman_covariance(thetas[i], form, W[i], R, Ps[i], tol, max_iter)

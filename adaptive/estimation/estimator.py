@@ -1,0 +1,468 @@
+"""The joint state/parameter estimator of Ding & Ma (2014): the lane functions of one step.
+
+Lane ``i`` of the state ``s`` (an :class:`EstimatorState`) and the scratch ``w`` (an
+:class:`EstimatorWork`), with the configuration ``cfg`` of :class:`EstimatorSpec`:
+
+``status = estimator_update(s, w, i, cfg, y, windowed=None)``
+    Measurement step at time ``t``: shift the stacked ``Phi(p, t)``, ``Y(p, t)`` ((19)-(20),
+    (74)-(75)), the innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta_hat(t-1)`` and the rule
+    of :data:`.variants.RULES`: SG (12)-(15), MISG (16)-(22), RLS (32)-(36), MILS (37)-(44),
+    their D- forms (96)-(145), NG (the projection algorithm); as a whole O-RLS (54)-(57),
+    KF-MILS (73)-(79). ``windowed=True`` compiles the finite-history downdate and replay.
+``status = estimator_predict(s, w, i, cfg, u)``
+    State step with ``u(t)``: ``A_hat(t)``, ``b_hat(t)`` ((59)-(60), (83)-(84)),
+    ``x_hat(t+1)`` by the open-loop observer (58), the closed-loop observer (50) or the Kalman
+    filter (80)-(82), and ``phi_hat(t+1)`` ((57)/(153)); with ``regressor="filtered"`` (not
+    the paper's) ``phi_hat`` is built from ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]``.
+``ok = estimator_restart(s, w, i, cfg, theta, P)``
+    Restart at ``theta`` with covariance ``P`` (only its diagonal blocks for D- rules); the
+    normalisers back to ``r(0)``; the window emptied. ``False`` (nothing changed) when ``P`` is
+    not positive definite.
+``reset_covariance(s, i, cfg)``
+    ``P <- P(0)`` (``r <- r(0)``), window emptied, ``theta`` kept: the documented safe action.
+
+The batch loops and the ``T``-step loop of one lane are in :mod:`.estimator_lanes`.
+
+Status bits: ``ST_RESET`` (covariance or normaliser reset after an overflow or a failed health
+check; with ``ST_PD_LOST`` when the factor check failed), ``ST_PROJECTED`` (an unstable
+``A_hat`` rejected, ``project_stable``), ``ST_RECOMPUTED`` (an ill-conditioned downdate replaced
+by a replay), ``ST_FROZEN`` (the "frozen on a wrong model" signal switched on: the mean gain
+``phi^T P phi`` below ``FROZEN_GAIN`` while the mean innovation power exceeds ``frozen_ratio``
+times the mean output power, after ``2 / FROZEN_RATE`` steps; off below half that ratio),
+``ST_STATE_RESET`` (``x_hat(t+1)`` not finite: back to ``x_hat(1)``), ``ST_KF_RESET`` (the
+Kalman covariance not finite: back to ``P1(1)``). Why the filtered regressor and the frozen
+signal exist, and what was measured: the design notes of the documentation.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numpy.typing import NDArray
+
+from stcgym.adaptive.estimation.estimator_spec import (
+    ALGORITHMS,
+    FROZEN_GAIN,
+    FROZEN_RATE,
+    FROZEN_RATIO,
+    REGRESSORS,
+    RULES,
+    STATE_ESTIMATORS,
+    EstimatorConfig,
+    EstimatorSpec,
+    EstimatorState,
+    EstimatorWork,
+    parse_name,
+    upper_cholesky,
+)
+from stcgym.adaptive.estimation.least_squares import (
+    block_trace_is_finite,
+    carlson_update,
+    downdate_block,
+    factor_is_healthy,
+    gradient_increment,
+    least_squares_increment,
+    projection_increment,
+    upper_factor,
+)
+from stcgym.adaptive.estimation.state_estimation import (
+    advance_regressor,
+    filtered_state,
+    is_schur_stable,
+    kalman_step,
+    observer_step,
+)
+from stcgym.adaptive.kernels.canonical import companion_into
+from stcgym.adaptive.kernels.linalg import matvec
+from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
+from stcgym.adaptive.kernels.variants import RULES as _RULES
+from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
+from stcgym.envs.compiled import lane
+
+__all__ = [
+    "ALGORITHMS",
+    "FROZEN_GAIN",
+    "FROZEN_RATE",
+    "FROZEN_RATIO",
+    "REGRESSORS",
+    "RULES",
+    "STATE_ESTIMATORS",
+    "EstimatorConfig",
+    "EstimatorSpec",
+    "EstimatorState",
+    "EstimatorWork",
+    "estimator_predict",
+    "estimator_restart",
+    "estimator_update",
+    "parse_name",
+    "reset_covariance",
+    "upper_cholesky",
+]
+
+# ---- the variants' codes (compile-time constants; compared for equality only) ------------------
+RULE_SG, RULE_MISG = _RULES["SG"].code, _RULES["MISG"].code
+RULE_RLS, RULE_MILS = _RULES["RLS"].code, _RULES["MILS"].code
+RULE_NG = _RULES["NG"].code
+STATE_CO, STATE_KF = _STATES["CO"].code, _STATES["KF"].code
+
+# ---- status bits (values, not offsets) -------------------------------------------------------
+ST_RESET, ST_PROJECTED, ST_RECOMPUTED, ST_FROZEN = 1, 2, 4, 8
+ST_STATE_RESET, ST_KF_RESET, ST_PD_LOST = 16, 32, 64
+
+
+# ============================================================================================
+# Lane functions: ``s`` the estimator's lane state, ``w`` its scratch (:class:`EstimatorState`,
+# :class:`EstimatorWork`: named batched arrays), ``i`` the lane
+# ============================================================================================
+
+
+@lane(entry=True)
+def reset_covariance(s: EstimatorState, i: int, cfg: EstimatorConfig) -> None:
+    """``P <- P(0)`` / ``r <- r(0)`` and an empty finite-history window; ``theta`` kept."""
+    copy_matrix(s.S0[i], s.S[i])  # empty without a covariance
+    copy_vector(s.r0[i], s.r[i])  # empty without normalisers
+    s.count[i] = 0
+
+
+@lane
+def _innovation(theta: NDArray, Phi: NDArray, Y: NDArray, p: int, E: NDArray) -> None:
+    """``E(p, t) = Y(p, t) - Phi(p, t)^T theta``, eq. (17), (38)."""
+    d = theta.shape[0]
+    for k in range(p):
+        acc = Y[k]
+        for i in range(d):
+            acc -= Phi[k, i] * theta[i]
+        E[k] = acc
+
+
+@lane(inline=True)
+def _rule_increment(
+    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, Phi: NDArray, E: NDArray
+) -> bool:
+    """``w.delta = increment of theta`` for the plain rule or both halves of a D- rule (each
+    half sees the same innovation ``E`` computed with ``theta(t-1)``, (96)-(97), (124));
+    updates ``P`` / ``r``. Returns ``False`` on overflow."""
+    n = cfg.n
+    d = 2 * n
+    p = cfg.p
+    lam = cfg.forgetting
+    S, r, delta, K, scratch = s.S[i], s.r[i], w.delta[i], w.K[i], w.w[i]
+    nblocks = 2 if cfg.decomposed else 1
+    ok = True
+    for blk in range(nblocks):
+        lo = 0 if nblocks == 1 else blk * n
+        hi = d if nblocks == 1 else lo + n
+        if cfg.rule == RULE_RLS or cfg.rule == RULE_MILS:
+            alpha = least_squares_increment(
+                S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, K, scratch
+            )
+            ok = ok and alpha > 0.0 and math.isfinite(alpha) and block_trace_is_finite(S, lo, hi)
+        elif cfg.rule == RULE_SG or cfg.rule == RULE_MISG:
+            r_new = gradient_increment(r[blk], lo, hi, Phi, E, p, lam, cfg.stacked_r, delta)
+            ok = ok and r_new > 0.0 and math.isfinite(r_new)
+            if ok:
+                r[blk] = r_new
+        elif cfg.rule == RULE_NG:
+            norm = projection_increment(lo, hi, Phi[0], E[0], cfg.rule_parameters, delta)
+            ok = ok and norm > 0.0 and math.isfinite(norm)
+        else:  # a rule without an increment here: report it, never apply stale scratch
+            ok = False
+    return ok
+
+
+@lane
+def _replay_window(
+    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, theta_w: NDArray
+) -> None:
+    """Exact finite-history estimate by replaying the stored blocks from ``P(0)``: plain rules
+    also replay ``theta`` from ``theta(0)`` into ``theta_w`` (regularised least squares over the
+    window); D- rules recompute each half's ``P`` only (the hierarchical update is kept)."""
+    n = cfg.n
+    d = 2 * n
+    p = cfg.p
+    W = cfg.window
+    count = s.count[i]  # read before the reset empties the window
+    reset_covariance(s, i, cfg)
+    S, theta0, hist_Phi, hist_Y = s.S[i], s.theta0[i], s.hist_Phi[i], s.hist_Y[i]
+    delta, K, scratch, E = w.delta[i], w.K[i], w.w[i], w.E_replay[i]
+    for j in range(d):
+        theta_w[j] = theta0[j]
+    first = count % W  # the oldest block (the newest was written just before)
+    for m in range(W):
+        k = (first + m) % W
+        Phi = hist_Phi[k]
+        Yk = hist_Y[k]
+        if cfg.decomposed:
+            for blk in range(2):
+                lo = blk * n
+                for j in range(p):
+                    carlson_update(S, lo, lo + n, Phi[j], 1.0, K)
+        else:
+            _innovation(theta_w, Phi, Yk, p, E)
+            scalar = cfg.rule == RULE_RLS
+            least_squares_increment(S, 0, d, Phi, E, p, 1.0, scalar, delta, K, scratch)
+            for j in range(d):
+                theta_w[j] += delta[j]
+    s.count[i] = count
+
+
+@lane
+def _slide_window(
+    s: EstimatorState,
+    w: EstimatorWork,
+    i: int,
+    cfg: EstimatorConfig,
+    theta: NDArray,
+    Phi: NDArray,
+    Y: NDArray,
+) -> int:
+    """Finite history: store block ``t``, remove block ``t - W`` by an exact downdate (or
+    recompute by replay when the downdate is ill-conditioned). Adjusts ``w.delta``."""
+    n = cfg.n
+    d = 2 * n
+    p = cfg.p
+    W = cfg.window
+    count = s.count[i]
+    k = count % W
+    s.count[i] = count + 1
+    hPhi = s.hist_Phi[i][k]
+    hY = s.hist_Y[i][k]
+    delta = w.delta[i]
+    if count >= W:
+        E_old, tw = w.E_old[i], w.theta_prev[i]
+        for j in range(d):
+            tw[j] = theta[j] + delta[j]
+        _innovation(tw, hPhi, hY, p, E_old)
+        S, saved = s.S[i], w.S_saved[i]
+        copy_matrix(S, saved)
+        nblocks = 2 if cfg.decomposed else 1
+        ok = True
+        for blk in range(nblocks):
+            lo = 0 if nblocks == 1 else blk * n
+            hi = d if nblocks == 1 else lo + n
+            if ok:
+                ok = downdate_block(S, lo, hi, hPhi, E_old, p, delta, w.w[i])
+        if not ok:
+            copy_matrix(saved, S)
+            copy_matrix(Phi[:p], hPhi)
+            for j in range(p):
+                hY[j] = Y[j]
+            s.n_window_recomputes[i] += 1
+            _replay_window(s, w, i, cfg, tw)
+            if not cfg.decomposed:
+                for j in range(d):
+                    delta[j] = tw[j] - theta[j]
+            return ST_RECOMPUTED
+    copy_matrix(Phi[:p], hPhi)
+    for j in range(p):
+        hY[j] = Y[j]
+    return 0
+
+
+@lane(inline=True)
+def _gain(S: NDArray, phi: NDArray) -> float:
+    """``q = phi^T P phi = ||S^T phi||^2`` (over both halves for D- rules)."""
+    d = phi.shape[0]
+    q = 0.0
+    for j in range(d):
+        acc = 0.0
+        for i in range(j + 1):
+            acc += S[i, j] * phi[i]
+        q += acc * acc
+    return q
+
+
+@lane(inline=True)
+def estimator_update(
+    s: EstimatorState,
+    w: EstimatorWork,
+    i: int,
+    cfg: EstimatorConfig,
+    y: float,
+    windowed: bool | None = None,
+) -> int:
+    """Measurement step at time ``t`` of lane ``i``; see the module docstring.
+
+    ``windowed``: ``True`` where the configuration may have a finite history window
+    (``cfg.window > 0``). Left out (``None``), the compiled version has no window code at all
+    (numba prunes the branch on the argument's type before it types the function), so a
+    caller that never slides a window (the self-tuning controller) does not compile the
+    downdate and replay; that version raises ``ValueError`` on a configuration with a window.
+    """
+    if windowed is None and cfg.window > 0:
+        raise ValueError("estimator_update: a configuration with window > 0 needs windowed=True")
+    n = cfg.n
+    d = 2 * n
+    p = cfg.p
+    theta, Phi, Y, E, phi = s.theta[i], s.Phi[i], s.Y[i], s.E[i], s.phi[i]
+    for k in range(p - 1, 0, -1):  # column j of the paper's Phi(p, t) is phi_hat(t - j)
+        for j in range(d):
+            Phi[k, j] = Phi[k - 1, j]
+        Y[k] = Y[k - 1]
+    for j in range(d):
+        Phi[0, j] = phi[j]
+    Y[0] = y
+    t = s.t[i] + 1
+    s.t[i] = t
+    s.y[i] = y
+    s.phase[i] = True
+    status = 0
+    _innovation(theta, Phi, Y, p, E)
+    if not s.enabled[i]:
+        return status
+    delta, theta_prev = w.delta[i], w.theta_prev[i]
+    S = s.S[i]
+    least_squares = cfg.covariance
+    q = _gain(S, phi) if least_squares else 0.0
+    ok = _rule_increment(s, w, i, cfg, Phi, E)
+    if windowed is not None and ok and cfg.window > 0:
+        status |= _slide_window(s, w, i, cfg, theta, Phi, Y)
+    if ok:
+        for j in range(d):
+            ok = ok and math.isfinite(delta[j])
+    check = cfg.check_every
+    if ok and least_squares and check > 0 and t % check == 0:
+        if cfg.decomposed:
+            healthy = factor_is_healthy(S, 0, n) and factor_is_healthy(S, n, d)
+        else:
+            healthy = factor_is_healthy(S, 0, d)
+        if not healthy:
+            ok = False
+            status |= ST_PD_LOST
+    if not ok:
+        reset_covariance(s, i, cfg)
+        s.n_resets[i] += 1
+        return status | ST_RESET
+    if cfg.project_stable:
+        for j in range(d):
+            theta_prev[j] = theta[j]
+    for j in range(d):
+        theta[j] += delta[j]
+    if cfg.project_stable and not is_schur_stable(theta, n, w.K[i]):
+        for j in range(d):
+            theta[j] = theta_prev[j]
+        s.n_projections[i] += 1
+        status |= ST_PROJECTED
+    if least_squares:
+        status |= _frozen_signal(s, i, cfg, E[0], y, q, t)
+    return status
+
+
+@lane(inline=True)
+def _frozen_signal(
+    s: EstimatorState, i: int, cfg: EstimatorConfig, e: float, y: float, q: float, t: int
+) -> int:
+    """Update the running means of ``e^2``, ``y^2``, ``q`` and the ``frozen`` flag."""
+    rate = cfg.frozen_rate
+    ewma_e2 = s.ewma_e2[i] + rate * (e * e - s.ewma_e2[i])
+    ewma_y2 = s.ewma_y2[i] + rate * (y * y - s.ewma_y2[i])
+    ewma_q = s.ewma_q[i] + rate * (q - s.ewma_q[i])
+    s.ewma_e2[i] = ewma_e2
+    s.ewma_y2[i] = ewma_y2
+    s.ewma_q[i] = ewma_q
+    was = s.frozen[i]
+    # hysteresis: on above ratio * mean y^2, off again below half of that
+    ratio = cfg.frozen_ratio * (0.5 if was else 1.0)
+    frozen = (
+        t * rate > 2.0 and ewma_e2 > ratio * ewma_y2 and ewma_y2 > 0.0 and ewma_q < cfg.frozen_gain
+    )
+    s.frozen[i] = frozen
+    return ST_FROZEN if (frozen and not was) else 0
+
+
+@lane(inline=True)
+def estimator_predict(
+    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, u: float
+) -> int:
+    """State step of lane ``i`` with the applied input ``u(t)``; see the module docstring."""
+    n = cfg.n
+    theta, x, y = s.theta[i], s.x_hat[i], s.y[i]
+    A, x_next, x_reg = w.A[i], w.x_next[i], w.x_reg[i]
+    companion_into(theta, n, cfg.observability, A)
+    b = theta[n:]
+    status = 0
+    if cfg.filtered:
+        _corrected_state(s, i, cfg, A, x, y, x_reg, x_next)
+    if cfg.state == STATE_KF:
+        P1, L1 = s.P1[i], s.L1[i]
+        if kalman_step(A, b, P1, s.Q[i], cfg.R, x, u, y, x_next, L1, w.kalman[i]) != 0:
+            copy_matrix(s.P1_init[i], P1)
+            for j in range(n):
+                L1[j] = 0.0
+            s.n_kf_resets[i] += 1
+            status |= ST_KF_RESET
+    else:  # filtered O: x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t), the injection is in x_reg
+        xo = x_reg if cfg.filtered else x
+        observer_step(A, b, xo, u, y, s.K[i], cfg.state == STATE_CO, x_next)
+    advance_regressor(s.phi[i], s.xs[i], x_reg if cfg.filtered else x, u, n, cfg.observability)
+    finite = True
+    for j in range(n):
+        finite = finite and math.isfinite(x_next[j])
+    if not finite:
+        copy_vector(s.x_init[i], x_next)
+        s.n_state_resets[i] += 1
+        status |= ST_STATE_RESET
+    for j in range(n):
+        x[j] = x_next[j]
+    s.phase[i] = False
+    return status
+
+
+@lane
+def _corrected_state(
+    s: EstimatorState,
+    i: int,
+    cfg: EstimatorConfig,
+    A: NDArray,
+    x: NDArray,
+    y: float,
+    x_reg: NDArray,
+    tmp: NDArray,
+) -> None:
+    """The measurement-corrected state ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]`` of the
+    ``regressor="filtered"`` option: ``g = P1 c^T / (R + c P1 c^T)`` for the Kalman filter (its
+    filtered estimate), ``g = A_hat^{n-1} e_n`` for the observer (``c g = 1``, so
+    ``x1_hat(t|t) = y(t)``, and ``A_hat (I - g c)`` is nilpotent: ``g = e_1`` in the observer
+    form), scaled by ``injection`` after the first ``injection_warmup`` steps. ``tmp`` (n) is
+    scratch."""
+    n = cfg.n
+    if cfg.state == STATE_KF:
+        filtered_state(x, s.P1[i], cfg.R, y, x_reg)
+        return
+    innov = y - x[0]
+    if s.t[i] > cfg.injection_warmup:  # after the warm-up: a fraction of the injection
+        innov *= cfg.injection
+    for j in range(n):  # g = A^{n-1} e_n, built in x_reg
+        x_reg[j] = 1.0 if j == n - 1 else 0.0
+    for _ in range(n - 1):
+        matvec(A, x_reg, tmp)
+        for j in range(n):
+            x_reg[j] = tmp[j]
+    for j in range(n):
+        x_reg[j] = x[j] + x_reg[j] * innov
+
+
+@lane(entry=True)
+def estimator_restart(
+    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, theta: NDArray, P: NDArray
+) -> bool:
+    """Restart lane ``i`` at ``theta`` and ``P``; see the module docstring."""
+    n = cfg.n
+    d = 2 * n
+    if cfg.covariance:
+        F = w.S_saved[i]
+        if cfg.decomposed:
+            F[:, :] = 0.0
+            ok = upper_factor(P[:n, :n], F[:n, :n]) and upper_factor(P[n:, n:], F[n:, n:])
+        else:
+            ok = upper_factor(P, F)
+        if not ok:
+            return False
+        copy_matrix(F, s.S[i])
+    else:
+        reset_covariance(s, i, cfg)
+    s.count[i] = 0
+    th = s.theta[i]
+    for j in range(d):
+        th[j] = theta[j]
+    return True

@@ -1,0 +1,1 @@
+"""Recursive least squares on user regressors and grey-box structures."""
