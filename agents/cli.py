@@ -1,11 +1,11 @@
 """The ``stcgym`` command.
 
 ``stcgym bench`` (= ``stcgym bench --quick``, ``make bench``)
-    The self-tuning controllers, PPO, SAC and RecurrentPPO (3 runs each, trained on the spot
-    through the task executor), pole placement on the true model and zero input, all scored
-    against LQG on the true model, on the same episodes of the nominal, plant-family (test
-    split and held-out variants), parameter-jump and MIMO scenarios; about 14 minutes on 2
-    CPU cores.
+    The self-tuning controllers, PPO, SAC and estimate-conditioned PPO (3 runs each, trained on
+    the spot through the task executor), pole placement on the true model and zero input, all
+    scored against LQG on the true model, on the same episodes of the nominal, plant-family
+    (test split and held-out variants), parameter-jump and MIMO scenarios; about 11 minutes on
+    2 CPU cores.
     ``stcgym bench --standard`` (about 12 hours with every RL agent at its cap) has 5 runs,
     the whole test split, every held-out variant and RL caps of 10^6 steps on the family;
     ``stcgym bench --full`` is the long version (10 runs, every MIMO plant, TD3 and A2C too,
@@ -59,7 +59,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
-        "--quick", action="store_true", help="the default: about 14 min on 2 CPU cores"
+        "--quick", action="store_true", help="the default: about 11 min on 2 CPU cores"
     )
     mode.add_argument(
         "--standard",

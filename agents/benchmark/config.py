@@ -194,7 +194,9 @@ QUICK = dict(
     scenarios=[k for k in SCENARIO_KINDS if k not in ("mimo_switch", "mimo_family")],
     plants=["stable2"],
     ood=["ood_near_zero", "ood_order3"],
-    agents=["ppo", "sac", "rppo", "theta_ppo", *_CLASSICAL],
+    # RecurrentPPO is the slowest to train (about a quarter of the tier's CPU time) and at
+    # smoke-test budgets learns no more than the others: the standard tier trains it
+    agents=["ppo", "sac", "theta_ppo", *_CLASSICAL],
     train_seeds=3,
     test_plants=40,
     nominal_episodes=20,
