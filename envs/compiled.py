@@ -50,7 +50,6 @@ from typing import Any, TypeVar
 
 import numba
 import numpy as np
-from numpy.typing import NDArray
 
 from stcgym.envs import numba_internals as internals
 from stcgym.envs.kernel_cache import guard_cache
@@ -425,63 +424,3 @@ def state_nbytes_per_lane(state: tuple) -> int:
         state_nbytes_per_lane(a) if isinstance(a, tuple) else (a[0].nbytes if a.shape[0] else 0)
         for a in state
     )
-
-
-class Layout:
-    """Named pieces of a lane record: ``name -> (offset, shape)`` in one ``float64`` vector.
-
-    >>> lay = Layout()
-    >>> lay.add("theta", (4,)), lay.add("S", (4, 4)), lay.size
-    (0, 4, 20)
-    >>> rec = lay.empty(3)          # a batch of 3 lanes
-    >>> lay.view(rec, "S").shape
-    (3, 4, 4)
-    """
-
-    def __init__(self) -> None:
-        self.fields: dict[str, tuple[int, tuple[int, ...]]] = {}
-        self.size = 0
-
-    def add(self, name: str, shape: tuple[int, ...] | int = ()) -> int:
-        """Append a field; return its offset."""
-        if name in self.fields:
-            raise ValueError(f"field {name!r} is already in the layout")
-        shape = (shape,) if isinstance(shape, int) else tuple(int(s) for s in shape)
-        offset = self.size
-        self.fields[name] = (offset, shape)
-        self.size += int(np.prod(shape, dtype=np.int64)) if shape else 1
-        return offset
-
-    def offset(self, name: str) -> int:
-        return self.fields[name][0]
-
-    def record(self, fields: type[R], base: int = 0) -> R:
-        """The offsets of the fields of ``fields`` (a ``NamedTuple`` class of ints naming fields
-        of this layout), plus ``base`` where this record starts inside a larger one.
-
-        A lane function takes the instance and reads ``f[at.theta : at.theta + d]``: numba
-        types a named tuple of ints as one type whatever the values, so one compiled function
-        serves every order and every record placement.
-        """
-        missing = [name for name in fields._fields if name not in self.fields]
-        if missing:
-            raise ValueError(f"fields {missing} of {fields.__name__} are not in {self!r}")
-        return fields(*(int(base) + self.fields[name][0] for name in fields._fields))
-
-    def empty(self, num_lanes: int) -> NDArray[np.float64]:
-        """A zeroed ``(num_lanes, size)`` batch of records."""
-        return np.zeros((int(num_lanes), self.size), dtype=np.float64)
-
-    def view(self, records: NDArray, name: str) -> NDArray:
-        """The field ``name`` of every lane: shape ``records.shape[:-1] + field shape`` (a view)."""
-        offset, shape = self.fields[name]
-        size = int(np.prod(shape, dtype=np.int64)) if shape else 1
-        block = records[..., offset : offset + size]
-        return block.reshape(records.shape[:-1] + shape)
-
-    @property
-    def nbytes_per_lane(self) -> int:
-        return 8 * self.size
-
-    def __repr__(self) -> str:
-        return f"Layout(size={self.size}, fields={list(self.fields)})"
