@@ -63,7 +63,7 @@ def _is_spd(P: NDArray) -> bool:
     return True
 
 
-@lane(entry=True)
+@lane(entry=True, inline=True)
 def matrix_rls_step(theta, S, x, y, lam, w, lane):
     """One step of appendix 2's recursion (P.6)-(P.8) on ``P = S S^T``; returns a status.
 

@@ -48,7 +48,7 @@ SCRATCH = {
     "MimoState+Work": lambda: make_mimo_state(3, 2, 2),
     "OracleState+Proposal": lambda: make_oracle_state(3, 2),
     "RLSState+Work": lambda: make_rls_state(3, 2, 4, 2),
-    "LeastSquaresWork": lambda: least_squares_work(4, 2, 3),
+    "WindowedLeastSquaresWork": lambda: least_squares_work(4, 2, 3, window=True),
     "ExtendedLSState+Work": lambda: make_extended_ls(2, 3, 10.0),
     "StateMatrixState+Work": lambda: make_state_matrix(3, 2, 2),
     "EstimatorState+Work": lambda: (

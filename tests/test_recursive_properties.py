@@ -167,7 +167,7 @@ def test_finite_history_rule_is_windowed_least_squares(d, p, W, T, seed):
     assert upper_factor(5.0 * np.eye(dim), S)
     theta0 = rng.standard_normal(dim)
     theta = theta0.copy()
-    work = least_squares_work(dim, p)
+    work = least_squares_work(dim, p, window=True)
     blocks = []
     for _ in range(T):
         Phi, Y = rng.standard_normal((p, dim)), rng.standard_normal(p)

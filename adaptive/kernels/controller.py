@@ -84,8 +84,6 @@ class ControllerState(NamedTuple):
     x_next: NDArray  # the time update's x(t+1|t) (n)
     L1: NDArray  # the filter's gain (n)
     Q: NDArray  # its process noise Q(t) (n, n)
-    A: NDArray  # the model in force A_hat(t) (n, n)
-    b: NDArray  # b_hat(t) (n)
     gain: NDArray  # the last accepted gain record [K_x (n), k_i, N, rcond] (n + 3)
     has_gain: NDArray  # a design has been accepted since the reset (bool)
     P_lq: NDArray  # Riccati matrix of the LQ design (m, m; (0, 0) for pole placement)
@@ -109,7 +107,8 @@ class ControllerState(NamedTuple):
 class ControllerWork(NamedTuple):
     """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
 
-    design: Any  # the design's scratch: a safe_set.DesignWork (pole placement) or lq.LQWork
+    design: Any  # the design's scratch: a safe_set.DesignWork (pole placement) or lq.LQWork;
+    # its model A, b of theta_hat(t) is also the Kalman filter's (step 4)
     AP: NDArray  # the Kalman time update's A P1 (n, n)
     P_upd: NDArray  # its P1(t+1) until it is accepted (n, n)
 
@@ -134,8 +133,8 @@ def controller_shapes(
     n = int(n)
     m = n + int(bool(integral))
     state: dict[str, tuple[int, ...]] = {
-        **dict.fromkeys(("x", "xf", "x_next", "L1", "b"), (n,)),
-        **dict.fromkeys(("P1", "Q", "A"), (n, n)),
+        **dict.fromkeys(("x", "xf", "x_next", "L1"), (n,)),
+        **dict.fromkeys(("P1", "Q"), (n, n)),
         "gain": (gain_size(n),),
         "P_lq": (m, m) if lq else (0, 0),
     }
@@ -321,9 +320,10 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
         s.has_gain[lane] = True
     else:
         s.n_rejected[lane] += 1
-    # -- 4. state estimate x(t|t): Kalman filter on the estimated model
-    A = s.A[lane]
-    b = s.b[lane]
+    # -- 4. state estimate x(t|t): Kalman filter on the estimated model (built by the design
+    # too, when the design got that far: the same numbers)
+    A = w.design.A[lane]
+    b = w.design.b[lane]
     model_matrices(theta, cfg.form, A, b)
     x = s.x[lane]
     P1 = s.P1[lane]

@@ -94,8 +94,7 @@ def extended_ls_shapes(
     ``d = 3n`` (``2n`` without ``c``): the one place they are declared."""
     d = (3 if with_c else 2) * int(n)
     state = {"theta": (d,), "S": (d, d), "Phi": (1, d)}
-    # ELS never removes a block: no factor to save (a zero in its shape)
-    work = {"Y": (1,), **least_squares_shapes(d, 1), "S_saved": (0, 0)}
+    work = {"Y": (1,), **least_squares_shapes(d, 1)}
     return state, work
 
 

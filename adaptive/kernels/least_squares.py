@@ -14,7 +14,8 @@ Published interface (other modules build on these signatures; they do not change
     the caller (e.g. to ``S(0)``).
 ``least_squares_downdate(theta, S, Phi, Y, w, lane) -> int``
     Removes a data block (finite history): ``P^{-1} <- P^{-1} - Phi^T Phi`` and
-    ``theta <- theta - P Phi^T E`` with ``E = Y - Phi theta`` (the same scratch). Returns ``OK``
+    ``theta <- theta - P Phi^T E`` with ``E = Y - Phi theta`` (the same scratch and
+    :class:`DowndateWork`'s). Returns ``OK``
     or ``FAIL_DOWNDATE`` (``S``, ``theta`` restored: the block could not be removed accurately,
     ``1 - phi^T P phi <= DOWNDATE_TOL``).
 ``upper_factor(P, S) -> bool``
@@ -46,14 +47,16 @@ from typing import Any, NamedTuple
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.records import copy_matrix
-from stcgym.envs.compiled import lane, lane_state
+from stcgym.envs.compiled import fields_of, lane, make_work
 
 __all__ = [
     "DOWNDATE_TOL",
     "FAIL_COVARIANCE",
     "FAIL_DOWNDATE",
     "OK",
+    "DowndateWork",
     "LeastSquaresWork",
+    "WindowedLeastSquaresWork",
     "carlson_update",
     "factor_is_healthy",
     "gradient_increment",
@@ -79,26 +82,42 @@ DOWNDATE_TOL = 1e-4
 
 
 class LeastSquaresWork(NamedTuple):
-    """The scratch of :func:`least_squares_step` and :func:`least_squares_downdate`, one row a
-    lane (shapes in :func:`least_squares_shapes`; a caller's scratch may hold more fields)."""
+    """The scratch of :func:`least_squares_step`, one row a lane (shapes in
+    :func:`least_squares_shapes`; a caller's scratch may hold more fields)."""
 
     delta: NDArray  # the increment of theta (d,)
     K: NDArray  # the gain P phi of a factor update (d,)
     E: NDArray  # the innovation E(p, t) = Y - Phi theta(t-1) (p,)
     w: NDArray  # the factor updates' scratch (2 d,)
+
+
+class DowndateWork(NamedTuple):
+    """The scratch :func:`least_squares_downdate` needs besides :class:`LeastSquaresWork`."""
+
     S_saved: NDArray  # S before a downdate, restored when it fails (d, d)
 
 
-def least_squares_shapes(d: int, p: int) -> dict[str, tuple[int, ...]]:
-    """The shapes of one lane's :class:`LeastSquaresWork` fields for ``d`` parameters and
-    blocks of ``p`` rows: the one place they are declared."""
+#: The scratch of the finite-history least squares (:func:`least_squares_step` and
+#: :func:`least_squares_downdate`): the fields of both parts.
+WindowedLeastSquaresWork = NamedTuple(  # type: ignore[misc]
+    "WindowedLeastSquaresWork", fields_of(LeastSquaresWork, DowndateWork)
+)
+
+
+def least_squares_shapes(d: int, p: int, window: bool = False) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :class:`LeastSquaresWork` fields (``window=True``: of
+    :data:`WindowedLeastSquaresWork`) for ``d`` parameters and blocks of ``p`` rows: the one
+    place they are declared."""
     d, p = int(d), int(p)
-    return {"delta": (d,), "K": (d,), "E": (p,), "w": (2 * d,), "S_saved": (d, d)}
+    shapes = {"delta": (d,), "K": (d,), "E": (p,), "w": (2 * d,)}
+    return {**shapes, "S_saved": (d, d)} if window else shapes
 
 
-def least_squares_work(d: int, p: int, num_lanes: int = 1) -> Any:
-    """A zeroed :class:`LeastSquaresWork` of ``num_lanes`` lanes."""
-    return lane_state(LeastSquaresWork, least_squares_shapes(d, p), num_lanes)
+def least_squares_work(d: int, p: int, num_lanes: int = 1, *, window: bool = False) -> Any:
+    """A zeroed :class:`LeastSquaresWork` (``window=True``: :data:`WindowedLeastSquaresWork`)
+    of ``num_lanes`` lanes."""
+    fields = WindowedLeastSquaresWork if window else LeastSquaresWork
+    return make_work(fields, least_squares_shapes(d, p, window), num_lanes)
 
 
 @lane
@@ -283,7 +302,7 @@ def block_trace_is_finite(S: NDArray, lo: int, hi: int) -> bool:
     return math.isfinite(acc)
 
 
-@lane
+@lane(inline=True)
 def least_squares_step(
     theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, lane: int
 ) -> int:
@@ -354,7 +373,7 @@ def downdate_block(
     return True
 
 
-@lane
+@lane(inline=True)
 def least_squares_downdate(
     theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, w: Any, lane: int
 ) -> int:

@@ -230,7 +230,7 @@ def _weight_matrix(n, integral, weights, Q):
         Q[n, n] = w.q_i
 
 
-@lane(entry=True)
+@lane(entry=True, inline=True)
 def lq_design(theta, cfg, weights, P, gain, w, lane):
     """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
 

@@ -204,7 +204,7 @@ def _closed_loop(A, B, K, Acl):
             Acl[i, j] = A[i, j] - Acl[i, j]
 
 
-@lane(entry=True)
+@lane(entry=True, inline=True)
 def lq_gain(A, B, c, P, K, w, lane):
     """``K = (R + B^T P B)^{-1} (B^T P A + N^T)`` (``R``, ``N`` of the :class:`LQProblem`
     ``c``); ``False`` when ``R + B^T P B`` is singular (scratch: the :class:`GainWork` fields of
@@ -247,7 +247,7 @@ def _stage_weight(Q, R, N, K, KR, M):
             M[j, i] = acc
 
 
-@lane
+@lane(inline=True)
 def riccati_step(A, B, c, P, K, w, lane):
     """One Riccati iteration (Joseph form) on ``P`` in place for the :class:`LQProblem` ``c``;
     ``K`` the gain of the old ``P``. Returns ``False`` when the gain is undefined."""
@@ -271,7 +271,7 @@ def riccati_step(A, B, c, P, K, w, lane):
     return True
 
 
-@lane
+@lane(inline=True)
 def schur_stable(M, w, lane):
     """Spectral radius of ``M`` below 1, by repeated squaring (scratch ``w.X``, ``w.X2``).
 
@@ -519,7 +519,7 @@ def dare_solve(A, B, c, P, K, w, lane):
     return OK
 
 
-@lane(entry=True)
+@lane(entry=True, inline=True)
 def steady_state_feedforward(A, B, c, K, F, w, lane):
     """``F = M_u + K M_x`` of the cheapest equilibrium; ``False`` when the KKT matrix is
     singular (no equilibrium for some reference: an uncontrollable mode at ``z = 1``). ``F`` is
@@ -589,7 +589,7 @@ def steady_state_feedforward(A, B, c, K, F, w, lane):
     return True
 
 
-@lane
+@lane(inline=True)
 def design_checks(A, B, cfg, K, F, w, lane):
     """The safe set of a candidate gain ``K`` on the model ``(A, B)``: finite, ``max |B| >=
     cfg.b_min``, closed loop Schur stable, feed-forward defined (the weights of ``cfg``, an

@@ -185,7 +185,7 @@ def _model(theta, A, B):
             B[i, j] = theta[n + j, i]
 
 
-@lane
+@lane(inline=True)
 def _design(s, w, est, lane, cfg):
     """Step 3: a candidate gain (Riccati step or full solve), accepted in the safe set."""
     theta = est.theta[lane]

@@ -66,7 +66,7 @@ def ackermann_gain(A, b, alpha, K, w, lane):
     return rcond
 
 
-@lane(entry=True)
+@lane(entry=True, inline=True)
 def place_design(theta, cfg, gain, w, lane):
     """Pole placement on the (augmented) model of ``theta``; see the module docstring.
 

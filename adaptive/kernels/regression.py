@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.least_squares import (
     DOWNDATE_TOL,
-    LeastSquaresWork,
+    WindowedLeastSquaresWork,
     factor_is_healthy,
     least_squares_downdate,
     least_squares_shapes,
@@ -93,9 +93,11 @@ class RLSStepWork(NamedTuple):
 
 
 #: The scratch of :func:`rls_step`, one row a lane (its content is irrelevant between calls):
-#: the fields of :class:`RLSStepWork` and of the least-squares step's
-#: :class:`~stcgym.adaptive.kernels.least_squares.LeastSquaresWork`.
-RLSWork = NamedTuple("RLSWork", fields_of(RLSStepWork, LeastSquaresWork))  # type: ignore[misc]
+#: the fields of :class:`RLSStepWork` and of the least-squares step's and downdate's
+#: :data:`~stcgym.adaptive.kernels.least_squares.WindowedLeastSquaresWork`.
+RLSWork = NamedTuple(  # type: ignore[misc]
+    "RLSWork", fields_of(RLSStepWork, WindowedLeastSquaresWork)
+)
 
 
 class RLSConfig(NamedTuple):
@@ -134,7 +136,7 @@ def rls_shapes(
         **dict.fromkeys(("y_pred", "saved_Y"), (p,)),
         **dict.fromkeys(("F", "saved_Phi"), (p, d)),
         "M": (p, p),
-        **least_squares_shapes(d, p),
+        **least_squares_shapes(d, p, window=True),
     }
     return state, work
 
@@ -217,7 +219,7 @@ def _gain(K, S, Phi, g):  # pragma: no cover - compiled
             K[i, r] = acc
 
 
-@lane
+@lane(inline=True)
 def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
     """One step of :class:`RecursiveLeastSquares` on lane ``lane``; returns a status code.
 

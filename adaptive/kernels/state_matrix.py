@@ -112,7 +112,6 @@ def state_matrix_shapes(
         "Ginv": (q, q),
         "T": (q, n),
         **least_squares_shapes(q, n),
-        "S_saved": (0, 0),  # the RLS phase removes no sample: no factor to save
     }
     return state, work
 
