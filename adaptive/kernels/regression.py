@@ -58,7 +58,7 @@ RECOMPUTED = 2  # finite history recomputed from the stored window
 
 
 # --------------------------------------------------------------------------------------------
-# The estimator step on one lane record (the rule itself is the shared least-squares lane
+# The estimator step on one lane (the rule itself is the shared least-squares lane
 # function of :mod:`stcgym.adaptive.kernels.least_squares`)
 # --------------------------------------------------------------------------------------------
 
