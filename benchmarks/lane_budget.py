@@ -51,7 +51,7 @@ import numpy as np
 from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.control.design import place_design, work_size
+from stcgym.adaptive.control.design import DesignConfig, design_work, place_design
 from stcgym.adaptive.estimation.estimator import EstimatorSpec
 from stcgym.adaptive.estimation.estimator_lanes import run_lane
 from stcgym.adaptive.estimation.least_squares import least_squares_increment
@@ -208,21 +208,21 @@ def _layout_experiment(rng: np.random.Generator, lanes: int = 8192) -> None:
 
 
 @numba.njit
-def _place_generic(buf, alpha, safe, gain, work, steps):  # type: ignore[no-untyped-def]
+def _place_generic(buf, cfg, gain, work, steps):  # type: ignore[no-untyped-def]
     status = 0
     d = buf.shape[0]
     for _ in range(steps):
         buf[0] += 1e-12  # a new model every call, as in the controller
-        status += place_design(buf[0:d], 0, True, True, alpha, safe, gain, work)
+        status += place_design(buf[0:d], cfg, gain, work, 0)
     return status
 
 
 @numba.njit
-def _place_specialised(buf, alpha, safe, gain, work, steps):  # type: ignore[no-untyped-def]
+def _place_specialised(buf, cfg, gain, work, steps):  # type: ignore[no-untyped-def]
     status = 0
     for _ in range(steps):
         buf[0] += 1e-12
-        status += _place_const(buf[0:4], 0, True, True, alpha, safe, gain, work)
+        status += _place_const(buf[0:4], cfg, gain, work, 0)
     return status
 
 
@@ -285,11 +285,11 @@ def main(argv: list[str] | None = None) -> None:
 
     _layout_experiment(rng)
 
-    cfg = SelfTuningController(2)._cfg  # the default poles and safe set
-    alpha, safe = cfg.alpha, cfg.safe
-    gain, work = np.zeros(6), np.zeros(work_size(2))
-    gen = _best_ns(lambda s: _place_generic(theta.copy(), alpha, safe, gain, work, s), steps)
-    fixed = _best_ns(lambda s: _place_specialised(theta.copy(), alpha, safe, gain, work, s), steps)
+    c = SelfTuningController(2)._cfg  # the default poles and safe set
+    cfg = DesignConfig(0, True, True, c.safe, c.alpha)
+    gain, work = np.zeros(6), design_work(2, True)
+    gen = _best_ns(lambda s: _place_generic(theta.copy(), cfg, gain, work, s), steps)
+    fixed = _best_ns(lambda s: _place_specialised(theta.copy(), cfg, gain, work, s), steps)
     row("pole-placement design (order 2 + integrator), as shipped", gen)
     row(f"  the same source, sizes compile-time constants ({gen / fixed:.1f}x)", fixed)
 

@@ -8,25 +8,26 @@ controller in :mod:`stcgym.adaptive`):
   place and returns plain numbers (a status code, an output). It contains the paper's equations
   and nothing about batching. Lane functions that Python calls are ``@lane(entry=True)``; the
   others are helpers of lane functions and raise ``TypeError`` if Python calls them.
-* A **lane record** holds all the floating-point state of one lane in one ``float64`` vector (and,
-  where needed, integer state in one ``int64`` vector). Its fields are declared once, as a
-  ``typing.NamedTuple`` class of ints; :class:`Layout` places them (offsets and shapes fixed
-  once per configuration on the Python side) and :meth:`Layout.record` returns the class's
-  instance holding the offsets, which the lane function takes as ``at`` and reads by name:
-  ``theta = f[at.theta : at.theta + d]``, ``ews = f[at.ews]``. The configuration of a lane
-  function is a ``NamedTuple`` too (int, float, bool fields and 1-D ``float64`` arrays:
-  ``cfg.n``, ``cfg.alpha``); numba types both by their field types, not their values or array
-  lengths, so one compiled function serves every order.
-  A batch of ``B`` lanes is a C-contiguous ``(B, size)`` array whose row ``i`` is lane ``i``'s
-  record; reset, copy, pickle and memory accounting are plain array operations.
+* The **lane state** of a step is a ``typing.NamedTuple`` of batched arrays: field ``f`` of
+  lane ``i`` is ``state.f[i]``, a row view, and the lane function reads it by name
+  (``s.theta[lane]``, ``w.K[lane]``). Each field is declared once, with its shape in a shapes
+  function of the step (e.g. ``controller_shapes``); :func:`lane_state` builds the batch, a
+  field a configuration does not use has a zero in its shape, counters are ``int64`` and flags
+  ``bool``. Scratch is the same kind of tuple (:func:`make_work`; a scratch made of named
+  parts is built with :func:`fields_of`), one row a lane, every field its own memory. The
+  configuration of a lane function is a ``NamedTuple`` too (int, float, bool fields and 1-D
+  ``float64`` arrays: ``cfg.n``, ``cfg.alpha``). numba types all of them by their fields'
+  types and dimensions, not their values or sizes, so one compiled function serves every
+  order; reset, copy, pickle and memory accounting are plain array operations.
 * A **batch loop** is decorated with :func:`lanes` and is nothing but
-  ``for i in range(first, last): lane_fn(F[i], ...)``: its last two parameters are a range of
-  lanes, which its Python caller leaves out (``loop(F, ...)`` runs every row of the first
-  argument; a large batch is split into blocks of rows run on several threads,
-  :class:`LaneLoop`). A single plant calls the same lane function on a ``(1, size)`` record,
-  so a single plant equals lane ``i`` of a batch **bit for bit by construction**, on any CPU and
-  any number of threads: the same compiled machine code runs on the same numbers (no BLAS, no
-  LAPACK inside lane functions; small dense loops are written out).
+  ``for i in range(first, last): lane_fn(s, w, i, ...)``: its last two parameters are a range
+  of lanes, which its Python caller leaves out (``loop(s, ...)`` runs every row of the first
+  argument, or of its first field; a large batch is split into blocks of rows run on several
+  threads, :class:`LaneLoop`). A single plant calls the same lane function on lane 0 of a
+  one-lane state, so a single plant equals lane ``i`` of a batch **bit for bit by
+  construction**, on any CPU and any number of threads: the same compiled machine code runs on
+  the same numbers (no BLAS, no LAPACK inside lane functions; small dense loops are written
+  out).
 
 Compilation is lazy (first call) and cached on disk (``cache=True``), so importing stcgym
 compiles nothing and a second process starts fast. A compile that is still running after
@@ -49,7 +50,6 @@ from typing import Any, TypeVar
 
 import numba
 import numpy as np
-from numpy.typing import NDArray
 
 from stcgym.envs import numba_internals as internals
 from stcgym.envs.kernel_cache import guard_cache
@@ -179,9 +179,9 @@ def lane(
     ``error_model="numpy"``: a division by zero gives inf/nan like numpy instead of raising,
     so lane functions test their own denominators and report numerical trouble as status codes.
 
-    Lane functions **never allocate**: their scratch lives in the lane record or in a work array
-    from the caller. They are therefore compiled without numba's reference-counting runtime (NRT,
-    :func:`.numba_internals.dispatcher`): with it every slice of a record increments and decrements
+    Lane functions **never allocate**: their scratch is a named scratch of the caller (one row a
+    lane). They are therefore compiled without numba's reference-counting runtime (NRT,
+    :func:`.numba_internals.dispatcher`): with it every slice of a state increments and decrements
     an atomic counter on the batch's memory block, and when a batch runs on several threads they all
     hammer that one counter (measured on the plant step: 87 -> 30 ns per lane on one thread, 800 ->
     17 ns on two). Compiling an allocation (``np.empty``, ``.copy()``) then fails, which keeps the
@@ -273,7 +273,7 @@ def run_blocks(loop: Callable[..., Any], args: Sequence[Any], min_lanes: int) ->
     contiguous blocks of rows on a thread pool (:func:`_blocks`), the first block on the calling
     thread. Each block writes only its own rows, and a lane's numbers never depend on the
     block it ran in. An exception in any block is raised after every block has finished."""
-    first = args[0]  # the lanes' records, or a lane state (whose first field has a row a lane)
+    first = args[0]  # the lanes' rows, or a lane state (whose first field has a row a lane)
     num_lanes = (first if hasattr(first, "shape") else first[0]).shape[0]
     k = _blocks(num_lanes, min_lanes)
     if k == 1:
@@ -335,9 +335,9 @@ class FixedTypes:
     every argument on every call.
 
     numba types each argument of each call to pick the compiled overload; for the named-tuple
-    records and configurations that costs about 8 us a call (their types are rebuilt field by
+    states and configurations that costs about 8 us a call (their types are rebuilt field by
     field), several lane steps. A Python class whose calls always pass the same argument types
-    (float64 records, the same named-tuple classes, float or float64 scalars) looks the
+    (the same named-tuple classes of the same array types, float or float64 scalars) looks the
     overload up once, on the first call (``Dispatcher.compile`` of those types: numba's
     on-disk cache or a compile), and calls it directly afterwards. Without the JIT
     (``NUMBA_DISABLE_JIT=1``) it calls the Python function.
@@ -396,6 +396,20 @@ def lane_state(
     )
 
 
+def fields_of(*groups: type[tuple]) -> list[tuple[str, type]]:
+    """The fields of the named-tuple classes ``groups``, in order: the field list of a lane
+    state or scratch made of them, ``NamedTuple(name, fields_of(...))`` (a field name twice is
+    an error of ``NamedTuple``)."""
+    return [(f, np.ndarray) for g in groups for f in g._fields]
+
+
+def make_work(fields: type[R], shapes: dict[str, tuple[int, ...]], num_lanes: int) -> R:
+    """A zeroed ``float64`` scratch of type ``fields`` for ``num_lanes`` lanes
+    (:func:`lane_state`), each field shaped by ``shapes``, which may declare more fields than
+    ``fields`` has (the shapes of a family of scratch types declared in one place)."""
+    return lane_state(fields, {f: shapes[f] for f in fields._fields}, num_lanes)
+
+
 def set_lanes(dst: R, lanes: Any, src: R, row: Any = 0) -> None:
     """``dst.f[lanes] = src.f[row]`` for every field ``f`` of two lane states (a reset, a copy
     of some lanes)."""
@@ -404,65 +418,9 @@ def set_lanes(dst: R, lanes: Any, src: R, row: Any = 0) -> None:
 
 
 def state_nbytes_per_lane(state: tuple) -> int:
-    """Bytes of one lane of a lane state (every field's row)."""
-    return sum(a[0].nbytes if a.shape[0] else 0 for a in state)
-
-
-class Layout:
-    """Named pieces of a lane record: ``name -> (offset, shape)`` in one ``float64`` vector.
-
-    >>> lay = Layout()
-    >>> lay.add("theta", (4,)), lay.add("S", (4, 4)), lay.size
-    (0, 4, 20)
-    >>> rec = lay.empty(3)          # a batch of 3 lanes
-    >>> lay.view(rec, "S").shape
-    (3, 4, 4)
-    """
-
-    def __init__(self) -> None:
-        self.fields: dict[str, tuple[int, tuple[int, ...]]] = {}
-        self.size = 0
-
-    def add(self, name: str, shape: tuple[int, ...] | int = ()) -> int:
-        """Append a field; return its offset."""
-        if name in self.fields:
-            raise ValueError(f"field {name!r} is already in the layout")
-        shape = (shape,) if isinstance(shape, int) else tuple(int(s) for s in shape)
-        offset = self.size
-        self.fields[name] = (offset, shape)
-        self.size += int(np.prod(shape, dtype=np.int64)) if shape else 1
-        return offset
-
-    def offset(self, name: str) -> int:
-        return self.fields[name][0]
-
-    def record(self, fields: type[R], base: int = 0) -> R:
-        """The offsets of the fields of ``fields`` (a ``NamedTuple`` class of ints naming fields
-        of this layout), plus ``base`` where this record starts inside a larger one.
-
-        A lane function takes the instance and reads ``f[at.theta : at.theta + d]``: numba
-        types a named tuple of ints as one type whatever the values, so one compiled function
-        serves every order and every record placement.
-        """
-        missing = [name for name in fields._fields if name not in self.fields]
-        if missing:
-            raise ValueError(f"fields {missing} of {fields.__name__} are not in {self!r}")
-        return fields(*(int(base) + self.fields[name][0] for name in fields._fields))
-
-    def empty(self, num_lanes: int) -> NDArray[np.float64]:
-        """A zeroed ``(num_lanes, size)`` batch of records."""
-        return np.zeros((int(num_lanes), self.size), dtype=np.float64)
-
-    def view(self, records: NDArray, name: str) -> NDArray:
-        """The field ``name`` of every lane: shape ``records.shape[:-1] + field shape`` (a view)."""
-        offset, shape = self.fields[name]
-        size = int(np.prod(shape, dtype=np.int64)) if shape else 1
-        block = records[..., offset : offset + size]
-        return block.reshape(records.shape[:-1] + shape)
-
-    @property
-    def nbytes_per_lane(self) -> int:
-        return 8 * self.size
-
-    def __repr__(self) -> str:
-        return f"Layout(size={self.size}, fields={list(self.fields)})"
+    """Bytes of one lane of a lane state (every field's row; a field that is itself a lane
+    state, such as a scratch made of named parts, counts its own fields)."""
+    return sum(
+        state_nbytes_per_lane(a) if isinstance(a, tuple) else (a[0].nbytes if a.shape[0] else 0)
+        for a in state
+    )

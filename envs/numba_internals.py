@@ -13,8 +13,6 @@ breaks one fails there, by name:
   Python call raises instead of jumping to a null address.
 * :func:`entry_point`: the machine code compiled for given argument types, called without
   numba's typing of every argument (``Dispatcher.compile``).
-* :func:`register_view`: ``view2d`` / ``view3d`` lowered in place (the array structure filled
-  in directly, ``numba.np.arrayobj.populate_array``).
 * :class:`CompileListener`, :func:`listen_to_compiles`: numba's ``numba:compile`` events
   (``numba.core.event``, described in numba's developer manual).
 """
@@ -25,12 +23,8 @@ from collections.abc import Callable
 from typing import Any
 
 import numba
-from numba import types
 from numba.core import event
-from numba.core.imputils import impl_ret_borrowed
 from numba.core.registry import CPUDispatcher
-from numba.extending import lower_builtin, type_callable
-from numba.np.arrayobj import populate_array
 
 __all__ = [
     "CompileListener",
@@ -38,7 +32,6 @@ __all__ = [
     "dispatcher",
     "entry_point",
     "listen_to_compiles",
-    "register_view",
 ]
 
 #: numba's event listener base class (``on_start`` / ``on_end`` receive an event whose
@@ -94,51 +87,6 @@ def entry_point(compiled: Any, arg_types: tuple) -> Callable[..., Any]:
     numba's cache, or compiled now): a callable that converts its arguments for those types
     without typing them again (so it must only ever see arguments of those types)."""
     return compiled.compile(tuple(arg_types))
-
-
-def register_view(fn: Callable[..., Any], ndim: int) -> None:
-    """Compile ``fn(a, offset, *shape)`` (``ndim`` = 2 or 3 sizes; ``a`` a C-contiguous 1-D array)
-    as the C-ordered ``ndim``-D view of ``a`` starting at ``a[offset]``: the array structure
-    filled in directly (data pointer, shape, C strides, ``a``'s memory block as owner), no call
-    and no run-time helper (numba's ``reshape`` recomputes strides at run time, about 60 ns)."""
-
-    @type_callable(fn)
-    def _type(context):  # type: ignore[no-untyped-def]
-        def view_type(a):  # type: ignore[no-untyped-def]
-            if isinstance(a, types.Array) and a.ndim == 1 and a.layout == "C":
-                return types.Array(a.dtype, ndim, "C")
-            return None
-
-        def typer2(a, offset, rows, cols):  # type: ignore[no-untyped-def]
-            return view_type(a)
-
-        def typer3(a, offset, count, rows, cols):  # type: ignore[no-untyped-def]
-            return view_type(a)
-
-        return typer2 if ndim == 2 else typer3
-
-    @lower_builtin(fn, types.Array, *([types.Integer] * (ndim + 1)))
-    def _lower(context, builder, sig, args):  # type: ignore[no-untyped-def]
-        src = context.make_array(sig.args[0])(context, builder, args[0])
-        out = context.make_array(sig.return_type)(context, builder)
-        pairs = zip(args[1:], sig.args[1:], strict=True)
-        offset, *shape = (context.cast(builder, v, t, types.intp) for v, t in pairs)
-        stride = context.get_constant(types.intp, context.get_abi_sizeof(src.data.type.pointee))
-        strides = [stride]
-        for size in shape[:0:-1]:
-            strides.insert(0, builder.mul(strides[0], size))
-        populate_array(
-            out,
-            data=builder.gep(src.data, [offset]),
-            shape=shape,
-            strides=strides,
-            itemsize=stride,
-            meminfo=src.meminfo,
-            parent=None,
-        )
-        # a new reference to the owner's block when the caller counts references (NRT on);
-        # compiled without NRT the view costs nothing at all
-        return impl_ret_borrowed(context, builder, sig.return_type, out._getvalue())
 
 
 def jit_disabled() -> bool:

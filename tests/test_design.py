@@ -55,6 +55,11 @@ def _models(theta: np.ndarray, form: str, integral: bool) -> tuple[np.ndarray, .
     return A, b, Ad, bd
 
 
+def _lq_config(form: int, integral: bool) -> d.DesignConfig:
+    """The settings of an LQ design with feed-forward and no safe set (no poles)."""
+    return d.DesignConfig(form, integral, True, d.safe_set(), np.zeros(0))
+
+
 def _alpha(poles: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.real(np.poly(poles))[1:])
 
@@ -78,10 +83,8 @@ def test_place_design_matches_acker(form: str, n: int, integral: bool, feedforwa
     m = Ad.shape[0]
     poles = np.linspace(0.2, 0.7, m)
     gain = np.zeros(d.gain_size(n))
-    status = d.place_design(
-        theta, FORMS[form], integral, feedforward, _alpha(poles), d.safe_set(), gain,
-        np.zeros(d.work_size(n)),
-    )  # fmt: skip
+    cfg = d.DesignConfig(FORMS[form], integral, feedforward, d.safe_set(), _alpha(poles))
+    status = d.place_design(theta, cfg, gain, d.design_work(n, integral), 0)
     assert status == d.OK
     K_ref = np.ravel(control.acker(Ad, bd[:, None], poles))
     K = np.r_[gain[:n], gain[n]] if integral else gain[:n]
@@ -118,9 +121,8 @@ def test_place_design_characteristic_polynomial(
     poles = np.r_[half, half.conj(), radius * rng.uniform(-1, 1, m % 2)]
     alpha = _alpha(poles)
     gain = np.zeros(d.gain_size(n))
-    assert d.place_design(
-        theta, FORMS[form], True, True, alpha, d.safe_set(), gain, np.zeros(d.work_size(n))
-    ) == d.OK  # fmt: skip
+    cfg = d.DesignConfig(FORMS[form], True, True, d.safe_set(), alpha)
+    assert d.place_design(theta, cfg, gain, d.design_work(n, True), 0) == d.OK
     K = np.r_[gain[:n], gain[n]]
     char = np.poly(Ad - np.outer(bd, K))
     scale = max(1.0, np.abs(K).max() * np.abs(bd).max())
@@ -130,10 +132,12 @@ def test_place_design_characteristic_polynomial(
 # ------------------------------------------------------------------------------ safe set
 def _status(theta: np.ndarray, safe: np.ndarray, gain: np.ndarray, **kw: object) -> int:
     n = theta.size // 2
-    return d.place_design(
-        theta, kw.get("form", d.OBSERVER), kw.get("integral", True), kw.get("feedforward", True),
-        _alpha(np.full(n + 1, 0.5)), safe, gain, np.zeros(d.work_size(n)),
+    integral = kw.get("integral", True)
+    cfg = d.DesignConfig(
+        kw.get("form", d.OBSERVER), integral, kw.get("feedforward", True), safe,
+        _alpha(np.full(n + 1, 0.5)),
     )  # fmt: skip
+    return d.place_design(theta, cfg, gain, d.design_work(n, integral), 0)
 
 
 def test_safe_set_status_codes_and_last_good_gain_kept() -> None:
@@ -182,12 +186,13 @@ def test_safe_set_rejects_nonsense(kwargs: dict, match: str) -> None:
         d.safe_set(**kwargs)
 
 
-def test_short_work_array_is_an_error_not_garbage() -> None:
+@pytest.mark.parametrize(("n", "integral"), [(1, True), (2, False), (3, True)])
+def test_scratch_of_another_order_is_an_error_not_garbage(n: int, integral: bool) -> None:
     theta = np.array([-1.5, 0.7, 1.0, 0.5])
-    with pytest.raises(ValueError, match="work"):
+    with pytest.raises(ValueError, match="scratch"):
         d.place_design(
-            theta, d.OBSERVER, True, True, _alpha(np.full(3, 0.5)), d.safe_set(),
-            np.zeros(d.gain_size(2)), np.zeros(d.work_size(1)),
+            theta, d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), _alpha(np.full(3, 0.5))),
+            np.zeros(d.gain_size(2)), d.design_work(n, integral), 0,
         )  # fmt: skip
 
 
@@ -209,10 +214,10 @@ def test_lq_solve_and_riccati_iteration_match_dlqr(form: str, n: int, integral: 
     K_ref = np.ravel(K_ref)
     gain = np.zeros(d.gain_size(n))
     P = np.zeros((m, m))
+    cfg = _lq_config(FORMS[form], integral)
     status = d.lq_solve(
-        theta, FORMS[form], integral, True, weights, d.safe_set(), P, gain,
-        np.zeros(d.solve_work_size(n)), 1e-12, 64,
-    )  # fmt: skip
+        theta, cfg, weights, P, gain, d.lq_work(n, integral, solve=True), 0, 1e-12, 64
+    )
     assert status == d.OK
     K = np.r_[gain[:n], gain[n]] if integral else gain[:n]
     np.testing.assert_allclose(K, K_ref, rtol=1e-7, atol=1e-10 * np.abs(K_ref).max())
@@ -223,12 +228,9 @@ def test_lq_solve_and_riccati_iteration_match_dlqr(form: str, n: int, integral: 
     P_it = d.lq_initial_P(n, integral, weights)
     np.testing.assert_array_equal(P_it, Q)
     g_it = np.zeros(d.gain_size(n))
-    work = np.zeros(d.work_size(n))
+    work = d.lq_work(n, integral)
     for _ in range(3000):
-        assert (
-            d.lq_design(theta, FORMS[form], integral, True, weights, d.safe_set(), P_it, g_it, work)
-            == d.OK
-        )
+        assert d.lq_design(theta, cfg, weights, P_it, g_it, work, 0) == d.OK
     np.testing.assert_allclose(g_it, gain, rtol=1e-6, atol=1e-9 * np.abs(gain).max())
 
 
@@ -242,8 +244,8 @@ def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
     P = L @ L.T
     P_ref = P.copy()
     gain = np.zeros(d.gain_size(2))
-    assert d.lq_design(theta, d.OBSERVER, True, True, weights, d.safe_set(), P, gain,
-                       np.zeros(d.work_size(2))) == d.OK  # fmt: skip
+    cfg = _lq_config(d.OBSERVER, True)
+    assert d.lq_design(theta, cfg, weights, P, gain, d.lq_work(2, True), 0) == d.OK
     Q = np.diag([1.0, 0.0, 0.01])
     rho = 0.01
     s = rho + bd @ P_ref @ bd
@@ -259,18 +261,15 @@ def test_lq_not_stabilisable_plant() -> None:
     weights = np.array(d.DEFAULT_LQ_WEIGHTS)
     gain = np.zeros(d.gain_size(2))
     P = np.zeros((3, 3))
-    status = d.lq_solve(
-        theta, d.OBSERVER, True, True, weights, d.safe_set(), P, gain,
-        np.zeros(d.solve_work_size(2)), 1e-12, 64,
-    )  # fmt: skip
+    cfg = _lq_config(d.OBSERVER, True)
+    status = d.lq_solve(theta, cfg, weights, P, gain, d.lq_work(2, True, solve=True), 0, 1e-12, 64)
     assert status == d.NOT_STABILISABLE
     assert not gain.any() and not P.any()
     # the per-step iteration blows up and restarts from Q with NOT_STABILISABLE
     P = d.lq_initial_P(2, True, weights)
     codes = set()
     for _ in range(200):
-        codes.add(d.lq_design(theta, d.OBSERVER, True, True, weights, d.safe_set(rcond_min=0.0),
-                              P, gain, np.zeros(d.work_size(2))))  # fmt: skip
+        codes.add(d.lq_design(theta, cfg, weights, P, gain, d.lq_work(2, True), 0))
         assert np.all(np.isfinite(P)) and np.abs(P).max() <= d.P_MAX
     assert d.NOT_STABILISABLE in codes
 
@@ -285,8 +284,9 @@ def test_lq_solve_ill_conditioned_but_stabilisable() -> None:
     assert np.abs(E).max() < 1
     gain = np.zeros(d.gain_size(2))
     P = np.zeros((3, 3))
-    assert d.lq_solve(theta, d.OBSERVER, True, True, weights, d.safe_set(), P, gain,
-                      np.zeros(d.solve_work_size(2)), 1e-12, 64) == d.OK  # fmt: skip
+    cfg = _lq_config(d.OBSERVER, True)
+    work = d.lq_work(2, True, solve=True)
+    assert d.lq_solve(theta, cfg, weights, P, gain, work, 0, 1e-12, 64) == d.OK
     np.testing.assert_allclose(np.r_[gain[:2], gain[2]], np.ravel(K_ref), rtol=1e-5)
 
 
@@ -379,25 +379,24 @@ def test_batch_loops_equal_the_lane_functions() -> None:
     alpha = _alpha(np.full(4, 0.4))
     gains = np.zeros((6, d.gain_size(3)))
     status = np.zeros(6, dtype=np.int64)
-    d.place_design_lanes(thetas, d.OBSERVER, True, True, alpha, d.safe_set(), gains, status)
+    work = d.design_work(3, True, 6)
+    cfg = d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), alpha)
+    d.place_design_lanes(thetas, cfg, gains, status, work)
     weights = d.lq_weights()
     Ps = np.zeros((6, 4, 4))
     gains_lq = np.zeros((6, d.gain_size(3)))
     status_lq = np.zeros(6, dtype=np.int64)
-    d.lq_solve_lanes(
-        thetas, d.OBSERVER, True, True, weights, d.safe_set(), Ps, gains_lq, status_lq, 1e-12, 64
-    )
+    work_lq = d.lq_work(3, True, 6, solve=True)
+    d.lq_solve_lanes(thetas, cfg, weights, Ps, gains_lq, status_lq, work_lq, 1e-12, 64)
     for i in range(6):
         g = np.zeros(d.gain_size(3))
-        work = np.zeros(d.solve_work_size(3))
-        st_i = d.place_design(thetas[i], d.OBSERVER, True, True, alpha, d.safe_set(), g, work)
+        work = d.lq_work(3, True, solve=True)  # every design reads only its own fields
+        st_i = d.place_design(thetas[i], cfg, g, work, 0)
         assert status[i] == st_i
         np.testing.assert_array_equal(gains[i], g)
         P = np.zeros((4, 4))
         g_lq = np.zeros(d.gain_size(3))
-        st_lq = d.lq_solve(
-            thetas[i], d.OBSERVER, True, True, weights, d.safe_set(), P, g_lq, work, 1e-12, 64
-        )
+        st_lq = d.lq_solve(thetas[i], cfg, weights, P, g_lq, work, 0, 1e-12, 64)
         assert status_lq[i] == st_lq
         np.testing.assert_array_equal(gains_lq[i], g_lq)
         np.testing.assert_array_equal(Ps[i], P)
@@ -411,7 +410,8 @@ def test_kalman_covariance_lanes_match_dlqe(form: str) -> None:
     W = np.stack([1e-4 * np.outer(t[3:], t[3:]) + 1e-6 * np.eye(3) for t in thetas])
     Ps = np.zeros((3, 3, 3))
     status = np.zeros(3, dtype=np.int64)
-    d.kalman_covariance_lanes(thetas, FORMS[form], W, 0.05**2, Ps, status, 1e-12, 64)
+    work = d.dare_work(3, 3)
+    d.kalman_covariance_lanes(thetas, FORMS[form], W, 0.05**2, Ps, status, work, 1e-12, 64)
     assert not status.any()
     for t, Wi, P in zip(thetas, W, Ps, strict=True):
         A = companion_A(t[:3], form)

@@ -21,6 +21,7 @@ from stcgym.adaptive.estimation.least_squares import (
     OK,
     carlson_update,
     least_squares_step,
+    least_squares_work,
     rank_one_update,
     upper_factor,
 )
@@ -100,15 +101,15 @@ def test_generic_least_squares_step_against_the_dense_formulas(p):
     upper_factor(P, S)
     theta = rng.standard_normal(d)
     theta_ref = theta.copy()
-    work = np.zeros(3 * d + p + d * d)
+    work = least_squares_work(d, p)
     for _ in range(50):
         Phi, Y = rng.standard_normal((p, d)), rng.standard_normal(p)
-        assert call(least_squares_step, theta, S, Phi, Y, lam, work) == OK
+        assert call(least_squares_step, theta, S, Phi, Y, lam, work, 0) == OK
         E = Y - Phi @ theta_ref
         L = P @ Phi.T @ np.linalg.inv(lam * np.eye(p) + Phi @ P @ Phi.T)
         P = (P - L @ Phi @ P) / lam
         theta_ref = theta_ref + L @ E
-        np.testing.assert_allclose(work[2 * d : 2 * d + p], E, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(work.E[0], E, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(theta, theta_ref, rtol=1e-9)
     np.testing.assert_allclose(S @ S.T, P, rtol=1e-8, atol=1e-14)
 
@@ -127,11 +128,11 @@ def test_kalman_step_matches_a_textbook_filter(form):
     R = 0.5
     x = rng.standard_normal(n)
     x_ref, P_ref = x.copy(), P1.copy()
-    x_next, L1, work = np.zeros(n), np.zeros(n), np.zeros(2 * n * n)
+    x_next, L1, AP, P_upd = np.zeros(n), np.zeros(n), np.zeros((n, n)), np.zeros((n, n))
     C = np.eye(n)[:1]
     for _ in range(20):
         u, y = rng.standard_normal(2)
-        assert kalman_step(A, theta[n:], P1, Q, R, x, u, y, x_next, L1, work) == 0
+        assert kalman_step(A, theta[n:], P1, Q, R, x, u, y, x_next, L1, AP, P_upd) == 0
         S = (C @ P_ref @ C.T).item() + R
         Kg = (A @ P_ref @ C.T).ravel() / S
         x_ref = A @ x_ref + theta[n:] * u + Kg * (y - x_ref[0])

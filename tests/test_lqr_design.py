@@ -27,10 +27,9 @@ def _solve(A, B, Q, R, N=None):
     N = np.zeros((n, m)) if N is None else np.asarray(N, dtype=float)
     P = np.zeros((n, n))
     K = np.zeros((m, n))
-    work = np.zeros(mimo_lq.design_work_size(n, m))
-    status = mimo_lq.dare_solve(
-        *(np.ascontiguousarray(M, dtype=float) for M in (A, B, Q, R, N)), P, K, work, 1e-12, 64
-    )
+    work = mimo_lq.mimo_design_work(n, m)
+    A, B, Q, R, N = (np.ascontiguousarray(M, dtype=float) for M in (A, B, Q, R, N))
+    status = mimo_lq.dare_solve(A, B, mimo_lq.LQProblem(Q, R, N, 1e-12, 64), P, K, work, 0)
     return status, K, P
 
 
@@ -124,9 +123,10 @@ def test_cross_weight_equals_dlqr(seed):
     # the per-sample Riccati iteration (with N) converges to the same solution
     P_it = Q.copy()
     K_it = np.zeros((m, n))
-    work = np.zeros(mimo_lq.design_work_size(n, m))
+    work = mimo_lq.mimo_design_work(n, m)
+    problem = mimo_lq.LQProblem(Q, R, N, 1e-12, 64)
     for _ in range(5000):
-        call(mimo_lq.riccati_step, A, B, Q, R, N, P_it, K_it, work)
+        call(mimo_lq.riccati_step, A, B, problem, P_it, K_it, work, 0)
     _assert_close(P_it, P_ref, 1e-7)
 
 

@@ -169,10 +169,11 @@ def test_lq_gain_equals_dlqr(seed):
     # the per-sample Riccati iteration converges to the same solution
     P = Q.copy()
     K = np.zeros((m, n))
-    work = np.zeros(mimo_lq.design_work_size(n, m))
+    work = mimo_lq.mimo_design_work(n, m)
+    problem = mimo_lq.LQProblem(Q, R, np.zeros((n, m)), 1e-12, 64)
     for _ in range(3000):
-        call(mimo_lq.riccati_step, A, B, Q, R, np.zeros((n, m)), P, K, work)
-    mimo_lq.lq_gain(A, B, R, np.zeros((n, m)), P, K, work)
+        call(mimo_lq.riccati_step, A, B, problem, P, K, work, 0)
+    mimo_lq.lq_gain(A, B, problem, P, K, work, 0)
     np.testing.assert_allclose(P, P_ref, rtol=1e-7)
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9)
 
@@ -217,11 +218,11 @@ def test_oracle_lanes_take_their_own_matrices():
 
 
 def test_stability_test_by_squaring():
-    work = np.zeros(mimo_lq.design_work_size(2, 1))
-    assert call(mimo_lq.schur_stable, np.array([[0.999, 1e3], [0.0, 0.5]]), work)
-    assert not call(mimo_lq.schur_stable, np.array([[1.001, 0.0], [0.0, 0.1]]), work)
-    assert not call(mimo_lq.schur_stable, np.array([[1.0, 1.0], [0.0, 1.0]]), work)
-    assert not call(mimo_lq.schur_stable, np.array([[np.nan, 0.0], [0.0, 0.1]]), work)
+    work = mimo_lq.mimo_design_work(2, 1)
+    assert call(mimo_lq.schur_stable, np.array([[0.999, 1e3], [0.0, 0.5]]), work, 0)
+    assert not call(mimo_lq.schur_stable, np.array([[1.001, 0.0], [0.0, 0.1]]), work, 0)
+    assert not call(mimo_lq.schur_stable, np.array([[1.0, 1.0], [0.0, 1.0]]), work, 0)
+    assert not call(mimo_lq.schur_stable, np.array([[np.nan, 0.0], [0.0, 0.1]]), work, 0)
 
 
 # ------------------------------------------------------------------ closed loop

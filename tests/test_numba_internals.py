@@ -110,36 +110,6 @@ def test_entry_point_runs_the_code_compiled_for_the_given_types():
     assert len(compiled.signatures) == 1
 
 
-def _views_of(view, a, offset, rows, cols):
-    M = view(a, offset, rows, cols)
-    for i in range(rows):
-        for j in range(cols):
-            M[i, j] = 10.0 * i + j
-    return M.shape[0] * 100 + M.shape[1], M.strides[0], M.strides[1]
-
-
-@pytest.mark.parametrize("nrt", [False, True])
-def test_registered_view_is_a_c_ordered_view_that_writes_through(nrt):
-    """:func:`register_view` lowers ``fn(a, offset, rows, cols)`` as the C-ordered matrix at
-    ``a[offset:]`` (``populate_array``), with or without the reference-counting runtime."""
-
-    def view(a, offset, rows, cols):
-        return a[offset : offset + rows * cols].reshape((rows, cols))
-
-    ni.register_view(view, 2)
-
-    def run(a, offset, rows, cols):
-        return _views_of_compiled(view, a, offset, rows, cols)
-
-    _views_of_compiled = numba.njit(_views_of)
-    compiled = ni.dispatcher(run, {}, nrt=nrt, helper=False, cache=False)
-    a = np.full(12, -1.0)
-    shape, s0, s1 = compiled(a, 2, 3, 3)
-    assert (shape, s0, s1) == (303, 24, 8)
-    np.testing.assert_array_equal(a[2:11].reshape(3, 3), [[0, 1, 2], [10, 11, 12], [20, 21, 22]])
-    assert np.all(a[:2] == -1.0) and np.all(a[11:] == -1.0)
-
-
 def test_compile_events_reach_a_listener():
     """:func:`listen_to_compiles`: numba's ``numba:compile`` events, ``on_start`` and
     ``on_end`` once per compile, with the dispatcher in ``data["dispatcher"]``."""

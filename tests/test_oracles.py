@@ -262,7 +262,7 @@ def test_pickle_and_deepcopy_continue_identically(make, clone) -> None:
 
 
 def _state(orc) -> bytes:
-    return pickle.dumps((orc._F, orc._a, orc._b))
+    return pickle.dumps((orc._state, orc._a, orc._b))
 
 
 @pytest.mark.parametrize(

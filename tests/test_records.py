@@ -1,4 +1,4 @@
-"""Lane-record views and the no-allocation rule of lane functions (stcgym.envs.compiled)."""
+"""Named lane state and the no-allocation rule of lane functions (stcgym.envs.compiled)."""
 
 from __future__ import annotations
 
@@ -13,44 +13,8 @@ from hypothesis import strategies as st
 from lane_call import call
 
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
-from stcgym.envs.compiled import FixedTypes, Layout, lane
-
-
-@lane(entry=True)
-def _write_through_views(a, offset, count, rows, cols):
-    """Write k * 1000 + i * 10 + j through view3d and read it back through view2d."""
-    M = view3d(a, offset, count, rows, cols)
-    for k in range(count):
-        for i in range(rows):
-            for j in range(cols):
-                M[k, i, j] = k * 1000.0 + i * 10.0 + j
-    total = 0.0
-    for k in range(count):
-        V = view2d(a, offset + k * rows * cols, rows, cols)
-        for i in range(rows):
-            for j in range(cols):
-                total += V[i, j]
-    return total
-
-
-@settings(max_examples=30, deadline=None)
-@given(
-    st.integers(0, 5), st.integers(1, 3), st.integers(1, 4), st.integers(1, 4), st.integers(0, 3)
-)
-def test_compiled_views_are_the_numpy_reshape(offset, count, rows, cols, tail):
-    size = offset + count * rows * cols + tail
-    a = np.full(size, -1.0)
-    total = _write_through_views(a, offset, count, rows, cols)
-    expected = np.fromfunction(lambda k, i, j: k * 1000.0 + i * 10.0 + j, (count, rows, cols))
-    # the compiled views wrote exactly the C-ordered block at offset, nothing around it
-    np.testing.assert_array_equal(
-        a[offset : offset + count * rows * cols].reshape(count, rows, cols), expected
-    )
-    assert np.all(a[:offset] == -1.0) and np.all(a[offset + count * rows * cols :] == -1.0)
-    assert total == expected.sum()
-    # the uncompiled definitions are numpy's reshape of the same block
-    np.testing.assert_array_equal(view3d(a, offset, count, rows, cols), expected)
+from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
+from stcgym.envs.compiled import FixedTypes, lane, lane_state
 
 
 def test_copies_write_every_entry():
@@ -100,51 +64,42 @@ def test_a_lane_function_that_allocates_does_not_compile():
 
 
 class _Pair(NamedTuple):
-    S: int
-    theta: int
+    S: np.ndarray
+    theta: np.ndarray
 
 
 @lane(entry=True)
-def _read_by_name(f, at, d):
-    """``sum(theta) + 100 * S[d - 1, d - 1]`` read through the record's field names."""
-    theta = f[at.theta : at.theta + d]
-    S = view2d(f, at.S, d, d)
+def _read_by_name(s, lane):
+    """``sum(theta) + 100 * S[d - 1, d - 1]`` of lane ``lane``, read by the fields' names."""
+    theta = s.theta[lane]
+    S = s.S[lane]
+    d = theta.size
     acc = 0.0
     for i in range(d):
         acc += theta[i]
     return acc + 100.0 * S[d - 1, d - 1]
 
 
-@pytest.mark.parametrize("base", [0, 3])
-def test_named_record_reads_the_fields_the_layout_places(base):
-    lay = Layout()
-    lay.add("scratch", (2,))
-    lay.add("theta", (3,))
-    lay.add("S", (3, 3))
-    at = lay.record(_Pair, base)
-    assert at == _Pair(S=base + 5, theta=base + 2)
-    rec = np.zeros((1, base + lay.size))
-    lay.view(rec[:, base:], "theta")[0] = [1.0, 2.0, 4.0]
-    lay.view(rec[:, base:], "S")[0] = np.diag([7.0, 8.0, 9.0])
-    assert _read_by_name(rec[0], at, 3) == 907.0
-    only_S = Layout()
-    only_S.add("S", (1, 1))
-    with pytest.raises(ValueError, match=r"\['theta'\] of _Pair"):
-        only_S.record(_Pair)
+def test_lane_state_rows_are_read_by_name():
+    s = lane_state(_Pair, {"theta": (3,), "S": (3, 3)}, 2)
+    s.theta[1] = [1.0, 2.0, 4.0]
+    s.S[1] = np.diag([7.0, 8.0, 9.0])
+    assert _read_by_name(s, 1) == 907.0
+    assert _read_by_name(s, 0) == 0.0
+    with pytest.raises(ValueError, match="exactly the fields of _Pair"):
+        lane_state(_Pair, {"S": (1, 1)}, 1)
 
 
 def test_fixed_types_calls_the_same_compiled_code():
-    lay = Layout()
-    lay.add("theta", (2,))
-    lay.add("S", (2, 2))
-    at = lay.record(_Pair)
-    rec = np.arange(lay.size, dtype=float)
+    s = lane_state(_Pair, {"theta": (2,), "S": (2, 2)}, 1)
+    s.theta[0] = [0.0, 1.0]
+    s.S[0] = [[2.0, 3.0], [4.0, 5.0]]
     step = FixedTypes(_read_by_name)
     assert step.entry is None
-    assert step(rec, at, 2) == _read_by_name(rec, at, 2) == 0.0 + 1.0 + 100.0 * 5.0
+    assert step(s, 0) == _read_by_name(s, 0) == 0.0 + 1.0 + 100.0 * 5.0
     assert step.entry is not None
-    rec[1] = 7.0  # the looked-up overload reads the current values
-    assert step(rec, at, 2) == 507.0
+    s.theta[0, 1] = 7.0  # the looked-up overload reads the current values
+    assert step(s, 0) == 507.0
 
 
 def test_a_lane_helper_called_from_python_raises_and_runs_through_a_compiled_caller() -> None:

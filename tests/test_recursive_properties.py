@@ -12,6 +12,7 @@ from lane_call import call
 from stcgym.adaptive.estimation.least_squares import (
     least_squares_downdate,
     least_squares_step,
+    least_squares_work,
     upper_factor,
 )
 from stcgym.adaptive.estimation.recursive import is_schur_stable, make_estimator
@@ -166,17 +167,17 @@ def test_finite_history_rule_is_windowed_least_squares(d, p, W, T, seed):
     assert upper_factor(5.0 * np.eye(dim), S)
     theta0 = rng.standard_normal(dim)
     theta = theta0.copy()
-    work = np.zeros(3 * dim + p + dim * dim)
+    work = least_squares_work(dim, p, window=True)
     blocks = []
     for _ in range(T):
         Phi, Y = rng.standard_normal((p, dim)), rng.standard_normal(p)
-        assert call(least_squares_step, theta, S, Phi, Y, 1.0, work) == 0
+        assert call(least_squares_step, theta, S, Phi, Y, 1.0, work, 0) == 0
         blocks.append((Phi, Y))
         if len(blocks) > W:
             old_Phi, old_Y = blocks[-W - 1]
             # an ill-conditioned downdate is refused (S, theta untouched); the estimator then
             # recomputes the window, here the test just skips the example
-            if call(least_squares_downdate, theta, S, old_Phi, old_Y, work) != 0:
+            if call(least_squares_downdate, theta, S, old_Phi, old_Y, work, 0) != 0:
                 return
     H = np.vstack([Phi for Phi, _ in blocks[-W:]])
     Yw = np.concatenate([Y for _, Y in blocks[-W:]])

@@ -283,7 +283,7 @@ class SelfTuningController(SelfTuningLanes):
         )
         if self._spec is None:
             # extended least squares (est_cfg None: the step compiled for it contains no paper
-            # estimator, and els_cfg None none of ELS, kernels.controller)
+            # estimator, and els_cfg None none of ELS, controller_step)
             self._est_init, _ = make_extended_ls(n, 1, self.p0)
             self._est, self._est_work = make_extended_ls(n, self.B, self.p0)
             self._est_cfg = None

@@ -45,9 +45,9 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.control.extended_ls import extended_ls_push, extended_ls_update
 from stcgym.adaptive.control.law import track
-from stcgym.adaptive.control.lq import lq_design
+from stcgym.adaptive.control.lq import lq_design, lq_work
 from stcgym.adaptive.control.pole_placement import place_design
-from stcgym.adaptive.control.safe_set import OK, gain_size, work_size
+from stcgym.adaptive.control.safe_set import OK, design_work, gain_size
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
@@ -84,8 +84,6 @@ class ControllerState(NamedTuple):
     x_next: NDArray  # the time update's x(t+1|t) (n)
     L1: NDArray  # the filter's gain (n)
     Q: NDArray  # its process noise Q(t) (n, n)
-    A: NDArray  # the model in force A_hat(t) (n, n)
-    b: NDArray  # b_hat(t) (n)
     gain: NDArray  # the last accepted gain record [K_x (n), k_i, N, rcond] (n + 3)
     has_gain: NDArray  # a design has been accepted since the reset (bool)
     P_lq: NDArray  # Riccati matrix of the LQ design (m, m; (0, 0) for pole placement)
@@ -109,8 +107,10 @@ class ControllerState(NamedTuple):
 class ControllerWork(NamedTuple):
     """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
 
-    design: NDArray  # the design's scratch (safe_set.work_size(n))
-    kalman: NDArray  # the Kalman time update's scratch (2 n^2)
+    design: Any  # the design's scratch: a safe_set.DesignWork (pole placement) or lq.LQWork;
+    # its model A, b of theta_hat(t) is also the Kalman filter's (step 4)
+    AP: NDArray  # the Kalman time update's A P1 (n, n)
+    P_upd: NDArray  # its P1(t+1) until it is accepted (n, n)
 
 
 #: The integer fields of :class:`ControllerState` (the counters; the others are float64
@@ -128,18 +128,19 @@ def controller_shapes(
 ) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
     """The shapes of one lane's :class:`ControllerState` and :class:`ControllerWork` fields for
     order ``n``: the one place they are declared (``m = n + integral``; ``lq=False`` leaves
-    out the Riccati matrix of the LQ design)."""
+    out the Riccati matrix of the LQ design). The design's scratch ``ControllerWork.design``
+    is the design's own (:func:`.safe_set.design_shapes`, :func:`.lq.lq_shapes`)."""
     n = int(n)
     m = n + int(bool(integral))
     state: dict[str, tuple[int, ...]] = {
-        **dict.fromkeys(("x", "xf", "x_next", "L1", "b"), (n,)),
-        **dict.fromkeys(("P1", "Q", "A"), (n, n)),
+        **dict.fromkeys(("x", "xf", "x_next", "L1"), (n,)),
+        **dict.fromkeys(("P1", "Q"), (n, n)),
         "gain": (gain_size(n),),
         "P_lq": (m, m) if lq else (0, 0),
     }
     for scalar in ControllerState._fields:
         state.setdefault(scalar, ())
-    work = {"design": (work_size(n),), "kalman": (2 * n * n,)}
+    work = dict.fromkeys(("AP", "P_upd"), (n, n))
     return state, work
 
 
@@ -148,9 +149,10 @@ def make_controller_state(
 ) -> tuple[ControllerState, ControllerWork]:
     """A zeroed :class:`ControllerState` of ``num_lanes`` lanes and their scratch."""
     shapes, work = controller_shapes(n, integral, lq)
+    design = lq_work(n, integral, num_lanes) if lq else design_work(n, integral, num_lanes)
     return (
         lane_state(ControllerState, shapes, num_lanes, _DTYPES),
-        lane_state(ControllerWork, work, num_lanes),
+        ControllerWork(design, **{f: np.zeros((num_lanes, *shape)) for f, shape in work.items()}),
     )
 
 
@@ -310,23 +312,18 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
     gain = s.gain[lane]
     if lq_weights is None:
-        status = place_design(
-            theta, cfg.form, cfg.integral, cfg.feedforward, cfg.alpha, cfg.safe, gain,
-            w.design[lane],
-        )  # fmt: skip
+        status = place_design(theta, cfg, gain, w.design, lane)
     else:
-        status = lq_design(
-            theta, cfg.form, cfg.integral, cfg.feedforward, lq_weights, cfg.safe,
-            s.P_lq[lane], gain, w.design[lane],
-        )  # fmt: skip
+        status = lq_design(theta, cfg, lq_weights, s.P_lq[lane], gain, w.design, lane)
     s.last_reason[lane] = status
     if status == OK:
         s.has_gain[lane] = True
     else:
         s.n_rejected[lane] += 1
-    # -- 4. state estimate x(t|t): Kalman filter on the estimated model
-    A = s.A[lane]
-    b = s.b[lane]
+    # -- 4. state estimate x(t|t): Kalman filter on the estimated model (built by the design
+    # too, when the design got that far: the same numbers)
+    A = w.design.A[lane]
+    b = w.design.b[lane]
     model_matrices(theta, cfg.form, A, b)
     x = s.x[lane]
     P1 = s.P1[lane]
@@ -339,7 +336,7 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
     Q = s.Q[lane]
     process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
     x_next = s.x_next[lane]
-    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[lane], w.kalman[lane]) == 0:
+    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[lane], w.AP[lane], w.P_upd[lane]) == 0:
         for i in range(n):
             x[i] = x_next[i]
     else:  # numerical trouble in the filter: back to x(1) = 0, P1(1) = I (counted)

@@ -11,7 +11,7 @@ lanes. Each piece has one home:
   integral augmentation;
 * :mod:`.linalg` -- the small dense linear algebra the designs use;
 * :mod:`.safe_set` -- the safe set every design passes (status codes, ``safe_set()``), the gain
-  record it writes on success and the design scratch (``work_size``, ``solve_work_size``);
+  record it writes on success and the designs' scratch (``DesignWork``, ``design_work``);
 * :mod:`.pole_placement` -- Ackermann's formula (``place_design``, ``ackermann_gain``);
 * :mod:`.lq` -- the one-step and solved LQ designs, the DARE, the steady-state Kalman
   covariance;
@@ -26,19 +26,24 @@ working.
 from __future__ import annotations
 
 from stcgym.adaptive.control.known_model import (
-    OracleRecord,
+    OracleProposal,
+    OracleState,
     known_model_commit,
     known_model_commit_lanes,
     known_model_propose,
     known_model_propose_lanes,
-    oracle_scratch_size,
+    make_oracle_state,
 )
-from stcgym.adaptive.control.law import LAW, LAW_SIZE, LawState, track
+from stcgym.adaptive.control.law import track
 from stcgym.adaptive.control.lq import (
     DEFAULT_LQ_WEIGHTS,
     P_MAX,
+    DareWork,
+    LQSolveWork,
     LQWeights,
+    LQWork,
     dare,
+    dare_work,
     kalman_covariance,
     kalman_covariance_lanes,
     lq_design,
@@ -46,6 +51,7 @@ from stcgym.adaptive.control.lq import (
     lq_solve,
     lq_solve_lanes,
     lq_weights,
+    lq_work,
 )
 from stcgym.adaptive.control.pole_placement import (
     ackermann_gain,
@@ -64,12 +70,13 @@ from stcgym.adaptive.control.safe_set import (
     RCOND_FLOOR,
     STATUS_NAMES,
     UNCONTROLLABLE,
+    DesignConfig,
+    DesignWork,
     SafeSetBounds,
+    design_work,
     gain_size,
     safe_set,
-    solve_work_size,
     steady_state,
-    work_size,
 )
 from stcgym.adaptive.estimation.state_estimation import filtered_state
 from stcgym.adaptive.kernels.canonical import (
@@ -85,8 +92,6 @@ __all__ = [
     "DC_SINGULAR",
     "DEFAULT_LQ_WEIGHTS",
     "GAIN_LARGE",
-    "LAW",
-    "LAW_SIZE",
     "NONFINITE",
     "NOT_CONVERGED",
     "NOT_STABILISABLE",
@@ -97,12 +102,19 @@ __all__ = [
     "RCOND_FLOOR",
     "STATUS_NAMES",
     "UNCONTROLLABLE",
+    "DesignConfig",
+    "DesignWork",
+    "DareWork",
+    "LQSolveWork",
     "LQWeights",
-    "LawState",
-    "OracleRecord",
+    "LQWork",
+    "OracleProposal",
+    "OracleState",
     "SafeSetBounds",
     "ackermann_gain",
     "dare",
+    "design_work",
+    "dare_work",
     "filtered_state",
     "gain_size",
     "kalman_covariance",
@@ -116,14 +128,13 @@ __all__ = [
     "lq_solve",
     "lq_solve_lanes",
     "lq_weights",
+    "lq_work",
+    "make_oracle_state",
     "model_matrices",
     "model_matrices_lanes",
-    "oracle_scratch_size",
     "place_design",
     "place_design_lanes",
     "safe_set",
-    "solve_work_size",
     "steady_state",
     "track",
-    "work_size",
 ]

@@ -33,13 +33,18 @@ canonical form (the controller designs on it; it converts to the env's form for 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.estimation.least_squares import OK, least_squares_step
-from stcgym.envs.compiled import lane, lane_state
+from stcgym.adaptive.estimation.least_squares import (
+    OK,
+    LeastSquaresWork,
+    least_squares_shapes,
+    least_squares_step,
+)
+from stcgym.envs.compiled import fields_of, lane, lane_state, make_work
 
 __all__ = [
     "ExtendedLSConfig",
@@ -68,11 +73,18 @@ class ExtendedLSConfig(NamedTuple):
     p0: float  # P(0) = p0 I, and P after numerical trouble
 
 
-class ExtendedLSWork(NamedTuple):
-    """The ELS scratch, one row a lane (its content is irrelevant between calls)."""
+class ExtendedLSStepWork(NamedTuple):
+    """The ELS step's own scratch."""
 
-    ls: NDArray  # least_squares_step's work (3 d + 1)
     Y: NDArray  # y(t) as the one entry of the block Y(1, t) (1)
+
+
+#: The ELS scratch, one row a lane (its content is irrelevant between calls): the fields of
+#: :class:`ExtendedLSStepWork` and of the least-squares step's
+#: :class:`~stcgym.adaptive.estimation.least_squares.LeastSquaresWork`.
+ExtendedLSWork = NamedTuple(  # type: ignore[misc]
+    "ExtendedLSWork", fields_of(ExtendedLSStepWork, LeastSquaresWork)
+)
 
 
 def extended_ls_shapes(
@@ -82,19 +94,19 @@ def extended_ls_shapes(
     ``d = 3n`` (``2n`` without ``c``): the one place they are declared."""
     d = (3 if with_c else 2) * int(n)
     state = {"theta": (d,), "S": (d, d), "Phi": (1, d)}
-    work = {"ls": (3 * d + 1,), "Y": (1,)}
+    work = {"Y": (1,), **least_squares_shapes(d, 1)}
     return state, work
 
 
 def make_extended_ls(
     n: int, num_lanes: int, p0: float, with_c: bool = True
-) -> tuple[ExtendedLSState, ExtendedLSWork]:
+) -> tuple[ExtendedLSState, Any]:
     """The state of ``num_lanes`` lanes at ``t = 0`` and their scratch: ``theta(0) = 0``,
     ``P(0) = p0 I`` (``S = sqrt(p0) I``), ``phi(1) = 0`` (every signal zero before t = 1)."""
     shapes, work_shapes = extended_ls_shapes(n, with_c)
     state = lane_state(ExtendedLSState, shapes, num_lanes)
     state.S[:] = np.sqrt(p0) * np.eye(shapes["S"][0])
-    return state, lane_state(ExtendedLSWork, work_shapes, num_lanes)
+    return state, make_work(ExtendedLSWork, work_shapes, num_lanes)
 
 
 @lane(inline=True)
@@ -109,17 +121,16 @@ def extended_ls_update(els, work, lane, y, lam, p0):
     theta = els.theta[lane]
     S = els.S[lane]
     Phi = els.Phi[lane]
-    ls = work.ls[lane]
     Y = work.Y[lane]
     d = theta.size
     Y[0] = y
-    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, ls) != OK:
+    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, work, lane) != OK:
         e = y
         for i in range(d):
             e -= Phi[0, i] * theta[i]
         extended_ls_restart(theta, S, p0)
         return e, e
-    e = ls[2 * d]  # the innovation E(1, t) with theta(t-1), left there by the step
+    e = work.E[lane][0]  # the innovation E(1, t) with theta(t-1), left there by the step
     eps = y
     for i in range(d):
         eps -= Phi[0, i] * theta[i]

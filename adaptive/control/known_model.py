@@ -1,134 +1,188 @@
 """The known-model controllers' step (the oracles of :mod:`stcgym.adaptive.control.oracles`).
 
-``known_model_propose(f, at, n, s, y, r, filtered, integral, anti_windup, action_bound) -> int``
+``known_model_propose(s, p, lane, y, r, filtered, integral, anti_windup, action_bound) -> int``
 computes one step (Kalman correction, the tracking law :func:`~.law.track`, Kalman prediction)
-of the lane record ``f`` (fields :class:`OracleRecord`, offsets ``at``) into the proposal buffer
-``s`` (``oracle_scratch_size(n)`` floats) without touching ``f``;
-``known_model_commit(f, at, n, s) -> u`` makes it the state. The batch loops
-``known_model_propose_lanes`` / ``known_model_commit_lanes`` let a batched ``predict`` reject a
-step atomically (no lane changes unless every lane's proposal is finite).
+of lane ``lane`` of the lane state ``s`` (:class:`OracleState`) into the proposal ``p``
+(:class:`OracleProposal`) without touching ``s``; ``known_model_commit(s, p, lane) -> u`` makes
+it the state. Both are named tuples of batched arrays (lane ``i``'s field ``f`` is ``s.f[i]``;
+shapes in :func:`oracle_shapes`). The batch loops ``known_model_propose_lanes`` /
+``known_model_commit_lanes`` let a batched ``predict`` reject a step atomically (no lane changes
+unless every lane's proposal is finite).
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
-from stcgym.adaptive.control.law import LAW, LAW_SIZE, track
+import numpy as np
+from numpy.typing import NDArray
+
+from stcgym.adaptive.control.law import track
+from stcgym.adaptive.control.safe_set import gain_size
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
-from stcgym.adaptive.kernels.records import view2d
-from stcgym.envs.compiled import lane, lanes
+from stcgym.adaptive.kernels.linalg import all_finite
+from stcgym.envs.compiled import lane, lane_state, lanes
 
 __all__ = [
-    "OracleRecord",
+    "OracleProposal",
+    "OracleState",
     "known_model_commit",
     "known_model_commit_lanes",
     "known_model_propose",
     "known_model_propose_lanes",
-    "oracle_scratch_size",
+    "make_oracle_state",
+    "oracle_shapes",
 ]
 
 
-class OracleRecord(NamedTuple):
-    """Offsets of a known-model oracle's lane record (built with
-    :meth:`stcgym.envs.compiled.Layout.record` by :mod:`stcgym.adaptive.control.oracles`)."""
+class OracleState(NamedTuple):
+    """A known-model oracle's lane state: field ``f`` of lane ``i`` is ``state.f[i]`` (shapes in
+    :func:`oracle_shapes`)."""
 
-    A: int  # (n, n) model in force
-    b: int  # (n,)
-    Q: int  # (n, n) Kalman filter process-noise covariance
-    R: int  # ()     Kalman filter measurement-noise variance
-    x: int  # (n,)   x(t|t-1)
-    x_filt: int  # (n,) x(t|t)
-    P: int  # (n, n) P(t) of the filter
-    innov: int  # () last innovation
-    gain: int  # (n + 3,) gain record
-    law: int  # (3,)  tracking-law state
-    t: int  # ()     steps taken
+    A: NDArray  # the model in force (n, n)
+    b: NDArray  # (n,)
+    Q: NDArray  # the Kalman filter's process-noise covariance (n, n)
+    R: NDArray  # its measurement-noise variance
+    x: NDArray  # x(t|t-1) (n,)
+    x_filt: NDArray  # x(t|t) (n,)
+    P: NDArray  # the filter's P(t) (n, n)
+    innov: NDArray  # the last innovation
+    gain: NDArray  # the gain record [K_x (n), k_i, N, rcond] (n + 3,)
+    xi: NDArray  # the tracking law's integrator xi(t)
+    saturated: NDArray  # the last input was saturated (bool)
+    u_unsat: NDArray  # the last input before saturation
+    t: NDArray  # steps taken (int)
+    A0: NDArray  # the initial values a reset restores: A, b, Q, P, gain
+    b0: NDArray
+    Q0: NDArray
+    P0: NDArray
+    gain0: NDArray
 
 
-def oracle_scratch_size(n: int) -> int:
-    """Per-lane proposal buffer of :func:`known_model_propose`: ``[x (n), x_filt (n), P (n^2),
-    innov, law (3), u, L1 (n)]`` followed by ``2 n^2`` floats of work."""
+class OracleProposal(NamedTuple):
+    """One step of :func:`known_model_propose`, made the state by :func:`known_model_commit`:
+    one row a lane (shapes in :func:`oracle_shapes`)."""
+
+    x: NDArray  # x(t+1|t) (n,)
+    x_filt: NDArray  # x(t|t) (n,)
+    P: NDArray  # P(t+1) (n, n)
+    innov: NDArray  # the innovation of y(t)
+    xi: NDArray  # xi(t+1)
+    saturated: NDArray  # u(t) saturated (bool)
+    u_unsat: NDArray  # u(t) before saturation
+    u: NDArray  # u(t)
+    L1: NDArray  # the filter's gain (n,)
+    AP: NDArray  # the Kalman time update's A P1 (n, n)
+    P_upd: NDArray  # its P1(t+1) until it is accepted (n, n)
+
+
+#: The fields of :class:`OracleState` that are not float64.
+_DTYPES: dict[str, Any] = {"t": np.int64, "saturated": np.bool_}
+
+
+def oracle_shapes(n: int) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """The shapes of one lane's :class:`OracleState` and :class:`OracleProposal` fields for
+    order ``n``: the one place they are declared."""
     n = int(n)
-    return 3 * n + 3 * n * n + 5
+    state: dict[str, tuple[int, ...]] = {
+        **dict.fromkeys(("A", "Q", "P", "A0", "Q0", "P0"), (n, n)),
+        **dict.fromkeys(("b", "x", "x_filt", "b0"), (n,)),
+        **dict.fromkeys(("gain", "gain0"), (gain_size(n),)),
+    }
+    for scalar in OracleState._fields:
+        state.setdefault(scalar, ())
+    proposal: dict[str, tuple[int, ...]] = {
+        **dict.fromkeys(("x", "x_filt", "L1"), (n,)),
+        **dict.fromkeys(("P", "AP", "P_upd"), (n, n)),
+    }
+    for scalar in OracleProposal._fields:
+        proposal.setdefault(scalar, ())
+    return state, proposal
+
+
+def make_oracle_state(n: int, num_lanes: int) -> tuple[OracleState, OracleProposal]:
+    """A zeroed :class:`OracleState` of ``num_lanes`` lanes and their proposal."""
+    state, proposal = oracle_shapes(n)
+    return (
+        lane_state(OracleState, state, num_lanes, _DTYPES),
+        lane_state(OracleProposal, proposal, num_lanes, _DTYPES),
+    )
 
 
 @lane(entry=True)
-def known_model_propose(f, at, n, s, y, r, filtered, integral, anti_windup, action_bound):
-    """One step of a known-model controller, written to the proposal buffer ``s`` only.
+def known_model_propose(s, p, lane, y, r, filtered, integral, anti_windup, action_bound):
+    """One step of a known-model controller, written to lane ``lane`` of the proposal ``p``.
 
     The Kalman correction with ``y(t)`` (:func:`filtered_state`), the tracking law on ``x(t|t)``
     (``filtered``) or ``x(t|t-1)`` (:func:`track`), the Kalman time update with the applied
     ``u(t)`` (:func:`kalman_step`). Returns 0 when everything proposed is finite (then
-    :func:`known_model_commit` makes it the state), 1 otherwise; the record ``f`` is only read.
+    :func:`known_model_commit` makes it the state), 1 otherwise; the state ``s`` is only read.
     """
-    A = view2d(f, at.A, n, n)
-    b = f[at.b : at.b + n]
-    Q = view2d(f, at.Q, n, n)
-    R = f[at.R]
-    x = f[at.x : at.x + n]
-    P = view2d(f, at.P, n, n)
-    gain = f[at.gain : at.gain + n + 3]
-    law = f[at.law : at.law + LAW_SIZE]
-    k = 2 * n + n * n
-    x_next = s[0:n]
-    x_filt = s[n : 2 * n]
-    P_next = view2d(s, 2 * n, n, n)
-    law_next = s[k + 1 : k + 4]
-    L1 = s[k + 5 : k + 5 + n]
-    work = s[k + 5 + n : k + 5 + n + 2 * n * n]
+    x = s.x[lane]
+    P = s.P[lane]
+    R = s.R[lane]
+    x_next = p.x[lane]
+    x_filt = p.x_filt[lane]
+    P_next = p.P[lane]
     innov = filtered_state(x, P, R, y, x_filt)
     xc = x_filt if filtered else x
     # a known model always has a gain (its design must succeed)
     u, xi, saturated, u_unsat = track(
-        gain, True, law[LAW.xi], xc, y, r, 0.0, action_bound, integral, anti_windup
+        s.gain[lane], True, s.xi[lane], xc, y, r, 0.0, action_bound, integral, anti_windup
     )
-    law_next[LAW.xi] = xi
-    law_next[LAW.saturated] = 1.0 if saturated else 0.0
-    law_next[LAW.u_unsat] = u_unsat
-    for i in range(n):
-        for j in range(n):
+    p.xi[lane] = xi
+    p.saturated[lane] = saturated
+    p.u_unsat[lane] = u_unsat
+    for i in range(P.shape[0]):
+        for j in range(P.shape[1]):
             P_next[i, j] = P[i, j]
-    kf_status = kalman_step(A, b, P_next, Q, R, x, u, y, x_next, L1, work)
-    s[k] = innov
-    s[k + 4] = u
+    kf_status = kalman_step(
+        s.A[lane], s.b[lane], P_next, s.Q[lane], R, x, u, y, x_next, p.L1[lane], p.AP[lane],
+        p.P_upd[lane],
+    )  # fmt: skip
+    p.innov[lane] = innov
+    p.u[lane] = u
     if kf_status != 0:
         return 1
-    for i in range(k + 5):
-        if not math.isfinite(s[i]):
-            return 1
-    return 0
+    finite = all_finite(x_next) and all_finite(x_filt) and all_finite(P_next)
+    for v in (innov, xi, u_unsat, u):
+        finite = finite and math.isfinite(v)
+    return 0 if finite else 1
 
 
 @lane(entry=True)
-def known_model_commit(f, at, n, s):
-    """Make the proposal ``s`` of :func:`known_model_propose` the lane's state; returns ``u``."""
-    k = 2 * n + n * n
-    for i in range(n):
-        f[at.x + i] = s[i]
-        f[at.x_filt + i] = s[n + i]
-    for i in range(n * n):
-        f[at.P + i] = s[2 * n + i]
-    f[at.innov] = s[k]
-    for i in range(LAW_SIZE):
-        f[at.law + i] = s[k + 1 + i]
-    f[at.t] += 1.0
-    return s[k + 4]
+def known_model_commit(s, p, lane):
+    """Make lane ``lane`` of the proposal ``p`` of :func:`known_model_propose` the lane's state;
+    returns ``u``."""
+    x, x_filt, P = s.x[lane], s.x_filt[lane], s.P[lane]
+    x_next, x_filt_next, P_next = p.x[lane], p.x_filt[lane], p.P[lane]
+    for i in range(x.size):
+        x[i] = x_next[i]
+        x_filt[i] = x_filt_next[i]
+        for j in range(x.size):
+            P[i, j] = P_next[i, j]
+    s.innov[lane] = p.innov[lane]
+    s.xi[lane] = p.xi[lane]
+    s.saturated[lane] = p.saturated[lane]
+    s.u_unsat[lane] = p.u_unsat[lane]
+    s.t[lane] += 1
+    return p.u[lane]
 
 
 @lanes
 def known_model_propose_lanes(
-    F, at, n, S, y, r, filtered, integral, anti_windup, action_bound, status, first, last
+    s, p, y, r, filtered, integral, anti_windup, action_bound, status, first, last
 ):
-    """Batch of :func:`known_model_propose` (lane ``i``: record ``F[i]``, buffer ``S[i]``)."""
+    """Batch of :func:`known_model_propose` (lane ``i``: ``y[i]``, ``r[i]``, ``status[i]``)."""
     for i in range(first, last):
         status[i] = known_model_propose(
-            F[i], at, n, S[i], y[i], r[i], filtered, integral, anti_windup, action_bound
+            s, p, i, y[i], r[i], filtered, integral, anti_windup, action_bound
         )
 
 
 @lanes
-def known_model_commit_lanes(F, at, n, S, u, first, last):
+def known_model_commit_lanes(s, p, u, first, last):
     """Batch of :func:`known_model_commit`; writes the applied inputs into ``u``."""
     for i in range(first, last):
-        u[i] = known_model_commit(F[i], at, n, S[i])
+        u[i] = known_model_commit(s, p, i)

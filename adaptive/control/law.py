@@ -4,32 +4,15 @@
 ``xi(t+1)``, whether the input saturated and the input before saturation. ``gain`` is the gain
 record of :mod:`.safe_set` (``[K_x (n), k_i, N, rcond]``); whether a design has been accepted
 yet (``has_gain``) is the caller's, kept beside the record.
-
-A lane record that packs the law state into 3 floats (the known-model oracles' record) places
-them by :class:`LawState` (offsets :data:`LAW`).
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 from stcgym.envs.compiled import lane
 
-__all__ = ["LAW", "LAW_SIZE", "LawState", "track"]
-
-
-class LawState(NamedTuple):
-    """Fields of the law state packed in a 3-float record (offsets)."""
-
-    xi: int  # integral of the tracking error
-    saturated: int  # 1.0 when the last input was saturated
-    u_unsat: int  # the last input before saturation
-
-
-#: Offsets of the packed law state's fields (``law[LAW.xi]``).
-LAW = LawState(*range(len(LawState._fields)))
-LAW_SIZE = len(LawState._fields)
+__all__ = ["track"]
 
 
 @lane(inline=True)

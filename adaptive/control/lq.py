@@ -1,59 +1,65 @@
 """Linear-quadratic designs on the (integral-augmented) model: lane functions.
 
-``lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work) -> int``
-    Self-tuning LQ: **one** Riccati iteration per call on the (augmented) model of ``theta``,
-    warm-started from ``P`` (``m x m``, C-contiguous 2-D, updated in place); the gain is the LQ
-    gain of the updated ``P``. ``weights`` (``[q_y, q_i, rho]``, :class:`LQWeights`; built by
-    :func:`lq_weights`):
-    state weight ``Q = q_y c^T c`` (+ ``q_i`` on the integrator), input weight ``rho``;
-    defaults ``DEFAULT_LQ_WEIGHTS = (1, 1e-4, 1e-2)``, explained in
+``lq_design(theta, cfg, weights, P, gain, w, lane) -> int``
+    Self-tuning LQ: **one** Riccati iteration per call on the (augmented) model of ``theta``
+    (``cfg``: a :class:`.safe_set.DesignConfig`), warm-started from ``P`` (``m x m``,
+    C-contiguous 2-D, updated in place); the gain is the LQ gain of the updated ``P``.
+    ``weights`` (``[q_y, q_i, rho]``, :class:`LQWeights`; built by :func:`lq_weights`): state
+    weight ``Q = q_y c^T c`` (+ ``q_i`` on the integrator), input weight ``rho``; defaults
+    ``DEFAULT_LQ_WEIGHTS = (1, 1e-4, 1e-2)``, explained in
     :class:`stcgym.adaptive.control.options.LawOptions`. Initialise ``P`` with :func:`lq_initial_P`
     (``= Q``) or a converged solution; a ``P`` that is not finite on entry restarts from ``Q``.
-``lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter)``
-    ``-> int``: the same design solved to convergence (structured doubling, for a fresh model);
-``dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter) -> int``
+    ``w``: an :data:`LQWork` (:func:`lq_work`), of which lane ``lane`` is used.
+``lq_solve(theta, cfg, weights, P, gain, w, lane, tol, max_iter) -> int``
+    The same design solved to convergence (structured doubling, for a fresh model; ``w`` an
+    :data:`LQSolveWork`);
+``dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter) -> int``
     The discrete algebraic Riccati equation of a general single-input pair (status 0 / 6 / 7;
-    ``char_A`` the coefficients of ``det(zI - A)``), on ``solve_work_size(m - 1)`` floats.
-``kalman_covariance(theta, form, W, R, P, tol, max_iter) -> int``
+    ``char_A`` the coefficients of ``det(zI - A)``; ``w`` a :data:`DareWork`).
+``kalman_covariance(theta, form, W, R, P, w, lane, tol, max_iter) -> int``
     The steady-state Kalman filter covariance of the canonical model of ``theta``: :func:`dare`
     on the dual problem.
 
-Batch loops ``lq_solve_lanes`` and ``kalman_covariance_lanes`` (each lane allocates its own
-scratch). Status codes and the gain record: :mod:`.safe_set`.
+Batch loops ``lq_solve_lanes`` and ``kalman_covariance_lanes`` (the scratch has a row a lane).
+Status codes and the gain record: :mod:`.safe_set`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control.safe_set import (
-    MAT,
-    N_MAT,
-    N_MAT_SOLVE,
-    N_VEC,
     NOT_STABILISABLE,
     OK,
-    VEC,
+    DesignWork,
+    design_shapes,
     design_start,
     finish,
-    split_work,
 )
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, matmul, max_abs
 from stcgym.adaptive.kernels.records import copy_matrix
-from stcgym.adaptive.multivariable.mimo_lq import P_MAX, doubling
-from stcgym.envs.compiled import lane, lanes
+from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
+from stcgym.envs.compiled import fields_of, lane, lanes, make_work
 from stcgym.envs.validation import real_in
 
 __all__ = [
     "DEFAULT_LQ_WEIGHTS",
     "P_MAX",
+    "DareWork",
+    "LQSolveWork",
     "LQWeights",
+    "LQWork",
+    "RiccatiStepWork",
+    "SolveWork",
+    "dare_work",
+    "lq_shapes",
+    "lq_work",
     "weight_fields",
     "dare",
     "kalman_covariance",
@@ -118,6 +124,58 @@ def lq_initial_P(n: int, integral: bool, weights: ArrayLike) -> NDArray[np.float
     return P
 
 
+class RiccatiStepWork(NamedTuple):
+    """The one-step Riccati iteration of :func:`lq_design` (and the weight of :func:`lq_solve`)."""
+
+    Q: NDArray  # the state weight q_y c^T c (+ q_i on the integrator) (m, m)
+    A_cl: NDArray  # the closed loop A_aug - b_aug K (m, m)
+    P_Acl: NDArray  # P A_cl (m, m)
+
+
+class SolveWork(NamedTuple):
+    """The solve to convergence (:func:`lq_solve`): its solution and the closed-loop test."""
+
+    P_sol: NDArray  # the solution, until the safe set has accepted its gain (m, m)
+    char_A: NDArray  # [a_1..a_m] of det(zI - A) (m,)
+    char_cl: NDArray  # the coefficients of det(zI - A + b K) (m,)
+    adj_v: NDArray  # v_k = A v_{k-1} + a_k b of the adjugate expansion (m,)
+    adj_v_next: NDArray  # its successor (m,)
+
+
+#: The scratch of :func:`dare`: the fields of :class:`.mimo_lq.DoublingWork` and
+#: :class:`SolveWork`, one row a lane.
+DareWork = NamedTuple("DareWork", fields_of(DoublingWork, SolveWork))  # type: ignore[misc]
+#: The scratch of the one-step LQ design :func:`lq_design`: the fields of
+#: :data:`.safe_set.DesignWork` and :class:`RiccatiStepWork`, one row a lane.
+LQWork = NamedTuple("LQWork", fields_of(DesignWork, RiccatiStepWork))  # type: ignore[misc]
+#: The scratch of the LQ design solved to convergence :func:`lq_solve`: the fields of
+#: :data:`LQWork` and :data:`DareWork`, one row a lane.
+LQSolveWork = NamedTuple("LQSolveWork", fields_of(LQWork, DareWork))  # type: ignore[misc]
+
+
+def lq_shapes(n: int, integral: bool) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :data:`LQSolveWork` fields (hence of every LQ scratch) for
+    order ``n`` (``m = n + integral``): the one place they are declared, with
+    :func:`.safe_set.design_shapes` and :func:`.mimo_lq.doubling_shapes`."""
+    m = int(n) + int(bool(integral))
+    return {
+        **design_shapes(n, integral),
+        **dict.fromkeys((*RiccatiStepWork._fields, "P_sol"), (m, m)),
+        **doubling_shapes(m),
+        **dict.fromkeys(("char_A", "char_cl", "adj_v", "adj_v_next"), (m,)),
+    }
+
+
+def lq_work(n: int, integral: bool, num_lanes: int = 1, *, solve: bool = False) -> Any:
+    """An :data:`LQWork` (``solve=True``: an :data:`LQSolveWork`) of ``num_lanes`` lanes."""
+    return make_work(LQSolveWork if solve else LQWork, lq_shapes(n, integral), num_lanes)
+
+
+def dare_work(m: int, num_lanes: int = 1) -> Any:
+    """A :data:`DareWork` of ``num_lanes`` lanes for a pair of order ``m``."""
+    return make_work(DareWork, lq_shapes(m, False), num_lanes)
+
+
 @lane(inline=True)
 def _lq_gain(A, b, rho, P, K):
     """``K = (rho + b^T P b)^{-1} b^T P A``; returns ``rho + b^T P b``."""
@@ -159,49 +217,49 @@ def _riccati_step(A, b, Q, rho, P, K, Acl, T):
             P[i, j] = P[j, i]
 
 
-@lane(returns_views=True)
-def _weight_matrix(n, integral, weights, Ws, m):
-    """The state weight ``Q = q_y c^T c (+ q_i on the integrator)``, ``m x m``, written into
-    matrix slot ``m2`` (the controllability scratch, dead once the safe set has passed)."""
+@lane(inline=True)
+def _weight_matrix(n, integral, weights, Q):
+    """Write the state weight ``Q = q_y c^T c (+ q_i on the integrator)`` (``m x m``)."""
+    m = Q.shape[0]
     w = weight_fields(weights)
-    Q = Ws[MAT.m2, :m, :m]
     for i in range(m):
         for j in range(m):
             Q[i, j] = 0.0
     Q[0, 0] = w.q_y
     if integral:
         Q[n, n] = w.q_i
-    return Q
 
 
-@lane(entry=True)
-def lq_design(theta, form, integral, feedforward, weights, safe, P, gain, work):
+@lane(entry=True, inline=True)
+def lq_design(theta, cfg, weights, P, gain, w, lane):
     """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
 
     Returns the status code; ``gain`` is written only on ``OK``. A Riccati matrix that is not
     finite on entry or blows up (``> P_MAX``: the model is not stabilisable) is re-initialised
     to ``Q`` and ``NOT_STABILISABLE`` returned.
     """
-    status, rcond, Ws, Vs, Ad, bd, K = design_start(theta, form, integral, safe, work, N_MAT)
+    status, rcond = design_start(theta, cfg, w, lane)
     if status != OK:
         return status
+    Ad = w.A_aug[lane]
+    bd = w.b_aug[lane]
+    K = w.K[lane]
     m = Ad.shape[0]
-    Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
+    Q = w.Q[lane]
+    _weight_matrix(theta.size // 2, cfg.integral, weights, Q)
     if not all_finite(P):
         for i in range(m):
             for j in range(m):
                 P[i, j] = Q[i, j]
-    Acl = Ws[MAT.m0, :m, :m]
-    T = Ws[MAT.m1, :m, :m]
     rho = weight_fields(weights).rho
-    _riccati_step(Ad, bd, Q, rho, P, K, Acl, T)
+    _riccati_step(Ad, bd, Q, rho, P, K, w.A_cl[lane], w.P_Acl[lane])
     if not (max_abs(P) <= P_MAX):
         for i in range(m):
             for j in range(m):
                 P[i, j] = Q[i, j]
         return NOT_STABILISABLE
     _lq_gain(Ad, bd, rho, P, K)
-    return finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
+    return finish(theta, cfg, rcond, gain, w, lane)
 
 
 @lane(inline=True)
@@ -234,79 +292,77 @@ def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
 
 
 @lane
-def _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter):
+def _dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter):
     """Stabilising solution of ``P = Q + A^T P A - A^T P b (rho + b^T P b)^{-1} b^T P A`` by the
     structure-preserving doubling algorithm (quadratic convergence; :func:`.mimo_lq.doubling`):
 
         W = I + G_k H_k,  A_{k+1} = A_k W^{-1} A_k,  G_{k+1} = G_k + A_k W^{-1} G_k A_k^T,
-        H_{k+1} = H_k + A_k^T H_k W^{-1} A_k,    A_0 = A, G_0 = b b^T / rho, H_0 = Q -> P.
+        H_{k+1} = H_k + A_k^T H_k W^{-1} A_k,    A_0 = A, G_0 = b b^T / rho, H_0 = Q -> P,
+
+    on the :data:`DareWork` fields of lane ``lane`` of ``w``.
     """
     m = A.shape[0]
-    Ak = Ws[MAT.m3, :m, :m]
-    Gk = Ws[MAT.m4, :m, :m]
-    Hk = Ws[MAT.m5, :m, :m]
-    W = Ws[MAT.m6, :m, :m]
-    Winv = Ws[MAT.m7, :m, :m]
-    T1 = Ws[MAT.m8, :m, :m]
-    T2 = Ws[MAT.m9, :m, :m]
-    T3 = Ws[MAT.m0, :m, :m]
+    Ak = w.A_k[lane]
+    Gk = w.G_k[lane]
+    Hk = w.H_k[lane]
     for i in range(m):
         for j in range(m):
             Ak[i, j] = A[i, j]
             Gk[i, j] = b[i] * b[j] / rho
             Hk[i, j] = 0.5 * (Q[i, j] + Q[j, i])
-    status = doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter)
+    status = doubling(Ak, Gk, Hk, w, lane, tol, max_iter)
     if status != OK:
         return status
     copy_matrix(Hk, P)
     _lq_gain(A, b, rho, P, K)
-    v = Vs[VEC.v1, :m]
-    w = Vs[VEC.v2, :m]
-    c = Vs[VEC.v4, :m]
-    if not _closed_loop_is_stable(A, b, char_A, K, v, w, c):
+    c = w.char_cl[lane]
+    if not _closed_loop_is_stable(A, b, char_A, K, w.adj_v[lane], w.adj_v_next[lane], c):
         return NOT_STABILISABLE
     return OK
 
 
 @lane(entry=True)
-def dare(A, b, Q, rho, char_A, P, K, work, tol, max_iter):
+def dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter):
     """Discrete algebraic Riccati equation of a general single-input pair (see :func:`_dare`).
 
     ``char_A = [a_1, ..., a_m]``: the characteristic polynomial ``det(zI - A)`` (for the test
-    of the closed loop). Writes the stabilising ``P`` and the gain ``K`` on success; returns ``OK``,
-    ``NOT_STABILISABLE`` (diverging doubling or a closed loop that is not Schur: no stabilising
-    solution) or ``NOT_CONVERGED``.
+    of the closed loop); ``w``: a :data:`DareWork` of order ``m`` (:func:`dare_work`),
+    lane ``lane`` used. Writes the stabilising ``P`` and the gain ``K`` on success; returns
+    ``OK``, ``NOT_STABILISABLE`` (diverging doubling or a closed loop that is not Schur: no
+    stabilising solution) or ``NOT_CONVERGED``.
     """
-    mm = A.shape[0]
-    Ws, Vs = split_work(work, mm, N_MAT_SOLVE)
-    return _dare(A, b, Q, rho, char_A, P, K, Ws, Vs, tol, max_iter)
+    if w.A_k.shape[1] != A.shape[0]:
+        raise ValueError("dare: w is not the scratch of this order (dare_work(m))")
+    return _dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter)
 
 
 @lane(entry=True)
-def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, tol, max_iter):
+def lq_solve(theta, cfg, weights, P, gain, w, lane, tol, max_iter):
     """The LQ design of :func:`lq_design` solved to convergence (doubling) for a fresh model.
 
-    ``work`` of ``solve_work_size(n)`` floats; ``tol`` (e.g. ``1e-12``) bounds the last
-    doubling increment of ``P`` relative to ``max(1, max |P|)``, ``max_iter`` (e.g. 64) the
-    number of doubling steps (each squares the horizon).
+    ``w``: an :data:`LQSolveWork` (``lq_work(n, integral, solve=True)``), lane ``lane`` used;
+    ``tol`` (e.g. ``1e-12``) bounds the last doubling increment of ``P`` relative to
+    ``max(1, max |P|)``, ``max_iter`` (e.g. 64) the number of doubling steps (each squares the
+    horizon).
 
     Writes the Riccati solution into ``P`` and the gain into ``gain`` on ``OK``; both are left
     untouched otherwise.
     """
-    status, rcond, Ws, Vs, Ad, bd, K = design_start(theta, form, integral, safe, work, N_MAT_SOLVE)
+    status, rcond = design_start(theta, cfg, w, lane)
     if status != OK:
         return status
+    Ad = w.A_aug[lane]
     m = Ad.shape[0]
-    Q = _weight_matrix(theta.size // 2, integral, weights, Ws, m)
-    Psol = Ws[MAT.m10, :m, :m]
-    # _dare uses slots m0, m3..m9; Q lives in m2 and the solution in m10 until the
-    # safe set has accepted the gain.
-    char_A = Vs[VEC.v5, :m]
-    augmented_characteristic(theta, integral, char_A)
-    status = _dare(Ad, bd, Q, weight_fields(weights).rho, char_A, Psol, K, Ws, Vs, tol, max_iter)
+    Q = w.Q[lane]
+    _weight_matrix(theta.size // 2, cfg.integral, weights, Q)
+    Psol = w.P_sol[lane]
+    char_A = w.char_A[lane]
+    augmented_characteristic(theta, cfg.integral, char_A)
+    rho = weight_fields(weights).rho
+    status = _dare(Ad, w.b_aug[lane], Q, rho, char_A, Psol, w.K[lane], w, lane, tol, max_iter)
     if status != OK:
         return status
-    status = finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs)
+    status = finish(theta, cfg, rcond, gain, w, lane)
     if status == OK:
         for i in range(m):
             for j in range(m):
@@ -314,47 +370,21 @@ def lq_solve(theta, form, integral, feedforward, weights, safe, P, gain, work, t
     return status
 
 
-@lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
-def lq_solve_lanes(
-    thetas,
-    form,
-    integral,
-    feedforward,
-    weights,
-    safe,
-    Ps,
-    gains,
-    status,
-    tol,
-    max_iter,
-    first,
-    last,
-):
-    """:func:`lq_solve` for every lane (``Ps`` ``(B, m, m)``)."""
-    mm = thetas.shape[1] // 2 + 1
+@lanes(min_lanes=4)  # a solve to convergence a lane
+def lq_solve_lanes(thetas, cfg, weights, Ps, gains, status, w, tol, max_iter, first, last):
+    """:func:`lq_solve` for every lane (``Ps`` ``(B, m, m)``, ``w`` an :data:`LQSolveWork` of
+    ``B`` lanes)."""
     for i in range(first, last):
-        work = np.empty(N_MAT_SOLVE * mm * mm + N_VEC * mm)
-        status[i] = lq_solve(
-            thetas[i],
-            form,
-            integral,
-            feedforward,
-            weights,
-            safe,
-            Ps[i],
-            gains[i],
-            work,
-            tol,
-            max_iter,
-        )
+        status[i] = lq_solve(thetas[i], cfg, weights, Ps[i], gains[i], w, i, tol, max_iter)
 
 
 @lane(allocates=True, entry=True)
-def kalman_covariance(theta, form, W, R, P, tol, max_iter):
+def kalman_covariance(theta, form, W, R, P, w, lane, tol, max_iter):
     """Steady-state (a-priori) Kalman filter covariance of the canonical model of ``theta``:
     the stabilising solution of the dual Riccati equation ``dare(A^T, c^T, W, R)`` (``W``
-    ``(n, n)`` process noise, ``R`` the measurement variance; ``P`` ``(n, n)`` out). Returns
-    the status of :func:`dare`."""
+    ``(n, n)`` process noise, ``R`` the measurement variance; ``P`` ``(n, n)`` out; ``w`` a
+    :data:`DareWork` of order ``n``, lane ``lane`` used). Returns the status of
+    :func:`dare`."""
     n = theta.size // 2
     A = np.empty((n, n))
     b = np.empty(n)
@@ -364,12 +394,12 @@ def kalman_covariance(theta, form, W, R, P, tol, max_iter):
     c[0] = 1.0
     char_A = np.ascontiguousarray(theta[:n])  # det(zI - A^T) = z^n + a_1 z^{n-1} + ...
     K = np.empty(n)
-    work = np.empty(N_MAT_SOLVE * n * n + N_VEC * n)
-    return dare(At, c, W, R, char_A, P, K, work, tol, max_iter)
+    return dare(At, c, W, R, char_A, P, K, w, lane, tol, max_iter)
 
 
 @lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane
-def kalman_covariance_lanes(thetas, form, W, R, Ps, status, tol, max_iter, first, last):
-    """:func:`kalman_covariance` for every lane (``W``, ``Ps`` ``(B, n, n)``)."""
+def kalman_covariance_lanes(thetas, form, W, R, Ps, status, w, tol, max_iter, first, last):
+    """:func:`kalman_covariance` for every lane (``W``, ``Ps`` ``(B, n, n)``, ``w`` a
+    :data:`DareWork` of ``B`` lanes)."""
     for i in range(first, last):
-        status[i] = kalman_covariance(thetas[i], form, W[i], R, Ps[i], tol, max_iter)
+        status[i] = kalman_covariance(thetas[i], form, W[i], R, Ps[i], w, i, tol, max_iter)

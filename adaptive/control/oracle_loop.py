@@ -19,7 +19,7 @@ from stcgym.adaptive.control.options import LawOptions, option_group, plant_sett
 from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
-from stcgym.envs.compiled import FixedTypes, Layout
+from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import integer, real_in
 
 __all__ = ["MAX_SETTING"]
@@ -77,11 +77,11 @@ def _lane_parameters(
 
 
 class _KnownModelLoop(LanePolicy):
-    """Lane records and the lane step shared by the two oracles.
+    """The lane state and the lane step shared by the two oracles.
 
     Subclasses call :meth:`_settings` (the common settings and the true parameters), set their
-    own, then :meth:`_build` with the per-lane models; the state lives in ``self._F``
-    (``(lanes, size)``, one row per plant).
+    own, then :meth:`_build` with the per-lane models; the state lives in ``self._state``
+    (an :class:`~stcgym.adaptive.control.known_model.OracleState`, one row per plant).
     """
 
     def _settings(
@@ -100,43 +100,18 @@ class _KnownModelLoop(LanePolicy):
         return a_l, b_l
 
     def _build(self, a: NDArray, b: NDArray) -> None:
-        n = self.n
-        lay = Layout()
-        for name, shape in (
-            ("A", (n, n)),
-            ("b", (n,)),
-            ("Q", (n, n)),
-            ("R", ()),
-            ("x", (n,)),
-            ("x_filt", (n,)),
-            ("P", (n, n)),
-            ("innov", ()),
-            ("gain", (_design.gain_size(n),)),
-            ("law", (_design.LAW_SIZE,)),
-            ("t", ()),
-            # initial values restored by reset()
-            ("A0", (n, n)),
-            ("b0", (n,)),
-            ("Q0", (n, n)),
-            ("P0", (n, n)),
-            ("gain0", (_design.gain_size(n),)),
-        ):
-            lay.add(name, shape)
-        self._layout = lay
-        self._at = lay.record(_design.OracleRecord)
-        F = lay.empty(a.shape[0])
-        self._F = F
-        lay.view(F, "R")[:] = self.R
-        lay.view(F, "Q0")[:] = self._process_noise(b)
+        state, self._proposal = _design.make_oracle_state(self.n, a.shape[0])
+        self._state = state
+        state.R[:] = self.R
+        state.Q0[:] = self._process_noise(b)
         gains = self._design_lanes(a, b, "a, b")
-        A = self._model_matrices(a, b)
-        lay.view(F, "A0")[:] = A
-        lay.view(F, "b0")[:] = b
-        lay.view(F, "gain0")[:] = gains
-        lay.view(F, "P0")[:] = self._initial_covariance(a, b)
+        state.A0[:] = self._model_matrices(a, b)
+        state.b0[:] = b
+        state.gain0[:] = gains
+        state.P0[:] = self._initial_covariance(a, b)
         self._a, self._b = a.copy(), b.copy()
         self._a0, self._b0 = a.copy(), b.copy()
-        self._reset_records(F)
+        self._reset_state()
 
     # -- hooks -----------------------------------------------------------------------------
     @abstractmethod
@@ -151,7 +126,7 @@ class _KnownModelLoop(LanePolicy):
     def _initial_covariance(self, a: NDArray, b: NDArray) -> NDArray:
         """Kalman filter covariance ``P1`` at reset, per lane (``a``, ``b``: ``(lanes, n)``)."""
 
-    # -- records ---------------------------------------------------------------------------
+    # -- lane state -------------------------------------------------------------------------
     @property
     def _form_code(self) -> int:
         return _design.OBSERVER if self.form == "observer" else _design.OBSERVABILITY
@@ -165,6 +140,13 @@ class _KnownModelLoop(LanePolicy):
         else:
             _design.model_matrices_lanes(thetas, self._form_code, A, b.copy())
         return A
+
+    def _design_config(self, alpha: NDArray) -> _design.DesignConfig:
+        """The design's settings: the law's integral action and feed-forward, no safe set."""
+        law = self.law
+        return _design.DesignConfig(
+            self._form_code, bool(law.integral), bool(law.feedforward), _NO_SAFE_SET, alpha
+        )
 
     def _design_lanes(self, a: NDArray, b: NDArray, name: str) -> NDArray:
         """Gain records for every lane's model; ``ValueError`` (nothing changed) if one fails."""
@@ -181,12 +163,12 @@ class _KnownModelLoop(LanePolicy):
     def _failure(self, status: int) -> str:
         return f"no design on the given model: {_design.STATUS_NAMES[status]}"
 
-    def _reset_records(self, F: NDArray, rows: NDArray | slice = slice(None)) -> None:
-        lay = self._layout
-        for src, dst in (("A0", "A"), ("b0", "b"), ("Q0", "Q"), ("P0", "P"), ("gain0", "gain")):
-            lay.view(F, dst)[rows] = lay.view(F, src)[rows]
-        for name in ("x", "x_filt", "innov", "law", "t"):
-            lay.view(F, name)[rows] = 0.0
+    def _reset_state(self, rows: NDArray | slice = slice(None)) -> None:
+        s = self._state
+        for src, dst in ((s.A0, s.A), (s.b0, s.b), (s.Q0, s.Q), (s.P0, s.P), (s.gain0, s.gain)):
+            dst[rows] = src[rows]
+        for field in (s.x, s.x_filt, s.innov, s.xi, s.saturated, s.u_unsat, s.t):
+            field[rows] = 0
 
     # -- public state ----------------------------------------------------------------------
     def _lane0(self, value: NDArray) -> NDArray:
@@ -205,30 +187,30 @@ class _KnownModelLoop(LanePolicy):
     @property
     def t(self) -> int | NDArray:
         """Steps taken since the last reset (per lane when batched)."""
-        t = self._layout.view(self._F, "t").astype(np.int64)
+        t = self._state.t.copy()
         return int(t[0]) if self.num_envs is None else t
 
     @property
     def xi(self) -> float | NDArray:
         """Integral of the tracking error ``xi(t)`` (per lane when batched)."""
-        xi = self._layout.view(self._F, "law")[:, _design.LAW.xi].copy()
+        xi = self._state.xi.copy()
         return float(xi[0]) if self.num_envs is None else xi
 
     @property
     def x_hat(self) -> NDArray:
         """State estimate ``x(t|t-1)`` of the Kalman filter (per lane when batched)."""
-        return self._lane0(self._layout.view(self._F, "x"))
+        return self._lane0(self._state.x)
 
     @property
     def K(self) -> NDArray:
         """State-feedback gain ``[K_x, k_i]`` (``k_i`` only with integral action)."""
         m = self.n + int(self.law.integral)
-        return self._lane0(self._layout.view(self._F, "gain")[:, :m])
+        return self._lane0(self._state.gain[:, :m])
 
     @property
     def N(self) -> float | NDArray:
         """Reference feed-forward gain ``N``."""
-        N = self._layout.view(self._F, "gain")[:, self.n + 1].copy()
+        N = self._state.gain[:, self.n + 1].copy()
         return float(N[0]) if self.num_envs is None else N
 
     def set_model(self, a: ArrayLike, b: ArrayLike, lanes: ArrayLike | None = None) -> None:
@@ -251,44 +233,44 @@ class _KnownModelLoop(LanePolicy):
         }
         new.update(self._model_extras(a_l, b_l))
         for name, value in new.items():
-            self._layout.view(self._F, name)[idx] = value
+            getattr(self._state, name)[idx] = value
         self._a[idx], self._b[idx] = a_l, b_l
 
     def _model_extras(self, a: NDArray, b: NDArray) -> dict[str, NDArray]:
-        """Hook: other record fields a new model changes (the LQG filter's noise and P)."""
+        """Hook: other state fields a new model changes (the LQG filter's noise and P)."""
         return {}
 
     # -- the policy's hooks ----------------------------------------------------------------
     def _reset_lanes(self, idx: NDArray) -> None:
         """Forget the episode on the lanes ``idx``: initial model restored (``A``, ``b``, the
         filter's ``Q`` and ``P``, the gain), state estimate and integrator zeroed."""
-        self._reset_records(self._F, idx)
+        self._reset_state(idx)
         self._a[idx], self._b[idx] = self._a0[idx], self._b0[idx]
 
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """The whole step is computed before anything is committed: a step whose state would
         not be finite raises ``ValueError`` and leaves every lane (episode starts included) as
         it was."""
-        F = self._F
         saved = None
         if starts is not None:
             idx = np.flatnonzero(starts)
-            saved = (F[idx].copy(), self._a[idx].copy(), self._b[idx].copy())
+            saved = [field[idx].copy() for field in (*self._state, self._a, self._b)]
             self._reset_lanes(idx)
-        u = self._step(F, obs[:, 0].copy(), obs[:, 1].copy())
+        u = self._step(obs[:, 0].copy(), obs[:, 1].copy())
         if u is None:
             if saved is not None:
-                F[idx], self._a[idx], self._b[idx] = saved
+                for field, rows in zip((*self._state, self._a, self._b), saved, strict=True):
+                    field[idx] = rows
             raise ValueError(
                 "observation drives the oracle's state estimate to non-finite values "
                 f"(got {obs}); the state was left unchanged"
             )
         return u
 
-    def _step(self, F: NDArray, y: NDArray, r: NDArray) -> NDArray | None:
+    def _step(self, y: NDArray, r: NDArray) -> NDArray | None:
         """Propose the step of every lane, commit only if all are finite (else ``None``)."""
-        B, n = F.shape[0], self.n
-        S = np.empty((B, _design.oracle_scratch_size(n)))
+        s, p = self._state, self._proposal
+        B = y.shape[0]
         law = self.law
         flags = (
             bool(law.filtered),
@@ -298,13 +280,13 @@ class _KnownModelLoop(LanePolicy):
         )
         u = np.empty(B)
         if B == 1:  # one plant: the lane function itself (no thread-pool start-up)
-            if _known_model_propose(F[0], self._at, n, S[0], float(y[0]), float(r[0]), *flags):
+            if _known_model_propose(s, p, 0, float(y[0]), float(r[0]), *flags):
                 return None
-            u[0] = _known_model_commit(F[0], self._at, n, S[0])
+            u[0] = _known_model_commit(s, p, 0)
             return u
         status = np.zeros(B, dtype=np.int64)
-        _design.known_model_propose_lanes(F, self._at, n, S, y, r, *flags, status)
+        _design.known_model_propose_lanes(s, p, y, r, *flags, status)
         if status.any():
             return None
-        _design.known_model_commit_lanes(F, self._at, n, S, u)
+        _design.known_model_commit_lanes(s, p, u)
         return u

@@ -30,9 +30,10 @@ numerical floors (an uncontrollable model, a zero at ``z = 1``) reject it, with 
 
 Both are :class:`~stcgym.adaptive.policy.LanePolicy` policies (SB3's ``predict``) for one plant
 (``num_envs=None``) or for ``num_envs=B`` plants with their own true parameters (``a``, ``b`` of
-shape ``(B, n)``), stepped together by a batch loop over lanes. A lane record holds all the
-state, so the oracles pickle and deep-copy with identical continuation, and a step whose result
-would not be finite is rejected as a whole: no lane changes.
+shape ``(B, n)``), stepped together by a batch loop over lanes. Their lane state (named arrays,
+a row a plant) is all their state, so the oracles pickle and deep-copy with identical
+continuation, and a step whose result would not be finite is rejected as a whole: no lane
+changes.
 """
 
 from __future__ import annotations
@@ -46,7 +47,6 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.control import design as _design
 from stcgym.adaptive.control.options import DEFAULT_POLE, LawOptions
 from stcgym.adaptive.control.oracle_loop import (
-    _NO_SAFE_SET,
     MAX_SETTING,
     _KnownModelLoop,
     _setting,
@@ -128,13 +128,12 @@ class KnownModelController(_KnownModelLoop):
         self._build(a_l, b_l)
 
     def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
-        law = self.law
-        args = (self._form_code, law.integral, law.feedforward, self._alpha, _NO_SAFE_SET)
+        cfg = self._design_config(self._alpha)
+        work = _design.design_work(self.n, cfg.integral, thetas.shape[0])
         if thetas.shape[0] == 1:
-            work = np.zeros(_design.work_size(self.n))
-            status[0] = _design.place_design(thetas[0], *args, gains[0], work)
+            status[0] = _design.place_design(thetas[0], cfg, gains[0], work, 0)
         else:
-            _design.place_design_lanes(thetas, *args, gains, status)
+            _design.place_design_lanes(thetas, cfg, gains, status, work)
 
     def _failure(self, status: int) -> str:
         return f"cannot place the poles on the given model: {_design.STATUS_NAMES[status]}"
@@ -229,15 +228,15 @@ class LQGController(_KnownModelLoop):
         self._build(a_l, b_l)
 
     def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
-        law = self.law
-        m = self.n + int(law.integral)
+        cfg = self._design_config(np.zeros(0))
+        m = self.n + int(cfg.integral)
         Ps = np.zeros((thetas.shape[0], m, m))
-        args = (self._form_code, law.integral, law.feedforward, self._weights, _NO_SAFE_SET)
+        work = _design.lq_work(self.n, cfg.integral, thetas.shape[0], solve=True)
+        w = self._weights
         if thetas.shape[0] == 1:
-            work = np.zeros(_design.solve_work_size(self.n))
-            status[0] = _design.lq_solve(thetas[0], *args, Ps[0], gains[0], work, 1e-12, 64)
+            status[0] = _design.lq_solve(thetas[0], cfg, w, Ps[0], gains[0], work, 0, 1e-12, 64)
         else:
-            _design.lq_solve_lanes(thetas, *args, Ps, gains, status, 1e-12, 64)
+            _design.lq_solve_lanes(thetas, cfg, w, Ps, gains, status, work, 1e-12, 64)
 
     def _failure(self, status: int) -> str:
         if status in (_design.UNCONTROLLABLE, _design.NOT_STABILISABLE, _design.NOT_CONVERGED):
@@ -261,13 +260,14 @@ class LQGController(_KnownModelLoop):
         status = np.zeros(a.shape[0], dtype=np.int64)
         W = np.ascontiguousarray(self._process_noise(b))
         thetas = np.hstack((a, b))
+        work = _design.dare_work(self.n, a.shape[0])
         if a.shape[0] == 1:
             status[0] = _design.kalman_covariance(
-                thetas[0], self._form_code, W[0], self.R, P[0], 1e-12, 64
+                thetas[0], self._form_code, W[0], self.R, P[0], work, 0, 1e-12, 64
             )
         else:
             _design.kalman_covariance_lanes(
-                thetas, self._form_code, W, self.R, P, status, 1e-12, 64
+                thetas, self._form_code, W, self.R, P, status, work, 1e-12, 64
             )
         bad = np.flatnonzero(status)
         if bad.size:
@@ -292,14 +292,12 @@ class LQGController(_KnownModelLoop):
         return float(u[0]) if self.num_envs is None else u
 
     def _steady(self) -> tuple[NDArray, NDArray]:
-        lay = self._layout
-        A, b = lay.view(self._F, "A"), lay.view(self._F, "b")
-        x_ss = np.zeros((A.shape[0], self.n))
+        A, b = self._state.A, self._state.b
         u_ss = np.zeros(A.shape[0])
-        work = np.zeros(_design.work_size(self.n))
+        work = _design.design_work(self.n, False, A.shape[0])
         for i in range(A.shape[0]):
-            u_ss[i], _ = _design.steady_state(np.ascontiguousarray(A[i]), b[i], x_ss[i], work)
-        return x_ss, u_ss
+            u_ss[i], _ = _design.steady_state(A[i], b[i], work, i)
+        return work.x_ss, u_ss
 
 
 class KalmanObserver:
@@ -415,7 +413,8 @@ class KalmanObserver:
         self._y = 0.0
         self._innov = 0.0
         self.n_failures = 0
-        self._work = np.zeros(2 * self.n * self.n)
+        self._AP = np.zeros((self.n, self.n))  # the Kalman step's scratch
+        self._P_upd = np.zeros((self.n, self.n))
 
     def correct(self, y: float) -> NDArray:
         """Measurement update with ``y(t)``; returns ``x(t|t)``.
@@ -452,7 +451,7 @@ class KalmanObserver:
         x_next = np.empty(self.n)
         status = kalman_step(
             self.A, self.b, self.P, self.Q, self.R, self.x, float(u), self._y, x_next, self.L1,
-            self._work,
+            self._AP, self._P_upd,
         )  # fmt: skip
         self.n_failures += int(status != 0)
         self.x = x_next

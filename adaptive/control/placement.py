@@ -192,7 +192,7 @@ def ackermann(
     m = A.shape[0]
     alpha = finite_vector(np.reshape(alpha, -1), "alpha", length=m)
     K = np.zeros(m)
-    rcond = float(_design.ackermann_gain(A, b, alpha, K, np.zeros(_design.work_size(m - 1))))
+    rcond = float(_design.ackermann_gain(A, b, alpha, K, _design.design_work(m, False), 0))
     if not rcond > max(rcond_min, _design.RCOND_FLOOR):
         raise UncontrollableError(
             f"(A, b) is (nearly) uncontrollable: rcond of the controllability matrix {rcond:.3g}"
@@ -313,9 +313,9 @@ def steady_state_gains(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, float, floa
     """
     A, b = _single_input_model(A, b)
     n = A.shape[0]
-    x_ss = np.zeros(n)
-    u_ss, rcond = _design.steady_state(A, b, x_ss, np.zeros(_design.work_size(n)))
-    return x_ss, float(u_ss), float(rcond)
+    work = _design.design_work(n, False)
+    u_ss, rcond = _design.steady_state(A, b, work, 0)
+    return work.x_ss[0].copy(), float(u_ss), float(rcond)
 
 
 def lq_gain(
@@ -394,8 +394,9 @@ def lq_gain(
     Q = np.ascontiguousarray(Q, dtype=float)
     P = np.zeros((m, m))
     K = np.zeros((1, m))
-    work = np.zeros(_mimo_lq.design_work_size(m, 1))
-    status = _mimo_lq.dare_solve(A, B, Q, R_mat, N, P, K, work, tol, int(max_iter))
+    work = _mimo_lq.mimo_design_work(m, 1)
+    problem = _mimo_lq.LQProblem(Q, R_mat, N, float(tol), int(max_iter))
+    status = _mimo_lq.dare_solve(A, B, problem, P, K, work, 0)
     if status != _design.OK:
         raise UncontrollableError(
             "no stabilising LQ solution: " + lq_failure_reason(A, B, Q, R_mat, N, status)

@@ -3,7 +3,7 @@
 Shared by pole placement (:mod:`.pole_placement`) and the LQ designs (:mod:`.lq`): the tests
 of the safe set in order, the gain record ``[K_x, k_i, N, rcond]`` (:func:`gain_size`), written
 **only on success** (a rejected model keeps the last good gain), and the designs' scratch
-(:func:`work_size`, :func:`split_work`).
+(:data:`DesignWork`: named fields, one row a lane, shapes in :func:`design_shapes`).
 
 Safe set ``safe`` (float64, length 4; :func:`safe_set` builds and validates it)
 ------------------------------------------------------------------------------
@@ -37,36 +37,35 @@ code name                   meaning
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
-from stcgym.adaptive.kernels.records import view2d, view3d
-from stcgym.envs.compiled import lane
+from stcgym.envs.compiled import fields_of, lane, make_work
 from stcgym.envs.validation import real_in
 
 __all__ = [
-    "MAT",
-    "N_MAT",
-    "N_MAT_SOLVE",
-    "N_VEC",
     "STATUS_NAMES",
-    "VEC",
+    "ControllabilityWork",
+    "DesignConfig",
+    "DesignWork",
+    "ModelWork",
     "SafeSetBounds",
+    "SteadyStateWork",
     "controllability",
+    "design_shapes",
+    "design_start",
+    "design_work",
     "finish",
     "gain_size",
-    "design_start",
     "safe_bounds",
     "safe_set",
-    "solve_work_size",
-    "split_work",
     "steady_state",
-    "work_size",
 ]
+
 
 # Status codes of a design (values, not offsets).
 OK = 0
@@ -95,46 +94,6 @@ RCOND_FLOOR = 1e-14
 DC_RCOND_FLOOR = 1e-13
 
 
-class MatrixSlots(NamedTuple):
-    """Matrix slots (each ``mm x mm``, ``mm = n + 1``) of the design scratch, by use."""
-
-    A: int  # the model
-    A_aug: int  # the (integral-augmented) model
-    m0: int
-    m1: int
-    m2: int
-    m3: int
-    m4: int
-    m5: int
-    m6: int
-    m7: int
-    m8: int
-    m9: int
-    m10: int
-
-
-class VectorSlots(NamedTuple):
-    """Vector slots (each ``mm``) of the design scratch, by use."""
-
-    b_aug: int
-    K: int
-    x_ss: int
-    v0: int
-    v1: int
-    v2: int
-    b: int
-    v4: int
-    v5: int
-
-
-#: Slot numbers of the scratch (``Ws[MAT.A_aug, :m, :m]``, ``Vs[VEC.K, :m]``).
-MAT = MatrixSlots(*range(len(MatrixSlots._fields)))
-VEC = VectorSlots(*range(len(VectorSlots._fields)))
-N_MAT = 5  # matrix slots every design needs (A .. m2)
-N_MAT_SOLVE = len(MatrixSlots._fields)  # matrix slots of the solve-to-convergence variants
-N_VEC = len(VectorSlots._fields)
-
-
 def gain_size(n: int) -> int:
     """Length of the gain record ``[K_x (n), k_i, N, rcond]``: the state gain, the integral gain
     ``k_i`` (0 without integral action), the reference feed-forward ``N`` (0 when off) and the
@@ -143,19 +102,73 @@ def gain_size(n: int) -> int:
     return int(n) + 3
 
 
-def work_size(n: int) -> int:
-    """Scratch length of ``place_design``, ``lq_design`` (and ``ackermann_gain``,
-    ``steady_state``) for order ``n``: ``5 (n+1)^2 + 9 (n+1)``. The scratch is float64, 1-D,
-    its content irrelevant between calls, one per thread or per lane, never shared by two
-    lanes."""
-    mm = int(n) + 1
-    return N_MAT * mm * mm + N_VEC * mm
+class ModelWork(NamedTuple):
+    """The model of ``theta``, the candidate gain and its steady state (every design)."""
+
+    A: NDArray  # A_hat (n, n)
+    b: NDArray  # b_hat (n,)
+    A_aug: NDArray  # the (integral-augmented) model (m, m)
+    b_aug: NDArray  # (m,)
+    K: NDArray  # the candidate gain [K_x, k_i] (m,)
+    x_ss: NDArray  # the steady state for the output 1 (n,)
 
 
-def solve_work_size(n: int) -> int:
-    """Scratch length of ``lq_solve`` (and ``dare``) for order ``n``: ``13 (n+1)^2 + 9 (n+1)``."""
-    mm = int(n) + 1
-    return N_MAT_SOLVE * mm * mm + N_VEC * mm
+class ControllabilityWork(NamedTuple):
+    """The controllability test (:func:`controllability`) and Ackermann's formula."""
+
+    C: NDArray  # the column-normalised controllability matrix Ctrb / norms (m, m)
+    C_lu: NDArray  # its copy, reduced by the inversion (m, m)
+    Cinv: NDArray  # C^{-1} (m, m)
+    norms: NDArray  # the column norms of Ctrb (m,)
+    v: NDArray  # a vector iterate: A^k b for Ctrb, e_m^T C^{-1} A^k for Ackermann (m,)
+    v_next: NDArray  # its successor (m,)
+
+
+class SteadyStateWork(NamedTuple):
+    """The steady-state (Rosenbrock) system of the feed-forward (:func:`steady_state`)."""
+
+    M: NDArray  # [[A - I, b], [c, 0]] (n + 1, n + 1)
+    M_lu: NDArray  # its copy, reduced by the inversion (n + 1, n + 1)
+    Minv: NDArray  # M^{-1} (n + 1, n + 1)
+
+
+#: The scratch of every design on the model of ``theta`` (all that pole placement needs): the
+#: fields of :class:`ModelWork`, :class:`ControllabilityWork` and :class:`SteadyStateWork`, one
+#: row a lane (``w.K[lane]``), shapes in :func:`design_shapes`.
+DesignWork = NamedTuple(  # type: ignore[misc]
+    "DesignWork", fields_of(ModelWork, ControllabilityWork, SteadyStateWork)
+)
+
+
+def design_shapes(n: int, integral: bool) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :data:`DesignWork` fields for order ``n`` (``m = n +
+    integral``): the one place they are declared."""
+    n = int(n)
+    m = n + int(bool(integral))
+    return {
+        "A": (n, n),
+        "b": (n,),
+        **dict.fromkeys(("A_aug", "C", "C_lu", "Cinv"), (m, m)),
+        **dict.fromkeys(("b_aug", "K", "norms", "v", "v_next"), (m,)),
+        "x_ss": (n,),
+        **dict.fromkeys(("M", "M_lu", "Minv"), (n + 1, n + 1)),
+    }
+
+
+def design_work(n: int, integral: bool, num_lanes: int = 1) -> Any:
+    """A :data:`DesignWork` of ``num_lanes`` lanes for order ``n``."""
+    return make_work(DesignWork, design_shapes(n, integral), num_lanes)
+
+
+class DesignConfig(NamedTuple):
+    """The settings of a design on the model of ``theta`` (the self-tuning controller passes its
+    own configuration, which has these fields)."""
+
+    form: int  # the canonical form of theta (canonical.OBSERVER / OBSERVABILITY)
+    integral: bool  # integral action: the design is on the augmented model (m = n + 1)
+    feedforward: bool  # the reference feed-forward N
+    safe: NDArray  # the safe set [b_min, rcond_min, dc_rcond_min, gain_max] (safe_set())
+    alpha: NDArray  # pole placement: the closed-loop characteristic polynomial (m,)
 
 
 class SafeSetBounds(NamedTuple):
@@ -200,31 +213,19 @@ def safe_set(
     return np.array(bounds, dtype=np.float64)
 
 
-@lane(returns_views=True)
-def split_work(work, mm, n_mat):
-    """The scratch as ``Ws`` ``(n_mat, mm, mm)`` and ``Vs`` ``(9, mm)`` views (every slot after
-    that a cheap basic slice ``Ws[slot, :m, :m]``). A scratch shorter than that would corrupt
-    the result, so it is an error. Inlined into its caller: a lane function compiled without
-    NRT may return views only where numba inlines it."""
-    if work.size < n_mat * mm * mm + N_VEC * mm:
-        raise ValueError("work array too short: see work_size(n) / solve_work_size(n)")
-    return view3d(work, 0, n_mat, mm, mm), view2d(work, n_mat * mm * mm, N_VEC, mm)
-
-
 @lane(inline=True)
-def controllability(A, b, Ws, Vs):
-    """Invert the column-normalised controllability matrix ``Ctrb / norms``.
-
-    Leaves ``Cn^{-1}`` in matrix slot ``MAT.m2`` and the column norms in vector slot ``VEC.v0``;
-    returns the reciprocal 1-norm condition of ``Cn`` (0.0 when singular or non-finite).
-    """
+def controllability(A, b, w, lane):
+    """Invert the column-normalised controllability matrix ``C = Ctrb / norms`` of ``(A, b)``
+    (``m x m``): writes ``w.C``, ``w.Cinv = C^{-1}`` and the column norms ``w.norms`` of lane
+    ``lane``; returns the reciprocal 1-norm condition of ``C`` (0.0 when singular or
+    non-finite)."""
     m = A.shape[0]
-    C = Ws[MAT.m0, :m, :m]
-    T = Ws[MAT.m1, :m, :m]
-    Cinv = Ws[MAT.m2, :m, :m]
-    norms = Vs[VEC.v0, :m]
-    v = Vs[VEC.v1, :m]
-    w = Vs[VEC.v2, :m]
+    C = w.C[lane]
+    C_lu = w.C_lu[lane]
+    Cinv = w.Cinv[lane]
+    norms = w.norms[lane]
+    v = w.v[lane]
+    Av = w.v_next[lane]
     for i in range(m):
         v[i] = b[i]
     for k in range(m):
@@ -233,17 +234,17 @@ def controllability(A, b, Ws, Vs):
             C[i, k] = v[i]
             s += v[i] * v[i]
         norms[k] = math.sqrt(s)
-        matvec(A, v, w)
+        matvec(A, v, Av)
         for i in range(m):
-            v[i] = w[i]
+            v[i] = Av[i]
     for k in range(m):
         if not (norms[k] > 0.0 and math.isfinite(norms[k])):
             return 0.0
     for i in range(m):
         for k in range(m):
             C[i, k] /= norms[k]
-            T[i, k] = C[i, k]
-    if not invert(T, Cinv):
+            C_lu[i, k] = C[i, k]
+    if not invert(C_lu, Cinv):
         return 0.0
     rcond = 1.0 / (norm1(C) * norm1(Cinv))
     if not math.isfinite(rcond):
@@ -252,11 +253,12 @@ def controllability(A, b, Ws, Vs):
 
 
 @lane(inline=True)
-def _steady_state(A, b, x_ss, Ws):
+def _steady_state(A, b, w, lane):
     n = A.shape[0]
-    M = Ws[MAT.m0, : n + 1, : n + 1]
-    Minv = Ws[MAT.m1, : n + 1, : n + 1]
-    T = Ws[MAT.m2, : n + 1, : n + 1]
+    M = w.M[lane]
+    Minv = w.Minv[lane]
+    M_lu = w.M_lu[lane]
+    x_ss = w.x_ss[lane]
     for i in range(n + 1):
         for j in range(n + 1):
             M[i, j] = 0.0
@@ -267,8 +269,8 @@ def _steady_state(A, b, x_ss, Ws):
     M[n, 0] = 1.0
     for i in range(n + 1):
         for j in range(n + 1):
-            T[i, j] = M[i, j]
-    if not invert(T, Minv) or not all_finite(Minv):
+            M_lu[i, j] = M[i, j]
+    if not invert(M_lu, Minv) or not all_finite(Minv):
         for i in range(n):
             x_ss[i] = 0.0
         return 0.0, 0.0
@@ -279,76 +281,75 @@ def _steady_state(A, b, x_ss, Ws):
 
 
 @lane(entry=True)
-def steady_state(A, b, x_ss, work):
-    """Steady state of ``x = A x + b u``, ``y = x_1 = 1``: writes ``x_ss``, returns
-    ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] = [0; 1]``
-    (regular exactly when the model has no zero at ``z = 1``; works with an integrator in ``A``).
-    ``rcond = 0``: singular (``x_ss = 0``, ``u_ss = 0``)."""
-    mm = A.shape[0] + 1
-    Ws, _ = split_work(work, mm, N_MAT)
-    return _steady_state(A, b, x_ss, Ws)
+def steady_state(A, b, w, lane):
+    """Steady state of ``x = A x + b u``, ``y = x_1 = 1``: writes ``x_ss`` into ``w.x_ss[lane]``,
+    returns ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] =
+    [0; 1]`` (regular exactly when the model has no zero at ``z = 1``; works with an integrator
+    in ``A``). ``rcond = 0``: singular (``x_ss = 0``, ``u_ss = 0``). ``w``: the fields of
+    :class:`SteadyStateWork` and ``x_ss`` (a :data:`DesignWork` of order ``n``)."""
+    if w.M.shape[1] != A.shape[0] + 1:
+        raise ValueError("steady_state: w is not the scratch of this order (design_work(n))")
+    return _steady_state(A, b, w, lane)
 
 
 @lane(inline=True)
-def _prepare(theta, form, integral, safe, Ws, Vs):
+def _prepare(theta, cfg, w, lane):
     """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
-    builds ``A``, ``b`` and ``(A_aug, b_aug)`` in the work and leaves ``Ctrb^{-1}`` there.
+    builds ``A``, ``b`` and ``(A_aug, b_aug)`` in ``w`` and leaves ``C^{-1}`` there.
     Returns ``(status, rcond)``."""
     n = theta.size // 2
     if not all_finite(theta):
         return NONFINITE, 0.0
-    bounds = safe_bounds(safe)
+    bounds = safe_bounds(cfg.safe)
     bmax = 0.0
     for i in range(n):
         bmax = max(bmax, abs(theta[n + i]))
     if bmax < bounds.b_min:
         return B_SMALL, 0.0
-    m = n + (1 if integral else 0)
-    A = Ws[MAT.A, :n, :n]
-    Ad = Ws[MAT.A_aug, :m, :m]
-    b = Vs[VEC.b, :n]
-    bd = Vs[VEC.b_aug, :m]
-    model_matrices(theta, form, A, b)
-    augment_integral(A, b, integral, Ad, bd)
-    rcond = controllability(Ad, bd, Ws, Vs)
+    Ad = w.A_aug[lane]
+    bd = w.b_aug[lane]
+    A = w.A[lane]
+    b = w.b[lane]
+    model_matrices(theta, cfg.form, A, b)
+    augment_integral(A, b, cfg.integral, Ad, bd)
+    rcond = controllability(Ad, bd, w, lane)
     if not rcond > max(bounds.rcond_min, RCOND_FLOOR):
         return UNCONTROLLABLE, rcond
     return OK, rcond
 
 
-@lane(returns_views=True)
-def design_start(theta, form, integral, safe, work, n_mat):
-    """The start every design shares: the scratch split into ``n_mat`` matrix slots
-    (:func:`split_work`), the model of ``theta`` built and the safe-set tests passed in order
-    (finite, ``b_min``, controllability; ``Ctrb^{-1}`` left in the scratch).
-
-    Returns ``(status, rcond, Ws, Vs, A_aug, b_aug, K)``: the (integral-augmented) model and
-    the slot of the gain, each of size ``m = n + integral``; the design goes on only when
-    ``status == OK``.
-    """
-    Ws, Vs = split_work(work, theta.size // 2 + 1, n_mat)
-    status, rcond = _prepare(theta, form, integral, safe, Ws, Vs)
-    m = theta.size // 2 + (1 if integral else 0)
-    return status, rcond, Ws, Vs, Ws[MAT.A_aug, :m, :m], Vs[VEC.b_aug, :m], Vs[VEC.K, :m]
+@lane(inline=True)
+def design_start(theta, cfg, w, lane):
+    """The start every design shares (``cfg``: a :class:`DesignConfig`): the model of ``theta``
+    built into lane ``lane`` of the scratch ``w`` (``w.A``, ``w.b``, the augmented ``w.A_aug``,
+    ``w.b_aug`` of size ``m = n + integral``) and the safe-set tests passed in order (finite,
+    ``b_min``, controllability; ``w.Cinv`` left for Ackermann's formula). Returns
+    ``(status, rcond)``; the design goes on only when ``status == OK``. A scratch built for
+    another order or integral action is an error."""
+    n = theta.size // 2
+    m = n + (1 if cfg.integral else 0)
+    if w.A.shape[1] != n or w.A_aug.shape[1] != m:
+        raise ValueError("design scratch of another order: build it with design_work(n, integral)")
+    return _prepare(theta, cfg, w, lane)
 
 
 @lane(inline=True)
-def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
-    """Feed-forward from the steady state, the gain bound, and the commit of ``gain``."""
+def finish(theta, cfg, rcond, gain, w, lane):
+    """Feed-forward from the steady state, the gain bound, and the commit of ``gain``: the
+    candidate gain ``w.K[lane]`` becomes the record ``[K_x, k_i, N, rcond]``."""
     n = theta.size // 2
-    bounds = safe_bounds(safe)
-    A = Ws[MAT.A, :n, :n]
-    b = Vs[VEC.b, :n]
-    x_ss = Vs[VEC.x_ss, :n]
+    bounds = safe_bounds(cfg.safe)
+    K = w.K[lane]
+    x_ss = w.x_ss[lane]
     N = 0.0
-    if feedforward:
-        u_ss, dc_rcond = _steady_state(A, b, x_ss, Ws)
+    if cfg.feedforward:
+        u_ss, dc_rcond = _steady_state(w.A[lane], w.b[lane], w, lane)
         if not dc_rcond >= max(bounds.dc_rcond_min, DC_RCOND_FLOOR):
             return DC_SINGULAR
         N = u_ss
         for i in range(n):
             N += K[i] * x_ss[i]
-    m = n + (1 if integral else 0)
+    m = n + (1 if cfg.integral else 0)
     kmax = abs(N)
     for i in range(m):
         if abs(K[i]) > kmax or not math.isfinite(K[i]):
@@ -357,7 +358,7 @@ def finish(theta, integral, feedforward, safe, K, rcond, gain, Ws, Vs):
         return GAIN_LARGE
     for i in range(n):
         gain[i] = K[i]
-    gain[n] = K[n] if integral else 0.0
+    gain[n] = K[n] if cfg.integral else 0.0
     gain[n + 1] = N
     gain[n + 2] = rcond
     return OK

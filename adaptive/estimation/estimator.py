@@ -385,7 +385,7 @@ def estimator_predict(
         _corrected_state(s, i, cfg, A, x, y, x_reg, x_next)
     if cfg.state == STATE_KF:
         P1, L1 = s.P1[i], s.L1[i]
-        if kalman_step(A, b, P1, s.Q[i], cfg.R, x, u, y, x_next, L1, w.kalman[i]) != 0:
+        if kalman_step(A, b, P1, s.Q[i], cfg.R, x, u, y, x_next, L1, w.AP[i], w.P_upd[i]) != 0:
             copy_matrix(s.P1_init[i], P1)
             for j in range(n):
                 L1[j] = 0.0

@@ -120,7 +120,8 @@ class EstimatorWork(NamedTuple):
     S_saved: NDArray  # a copy of S (d, d): the window's downdate, a restart's factor
     A: NDArray  # the model A_hat(t) (n, n)
     x_next: NDArray  # x_hat(t+1) (n)
-    kalman: NDArray  # the Kalman step's scratch (2 n^2)
+    AP: NDArray  # the Kalman step's A P1 (n, n)
+    P_upd: NDArray  # its P1(t+1) until it is accepted (n, n)
     x_reg: NDArray  # x_hat(t|t) of the filtered regressor (n)
 
 
@@ -506,7 +507,7 @@ class EstimatorSpec:
         work = {
             "delta": (d,), "K": (d,), "w": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
             "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
-            "kalman": (2 * n * n,), "x_reg": (n,),
+            "AP": (n, n), "P_upd": (n, n), "x_reg": (n,),
         }  # fmt: skip
         return state, work
 

@@ -2,20 +2,22 @@
 
 Published interface (other modules build on these signatures; they do not change):
 
-``least_squares_step(theta, S, Phi, Y, lam, work) -> int``
+``least_squares_step(theta, S, Phi, Y, lam, w, lane) -> int``
     One recursive least-squares step on a *generic* regressor: ``theta`` (d,), ``S`` (d, d) the
     upper-triangular factor of ``P = S S^T`` (updated in place), ``Phi`` (p, d) whose row ``j``
     is the regressor ``phi(t - j)^T`` (``p = 1``: RLS (32)-(36); ``p > 1``: the multi-innovation
     MILS (37)-(44)), ``Y`` (p,) the matching outputs, ``lam`` the forgetting factor in (0, 1]
-    (``P^{-1}(t) = lam P^{-1}(t-1) + Phi^T Phi``), ``work`` a scratch vector of length
-    ``>= 3 d + p``. On return ``work[2d : 2d + p]`` holds the innovation
-    ``E(p, t) = Y - Phi theta(t-1)`` (eq. (38)). Returns ``OK`` (0) or ``FAIL_COVARIANCE`` (1):
-    then ``theta`` is untouched and ``S`` must be reset by the caller (e.g. to ``S(0)``).
-``least_squares_downdate(theta, S, Phi, Y, work) -> int``
+    (``P^{-1}(t) = lam P^{-1}(t-1) + Phi^T Phi``); its scratch is lane ``lane`` of the
+    :class:`LeastSquaresWork` fields of ``w`` (shapes :func:`least_squares_shapes`). On return
+    ``w.E[lane]`` holds the innovation ``E(p, t) = Y - Phi theta(t-1)`` (eq. (38)). Returns
+    ``OK`` (0) or ``FAIL_COVARIANCE`` (1): then ``theta`` is untouched and ``S`` must be reset by
+    the caller (e.g. to ``S(0)``).
+``least_squares_downdate(theta, S, Phi, Y, w, lane) -> int``
     Removes a data block (finite history): ``P^{-1} <- P^{-1} - Phi^T Phi`` and
-    ``theta <- theta - P Phi^T E`` with ``E = Y - Phi theta``; ``work`` of length
-    ``>= 3 d + p + d * d``. Returns ``OK`` or ``FAIL_DOWNDATE`` (``S``, ``theta`` restored: the
-    block could not be removed accurately, ``1 - phi^T P phi <= DOWNDATE_TOL``).
+    ``theta <- theta - P Phi^T E`` with ``E = Y - Phi theta`` (the same scratch and
+    :class:`DowndateWork`'s). Returns ``OK``
+    or ``FAIL_DOWNDATE`` (``S``, ``theta`` restored: the block could not be removed accurately,
+    ``1 - phi^T P phi <= DOWNDATE_TOL``).
 ``upper_factor(P, S) -> bool``
     ``S`` upper triangular with ``S S^T = P`` (``P`` symmetric positive definite); ``False``
     when ``P`` is not (``S`` then undefined). Use it to restart an estimator at a given ``P``.
@@ -40,23 +42,29 @@ Design notes: square-root covariance, the one health check.
 from __future__ import annotations
 
 import math
+from typing import Any, NamedTuple
 
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.records import copy_matrix, view2d
-from stcgym.envs.compiled import lane
+from stcgym.adaptive.kernels.records import copy_matrix
+from stcgym.envs.compiled import fields_of, lane, make_work
 
 __all__ = [
     "DOWNDATE_TOL",
     "FAIL_COVARIANCE",
     "FAIL_DOWNDATE",
     "OK",
+    "DowndateWork",
+    "LeastSquaresWork",
+    "WindowedLeastSquaresWork",
     "carlson_update",
     "factor_is_healthy",
     "gradient_increment",
     "least_squares_downdate",
     "least_squares_increment",
+    "least_squares_shapes",
     "least_squares_step",
+    "least_squares_work",
     "projection_increment",
     "rank_one_update",
     "upper_factor",
@@ -71,6 +79,45 @@ FAIL_DOWNDATE = 2
 #: accuracy, and the loss never decays (what is added and removed later is exact), so a limit
 #: of ``1e-8`` lets errors of ``1e-8 .. 1e-5`` accumulate when dominant samples leave the window.
 DOWNDATE_TOL = 1e-4
+
+
+class LeastSquaresWork(NamedTuple):
+    """The scratch of :func:`least_squares_step`, one row a lane (shapes in
+    :func:`least_squares_shapes`; a caller's scratch may hold more fields)."""
+
+    delta: NDArray  # the increment of theta (d,)
+    K: NDArray  # the gain P phi of a factor update (d,)
+    E: NDArray  # the innovation E(p, t) = Y - Phi theta(t-1) (p,)
+    w: NDArray  # the factor updates' scratch (2 d,)
+
+
+class DowndateWork(NamedTuple):
+    """The scratch :func:`least_squares_downdate` needs besides :class:`LeastSquaresWork`."""
+
+    S_saved: NDArray  # S before a downdate, restored when it fails (d, d)
+
+
+#: The scratch of the finite-history least squares (:func:`least_squares_step` and
+#: :func:`least_squares_downdate`): the fields of both parts.
+WindowedLeastSquaresWork = NamedTuple(  # type: ignore[misc]
+    "WindowedLeastSquaresWork", fields_of(LeastSquaresWork, DowndateWork)
+)
+
+
+def least_squares_shapes(d: int, p: int, window: bool = False) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :class:`LeastSquaresWork` fields (``window=True``: of
+    :data:`WindowedLeastSquaresWork`) for ``d`` parameters and blocks of ``p`` rows: the one
+    place they are declared."""
+    d, p = int(d), int(p)
+    shapes = {"delta": (d,), "K": (d,), "E": (p,), "w": (2 * d,)}
+    return {**shapes, "S_saved": (d, d)} if window else shapes
+
+
+def least_squares_work(d: int, p: int, num_lanes: int = 1, *, window: bool = False) -> Any:
+    """A zeroed :class:`LeastSquaresWork` (``window=True``: :data:`WindowedLeastSquaresWork`)
+    of ``num_lanes`` lanes."""
+    fields = WindowedLeastSquaresWork if window else LeastSquaresWork
+    return make_work(fields, least_squares_shapes(d, p, window), num_lanes)
 
 
 @lane
@@ -255,24 +302,23 @@ def block_trace_is_finite(S: NDArray, lo: int, hi: int) -> bool:
     return math.isfinite(acc)
 
 
-@lane
+@lane(inline=True)
 def least_squares_step(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, work: NDArray
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, lane: int
 ) -> int:
     """One RLS (``p = 1``, (32)-(36)) or MILS (``p > 1``, (37)-(44)) step on a generic
     regressor; see the module docstring for the arguments."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = work[:d]
-    K = work[d : 2 * d]
-    E = work[2 * d : 2 * d + p]
+    delta = w.delta[lane]
+    K = w.K[lane]
+    E = w.E[lane]
     for k in range(p):
         acc = Y[k]
         for i in range(d):
             acc -= Phi[k, i] * theta[i]
         E[k] = acc
-    w = work[2 * d + p : 3 * d + p]
-    alpha = least_squares_increment(S, 0, d, Phi, E, p, lam, p == 1, delta, K, w)
+    alpha = least_squares_increment(S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.w[lane])
     if not (alpha > 0.0 and math.isfinite(alpha) and factor_is_healthy(S, 0, d)):
         return FAIL_COVARIANCE
     for i in range(d):
@@ -327,17 +373,16 @@ def downdate_block(
     return True
 
 
-@lane
+@lane(inline=True)
 def least_squares_downdate(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, work: NDArray
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, w: Any, lane: int
 ) -> int:
     """Remove one data block from a least-squares estimate; see the module docstring."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = work[:d]
-    w = work[d : 3 * d]
-    E = work[3 * d : 3 * d + p]
-    saved = view2d(work, 3 * d + p, d, d)
+    delta = w.delta[lane]
+    E = w.E[lane]
+    saved = w.S_saved[lane]
     copy_matrix(S, saved)
     for k in range(p):
         acc = Y[k]
@@ -346,7 +391,7 @@ def least_squares_downdate(
         E[k] = acc
     for i in range(d):
         delta[i] = 0.0
-    if not downdate_block(S, 0, d, Phi, E, p, delta, w):
+    if not downdate_block(S, 0, d, Phi, E, p, delta, w.w[lane]):
         copy_matrix(saved, S)
         return FAIL_DOWNDATE
     for i in range(d):

@@ -7,7 +7,7 @@ comes from :func:`stcgym.adaptive.kernels.canonical.companion_into`):
 ``observer_step(A, b, x, u, y, K, closed, x_next) -> None``
     Open-loop observer (46)/(58): ``x_hat(t+1) = A x_hat(t) + b u(t)``; with ``closed`` the
     closed-loop observer (50) adds ``K [y(t) - c x_hat(t)]``, ``c = [1, 0, ..., 0]``.
-``kalman_step(A, b, P1, Q, R, x, u, y, x_next, L1, work) -> int``
+``kalman_step(A, b, P1, Q, R, x, u, y, x_next, L1, AP, P_upd) -> int``
     Kalman filter (66)-(72) / (80)-(82) on the model ``(A, b, c = e_1)`` with process-noise
     covariance ``Q`` (n, n) and measurement-noise variance ``R`` (the paper: ``Q = 0``,
     ``R = 1``)::
@@ -16,7 +16,8 @@ comes from :func:`stcgym.adaptive.kernels.canonical.companion_into`):
         x_hat(t+1) = A x_hat + b u + L1 [y - c x_hat]                     (66)/(80)
         P1(t+1) = A P1 A^T - g g^T / s + Q    (symmetrised)               (68)/(82)
 
-    ``work`` has ``>= 2 n^2`` entries. Returns 0, or 1 when ``s <= 0`` or ``P1(t+1)`` is not
+    ``AP`` and ``P_upd`` (n, n) are its scratch: ``A P1`` and ``P1(t+1)`` until it is
+    accepted. Returns 0, or 1 when ``s <= 0`` or ``P1(t+1)`` is not
     finite: then ``P1`` and ``L1`` are untouched, ``x_next = A x + b u`` and the caller resets
     ``P1`` (the estimator resets it to ``P1(1)``). Any dense ``A`` works (the LQG oracle).
 ``filtered_state(x, P1, R, y, x_filt) -> float``
@@ -40,7 +41,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.linalg import matmul
-from stcgym.adaptive.kernels.records import view2d
 from stcgym.envs.compiled import lane
 
 __all__ = [
@@ -88,12 +88,12 @@ def kalman_step(
     y: float,
     x_next: NDArray,
     L1: NDArray,
-    work: NDArray,
+    AP: NDArray,
+    P_upd: NDArray,
 ) -> int:
-    """Kalman filter step (66)-(68); see the module docstring. ``x_next`` must not alias ``x``."""
+    """Kalman filter step (66)-(68); see the module docstring. ``x_next`` must not alias ``x``;
+    ``AP``, ``P_upd``: ``(n, n)`` scratch."""
     n = x.shape[0]
-    AP = view2d(work, 0, n, n)
-    Pn = view2d(work, n * n, n, n)
     matmul(A, P1, AP)
     s = R + P1[0, 0]
     innov = y - x[0]
@@ -110,12 +110,12 @@ def kalman_step(
             acc = 0.0
             for k in range(n):
                 acc += AP[i, k] * A[j, k]
-            Pn[i, j] = acc - AP[i, 0] * AP[j, 0] * inv_s + Q[i, j]
+            P_upd[i, j] = acc - AP[i, 0] * AP[j, 0] * inv_s + Q[i, j]
     for i in range(n):
         for j in range(i + 1):
-            v = 0.5 * (Pn[i, j] + Pn[j, i])
-            Pn[i, j] = v
-            Pn[j, i] = v
+            v = 0.5 * (P_upd[i, j] + P_upd[j, i])
+            P_upd[i, j] = v
+            P_upd[j, i] = v
             finite = finite and math.isfinite(v)
     if not finite:
         return 1
@@ -124,7 +124,7 @@ def kalman_step(
         x_next[i] += L1[i] * innov
     for i in range(n):
         for j in range(n):
-            P1[i, j] = Pn[i, j]
+            P1[i, j] = P_upd[i, j]
     return 0
 
 
@@ -211,13 +211,14 @@ def state_trajectory(
     x = x1.copy()
     x_next = np.empty(n)
     L1 = np.empty(n)
-    work = np.empty(2 * n * n)
+    AP = np.empty((n, n))
+    P_upd = np.empty((n, n))
     K = np.zeros(n)
     for t in range(u.shape[0]):
         for i in range(n):
             xs[t, i] = x[i]
         if kalman:
-            if kalman_step(A, b, P1, Q, R, x, u[t], y[t], x_next, L1, work) != 0:
+            if kalman_step(A, b, P1, Q, R, x, u[t], y[t], x_next, L1, AP, P_upd) != 0:
                 # P1 overflowed: propagate the open-loop prediction; the caller's limit trips
                 observer_step(A, b, x, u[t], y[t], K, False, x_next)
         else:

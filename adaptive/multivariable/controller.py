@@ -5,8 +5,8 @@ A x + B u + w``, the state measured: ``C = I``, ``D = 0``). Every sample its com
 (:mod:`stcgym.adaptive.multivariable.controller_step`) runs: the ``[A B]`` estimator of Kunik,
 Kovalenko & Al Sadi (2001) -> change detection -> certainty-equivalence LQ design in the safe
 set -> control (a seeded probe at start-up, then ``u = sat(-K x + F r)``). ``num_envs=B`` holds
-``B`` lane records and steps them in one batch loop; a single controller is the case ``B = 1`` of
-the same compiled step, so it equals its lane of a batch bit for bit.
+the state of ``B`` lanes and steps them in one batch loop; a single controller is the case
+``B = 1`` of the same compiled step, so it equals its lane of a batch bit for bit.
 
 Tracking is by feed-forward: ``F r`` steers to the equilibrium ``(x_s, u_s)`` of the estimated
 model that is cheapest in the LQ cost for the reference ``r`` (the reference itself when it is

@@ -53,9 +53,9 @@ from stcgym.adaptive.multivariable.mimo_lq import (
     P_MAX,
     dare_solve,
     design_checks,
-    design_work_size,
     feedback_law,
     lq_gain,
+    mimo_design_work,
     riccati_step,
 )
 from stcgym.adaptive.multivariable.state_matrix import RESET, state_matrix_update
@@ -109,7 +109,7 @@ class MimoState(NamedTuple):
 class MimoWork(NamedTuple):
     """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
 
-    design: NDArray  # the design's scratch (mimo_lq.design_work_size(n, m))
+    design: Any  # the design's scratch (a mimo_lq.MimoDesignWork)
 
 
 #: The integer fields of :class:`MimoState` (the counters; the others are float64 except the
@@ -122,9 +122,10 @@ _DTYPES: dict[str, Any] = {
 }
 
 
-def mimo_shapes(n: int, m: int) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
-    """The shapes of one lane's :class:`MimoState` and :class:`MimoWork` fields for ``n``
-    states and ``m`` inputs: the one place they are declared."""
+def mimo_shapes(n: int, m: int) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :class:`MimoState` fields for ``n`` states and ``m`` inputs:
+    the one place they are declared. The scratch :class:`MimoWork` is the design's own
+    (:func:`.mimo_lq.mimo_design_shapes`)."""
     n, m = int(n), int(m)
     state: dict[str, tuple[int, ...]] = {
         **dict.fromkeys(("A", "P_lq", "P_try"), (n, n)),
@@ -134,20 +135,21 @@ def mimo_shapes(n: int, m: int) -> tuple[dict[str, tuple[int, ...]], dict[str, t
     }
     for scalar in MimoState._fields:
         state.setdefault(scalar, ())
-    return state, {"design": (design_work_size(n, m),)}
+    return state
 
 
 def make_mimo_state(n: int, m: int, num_lanes: int) -> tuple[MimoState, MimoWork]:
     """A zeroed :class:`MimoState` of ``num_lanes`` lanes and their scratch."""
-    shapes, work = mimo_shapes(n, m)
     return (
-        lane_state(MimoState, shapes, num_lanes, _DTYPES),
-        lane_state(MimoWork, work, num_lanes),
+        lane_state(MimoState, mimo_shapes(n, m), num_lanes, _DTYPES),
+        MimoWork(mimo_design_work(n, m, num_lanes)),
     )
 
 
 class MimoConfig(NamedTuple):
-    """Configuration of :func:`mimo_step` (built once by the Python controller)."""
+    """Configuration of :func:`mimo_step` (built once by the Python controller); it is also the
+    design's :class:`.mimo_lq.LQProblem` (``Q``, ``R``, ``N``, ``solve_tol``,
+    ``solve_max_iter``) and safe set (``b_min``, ``gain_max``)."""
 
     n: int
     m: int
@@ -221,7 +223,7 @@ def _model(theta, A, B):
             B[i, j] = theta[n + j, i]
 
 
-@lane
+@lane(inline=True)
 def _design(s, w, est, lane, cfg):
     """Step 3: a candidate gain (Riccati step or full solve), accepted in the safe set."""
     theta = est.theta[lane]
@@ -229,13 +231,10 @@ def _design(s, w, est, lane, cfg):
     B = s.B[lane]
     settled = _model_change(theta, A, B) < cfg.settle_tol
     _model(theta, A, B)
-    Q = cfg.Q
-    R = cfg.R
-    N = cfg.N
     P = s.P_try[lane]
     K = s.K_try[lane]
     P_lq = s.P_lq[lane]
-    work = w.design[lane]
+    work = w.design
     fresh = s.fresh[lane] or not s.has_gain[lane]
     q, n = theta.shape
     for i in range(q):
@@ -243,25 +242,25 @@ def _design(s, w, est, lane, cfg):
             if not math.isfinite(theta[i, j]):
                 return NONFINITE
     if fresh:
-        status = dare_solve(A, B, Q, R, N, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
+        status = dare_solve(A, B, cfg, P, K, work, lane)
         if status != OK:
             return status
     else:
         copy_matrix(P_lq, P)
-        riccati_step(A, B, Q, R, N, P, K, work)
+        riccati_step(A, B, cfg, P, K, work, lane)
         big = False
         for i in range(n):
             for j in range(n):
                 big = big or not abs(P[i, j]) <= P_MAX
-        if big or not lq_gain(A, B, R, N, P, K, work):
-            copy_matrix(Q, P_lq)  # restart the iteration at P = Q
+        if big or not lq_gain(A, B, cfg, P, K, work, lane):
+            copy_matrix(cfg.Q, P_lq)  # restart the iteration at P = Q
             return NOT_STABILISABLE
         if settled and _lagging(P, P_lq, cfg.lag_tol):
             s.n_catch_up[lane] += 1
-            status = dare_solve(A, B, Q, R, N, P, K, work, cfg.solve_tol, cfg.solve_max_iter)
+            status = dare_solve(A, B, cfg, P, K, work, lane)
             if status != OK:
                 return status
-    status = design_checks(A, B, Q, R, N, K, s.F[lane], cfg.b_min, cfg.gain_max, work)
+    status = design_checks(A, B, cfg, K, s.F[lane], work, lane)
     if status == OK:
         copy_matrix(P, P_lq)
         copy_matrix(K, s.K[lane])

@@ -87,16 +87,17 @@ def lqr_design(
     R = np.ascontiguousarray(R, dtype=float)
     n, m = B.shape
     N = np.zeros((n, m)) if N is None else np.ascontiguousarray(N, dtype=float)
-    work = np.zeros(lq.design_work_size(n, m))
+    work = lq.mimo_design_work(n, m)
     P = np.zeros((n, n))
     K = np.zeros((m, n))
-    status = lq.dare_solve(A, B, Q, R, N, P, K, work, 1e-12, 64)
+    problem = lq.LQProblem(Q, R, N, 1e-12, 64)
+    status = lq.dare_solve(A, B, problem, P, K, work, 0)
     if status != 0:
         raise ValueError(
             "no stabilising LQ gain for these weights: " + lq_failure_reason(A, B, Q, R, N, status)
         )
     F = np.zeros((m, n))
-    if not lq.steady_state_feedforward(A, B, Q, R, N, K, F, work):
+    if not lq.steady_state_feedforward(A, B, problem, K, F, work, 0):
         raise ValueError("(A, B) has no equilibrium for some reference (a mode at z = 1)")
     return K, F
 

@@ -28,8 +28,9 @@ convention; the StateSpace env's cost is ``Q = I``, ``R = rho I``, ``N = 0``), t
 ``feedback_law``
     ``u = sat(-K x + F r)``, saturated per input.
 
-Matrices are C-ordered views into the lane record or a scratch vector (``view2d``); scratch of
-``design_work_size(n, m)`` floats.
+Matrices are C-ordered rows of the lane state; the scratch is a :data:`MimoDesignWork` (named
+fields, one row a lane, shapes in :func:`mimo_design_shapes`), of which each function uses lane
+``lane`` and the fields it names.
 
 Status codes (:mod:`.safe_set`): ``NOT_STABILISABLE`` when ``(A, B)`` is not stabilisable (the
 regularised problem has no stabilising solution either), ``UNIT_CIRCLE_MODE`` when it is but a
@@ -40,6 +41,9 @@ keeps it), ``NOT_CONVERGED`` when an iteration runs out of steps.
 from __future__ import annotations
 
 import math
+from typing import Any, NamedTuple
+
+from numpy.typing import NDArray
 
 from stcgym.adaptive.control.safe_set import (
     B_SMALL,
@@ -52,18 +56,27 @@ from stcgym.adaptive.control.safe_set import (
     UNIT_CIRCLE_MODE,
 )
 from stcgym.adaptive.kernels.linalg import invert, matmul, max_abs
-from stcgym.adaptive.kernels.records import copy_matrix, view2d
-from stcgym.envs.compiled import lane, lanes
+from stcgym.adaptive.kernels.records import copy_matrix
+from stcgym.envs.compiled import fields_of, lane, lanes, make_work
 
 __all__ = [
     "P_MAX",
+    "ClosedLoopWork",
+    "CrossWeightWork",
+    "DoublingWork",
+    "FeedforwardWork",
+    "GainWork",
+    "LQProblem",
+    "MimoDesignWork",
     "dare_solve",
     "design_checks",
     "doubling",
-    "design_work_size",
+    "doubling_shapes",
     "feedback_law",
     "feedback_laws",
     "lq_gain",
+    "mimo_design_shapes",
+    "mimo_design_work",
     "riccati_step",
     "schur_stable",
     "steady_state_feedforward",
@@ -74,24 +87,112 @@ P_MAX = 1e150
 #: Newton steps of the fallback solve (quadratic convergence needs a handful; a problem with a
 #: mode on the unit circle that ``Q`` does not see converges only linearly and ends here).
 NEWTON_MAX_ITER = 100
-#: Matrix slots of the design scratch.
-N_SLOTS = 16
 #: Squarings of the stability test (the power ``2^40`` decides spectral radii below
 #: ``1 - 1e-11``).
 MAX_SQUARINGS = 40
 
 
-def design_work_size(n: int, m: int) -> int:
-    """Scratch floats of the designs: :data:`N_SLOTS` slots of ``(2n + m)^2``."""
+class LQProblem(NamedTuple):
+    """The stage cost's weights and the solve's limits (the multivariable controller passes its
+    own configuration, which has these fields)."""
+
+    Q: NDArray  # state weight (n, n)
+    R: NDArray  # input weight (m, m), positive definite
+    N: NDArray  # cross weight (n, m)
+    solve_tol: float  # the last doubling or Newton increment, relative to max |P|
+    solve_max_iter: int  # doubling steps (each squares the horizon)
+
+
+class GainWork(NamedTuple):
+    """The LQ gain of a Riccati matrix (:func:`lq_gain`)."""
+
+    PB: NDArray  # P B (n, m)
+    S: NDArray  # R + B^T P B, reduced by the inversion (m, m)
+    S_inv: NDArray  # (R + B^T P B)^{-1} (m, m)
+    BPA: NDArray  # B^T P A + N^T (m, n)
+
+
+class ClosedLoopWork(NamedTuple):
+    """A gain's closed loop: the Riccati iteration and the stability test."""
+
+    A_cl: NDArray  # A - B K (n, n)
+    P_Acl: NDArray  # P A_cl (n, n)
+    RK: NDArray  # R K (m, n)
+    X: NDArray  # the stability test's power M^(2^k) (n, n)
+    X2: NDArray  # its square (n, n)
+
+
+class DoublingWork(NamedTuple):
+    """The structure-preserving doubling iteration (:func:`doubling`)."""
+
+    A_k: NDArray  # the iterates A_k, G_k, H_k (n, n)
+    G_k: NDArray
+    H_k: NDArray
+    W: NDArray  # I + G_k H_k, then the products of a step (n, n)
+    W_inv: NDArray  # W^{-1} (n, n)
+    T1: NDArray  # W^{-1} A_k (n, n)
+    T2: NDArray  # W^{-1} G_k (n, n)
+    T3: NDArray  # H_k W^{-1} A_k, A_k W^{-1} G_k (n, n)
+
+
+class CrossWeightWork(NamedTuple):
+    """The solve of :func:`dare_solve`: the problem without cross weight and Newton's method."""
+
+    R_lu: NDArray  # R, reduced by the inversion (m, m)
+    R_inv: NDArray  # R^{-1} (m, m)
+    RinvNt: NDArray  # R^{-1} N^T (m, n)
+    RinvBt: NDArray  # R^{-1} B^T (m, n)
+    A_N: NDArray  # A - B R^{-1} N^T (n, n)
+    Q_N: NDArray  # Q - N R^{-1} N^T (n, n)
+    P_sol: NDArray  # the solution until it is accepted (n, n)
+    K_sol: NDArray  # its gain (m, n)
+    P_prev: NDArray  # Newton's previous iterate (n, n)
+
+
+class FeedforwardWork(NamedTuple):
+    """The cheapest equilibrium (:func:`steady_state_feedforward`) and the safe set."""
+
+    KKT: NDArray  # the KKT matrix, reduced by the inversion (2n + m, 2n + m)
+    KKT_inv: NDArray  # its inverse (2n + m, 2n + m)
+    M_x: NDArray  # x_s = M_x r (n, n)
+    M_u: NDArray  # u_s = M_u r, then F = M_u + K M_x (m, n)
+    F_try: NDArray  # the candidate feed-forward (m, n)
+
+
+#: The scratch of the multi-input designs: the fields of :class:`GainWork`,
+#: :class:`ClosedLoopWork`, :class:`DoublingWork`, :class:`CrossWeightWork` and
+#: :class:`FeedforwardWork`, one row a lane (``w.K_sol[lane]``), shapes in
+#: :func:`mimo_design_shapes`.
+MimoDesignWork = NamedTuple(  # type: ignore[misc]
+    "MimoDesignWork",
+    fields_of(GainWork, ClosedLoopWork, DoublingWork, CrossWeightWork, FeedforwardWork),
+)
+
+
+def doubling_shapes(n: int) -> dict[str, tuple[int, ...]]:
+    """The shapes of the :class:`DoublingWork` fields for ``n`` states (every one ``n x n``)."""
+    return dict.fromkeys(DoublingWork._fields, (int(n), int(n)))
+
+
+def mimo_design_shapes(n: int, m: int) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :data:`MimoDesignWork` fields for ``n`` states and ``m``
+    inputs: the one place they are declared."""
+    n, m = int(n), int(m)
     s = 2 * n + m
-    return N_SLOTS * s * s
+    return {
+        "PB": (n, m),
+        **dict.fromkeys(("S", "S_inv", "R_lu", "R_inv"), (m, m)),
+        **dict.fromkeys(("BPA", "RK", "RinvNt", "RinvBt", "K_sol", "M_u", "F_try"), (m, n)),
+        **dict.fromkeys(("A_cl", "P_Acl", "X", "X2", "A_N", "Q_N", "P_sol", "P_prev"), (n, n)),
+        **doubling_shapes(n),
+        **dict.fromkeys(("KKT", "KKT_inv"), (s, s)),
+        "M_x": (n, n),
+    }
 
 
-@lane(returns_views=True)
-def _slot(work, k, rows, cols):
-    """Slot ``k`` of the scratch as a ``rows x cols`` matrix (slots of ``(2n + m)^2`` floats,
-    ``work.size / N_SLOTS``)."""
-    return view2d(work, k * (work.size // N_SLOTS), rows, cols)
+def mimo_design_work(n: int, m: int, num_lanes: int = 1) -> Any:
+    """A :data:`MimoDesignWork` of ``num_lanes`` lanes for ``n`` states and ``m`` inputs."""
+    return make_work(MimoDesignWork, mimo_design_shapes(n, m), num_lanes)
 
 
 @lane(inline=True)
@@ -103,16 +204,18 @@ def _closed_loop(A, B, K, Acl):
             Acl[i, j] = A[i, j] - Acl[i, j]
 
 
-@lane(entry=True)
-def lq_gain(A, B, R, N, P, K, work):
-    """``K = (R + B^T P B)^{-1} (B^T P A + N^T)``; ``False`` when ``R + B^T P B`` is singular
-    (scratch slots 0-3)."""
+@lane(entry=True, inline=True)
+def lq_gain(A, B, c, P, K, w, lane):
+    """``K = (R + B^T P B)^{-1} (B^T P A + N^T)`` (``R``, ``N`` of the :class:`LQProblem`
+    ``c``); ``False`` when ``R + B^T P B`` is singular (scratch: the :class:`GainWork` fields of
+    lane ``lane`` of ``w``)."""
+    R, N = c.R, c.N
     n = A.shape[0]
     m = B.shape[1]
-    PB = _slot(work, 0, n, m)
-    Sm = _slot(work, 1, m, m)
-    Sinv = _slot(work, 2, m, m)
-    T = _slot(work, 3, m, n)
+    PB = w.PB[lane]
+    Sm = w.S[lane]
+    Sinv = w.S_inv[lane]
+    T = w.BPA[lane]
     matmul(P, B, PB, False, False)
     matmul(B, PB, Sm, True, False)
     for i in range(m):
@@ -144,20 +247,19 @@ def _stage_weight(Q, R, N, K, KR, M):
             M[j, i] = acc
 
 
-@lane
-def riccati_step(A, B, Q, R, N, P, K, work):
-    """One Riccati iteration (Joseph form) on ``P`` in place; ``K`` the gain of the old ``P``.
-    Returns ``False`` when the gain is undefined."""
+@lane(inline=True)
+def riccati_step(A, B, c, P, K, w, lane):
+    """One Riccati iteration (Joseph form) on ``P`` in place for the :class:`LQProblem` ``c``;
+    ``K`` the gain of the old ``P``. Returns ``False`` when the gain is undefined."""
     n = A.shape[0]
-    m = B.shape[1]
-    if not lq_gain(A, B, R, N, P, K, work):
+    if not lq_gain(A, B, c, P, K, w, lane):
         return False
-    Acl = _slot(work, 4, n, n)
-    T = _slot(work, 5, n, n)
-    KR = _slot(work, 6, m, n)
+    Acl = w.A_cl[lane]
+    T = w.P_Acl[lane]
+    KR = w.RK[lane]
     _closed_loop(A, B, K, Acl)
     matmul(P, Acl, T, False, False)
-    _stage_weight(Q, R, N, K, KR, P)
+    _stage_weight(c.Q, c.R, c.N, K, KR, P)
     for i in range(n):
         for j in range(i, n):
             acc = 0.0
@@ -169,16 +271,16 @@ def riccati_step(A, B, Q, R, N, P, K, work):
     return True
 
 
-@lane
-def schur_stable(M, work):
-    """Spectral radius of ``M`` below 1, by repeated squaring.
+@lane(inline=True)
+def schur_stable(M, w, lane):
+    """Spectral radius of ``M`` below 1, by repeated squaring (scratch ``w.X``, ``w.X2``).
 
     Stable when ``||M^(2^k)||_F < 1/2`` for some ``k <= MAX_SQUARINGS``; unstable when a norm
     exceeds ``1e100`` or is not finite; undecided counts as unstable.
     """
     n = M.shape[0]
-    X = _slot(work, 7, n, n)
-    Y = _slot(work, 8, n, n)
+    X = w.X[lane]
+    Y = w.X2[lane]
     copy_matrix(M, X)
     for _ in range(MAX_SQUARINGS):
         fro = 0.0
@@ -195,7 +297,7 @@ def schur_stable(M, work):
 
 
 @lane
-def doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter):
+def doubling(Ak, Gk, Hk, w, lane, tol, max_iter):
     """The structure-preserving doubling iteration, from ``A_0``, ``G_0``, ``H_0`` in ``Ak``,
     ``Gk``, ``Hk`` (``n x n``, overwritten; ``G_0`` and ``H_0`` symmetric):
     ``W = I + G_k H_k``, ``A_{k+1} = A_k W^{-1} A_k``, ``G_{k+1} = G_k + A_k W^{-1} G_k A_k^T``,
@@ -203,10 +305,15 @@ def doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter):
     most ``tol max(1, |H_k|)``; ``H_k -> P``, the stabilising DARE solution when there is one.
 
     Returns ``OK`` (``Hk`` converged), ``NOT_STABILISABLE`` (a singular ``W``, or an iterate
-    above :data:`P_MAX` or not finite: diverging) or ``NOT_CONVERGED``. ``W``, ``Winv``,
-    ``T1``-``T3``: ``n x n`` scratch.
+    above :data:`P_MAX` or not finite: diverging) or ``NOT_CONVERGED``. Scratch: the
+    :class:`DoublingWork` fields of lane ``lane`` of ``w``.
     """
     n = Ak.shape[0]
+    W = w.W[lane]
+    Winv = w.W_inv[lane]
+    T1 = w.T1[lane]
+    T2 = w.T2[lane]
+    T3 = w.T3[lane]
     for _ in range(max_iter):
         matmul(Gk, Hk, W, False, False)
         for i in range(n):
@@ -237,31 +344,18 @@ def doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter):
 
 
 @lane
-def _doubling_with_scratch(Ak, Gk, Hk, work, first, tol, max_iter):
-    """:func:`doubling` with its five scratch matrices in slots ``first`` to ``first + 4``."""
-    n = Ak.shape[0]
-    W = _slot(work, first, n, n)
-    Winv = _slot(work, first + 1, n, n)
-    T1 = _slot(work, first + 2, n, n)
-    T2 = _slot(work, first + 3, n, n)
-    T3 = _slot(work, first + 4, n, n)
-    return doubling(Ak, Gk, Hk, W, Winv, T1, T2, T3, tol, max_iter)
-
-
-@lane
-def _doubling_from(AN, B, Rinv, QN, delta, work, tol, max_iter):
-    """:func:`doubling` from ``A_0 = A_N``, ``G_0 = B R^{-1} B^T``, ``H_0 = Q_N + delta I``;
-    the result in slot 2 (slots 0-7 and 9).
-
-    Slots of :func:`dare_solve`: 0-7 doubling and gains, 8 Newton's closed loop, 9 the gain,
-    10 ``R^{-1}`` (then Newton's ``R K``), 11 the solution, 12 ``A_N``, 13 ``Q_N``, 14
-    ``R^{-1} N^T``, 15 scratch; :func:`schur_stable` uses 7-8."""
+def _doubling_from(B, delta, c, w, lane):
+    """:func:`doubling` from ``A_0 = A_N``, ``G_0 = B R^{-1} B^T``, ``H_0 = Q_N + delta I``
+    (``A_N``, ``R^{-1}``, ``Q_N`` in ``w`` from :func:`dare_solve`); the result in
+    ``w.H_k[lane]``."""
+    AN = w.A_N[lane]
+    QN = w.Q_N[lane]
+    Rinv = w.R_inv[lane]
     n = AN.shape[0]
-    m = B.shape[1]
-    Ak = _slot(work, 0, n, n)
-    Gk = _slot(work, 1, n, n)
-    Hk = _slot(work, 2, n, n)
-    RB = _slot(work, 9, m, n)
+    Ak = w.A_k[lane]
+    Gk = w.G_k[lane]
+    Hk = w.H_k[lane]
+    RB = w.RinvBt[lane]
     matmul(Rinv, B, RB, False, True)  # R^{-1} B^T
     matmul(B, RB, Gk, False, False)
     for i in range(n):
@@ -269,61 +363,60 @@ def _doubling_from(AN, B, Rinv, QN, delta, work, tol, max_iter):
             Ak[i, j] = AN[i, j]
             Hk[i, j] = QN[i, j]
         Hk[i, i] += delta
-    return _doubling_with_scratch(Ak, Gk, Hk, work, 3, tol, max_iter)
+    return doubling(Ak, Gk, Hk, w, lane, c.solve_tol, c.solve_max_iter)
 
 
 @lane
-def _stabilising_gain(A, B, R, N, P, K, work):
-    """``K`` the gain of ``P`` (slot 11 holds ``P``), and whether ``A - B K`` is Schur stable."""
-    n = A.shape[0]
-    if not lq_gain(A, B, R, N, P, K, work):
+def _stabilising_gain(A, B, c, P, K, w, lane):
+    """``K`` the gain of ``P``, and whether ``A - B K`` is Schur stable."""
+    if not lq_gain(A, B, c, P, K, w, lane):
         return False
-    Acl = _slot(work, 4, n, n)
+    Acl = w.A_cl[lane]
     _closed_loop(A, B, K, Acl)
-    return schur_stable(Acl, work)
+    return schur_stable(Acl, w, lane)
 
 
 @lane
-def _stein(F0, X, tol, max_iter, work):
+def _stein(F0, X, c, w, lane):
     """``X <- sum_k F0^{kT} X F0^k``, the solution of the Stein equation ``X = F0^T X F0 + M``
     from ``X = M`` on entry: Smith's doubling ``X_{j+1} = X_j + F_j^T X_j F_j``,
-    ``F_{j+1} = F_j^2``, which is :func:`doubling` with ``G_0 = 0`` (slots 0-6). Returns
-    ``OK``, ``NOT_STABILISABLE`` (diverging: ``F0`` is not Schur stable) or
+    ``F_{j+1} = F_j^2``, which is :func:`doubling` with ``A_0 = F0``, ``G_0 = 0``, ``H_0 = X``.
+    Returns ``OK``, ``NOT_STABILISABLE`` (diverging: ``F0`` is not Schur stable) or
     ``NOT_CONVERGED``."""
     n = F0.shape[0]
-    F = _slot(work, 0, n, n)
-    G = _slot(work, 1, n, n)
+    F = w.A_k[lane]
+    G = w.G_k[lane]
     copy_matrix(F0, F)
     for i in range(n):
         for j in range(n):
             G[i, j] = 0.0
-    return _doubling_with_scratch(F, G, X, work, 2, tol, max_iter)
+    return doubling(F, G, X, w, lane, c.solve_tol, c.solve_max_iter)
 
 
 @lane
-def _newton(A, B, Q, R, N, P, K, work, tol, max_iter):
-    """Newton's method (Hewer's iteration, :func:`dare_solve`) from the stabilising gain ``K``
-    (slot 11 ``P``, slot 9 ``K``; uses slots 0-8, 10, 15). Returns ``OK`` with the stabilising
-    solution in ``P`` and its gain in ``K``, ``UNIT_CIRCLE_MODE`` when the limit's closed loop
-    is not Schur stable, or ``NOT_CONVERGED``."""
+def _newton(A, B, c, P, K, w, lane):
+    """Newton's method (Hewer's iteration, :func:`dare_solve`) from the stabilising gain ``K``.
+    Returns ``OK`` with the stabilising solution in ``P`` and its gain in ``K``,
+    ``UNIT_CIRCLE_MODE`` when the limit's closed loop is not Schur stable, or
+    ``NOT_CONVERGED``."""
     n = A.shape[0]
-    m = B.shape[1]
-    Acl = _slot(work, 8, n, n)
-    KR = _slot(work, 10, m, n)
-    Pprev = _slot(work, 15, n, n)
+    tol = c.solve_tol
+    Acl = w.A_cl[lane]
+    KR = w.RK[lane]
+    Pprev = w.P_prev[lane]
     d_prev = math.inf
     status = NOT_CONVERGED
     for _ in range(NEWTON_MAX_ITER):
         copy_matrix(P, Pprev)
         _closed_loop(A, B, K, Acl)
-        _stage_weight(Q, R, N, K, KR, P)
-        if _stein(Acl, P, tol, max_iter, work) != OK:
+        _stage_weight(c.Q, c.R, c.N, K, KR, P)
+        if _stein(Acl, P, c, w, lane) != OK:
             # the previous gain stabilised, this one barely does: the iterates approach a
             # closed loop on the unit circle
             copy_matrix(Pprev, P)
             status = UNIT_CIRCLE_MODE
             break
-        if not lq_gain(A, B, R, N, P, K, work):
+        if not lq_gain(A, B, c, P, K, w, lane):
             return NOT_STABILISABLE
         d = 0.0
         for i in range(n):
@@ -337,13 +430,13 @@ def _newton(A, B, Q, R, N, P, K, work, tol, max_iter):
         d_prev = d
     if status == NOT_CONVERGED:
         return status
-    if not _stabilising_gain(A, B, R, N, P, K, work):
+    if not _stabilising_gain(A, B, c, P, K, w, lane):
         return UNIT_CIRCLE_MODE
     return status
 
 
 @lane(entry=True)
-def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
+def dare_solve(A, B, c, P, K, w, lane):
     """Stabilising DARE solution ``P`` and its gain ``K``.
 
     The cross weight is removed first (``A_N = A - B R^{-1} N^T``, ``Q_N = Q - N R^{-1} N^T``;
@@ -363,15 +456,19 @@ def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
 
     Returns ``OK``, ``NOT_STABILISABLE`` (``(A, B)`` not stabilisable, or ``R`` singular),
     ``UNIT_CIRCLE_MODE`` (a mode on the unit circle unobservable through ``Q_N``) or
-    ``NOT_CONVERGED``. ``P`` and ``K`` are written only on ``OK``.
+    ``NOT_CONVERGED``. ``P`` and ``K`` are written only on ``OK``. ``c``: the weights and limits
+    (an :class:`LQProblem`); ``w``: a :data:`MimoDesignWork` for ``(n, m)``
+    (:func:`mimo_design_work`), lane ``lane`` used.
     """
+    Q, R, N = c.Q, c.R, c.N
     n = A.shape[0]
-    m = B.shape[1]
-    Rinv = _slot(work, 10, m, m)
-    Rc = _slot(work, 15, m, m)
-    RNt = _slot(work, 14, m, n)
-    AN = _slot(work, 12, n, n)
-    QN = _slot(work, 13, n, n)
+    if w.A_N.shape[1] != n or w.R_inv.shape[1] != B.shape[1]:
+        raise ValueError("dare_solve: w is not the scratch of this (n, m) (mimo_design_work)")
+    Rinv = w.R_inv[lane]
+    Rc = w.R_lu[lane]
+    RNt = w.RinvNt[lane]
+    AN = w.A_N[lane]
+    QN = w.Q_N[lane]
     copy_matrix(R, Rc)
     if not invert(Rc, Rinv):
         return NOT_STABILISABLE
@@ -387,12 +484,12 @@ def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
             v = 0.5 * (Q[i, j] + Q[j, i]) - 0.5 * (QN[i, j] + QN[j, i])
             QN[i, j] = v
             QN[j, i] = v
-    Psol = _slot(work, 11, n, n)
-    Kt = _slot(work, 9, m, n)
-    status = _doubling_from(AN, B, Rinv, QN, 0.0, work, tol, max_iter)
+    Psol = w.P_sol[lane]
+    Kt = w.K_sol[lane]
+    status = _doubling_from(B, 0.0, c, w, lane)
     if status == OK:
-        copy_matrix(_slot(work, 2, n, n), Psol)
-        if _stabilising_gain(A, B, R, N, Psol, Kt, work):
+        copy_matrix(w.H_k[lane], Psol)
+        if _stabilising_gain(A, B, c, Psol, Kt, w, lane):
             copy_matrix(Psol, P)
             copy_matrix(Kt, K)
             return OK
@@ -406,15 +503,15 @@ def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
         delta = max(delta, max_abs(R) / (bmax * bmax))
     if not delta > 0.0:
         delta = 1.0
-    status = _doubling_from(AN, B, Rinv, QN, delta, work, tol, max_iter)
+    status = _doubling_from(B, delta, c, w, lane)
     if status == NOT_CONVERGED:
         return status
     if status != OK:
         return NOT_STABILISABLE
-    copy_matrix(_slot(work, 2, n, n), Psol)
-    if not _stabilising_gain(A, B, R, N, Psol, Kt, work):
+    copy_matrix(w.H_k[lane], Psol)
+    if not _stabilising_gain(A, B, c, Psol, Kt, w, lane):
         return NOT_STABILISABLE
-    status = _newton(A, B, Q, R, N, Psol, Kt, work, tol, max_iter)
+    status = _newton(A, B, c, Psol, Kt, w, lane)
     if status != OK:
         return status
     copy_matrix(Psol, P)
@@ -422,8 +519,8 @@ def dare_solve(A, B, Q, R, N, P, K, work, tol, max_iter):
     return OK
 
 
-@lane(entry=True)
-def steady_state_feedforward(A, B, Q, R, N, K, F, work):
+@lane(entry=True, inline=True)
+def steady_state_feedforward(A, B, c, K, F, w, lane):
     """``F = M_u + K M_x`` of the cheapest equilibrium; ``False`` when the KKT matrix is
     singular (no equilibrium for some reference: an uncontrollable mode at ``z = 1``). ``F`` is
     written only on success.
@@ -434,13 +531,15 @@ def steady_state_feedforward(A, B, Q, R, N, K, F, work):
     ``[[Q, N, (A - I)^T], [N^T, R, B^T], [A - I, B, 0]] [x_s; u_s; mu] = [Q r; N^T r; 0]``,
     linear in ``r``: ``x_s = M_x r``, ``u_s = M_u r``, and the law ``u = u_s - K (x - x_s)`` is
     ``u = -K x + F r``. With fewer inputs than states not every reference is an equilibrium;
-    this is the equilibrium nearest to it in the cost.
+    this is the equilibrium nearest to it in the cost (``Q``, ``R``, ``N`` of the
+    :class:`LQProblem` ``c``).
     """
+    Q, R, N = c.Q, c.R, c.N
     n = A.shape[0]
     m = B.shape[1]
     s = 2 * n + m
-    M = _slot(work, 0, s, s)
-    Minv = _slot(work, 1, s, s)
+    M = w.KKT[lane]
+    Minv = w.KKT_inv[lane]
     for i in range(s):
         for j in range(s):
             M[i, j] = 0.0
@@ -460,8 +559,8 @@ def steady_state_feedforward(A, B, Q, R, N, K, F, work):
             M[n + i, n + j] = R[i, j]
     if not invert(M, Minv):
         return False
-    Mx = _slot(work, 2, n, n)
-    Mu = _slot(work, 3, m, n)
+    Mx = w.M_x[lane]
+    Mu = w.M_u[lane]
     for i in range(n):  # M_x = Minv[:n, :n] Q + Minv[:n, n:n+m] N^T
         for j in range(n):
             acc = 0.0
@@ -490,24 +589,25 @@ def steady_state_feedforward(A, B, Q, R, N, K, F, work):
     return True
 
 
-@lane
-def design_checks(A, B, Q, R, N, K, F, safe_b_min, gain_max, work):
+@lane(inline=True)
+def design_checks(A, B, cfg, K, F, w, lane):
     """The safe set of a candidate gain ``K`` on the model ``(A, B)``: finite, ``max |B| >=
-    b_min``, closed loop Schur stable, feed-forward defined, ``max |K|, |F| <= gain_max``.
-    Writes ``F`` (on success) and returns the status code of :mod:`.safe_set`."""
-    n = A.shape[0]
-    m = B.shape[1]
+    cfg.b_min``, closed loop Schur stable, feed-forward defined (the weights of ``cfg``, an
+    :class:`LQProblem` with ``b_min`` and ``gain_max``, such as the multivariable controller's
+    configuration), ``max |K|, |F| <= cfg.gain_max``. Writes ``F`` (on success) and returns the
+    status code of :mod:`.safe_set`."""
     if not (max_abs(A) < math.inf and max_abs(B) < math.inf):
         return NONFINITE
-    if not max_abs(B) >= safe_b_min:
+    if not max_abs(B) >= cfg.b_min:
         return B_SMALL
-    Acl = _slot(work, 4, n, n)
+    Acl = w.A_cl[lane]
     _closed_loop(A, B, K, Acl)
-    if not schur_stable(Acl, work):
+    if not schur_stable(Acl, w, lane):
         return NOT_STABILISABLE
-    Fc = _slot(work, 10, m, n)
-    if not steady_state_feedforward(A, B, Q, R, N, K, Fc, work):
+    Fc = w.F_try[lane]
+    if not steady_state_feedforward(A, B, cfg, K, Fc, w, lane):
         return DC_SINGULAR
+    gain_max = cfg.gain_max
     if not (max_abs(K) <= gain_max and max_abs(Fc) <= gain_max):
         return GAIN_LARGE
     copy_matrix(Fc, F)

@@ -35,6 +35,7 @@ from stcgym.adaptive.estimation.least_squares import (
     block_trace_is_finite,
     factor_is_healthy,
     least_squares_increment,
+    least_squares_work,
     upper_factor,
 )
 from stcgym.adaptive.estimation.recursive import NumericalHealthError
@@ -62,28 +63,29 @@ def _is_spd(P: NDArray) -> bool:
     return True
 
 
-@lane(entry=True)
-def matrix_rls_step(theta, S, x, y, lam, work):
+@lane(entry=True, inline=True)
+def matrix_rls_step(theta, S, x, y, lam, w, lane):
     """One step of appendix 2's recursion (P.6)-(P.8) on ``P = S S^T``; returns a status.
 
     ``theta`` ``(d, q)``, ``S`` ``(d, d)`` upper triangular, ``x`` ``(1, d)`` the regressor,
-    ``y`` ``(q,)``, ``work`` of length ``>= 3 d + q``. Every output channel ``j`` shares the gain
-    ``K = P x / (lam + x^T P x)`` (``work[:d]`` on return) and the factor update, so
-    ``theta[:, j] += K e_j`` with the innovation ``e = y - theta^T x``. Returns ``OK``, or
-    ``FAIL_COVARIANCE`` (``theta`` untouched, ``S`` to be reset by the caller) when the factor
-    is unhealthy, ``trace(P)`` or an increment is not finite.
+    ``y`` ``(q,)``; scratch: lane ``lane`` of a
+    :class:`~stcgym.adaptive.estimation.least_squares.LeastSquaresWork` for ``d`` parameters and
+    ``q`` outputs. Every output channel ``j`` shares the gain ``K = P x / (lam + x^T P x)``
+    (``w.K[lane]`` on return) and the factor update, so ``theta[:, j] += K e_j`` with the
+    innovation ``e = y - theta^T x`` (``w.E[lane]``). Returns ``OK``, or ``FAIL_COVARIANCE``
+    (``theta`` untouched, ``S`` to be reset by the caller) when the factor is unhealthy,
+    ``trace(P)`` or an increment is not finite.
     """
     d, q = theta.shape
-    K = work[:d]
-    delta = work[d : 2 * d]
-    w = work[2 * d : 3 * d]
-    E = work[3 * d : 3 * d + q]
+    K = w.K[lane]
+    delta = w.delta[lane]
+    E = w.E[lane]
     for j in range(q):
         acc = y[j]
         for i in range(d):
             acc -= x[0, i] * theta[i, j]
         E[j] = acc
-    alpha = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w)
+    alpha = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w.w[lane])
     healthy = factor_is_healthy(S, 0, d) and block_trace_is_finite(S, 0, d)
     if not (alpha > 0.0 and math.isfinite(alpha) and healthy):
         return FAIL_COVARIANCE
@@ -220,7 +222,7 @@ class MatrixRLS:
         self._theta_s = np.ascontiguousarray(theta, dtype=float)
         self._prior = self._theta_s.copy()  # Theta0, moved to the kept estimate by a reset
         self._decay = 1.0  # lambda^N since the start or the last reset
-        self._work = np.zeros(3 * n + self.n_outputs)
+        self._work = least_squares_work(n, self.n_outputs)
         self.K = np.zeros(n)
         self.t = 0
         self.n_resets = 0
@@ -286,11 +288,11 @@ class MatrixRLS:
                 Px = self.P @ x
                 K = Px / (lam + x @ Px)
         saved_S = self._S.copy()
-        status = matrix_rls_step(self._theta_s, self._S, x[None, :], y, lam, self._work)
+        status = matrix_rls_step(self._theta_s, self._S, x[None, :], y, lam, self._work, 0)
         self.t = t
         if status == OK:
             self._decay *= lam
-            self.K = self._work[: self.n_inputs].copy() if self.symmetric else K
+            self.K = self._work.K[0].copy() if self.symmetric else K
             return self.theta
         problem = "P lost positive definiteness or P, the gain or Theta overflowed"
         if self.on_failure == "raise":

@@ -33,14 +33,20 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.estimation.least_squares import OK, upper_factor
+from stcgym.adaptive.estimation.least_squares import (
+    OK,
+    LeastSquaresWork,
+    least_squares_shapes,
+    upper_factor,
+)
 from stcgym.adaptive.kernels.linalg import invert
 from stcgym.adaptive.multivariable.multichannel import matrix_rls_step
-from stcgym.envs.compiled import lane, lane_state
+from stcgym.envs.compiled import fields_of, lane, lane_state, make_work
 
 __all__ = [
     "DEPENDENT",
     "RESET",
+    "StateMatrixPhaseWork",
     "StateMatrixState",
     "StateMatrixWork",
     "make_state_matrix",
@@ -67,14 +73,22 @@ class StateMatrixState(NamedTuple):
     rank: NDArray  # regressors accepted as independent (int; q: RLS phase)
 
 
-class StateMatrixWork(NamedTuple):
-    """The estimator's scratch, one row a lane (its content is irrelevant between calls)."""
+class StateMatrixPhaseWork(NamedTuple):
+    """The scratch of the minimum-norm phase and of the switch to RLS."""
 
-    rls: NDArray  # matrix_rls_step's work (3 q + n)
     Rz: NDArray  # R z of the minimum-norm phase (q)
     M: NDArray  # G, then the symmetric part of G^{-1} at the switch (q, q)
     Ginv: NDArray  # G^{-1} at the switch (q, q)
     T: NDArray  # G^{-1} H at the switch, kept only if finite (q, n)
+
+
+#: The estimator's scratch, one row a lane (its content is irrelevant between calls): the fields
+#: of :class:`StateMatrixPhaseWork` and of the RLS phase's
+#: :class:`~stcgym.adaptive.estimation.least_squares.LeastSquaresWork` (``d = q`` rows of the
+#: regressor, ``n`` outputs).
+StateMatrixWork = NamedTuple(  # type: ignore[misc]
+    "StateMatrixWork", fields_of(StateMatrixPhaseWork, LeastSquaresWork)
+)
 
 
 def state_matrix_shapes(
@@ -93,20 +107,26 @@ def state_matrix_shapes(
         "e": (n,),
         "rank": (),
     }
-    work = {"rls": (3 * q + n,), "Rz": (q,), "M": (q, q), "Ginv": (q, q), "T": (q, n)}
+    work = {
+        "Rz": (q,),
+        "M": (q, q),
+        "Ginv": (q, q),
+        "T": (q, n),
+        **least_squares_shapes(q, n),
+    }
     return state, work
 
 
 _DTYPES: dict[str, Any] = {"rank": np.int64}
 
 
-def make_state_matrix(n: int, m: int, num_lanes: int) -> tuple[StateMatrixState, StateMatrixWork]:
+def make_state_matrix(n: int, m: int, num_lanes: int) -> tuple[StateMatrixState, Any]:
     """The state of ``num_lanes`` lanes before the first sample and their scratch: ``C = 0``,
     ``R = I``, empty sums, rank 0."""
     shapes, work = state_matrix_shapes(n, m)
     state = lane_state(StateMatrixState, shapes, num_lanes, _DTYPES)
     state.R[:] = np.eye(shapes["R"][0])
-    return state, lane_state(StateMatrixWork, work, num_lanes)
+    return state, make_work(StateMatrixWork, work, num_lanes)
 
 
 @lane(inline=True)
@@ -177,7 +197,7 @@ def state_matrix_update(est, work, lane, x_next, lam, tol, p0):
     rank = est.rank[lane]
     S = est.S[lane]
     if rank >= q:
-        status = matrix_rls_step(theta, S, est.z[lane : lane + 1], x_next, lam, work.rls[lane])
+        status = matrix_rls_step(theta, S, est.z[lane : lane + 1], x_next, lam, work, lane)
         if status != OK:
             _restart_covariance(S, p0)
             return RESET

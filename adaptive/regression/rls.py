@@ -44,12 +44,12 @@ from stcgym.adaptive.estimation.recursive import NumericalHealthError
 from stcgym.adaptive.regression.rls_step import (
     FAILED,
     OK,
-    RLSRecord,
+    RLSConfig,
+    make_rls_state,
     rls_run,
     rls_run_lanes,
-    work_size,
 )
-from stcgym.envs.compiled import Layout
+from stcgym.envs.compiled import state_nbytes_per_lane
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -114,7 +114,7 @@ class RecursiveLeastSquares:
         ``P0``): the exact regularised estimate over the last ``W`` samples (``P0^{-1}`` and
         ``theta0`` stay as the prior). Each new sample is added and the one ``W`` steps old
         removed by an exact downdate; when the downdate would lose digits (a squared pivot of
-        ``I - phi P phi^T`` below ``kernels.regression.WINDOW_DOWNDATE_TOL = 1e-4``: the
+        ``I - phi P phi^T`` below ``rls_step.WINDOW_DOWNDATE_TOL = 1e-4``: the
         sample carries nearly all the information in some direction) the estimate is
         recomputed by replaying the stored window from the prior instead (counted in
         :attr:`n_recomputes`).
@@ -192,28 +192,8 @@ class RecursiveLeastSquares:
         B = 1 if num_envs is None else integer(num_envs, "num_envs", 1)
         self.enabled = enabled
 
-        W = self._window
-        lay = Layout()
-        for name, shape in (  # the fields of RLSRecord
-            ("theta", d),
-            ("S", (d, d)),
-            ("innovation", p),
-            ("y_hat", p),
-            ("K", (d, p)),
-            ("t", ()),
-            ("n_resets", ()),
-            ("n_recomputes", ()),
-            ("count", ()),
-            ("hist_Phi", (W, p, d)),
-            ("hist_Y", (W, p)),
-            ("work", work_size(d, p)),
-        ):
-            lay.add(name, shape)
-        self._layout = lay
-        self._at = lay.record(RLSRecord)
-        self._F = lay.empty(B)
-        # views of every field (shape (B, ...)); self._F is only ever written in place
-        self._fields = {name: lay.view(self._F, name) for name in lay.fields}
+        self._num_lanes = B
+        self._state, self._work = make_rls_state(d, p, self._window, B)
         self._lead = (B,) if self._batched else ()
         self._out1 = np.empty((1, d))
         self.reset()
@@ -232,12 +212,11 @@ class RecursiveLeastSquares:
         ValueError
             An index out of range or a mask of the wrong length.
         """
-        idx = lane_indices(lanes, self._F.shape[0])
-        rec = self._F[idx]
-        rec[...] = 0.0
-        self._layout.view(rec, "theta")[...] = self._theta0
-        self._layout.view(rec, "S")[...] = self._S0
-        self._F[idx] = rec
+        idx = lane_indices(lanes, self._num_lanes)
+        for field in self._state:
+            field[idx] = 0
+        self._state.theta[idx] = self._theta0
+        self._state.S[idx] = self._S0
 
     # ---------------------------------------------------------------- data checks
     def _regressor(self, phi: ArrayLike, lead: tuple[int, ...]) -> NDArray:
@@ -268,9 +247,11 @@ class RecursiveLeastSquares:
             raise ValueError("y must be finite (no NaN or inf)")
         return np.ascontiguousarray(arr)
 
-    def _args(self) -> tuple:
+    def _config(self) -> RLSConfig:
         adapt = self._enabled and not self._frozen
-        return (self._theta0, self._S0, self._lam, self._window, adapt)
+        return RLSConfig(
+            self._theta0, self._S0, self._lam, self._window, adapt, self._reset_on_failure
+        )
 
     # ---------------------------------------------------------------- stepping
     def update(self, phi: ArrayLike, y: ArrayLike) -> NDArray:
@@ -300,15 +281,14 @@ class RecursiveLeastSquares:
         Phi = self._regressor(phi, self._lead)
         Y = self._output(y, self._lead)
         if self._batched:  # the batch loop over lanes, one step
-            B = self._F.shape[0]
+            B = self._num_lanes
             failures = np.zeros(B, dtype=np.int64)
             rls_run_lanes(
-                self._F,
-                self._at,
+                self._state,
+                self._work,
+                self._config(),
                 Phi[:, None],
                 Y[:, None],
-                *self._args(),
-                self._reset_on_failure,
                 np.empty((B, 1, self._d)),
                 failures,
                 np.zeros(B, dtype=np.int64),
@@ -316,13 +296,7 @@ class RecursiveLeastSquares:
             status = np.where(failures > 0, FAILED, OK)
         else:  # the same lane function, called directly (no thread pool for one lane)
             fails, _ = rls_run(
-                self._F[0],
-                self._at,
-                Phi[None],
-                Y[None],
-                *self._args(),
-                self._reset_on_failure,
-                self._out1,
+                self._state, self._work, 0, self._config(), Phi[None], Y[None], self._out1
             )
             if not fails:
                 return self._out1[0].copy()
@@ -358,7 +332,7 @@ class RecursiveLeastSquares:
         NumericalHealthError
             With ``on_failure="raise"``, as for :meth:`update`.
         """
-        B = self._F.shape[0]
+        B = self._num_lanes
         phi_arr = np.asarray(phi, dtype=float)
         T_axis = 1 if self._batched else 0
         if phi_arr.ndim <= T_axis:
@@ -373,20 +347,10 @@ class RecursiveLeastSquares:
         failures = np.zeros(B, dtype=np.int64)
         first = np.zeros(B, dtype=np.int64)
         if self._batched:
-            rls_run_lanes(
-                self._F,
-                self._at,
-                Phis,
-                Ys,
-                *self._args(),
-                self._reset_on_failure,
-                out,
-                failures,
-                first,
-            )
+            rls_run_lanes(self._state, self._work, self._config(), Phis, Ys, out, failures, first)
         else:  # one lane: the lane function itself
             failures[0], first[0] = rls_run(
-                self._F[0], self._at, Phis[0], Ys[0], *self._args(), self._reset_on_failure, out[0]
+                self._state, self._work, 0, self._config(), Phis[0], Ys[0], out[0]
             )
         failed = np.flatnonzero(failures)
         if failed.size:
@@ -430,11 +394,11 @@ class RecursiveLeastSquares:
 
     # ---------------------------------------------------------------- read-only state
     def _get(self, name: str) -> NDArray:
-        v = self._fields[name]
+        v = getattr(self._state, name)
         return v.copy() if self._batched else v[0].copy()
 
     def _counter(self, name: str) -> int | NDArray:
-        n = self._fields[name].astype(np.int64)
+        n = getattr(self._state, name).copy()
         return n if self._batched else int(n[0])
 
     @property
@@ -506,15 +470,15 @@ class RecursiveLeastSquares:
     @property
     def num_envs(self) -> int | None:
         """Lanes ``B`` of a batched estimator; ``None`` for a single one."""
-        return self._F.shape[0] if self._batched else None
+        return self._num_lanes if self._batched else None
 
     @property
     def nbytes_per_lane(self) -> int:
-        """Bytes of one lane's record (the estimator's whole state)."""
-        return self._layout.nbytes_per_lane
+        """Bytes of one lane's state and scratch (the estimator's whole state)."""
+        return state_nbytes_per_lane(self._state) + state_nbytes_per_lane(self._work)
 
     def __repr__(self) -> str:
-        lanes_txt = f", num_envs={self._F.shape[0]}" if self._batched else ""
+        lanes_txt = f", num_envs={self._num_lanes}" if self._batched else ""
         return (
             f"RecursiveLeastSquares(num_params={self._d}, num_outputs={self._p}, "
             f"forgetting={self._lam}, window={self._window or None}{lanes_txt})"

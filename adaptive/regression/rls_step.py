@@ -1,7 +1,9 @@
 """Recursive least squares on user regressors, ``y(t) = phi(t) theta + e(t)``: the lane step.
 
-One lane record (fields :class:`RLSRecord`) holds a whole estimator: ``theta``, the
-square-root factor ``S`` of ``P = S S^T``, the gain and the finite-history window.
+The lane state :class:`RLSState` holds a whole estimator: ``theta``, the square-root factor
+``S`` of ``P = S S^T``, the gain and the finite-history window; :class:`RLSWork` is its scratch
+(named tuples of batched arrays, lane ``i``'s field ``f`` is ``state.f[i]``; shapes in
+:func:`rls_shapes`), :class:`RLSConfig` the settings every lane shares.
 :func:`rls_step` is one sample of the shared least-squares lane function
 (:func:`stcgym.adaptive.estimation.least_squares.least_squares_step`) with forgetting, an
 optional finite window (a rank-one downdate when it is accurate, else a replay of the stored
@@ -13,28 +15,36 @@ is its Python face.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
 
 from stcgym.adaptive.estimation.least_squares import (
     DOWNDATE_TOL,
+    WindowedLeastSquaresWork,
     factor_is_healthy,
     least_squares_downdate,
+    least_squares_shapes,
     least_squares_step,
 )
 from stcgym.adaptive.estimation.least_squares import OK as LS_OK
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector, view2d, view3d
-from stcgym.envs.compiled import lane, lanes
+from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
+from stcgym.envs.compiled import fields_of, lane, lane_state, lanes, make_work
 
 __all__ = [
     "FAILED",
     "OK",
     "RECOMPUTED",
     "WINDOW_DOWNDATE_TOL",
-    "RLSRecord",
+    "RLSConfig",
+    "RLSState",
+    "RLSWork",
+    "make_rls_state",
     "rls_run",
     "rls_run_lanes",
+    "rls_shapes",
     "rls_step",
-    "work_size",
 ]
 
 #: A finite-history sample is removed by a downdate only when every pivot of
@@ -48,49 +58,114 @@ RECOMPUTED = 2  # finite history recomputed from the stored window
 
 
 # --------------------------------------------------------------------------------------------
-# The estimator step on one lane record (the rule itself is the shared least-squares lane
+# The estimator step on one lane (the rule itself is the shared least-squares lane
 # function of :mod:`stcgym.adaptive.estimation.least_squares`)
 # --------------------------------------------------------------------------------------------
 
 
-class RLSRecord(NamedTuple):
-    """Fields of a :class:`RecursiveLeastSquares` lane record (offsets, in layout order)."""
+class RLSState(NamedTuple):
+    """A :class:`RecursiveLeastSquares` lane state: field ``f`` of lane ``i`` is ``state.f[i]``
+    (shapes in :func:`rls_shapes`)."""
 
-    theta: int  # (d,)
-    S: int  # (d, d) upper factor of P = S S^T
-    innovation: int  # (p,) e(t)
-    y_hat: int  # (p,) prediction with theta(t-1)
-    K: int  # (d, p) gain
-    t: int
-    n_resets: int
-    n_recomputes: int
-    count: int  # samples in the window
-    hist_Phi: int  # (W, p, d)
-    hist_Y: int  # (W, p)
-    work: int  # scratch: no allocation inside the lane function
+    theta: NDArray  # theta(t) (d,)
+    S: NDArray  # upper factor of P = S S^T (d, d)
+    innovation: NDArray  # e(t) (p,)
+    y_hat: NDArray  # the prediction with theta(t-1) (p,)
+    K: NDArray  # the gain (d, p)
+    t: NDArray  # steps since the reset (int)
+    n_resets: NDArray  # covariance resets (int)
+    n_recomputes: NDArray  # window recomputations (int)
+    count: NDArray  # samples in the window (int)
+    hist_Phi: NDArray  # the window's regressors (W, p, d)
+    hist_Y: NDArray  # the window's outputs (W, p)
 
 
-def work_size(d: int, p: int) -> int:
-    """Scratch floats of one lane: ``theta`` and ``S`` copies, the rule's work, ``y_pred``,
-    the ``(p, d)``, ``(p, p)`` scratch of :func:`downdate_is_accurate` and a saved window
-    block ``(p, d)``, ``(p,)`` (lane functions never allocate)."""
-    return d + d * d + (3 * d + p + d * d) + p + p * d + p * p + p * d + p
+class RLSStepWork(NamedTuple):
+    """The scratch of :func:`rls_step` around the least-squares step."""
+
+    theta_try: NDArray  # the step's candidate theta (d,)
+    S_try: NDArray  # its candidate factor (d, d)
+    y_pred: NDArray  # Phi theta(t-1) (p,)
+    F: NDArray  # Phi S of downdate_is_accurate (p, d)
+    M: NDArray  # the Cholesky factor of I - F F^T (p, p)
+    saved_Phi: NDArray  # the window sample a recomputation replaces (p, d)
+    saved_Y: NDArray  # (p,)
+
+
+#: The scratch of :func:`rls_step`, one row a lane (its content is irrelevant between calls):
+#: the fields of :class:`RLSStepWork` and of the least-squares step's and downdate's
+#: :data:`~stcgym.adaptive.estimation.least_squares.WindowedLeastSquaresWork`.
+RLSWork = NamedTuple(  # type: ignore[misc]
+    "RLSWork", fields_of(RLSStepWork, WindowedLeastSquaresWork)
+)
+
+
+class RLSConfig(NamedTuple):
+    """The settings every lane of a :class:`RecursiveLeastSquares` shares."""
+
+    theta0: NDArray  # the prior theta(0) (d,)
+    S0: NDArray  # the factor of P(0) (d, d)
+    lam: float  # the forgetting factor
+    window: int  # the finite history (0: none)
+    adapt: bool  # update theta and P (else predictions only)
+    reset_on_failure: bool  # a failing lane restarts at P(0) (else it is left as it was)
+
+
+_COUNTERS = ("t", "n_resets", "n_recomputes", "count")
+
+
+def rls_shapes(
+    d: int, p: int, window: int
+) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """The shapes of one lane's :class:`RLSState` and :class:`RLSWork` fields for ``d``
+    parameters, ``p`` outputs and a window of ``window`` samples: the one place they are
+    declared."""
+    d, p, W = int(d), int(p), int(window)
+    state: dict[str, tuple[int, ...]] = {
+        "theta": (d,),
+        "S": (d, d),
+        **dict.fromkeys(("innovation", "y_hat"), (p,)),
+        "K": (d, p),
+        **dict.fromkeys(_COUNTERS, ()),
+        "hist_Phi": (W, p, d),
+        "hist_Y": (W, p),
+    }
+    work: dict[str, tuple[int, ...]] = {
+        "theta_try": (d,),
+        "S_try": (d, d),
+        **dict.fromkeys(("y_pred", "saved_Y"), (p,)),
+        **dict.fromkeys(("F", "saved_Phi"), (p, d)),
+        "M": (p, p),
+        **least_squares_shapes(d, p, window=True),
+    }
+    return state, work
+
+
+def make_rls_state(d: int, p: int, window: int, num_lanes: int) -> tuple[RLSState, Any]:
+    """A zeroed :class:`RLSState` of ``num_lanes`` lanes and their scratch."""
+    state, work = rls_shapes(d, p, window)
+    dtypes: dict[str, Any] = dict.fromkeys(_COUNTERS, np.int64)
+    return (
+        lane_state(RLSState, state, num_lanes, dtypes),
+        make_work(RLSWork, work, num_lanes),
+    )
 
 
 @lane
-def replay_window(theta, S, theta0, S0, hist_Phi, hist_Y, first, work):  # pragma: no cover
+def replay_window(theta, S, cfg, hist_Phi, hist_Y, first, w, lane):  # pragma: no cover
     """Finite-history estimate recomputed by replaying the stored samples from the prior.
 
-    ``theta <- theta0``, ``S <- S0``, then :func:`least_squares_step` on every stored sample,
-    oldest (slot ``first``) first: exactly the regularised estimate over the window, without the
-    cancellation of a downdate. Returns ``False`` when a step fails.
+    ``theta <- theta0``, ``S <- S0`` (of the :class:`RLSConfig` ``cfg``), then
+    :func:`least_squares_step` on every stored sample, oldest (slot ``first``) first: exactly the
+    regularised estimate over the window, without the cancellation of a downdate. Returns
+    ``False`` when a step fails.
     """
     W = hist_Phi.shape[0]
-    copy_vector(theta0, theta)
-    copy_matrix(S0, S)
+    copy_vector(cfg.theta0, theta)
+    copy_matrix(cfg.S0, S)
     for k in range(W):
         slot = (first + k) % W
-        if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, work) != LS_OK:
+        if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, w, lane) != LS_OK:
             return False
     return True
 
@@ -144,10 +219,11 @@ def _gain(K, S, Phi, g):  # pragma: no cover - compiled
             K[i, r] = acc
 
 
-@lane
-def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):  # pragma: no cover
-    """One step of :class:`RecursiveLeastSquares` on one lane record; returns a status code.
+@lane(inline=True)
+def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
+    """One step of :class:`RecursiveLeastSquares` on lane ``lane``; returns a status code.
 
+    ``s``/``w``: an :class:`RLSState` and its :class:`RLSWork`; ``cfg``: an :class:`RLSConfig`;
     ``Phi`` (p, d), ``Y`` (p,). The rule is :func:`least_squares_step` (square-root RLS/MILS
     with forgetting and its health check); with a window the sample ``window`` steps old is
     removed by :func:`least_squares_downdate` or, when that would be inaccurate, the estimate
@@ -157,43 +233,38 @@ def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):
     was.
     """
     p, d = Phi.shape
-    theta = rec[at.theta : at.theta + d]
-    S = view2d(rec, at.S, d, d)
-    hPhi = view3d(rec, at.hist_Phi, window, p, d)
-    hY = view2d(rec, at.hist_Y, window, p)
-    o = at.work
-    th = rec[o : o + d]
-    Sn = view2d(rec, o + d, d, d)
-    work = rec[o + d + d * d : o + 4 * d + p + 2 * d * d]
-    o += 4 * d + p + 2 * d * d
-    y_pred = rec[o : o + p]
-    F = view2d(rec, o + p, p, d)
-    M = view2d(rec, o + p + p * d, p, p)
-    o += p + p * d + p * p
-    saved_Phi = view2d(rec, o, p, d)
-    saved_Y = rec[o + p * d : o + p * d + p]
+    window = cfg.window
+    theta = s.theta[lane]
+    S = s.S[lane]
+    hPhi = s.hist_Phi[lane]
+    hY = s.hist_Y[lane]
+    th = w.theta_try[lane]
+    Sn = w.S_try[lane]
+    y_pred = w.y_pred[lane]
     for r in range(p):  # prediction with theta(t-1); innovation e(t) = y(t) - y_pred
         acc = 0.0
         for i in range(d):
             acc += Phi[r, i] * theta[i]
         y_pred[r] = acc
     status = OK
-    if adapt:
+    if cfg.adapt:
         copy_vector(theta, th)
         copy_matrix(S, Sn)
-        ok = least_squares_step(th, Sn, Phi, Y, lam, work) == LS_OK
-        count = int(rec[at.count])
+        ok = least_squares_step(th, Sn, Phi, Y, cfg.lam, w, lane) == LS_OK
+        count = s.count[lane]
         slot = count % window if window > 0 else 0
         if ok and window > 0 and count >= window:
             if not (
-                downdate_is_accurate(Sn, hPhi[slot], F, M)
-                and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], work) == LS_OK
+                downdate_is_accurate(Sn, hPhi[slot], w.F[lane], w.M[lane])
+                and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], w, lane) == LS_OK
             ):
-                copy_matrix(hPhi[slot], saved_Phi)  # recompute over the window after this step
+                saved_Phi = w.saved_Phi[lane]  # recompute over the window after this step
+                saved_Y = w.saved_Y[lane]
+                copy_matrix(hPhi[slot], saved_Phi)
                 copy_vector(hY[slot], saved_Y)
                 copy_matrix(Phi, hPhi[slot])
                 copy_vector(Y, hY[slot])
-                ok = replay_window(th, Sn, theta0, S0, hPhi, hY, (slot + 1) % window, work)
+                ok = replay_window(th, Sn, cfg, hPhi, hY, (slot + 1) % window, w, lane)
                 copy_matrix(saved_Phi, hPhi[slot])
                 copy_vector(saved_Y, hY[slot])
                 status = RECOMPUTED
@@ -201,11 +272,11 @@ def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):
         for i in range(d):
             ok = ok and math.isfinite(th[i])
         if not ok:
-            if not reset_on_failure:
+            if not cfg.reset_on_failure:
                 return FAILED
-            copy_matrix(S0, S)
-            rec[at.count] = 0.0
-            rec[at.n_resets] += 1.0
+            copy_matrix(cfg.S0, S)
+            s.count[lane] = 0
+            s.n_resets[lane] += 1
             status = FAILED
         else:
             copy_vector(th, theta)
@@ -213,61 +284,44 @@ def rls_step(rec, at, Phi, Y, theta0, S0, lam, window, adapt, reset_on_failure):
             if window > 0:
                 copy_matrix(Phi, hPhi[slot])
                 copy_vector(Y, hY[slot])
-                rec[at.count] = count + 1.0
+                s.count[lane] = count + 1
             if status == RECOMPUTED:
-                rec[at.n_recomputes] += 1.0
-        _gain(view2d(rec, at.K, d, p), S, Phi, th)
+                s.n_recomputes[lane] += 1
+        _gain(s.K[lane], S, Phi, th)
+    y_hat = s.y_hat[lane]
+    innovation = s.innovation[lane]
     for r in range(p):
-        rec[at.y_hat + r] = y_pred[r]
-        rec[at.innovation + r] = Y[r] - y_pred[r]
-    rec[at.t] += 1.0
+        y_hat[r] = y_pred[r]
+        innovation[r] = Y[r] - y_pred[r]
+    s.t[lane] += 1
     return status
 
 
 @lane(entry=True)
-def rls_run(
-    rec, at, Phis, Ys, theta0, S0, lam, window, adapt, reset_on_failure, out
-):  # pragma: no cover
-    """``T`` steps of :func:`rls_step` on one lane: ``out[t] = theta(t)``.
+def rls_run(s, w, lane, cfg, Phis, Ys, out):  # pragma: no cover
+    """``T`` steps of :func:`rls_step` on lane ``lane``: ``out[t] = theta(t)``.
 
-    Returns ``(failures, first failing step or -1)``; without ``reset_on_failure`` it stops at
-    the first failure (that step not applied).
+    Returns ``(failures, first failing step or -1)``; without ``cfg.reset_on_failure`` it stops
+    at the first failure (that step not applied).
     """
-    d = Phis.shape[2]
     failures = 0
     first = -1
     for t in range(Phis.shape[0]):
-        status = rls_step(rec, at, Phis[t], Ys[t], theta0, S0, lam, window, adapt, reset_on_failure)
+        status = rls_step(s, w, lane, cfg, Phis[t], Ys[t])
         if status == FAILED:
             failures += 1
             if first < 0:
                 first = t
-            if not reset_on_failure:
+            if not cfg.reset_on_failure:
                 return failures, first
-        copy_vector(rec[at.theta : at.theta + d], out[t])
+        copy_vector(s.theta[lane], out[t])
     return failures, first
 
 
 @lanes(min_lanes=1)  # a lane is a whole record of samples
 def rls_run_lanes(
-    F,
-    at,
-    Phis,
-    Ys,
-    theta0,
-    S0,
-    lam,
-    window,
-    adapt,
-    reset_on_failure,
-    out,
-    failures,
-    first_failure,
-    first: int,
-    last: int,
+    s, w, cfg, Phis, Ys, out, failures, first_failure, first, last
 ):  # pragma: no cover
     """:func:`rls_run` on every lane (``failures[i]``, ``first_failure[i]``: its results)."""
     for i in range(first, last):
-        failures[i], first_failure[i] = rls_run(
-            F[i], at, Phis[i], Ys[i], theta0, S0, lam, window, adapt, reset_on_failure, out[i]
-        )
+        failures[i], first_failure[i] = rls_run(s, w, i, cfg, Phis[i], Ys[i], out[i])
