@@ -50,6 +50,7 @@ from typing import Any, TypeVar
 
 import numba
 import numpy as np
+from numpy.typing import NDArray
 
 from stcgym.envs import numba_internals as internals
 from stcgym.envs.kernel_cache import guard_cache
@@ -370,12 +371,14 @@ def lane_state(
     shapes: dict[str, tuple[int, ...]],
     num_lanes: int,
     dtypes: dict[str, Any] | None = None,
+    nested: dict[str, tuple] | None = None,
 ) -> R:
     """A zeroed batch of named lane state: ``fields`` (a ``NamedTuple`` class) with field ``f``
     an array of shape ``(num_lanes, *shapes[f])`` (``float64`` unless ``dtypes`` says
-    otherwise). Lane ``i`` of field ``f`` is ``state.f[i]`` (a row view); a field a
-    configuration does not use has a zero in its shape, so the lane functions loop over it
-    without a test. numba types the tuple by its fields' dtypes and dimensions, not their
+    otherwise), or the lane state ``nested[f]`` (of ``num_lanes`` lanes too) for a field that
+    groups named parts of its own. Lane ``i`` of field ``f`` is ``state.f[i]`` (a row view); a
+    field a configuration does not use has a zero in its shape, so the lane functions loop over
+    it without a test. numba types the tuple by its fields' dtypes and dimensions, not their
     sizes: one compiled function serves every order.
 
     >>> from typing import NamedTuple
@@ -387,12 +390,21 @@ def lane_state(
     ((3, 4), dtype('int64'))
     """
     names = fields._fields
-    if set(shapes) != set(names):
-        raise ValueError(f"shapes must name exactly the fields of {fields.__name__}: {names}")
+    parts = nested or {}
+    if set(shapes) | set(parts) != set(names) or set(shapes) & set(parts):
+        raise ValueError(
+            f"shapes and nested must name exactly the fields of {fields.__name__}, each once: "
+            f"{names}"
+        )
     types = dtypes or {}
     num_lanes = int(num_lanes)
     return fields(
-        *(np.zeros((num_lanes, *shapes[f]), dtype=types.get(f, np.float64)) for f in names)
+        *(
+            parts[f]
+            if f in parts
+            else np.zeros((num_lanes, *shapes[f]), dtype=types.get(f, np.float64))
+            for f in names
+        )
     )
 
 
@@ -412,9 +424,21 @@ def make_work(fields: type[R], shapes: dict[str, tuple[int, ...]], num_lanes: in
 
 def set_lanes(dst: R, lanes: Any, src: R, row: Any = 0) -> None:
     """``dst.f[lanes] = src.f[row]`` for every field ``f`` of two lane states (a reset, a copy
-    of some lanes)."""
+    of some lanes), fields that are lane states themselves included."""
     for d, s in zip(dst, src, strict=True):
-        d[lanes] = s[row]
+        if isinstance(d, tuple):
+            set_lanes(d, lanes, s, row)
+        else:
+            d[lanes] = s[row]
+
+
+def state_arrays(state: tuple) -> list[NDArray]:
+    """Every array of a lane state, in field order, those of fields that are lane states
+    themselves included (to save and restore some lanes)."""
+    out: list[NDArray] = []
+    for a in state:
+        out.extend(state_arrays(a) if isinstance(a, tuple) else (a,))
+    return out
 
 
 def state_nbytes_per_lane(state: tuple) -> int:

@@ -22,6 +22,24 @@ from stcgym.envs.canonical import companion_A
 FORMS = {"observer": d.OBSERVER, "observability": d.OBSERVABILITY}
 
 
+def _K(gain: d.Gain, integral: bool, lane: int = 0) -> np.ndarray:
+    """The state-feedback gain ``[K_x, k_i]`` (``K_x`` alone without integral action)."""
+    return np.r_[gain.K_x[lane], gain.k_i[lane]] if integral else gain.K_x[lane].copy()
+
+
+def _flat(gain: d.Gain, lane: int = 0) -> np.ndarray:
+    """Every field of one lane of a gain, ``[K_x, k_i, N, rcond]``: to compare two gains."""
+    return np.r_[gain.K_x[lane], gain.k_i[lane], gain.N[lane], gain.rcond[lane]]
+
+
+def _gain_of(K_x: np.ndarray, k_i: float, N: float) -> d.Gain:
+    """A one-lane gain with the given fields (``rcond`` 0.5: any accepted design's)."""
+    gain = d.make_gain(K_x.size, 1)
+    gain.K_x[0] = K_x
+    gain.k_i[0], gain.N[0], gain.rcond[0] = k_i, N, 0.5
+    return gain
+
+
 def _augmented(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``[[A, 0], [-c, 1]]``, ``[b; 0]`` written out with ``np.block`` (the reference)."""
     n = A.shape[0]
@@ -82,24 +100,24 @@ def test_place_design_matches_acker(form: str, n: int, integral: bool, feedforwa
     A, b, Ad, bd = _models(theta, form, integral)
     m = Ad.shape[0]
     poles = np.linspace(0.2, 0.7, m)
-    gain = np.zeros(d.gain_size(n))
+    gain = d.make_gain(n, 1)
     cfg = d.DesignConfig(FORMS[form], integral, feedforward, d.safe_set(), _alpha(poles))
     status = d.place_design(theta, cfg, gain, d.design_work(n, integral), 0)
     assert status == d.OK
     K_ref = np.ravel(control.acker(Ad, bd[:, None], poles))
-    K = np.r_[gain[:n], gain[n]] if integral else gain[:n]
+    K = _K(gain, integral)
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9 * np.abs(K_ref).max())
-    assert gain[n + 2] > 0.0  # the reciprocal condition of the accepted design
+    assert gain.rcond[0] > 0.0  # the reciprocal condition of the accepted design
     if integral is False:
-        assert gain[n] == 0.0
+        assert gain.k_i[0] == 0.0
     if feedforward:
         # N = u_ss + K_x x_ss: on the exact model the loop rests at y = r with xi = 0
         x_ss, u_ss = _dc_reference(A, b)
-        assert gain[n + 1] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-8, abs=1e-10)
-        x_cl = np.linalg.solve(np.eye(n) - (A - np.outer(b, K_ref[:n])), b * gain[n + 1])
+        assert gain.N[0] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-8, abs=1e-10)
+        x_cl = np.linalg.solve(np.eye(n) - (A - np.outer(b, K_ref[:n])), b * gain.N[0])
         assert x_cl[0] == pytest.approx(1.0, rel=1e-7)
     else:
-        assert gain[n + 1] == 0.0
+        assert gain.N[0] == 0.0
 
 
 @settings(max_examples=50, deadline=None)
@@ -120,17 +138,17 @@ def test_place_design_characteristic_polynomial(
     half = radius * np.exp(1j * np.pi * rng.uniform(0, 1, m // 2))
     poles = np.r_[half, half.conj(), radius * rng.uniform(-1, 1, m % 2)]
     alpha = _alpha(poles)
-    gain = np.zeros(d.gain_size(n))
+    gain = d.make_gain(n, 1)
     cfg = d.DesignConfig(FORMS[form], True, True, d.safe_set(), alpha)
     assert d.place_design(theta, cfg, gain, d.design_work(n, True), 0) == d.OK
-    K = np.r_[gain[:n], gain[n]]
+    K = _K(gain, True)
     char = np.poly(Ad - np.outer(bd, K))
     scale = max(1.0, np.abs(K).max() * np.abs(bd).max())
     np.testing.assert_allclose(char[1:], alpha, atol=1e-8 * scale)
 
 
 # ------------------------------------------------------------------------------ safe set
-def _status(theta: np.ndarray, safe: np.ndarray, gain: np.ndarray, **kw: object) -> int:
+def _status(theta: np.ndarray, safe: np.ndarray, gain: d.Gain, **kw: object) -> int:
     n = theta.size // 2
     integral = kw.get("integral", True)
     cfg = d.DesignConfig(
@@ -142,9 +160,9 @@ def _status(theta: np.ndarray, safe: np.ndarray, gain: np.ndarray, **kw: object)
 
 def test_safe_set_status_codes_and_last_good_gain_kept() -> None:
     good = np.array([-1.5, 0.7, 1.0, 0.5])  # stable2
-    gain = np.zeros(d.gain_size(2))
+    gain = d.make_gain(2, 1)
     assert _status(good, d.safe_set(), gain) == d.OK
-    kept = gain.copy()
+    kept = _flat(gain)
     cases = {
         d.NONFINITE: (np.array([-1.5, np.nan, 1.0, 0.5]), d.safe_set()),
         d.B_SMALL: (np.array([-1.5, 0.7, 1e-3, 1e-3]), d.safe_set(b_min=0.01)),
@@ -154,7 +172,7 @@ def test_safe_set_status_codes_and_last_good_gain_kept() -> None:
     }
     for code, (theta, safe) in cases.items():
         assert _status(theta, safe, gain) == code, d.STATUS_NAMES[code]
-        np.testing.assert_array_equal(gain, kept)
+        np.testing.assert_array_equal(_flat(gain), kept)
     near = np.r_[np.poly([0.5, 0.8])[1:], 1.0, -0.5 + 1e-6]
     assert _status(near, d.safe_set(), gain) == d.OK
     assert _status(near, d.safe_set(rcond_min=1e-3), gain) == d.UNCONTROLLABLE
@@ -192,7 +210,7 @@ def test_scratch_of_another_order_is_an_error_not_garbage(n: int, integral: bool
     with pytest.raises(ValueError, match="scratch"):
         d.place_design(
             theta, d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), _alpha(np.full(3, 0.5))),
-            np.zeros(d.gain_size(2)), d.design_work(n, integral), 0,
+            d.make_gain(2, 1), d.design_work(n, integral), 0,
         )  # fmt: skip
 
 
@@ -212,26 +230,27 @@ def test_lq_solve_and_riccati_iteration_match_dlqr(form: str, n: int, integral: 
         Q[n, n] = weights[1]
     K_ref, P_ref, _ = control.dlqr(Ad, bd[:, None], Q, [[weights[2]]])
     K_ref = np.ravel(K_ref)
-    gain = np.zeros(d.gain_size(n))
+    gain = d.make_gain(n, 1)
     P = np.zeros((m, m))
     cfg = _lq_config(FORMS[form], integral)
     status = d.lq_solve(
         theta, cfg, weights, P, gain, d.lq_work(n, integral, solve=True), 0, 1e-12, 64
     )
     assert status == d.OK
-    K = np.r_[gain[:n], gain[n]] if integral else gain[:n]
+    K = _K(gain, integral)
     np.testing.assert_allclose(K, K_ref, rtol=1e-7, atol=1e-10 * np.abs(K_ref).max())
     np.testing.assert_allclose(P, P_ref, rtol=1e-7, atol=1e-10 * np.abs(P_ref).max())
     x_ss, u_ss = _dc_reference(A, b)
-    assert gain[n + 1] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-7, abs=1e-10)
+    assert gain.N[0] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-7, abs=1e-10)
     # one Riccati iteration per call from the cold start P = Q converges to the same gain
     P_it = d.lq_initial_P(n, integral, weights)
     np.testing.assert_array_equal(P_it, Q)
-    g_it = np.zeros(d.gain_size(n))
+    g_it = d.make_gain(n, 1)
     work = d.lq_work(n, integral)
     for _ in range(3000):
         assert d.lq_design(theta, cfg, weights, P_it, g_it, work, 0) == d.OK
-    np.testing.assert_allclose(g_it, gain, rtol=1e-6, atol=1e-9 * np.abs(gain).max())
+    expected = _flat(gain)
+    np.testing.assert_allclose(_flat(g_it), expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
 
 
 def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
@@ -243,7 +262,7 @@ def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
     L = rng.normal(size=(3, 3))
     P = L @ L.T
     P_ref = P.copy()
-    gain = np.zeros(d.gain_size(2))
+    gain = d.make_gain(2, 1)
     cfg = _lq_config(d.OBSERVER, True)
     assert d.lq_design(theta, cfg, weights, P, gain, d.lq_work(2, True), 0) == d.OK
     Q = np.diag([1.0, 0.0, 0.01])
@@ -252,19 +271,19 @@ def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
     P_next = Q + Ad.T @ P_ref @ Ad - np.outer(Ad.T @ P_ref @ bd, bd @ P_ref @ Ad) / s
     np.testing.assert_allclose(P, P_next, rtol=1e-10)
     K = (bd @ P_next @ Ad) / (rho + bd @ P_next @ bd)
-    np.testing.assert_allclose(np.r_[gain[:2], gain[2]], K, rtol=1e-10)
+    np.testing.assert_allclose(_K(gain, True), K, rtol=1e-10)
 
 
 def test_lq_not_stabilisable_plant() -> None:
     # a(z) = (z - 1)(z - 2), b(z) = z - 2: the unstable pole at 2 is cancelled
     theta = np.array([-3.0, 2.0, 1.0, -2.0 + 1e-9])
     weights = np.array(d.DEFAULT_LQ_WEIGHTS)
-    gain = np.zeros(d.gain_size(2))
+    gain = d.make_gain(2, 1)
     P = np.zeros((3, 3))
     cfg = _lq_config(d.OBSERVER, True)
     status = d.lq_solve(theta, cfg, weights, P, gain, d.lq_work(2, True, solve=True), 0, 1e-12, 64)
     assert status == d.NOT_STABILISABLE
-    assert not gain.any() and not P.any()
+    assert not _flat(gain).any() and not P.any()
     # the per-step iteration blows up and restarts from Q with NOT_STABILISABLE
     P = d.lq_initial_P(2, True, weights)
     codes = set()
@@ -282,12 +301,12 @@ def test_lq_solve_ill_conditioned_but_stabilisable() -> None:
     q_y, q_i, rho = weights
     K_ref, _, E = control.dlqr(Ad, bd[:, None], np.diag([q_y, 0.0, q_i]), [[rho]])
     assert np.abs(E).max() < 1
-    gain = np.zeros(d.gain_size(2))
+    gain = d.make_gain(2, 1)
     P = np.zeros((3, 3))
     cfg = _lq_config(d.OBSERVER, True)
     work = d.lq_work(2, True, solve=True)
     assert d.lq_solve(theta, cfg, weights, P, gain, work, 0, 1e-12, 64) == d.OK
-    np.testing.assert_allclose(np.r_[gain[:2], gain[2]], np.ravel(K_ref), rtol=1e-5)
+    np.testing.assert_allclose(_K(gain, True), np.ravel(K_ref), rtol=1e-5)
 
 
 # ------------------------------------------------------------------------------ tracking law
@@ -311,9 +330,9 @@ def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> No
     K = np.array(vals[:2])
     ki, N, xi, y, r, e = vals[2], vals[3], vals[4], vals[5], vals[6], vals[7]
     x = np.array([0.3, -0.7])
-    gain = np.r_[K, ki if integral else 0.0, N, 0.5]
+    gain = _gain_of(K, ki if integral else 0.0, N)
     u, xi_next, saturated, u_unsat = call(
-        d.track, gain, True, xi, x, y, r, e, bound, integral, anti_windup
+        d.track, gain, 0, True, xi, x, y, r, e, bound, integral, anti_windup
     )
     u_ref, xi_ref, sat_ref, u_unsat_ref = _law_by_hand(
         K, ki if integral else 0.0, N, xi, x, y, r, e, bound, integral, anti_windup
@@ -325,15 +344,15 @@ def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> No
 
 
 def test_track_without_gain_applies_only_the_excitation() -> None:
-    gain = np.zeros(d.gain_size(2))
-    gain[:2] = [5.0, 5.0]  # never used without a gain
+    gain = d.make_gain(2, 1)
+    gain.K_x[0] = [5.0, 5.0]  # never used without a gain
     u, xi, saturated, _ = call(
-        d.track, gain, False, 0.7, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True
+        d.track, gain, 0, False, 0.7, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True
     )
     assert (u, saturated) == (0.25, False)
     assert xi == 0.7  # the integrator waits for a gain
     u, _, saturated, _ = call(
-        d.track, gain, False, 0.7, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True
+        d.track, gain, 0, False, 0.7, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True
     )
     assert (u, saturated) == (10.0, True)
 
@@ -377,28 +396,28 @@ def test_batch_loops_equal_the_lane_functions() -> None:
     thetas = np.array([_plant(rng, 3, "observer")[0] for _ in range(6)])
     thetas[2, 4] = np.nan  # one lane outside the safe set
     alpha = _alpha(np.full(4, 0.4))
-    gains = np.zeros((6, d.gain_size(3)))
+    gains = d.make_gain(3, 6)
     status = np.zeros(6, dtype=np.int64)
     work = d.design_work(3, True, 6)
     cfg = d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), alpha)
     d.place_design_lanes(thetas, cfg, gains, status, work)
     weights = d.lq_weights()
     Ps = np.zeros((6, 4, 4))
-    gains_lq = np.zeros((6, d.gain_size(3)))
+    gains_lq = d.make_gain(3, 6)
     status_lq = np.zeros(6, dtype=np.int64)
     work_lq = d.lq_work(3, True, 6, solve=True)
     d.lq_solve_lanes(thetas, cfg, weights, Ps, gains_lq, status_lq, work_lq, 1e-12, 64)
     for i in range(6):
-        g = np.zeros(d.gain_size(3))
+        g = d.make_gain(3, 1)
         work = d.lq_work(3, True, solve=True)  # every design reads only its own fields
         st_i = d.place_design(thetas[i], cfg, g, work, 0)
         assert status[i] == st_i
-        np.testing.assert_array_equal(gains[i], g)
+        np.testing.assert_array_equal(_flat(gains, i), _flat(g))
         P = np.zeros((4, 4))
-        g_lq = np.zeros(d.gain_size(3))
+        g_lq = d.make_gain(3, 1)
         st_lq = d.lq_solve(thetas[i], cfg, weights, P, g_lq, work, 0, 1e-12, 64)
         assert status_lq[i] == st_lq
-        np.testing.assert_array_equal(gains_lq[i], g_lq)
+        np.testing.assert_array_equal(_flat(gains_lq, i), _flat(g_lq))
         np.testing.assert_array_equal(Ps[i], P)
     assert status[2] == d.NONFINITE and status_lq[2] == d.NONFINITE
 

@@ -105,8 +105,10 @@ def test_mimo_design_scratch_has_the_declared_shapes(n: int, m: int) -> None:
 def test_state_shapes_declare_every_field() -> None:
     state, proposal = oracle_shapes(3)
     s, p = make_oracle_state(3, 2)
-    assert set(state) == set(s._fields) and set(proposal) == set(p._fields)
-    assert s.t.dtype == np.int64 and s.saturated.dtype == np.bool_ and s.gain.shape == (2, 6)
+    # the gain is a lane state of its own (safe_set.gain_shapes)
+    assert set(state) | {"gain"} == set(s._fields) and set(proposal) == set(p._fields)
+    assert s.t.dtype == np.int64 and s.saturated.dtype == np.bool_
+    assert type(s.gain) is d.Gain and s.gain.K_x.shape == (2, 3) and s.gain.N.shape == (2,)
     state, work = rls_shapes(3, 2, 4)
     s, w = make_rls_state(3, 2, 4, 5)
     assert set(state) == set(s._fields) and set(work) == set(w._fields)
@@ -126,15 +128,16 @@ def test_a_design_reads_only_its_own_lane() -> None:
     theta = np.array([-1.5, 0.7, 1.0, 0.5])
     alpha = np.array([-1.5, 0.75, -0.125])  # (z - 0.5)^3
     cfg = d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), alpha)
-    gain_one = np.zeros(d.gain_size(2))
+    gain_one = d.make_gain(2, 1)
     assert d.place_design(theta, cfg, gain_one, d.design_work(2, True), 0) == d.OK
     work = d.design_work(2, True, 3)
-    for field in work:
+    gain = d.make_gain(2, 3)
+    for field in (*work, *gain):
         field[0] = np.nan
         field[2] = np.nan
-    gain = np.zeros(d.gain_size(2))
     status = d.place_design(theta, cfg, gain, work, 1)
     assert status == d.OK
-    np.testing.assert_array_equal(gain, gain_one)
-    for field in work:
+    for one, field in zip(gain_one, gain, strict=True):
+        np.testing.assert_array_equal(field[1], one[0])
+    for field in (*work, *gain):
         assert np.isnan(field[0]).all() and np.isnan(field[2]).all()

@@ -376,12 +376,13 @@ class SelfTuningController(SelfTuningLanes):
     def K(self) -> NDArray:
         """Gain in use ``[K_x, k_i]`` (zeros before the first accepted design)."""
         m = self.n + int(self.law.integral)
-        return self._lanes_out(self._state.gain[:, :m])
+        g = self._state.gain
+        return self._lanes_out(np.column_stack((g.K_x, g.k_i))[:, :m])
 
     @property
     def N(self) -> NDArray | float:
         """Reference feed-forward gain in use."""
-        v = self._state.gain[:, self.n + 1].copy()
+        v = self._state.gain.N.copy()
         return float(v[0]) if self.num_envs is None else v
 
     @property

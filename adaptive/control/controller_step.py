@@ -47,7 +47,7 @@ from stcgym.adaptive.control.extended_ls import extended_ls_push, extended_ls_up
 from stcgym.adaptive.control.law import track
 from stcgym.adaptive.control.lq import lq_design, lq_work
 from stcgym.adaptive.control.pole_placement import place_design
-from stcgym.adaptive.control.safe_set import OK, design_work, gain_size
+from stcgym.adaptive.control.safe_set import OK, design_work, make_gain
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
@@ -84,7 +84,7 @@ class ControllerState(NamedTuple):
     x_next: NDArray  # the time update's x(t+1|t) (n)
     L1: NDArray  # the filter's gain (n)
     Q: NDArray  # its process noise Q(t) (n, n)
-    gain: NDArray  # the last accepted gain record [K_x (n), k_i, N, rcond] (n + 3)
+    gain: Any  # the last accepted design: a safe_set.Gain (K_x, k_i, N, rcond)
     has_gain: NDArray  # a design has been accepted since the reset (bool)
     P_lq: NDArray  # Riccati matrix of the LQ design (m, m; (0, 0) for pole placement)
     xi: NDArray  # the tracking law's integrator xi(t)
@@ -135,11 +135,11 @@ def controller_shapes(
     state: dict[str, tuple[int, ...]] = {
         **dict.fromkeys(("x", "xf", "x_next", "L1"), (n,)),
         **dict.fromkeys(("P1", "Q"), (n, n)),
-        "gain": (gain_size(n),),
         "P_lq": (m, m) if lq else (0, 0),
     }
     for scalar in ControllerState._fields:
-        state.setdefault(scalar, ())
+        if scalar != "gain":  # a lane state of its own (safe_set.gain_shapes)
+            state.setdefault(scalar, ())
     work = dict.fromkeys(("AP", "P_upd"), (n, n))
     return state, work
 
@@ -151,7 +151,7 @@ def make_controller_state(
     shapes, work = controller_shapes(n, integral, lq)
     design = lq_work(n, integral, num_lanes) if lq else design_work(n, integral, num_lanes)
     return (
-        lane_state(ControllerState, shapes, num_lanes, _DTYPES),
+        lane_state(ControllerState, shapes, num_lanes, _DTYPES, {"gain": make_gain(n, num_lanes)}),
         ControllerWork(design, **{f: np.zeros((num_lanes, *shape)) for f, shape in work.items()}),
     )
 
@@ -310,11 +310,10 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
         s.n_alarms[lane] += 1
         s.last_alarm[lane] = t
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
-    gain = s.gain[lane]
     if lq_weights is None:
-        status = place_design(theta, cfg, gain, w.design, lane)
+        status = place_design(theta, cfg, s.gain, w.design, lane)
     else:
-        status = lq_design(theta, cfg, lq_weights, s.P_lq[lane], gain, w.design, lane)
+        status = lq_design(theta, cfg, lq_weights, s.P_lq[lane], s.gain, w.design, lane)
     s.last_reason[lane] = status
     if status == OK:
         s.has_gain[lane] = True
@@ -381,7 +380,7 @@ def control(s, lane, cfg, y, r, xc):
     if open_loop:
         s.closed_t[lane] = t
     u, s.xi[lane], saturated, s.u_unsat[lane] = track(
-        s.gain[lane], True, s.xi[lane], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
+        s.gain, lane, True, s.xi[lane], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
     )
     s.saturated[lane] = saturated
     if saturated:

@@ -11,7 +11,8 @@ lanes. Each piece has one home:
   integral augmentation;
 * :mod:`.linalg` -- the small dense linear algebra the designs use;
 * :mod:`.safe_set` -- the safe set every design passes (status codes, ``safe_set()``), the gain
-  record it writes on success and the designs' scratch (``DesignWork``, ``design_work``);
+  it writes on success (``Gain``, ``make_gain``) and the designs' scratch (``DesignWork``,
+  ``design_work``);
 * :mod:`.pole_placement` -- Ackermann's formula (``place_design``, ``ackermann_gain``);
 * :mod:`.lq` -- the one-step and solved LQ designs, the DARE, the steady-state Kalman
   covariance;
@@ -72,9 +73,11 @@ from stcgym.adaptive.control.safe_set import (
     UNCONTROLLABLE,
     DesignConfig,
     DesignWork,
+    Gain,
     SafeSetBounds,
     design_work,
-    gain_size,
+    gain_shapes,
+    make_gain,
     safe_set,
     steady_state,
 )
@@ -105,6 +108,7 @@ __all__ = [
     "DesignConfig",
     "DesignWork",
     "DareWork",
+    "Gain",
     "LQSolveWork",
     "LQWeights",
     "LQWork",
@@ -116,7 +120,7 @@ __all__ = [
     "design_work",
     "dare_work",
     "filtered_state",
-    "gain_size",
+    "gain_shapes",
     "kalman_covariance",
     "kalman_covariance_lanes",
     "known_model_commit",
@@ -129,6 +133,7 @@ __all__ = [
     "lq_solve_lanes",
     "lq_weights",
     "lq_work",
+    "make_gain",
     "make_oracle_state",
     "model_matrices",
     "model_matrices_lanes",

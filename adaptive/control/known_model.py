@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.control.law import track
-from stcgym.adaptive.control.safe_set import gain_size
+from stcgym.adaptive.control.safe_set import make_gain
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.linalg import all_finite
 from stcgym.envs.compiled import lane, lane_state, lanes
@@ -48,16 +48,15 @@ class OracleState(NamedTuple):
     x_filt: NDArray  # x(t|t) (n,)
     P: NDArray  # the filter's P(t) (n, n)
     innov: NDArray  # the last innovation
-    gain: NDArray  # the gain record [K_x (n), k_i, N, rcond] (n + 3,)
+    gain: Any  # the design in force: a safe_set.Gain (K_x, k_i, N, rcond)
     xi: NDArray  # the tracking law's integrator xi(t)
     saturated: NDArray  # the last input was saturated (bool)
     u_unsat: NDArray  # the last input before saturation
     t: NDArray  # steps taken (int)
-    A0: NDArray  # the initial values a reset restores: A, b, Q, P, gain
+    A0: NDArray  # the initial values a reset restores: A, b, Q, P (and the oracle's gain)
     b0: NDArray
     Q0: NDArray
     P0: NDArray
-    gain0: NDArray
 
 
 class OracleProposal(NamedTuple):
@@ -88,10 +87,10 @@ def oracle_shapes(n: int) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[i
     state: dict[str, tuple[int, ...]] = {
         **dict.fromkeys(("A", "Q", "P", "A0", "Q0", "P0"), (n, n)),
         **dict.fromkeys(("b", "x", "x_filt", "b0"), (n,)),
-        **dict.fromkeys(("gain", "gain0"), (gain_size(n),)),
     }
     for scalar in OracleState._fields:
-        state.setdefault(scalar, ())
+        if scalar != "gain":  # a lane state of its own (safe_set.gain_shapes)
+            state.setdefault(scalar, ())
     proposal: dict[str, tuple[int, ...]] = {
         **dict.fromkeys(("x", "x_filt", "L1"), (n,)),
         **dict.fromkeys(("P", "AP", "P_upd"), (n, n)),
@@ -105,7 +104,7 @@ def make_oracle_state(n: int, num_lanes: int) -> tuple[OracleState, OraclePropos
     """A zeroed :class:`OracleState` of ``num_lanes`` lanes and their proposal."""
     state, proposal = oracle_shapes(n)
     return (
-        lane_state(OracleState, state, num_lanes, _DTYPES),
+        lane_state(OracleState, state, num_lanes, _DTYPES, {"gain": make_gain(n, num_lanes)}),
         lane_state(OracleProposal, proposal, num_lanes, _DTYPES),
     )
 
@@ -129,7 +128,7 @@ def known_model_propose(s, p, lane, y, r, filtered, integral, anti_windup, actio
     xc = x_filt if filtered else x
     # a known model always has a gain (its design must succeed)
     u, xi, saturated, u_unsat = track(
-        s.gain[lane], True, s.xi[lane], xc, y, r, 0.0, action_bound, integral, anti_windup
+        s.gain, lane, True, s.xi[lane], xc, y, r, 0.0, action_bound, integral, anti_windup
     )
     p.xi[lane] = xi
     p.saturated[lane] = saturated

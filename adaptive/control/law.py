@@ -1,9 +1,9 @@
 """The tracking law ``u = sat(N r - K_x x - k_i xi)`` with anti-windup, as a lane function.
 
 :func:`track` is a pure function of the law state, the integrator ``xi``: it returns the input,
-``xi(t+1)``, whether the input saturated and the input before saturation. ``gain`` is the gain
-record of :mod:`.safe_set` (``[K_x (n), k_i, N, rcond]``); whether a design has been accepted
-yet (``has_gain``) is the caller's, kept beside the record.
+``xi(t+1)``, whether the input saturated and the input before saturation. ``gain`` is the
+:class:`.safe_set.Gain` of the lanes (``K_x``, ``k_i``, ``N``), ``lane`` the one to read;
+whether a design has been accepted yet (``has_gain``) is the caller's, kept beside it.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ __all__ = ["track"]
 
 
 @lane(inline=True)
-def track(gain, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_windup):
+def track(gain, lane, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_windup):
     """``u(t) = sat(-K_x x(t) - k_i xi(t) + N r(t) + e(t))``; returns
     ``(u(t), xi(t+1), saturated, u_unsat)``.
 
@@ -26,10 +26,12 @@ def track(gain, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_
     excitation is applied and ``xi`` stays. ``action_bound = inf`` means no saturation.
     """
     n = x.size
+    K_x = gain.K_x[lane]
+    k_i = gain.k_i[lane]
     if has_gain:
-        u = gain[n + 1] * r + excitation - gain[n] * xi
+        u = gain.N[lane] * r + excitation - k_i * xi
         for i in range(n):
-            u -= gain[i] * x[i]
+            u -= K_x[i] * x[i]
     else:
         u = excitation
     saturated = abs(u) > action_bound
@@ -37,6 +39,6 @@ def track(gain, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_
     xi_next = xi
     if integral and has_gain:
         err = r - y
-        if not (anti_windup and saturated and (-gain[n] * err) * u > 0.0):
+        if not (anti_windup and saturated and (-k_i * err) * u > 0.0):
             xi_next = xi + err
     return u_sat, xi_next, saturated, u

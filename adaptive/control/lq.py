@@ -21,7 +21,7 @@
     on the dual problem.
 
 Batch loops ``lq_solve_lanes`` and ``kalman_covariance_lanes`` (the scratch has a row a lane).
-Status codes and the gain record: :mod:`.safe_set`.
+Status codes and the gain written (:class:`.safe_set.Gain`): :mod:`.safe_set`.
 """
 
 from __future__ import annotations
@@ -234,7 +234,8 @@ def _weight_matrix(n, integral, weights, Q):
 def lq_design(theta, cfg, weights, P, gain, w, lane):
     """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
 
-    Returns the status code; ``gain`` is written only on ``OK``. A Riccati matrix that is not
+    Returns the status code; lane ``lane`` of ``gain`` (a :class:`.safe_set.Gain`) is written
+    only on ``OK``. A Riccati matrix that is not
     finite on entry or blows up (``> P_MAX``: the model is not stabilisable) is re-initialised
     to ``Q`` and ``NOT_STABILISABLE`` returned.
     """
@@ -345,8 +346,8 @@ def lq_solve(theta, cfg, weights, P, gain, w, lane, tol, max_iter):
     ``max(1, max |P|)``, ``max_iter`` (e.g. 64) the number of doubling steps (each squares the
     horizon).
 
-    Writes the Riccati solution into ``P`` and the gain into ``gain`` on ``OK``; both are left
-    untouched otherwise.
+    Writes the Riccati solution into ``P`` and the design into lane ``lane`` of ``gain`` (a
+    :class:`.safe_set.Gain`) on ``OK``; both are left untouched otherwise.
     """
     status, rcond = design_start(theta, cfg, w, lane)
     if status != OK:
@@ -372,10 +373,10 @@ def lq_solve(theta, cfg, weights, P, gain, w, lane, tol, max_iter):
 
 @lanes(min_lanes=4)  # a solve to convergence a lane
 def lq_solve_lanes(thetas, cfg, weights, Ps, gains, status, w, tol, max_iter, first, last):
-    """:func:`lq_solve` for every lane (``Ps`` ``(B, m, m)``, ``w`` an :data:`LQSolveWork` of
-    ``B`` lanes)."""
+    """:func:`lq_solve` for every lane (``Ps`` ``(B, m, m)``, ``gains`` a
+    :class:`.safe_set.Gain` and ``w`` an :data:`LQSolveWork` of ``B`` lanes)."""
     for i in range(first, last):
-        status[i] = lq_solve(thetas[i], cfg, weights, Ps[i], gains[i], w, i, tol, max_iter)
+        status[i] = lq_solve(thetas[i], cfg, weights, Ps[i], gains, w, i, tol, max_iter)
 
 
 @lane(allocates=True, entry=True)

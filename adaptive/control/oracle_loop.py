@@ -19,7 +19,7 @@ from stcgym.adaptive.control.options import LawOptions, option_group, plant_sett
 from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
-from stcgym.envs.compiled import FixedTypes
+from stcgym.envs.compiled import FixedTypes, set_lanes, state_arrays
 from stcgym.envs.validation import integer, real_in
 
 __all__ = ["MAX_SETTING"]
@@ -104,10 +104,9 @@ class _KnownModelLoop(LanePolicy):
         self._state = state
         state.R[:] = self.R
         state.Q0[:] = self._process_noise(b)
-        gains = self._design_lanes(a, b, "a, b")
+        self._gain0 = self._design_lanes(a, b, "a, b")  # the design a reset restores
         state.A0[:] = self._model_matrices(a, b)
         state.b0[:] = b
-        state.gain0[:] = gains
         state.P0[:] = self._initial_covariance(a, b)
         self._a, self._b = a.copy(), b.copy()
         self._a0, self._b0 = a.copy(), b.copy()
@@ -115,7 +114,7 @@ class _KnownModelLoop(LanePolicy):
 
     # -- hooks -----------------------------------------------------------------------------
     @abstractmethod
-    def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
+    def _design_batch(self, thetas: NDArray, gains: _design.Gain, status: NDArray) -> None:
         """Design every lane of ``thetas`` ``(lanes, 2n)`` into ``gains``, codes into ``status``."""
 
     @abstractmethod
@@ -148,9 +147,9 @@ class _KnownModelLoop(LanePolicy):
             self._form_code, bool(law.integral), bool(law.feedforward), _NO_SAFE_SET, alpha
         )
 
-    def _design_lanes(self, a: NDArray, b: NDArray, name: str) -> NDArray:
-        """Gain records for every lane's model; ``ValueError`` (nothing changed) if one fails."""
-        gains = np.zeros((a.shape[0], _design.gain_size(self.n)))
+    def _design_lanes(self, a: NDArray, b: NDArray, name: str) -> _design.Gain:
+        """The design of every lane's model; ``ValueError`` (nothing changed) if one fails."""
+        gains = _design.make_gain(self.n, a.shape[0])
         status = np.zeros(a.shape[0], dtype=np.int64)
         self._design_batch(np.hstack((a, b)), gains, status)
         bad = np.flatnonzero(status)
@@ -165,8 +164,9 @@ class _KnownModelLoop(LanePolicy):
 
     def _reset_state(self, rows: NDArray | slice = slice(None)) -> None:
         s = self._state
-        for src, dst in ((s.A0, s.A), (s.b0, s.b), (s.Q0, s.Q), (s.P0, s.P), (s.gain0, s.gain)):
+        for src, dst in ((s.A0, s.A), (s.b0, s.b), (s.Q0, s.Q), (s.P0, s.P)):
             dst[rows] = src[rows]
+        set_lanes(s.gain, rows, self._gain0, rows)
         for field in (s.x, s.x_filt, s.innov, s.xi, s.saturated, s.u_unsat, s.t):
             field[rows] = 0
 
@@ -204,13 +204,14 @@ class _KnownModelLoop(LanePolicy):
     @property
     def K(self) -> NDArray:
         """State-feedback gain ``[K_x, k_i]`` (``k_i`` only with integral action)."""
-        m = self.n + int(self.law.integral)
-        return self._lane0(self._state.gain[:, :m])
+        g = self._state.gain
+        K = np.column_stack((g.K_x, g.k_i)) if self.law.integral else g.K_x
+        return self._lane0(K)
 
     @property
     def N(self) -> float | NDArray:
         """Reference feed-forward gain ``N``."""
-        N = self._state.gain[:, self.n + 1].copy()
+        N = self._state.gain.N.copy()
         return float(N[0]) if self.num_envs is None else N
 
     def set_model(self, a: ArrayLike, b: ArrayLike, lanes: ArrayLike | None = None) -> None:
@@ -226,14 +227,12 @@ class _KnownModelLoop(LanePolicy):
         if a_l.shape[1] != self.n:
             raise ValueError(f"new parameters must have order {self.n}, got {a_l.shape[1]}")
         # everything is computed before the first assignment: a failure changes nothing
-        new = {
-            "A": self._model_matrices(a_l, b_l),
-            "b": b_l,
-            "gain": self._design_lanes(a_l, b_l, "set_model"),
-        }
+        gains = self._design_lanes(a_l, b_l, "set_model")
+        new = {"A": self._model_matrices(a_l, b_l), "b": b_l}
         new.update(self._model_extras(a_l, b_l))
         for name, value in new.items():
             getattr(self._state, name)[idx] = value
+        set_lanes(self._state.gain, idx, gains, slice(None))
         self._a[idx], self._b[idx] = a_l, b_l
 
     def _model_extras(self, a: NDArray, b: NDArray) -> dict[str, NDArray]:
@@ -254,12 +253,13 @@ class _KnownModelLoop(LanePolicy):
         saved = None
         if starts is not None:
             idx = np.flatnonzero(starts)
-            saved = [field[idx].copy() for field in (*self._state, self._a, self._b)]
+            fields = (*state_arrays(self._state), self._a, self._b)
+            saved = [field[idx].copy() for field in fields]
             self._reset_lanes(idx)
         u = self._step(obs[:, 0].copy(), obs[:, 1].copy())
         if u is None:
             if saved is not None:
-                for field, rows in zip((*self._state, self._a, self._b), saved, strict=True):
+                for field, rows in zip(fields, saved, strict=True):
                     field[idx] = rows
             raise ValueError(
                 "observation drives the oracle's state estimate to non-finite values "

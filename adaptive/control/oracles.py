@@ -127,11 +127,11 @@ class KnownModelController(_KnownModelLoop):
         self._P0 = _setting(P0, "P0")
         self._build(a_l, b_l)
 
-    def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
+    def _design_batch(self, thetas: NDArray, gains: _design.Gain, status: NDArray) -> None:
         cfg = self._design_config(self._alpha)
         work = _design.design_work(self.n, cfg.integral, thetas.shape[0])
         if thetas.shape[0] == 1:
-            status[0] = _design.place_design(thetas[0], cfg, gains[0], work, 0)
+            status[0] = _design.place_design(thetas[0], cfg, gains, work, 0)
         else:
             _design.place_design_lanes(thetas, cfg, gains, status, work)
 
@@ -227,14 +227,14 @@ class LQGController(_KnownModelLoop):
         self._weights = np.array(self.law.lq_weights, dtype=float)
         self._build(a_l, b_l)
 
-    def _design_batch(self, thetas: NDArray, gains: NDArray, status: NDArray) -> None:
+    def _design_batch(self, thetas: NDArray, gains: _design.Gain, status: NDArray) -> None:
         cfg = self._design_config(np.zeros(0))
         m = self.n + int(cfg.integral)
         Ps = np.zeros((thetas.shape[0], m, m))
         work = _design.lq_work(self.n, cfg.integral, thetas.shape[0], solve=True)
         w = self._weights
         if thetas.shape[0] == 1:
-            status[0] = _design.lq_solve(thetas[0], cfg, w, Ps[0], gains[0], work, 0, 1e-12, 64)
+            status[0] = _design.lq_solve(thetas[0], cfg, w, Ps[0], gains, work, 0, 1e-12, 64)
         else:
             _design.lq_solve_lanes(thetas, cfg, w, Ps, gains, status, work, 1e-12, 64)
 

@@ -70,7 +70,8 @@ def ackermann_gain(A, b, alpha, K, w, lane):
 def place_design(theta, cfg, gain, w, lane):
     """Pole placement on the (augmented) model of ``theta``; see the module docstring.
 
-    Returns the status code; ``gain`` is written only when it is ``OK`` (0).
+    Returns the status code; lane ``lane`` of ``gain`` (a :class:`.safe_set.Gain`) is written
+    only when it is ``OK`` (0).
     """
     status, rcond = design_start(theta, cfg, w, lane)
     if status != OK:
@@ -81,7 +82,8 @@ def place_design(theta, cfg, gain, w, lane):
 
 @lanes(min_lanes=16)  # one design a lane
 def place_design_lanes(thetas, cfg, gains, status, w, first, last):
-    """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` ``(B, n + 3)``,
-    ``status`` ``(B,)`` int64, ``w`` a :data:`.safe_set.DesignWork` of ``B`` lanes)."""
+    """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` a
+    :class:`.safe_set.Gain` of ``B`` lanes, ``status`` ``(B,)`` int64, ``w`` a
+    :data:`.safe_set.DesignWork` of ``B`` lanes)."""
     for i in range(first, last):
-        status[i] = place_design(thetas[i], cfg, gains[i], w, i)
+        status[i] = place_design(thetas[i], cfg, gains, w, i)

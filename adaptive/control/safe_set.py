@@ -1,8 +1,9 @@
-"""The safe set every certainty-equivalence design passes, and the gain record it writes.
+"""The safe set every certainty-equivalence design passes, and the gain it writes.
 
 Shared by pole placement (:mod:`.pole_placement`) and the LQ designs (:mod:`.lq`): the tests
-of the safe set in order, the gain record ``[K_x, k_i, N, rcond]`` (:func:`gain_size`), written
-**only on success** (a rejected model keeps the last good gain), and the designs' scratch
+of the safe set in order, the accepted design (:class:`Gain`: ``K_x``, ``k_i``, ``N``,
+``rcond``), written **only on success** (a rejected model keeps the last good gain), and the
+designs' scratch
 (:data:`DesignWork`: named fields, one row a lane, shapes in :func:`design_shapes`).
 
 Safe set ``safe`` (float64, length 4; :func:`safe_set` builds and validates it)
@@ -44,7 +45,7 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
-from stcgym.envs.compiled import fields_of, lane, make_work
+from stcgym.envs.compiled import fields_of, lane, lane_state, make_work
 from stcgym.envs.validation import real_in
 
 __all__ = [
@@ -52,6 +53,7 @@ __all__ = [
     "ControllabilityWork",
     "DesignConfig",
     "DesignWork",
+    "Gain",
     "ModelWork",
     "SafeSetBounds",
     "SteadyStateWork",
@@ -60,7 +62,8 @@ __all__ = [
     "design_start",
     "design_work",
     "finish",
-    "gain_size",
+    "gain_shapes",
+    "make_gain",
     "safe_bounds",
     "safe_set",
     "steady_state",
@@ -94,12 +97,26 @@ RCOND_FLOOR = 1e-14
 DC_RCOND_FLOOR = 1e-13
 
 
-def gain_size(n: int) -> int:
-    """Length of the gain record ``[K_x (n), k_i, N, rcond]``: the state gain, the integral gain
-    ``k_i`` (0 without integral action), the reference feed-forward ``N`` (0 when off) and the
-    reciprocal condition number of the accepted design's controllability matrix. Whether any
-    design has succeeded yet is the caller's to keep."""
-    return int(n) + 3
+class Gain(NamedTuple):
+    """The design in force on every lane, one row a lane (shapes in :func:`gain_shapes`): what
+    the tracking law ``u = sat(N r - K_x x - k_i xi)`` applies (:mod:`.law`), written by
+    :func:`finish` only when the safe set accepts a design. Whether any design has been
+    accepted yet is the caller's to keep."""
+
+    K_x: NDArray  # state gain (n,)
+    k_i: NDArray  # integral gain (0 without integral action)
+    N: NDArray  # reference feed-forward (0 when off)
+    rcond: NDArray  # reciprocal condition number of the design's controllability matrix
+
+
+def gain_shapes(n: int) -> dict[str, tuple[int, ...]]:
+    """The shapes of one lane's :class:`Gain` fields for order ``n``."""
+    return {"K_x": (int(n),), "k_i": (), "N": (), "rcond": ()}
+
+
+def make_gain(n: int, num_lanes: int) -> Gain:
+    """A zeroed :class:`Gain` of ``num_lanes`` lanes for order ``n``."""
+    return lane_state(Gain, gain_shapes(n), num_lanes)
 
 
 class ModelWork(NamedTuple):
@@ -335,8 +352,9 @@ def design_start(theta, cfg, w, lane):
 
 @lane(inline=True)
 def finish(theta, cfg, rcond, gain, w, lane):
-    """Feed-forward from the steady state, the gain bound, and the commit of ``gain``: the
-    candidate gain ``w.K[lane]`` becomes the record ``[K_x, k_i, N, rcond]``."""
+    """Feed-forward from the steady state, the gain bound, and the commit: the candidate gain
+    ``w.K[lane]`` (``[K_x, k_i]``), the feed-forward ``N`` and ``rcond`` become lane ``lane``
+    of the :class:`Gain` ``gain``."""
     n = theta.size // 2
     bounds = safe_bounds(cfg.safe)
     K = w.K[lane]
@@ -356,9 +374,10 @@ def finish(theta, cfg, rcond, gain, w, lane):
             kmax = abs(K[i]) if math.isfinite(K[i]) else math.inf
     if not (kmax <= bounds.gain_max and math.isfinite(N)):
         return GAIN_LARGE
+    K_x = gain.K_x[lane]
     for i in range(n):
-        gain[i] = K[i]
-    gain[n] = K[n] if cfg.integral else 0.0
-    gain[n + 1] = N
-    gain[n + 2] = rcond
+        K_x[i] = K[i]
+    gain.k_i[lane] = K[n] if cfg.integral else 0.0
+    gain.N[lane] = N
+    gain.rcond[lane] = rcond
     return OK
