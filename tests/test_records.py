@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -14,7 +14,7 @@ from lane_call import call
 
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
-from stcgym.envs.compiled import FixedTypes, lane, lane_state
+from stcgym.envs.compiled import FixedTypes, lane, lane_state, set_lanes, state_arrays
 
 
 def test_copies_write_every_entry():
@@ -88,6 +88,30 @@ def test_lane_state_rows_are_read_by_name():
     assert _read_by_name(s, 0) == 0.0
     with pytest.raises(ValueError, match="exactly the fields of _Pair"):
         lane_state(_Pair, {"S": (1, 1)}, 1)
+
+
+class _Outer(NamedTuple):
+    pair: Any
+    t: Any
+
+
+def test_nested_lane_states_are_built_reset_and_listed_field_by_field():
+    inner = lane_state(_Pair, {"theta": (2,), "S": (2, 2)}, 3)
+    s = lane_state(_Outer, {"t": ()}, 3, {"t": np.int64}, nested={"pair": inner})
+    assert s.pair is inner and s.t.shape == (3,) and s.t.dtype == np.int64
+    init = lane_state(
+        _Outer, {"t": ()}, 1, nested={"pair": lane_state(_Pair, {"theta": (2,), "S": (2, 2)}, 1)}
+    )
+    init.pair.theta[0] = [1.0, 2.0]
+    init.pair.S[0] = np.eye(2)
+    init.t[0] = 7
+    set_lanes(s, [0, 2], init)
+    np.testing.assert_array_equal(s.pair.theta, [[1.0, 2.0], [0.0, 0.0], [1.0, 2.0]])
+    np.testing.assert_array_equal(s.pair.S[1], np.zeros((2, 2)))
+    np.testing.assert_array_equal(s.t, [7, 0, 7])
+    assert [a.shape for a in state_arrays(s)] == [(3, 2, 2), (3, 2), (3,)]  # S, theta, t
+    with pytest.raises(ValueError, match="each once"):
+        lane_state(_Outer, {"t": (), "pair": ()}, 3, nested={"pair": inner})
 
 
 def test_fixed_types_calls_the_same_compiled_code():
