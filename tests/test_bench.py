@@ -740,3 +740,25 @@ def test_a_bad_time_limit_is_refused_before_any_work(tmp_path, capsys, limit):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--time-limit must be a positive duration" in err
     assert not out.exists()
+
+
+def test_a_resume_reads_kept_classical_evaluations_back_whatever_the_time_limit(
+    tiny_run, tmp_path, monkeypatch
+):
+    """Reading a kept evaluation back costs no time: a resumed session whose limit admits no
+    new evaluation still reports every kept one (here each is estimated at 10^6 s)."""
+    import shutil
+
+    source = tiny_run[0]
+    run = tmp_path / "tiny"
+    shutil.copytree(source, run)
+    (run / "report.md").unlink()
+    kept = sorted((run / "jobs" / "classical").glob("*.npz"))
+    monkeypatch.setattr(runner_mod, "classical_seconds", lambda *args: 1e6)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["bench", "--resume", str(run), "--no-plots", "--time-limit", "1m"]) == 0
+    assert f"{len(kept)} classical evaluations read back" in err.getvalue()
+    assert "time limit" not in err.getvalue()  # nothing was left for another session
+    assert "PARTIAL" not in (run / "report.md").read_text()
+    assert _sorted_numbers(run / "metrics.csv") == _sorted_numbers(source / "metrics.csv")

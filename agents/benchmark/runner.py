@@ -328,8 +328,8 @@ class _RunState:
 
     def _yardstick(self, sc: Scenario) -> None:
         """LQG and zero input on the scenario's episodes: the reference of every row."""
-        lqg = self._evaluated(sc, YARDSTICK, 0)
-        zero = self._evaluated(sc, "zero", 0)
+        lqg = self._kept(sc, YARDSTICK, 0) or self._evaluated(sc, YARDSTICK, 0)
+        zero = self._kept(sc, "zero", 0) or self._evaluated(sc, "zero", 0)
         self.yard[sc.name] = Yardstick(
             lqg.cost, lqg.jump_step, zero.cost.mean(axis=1), zero.metrics["bounded"] > 0
         )
@@ -346,21 +346,27 @@ class _RunState:
         return [float(c) for c in batch.cost.mean(axis=1)]
 
     # -- classical controllers -------------------------------------------------------------
-    def _evaluated(self, sc: Scenario, name: str, run: int) -> ClassicalEpisodes:
-        """Run ``run`` of the classical controller ``name`` on the scenario's episodes, or its
-        result kept by an earlier session of this run (``--resume``)."""
+    def _classical_key(self, sc: Scenario, name: str, run: int) -> tuple[str, str]:
+        """The label and id run ``run`` of ``name`` on ``sc`` is kept under."""
         scenario = {
             "name": sc.name,
             "env": sc.env.to_dict(),
             "episodes": sc.episodes.to_dict(),
             "controller_order": sc.controller_order,
         }
-        tid = classical_id(self.cfg.to_dict(), scenario, name, run)
-        label = f"{sc.name}.{name}.run{run}"
-        kept = self.classical_store.load(label, tid)
-        if kept is not None:
-            self.classical_kept += 1
-            return kept
+        return f"{sc.name}.{name}.run{run}", classical_id(self.cfg.to_dict(), scenario, name, run)
+
+    def _kept(self, sc: Scenario, name: str, run: int) -> ClassicalEpisodes | None:
+        """Run ``run`` of ``name`` on ``sc`` as an earlier session of this run kept it
+        (``--resume``), or None."""
+        kept = self.classical_store.load(*self._classical_key(sc, name, run))
+        self.classical_kept += kept is not None
+        return kept
+
+    def _evaluated(self, sc: Scenario, name: str, run: int) -> ClassicalEpisodes:
+        """Run ``run`` of the classical controller ``name`` on the scenario's episodes, kept
+        for a resumed run."""
+        label, tid = self._classical_key(sc, name, run)
         info = CONTROLLERS[name]
         seeds = dict(zip(sc.episodes.seeds, _lane_seeds(sc.episodes.seeds, run), strict=True))
         builder = info.build(self.cfg, sc)
@@ -416,9 +422,12 @@ class _RunState:
         for run in range(runs):
             if self.halt.is_set():
                 raise _Stop
-            if not self.fits(each):
-                return False
-            self._classical_rows(sc, name, run, self._evaluated(sc, name, run))
+            episodes = self._kept(sc, name, run)  # read back whatever the time limit
+            if episodes is None:
+                if not self.fits(each):
+                    return False
+                episodes = self._evaluated(sc, name, run)
+            self._classical_rows(sc, name, run, episodes)
         return True
 
     # -- tuning ----------------------------------------------------------------------------
