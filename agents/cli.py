@@ -4,7 +4,7 @@
     The self-tuning controllers, PPO, SAC and estimate-conditioned PPO (3 runs each, trained on
     the spot through the task executor), pole placement on the true model and zero input, all
     scored against LQG on the true model, on the same episodes of the nominal, plant-family
-    (test split and held-out variants), parameter-jump and MIMO scenarios; about 11 minutes on
+    (test split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on
     2 CPU cores.
     ``stcgym bench --standard`` (about 12 hours with every RL agent at its cap) has 5 runs,
     the whole test split, every held-out variant and RL caps of 10^6 steps on the family;
@@ -59,7 +59,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
-        "--quick", action="store_true", help="the default: about 11 min on 2 CPU cores"
+        "--quick", action="store_true", help="the default: about 10 min on 2 CPU cores"
     )
     mode.add_argument(
         "--standard",

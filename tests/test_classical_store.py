@@ -56,6 +56,9 @@ def test_the_id_follows_what_shapes_the_episodes(tmp_path):
     # where it is written and how it is executed do not matter ...
     elsewhere = cfg | {"run": "b", "out": "/elsewhere", "jobs": 7, "plots": False}
     assert classical_id(elsewhere, scenario, "stc", 0) == base
+    # nor how the RL agents are trained
+    retrained = cfg | {"algo_configs": {}, "family_train_steps": 1, "patience": 9}
+    assert classical_id(retrained, scenario, "stc", 0) == base
     # ... the settings, the scenario, the controller and the run do
     assert classical_id(cfg | {"first_seed": 1}, scenario, "stc", 0) != base
     assert classical_id(cfg | {"action_bounds": {"family": 2.0}}, scenario, "stc", 0) != base

@@ -23,7 +23,9 @@ __all__ = ["CLASSICAL_FOLDER", "ClassicalEpisodes", "ClassicalStore", "classical
 
 #: The sub-folder of the run's ``jobs/`` folder that holds the classical controllers' episodes.
 CLASSICAL_FOLDER = "classical"
-#: Settings of a run that do not shape any episode (where it is written, how it is executed).
+#: Settings of a run that do not shape a classical controller's episodes: where it is written,
+#: how it is executed, and how the RL agents are trained (their recipes, budgets, learning
+#: curves and stopping rule), so that a run whose RL settings change keeps them.
 _NOT_RESULT = (
     "run",
     "out",
@@ -34,6 +36,16 @@ _NOT_RESULT = (
     "address",
     "tensorboard_log",
     "bootstrap_reps",
+    "algo_configs",
+    "train_steps",
+    "family_train_steps",
+    "mimo_train_steps",
+    "eval_interval",
+    "curve_episodes",
+    "curve_points",
+    "patience",
+    "min_improvement",
+    "min_train_fraction",
 )
 
 
