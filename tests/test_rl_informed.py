@@ -260,11 +260,20 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
             ref.standard_family_steps,
             ref.eval_interval,
         )
-        assert set(ZOO_DEPARTURES[base]) <= set(ZOO_DEPARTURES[agent])
+        # every departure of the base agent, but the residual agent's own exploration
+        own = {e[0] for e in ZOO_DEPARTURES[agent]} - {e[0] for e in ZOO_DEPARTURES[base]}
+        assert not own or own == {"action_net init"}
+        kept = {
+            e for e in ZOO_DEPARTURES[base] if agent != "residual_ppo" or e[0] != "log_std_init"
+        }
+        assert kept <= set(ZOO_DEPARTURES[agent])
         knows = agent_knowledge(agent, cfg.to_dict())
         assert "n" in knows["order"] and knows["model"].startswith("none:")
     residual = default_config("residual_ppo")
     assert residual.hyperparams["policy_kwargs"]["log_std_init"] == -2.0
+    assert [e[2] for e in ZOO_DEPARTURES["residual_ppo"] if e[0] == "log_std_init"] == ["-2"]
+    for agent in ("ppo", "theta_ppo", "rppo"):  # exploration in the range of useful inputs
+        assert default_config(agent).hyperparams["policy_kwargs"]["log_std_init"] == -5.0
     assert (
         "self-tuning controller inside"
         in agent_knowledge("residual_ppo", residual.to_dict())["model"]
