@@ -375,9 +375,7 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def K(self) -> NDArray:
         """Gain in use ``[K_x, k_i]`` (zeros before the first accepted design)."""
-        m = self.n + int(self.law.integral)
-        g = self._state.gain
-        return self._lanes_out(np.column_stack((g.K_x, g.k_i))[:, :m])
+        return self._lanes_out(dz.feedback_gain(self._state.gain, self.law.integral))
 
     @property
     def N(self) -> NDArray | float:

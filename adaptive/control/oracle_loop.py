@@ -204,9 +204,7 @@ class _KnownModelLoop(LanePolicy):
     @property
     def K(self) -> NDArray:
         """State-feedback gain ``[K_x, k_i]`` (``k_i`` only with integral action)."""
-        g = self._state.gain
-        K = np.column_stack((g.K_x, g.k_i)) if self.law.integral else g.K_x
-        return self._lane0(K)
+        return self._lane0(_design.feedback_gain(self._state.gain, self.law.integral))
 
     @property
     def N(self) -> float | NDArray:

@@ -61,6 +61,7 @@ __all__ = [
     "design_shapes",
     "design_start",
     "design_work",
+    "feedback_gain",
     "finish",
     "gain_shapes",
     "make_gain",
@@ -117,6 +118,12 @@ def gain_shapes(n: int) -> dict[str, tuple[int, ...]]:
 def make_gain(n: int, num_lanes: int) -> Gain:
     """A zeroed :class:`Gain` of ``num_lanes`` lanes for order ``n``."""
     return lane_state(Gain, gain_shapes(n), num_lanes)
+
+
+def feedback_gain(gain: Gain, integral: bool) -> NDArray:
+    """The state-feedback gain of every lane, ``[K_x, k_i]`` with integral action and ``K_x``
+    without: ``(lanes, n + integral)`` (a view of ``gain.K_x`` without integral action)."""
+    return np.column_stack((gain.K_x, gain.k_i)) if integral else gain.K_x
 
 
 class ModelWork(NamedTuple):
