@@ -231,7 +231,15 @@ def test_train_save_load_roundtrip(tmp_path):
     assert agent.steps == 64 and agent.curve[0][0] == 0 and agent.curve[-1][0] == 64
     assert (tmp_path / "model.zip").is_file() and (tmp_path / "agent.json").is_file()
     again = load_agent(tmp_path)
-    assert again.algo == "ppo" and again.seed == 1 and again.config == cfg
+    assert again.algo == "ppo" and again.seed == 1 and again.config == agent.config
+    # the action unit the config asked for was measured: LQG's inputs on 20 training episodes
+    from stcgym.agents.benchmark.bounds import lqg_action_unit, lqg_inputs
+    from stcgym.agents.benchmark.episodes import EpisodeSet
+    from stcgym.agents.rl.configs import with_action_unit
+
+    inputs = lqg_inputs(spec, EpisodeSet(("stable2",) * 20, tuple(range(20_000, 20_020))))
+    assert agent.config == with_action_unit(cfg, lqg_action_unit(inputs))
+    assert cfg.interface["action_unit"] == "lqg"  # the caller's config is left alone
     assert again.train_spec == spec and again.curve == agent.curve
     a = run_episode(agent.policy, spec, 7)
     b = run_episode(again.policy, spec, 7)

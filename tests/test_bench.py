@@ -181,6 +181,7 @@ def test_end_to_end_writes_every_file(tiny_run):
     assert bench["train_steps"] == {"ppo": 300, "rppo": 300}
     assert bench["algo_configs"]["ppo"]["hyperparams"]["n_steps"] == 64
     assert set(bench["action_bounds"]) == {"nominal:stable2", "family"}
+    assert set(bench["action_units"]) == {"nominal:stable2", "family"}
     assert "versions" in config and config["argv"][0] == "bench"
     # one action bound per training distribution, for every scenario that uses it
     for sc in config["scenarios"]:
@@ -217,7 +218,7 @@ def test_end_to_end_writes_every_file(tiny_run):
 
 
 def test_action_bound_is_the_lqg_input_range_on_training_episodes(tiny_run):
-    from stcgym.agents.benchmark.bounds import lqg_action_bound, round_up
+    from stcgym.agents.benchmark.bounds import lqg_action_bound, lqg_inputs, round_up
     from stcgym.agents.benchmark.scenarios import training_envs
 
     run = tiny_run[0]
@@ -226,6 +227,27 @@ def test_action_bound_is_the_lqg_input_range_on_training_episodes(tiny_run):
         bound, peaks = lqg_action_bound(env.train, env.bound_episodes)
         assert bound == cfg.action_bounds[key] == round_up(1.5 * np.quantile(peaks, 0.99))
         assert len(peaks) == 10 and env.train.action_bound == bound == env.curve.action_bound
+        # the Gaussian agents' action unit: LQG's input on all but 1 % of the steps
+        inputs = lqg_inputs(env.train, env.bound_episodes)
+        assert np.array_equal(inputs.max(axis=(1, 2)), peaks)
+        assert cfg.action_units[key] == round_up(float(np.quantile(inputs, 0.99))) < bound
+
+
+def test_gaussian_agents_act_in_the_measured_unit_with_the_whole_bound(tiny_run):
+    from stcgym.agents.benchmark.plan import agent_config
+    from stcgym.agents.rl.sb3 import load_agent
+
+    run = tiny_run[0]
+    cfg = BenchConfig.from_dict(json.loads((run / "config.json").read_text())["bench"])
+    meta = json.loads((run / "models" / "family_ppo_s0" / "agent.json").read_text())
+    unit = cfg.action_units["family"]
+    assert meta["config"]["interface"]["action_unit"] == unit
+    assert agent_config(cfg, "ppo", "family").interface["action_unit"] == unit
+    agent = load_agent(run / "models" / "family_ppo_s0")
+    box = agent.policy.model.action_space
+    assert np.allclose(box.high, cfg.action_bounds["family"] / unit) and np.allclose(
+        box.low, -box.high
+    )
 
 
 def test_saved_model_reloads_for_evaluation(tiny_run, capsys):

@@ -57,7 +57,12 @@ def test_the_id_follows_what_shapes_the_episodes(tmp_path):
     elsewhere = cfg | {"run": "b", "out": "/elsewhere", "jobs": 7, "plots": False}
     assert classical_id(elsewhere, scenario, "stc", 0) == base
     # nor how the RL agents are trained
-    retrained = cfg | {"algo_configs": {}, "family_train_steps": 1, "patience": 9}
+    retrained = cfg | {
+        "algo_configs": {},
+        "family_train_steps": 1,
+        "patience": 9,
+        "action_units": {"family": 3.0},
+    }
     assert classical_id(retrained, scenario, "stc", 0) == base
     # ... the settings, the scenario, the controller and the run do
     assert classical_id(cfg | {"first_seed": 1}, scenario, "stc", 0) != base

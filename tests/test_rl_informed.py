@@ -167,6 +167,7 @@ def test_a_zero_residual_is_the_self_tuning_controller_on_the_same_seeds(tmp_pat
     import torch
 
     from stcgym.agents import default_config
+    from stcgym.agents.rl.configs import with_action_unit
     from stcgym.agents.rl.sb3 import (
         SB3Policy,
         _training_env,
@@ -178,7 +179,7 @@ def test_a_zero_residual_is_the_self_tuning_controller_on_the_same_seeds(tmp_pat
 
     spec = EnvSpec(split="test", jump_probability=0.5, steps=200, **FAMILY)
     episodes = EpisodeSet.of(spec, 2, 700, 4)
-    config = default_config("residual_ppo")
+    config = with_action_unit(default_config("residual_ppo"), 0.3)
     vec = _training_env(config, spec, 5, None)
     model = build_model("residual_ppo", config, vec, 5)
     # the policy's mean action is exactly zero at initialisation, whatever it observes
@@ -223,6 +224,39 @@ def test_residual_corrects_the_controller_within_its_bound():
         np.testing.assert_array_equal(u, np.clip(u_stc + 0.5 * np.clip(a, -1, 1), -2, 2))
         obs = rng.normal(0, 0.3, (3, 2))
     assert lanes.n_features == WINDOW.n_features + 1
+
+
+@pytest.mark.parametrize("kind", ["window", "estimate", "residual"])
+def test_the_action_unit_scales_the_action_and_keeps_the_whole_bound(kind):
+    rng = np.random.default_rng(1)
+    bound, unit, fraction = 27.0, 3.0, 0.25
+    span = bound if kind != "residual" else fraction * bound
+    plain = InterfaceSpec(kind, order=2, fraction=fraction).build(WINDOW, bound, 4, seeds=range(4))
+    scaled = InterfaceSpec(kind, order=2, fraction=fraction, action_unit=unit).build(
+        WINDOW, bound, 4, seeds=range(4)
+    )
+    assert plain.action_limit == 1.0 and plain.action_unit == span
+    assert scaled.action_limit == pytest.approx(span / unit) and scaled.action_unit == unit
+    obs = rng.normal(0, 0.3, (4, 2))
+    for lanes in (plain, scaled):
+        lanes.observe(obs, np.ones(4, bool))
+    base = plain.u_base if kind == "residual" else np.zeros((4, 1))
+    a = np.array([[0.5], [-0.02], [50.0], [-50.0]])
+    # one unit of action is `unit` of input; beyond the box, the correction's or bound's edge
+    expected = np.clip(base + np.clip(a * unit, -span, span), -bound, bound)
+    np.testing.assert_allclose(scaled.to_input(a), expected, rtol=0, atol=1e-12)
+    # without a unit the box is [-1, 1] and one unit of action is the whole range, as before
+    expected = np.clip(base + span * np.clip(a, -1, 1), -bound, bound)
+    np.testing.assert_array_equal(plain.to_input(a), expected)
+
+
+def test_a_measured_unit_must_be_measured_before_an_interface_is_built():
+    spec = InterfaceSpec("window", action_unit="lqg")
+    with pytest.raises(ValueError, match="measured by the bench"):
+        spec.build(WINDOW, 5.0)
+    for bad in (0.0, -1.0, float("nan"), "typical", True):
+        with pytest.raises(ValueError, match="interface.action_unit"):
+            InterfaceSpec("window", action_unit=bad)
 
 
 def test_interface_values_are_checked():
@@ -279,7 +313,11 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
         in agent_knowledge("residual_ppo", residual.to_dict())["model"]
     )
     configs = apply_overrides({}, ["theta_ppo.interface.estimator=KF-MILS"])
-    assert configs["theta_ppo"].interface == {"kind": "estimate", "estimator": "KF-MILS"}
+    assert configs["theta_ppo"].interface == {
+        "action_unit": "lqg",
+        "kind": "estimate",
+        "estimator": "KF-MILS",
+    }
     for bad, message in [
         ("theta_ppo.interface.estimator=ELS", "interface.estimator"),
         ("residual_ppo.interface.fraction=2", "interface.fraction"),

@@ -10,6 +10,17 @@ LQG controller on the true model uses on that distribution's training episodes, 
 rounded up to two significant digits (``margin = 1.5``, ``q = 0.99`` by default; LQG runs
 unbounded for this). The yardstick itself then runs under the bound too, which it reaches on
 at most the rare episodes above the quantile.
+
+The same run gives the action unit of the Gaussian-policy RL agents
+(:mod:`stcgym.agents.rl.interfaces`, "The action unit"): the input LQG stays within on all
+but 1 % of the steps,
+
+    unit = quantile_0.99( |u_LQG(k)| over every step of every episode ),
+
+rounded up the same way. It scales the agents' actions only; the bound stays everyone's. On
+the benchmark family (bound 27, unit 3.4) PPO's validation score after 1.5e5 steps was 20x
+LQG's with units of 1.1 to 3 (zero input: 17x) and 65x, rising, with a unit of 5.4 (the median
+peak).
 """
 
 from __future__ import annotations
@@ -23,10 +34,20 @@ import numpy as np
 from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 
-__all__ = ["BOUND_MARGIN", "BOUND_QUANTILE", "lqg_action_bound", "round_up"]
+__all__ = [
+    "BOUND_MARGIN",
+    "BOUND_QUANTILE",
+    "UNIT_QUANTILE",
+    "bound_of_peaks",
+    "lqg_action_bound",
+    "lqg_action_unit",
+    "lqg_inputs",
+    "round_up",
+]
 
 BOUND_MARGIN = 1.5
 BOUND_QUANTILE = 0.99
+UNIT_QUANTILE = 0.99
 #: The bound LQG runs under while its input range is measured (none in practice).
 _UNBOUNDED = 1e9
 
@@ -77,6 +98,40 @@ def lqg_action_bound(
         LQG diverged on some training episode even without a bound (the distribution holds a
         plant no linear controller holds at this noise: a family spec to fix).
     """
+    peaks = lqg_inputs(spec, episodes).max(axis=(1, 2))
+    return bound_of_peaks(peaks, margin=margin, quantile=quantile), peaks
+
+
+def bound_of_peaks(
+    peaks: np.ndarray, *, margin: float = BOUND_MARGIN, quantile: float = BOUND_QUANTILE
+) -> float:
+    """The action bound of the episodes' input peaks ``max_k |u(k)|`` (module docstring)."""
+    return round_up(margin * float(np.quantile(np.asarray(peaks, dtype=float), quantile)))
+
+
+def lqg_action_unit(inputs: np.ndarray, quantile: float = UNIT_QUANTILE) -> float:
+    """The RL agents' action unit from LQG's inputs ``|u(k)|`` (:func:`lqg_inputs`, any
+    shape: every step of every episode; module docstring).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.agents.benchmark.bounds import lqg_action_unit
+    >>> lqg_action_unit(np.linspace(0.0, 3.0, 101))  # 99 % of the steps within 2.97
+    3.0
+    """
+    return round_up(float(np.quantile(np.asarray(inputs, dtype=float), quantile)))
+
+
+def lqg_inputs(spec: EnvSpec, episodes: EpisodeSet) -> np.ndarray:
+    """``|u(k)|`` of the LQG controller on the true model (told every jump), without an input
+    bound, on ``episodes`` of ``spec``: shape ``(episodes, steps, inputs)``.
+
+    Raises
+    ------
+    RuntimeError
+        LQG diverged on some episode even without a bound.
+    """
     from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 
     free = replace(spec, action_bound=_UNBOUNDED)
@@ -85,6 +140,4 @@ def lqg_action_bound(
     if batch.diverged.any():
         bad = [episodes.plants[i] for i in np.flatnonzero(batch.diverged)][:5]
         raise RuntimeError(f"LQG on the true model diverged without an input bound on {bad}")
-    u = np.abs(np.nan_to_num(batch.u.reshape(len(episodes.seeds), spec.steps, -1)))
-    peaks = u.max(axis=(1, 2))
-    return round_up(margin * float(np.quantile(peaks, quantile))), peaks
+    return np.abs(np.nan_to_num(batch.u.reshape(len(episodes.seeds), spec.steps, -1)))

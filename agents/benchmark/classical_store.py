@@ -37,6 +37,7 @@ _NOT_RESULT = (
     "tensorboard_log",
     "bootstrap_reps",
     "algo_configs",
+    "action_units",
     "train_steps",
     "family_train_steps",
     "mimo_train_steps",

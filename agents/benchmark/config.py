@@ -121,6 +121,9 @@ class BenchConfig:
     noise_std: float | None = None
     #: the action bound of each training distribution (measured at the start of a run)
     action_bounds: dict[str, float] = field(default_factory=dict)
+    #: the Gaussian-policy RL agents' action unit of each training distribution (measured
+    #: with the bound: bounds.lqg_action_unit)
+    action_units: dict[str, float] = field(default_factory=dict)
     curve_points: int = 5
     #: Optuna trials per RL agent and for the self-tuning controller on the validation split
     #: (0: no tuning), each RL trial training for tune_fraction of the agent's family cap
@@ -478,6 +481,8 @@ def _check_numbers(cfg: BenchConfig) -> None:
         raise ValueError("--tensorboard-log needs at least one RL agent in --agents")
     for key, bound in cfg.action_bounds.items():
         cfg.action_bounds[key] = _finite(bound, f"action bound of {key}", positive=True)
+    for key, unit in cfg.action_units.items():
+        cfg.action_units[key] = _finite(unit, f"action unit of {key}", positive=True)
 
 
 def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> None:

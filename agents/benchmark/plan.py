@@ -13,7 +13,7 @@ from stcgym.agents.benchmark.config import BenchConfig
 from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.scenarios import Scenario, TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.controllers import controllers_for
-from stcgym.agents.rl.configs import AlgoConfig
+from stcgym.agents.rl.configs import AlgoConfig, with_action_unit
 
 __all__ = [
     "SECONDS_PER_EVAL_STEP",
@@ -21,6 +21,7 @@ __all__ = [
     "SECONDS_PER_POLICY_STEP",
     "SECONDS_PER_STEP",
     "JobProgress",
+    "agent_config",
     "classical_seconds",
     "curve_evaluations",
     "estimate_seconds",
@@ -243,6 +244,15 @@ class JobProgress:
         )
 
 
+def agent_config(cfg: BenchConfig, algo: str, key: str) -> AlgoConfig:
+    """The config ``algo`` trains with on the training distribution ``key``: the run's, with
+    the distribution's action unit where the config asks for the measured one (training
+    measures it itself when the run has none for ``key``)."""
+    config = AlgoConfig.from_dict(cfg.algo_configs[algo])
+    unit = cfg.action_units.get(key)
+    return config if unit is None else with_action_unit(config, unit)
+
+
 def rl_tasks(
     cfg: BenchConfig,
     scenarios: Sequence[Scenario],
@@ -273,7 +283,7 @@ def rl_tasks(
                 tasks.append(
                     training_task(
                         algo=algo,
-                        config=AlgoConfig.from_dict(cfg.algo_configs[algo]),
+                        config=agent_config(cfg, algo, key),
                         seed=ts,
                         steps=cfg.cap(algo, key),
                         eval_interval=cfg.eval_interval_for(algo, key),

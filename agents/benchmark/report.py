@@ -112,6 +112,7 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
     fam = get_family(cfg.family)
     splits = ", ".join(f"{k} {len(fam.split_indices(k))}" for k in fam.splits)
     bounds = "; ".join(f"`{k}` {_g(v)}" for k, v in cfg.action_bounds.items())
+    units = "; ".join(f"`{k}` {_g(v)}" for k, v in cfg.action_units.items())
     peaks = "; ".join(
         f"`{k}`: median {_g(b['peak_median'])}, max {_g(b['peak_max'])} over {b['episodes']}"
         for k, b in data.bounds.items()
@@ -136,7 +137,12 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
         "among its inputs.",
         f"- **One action bound per training distribution** for every controller: {bounds} "
         f"(1.5 x the 99th percentile of LQG's input peak per training episode; peaks: "
-        f"{peaks or 'read back from config.json'}).",
+        f"{peaks or 'read back from config.json'}). The Gaussian-policy RL agents (PPO and "
+        "the agents built on it, RecurrentPPO) act in units of a typical input, "
+        f"{units or '-'} (the 99th percentile of LQG's inputs over every training step), "
+        "in a box widened to the whole bound: "
+        "in units of the bound their optimiser's steps were large inputs and they got worse "
+        "as they trained.",
         "- **Yardstick**: LQG on the true model with the scored cost, told the new "
         "parameters at a jump (the best a linear controller that knows the plant does); every "
         "ratio is a controller's episode cost over LQG's on the same episode. Pole placement "

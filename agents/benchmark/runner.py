@@ -36,6 +36,7 @@ from stcgym.agents.benchmark.metrics_csv import (
 from stcgym.agents.benchmark.plan import (
     OUTPUT_SECONDS_PER_SCENARIO,
     JobProgress,
+    agent_config,
     classical_seconds,
     estimate_seconds,
     format_duration,
@@ -307,14 +308,20 @@ class _RunState:
 
     # -- before anything is compared -------------------------------------------------------
     def measure_bounds(self, scenarios: list[Scenario]) -> None:
-        """The action bound of every training distribution not in ``cfg.action_bounds`` yet
-        (a resumed run reads them back), from the LQG yardstick's input range."""
-        from stcgym.agents.benchmark.bounds import lqg_action_bound
+        """The action bound and the RL agents' action unit of every training distribution not
+        in ``cfg.action_bounds`` / ``cfg.action_units`` yet (a resumed run reads them back),
+        from the LQG yardstick's input range."""
+        from stcgym.agents.benchmark.bounds import bound_of_peaks, lqg_action_unit, lqg_inputs
 
         for key, env in training_envs(self.cfg, scenarios).items():
-            if key in self.cfg.action_bounds:
+            if key in self.cfg.action_bounds and key in self.cfg.action_units:
                 continue
-            bound, peaks = lqg_action_bound(env.train, env.bound_episodes)
+            inputs = lqg_inputs(env.train, env.bound_episodes)
+            peaks = inputs.max(axis=(1, 2))
+            bound = bound_of_peaks(peaks)
+            self.cfg.action_units[key] = lqg_action_unit(inputs)
+            if key in self.cfg.action_bounds:  # a run from before the units: its bound stays
+                continue
             self.cfg.action_bounds[key] = bound
             self.data.bounds[key] = {
                 "bound": bound,
@@ -322,7 +329,8 @@ class _RunState:
                 "peak_median": float(np.median(peaks)),
                 "peak_max": float(np.max(peaks)),
             }
-            self.log(f"action bound of {key}: {bound:g} (LQG's input peaks: median "
+            self.log(f"action bound of {key}: {bound:g}, RL action unit "
+                     f"{self.cfg.action_units[key]:g} (LQG's input peaks: median "
                      f"{np.median(peaks):.3g}, max {np.max(peaks):.3g} over {len(peaks)} "
                      "training episodes)")  # fmt: skip
 
@@ -445,7 +453,7 @@ class _RunState:
             {
                 "name": f"tune_{algo}",
                 "algo": algo,
-                "config": cfg.algo_configs[algo],
+                "config": agent_config(cfg, algo, "family").to_dict(),
                 "train": env.train.to_dict(),
                 "curve": env.curve.to_dict(),
                 "curve_episodes": env.curve_episodes.to_dict(),

@@ -65,6 +65,7 @@ __all__ = [
     "base_algorithm",
     "default_config",
     "parse_override",
+    "with_action_unit",
 ]
 
 #: RL agents the bench knows, with the Stable-Baselines3 (or sb3-contrib) class name.
@@ -285,6 +286,12 @@ _OFF_POLICY_BUDGETS: dict[str, int] = {
 #: its first update; with -5 it falls to 0.021 within 8e4 steps, LQG's is about 0.015).
 _LOG_STD_INIT = -5.0
 
+#: The action unit of the Gaussian-policy agents (PPO, A2C, RecurrentPPO and the agents built
+#: on PPO): measured by the bench from the LQG controller's input peaks on the training
+#: episodes (:mod:`stcgym.agents.rl.interfaces`, "The action unit"; SAC's and TD3's squashed
+#: actions span their box whatever its width, so they keep the box ``[-1, 1]``).
+_GAUSSIAN = {"action_unit": "lqg"}
+
 DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
     # Zoo ppo.yml Pendulum-v1: n_envs 4, n_steps 1024, gae 0.95, gamma 0.9, 10 epochs, lr 1e-3,
     # clip 0.2, no entropy bonus, gSDE resampled every 4 steps.
@@ -310,6 +317,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         standard_family_steps=1_000_000,
         full_steps=2_000_000,
         eval_interval=20_480,  # 5 rollouts of 4 x 1024
+        interface=dict(_GAUSSIAN),
     ),
     "sac": AlgoConfig(
         "sac",
@@ -349,6 +357,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         standard_family_steps=1_000_000,
         full_steps=2_000_000,
         eval_interval=20_480,  # 320 rollouts of 8 x 8
+        interface=dict(_GAUSSIAN),
     ),
     # sb3-contrib RecurrentPPO after the Zoo's ppo_lstm.yml PendulumNoVel-v1 (n_envs 4, n_steps
     # 1024, gae 0.95, gamma 0.9, 10 epochs, lr 1e-3, clip 0.2, gSDE every 4 steps; an LSTM of
@@ -384,6 +393,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         eval_interval=20_480,  # 5 rollouts of 4 x 1024
         policy="MlpLstmPolicy",
         window={"window": 1},
+        interface=dict(_GAUSSIAN),
     ),
 }
 
@@ -401,7 +411,7 @@ DEFAULT_CONFIGS["ppo_noint"] = _ablation("ppo_noint", include_integral=False)
 def _informed(agent: str, **interface: Any) -> AlgoConfig:
     base = copy.deepcopy(DEFAULT_CONFIGS[INFORMED[agent][0]])
     base.algo = agent
-    base.interface = dict(interface)
+    base.interface = {**base.interface, **interface}
     return base
 
 
@@ -422,6 +432,12 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
         ("log_std_init", "0 (SB3's default)", "-5", "exploration in the range of useful inputs, "
          "a small fraction of the action bound: with the default the gSDE noise saturates "
          "the action and the first updates make the policy far worse than the untrained one"),
+        ("action scale", "the box [-1, 1] is the action bound", "one action unit is the "
+         "input LQG stays within on 99 % of the training steps; the box widened to keep the "
+         "bound",
+         "the bound is set by LQG's rare largest transients: in units of it the useful inputs "
+         "are about 1 %, and each optimiser step of the mean action a large input (the policy "
+         "got worse as it trained)"),
         ("normalize", "off", "observations and rewards", "signals of mixed scales; costs "
          "spanning orders of magnitude across plants"),
         ("n_timesteps", "1e5", "cap 1e6 on the family (2e5 on one plant), plateau rule",
@@ -441,6 +457,7 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
     ],
     "a2c": [
         ("learning_rate", "lin_7e-4", "7e-4", "a constant rate, as every other agent's"),
+        ("action scale", "the box [-1, 1] is the action bound", "as for PPO", "as for PPO"),
         ("n_timesteps", "1e6", "cap 1e6 on the family (4e5 on one plant), plateau rule",
          "what fits the tier's time"),
     ],
@@ -454,6 +471,7 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
         ("normalize", "off (PendulumNoVel-v1; on in its other continuous entries)",
          "observations and rewards", "as for PPO"),
         ("log_std_init", "0 (SB3's default)", "-5", "as for PPO"),
+        ("action scale", "the box [-1, 1] is the action bound", "as for PPO", "as for PPO"),
     ],
 }  # fmt: skip
 ZOO_DEPARTURES["ppo_noint"] = ZOO_DEPARTURES["ppo"]
@@ -467,6 +485,27 @@ ZOO_DEPARTURES["residual_ppo"] = [
      "with the default, the noise disturbs the controller's identification and the loop is "
      "lost within 2e4 steps on the family"),
 ]  # fmt: skip
+
+
+def with_action_unit(config: AlgoConfig, unit: float) -> AlgoConfig:
+    """``config`` with the action unit ``unit`` where it asks for the measured one (its
+    interface's ``action_unit`` is ``"lqg"``); otherwise ``config`` unchanged. A copy either
+    way.
+
+    Examples
+    --------
+    >>> from stcgym.agents.rl.configs import default_config, with_action_unit
+    >>> with_action_unit(default_config("ppo"), 5.4).interface
+    {'action_unit': 5.4}
+    >>> with_action_unit(default_config("sac"), 5.4).interface
+    {}
+    """
+    from stcgym.agents.rl.interfaces import MEASURED_UNIT
+
+    out = copy.deepcopy(config)
+    if out.interface.get("action_unit") == MEASURED_UNIT:
+        out.interface["action_unit"] = float(unit)
+    return out
 
 
 def default_config(algo: str) -> AlgoConfig:

@@ -5,7 +5,8 @@ Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.H
 :class:`InterfaceSpec` adds what a classical part running on the same data knows:
 
 ``"window"`` (:class:`WindowInterface`)
-    The window alone; the action ``a`` in ``[-1, 1]`` is the input ``u = a u_max``.
+    The window alone; the action ``a`` in ``[-L, L]`` is the input ``u = a s``, with ``s`` the
+    action unit and ``L = u_max / s`` (default ``s = u_max``: ``a`` in ``[-1, 1]``).
 ``"estimate"`` (:class:`EstimateInterface`): the estimate-conditioned agent
     The window, then the online estimate of one of the recursive estimators of Ding & Ma
     (2014) running on the same ``y(t)`` and applied ``u(t)``, batched over the lanes
@@ -35,7 +36,9 @@ Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.H
     runs on the same observations; the agent sees the window and the controller's input
     ``u_stc(t) / u_max`` and its action ``a`` is a bounded correction::
 
-        u(t) = clip(u_stc(t) + fraction * u_max * a(t), -u_max, u_max)
+        u(t) = clip(u_stc(t) + s a(t), -u_max, u_max),   |a(t)| <= fraction * u_max / s
+
+    (default ``s = fraction * u_max``: ``a`` in ``[-1, 1]``)
 
     (Johannink et al., ICRA 2019; Silver et al., 2018). The policy's mean action starts at
     exactly zero (:func:`stcgym.agents.rl.sb3.build_model` zeroes its last layer), so the
@@ -44,6 +47,19 @@ Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.H
     ``i`` seeds the controller's probe with ``seeds[i]``; the bench passes
     :func:`~stcgym.agents.controllers.controller_seeds` of the episode seeds and the training
     run, the seeds its ``stc`` rows use, so a zero residual reproduces them exactly.
+
+**The action unit** ``s`` (``action_unit``) is the input one unit of the action stands for.
+Stable-Baselines3's Gaussian policies (PPO, A2C, RecurrentPPO) start with a mean action near 0
+and an exploration noise set in action units, and their optimiser moves the mean by steps of
+about the learning rate in the same units; where the useful inputs are a small fraction of
+the bound (on the benchmark family the LQG controller's median input is 1 % of it) each step
+of the mean is a large input and the policy gets worse as it trains (measured: PPO on
+``stable2`` with the bound 27 instead of 2.9, 7.2x LQG after 1.5e5 steps instead of 1.8x;
+with the bound 27 and a unit of 2.9, 2.2x). A unit of the typical input, with the box widened
+to keep the whole bound reachable, is the usual normalisation of RL actions without taking
+authority from the agent. The bench sets it from the LQG controller's inputs on the training
+episodes (``"lqg"``: :func:`stcgym.agents.benchmark.bounds.lqg_action_unit`). Squashed
+policies (SAC's) span their box whatever its width, so a unit would change nothing for them.
 
 One object serves training (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`, over the lanes
 of a vector env) and evaluation (:class:`~stcgym.agents.rl.sb3.SB3Policy`, from raw ``[y, r]``
@@ -68,6 +84,7 @@ from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig
 __all__ = [
     "ESTIMATORS",
     "KINDS",
+    "MEASURED_UNIT",
     "EstimateInterface",
     "InterfaceSpec",
     "ResidualInterface",
@@ -76,6 +93,8 @@ __all__ = [
 
 #: Interface kinds (see the module docstring).
 KINDS = ("window", "estimate", "residual")
+#: ``action_unit`` value that asks the bench to measure the unit (module docstring).
+MEASURED_UNIT = "lqg"
 #: Estimators of the estimate-conditioned agents: the paper's least-squares rules that hold a
 #: closed loop with the self-tuning controller's settings (its warning names the others).
 ESTIMATORS = ("O-RLS", "O-MILS", "KF-RLS", "KF-MILS")
@@ -102,6 +121,12 @@ class InterfaceSpec:
         distribution's; set by :func:`~stcgym.agents.rl.sb3.train_agent`).
     run : int, default 0
         The training run (its seed): with the episode seeds it gives the controller seeds.
+    action_unit : float, "lqg" or None, default None
+        The input one unit of the action stands for (module docstring); ``None``: the action
+        bound (``"residual"``: ``fraction`` times it), so the action box is ``[-1, 1]``.
+        ``"lqg"`` asks the bench (or :func:`~stcgym.agents.rl.sb3.train_agent`) to set it
+        from the LQG controller's inputs on the training episodes; an interface is built only
+        with a number or ``None``.
 
     Raises
     ------
@@ -128,6 +153,7 @@ class InterfaceSpec:
     fraction: float = 0.25
     order: int | None = None
     run: int = 0
+    action_unit: float | str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -149,6 +175,12 @@ class InterfaceSpec:
             raise ValueError(f"interface.order must be None or an integer >= 1, got {n!r}")
         if isinstance(self.run, bool) or not isinstance(self.run, int):
             raise ValueError(f"interface.run must be an integer, got {self.run!r}")
+        s = self.action_unit
+        if not (s is None or s == MEASURED_UNIT or _positive_number(s)):
+            raise ValueError(
+                f"interface.action_unit must be a positive number, {MEASURED_UNIT!r} or None, "
+                f"got {s!r}"
+            )
 
     @classmethod
     def of(cls, data: dict[str, Any] | None, order: int | None = None, run: int = 0):
@@ -183,9 +215,23 @@ class InterfaceSpec:
     ) -> WindowInterface:
         """The interface for ``batch`` lanes; ``seeds``: the residual controller's seed per
         lane (default: :func:`~stcgym.agents.controllers.controller_seeds` of the lane
-        indices and :attr:`run`)."""
+        indices and :attr:`run`).
+
+        Raises
+        ------
+        ValueError
+            ``action_unit`` still ``"lqg"`` (not measured yet), or a multichannel plant for an
+            interface other than ``"window"``.
+        """
+        if self.action_unit == MEASURED_UNIT:
+            raise ValueError(
+                f"interface.action_unit {MEASURED_UNIT!r} is measured by the bench (from the LQG "
+                "controller's inputs on the training episodes); give a number or None to build "
+                "the interface outside it"
+            )
+        unit = self.action_unit
         if self.kind == "window":
-            return WindowInterface(window, action_bound, batch, channels)
+            return WindowInterface(window, action_bound, batch, channels, action_unit=unit)
         if tuple(channels) != (1, 1):
             raise ValueError(f"the {self.kind!r} interface runs on SISO plants, got {channels}")
         if self.kind == "estimate":
@@ -205,7 +251,8 @@ class InterfaceSpec:
 
 
 class WindowInterface:
-    """The window alone, for ``batch`` lanes: ``u = clip(a, -1, 1) u_max``.
+    """The window alone, for ``batch`` lanes: ``u = clip(a, -L, L) s`` with ``s`` the action
+    unit and ``L = u_max / s`` the half-width of the action box.
 
     Parameters
     ----------
@@ -217,6 +264,27 @@ class WindowInterface:
         Lanes.
     channels : (int, int)
         Outputs and inputs ``(p, m)``.
+    action_unit : float, optional
+        ``s``; default ``u_max`` (the box ``[-1, 1]``).
+
+    Attributes
+    ----------
+    action_unit, action_limit : float
+        ``s`` and ``L``: the agent's action box is ``[-L, L]`` per input.
+
+    Examples
+    --------
+    With the bound 27 and a unit of 3 the action 0.5 is the input 1.5, and the whole bound
+    stays reachable (the box is ``[-9, 9]``):
+
+    >>> import numpy as np
+    >>> from stcgym.agents import WindowConfig
+    >>> from stcgym.agents.rl.interfaces import WindowInterface
+    >>> lanes = WindowInterface(WindowConfig(window=2), 27.0, batch=2, action_unit=3.0)
+    >>> lanes.action_limit
+    9.0
+    >>> lanes.to_input(np.array([[0.5], [20.0]]))[:, 0].tolist()
+    [1.5, 27.0]
     """
 
     def __init__(
@@ -225,10 +293,14 @@ class WindowInterface:
         action_bound: float,
         batch: int = 1,
         channels: tuple[int, int] = (1, 1),
+        *,
+        action_unit: float | None = None,
     ) -> None:
         self.window, self.action_bound, self.batch = window, float(action_bound), int(batch)
         self.channels = (int(channels[0]), int(channels[1]))
         self.buffer = HistoryBuffer(window, self.action_bound, self.batch, *self.channels)
+        self.action_unit = self.action_bound if action_unit is None else float(action_unit)
+        self.action_limit = self.action_bound / self.action_unit
 
     @property
     def n_features(self) -> int:
@@ -260,8 +332,9 @@ class WindowInterface:
 
     def to_input(self, action: ArrayLike) -> NDArray:
         """The input ``(batch, m)`` applied for the network's ``action`` (recorded)."""
-        a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, -1), -1.0, 1.0)
-        return self._record(a * self.action_bound)
+        limit = self.action_limit
+        a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, -1), -limit, limit)
+        return self._record(np.clip(a * self.action_unit, -self.action_bound, self.action_bound))
 
     def _with_extra(self, window: NDArray, extra: NDArray) -> NDArray:
         clip = self.window.obs_clip
@@ -293,7 +366,7 @@ class EstimateInterface(WindowInterface):
     def __init__(
         self, window: WindowConfig, action_bound: float, batch: int, spec: InterfaceSpec
     ) -> None:
-        super().__init__(window, action_bound, batch)
+        super().__init__(window, action_bound, batch, action_unit=spec.action_unit)
         self.spec = spec
         self.estimator = closed_loop_estimator(spec.estimator, spec._order(), self.batch)
 
@@ -337,6 +410,15 @@ class EstimateInterface(WindowInterface):
             warnings.simplefilter("ignore")
             self.estimator.predict(u[:, 0])
         return u
+
+
+def _positive_number(value: Any) -> bool:
+    return (
+        not isinstance(value, bool)
+        and isinstance(value, (int, float))
+        and bool(np.isfinite(value))
+        and value > 0
+    )
 
 
 def closed_loop_estimator(name: str, n: int, batch: int) -> Any:
@@ -398,6 +480,13 @@ class ResidualInterface(WindowInterface):
 
         super().__init__(window, action_bound, batch)
         self.spec = spec
+        # the correction's range fraction * u_max, in units of s (default: the range itself)
+        span = spec.fraction * self.action_bound
+        if spec.action_unit is None:
+            self.action_unit, self.action_limit = span, 1.0
+        else:
+            self.action_unit = float(spec.action_unit)
+            self.action_limit = span / self.action_unit
         self.seeds = [int(s) for s in seeds]
         self.controller = SelfTuningController(
             spec._order(), num_envs=self.batch, action_bound=self.action_bound, seed=self.seeds
@@ -421,6 +510,6 @@ class ResidualInterface(WindowInterface):
         return self._with_extra(super().features(), self.u_base / self.action_bound)
 
     def to_input(self, action: ArrayLike) -> NDArray:
-        a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, 1), -1.0, 1.0)
-        bound = self.action_bound
-        return self._record(np.clip(self.u_base + self.spec.fraction * bound * a, -bound, bound))
+        limit, bound = self.action_limit, self.action_bound
+        a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, 1), -limit, limit)
+        return self._record(np.clip(self.u_base + self.action_unit * a, -bound, bound))

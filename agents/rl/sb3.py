@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.episodes import EpisodeSet
-from stcgym.agents.rl.configs import AlgoConfig, algorithm_class
+from stcgym.agents.rl.configs import AlgoConfig, algorithm_class, with_action_unit
 from stcgym.agents.rl.interfaces import InterfaceSpec
 from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
 from stcgym.agents.rl.stopping import PlateauRule, StopSummary
@@ -50,6 +50,7 @@ __all__ = [
     "curve_checkpoints",
     "curve_cost",
     "load_agent",
+    "measured_action_unit",
     "train_agent",
 ]
 
@@ -109,8 +110,9 @@ class SB3Policy(LanePolicy):
     a self-tuning controller's input); this adapter rebuilds them itself from the raw
     observations it is given and the actions it returned (the interface's lanes: a
     :class:`~stcgym.agents.rl.wrappers.HistoryBuffer` with one window per lane, the estimator
-    or controller batched over the lanes), and turns the model's ``[-1, 1]`` action into the
-    input (``a u_max``, or a residual agent's correction of the controller's input).
+    or controller batched over the lanes), and turns the model's action into the input
+    (``a s`` with ``s`` the interface's action unit, or a residual agent's correction of the
+    controller's input).
     ``episode_start`` (or :meth:`reset`) starts a new window on those lanes, and a new LSTM
     state for a recurrent model (sb3-contrib ``RecurrentPPO``), which the adapter carries from
     call to call. ``predict`` is :class:`~stcgym.adaptive.policy.LanePolicy`'s.
@@ -365,6 +367,27 @@ def _zero_mean_action(policy: Any) -> None:
             last.bias.zero_()
 
 
+#: Training episodes :func:`measured_action_unit` runs LQG on.
+UNIT_EPISODES = 20
+
+
+def measured_action_unit(config: AlgoConfig, train_spec: EnvSpec) -> AlgoConfig:
+    """``config`` with its action unit measured where it asks for it (``"lqg"``): the
+    :func:`~stcgym.agents.benchmark.bounds.lqg_action_unit` of the LQG controller's inputs
+    on :data:`UNIT_EPISODES` training episodes of ``train_spec`` (seeds from the bench's
+    ``BOUND_SEED``). The bench measures it on its own bound episodes before it trains."""
+    from stcgym.agents.benchmark.bounds import lqg_action_unit, lqg_inputs
+    from stcgym.agents.benchmark.scenarios import BOUND_SEED
+    from stcgym.agents.rl.interfaces import MEASURED_UNIT
+
+    if config.interface.get("action_unit") != MEASURED_UNIT:
+        return config
+    names = train_spec.plant_names()[:UNIT_EPISODES]
+    per_plant = -(-UNIT_EPISODES // len(names))
+    episodes = EpisodeSet.of(train_spec, per_plant, BOUND_SEED, UNIT_EPISODES)
+    return with_action_unit(config, lqg_action_unit(lqg_inputs(train_spec, episodes)))
+
+
 def check_trainable(algo: str, config: AlgoConfig, train_spec: EnvSpec) -> None:
     """Build (and discard) the model of ``config``, so SB3's own checks run before any work.
 
@@ -375,6 +398,7 @@ def check_trainable(algo: str, config: AlgoConfig, train_spec: EnvSpec) -> None:
     import torch
 
     torch.set_num_threads(1)
+    config = with_action_unit(config, train_spec.action_bound)  # any unit will do for a check
     hp = dict(config.hyperparams)
     if "buffer_size" in hp or algo in ("sac", "td3"):
         hp["buffer_size"] = min(int(hp.get("buffer_size", 1000)), 1000)
@@ -413,7 +437,8 @@ def train_agent(
     algo
         ``"ppo"``, ``"sac"``, ``"td3"``, ``"a2c"`` or ``"rppo"`` (sb3-contrib RecurrentPPO).
     config
-        Its :class:`~stcgym.agents.rl.configs.AlgoConfig`.
+        Its :class:`~stcgym.agents.rl.configs.AlgoConfig`; an action unit it asks to be
+        measured (``"lqg"``) is measured first (:func:`measured_action_unit`).
     train_spec
         Training environment (catalogue plants, or a family split drawn per episode).
     steps
@@ -491,6 +516,7 @@ def train_agent(
         eval_interval = int(eval_interval)
     # Small MLPs: one thread is faster than two fighting over a shared 2-core machine.
     torch.set_num_threads(1)
+    config = measured_action_unit(config, train_spec)
     window = WindowConfig(**config.window)
     out = None if out_dir is None else Path(out_dir)
     if out is not None:

@@ -94,11 +94,12 @@ class VecHistoryWindow(VecEnvWrapper):
     lanes (e.g. :class:`SB3VecEnv` of a native vector env), in numpy over all lanes at once.
 
     Observations are the window features of :class:`~stcgym.agents.rl.wrappers.HistoryBuffer`
-    (one buffer of ``num_envs`` lanes), actions the ``[-1, 1]`` box rescaled to
-    ``[-action_bound, action_bound]``, rewards :func:`~stcgym.agents.rl.wrappers.
-    training_reward` (the scored cost by default, a divergence charged for the steps not
-    lived). A lane that ends is restarted by the wrapped env within the step (SB3's
-    convention): its window starts afresh at the new episode's first observation, and
+    (one buffer of ``num_envs`` lanes), actions the interface's box (``[-1, 1]``, or ``[-L,
+    L]`` in units of its action unit) rescaled to ``[-action_bound, action_bound]``, rewards
+    :func:`~stcgym.agents.rl.wrappers.training_reward` (the scored cost by default, a
+    divergence charged for the steps not lived). A lane that ends is restarted by the
+    wrapped env within the step (SB3's convention): its window starts afresh at the new
+    episode's first observation, and
     ``infos[i]["terminal_observation"]`` holds the features of its last one. A lane ends by
     divergence when it is done and not truncated by the time limit (stcgym envs terminate on
     nothing else).
@@ -177,7 +178,8 @@ class VecHistoryWindow(VecEnvWrapper):
         observation_space = spaces.Box(
             -config.obs_clip, config.obs_clip, shape=(n_features,), dtype=np.float32
         )
-        action_space = spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
+        limit = self._lanes.action_limit  # 1 unless the interface has an action unit
+        action_space = spaces.Box(-limit, limit, shape=(m,), dtype=np.float32)
         super().__init__(venv, observation_space, action_space)
 
     def reset(self) -> NDArray:
