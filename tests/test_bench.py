@@ -202,6 +202,19 @@ def test_end_to_end_writes_every_file(tiny_run):
     assert "fixed before the test split was drawn" in report
     assert "| ppo | 2 x 3 |" in report  # runs x episodes of nominal:stable2
     assert "has not improved on its best by more than 5 % in 3 consecutive" in report
+    # every training run's kept checkpoint, as the training callback kept it (agent.json)
+    training = report.split("## RL training")[1].split("Departures")[0]
+    assert "| kept step | wall s |" in training
+    for meta_file in (run / "models").glob("*/agent.json"):
+        meta = json.loads(meta_file.read_text())
+        suffix = f"_{meta['algo']}_s{meta['seed']}"
+        key = meta_file.parent.name.removesuffix(suffix).replace("-", ":")
+        kept = int(meta["best_step"])
+        row = next(line for line in training.splitlines()
+                   if line.startswith(f"| {key} | {meta['algo']} | {meta['seed']} |"))  # fmt: skip
+        assert row.split(" | ")[7] == (f"{kept / 1000:.3g}k" if kept >= 1000 else str(kept))
+        if kept == 0:
+            assert f"{meta['algo']} on {key} (run" in training
     # 300 steps are 3 evaluations of the rule, one too few for a plateau: every run reached its
     # cap, and a conclusion that names an RL agent says so
     assert {r["train_stop"] for r in rows if r["family"] == "rl"} == {"cap"}

@@ -302,9 +302,10 @@ def _training_table(
 
     lines = [
         "| training env | agent | run | stop | steps (cap) | last gain at | best validation "
-        "score | wall s |",
-        "|---|---|---|---|---|---|---|---|",
+        "score | kept step | wall s |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
+    untrained: dict[str, list[str]] = {}
     # a training job's wall time is on every row it scored; its training env is the scenario's
     train_key = {sc.name: sc.train_key for sc in scenarios}
     walls = {}
@@ -313,21 +314,48 @@ def _training_table(
             job = (train_key[r["scenario"]], r["controller"], str(r["run"]))
             walls[job] = r.get("train_wall_s")
     for (key, algo, ts), stop in sorted(data.stops.items(), key=lambda kv: str(kv[0])):
-        curve = [c["score"] for c in data.curves if (c["train_env"], c["algo"], c["train_seed"])
-                 == (key, algo, ts)]  # fmt: skip
+        curve = [(int(c["steps"]), float(c["score"])) for c in data.curves
+                 if (c["train_env"], c["algo"], c["train_seed"]) == (key, algo, ts)]  # fmt: skip
+        kept = kept_step(curve)
+        if kept == 0:
+            untrained.setdefault(f"{algo} on {key}", []).append(str(ts))
         wall = walls.get((key, algo, str(ts)))
         lines.append(
             f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
             f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
-            f"{_g(min(curve)) if curve else '-'} | {_g(_float(wall), 4)} |"
+            f"{_g(min(s for _, s in curve)) if curve else '-'} | "
+            f"{'-' if kept is None else _k(kept)} | {_g(_float(wall), 4)} |"
         )
     if len(lines) == 2:
         return []
+    if untrained:
+        runs = "; ".join(f"{name} (run {', '.join(r)})" for name, r in untrained.items())
+        lines += [
+            "",
+            "Kept at step 0, the untrained policy (training never improved its validation "
+            f"score): {runs}. Their rows are those of the untrained policy.",
+        ]
     dep = ["| agent | setting | RL Zoo | here | why |", "|---|---|---|---|---|"]
     for agent in cfg.rl_agents:
         for setting, zoo, ours, why in ZOO_DEPARTURES.get(agent, []):
             dep.append(f"| {agent} | {setting} | {zoo} | {ours} | {why} |")
     return [*lines, "", "Departures from the RL Zoo's settings:", "", *dep]
+
+
+def kept_step(curve: Sequence[tuple[int, float]]) -> int | None:
+    """The training step of the checkpoint kept from a learning curve ``[(step, score)]``:
+    the first lowest score, as the training callback keeps it (``None`` for no curve).
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.report import kept_step
+    >>> kept_step([(0, 15.5), (4096, 20.1), (8192, 15.5)]), kept_step([(0, 3.0), (10, 2.0)])
+    (0, 10)
+    """
+    if not curve:
+        return None
+    best = min(score for _, score in curve)
+    return min(step for step, score in curve if score == best)
 
 
 def _float(v: Any) -> float:
@@ -457,7 +485,8 @@ def write_report(
             "",
             "Per training run: how it ended (plateau or cap), env steps used, the step of its "
             "last gain above the rule's minimum, its best validation score (median cost / LQG "
-            "on the validation episodes) and its wall time (`learning_curves.csv`, "
+            "on the validation episodes), the step of the checkpoint kept (the best score's; "
+            "0 is the untrained policy) and its wall time (`learning_curves.csv`, "
             "`data_efficiency.png`).",
             "",
             *training,
