@@ -24,7 +24,9 @@ convention: every signal is zero before the first step). Values are clipped to
 
 The action space is normalised to ``[-1, 1]`` and rescaled to the environment's
 ``[-action_bound, action_bound]`` (the Stable-Baselines3 tip for continuous actions: Gaussian and
-squashed policies work best on a unit box).
+squashed policies work best on a unit box). Where the bound is much larger than the inputs a
+plant needs, the bench's Gaussian-policy agents act in units of a typical input instead
+(:mod:`stcgym.agents.rl.interfaces`, "The action unit").
 
 The same feature construction is needed at evaluation time, when the harness hands every
 controller the raw environment observation: :class:`HistoryBuffer` holds it and is shared by the
