@@ -338,7 +338,13 @@ def test_the_training_table_gives_each_training_env_its_own_wall_time():
         SimpleNamespace(name="family:test", train_key="family"),
         SimpleNamespace(name="jump:test", train_key="family"),
     ]
-    stop = {"status": "cap", "steps": 1000, "cap": 1000, "last_improvement_step": 500}
+    stop = {
+        "status": "cap",
+        "steps": 1000,
+        "cap": 1000,
+        "last_improvement_step": 500,
+        "kept_step": 500,
+    }
     data = SimpleNamespace(
         stops={("family", "ppo", 0): stop, ("nominal:stable2", "ppo", 0): stop}, curves=[]
     )

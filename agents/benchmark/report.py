@@ -314,17 +314,16 @@ def _training_table(
             job = (train_key[r["scenario"]], r["controller"], str(r["run"]))
             walls[job] = r.get("train_wall_s")
     for (key, algo, ts), stop in sorted(data.stops.items(), key=lambda kv: str(kv[0])):
-        curve = [(int(c["steps"]), float(c["score"])) for c in data.curves
-                 if (c["train_env"], c["algo"], c["train_seed"]) == (key, algo, ts)]  # fmt: skip
-        kept = kept_step(curve)
+        curve = [c["score"] for c in data.curves if (c["train_env"], c["algo"], c["train_seed"])
+                 == (key, algo, ts)]  # fmt: skip
+        kept = stop["kept_step"]
         if kept == 0:
             untrained.setdefault(f"{algo} on {key}", []).append(str(ts))
         wall = walls.get((key, algo, str(ts)))
         lines.append(
             f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
             f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
-            f"{_g(min(s for _, s in curve)) if curve else '-'} | "
-            f"{'-' if kept is None else _k(kept)} | {_g(_float(wall), 4)} |"
+            f"{_g(min(curve)) if curve else '-'} | {_k(kept)} | {_g(_float(wall), 4)} |"
         )
     if len(lines) == 2:
         return []
@@ -340,22 +339,6 @@ def _training_table(
         for setting, zoo, ours, why in ZOO_DEPARTURES.get(agent, []):
             dep.append(f"| {agent} | {setting} | {zoo} | {ours} | {why} |")
     return [*lines, "", "Departures from the RL Zoo's settings:", "", *dep]
-
-
-def kept_step(curve: Sequence[tuple[int, float]]) -> int | None:
-    """The training step of the checkpoint kept from a learning curve ``[(step, score)]``:
-    the first lowest score, as the training callback keeps it (``None`` for no curve).
-
-    Examples
-    --------
-    >>> from stcgym.agents.benchmark.report import kept_step
-    >>> kept_step([(0, 15.5), (4096, 20.1), (8192, 15.5)]), kept_step([(0, 3.0), (10, 2.0)])
-    (0, 10)
-    """
-    if not curve:
-        return None
-    best = min(score for _, score in curve)
-    return min(step for step, score in curve if score == best)
 
 
 def _float(v: Any) -> float:

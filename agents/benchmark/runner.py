@@ -507,7 +507,11 @@ class _RunState:
                 {"train_env": key, "algo": algo, "train_seed": ts, "steps": s, "score": c}
             )
         self._write_curves()
-        stop = self.data.stops[(key, algo, ts)] = result["stop"]
+        # with the step of the checkpoint training kept (0: the untrained policy)
+        stop = self.data.stops[(key, algo, ts)] = {
+            **result["stop"],
+            "kept_step": result["best_step"],
+        }
         folder = Path(task["model_dir"])
         for ev in result["evaluations"]:
             sc = self.scenarios[ev["scenario"]]

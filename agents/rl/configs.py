@@ -287,7 +287,7 @@ _OFF_POLICY_BUDGETS: dict[str, int] = {
 _LOG_STD_INIT = -5.0
 
 #: The action unit of the Gaussian-policy agents (PPO, A2C, RecurrentPPO and the agents built
-#: on PPO): measured by the bench from the LQG controller's input peaks on the training
+#: on PPO): measured by the bench from the LQG controller's inputs on the training
 #: episodes (:mod:`stcgym.agents.rl.interfaces`, "The action unit"; SAC's and TD3's squashed
 #: actions span their box whatever its width, so they keep the box ``[-1, 1]``).
 _GAUSSIAN = {"action_unit": "lqg"}

@@ -80,6 +80,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig
+from stcgym.envs.validation import positive
 
 __all__ = [
     "ESTIMATORS",
@@ -176,11 +177,14 @@ class InterfaceSpec:
         if isinstance(self.run, bool) or not isinstance(self.run, int):
             raise ValueError(f"interface.run must be an integer, got {self.run!r}")
         s = self.action_unit
-        if not (s is None or s == MEASURED_UNIT or _positive_number(s)):
-            raise ValueError(
-                f"interface.action_unit must be a positive number, {MEASURED_UNIT!r} or None, "
-                f"got {s!r}"
-            )
+        if s is not None and s != MEASURED_UNIT:
+            try:
+                positive(s, "interface.action_unit")
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"interface.action_unit must be a positive number, {MEASURED_UNIT!r} or "
+                    f"None, got {s!r}"
+                ) from None
 
     @classmethod
     def of(cls, data: dict[str, Any] | None, order: int | None = None, run: int = 0):
@@ -410,15 +414,6 @@ class EstimateInterface(WindowInterface):
             warnings.simplefilter("ignore")
             self.estimator.predict(u[:, 0])
         return u
-
-
-def _positive_number(value: Any) -> bool:
-    return (
-        not isinstance(value, bool)
-        and isinstance(value, (int, float))
-        and bool(np.isfinite(value))
-        and value > 0
-    )
 
 
 def closed_loop_estimator(name: str, n: int, batch: int) -> Any:
