@@ -58,11 +58,13 @@ def _hash32(x: int) -> int:
 
 def _reference_run(
     a, b, seed, steps, noise, probe=0.5, p0=300.0, q=0.01, q0=1e-6, R=10.0, pole=0.5, level=0.5,
-    max_probe=None,
+    max_probe=None, offset=None,
 ):  # fmt: skip
     """The controller's equations in dense numpy (ELS, Kalman filter, python-control's acker on
     the integral-augmented model, steady-state feed-forward, saturation, anti-windup, the probe
-    scaled by the largest output seen and extended while that stays below ``level``)."""
+    scaled by the largest output seen and extended while that stays below ``level``); the plant
+    is given the controller's input plus ``offset[t]`` (default none), and so is the time
+    update. Returns the applied inputs."""
     n = len(a)
     d = 3 * n
     theta, P, phi = np.zeros(d), p0 * np.eye(d), np.zeros(d)
@@ -111,6 +113,8 @@ def _reference_run(
             u = float(np.clip(v, -10, 10))
             if not (u != v and (-K[n] * (r - y)) * v > 0):
                 xi += r - y
+        if offset is not None:
+            u += offset[t]
         us.append(u)
         Paa, Pbb, Pab = P[:n, :n], P[n : 2 * n, n : 2 * n], P[:n, n : 2 * n]
         Q = q * (y * y * Paa + u * u * Pbb - y * u * (Pab + Pab.T)) + q0 * np.eye(n)
@@ -123,14 +127,20 @@ def _reference_run(
     return np.array(us)
 
 
-def _lane_run(ctl, a, b, steps, noise):
+def _lane_run(ctl, a, b, steps, noise, offset=None):
+    """The plant driven by ``ctl``; with ``offset``, given ``ctl``'s proposal plus ``offset[t]``
+    and ``ctl`` told so (``propose`` / ``commit``). Returns the applied inputs."""
     A_true, b_true = companion_A(np.array(a)), np.array(b, float)
     xp = np.zeros(len(a))
     us = []
     y = noise[0]
     for t in range(steps):
         r = 1.0 if (t % 100) < 50 else -1.0
-        u = float(ctl.predict(np.array([y, r]))[0][0])
+        if offset is None:
+            u = float(ctl.predict(np.array([y, r]))[0][0])
+        else:
+            u = float(ctl.propose(np.array([y, r]))[0]) + offset[t]
+            ctl.commit(u)
         us.append(u)
         xp = A_true @ xp + b_true * u
         y = xp[0] + 0.05 * noise[t + 1]
@@ -157,6 +167,96 @@ def test_lane_step_matches_dense_numpy_reference(gain: float, startup: dict) -> 
     kw = {"level": startup.get("probe_output", 0.5), "max_probe": startup.get("max_probe_steps")}
     ref = _reference_run(A_S2, b, 5, steps, noise, **kw)
     np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-9)
+
+
+def test_an_applied_input_other_than_the_controllers_reaches_its_time_update() -> None:
+    # the plant is given the controller's input plus a correction (a residual agent's): with
+    # propose / commit the lane step is the dense reference fed the applied input
+    steps = 60
+    noise = np.random.default_rng(0).standard_normal(steps + 1)
+    offset = 0.3 * np.random.default_rng(1).standard_normal(steps)
+    ctl = SelfTuningController(2, seed=5)
+    ctl._state.episode[:] = -1
+    ctl.reset()
+    got = _lane_run(ctl, A_S2, B_S2, steps, noise, offset)
+    ref = _reference_run(A_S2, B_S2, 5, steps, noise, offset=offset)
+    np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("estimator", ["ELS", "KF-MILS"])
+@pytest.mark.parametrize("design", ["pole_placement", "lq"])
+@pytest.mark.equality
+def test_predict_is_propose_and_commit_of_the_proposal(estimator: str, design: str) -> None:
+    # the same compiled steps on the same numbers: bit for bit
+    kw = {"estimator": estimator, "design": design, "num_envs": 3, "seed": 4}
+    one, two = SelfTuningController(2, **kw), SelfTuningController(2, **kw)
+    env = gym.make_vec("stcgym/ObserverCanonical-v0", num_envs=3, plant="unstable2",
+                       vectorization_mode="sync")  # fmt: skip
+    obs, _ = env.reset(seed=1)
+    for _ in range(150):
+        u, _ = one.predict(obs)
+        proposed = two.propose(obs)
+        two.commit(proposed)
+        assert np.array_equal(u, proposed)
+        obs, *_ = env.step(u)
+    assert np.array_equal(one.theta, two.theta) and np.array_equal(one.x_hat, two.x_hat)
+    assert np.array_equal(one.t, two.t)
+
+
+def test_an_unseen_correction_biases_the_estimate_a_committed_one_does_not() -> None:
+    # noise-free stable2, a correction of +-0.5 on top of the controller's input: told the
+    # applied input the controller identifies the plant; told nothing, its regressor holds the
+    # wrong inputs and the estimate is off
+    steps = 300
+    noise = np.zeros(steps + 1)
+    offset = 0.5 * np.sign(np.random.default_rng(2).standard_normal(steps))
+    told = SelfTuningController(2, seed=1)
+    _lane_run(told, A_S2, B_S2, steps, noise, offset)
+    truth = np.r_[A_S2, B_S2]
+    assert np.max(np.abs(told.theta - truth)) < 1e-3
+    unseen = SelfTuningController(2, seed=1)
+    A_true, b_true = companion_A(np.array(A_S2)), np.array(B_S2)
+    x, y = np.zeros(2), 0.0
+    for t in range(steps):
+        r = 1.0 if (t % 100) < 50 else -1.0
+        u = float(unseen.predict(np.array([y, r]))[0][0]) + offset[t]
+        x = A_true @ x + b_true * u
+        y = x[0]
+    assert np.max(np.abs(unseen.theta - truth)) > 0.05
+
+
+def test_propose_and_commit_refuse_misuse_and_change_nothing() -> None:
+    ctl = SelfTuningController(2, num_envs=2, seed=0)
+    obs = np.array([[0.1, 1.0], [-0.2, 1.0]])
+    with pytest.raises(RuntimeError, match="none is open"):
+        ctl.commit(np.zeros(2))
+    ctl.propose(obs)
+    with pytest.raises(RuntimeError, match="commit"):
+        ctl.propose(obs)
+    with pytest.raises(RuntimeError, match="commit"):
+        ctl.predict(obs)
+    with pytest.raises(RuntimeError, match="some lanes"):
+        ctl.reset(lanes=[0])
+    before = copy.deepcopy(ctl)
+    with pytest.raises(ValueError, match="applied must be the input of every lane"):
+        ctl.commit(np.zeros(3))
+    with pytest.raises(ValueError, match="applied must be finite"):
+        ctl.commit(np.array([0.0, np.nan]))
+    assert np.array_equal(ctl.x_hat, before.x_hat) and np.array_equal(ctl.t, before.t)
+    # still open: a pickled copy too; commit ends the sample
+    again = pickle.loads(pickle.dumps(ctl))
+    again.commit(np.array([[0.1], [0.2]]))
+    ctl.commit(np.array([0.1, 0.2]))
+    assert np.array_equal(ctl.x_hat, again.x_hat) and np.array_equal(ctl.t, [1, 1])
+    # a reset of every lane drops an open sample
+    ctl.propose(obs)
+    ctl.reset()
+    ctl.predict(obs)
+    single = SelfTuningController(2)
+    assert single.propose(np.array([0.1, 1.0])).shape == (1,)
+    with pytest.raises(ValueError, match=r"shape \(1,\)"):
+        single.commit(np.zeros(2))
+    single.commit(0.3)
 
 
 def _probe_run(b: tuple[float, float], steps: int = 30, **kw: object) -> tuple:

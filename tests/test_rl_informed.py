@@ -217,13 +217,32 @@ def test_residual_corrects_the_controller_within_its_bound():
     for k in range(40):
         starts = np.ones(3, bool) if k == 0 else None
         lanes.observe(obs, starts)
-        u_stc = alone.predict(obs)[0]
+        u_stc = alone.propose(obs)
         assert np.array_equal(lanes.features()[:, -1], (u_stc[:, 0] / 2.0).astype(np.float32))
         a = rng.uniform(-2, 2, (3, 1))  # out of range: clipped to [-1, 1]
         u = lanes.to_input(a)
         np.testing.assert_array_equal(u, np.clip(u_stc + 0.5 * np.clip(a, -1, 1), -2, 2))
+        # the controller inside is told the applied input, correction included
+        alone.commit(u)
+        assert np.array_equal(lanes.controller.theta, alone.theta)
         obs = rng.normal(0, 0.3, (3, 2))
+    # a controller told only its own inputs would hold another estimate
+    assert not np.array_equal(lanes.controller.theta, _own_inputs_only(rng_seed=0))
     assert lanes.n_features == WINDOW.n_features + 1
+
+
+def _own_inputs_only(rng_seed: int) -> np.ndarray:
+    """theta of the controller above when each step is ``predict`` (its own input assumed)."""
+    from stcgym.adaptive import SelfTuningController
+
+    alone = SelfTuningController(2, num_envs=3, action_bound=2.0, seed=[1, 2, 3])
+    rng = np.random.default_rng(rng_seed)
+    obs = rng.normal(0, 0.3, (3, 2))
+    for _ in range(40):
+        alone.predict(obs)
+        rng.uniform(-2, 2, (3, 1))
+        obs = rng.normal(0, 0.3, (3, 2))
+    return alone.theta
 
 
 @pytest.mark.parametrize("kind", ["window", "estimate", "residual"])

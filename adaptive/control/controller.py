@@ -62,7 +62,7 @@ from stcgym.adaptive.control.options import (
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.adaptive.kernels.variants import DESIGNS, RULES, variant
-from stcgym.adaptive.policy import SelfTuningLanes
+from stcgym.adaptive.policy import SelfTuningLanes, episode_starts
 from stcgym.envs.canonical import observer_to_observability_b
 from stcgym.envs.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.envs.validation import integer
@@ -86,6 +86,9 @@ OBSERVATION_LIMIT = 1e100
 _VERSIONS = [(paper, lq) for paper in (False, True) for lq in (False, True)]
 _controller_step = {v: FixedTypes(kc.controller_step) for v in _VERSIONS}
 _controllers_step = {v: FixedTypes(kc.controllers_step) for v in _VERSIONS}
+# steps 1-5 and step 6 apart (propose / commit): another input than the controller's applied
+_controllers_act = {v: FixedTypes(kc.controllers_act) for v in _VERSIONS}
+_controllers_commit = {v: FixedTypes(kc.controllers_commit) for v in _VERSIONS}
 #: Estimator names besides the paper's: extended least squares on the ARMAX form.
 EXTRA_ESTIMATORS = ("ELS",)
 
@@ -310,6 +313,7 @@ class SelfTuningController(SelfTuningLanes):
         self._state.episode[:] = -1  # the first reset starts episode 0
         self._u = np.zeros(self.B)
         self._step_one: Any = None  # the single plant's bound step (_act_one)
+        self._open = False  # propose() has opened a sample that commit() has not ended
         self.reset()
 
     # ------------------------------------------------------------------ protocol
@@ -325,6 +329,8 @@ class SelfTuningController(SelfTuningLanes):
                 self._est_cfg, self._els_cfg, self._lq_weights,
             )  # fmt: skip
             return self._u.copy()
+        if self._open:
+            self._refuse_open()
         u = self._u
         u[0] = step(values[0], values[1])
         return u.copy()
@@ -337,6 +343,8 @@ class SelfTuningController(SelfTuningLanes):
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         """``u(t)`` of every lane from ``[y(t), r(t)]``; ``deterministic`` is ignored (the probe
         is part of the law)."""
+        if self._open:
+            self._refuse_open()
         if starts is not None:
             self._reset_lanes(np.flatnonzero(starts))
         u = self._u
@@ -354,6 +362,118 @@ class SelfTuningController(SelfTuningLanes):
                 self._els_cfg, self._lq_weights, y, r, u,
             )  # fmt: skip
         return u.copy()
+
+    # ------------------------------------------------------------------ applied input
+    def propose(
+        self, observation: ArrayLike, episode_start: ArrayLike | bool | None = None
+    ) -> NDArray:
+        """The input the controller chooses for ``[y(t), r(t)]``, leaving the sample open
+        until :meth:`commit` says which input the plant was given.
+
+        :meth:`predict` is ``propose`` and ``commit`` of the proposal. A caller that applies
+        another input -- a residual agent's correction on top of the controller's, a safety
+        filter, a human override -- proposes, applies its own input and commits that one: the
+        controller's estimator and Kalman filter then hold the input the plant really got (an
+        input they did not see would be an unmodelled disturbance, biasing ``theta_hat``).
+        ``propose`` runs the estimator's measurement step with ``y(t)``, the design, ``x(t|t)``
+        and the control law (steps 1-5 of
+        :func:`~stcgym.adaptive.control.controller_step.controller_step`); ``commit`` the
+        time update (step 6).
+
+        Parameters
+        ----------
+        observation, episode_start
+            As for :meth:`predict`.
+
+        Returns
+        -------
+        NDArray
+            The proposed ``u(t)``: ``(1,)`` for a single plant, ``(num_envs, 1)`` for lanes.
+
+        Raises
+        ------
+        ValueError
+            A malformed ``observation`` or ``episode_start`` (nothing changes).
+        RuntimeError
+            A sample is already open (commit it first).
+
+        Examples
+        --------
+        A correction on top of the controller's input, handed back to it:
+
+        >>> import numpy as np
+        >>> from stcgym.adaptive import SelfTuningController
+        >>> ctl = SelfTuningController(2)
+        >>> u = ctl.propose(np.array([0.1, 1.0]))
+        >>> ctl.commit(u + 0.2)  # the plant was given u + 0.2
+        >>> ctl.t
+        1
+        """
+        if self._open:
+            self._refuse_open()
+        obs, single = self._observations(observation)
+        starts = episode_starts(episode_start, self.B)
+        if starts.any():
+            self._reset_lanes(np.flatnonzero(starts))
+        u = self._u
+        _controllers_act[self._version](
+            self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
+            self._els_cfg, self._lq_weights, np.ascontiguousarray(obs[:, 0]),
+            np.ascontiguousarray(obs[:, 1]), u,
+        )  # fmt: skip
+        self._open = True
+        return u.copy() if single else u.reshape(-1, 1).copy()
+
+    def commit(self, applied: ArrayLike) -> None:
+        """End the sample :meth:`propose` opened with the input the plant was given: the
+        controller's time update (process noise, Kalman filter, the estimator's state step)
+        runs on ``applied`` instead of its proposal.
+
+        Parameters
+        ----------
+        applied
+            ``u(t)`` as applied: a number or shape ``(1,)`` for a single plant, ``(num_envs,)``
+            or ``(num_envs, 1)`` for lanes; finite. It is taken as given (not clipped to the
+            controller's ``action_bound``).
+
+        Raises
+        ------
+        RuntimeError
+            No sample is open (:meth:`propose` first).
+        ValueError
+            ``applied`` of another size or not finite (nothing changes).
+        """
+        if not self._open:
+            raise RuntimeError("commit(applied) ends a sample opened by propose(); none is open")
+        u = np.asarray(applied, dtype=np.float64)
+        if u.size != self.B or (u.ndim > 1 and u.shape[-1] != 1) or u.ndim > 2:
+            shape = "(1,)" if self.num_envs is None else f"({self.B},) or ({self.B}, 1)"
+            raise ValueError(
+                f"applied must be the input of every lane, shape {shape}, got shape {u.shape}"
+            )
+        u = np.ascontiguousarray(u.reshape(self.B))
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"applied must be finite, got {u}")
+        _controllers_commit[self._version](
+            self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
+            self._els_cfg, u,
+        )  # fmt: skip
+        self._open = False
+
+    def _refuse_open(self) -> None:
+        raise RuntimeError(
+            "propose() opened a sample: commit(applied) the input the plant was given first"
+        )
+
+    def _reset_lanes(self, idx: NDArray) -> None:
+        if self._open:
+            if np.unique(idx).size < self.B:
+                raise RuntimeError(
+                    "reset of some lanes while propose() has a sample open: commit(applied) "
+                    "first (a reset of every lane drops the open sample)"
+                )
+            self._open = False
+        super()._reset_lanes(idx)
 
     # ------------------------------------------------------------------ views
     @property

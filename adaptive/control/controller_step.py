@@ -25,6 +25,12 @@ Every step, in this order:
    update with the applied ``u(t)`` (``state_estimation.kalman_step``), the estimator's state
    step / regressor shift (a paper KF estimator's filter gets the same ``Q(t)``).
 
+Steps 1-5 are :func:`controller_act` and step 6 is :func:`controller_commit`, so that a caller
+that gives the plant another input than the controller's (a residual agent's correction on top
+of it) hands the applied one to the time update: the estimator's regressor and the Kalman
+filter then hold the input the plant really got, not a silent input disturbance.
+:func:`controller_step` is the two in a row, on the input the controller chose.
+
 Lane state: :class:`ControllerState` (the controller's own fields and counters) and its scratch
 :class:`ControllerWork`, named tuples of batched arrays (lane ``i``'s field ``f`` is
 ``state.f[i]``; shapes in :func:`controller_shapes`); the estimator's state and scratch are its
@@ -61,7 +67,11 @@ __all__ = [
     "ControllerWork",
     "change_alarm",
     "controller_shapes",
+    "controller_act",
+    "controller_commit",
     "controller_step",
+    "controllers_act",
+    "controllers_commit",
     "controllers_step",
     "hash32",
     "make_controller_state",
@@ -76,6 +86,8 @@ class ControllerState(NamedTuple):
     ews: NDArray  # short EWMA of e(t)^2
     ewl: NDArray  # long EWMA of e(t)^2
     e: NDArray  # the last innovation e(t)
+    eps: NDArray  # the residual of e(t) the regressor keeps (extended least squares; else e)
+    y: NDArray  # the last measured output y(t)
     u: NDArray  # the last applied input u(t)
     ymax: NDArray  # the largest |y| seen while the loop was open
     x: NDArray  # x(t+1|t) of the controller's Kalman filter (n)
@@ -285,7 +297,21 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
     ``None``), or an ``ExtendedLSState`` and ``ExtendedLSWork`` with extended least squares'
     ``els_cfg`` (``est_cfg`` ``None``); ``lq_weights``: ``[q_y, q_i, rho]`` of the LQ design,
     ``None`` for pole placement. The ``None`` arguments are resolved at compile time (module
-    docstring).
+    docstring). It is :func:`controller_act` followed by :func:`controller_commit` of the
+    input it chose.
+    """
+    u = controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r)
+    controller_commit(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, u)
+    return u
+
+
+@lane(inline=True)
+def controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r):
+    """Steps 1-5 of :func:`controller_step` (arguments alike): the estimator's measurement
+    step with ``y(t)``, change detection, design, ``x(t|t)`` and the input ``u(t)`` the law
+    chooses, which it returns. The time update (step 6) waits for :func:`controller_commit`
+    with the input the plant was actually given; ``y(t)`` and the residual it needs are kept
+    in the lane state (``s.y``, ``s.eps``), the estimated model in the lane's design scratch.
     """
     n = cfg.n
     t = s.t[lane]
@@ -300,6 +326,8 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
         e = est.E[lane][0]
         eps = e
     s.e[lane] = e
+    s.eps[lane] = eps
+    s.y[lane] = y
     # -- 2. change detection: covariance resetting on a jump of the innovation variance
     closed_t = s.closed_t[lane]
     alarm, s.ews[lane], s.ewl[lane] = change_alarm(
@@ -324,14 +352,30 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
     A = w.design.A[lane]
     b = w.design.b[lane]
     model_matrices(theta, cfg.form, A, b)
+    xf = s.xf[lane]
+    filtered_state(s.x[lane], s.P1[lane], cfg.R, y, xf)
+    # -- 5. control: the probe while the loop is open, then the tracking law
+    u = control(s, lane, cfg, y, r, xf if cfg.filtered else s.x[lane])
+    s.u[lane] = u
+    return u
+
+
+@lane(inline=True)
+def controller_commit(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, u):
+    """Step 6 of :func:`controller_step` with the input ``u(t)`` the plant was given (the
+    one :func:`controller_act` chose, or another: a residual on top of it, a clipped one):
+    process noise, the Kalman time update, the estimator's state step or regressor shift;
+    the sample ends (``t`` advances). Reads ``y(t)`` and the residual :func:`controller_act`
+    kept and its model ``A, b`` of ``theta_hat(t)`` in the lane's design scratch.
+    """
+    n = cfg.n
+    y = s.y[lane]
+    S = est.S[lane]
+    A = w.design.A[lane]
+    b = w.design.b[lane]
     x = s.x[lane]
     P1 = s.P1[lane]
-    xf = s.xf[lane]
-    filtered_state(x, P1, cfg.R, y, xf)
-    # -- 5. control: the probe while the loop is open, then the tracking law
-    u = control(s, lane, cfg, y, r, xf if cfg.filtered else x)
     s.u[lane] = u
-    # -- 6. process noise, Kalman time update, estimator state step
     Q = s.Q[lane]
     process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
     x_next = s.x_next[lane]
@@ -345,14 +389,13 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
             for j in range(n):
                 P1[i, j] = 1.0 if i == j else 0.0
     if els_cfg is not None:
-        extended_ls_push(est, lane, n, y, u, eps)
+        extended_ls_push(est, lane, n, y, u, s.eps[lane])
     if est_cfg is not None:
         Q_est = est.Q[lane]
         if Q_est.shape[0] == n:  # the paper's Kalman filter gets the same process noise
             copy_matrix(Q, Q_est)
         s.est_status[lane] |= estimator_predict(est, est_work, lane, est_cfg, u)
-    s.t[lane] = t + 1
-    return u
+    s.t[lane] += 1
 
 
 @lane(inline=True)
@@ -395,3 +438,17 @@ def controllers_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, 
         u[i] = controller_step(
             s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, y[i], r[i]
         )
+
+
+@lanes
+def controllers_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, r, u, first, last):
+    """:func:`controller_act` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
+    for i in range(first, last):
+        u[i] = controller_act(s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, y[i], r[i])
+
+
+@lanes
+def controllers_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, u, first, last):
+    """:func:`controller_commit` for every lane with the applied input ``u[i]``."""
+    for i in range(first, last):
+        controller_commit(s, w, cfg, est, est_work, i, est_cfg, els_cfg, u[i])

@@ -420,8 +420,8 @@ DEFAULT_CONFIGS["theta_ppo"] = _informed("theta_ppo", kind="estimate")
 DEFAULT_CONFIGS["theta_sac"] = _informed("theta_sac", kind="estimate")
 DEFAULT_CONFIGS["residual_ppo"] = _informed("residual_ppo", kind="residual", fraction=0.25)
 # Exploration around the controller's input (the Zoo's log_std_init -2 of A2C Pendulum and its
-# MuJoCo entries): with SB3's default the noise disturbs the controller's identification and
-# the first updates lose the loop.
+# MuJoCo entries): with SB3's default the noise is itself a large input disturbance of the
+# loop (on the family the validation cost went from 1.8x LQG to 150x within 4096 steps).
 DEFAULT_CONFIGS["residual_ppo"].hyperparams["policy_kwargs"]["log_std_init"] = -2.0
 
 #: Where a default config departs from the Zoo entry it follows: ``agent -> [(setting, Zoo
@@ -482,8 +482,8 @@ ZOO_DEPARTURES["residual_ppo"] = [
     ("action_net init", "orthogonal, gain 0.01", "zeros",
      "the mean residual starts at exactly 0: the agent starts as the self-tuning controller"),
     ("log_std_init", "0 (SB3's default)", "-2", "exploration around the controller's input: "
-     "with the default, the noise disturbs the controller's identification and the loop is "
-     "lost within 2e4 steps on the family"),
+     "with the default the noise is a large input disturbance of the loop (on the family "
+     "1.8x LQG before training, 150x after 4096 steps)"),
 ]  # fmt: skip
 
 

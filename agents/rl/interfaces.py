@@ -23,9 +23,11 @@ Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.H
     measurement-corrected regressor ``"filtered"``, the output injection ``injection`` after
     ``injection_warmup`` steps, ``P(0) = 300 I``, ``theta_hat(0) = 0``, no forgetting). Why
     not the controller's own default, extended least squares: it exists only inside the
-    controller's compiled step, which identifies from the controller's own input, not from
-    an agent's; the ``KF-`` estimators take their process noise ``Q(t)`` from the controller
-    at every step, so without it they are another estimator than the controller's. ``O-RLS``
+    controller's compiled step (an agent's inputs can reach it through
+    :meth:`~stcgym.adaptive.SelfTuningController.propose` and ``commit``, but the
+    controller's design and filter then run beside it at every step); the ``KF-``
+    estimators take their process noise ``Q(t)`` from the controller at every step, so
+    without it they are another estimator than the controller's. ``O-RLS``
     runs standalone exactly as the controller runs it; on the benchmark family's test plants
     it is also the most accurate of the four closed-loop estimators standalone (the numbers
     are in the RL-baselines page of the documentation). The estimator has no change
@@ -42,8 +44,10 @@ Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.H
 
     (Johannink et al., ICRA 2019; Silver et al., 2018). The policy's mean action starts at
     exactly zero (:func:`stcgym.agents.rl.sb3.build_model` zeroes its last layer), so the
-    deterministic agent starts as the controller. The controller's estimator identifies from
-    the controller's own input ``u_stc``: to it the residual is an input disturbance. Lane
+    deterministic agent starts as the controller. The controller identifies from the input
+    the plant is given, correction included (:meth:`~stcgym.adaptive.SelfTuningController.
+    propose` chooses ``u_stc(t)``, :meth:`~stcgym.adaptive.SelfTuningController.commit` hands
+    it the applied ``u(t)``), so the correction never biases its estimate. Lane
     ``i`` seeds the controller's probe with ``seeds[i]``; the bench passes
     :func:`~stcgym.agents.controllers.controller_seeds` of the episode seeds and the training
     run, the seeds its ``stc`` rows use, so a zero residual reproduces them exactly.
@@ -494,7 +498,8 @@ class ResidualInterface(WindowInterface):
 
     def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
         super().observe(obs, starts)
-        self.u_base = self.controller.predict(obs, episode_start=starts)[0]
+        # the controller's sample stays open until to_input commits the input applied
+        self.u_base = self.controller.propose(obs, episode_start=starts)
 
     def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
         window = super().terminal_features(last, lanes)
@@ -507,4 +512,8 @@ class ResidualInterface(WindowInterface):
     def to_input(self, action: ArrayLike) -> NDArray:
         limit, bound = self.action_limit, self.action_bound
         a = np.clip(np.asarray(action, dtype=float).reshape(self.batch, 1), -limit, limit)
-        return self._record(np.clip(self.u_base + self.action_unit * a, -bound, bound))
+        u = np.clip(self.u_base + self.action_unit * a, -bound, bound)
+        # the controller's estimator and filter get the input the plant gets, correction and
+        # all: a correction they did not see would be an input disturbance to them
+        self.controller.commit(u)
+        return self._record(u)
