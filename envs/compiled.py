@@ -144,7 +144,7 @@ def _jit(
     fn: F | None,
     allocates: bool,
     inline: bool = False,
-    returns_views: bool = False,
+    inline_ir: bool = False,
     entry: bool = True,
 ) -> Any:
     options: dict[str, Any] = {
@@ -154,7 +154,7 @@ def _jit(
         # from an inlined caller to the helpers it compiles)
         "forceinline": inline,
     }
-    if returns_views:
+    if inline_ir:
         options["inline"] = "always"
 
     def decorate(f: F) -> Any:
@@ -172,7 +172,7 @@ def lane(
     *,
     allocates: bool = False,
     inline: bool = False,
-    returns_views: bool = False,
+    inline_ir: bool = False,
     entry: bool = False,
 ) -> Any:
     """Compile ``fn`` as a lane function (nopython, cached, releases the GIL).
@@ -203,13 +203,19 @@ def lane(
     a few array arguments (each passed as a dozen machine words) costs as much as the arithmetic
     of a small step (the compiled rollout of the default controller: 1.1 us a step inlined,
     1.5-2.2 us not). The helper is still compiled once, and shared by every caller and every
-    controller version. ``returns_views=True`` (numba's own ``inline="always"``, which rebuilds
-    and retypes the helper at every call site) only for the few helpers that return views of
-    their arguments: a function compiled without NRT may return an array only where numba
-    inlines it. numba's inlining was 10-12 of the 17-19 s of a cold ``place_design`` when every
-    helper used it (the cold-start page of the documentation).
+    controller version.
+
+    ``inline_ir=True`` (numba's own ``inline="always"``) rebuilds and retypes the helper inside
+    every caller instead of compiling it once: numba's inlining was 10-12 of the 17-19 s of a
+    cold ``place_design`` when every helper used it (the cold-start page of the documentation),
+    so it is only for two kinds of helper: one that returns views of its arguments (a function
+    compiled without NRT may return an array only where numba inlines it), and a part of a
+    larger lane function that is also called alone, with one caller a version (the controller
+    step's two halves, ``controller_act`` and ``controller_commit``): compiled as a unit of its
+    own, its whole body would go through LLVM's optimiser twice, once alone and once inlined
+    into the whole step (measured: 2.5-3 s more on the controller's cold first ``predict``).
     """
-    return _jit(fn, allocates, inline=inline, returns_views=returns_views, entry=entry)
+    return _jit(fn, allocates, inline=inline, inline_ir=inline_ir, entry=entry)
 
 
 #: Fewest lanes a thread of a batch loop gets by default: below ``2 * DEFAULT_MIN_LANES`` lanes a

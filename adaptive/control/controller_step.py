@@ -305,7 +305,7 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
     return u
 
 
-@lane(inline=True)
+@lane(inline=True, inline_ir=True)
 def controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r):
     """Steps 1-5 of :func:`controller_step` (arguments alike): the estimator's measurement
     step with ``y(t)``, change detection, design, ``x(t|t)`` and the input ``u(t)`` the law
@@ -360,7 +360,7 @@ def controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights,
     return u
 
 
-@lane(inline=True)
+@lane(inline=True, inline_ir=True)
 def controller_commit(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, u):
     """Step 6 of :func:`controller_step` with the input ``u(t)`` the plant was given (the
     one :func:`controller_act` chose, or another: a residual on top of it, a clipped one):
