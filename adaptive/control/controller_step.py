@@ -376,6 +376,7 @@ def controller_commit(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, u):
     x = s.x[lane]
     P1 = s.P1[lane]
     s.u[lane] = u
+    # -- 6. process noise, Kalman time update, estimator state step
     Q = s.Q[lane]
     process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
     x_next = s.x_next[lane]
