@@ -355,9 +355,7 @@ def controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights,
     xf = s.xf[lane]
     filtered_state(s.x[lane], s.P1[lane], cfg.R, y, xf)
     # -- 5. control: the probe while the loop is open, then the tracking law
-    u = control(s, lane, cfg, y, r, xf if cfg.filtered else s.x[lane])
-    s.u[lane] = u
-    return u
+    return control(s, lane, cfg, y, r, xf if cfg.filtered else s.x[lane])
 
 
 @lane(inline=True, inline_ir=True)
