@@ -247,7 +247,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     if args.commit_grid:
         bound = np.array(rows["bound"])
-        grid = {}
+        grid: dict[str, Any] = {}
+        best_cost: dict[str, NDArray] = {}
         print("explore-then-commit: probe k samples at scale x the controller's amplitude")
         for k in (n + m, n + m + 2, 2 * (n + m), 3 * (n + m), 5 * (n + m)):
             for scale in (1.0, 3.0, 10.0, 30.0):
@@ -255,9 +256,22 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                  for s in range(args.seeds)])  # fmt: skip
                 med = float(np.median(cost / bound))
                 diverged = float(np.mean(~np.isfinite(cost)))
-                grid[f"k={k},scale={scale:g}"] = {"median_over_bound": med, "diverged": diverged}
+                cell = f"k={k},scale={scale:g}"
+                grid[cell] = {"median_over_bound": med, "diverged": diverged}
+                best_cost[cell] = cost
                 print(f"  k={k:3d} scale={scale:4g}: median / bound {med:10.3g}, "
                       f"diverged {100 * diverged:.0f} %")  # fmt: skip
+        best = min(grid, key=lambda key: grid[key]["median_over_bound"])
+        to_best = np.array(rows["stc"]) / best_cost[best]
+        grid["stc_over_best"] = {
+            "cell": best,
+            "median": float(np.median(to_best)),
+            "stc_cheaper": float(np.mean(to_best < 1.0)),
+        }
+        print(
+            f"stc / explore-then-commit's best cell ({best}): median {np.median(to_best):.3f}, "
+            f"stc cheaper on {100 * np.mean(to_best < 1.0):.0f} % of the seeds"
+        )
         result["commit_grid"] = grid
     if args.out:
         fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.out)) or ".")
