@@ -113,54 +113,53 @@ def episode(
     return cost
 
 
-def probe_signal(prob: dict[str, NDArray], seed: int, steps: int) -> NDArray:
-    """The self-tuning controller's own probe on the episode of ``seed``, its first ``n + m``
-    samples: the fewest regressors ``[x; u]`` that determine ``[A B]``."""
-    A, B, B1 = prob["A"], prob["B"], prob["B1"]
-    n, m = B.shape
-    stc = _stc(prob, seed, cross=True)
-    rng = np.random.default_rng(np.random.SeedSequence([35, seed]))
-    x = rng.normal(0.0, np.sqrt(NOISE_COV), n)
-    W = rng.normal(0.0, np.sqrt(NOISE_COV), (steps, B1.shape[1]))
-    out = np.zeros((n + m, m))
-    for k in range(n + m):
-        out[k] = stc.predict(np.concatenate([x, np.zeros(n)]))[0]
-        x = A @ x + B @ out[k] + B1 @ W[k]
-    return out
+class FirstInputs:
+    """``policy`` as it is, keeping its first ``count`` inputs: on the self-tuning controller's
+    episode, its own probe's first ``n + m`` samples, the fewest regressors ``[x; u]`` that
+    determine ``[A B]`` (the bound row applies them)."""
+
+    def __init__(self, policy: Any, count: int) -> None:
+        self.policy, self.count = policy, count
+        self.inputs: list[NDArray] = []
+
+    def predict(self, observation: NDArray) -> tuple[NDArray, Any]:
+        u, state = self.policy.predict(observation)
+        if len(self.inputs) < self.count:
+            self.inputs.append(np.array(u, dtype=float))
+        return u, state
 
 
-def commit_episode(prob: dict[str, NDArray], seed: int, steps: int, k: int, scale: float) -> float:
-    """Explore-then-commit on the episode of ``seed``: ``k`` probe samples ``+-a``,
-    ``a = scale`` times the self-tuning controller's probe amplitude on this episode, then
-    ``u = -K x`` with ``K`` the LQ gain of the batch least-squares ``[A B]`` of the probe's
-    samples (zero when python-control finds no stabilising solution)."""
-    A, B, B1, C1, D12 = (prob[key] for key in ("A", "B", "B1", "C1", "D12"))
-    n, m = B.shape
-    amplitude = scale * float(np.max(np.abs(probe_signal(prob, seed, steps))))
-    signs = np.random.default_rng(np.random.SeedSequence([35, seed, k])).choice([-1.0, 1.0], (k, m))
-    rng = np.random.default_rng(np.random.SeedSequence([35, seed]))
-    x = rng.normal(0.0, np.sqrt(NOISE_COV), n)
-    W = rng.normal(0.0, np.sqrt(NOISE_COV), (steps, B1.shape[1]))
-    Z, X = np.zeros((k, n + m)), np.zeros((k, n))
-    K = np.zeros((m, n))
-    cost = 0.0
-    for t in range(steps):
-        if t == k:
-            theta = np.linalg.lstsq(Z, X, rcond=None)[0]
+class ExploreThenCommit:
+    """Explore-then-commit as a policy for :func:`episode`: ``k`` probe samples ``+-amplitude``
+    (random signs from ``seed``), then ``u = -K x`` with ``K`` the LQ gain (python-control's
+    ``dlqr`` with the problem's ``Q, R, N``) of the batch least-squares ``[A B]`` of the probe's
+    samples, held for the rest of the episode (zero when ``dlqr`` finds no stabilising
+    solution)."""
+
+    def __init__(self, prob: dict[str, NDArray], seed: int, k: int, amplitude: float) -> None:
+        self.prob = prob
+        self.n, self.m = prob["B"].shape
+        rng = np.random.default_rng(np.random.SeedSequence([35, seed, k]))
+        self.probe = amplitude * rng.choice([-1.0, 1.0], (k, self.m))
+        self.x: list[NDArray] = []  # x(0), ..., x(k): the probe's regressors and targets
+        self.K: NDArray | None = None
+
+    def predict(self, observation: NDArray) -> tuple[NDArray, None]:
+        k, n = len(self.probe), self.n
+        x = observation[:n]
+        if len(self.x) < k:
+            self.x.append(x.copy())
+            return self.probe[len(self.x) - 1], None
+        if self.K is None:
+            self.x.append(x.copy())
+            X = np.array(self.x)
+            theta = np.linalg.lstsq(np.hstack((X[:-1], self.probe)), X[1:], rcond=None)[0]
+            p = self.prob
             try:
-                K = control.dlqr(theta[:n].T, theta[n:].T, prob["Q"], prob["R"], prob["N"])[0]
+                self.K = control.dlqr(theta[:n].T, theta[n:].T, p["Q"], p["R"], p["N"])[0]
             except (ValueError, np.linalg.LinAlgError, control.ControlArgument):
-                K = np.zeros((m, n))
-        u = amplitude * signs[t] if t < k else -K @ x
-        z = C1 @ x + D12 @ u
-        cost += float(z @ z)
-        x_next = A @ x + B @ u + B1 @ W[t]
-        if t < k:
-            Z[t], X[t] = np.concatenate([x, u]), x_next
-        x = x_next
-        if not np.all(np.abs(x) < 1e6):
-            return float("inf")
-    return cost
+                self.K = np.zeros((self.m, n))
+        return -self.K @ x, None
 
 
 def _ratio_summary(stc: NDArray, bound: NDArray, resamples: int = 4000) -> dict[str, float]:
@@ -212,13 +211,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     K_ref = control.dlqr(prob["A"], prob["B"], prob["Q"], prob["R"], prob["N"])[0]
     print(f"LQR gain against control.dlqr: max |dK| = {np.max(np.abs(lqr.K - K_ref)):.2e}")
     rows: dict[str, list[float]] = {k: [] for k in ("lqr", "stc", "stc_no_cross", "zero", "bound")}
+    probes = []  # the self-tuning controller's probe on every episode
     for s in range(args.seeds):
         rows["lqr"].append(episode(prob, lqr, s, args.steps))
-        rows["stc"].append(episode(prob, _stc(prob, s, True), s, args.steps))
+        stc = FirstInputs(_stc(prob, s, True), n + m)
+        rows["stc"].append(episode(prob, stc, s, args.steps))
+        probes.append(np.array(stc.inputs))
         rows["stc_no_cross"].append(episode(prob, _stc(prob, s, False), s, args.steps))
         rows["zero"].append(episode(prob, None, s, args.steps))
-        probe = probe_signal(prob, s, args.steps)
-        rows["bound"].append(episode(prob, lqr, s, args.steps, probe=probe))
+        rows["bound"].append(episode(prob, lqr, s, args.steps, probe=probes[-1]))
     lqr_cost = np.array(rows["lqr"])
     print(f"he1 (controlgym formulation), {args.steps} steps, {args.seeds} seeds")
     print(f"{'seed':>4} {'lqr':>9} " + " ".join(f"{k + '/lqr':>16}" for k in rows if k != "lqr"))
@@ -247,13 +248,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     }
     if args.commit_grid:
         bound = np.array(rows["bound"])
+        amplitude = [float(np.max(np.abs(p))) for p in probes]
         grid: dict[str, Any] = {}
         best_cost: dict[str, NDArray] = {}
         print("explore-then-commit: probe k samples at scale x the controller's amplitude")
         for k in (n + m, n + m + 2, 2 * (n + m), 3 * (n + m), 5 * (n + m)):
             for scale in (1.0, 3.0, 10.0, 30.0):
-                cost = np.array([commit_episode(prob, s, args.steps, k, scale)
-                                 for s in range(args.seeds)])  # fmt: skip
+                policies = [ExploreThenCommit(prob, s, k, scale * amplitude[s])
+                            for s in range(args.seeds)]  # fmt: skip
+                cost = np.array([episode(prob, p, s, args.steps) for s, p in enumerate(policies)])
                 med = float(np.median(cost / bound))
                 diverged = float(np.mean(~np.isfinite(cost)))
                 cell = f"k={k},scale={scale:g}"
@@ -263,9 +266,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                       f"diverged {100 * diverged:.0f} %")  # fmt: skip
         best = min(grid, key=lambda key: grid[key]["median_over_bound"])
         to_best = np.array(rows["stc"]) / best_cost[best]
-        grid["stc_over_best"] = {
+        result["commit_best"] = {
             "cell": best,
-            "median": float(np.median(to_best)),
+            "stc_over_it_median": float(np.median(to_best)),
             "stc_cheaper": float(np.mean(to_best < 1.0)),
         }
         print(
