@@ -7,7 +7,7 @@
   and the Stable-Baselines3 ``VecEnv`` adapter of the native vector envs
   (:mod:`~stcgym.agents.rl.vec_env`);
 * :mod:`stcgym.agents.benchmark`: ``stcgym bench``: the evaluation harness and its metrics
-  (:mod:`~stcgym.agents.benchmark.evaluate`, :mod:`~stcgym.agents.benchmark.response`), the
+  (:mod:`~stcgym.agents.evaluation.evaluate`, :mod:`~stcgym.agents.evaluation.response`), the
   run (config, scenarios, plan, runner), interval statistics, report and plots;
 * :mod:`stcgym.agents.sweeps`: ``stcgym sweep``: random plant families
   (:mod:`~stcgym.envs.families`) and the classical controllers swept over them;
@@ -23,7 +23,7 @@
 Stable-Baselines3 and torch are imported only when an agent is trained or loaded.
 """
 
-from stcgym.agents.benchmark.evaluate import (
+from stcgym.agents.evaluation.evaluate import (
     EnvSpec,
     Episode,
     EvalResult,

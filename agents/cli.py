@@ -448,7 +448,7 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
                 f"got {args.plant!r}"
             )
         if order is None:
-            from stcgym.agents.benchmark.env_spec import EnvSpec
+            from stcgym.agents.evaluation.env_spec import EnvSpec
 
             order = EnvSpec.from_dict(spec).order
         if get_plant(args.plant).n != order:
@@ -461,8 +461,8 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
 def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
-    from stcgym.agents.benchmark.evaluate import summarize
+    from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
+    from stcgym.agents.evaluation.evaluate import summarize
 
     _check_eval_args(args)
     from stcgym.agents.rl.sb3 import load_agent

@@ -1,7 +1,7 @@
 """The classical controllers of ``stcgym bench``, behind one registry.
 
 ``CONTROLLERS[name].build(cfg, scenario)`` gives a lane builder ``builder(plants, seeds)``
-returning one policy for ``len(plants)`` lanes (:func:`stcgym.agents.benchmark.episodes.
+returning one policy for ``len(plants)`` lanes (:func:`stcgym.agents.evaluation.episodes.
 run_episodes`): lane ``i`` runs on the plant spec ``plants[i]`` (only the known-model
 controllers look at it) with the controller seed ``seeds[i]``.
 

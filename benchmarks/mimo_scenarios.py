@@ -8,7 +8,7 @@ Runs the standard tier's ``mimo:quadruple_tank``, ``mimo:quadruple_tank_nmp``, `
 ``mimo_family:test`` and the full tier's ``mimo:he1`` (:mod:`stcgym.agents.benchmark.mimo`)
 with the bench's own
 controllers (``CONTROLLERS["lqg"]``, ``"zero"``, ``"stc_mimo"``) through
-:func:`~stcgym.agents.benchmark.episodes.run_episodes`, on ``--episodes`` episodes from seed
+:func:`~stcgym.agents.evaluation.episodes.run_episodes`, on ``--episodes`` episodes from seed
 ``--first-seed`` (the bench's test seeds). Figures per scenario: mean cost per step of LQR and
 zero input, LQR / zero input (how far the scenario is from floor-bound), ``stc_mimo`` / LQR
 over the whole episode, its second half and last quarter, and ``bound`` / LQR and ``stc_mimo`` /
@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 
 from stcgym.agents.benchmark import build_config, make_scenarios
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.controllers import CONTROLLERS
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 
 
 class ProbeThenLQR:

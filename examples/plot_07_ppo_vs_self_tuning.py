@@ -29,7 +29,7 @@ import numpy as np
 from stcgym.adaptive import KnownModelController, SelfTuningController
 from stcgym.agents import EnvSpec, default_config, run_episode, train_agent
 from stcgym.agents.benchmark import style
-from stcgym.agents.benchmark.episodes import EpisodeSet
+from stcgym.agents.evaluation.episodes import EpisodeSet
 
 plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 

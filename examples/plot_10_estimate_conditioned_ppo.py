@@ -29,8 +29,8 @@ import numpy as np
 from stcgym.adaptive import SelfTuningController
 from stcgym.agents import EnvSpec, default_config, train_agent
 from stcgym.agents.benchmark import style
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.controllers import controller_seeds
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 
 plt.rcParams.update(style.RC)  # the project's figure style: readable at page width
 

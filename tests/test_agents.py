@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import stcgym.envs  # noqa: F401  (registers the env ids)
-from stcgym.agents.benchmark.evaluate import (
+from stcgym.agents.evaluation.evaluate import (
     EnvSpec,
     default_windows,
     evaluate,
@@ -233,8 +233,8 @@ def test_train_save_load_roundtrip(tmp_path):
     again = load_agent(tmp_path)
     assert again.algo == "ppo" and again.seed == 1 and again.config == agent.config
     # the action unit the config asked for was measured: LQG's inputs on 20 training episodes
-    from stcgym.agents.benchmark.bounds import lqg_action_unit, lqg_inputs
-    from stcgym.agents.benchmark.episodes import EpisodeSet
+    from stcgym.agents.evaluation.bounds import lqg_action_unit, lqg_inputs
+    from stcgym.agents.evaluation.episodes import EpisodeSet
     from stcgym.agents.rl.configs import with_action_unit
 
     inputs = lqg_inputs(spec, EpisodeSet(("stable2",) * 20, tuple(range(20_000, 20_020))))

@@ -231,8 +231,8 @@ def test_end_to_end_writes_every_file(tiny_run):
 
 
 def test_action_bound_is_the_lqg_input_range_on_training_episodes(tiny_run):
-    from stcgym.agents.benchmark.bounds import lqg_action_bound, lqg_inputs, round_up
     from stcgym.agents.benchmark.scenarios import training_envs
+    from stcgym.agents.evaluation.bounds import lqg_action_bound, lqg_inputs, round_up
 
     run = tiny_run[0]
     cfg = BenchConfig.from_dict(json.loads((run / "config.json").read_text())["bench"])

@@ -16,13 +16,13 @@ import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import LQRController, MultivariableSelfTuningController
 from stcgym.agents.benchmark import build_config, make_scenarios
 from stcgym.agents.benchmark.config import FULL, QUICK
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet
-from stcgym.agents.benchmark.evaluate import run_episode
 from stcgym.agents.benchmark.mimo import TANK_REFERENCE, MimoEnvSpec
 from stcgym.agents.benchmark.plan import rl_tasks
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import controllers_for
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet
+from stcgym.agents.evaluation.evaluate import run_episode
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, WindowConfig
 from stcgym.envs import get_mimo_plant, mimo_plant_names
 
@@ -179,8 +179,8 @@ def test_stc_mimo_is_within_a_ratio_of_the_lqr_yardstick_on_the_quadruple_tank(t
 
 
 def test_mimo_switch_tells_the_yardstick_the_new_valve_setting():
-    from stcgym.agents.benchmark.episodes import run_episodes
     from stcgym.agents.controllers import CONTROLLERS
+    from stcgym.agents.evaluation.episodes import run_episodes
 
     cfg = build_config(run="s", mode="standard", scenarios="mimo_switch", agents="lqg")
     (sc,) = make_scenarios(cfg)

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 import stcgym.envs  # noqa: F401  (registers the ids)
-from stcgym.agents.benchmark.bounds import round_up
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.benchmark.headline import headline, scenario_tables
 from stcgym.agents.benchmark.rows import Yardstick, episode_rows, rl_steps_to_target
-from stcgym.agents.benchmark.statistics import (
+from stcgym.agents.evaluation.bounds import round_up
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
+from stcgym.agents.evaluation.statistics import (
     _bootstrap_mean,
     _counts,
     paired_comparison,
@@ -183,7 +183,7 @@ def test_round_up():
 @pytest.mark.equality
 def test_a_batch_of_episodes_equals_its_episodes_one_by_one():
     from stcgym.adaptive import SelfTuningController
-    from stcgym.agents.benchmark.evaluate import run_episode
+    from stcgym.agents.evaluation.evaluate import run_episode
 
     spec = EnvSpec(action_bound=10.0, **FAMILY_TEST)
     eps = EpisodeSet.of(spec, per_plant=2, first_seed=40, max_plants=3)

@@ -14,8 +14,8 @@ import stcgym.adaptive.control.rollout as rollout_module
 import stcgym.envs  # noqa: F401  (registers the ids)
 from stcgym.adaptive import SelfTuningController
 from stcgym.adaptive.control.rollout import charge_divergence, rollout
-from stcgym.agents.benchmark.evaluate import run_episode
 from stcgym.agents.closed_loop import run_closed_loop
+from stcgym.agents.evaluation.evaluate import run_episode
 from stcgym.agents.sweeps.chunk import _vector_env, closed_loop
 from stcgym.envs.families import draw_plant, load_family
 from stcgym.envs.signals import Jumps

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.agents.benchmark.response import curve_settling_step, settling_step, step_response
+from stcgym.agents.evaluation.response import curve_settling_step, settling_step, step_response
 
 T, J, SPAN = 1000, 500, 100
 

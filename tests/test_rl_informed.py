@@ -16,9 +16,9 @@ import pytest
 
 import stcgym.envs  # noqa: F401  (registers the ids)
 from stcgym.adaptive import make_estimator
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
 from stcgym.agents.controllers import CONTROLLERS, controller_seeds
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.interfaces import InterfaceSpec
 from stcgym.agents.rl.wrappers import WindowConfig
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stcgym.agents.benchmark.statistics import interval_estimates, probability_of_improvement
+from stcgym.agents.evaluation.statistics import interval_estimates, probability_of_improvement
 
 
 def test_iqm_and_median_by_hand():
@@ -65,7 +65,7 @@ def test_bad_scores_are_rejected():
 def test_improvement_statistic_is_rliables():
     from rliable import metrics
 
-    from stcgym.agents.benchmark.statistics import _improvement
+    from stcgym.agents.evaluation.statistics import _improvement
 
     rng = np.random.default_rng(4)
     for nx, ny, tasks in ((3, 5, 1), (15, 5, 2), (4, 4, 3)):

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
+from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.rl import sb3 as sb3_mod
 from stcgym.agents.rl.configs import default_config
 from stcgym.agents.rl.sb3 import curve_checkpoints, train_agent
@@ -199,7 +199,7 @@ def test_report_says_how_training_ended():
 def test_conclusions_say_where_rl_wins_and_qualify_wins_over_capped_agents():
     from stcgym.agents.benchmark import report
     from stcgym.agents.benchmark.headline import training_stops
-    from stcgym.agents.benchmark.statistics import Estimate
+    from stcgym.agents.evaluation.statistics import Estimate
 
     capped = training_stops(_rl_rows([("cap", 100_000, 92_160)] * 2))
     zero = Estimate(0.0, 0.0, 0.0)

@@ -2,9 +2,9 @@
 
 Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their checks),
 :mod:`~stcgym.agents.benchmark.scenarios` (scenarios and RL training environments),
-:mod:`~stcgym.agents.benchmark.env_spec` (a scenario's environment as data),
-:mod:`~stcgym.agents.benchmark.episodes` (fixed evaluation episodes, run as a batch),
-:mod:`~stcgym.agents.benchmark.bounds` (one action bound per training distribution, from LQG),
+:mod:`~stcgym.agents.evaluation.env_spec` (a scenario's environment as data),
+:mod:`~stcgym.agents.evaluation.episodes` (fixed evaluation episodes, run as a batch),
+:mod:`~stcgym.agents.evaluation.bounds` (one action bound per training distribution, from LQG),
 :mod:`~stcgym.agents.benchmark.mimo` (the MIMO scenario and its environment),
 :mod:`~stcgym.agents.benchmark.plan` (the RL jobs and the ETA),
 :mod:`~stcgym.agents.benchmark.runner` (the run),
@@ -12,9 +12,9 @@ Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their ch
 :mod:`~stcgym.agents.benchmark.classical_store` (the classical episodes kept for ``--resume``),
 :mod:`~stcgym.agents.benchmark.rows` and :mod:`~stcgym.agents.benchmark.metrics_csv`
 (``metrics.csv``: one row per scenario, controller, run and episode),
-:mod:`~stcgym.agents.benchmark.evaluate` (the closed-loop evaluation of one episode,
-per-episode metrics), :mod:`~stcgym.agents.benchmark.response` (settling against the yardstick),
-:mod:`~stcgym.agents.benchmark.statistics` and :mod:`~stcgym.agents.benchmark.headline` (interval
+:mod:`~stcgym.agents.evaluation.evaluate` (the closed-loop evaluation of one episode,
+per-episode metrics), :mod:`~stcgym.agents.evaluation.response` (settling against the yardstick),
+:mod:`~stcgym.agents.evaluation.statistics` and :mod:`~stcgym.agents.benchmark.headline` (interval
 estimates with the run as the unit), :mod:`~stcgym.agents.benchmark.report` and
 :mod:`~stcgym.agents.benchmark.attribution` (its answer to "identification or design?"),
 :mod:`~stcgym.agents.benchmark.plots` and :mod:`~stcgym.agents.benchmark.style` (output).

@@ -8,7 +8,7 @@ controller, and what ``stc`` still gains over ``theta_ppo`` is the model-based d
 of it; ``residual_ppo`` learns on top of the controller, so what it gains over ``stc`` is what
 the design leaves to learn. Every comparison is paired on the same (plant, episode) (the
 paired cost ratio, geometric mean, with its bootstrap interval:
-:func:`~stcgym.agents.benchmark.statistics.paired_comparison`); a ratio counts as lower or
+:func:`~stcgym.agents.evaluation.statistics.paired_comparison`); a ratio counts as lower or
 higher only when its interval excludes 1.
 
 :func:`identification_or_design` writes one sentence per scenario of the plant family (test
@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from stcgym.agents.benchmark.headline import paired
-from stcgym.agents.benchmark.statistics import Estimate
+from stcgym.agents.evaluation.statistics import Estimate
 
 __all__ = ["identification_or_design", "verdict"]
 
@@ -38,7 +38,7 @@ def verdict(ratio: Estimate) -> str:
     Examples
     --------
     >>> from stcgym.agents.benchmark.attribution import verdict
-    >>> from stcgym.agents.benchmark.statistics import Estimate
+    >>> from stcgym.agents.evaluation.statistics import Estimate
     >>> verdict(Estimate(0.8, 0.7, 0.9)), verdict(Estimate(0.95, 0.8, 1.1))
     ('lower', 'same')
     """

@@ -56,7 +56,7 @@ class ClassicalEpisodes:
 
     ``cost``: per-step costs ``(B, T)``; ``jump_step``: each episode's jump step (``-1``: none);
     ``metrics``: the per-episode columns of
-    :func:`~stcgym.agents.benchmark.evaluate.response_metrics`; ``trace``: the first episodes'
+    :func:`~stcgym.agents.evaluation.evaluate.response_metrics`; ``trace``: the first episodes'
     signals (``y``, ``r``, ``u`` and, for an adaptive controller, ``theta``, ``theta_hat``),
     kept for run 0 only (empty otherwise).
     """

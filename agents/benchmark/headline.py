@@ -3,7 +3,7 @@
 :func:`scenario_tables` arranges a scenario's rows as arrays ``(runs, plants, episodes)`` per
 controller (a run: one RL training seed, one self-tuning controller seed, the single run of a
 deterministic controller) and :func:`headline` estimates, each with its 95 % interval
-(:mod:`stcgym.agents.benchmark.statistics`):
+(:mod:`stcgym.agents.evaluation.statistics`):
 
 * the cost ratio to the LQG yardstick on the same episode (whole episode, and the steady
   window: the second half, or before the jump) and the normalised score
@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.evaluate import summarize
-from stcgym.agents.benchmark.statistics import (
+from stcgym.agents.evaluation.evaluate import summarize
+from stcgym.agents.evaluation.statistics import (
     Estimate,
     interval_estimates,
     paired_comparison,

@@ -8,7 +8,7 @@ weighs the plant's performance output ``z = C_z x + D_z u``
 measured and the reference observed as a target state (``reference_in="state"``: the
 observation is ``[x(k) + v(k), r_x(k)]`` with ``r_x = C_z^+ r``), and the inputs are clipped
 to the plant's physical range as well as to the bench's action bound
-(:mod:`stcgym.agents.benchmark.bounds`). Two formulations (:func:`formulation`):
+(:mod:`stcgym.agents.evaluation.bounds`). Two formulations (:func:`formulation`):
 
 ``process`` (``quadruple_tank``, ``quadruple_tank_nmp``)
     Johansson's quadruple tank at ``P-`` or ``P+``: references on the two lower levels,
@@ -51,7 +51,7 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.agents.benchmark.env_spec import EnvSpec, thaw
+from stcgym.agents.evaluation.env_spec import EnvSpec, thaw
 from stcgym.envs.mimo_plants import MimoPlantSpec, get_mimo_plant, mimo_plant_names
 
 if TYPE_CHECKING:
@@ -118,7 +118,7 @@ class MimoEnvSpec(EnvSpec):
     quadruple-tank family (:data:`~stcgym.envs.tank_family.TANK_FAMILY`), measured state, the
     cost of its performance output.
 
-    The fields are :class:`~stcgym.agents.benchmark.evaluate.EnvSpec`'s (``reference`` a spec
+    The fields are :class:`~stcgym.agents.evaluation.evaluate.EnvSpec`'s (``reference`` a spec
     for every channel of ``z``; ``family`` only the tank family's key, with its ``split``), and
     ``process_noise_std`` (the env's), ``switch_to`` (a MIMO catalogue plant the model jumps to
     at ``jump_step``).
@@ -156,7 +156,7 @@ class MimoEnvSpec(EnvSpec):
     plant_kind: ClassVar[str] = "mimo"
 
     def __post_init__(self) -> None:
-        from stcgym.agents.benchmark.env_spec import freeze
+        from stcgym.agents.evaluation.env_spec import freeze
 
         plants = (self.plants,) if isinstance(self.plants, str) else tuple(self.plants)
         object.__setattr__(self, "reference", freeze(self.reference))
@@ -495,8 +495,8 @@ def mimo_scenarios(cfg: BenchConfig) -> list[Scenario]:
     key ``mimo_family``)."""
     from dataclasses import replace
 
-    from stcgym.agents.benchmark.episodes import EpisodeSet
     from stcgym.agents.benchmark.scenarios import Scenario
+    from stcgym.agents.evaluation.episodes import EpisodeSet
 
     out = []
     n = cfg.nominal_episodes

@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from stcgym.agents.benchmark.config import BenchConfig
-from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.benchmark.scenarios import Scenario, TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.controllers import controllers_for
+from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.rl.configs import AlgoConfig, with_action_unit
 
 __all__ = [
@@ -71,7 +71,7 @@ OUTPUT_SECONDS_PER_SCENARIO = 2.5
 
 def _batch_seconds(spec: EnvSpec, lanes: int, per_step: float, per_lane: float) -> float:
     """A batch of ``lanes`` episodes of ``spec``, in blocks of at most ``MAX_LANES``."""
-    from stcgym.agents.benchmark.episodes import MAX_LANES
+    from stcgym.agents.evaluation.episodes import MAX_LANES
 
     blocks = -(-lanes // MAX_LANES)
     return spec.steps * (blocks * per_step + lanes * per_lane)

@@ -29,8 +29,8 @@ from stcgym.agents.benchmark.headline import (
     scenario_tables,
     training_stops,
 )
-from stcgym.agents.benchmark.statistics import Estimate
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
+from stcgym.agents.evaluation.statistics import Estimate
 
 __all__ = ["write_report"]
 
@@ -502,7 +502,7 @@ def write_report(
         "`[J/2, J)`), post-jump = `[J, T)`.",
         "- Steps to <= 1.2x and re-converge: the first step from which on the cost over every "
         "window of the reference's shortest hold stays within 1.2x of LQG's on the same "
-        "episode (`stcgym.agents.benchmark.response.settling_step`); `never` when it does not.",
+        "episode (`stcgym.agents.evaluation.response.settling_step`); `never` when it does not.",
         "- CVaR25: mean of the worst quarter. `div.`: diverged episodes (charged their last cost "
         "until the end). Data steps: RL training steps, or the steps an online learner adapts "
         "on within the episode.",

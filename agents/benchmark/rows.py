@@ -5,7 +5,7 @@ Every cost figure of a row comes from the per-step (charged) costs of the episod
 LQG yardstick on the same episode (:class:`Yardstick`): the cost ratio, the normalised score
 ``(C_zero - C) / (C_zero - C_LQG)`` (1: as good as LQG, 0: no better than zero input; only where
 zero input stays bounded and costs more than LQG), the ratios of the steady and post-jump
-windows, and the settling steps of :func:`~stcgym.agents.benchmark.response.settling_step`
+windows, and the settling steps of :func:`~stcgym.agents.evaluation.response.settling_step`
 (adaptation of an online learner, re-convergence after a jump).
 """
 
@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.agents.benchmark.evaluate import cost_metrics
 from stcgym.agents.benchmark.metrics_csv import TOLERANCE
-from stcgym.agents.benchmark.response import curve_settling_step, settling_step
+from stcgym.agents.evaluation.evaluate import cost_metrics
+from stcgym.agents.evaluation.response import curve_settling_step, settling_step
 
 __all__ = ["Yardstick", "episode_rows", "rl_steps_to_target"]
 
@@ -63,7 +63,7 @@ def rl_steps_to_target(
     """An RL run's training steps to get within ``tol`` of the yardstick, for one scenario.
 
     Read off the run's learning curve (``(step, score)`` with the score the median cost ratio
-    to the yardstick on the validation episodes: :func:`~stcgym.agents.benchmark.response.
+    to the yardstick on the validation episodes: :func:`~stcgym.agents.evaluation.response.
     curve_settling_step`), and only where that curve speaks for the scenario: ``nan`` when the
     scenario's episodes are not drawn from the validation distribution (a held-out variant,
     a single other plant), ``inf`` when the run is not within ``tol`` on the scenario's own
@@ -115,7 +115,7 @@ def episode_rows(
     cost : ndarray, shape (B, T)
         The run's per-step costs, episode by episode.
     response : dict of str to ndarray
-        The trace columns (:func:`~stcgym.agents.benchmark.evaluate.response_metrics`).
+        The trace columns (:func:`~stcgym.agents.evaluation.evaluate.response_metrics`).
     yard : Yardstick
         The scenario's reference numbers.
     online : bool

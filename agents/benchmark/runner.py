@@ -25,8 +25,6 @@ from stcgym.agents.benchmark.classical_store import (
     classical_id,
 )
 from stcgym.agents.benchmark.config import BenchConfig
-from stcgym.agents.benchmark.episodes import run_episodes
-from stcgym.agents.benchmark.evaluate import response_metrics
 from stcgym.agents.benchmark.metrics_csv import (
     METRIC_COLUMNS,
     TOLERANCE,
@@ -59,6 +57,8 @@ from stcgym.agents.benchmark.scenarios import (
     training_envs,
 )
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controller_seeds, controllers_for
+from stcgym.agents.evaluation.episodes import run_episodes
+from stcgym.agents.evaluation.evaluate import response_metrics
 
 __all__ = [
     "METRIC_COLUMNS",
@@ -129,7 +129,7 @@ def run_bench(
     All checks (names, budgets, hyperparameters against SB3, dependencies, output folder)
     happen before anything is evaluated or trained (``checked=True``: :func:`check_runnable`
     has been called already). First the action bound of each training distribution is set from
-    the LQG yardstick (:mod:`~stcgym.agents.benchmark.bounds`) and written into
+    the LQG yardstick (:mod:`~stcgym.agents.evaluation.bounds`) and written into
     ``config.json``; then the yardstick and zero input run on every scenario, the RL jobs on the
     workers while the driver evaluates the other classical controllers. Rows are appended to
     ``metrics.csv`` run by run; on ``KeyboardInterrupt`` (or any error) the finished rows stay,
@@ -311,7 +311,7 @@ class _RunState:
         """The action bound and the RL agents' action unit of every training distribution not
         in ``cfg.action_bounds`` / ``cfg.action_units`` yet (a resumed run reads them back),
         from the LQG yardstick's input range."""
-        from stcgym.agents.benchmark.bounds import bound_of_peaks, lqg_action_unit, lqg_inputs
+        from stcgym.agents.evaluation.bounds import bound_of_peaks, lqg_action_unit, lqg_inputs
 
         for key, env in training_envs(self.cfg, scenarios).items():
             if key in self.cfg.action_bounds and key in self.cfg.action_units:

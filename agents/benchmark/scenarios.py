@@ -3,7 +3,7 @@
 Every SISO scenario draws its episodes the same way: the benchmark family's episode settings
 (output noise, a random-steps reference, a random initial state, its control cost and
 divergence bound), and one action bound for every controller, set from the LQG yardstick's
-input range on the training distribution (:func:`stcgym.agents.benchmark.bounds.
+input range on the training distribution (:func:`stcgym.agents.evaluation.bounds.
 lqg_action_bound`).
 
 ``nominal:P``
@@ -36,8 +36,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet
+from stcgym.agents.evaluation.bounds import BOUND_SEED
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet
 from stcgym.agents.rl.configs import FAMILY_ALGORITHMS
 
 if TYPE_CHECKING:
@@ -45,7 +46,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CURVE_SEED",
-    "BOUND_SEED",
     "Scenario",
     "TrainingEnv",
     "family_train_spec",
@@ -54,10 +54,10 @@ __all__ = [
     "training_envs",
 ]
 
-#: First seed of the learning-curve (validation) episodes and of the episodes that set the
-#: action bound: apart from the test episodes' (``BenchConfig.first_seed``).
+#: First seed of the learning-curve (validation) episodes: apart from the test episodes'
+#: (``BenchConfig.first_seed``) and the bound episodes'
+#: (:data:`~stcgym.agents.evaluation.bounds.BOUND_SEED`).
 CURVE_SEED = 10_000
-BOUND_SEED = 20_000
 
 
 @dataclass(frozen=True)

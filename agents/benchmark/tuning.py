@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.episodes import run_episodes
 from stcgym.agents.benchmark.scenarios import TrainingEnv
+from stcgym.agents.evaluation.episodes import run_episodes
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig, base_algorithm
 
 __all__ = ["apply_rl_params", "sample_rl", "sample_stc", "stc_options", "tune_rl", "tune_stc"]
@@ -115,8 +115,8 @@ def tune_rl(task: dict[str, Any]) -> dict[str, Any]:
     """One RL agent's study (a JSON task, so the executor can run studies in parallel):
     ``{"algo", "config", "env" (TrainingEnv as JSON), "reference", "trials", "steps", "seed"}``.
     Returns the study's summary with the best trial's parameters (:func:`sample_rl` form)."""
-    from stcgym.agents.benchmark.env_spec import EnvSpec
-    from stcgym.agents.benchmark.episodes import EpisodeSet
+    from stcgym.agents.evaluation.env_spec import EnvSpec
+    from stcgym.agents.evaluation.episodes import EpisodeSet
     from stcgym.agents.rl.sb3 import train_agent
 
     config = AlgoConfig.from_dict(task["config"])

@@ -62,7 +62,7 @@ of the mean is a large input and the policy gets worse as it trains (measured: P
 with the bound 27 and a unit of 2.9, 2.2x). A unit of the typical input, with the box widened
 to keep the whole bound reachable, is the usual normalisation of RL actions without taking
 authority from the agent. The bench sets it from the LQG controller's inputs on the training
-episodes (``"lqg"``: :func:`stcgym.agents.benchmark.bounds.lqg_action_unit`). Squashed
+episodes (``"lqg"``: :func:`stcgym.agents.evaluation.bounds.lqg_action_unit`). Squashed
 policies (SAC's) span their box whatever its width, so a unit would change nothing for them.
 
 One object serves training (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`, over the lanes

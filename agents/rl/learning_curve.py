@@ -3,7 +3,7 @@ during training, on validation episodes.
 
 :func:`curve_checkpoints` chooses the training steps at which the curve is measured (log-spaced,
 then every evaluation interval of the plateau rule), :func:`curve_cost` measures one point on a
-fixed :class:`~stcgym.agents.benchmark.episodes.EpisodeSet` (with per-episode reference costs,
+fixed :class:`~stcgym.agents.evaluation.episodes.EpisodeSet` (with per-episode reference costs,
 the LQG yardstick's on the same episodes: the median of the cost ratios; without, the mean cost
 per step), and :func:`make_curve_callback` is the SB3 callback that records the curve during
 :func:`~stcgym.agents.train_agent`, stops training on a plateau
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
 
 __all__ = ["curve_checkpoints", "curve_cost", "make_curve_callback"]

@@ -1,7 +1,7 @@
 """Stable-Baselines3 agents: training, saving/loading and the policy-protocol adapter.
 
 Training (:func:`train_agent`) runs on ``n_envs`` lanes of the scenario's native vector
-environment (:meth:`~stcgym.agents.benchmark.env_spec.EnvSpec.make_vec`, one compiled step for
+environment (:meth:`~stcgym.agents.evaluation.env_spec.EnvSpec.make_vec`, one compiled step for
 all lanes) behind SB3's ``VecMonitor`` (``monitor.csv``: raw episode returns, the scored cost),
 :class:`~stcgym.agents.rl.vec_env.VecHistoryWindow` (the observation window and the training
 reward: the scored per-step cost, a diverged episode charged for the steps it did not live) and
@@ -15,7 +15,7 @@ through SB3's logger (TensorBoard with ``tensorboard_log``). Recurrent agents (s
 A saved agent is a folder with ``model.zip`` (SB3) and ``agent.json`` (algorithm, config, seed,
 window, the observation normaliser's statistics, training environment, steps, wall time,
 learning curve); :func:`load_agent` returns an :class:`SB3Policy` ready for
-:func:`stcgym.agents.benchmark.evaluate.evaluate`.
+:func:`stcgym.agents.evaluation.evaluate.evaluate`.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.policy import LanePolicy
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class, with_action_unit
 from stcgym.agents.rl.interfaces import InterfaceSpec
 from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
@@ -373,11 +373,10 @@ UNIT_EPISODES = 20
 
 def measured_action_unit(config: AlgoConfig, train_spec: EnvSpec) -> AlgoConfig:
     """``config`` with its action unit measured where it asks for it (``"lqg"``): the
-    :func:`~stcgym.agents.benchmark.bounds.lqg_action_unit` of the LQG controller's inputs
+    :func:`~stcgym.agents.evaluation.bounds.lqg_action_unit` of the LQG controller's inputs
     on :data:`UNIT_EPISODES` training episodes of ``train_spec`` (seeds from the bench's
     ``BOUND_SEED``). The bench measures it on its own bound episodes before it trains."""
-    from stcgym.agents.benchmark.bounds import lqg_action_unit, lqg_inputs
-    from stcgym.agents.benchmark.scenarios import BOUND_SEED
+    from stcgym.agents.evaluation.bounds import BOUND_SEED, lqg_action_unit, lqg_inputs
     from stcgym.agents.rl.interfaces import MEASURED_UNIT
 
     if config.interface.get("action_unit") != MEASURED_UNIT:

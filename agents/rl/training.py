@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
-from stcgym.agents.benchmark.evaluate import response_metrics
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
+from stcgym.agents.evaluation.evaluate import response_metrics
 from stcgym.agents.rl.configs import AlgoConfig
 from stcgym.agents.rl.stopping import PlateauRule
 

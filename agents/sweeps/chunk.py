@@ -190,7 +190,7 @@ def _rows(
     plants: list[Plant],
     results: Mapping[str, LoopResult],
 ) -> list[dict[str, Any]]:
-    from stcgym.agents.benchmark.evaluate import default_windows
+    from stcgym.agents.evaluation.evaluate import default_windows
 
     T, J = family.steps, family.jump_step
     win = default_windows(T, J)
@@ -242,7 +242,7 @@ def _ratio(x: float, ref: float) -> float:
 
 
 def _settling(cost: NDArray, oracle: NDArray, family: FamilySpec, start: int, stop: int) -> float:
-    from stcgym.agents.benchmark.response import settling_step
+    from stcgym.agents.evaluation.response import settling_step
 
     return settling_step(
         cost, oracle, span=family.period, start=start, stop=stop, tol=RECONVERGE_TOL

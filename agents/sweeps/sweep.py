@@ -48,14 +48,14 @@ controller, seed) with the plant features of
 * ``bounded`` (1: ``|y|`` stayed below ``y_bound``), ``steps_run``;
 * ``cost`` (mean of ``(y - r)^2 + rho u^2`` over the episode), ``cost_start``,
   ``cost_steady``, ``cost_post_jump`` over the windows of
-  :func:`stcgym.agents.benchmark.evaluate.default_windows`; a diverged run is charged its
+  :func:`stcgym.agents.evaluation.evaluate.default_windows`; a diverged run is charged its
   last cost for the steps it did not live (the rule of
   :func:`stcgym.agents.closed_loop.run_closed_loop`, as in ``stcgym bench``);
 * ``ratio`` = ``cost`` / the oracle's ``cost`` on the same plant and seed, ``steady_ratio`` the
   same for ``cost_steady``;
 * ``adapt_steps``: steps from the start until the cost over every following window of one
   reference period stays within :data:`RECONVERGE_TOL` x the oracle's cost over the same window
-  (:func:`stcgym.agents.benchmark.response.settling_step`, up to the jump if there is one);
+  (:func:`stcgym.agents.evaluation.response.settling_step`, up to the jump if there is one);
   ``reconverge_steps``: the same from the jump step ``J`` on, against the oracle told the new
   parameters. ``inf`` if that never happens (or the run diverged), so a controller that does
   not recover cannot read 0.

@@ -3,7 +3,7 @@
 An :class:`EpisodeSet` lists the episodes every controller of a scenario meets: for each, the
 plant (a catalogue name or a member of a family split) and the seed of ``env.reset`` (noise,
 reference, initial state, jump time). :func:`run_episodes` runs a controller on all of them at
-once: one native vector env (:meth:`~stcgym.agents.benchmark.env_spec.EnvSpec.make_vec`), lane
+once: one native vector env (:meth:`~stcgym.agents.evaluation.env_spec.EnvSpec.make_vec`), lane
 ``i`` reset with seed ``seeds[i]`` on plant ``plants[i]``, and one batched policy
 (``num_envs = B``), driven by the closed-loop driver
 (:func:`~stcgym.agents.closed_loop.run_closed_loop`), whose divergence rule charges a lane that
@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
 from stcgym.agents.closed_loop import run_closed_loop
+from stcgym.agents.evaluation.env_spec import EnvSpec
 
 __all__ = ["BatchEpisodes", "EpisodeSet", "LaneBuilder", "run_episodes"]
 
@@ -50,8 +50,8 @@ class EpisodeSet:
     --------
     Two episodes on each of the first three plants of a family's test split:
 
-    >>> from stcgym.agents.benchmark.env_spec import EnvSpec
-    >>> from stcgym.agents.benchmark.episodes import EpisodeSet
+    >>> from stcgym.agents.evaluation.env_spec import EnvSpec
+    >>> from stcgym.agents.evaluation.episodes import EpisodeSet
     >>> spec = EnvSpec(family="siso2-v1", split="test")
     >>> eps = EpisodeSet.of(spec, per_plant=2, first_seed=100, max_plants=3)
     >>> eps.plants[:3]
@@ -203,12 +203,12 @@ def run_episodes(
     Examples
     --------
     The known-model oracle on two episodes of ``unstable2``, and the same episodes one by one
-    through :func:`~stcgym.agents.benchmark.evaluate.run_episode`:
+    through :func:`~stcgym.agents.evaluation.evaluate.run_episode`:
 
     >>> import numpy as np
     >>> from stcgym.adaptive import KnownModelController
     >>> from stcgym.agents import EnvSpec, run_episode
-    >>> from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
+    >>> from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
     >>> spec = EnvSpec("unstable2", steps=200)
     >>> def oracles(plants, seeds):
     ...     return KnownModelController([p.a for p in plants], [p.b for p in plants],

@@ -296,7 +296,7 @@ def paired_comparison(
     Two runs of X against one run of Y on two plants (one episode each): X is lower in 3 of
     the 4 pairs, and by a factor 2 in every pair but one, where it is 2x higher:
 
-    >>> from stcgym.agents.benchmark.statistics import paired_comparison
+    >>> from stcgym.agents.evaluation.statistics import paired_comparison
     >>> c = paired_comparison([[1.0, 1.0], [1.0, 4.0]], [[2.0, 2.0]], reps=200)
     >>> round(c.probability.value, 3), round(c.ratio.value, 3)
     (0.75, 0.707)
@@ -335,7 +335,7 @@ def rate_estimate(
 
     Examples
     --------
-    >>> from stcgym.agents.benchmark.statistics import rate_estimate
+    >>> from stcgym.agents.evaluation.statistics import rate_estimate
     >>> rate_estimate([[0, 0, 1, 0]], reps=200).value
     0.25
     """

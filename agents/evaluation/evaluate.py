@@ -24,10 +24,10 @@ r(k+1))^2 + rho u(k)^2``:
 * ``bounded``: the episode did not diverge (``|y|`` stayed below the environment's ``y_bound``);
 * ``overshoot_pct``, ``settling_steps``: step response at the reference steps of the steady
   window, ``startup_settling_steps`` at the first reference step (step 0), see
-  :func:`stcgym.agents.benchmark.response.step_response` (one output only: ``nan`` for a MIMO
+  :func:`stcgym.agents.evaluation.response.step_response` (one output only: ``nan`` for a MIMO
   plant, whose references need not all be equilibria);
 * the metrics relative to the oracle on the same episode (cost ratios, adaptation and
-  re-convergence steps, :mod:`stcgym.agents.benchmark.response`) need the oracle's run and
+  re-convergence steps, :mod:`stcgym.agents.evaluation.response`) need the oracle's run and
   are computed by the bench from ``Episode.cost``.
 * ``step_us``: wall time of one ``predict`` call, microseconds (mean over the episode).
 
@@ -52,10 +52,10 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.response import step_response
-from stcgym.agents.benchmark.statistics import summarize
 from stcgym.agents.closed_loop import run_closed_loop
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.response import step_response
+from stcgym.agents.evaluation.statistics import summarize
 from stcgym.envs.catalogue import PlantSpec
 
 __all__ = [
@@ -336,7 +336,7 @@ def cost_metrics(cost: NDArray, jump_step: NDArray) -> dict[str, NDArray]:
     Examples
     --------
     >>> import numpy as np
-    >>> from stcgym.agents.benchmark.evaluate import cost_metrics
+    >>> from stcgym.agents.evaluation.evaluate import cost_metrics
     >>> m = cost_metrics(np.arange(20.0).reshape(2, 10), np.array([-1, 6]))
     >>> m["cost"].tolist(), m["cost_steady"].tolist(), m["cost_post_jump"].tolist()
     ([4.5, 14.5], [7.0, 14.0], [nan, 17.5])
@@ -357,11 +357,11 @@ def cost_metrics(cost: NDArray, jump_step: NDArray) -> dict[str, NDArray]:
 
 
 def response_metrics(batch: Any, spec: EnvSpec) -> dict[str, NDArray]:
-    """The per-episode columns of a :class:`~stcgym.agents.benchmark.episodes.BatchEpisodes`
+    """The per-episode columns of a :class:`~stcgym.agents.evaluation.episodes.BatchEpisodes`
     that need the traces: ``effort`` (mean ``||u||^2``), ``bounded``, ``steps_run``,
     ``clip_frac``, ``step_us`` (predict time per lane and step), and the step response of
     the second half (``overshoot_pct``, ``settling_steps``) and of the first reference step
-    (``startup_settling_steps``; one output only, :func:`~stcgym.agents.benchmark.response.
+    (``startup_settling_steps``; one output only, :func:`~stcgym.agents.evaluation.response.
     step_response`); on a MIMO plant the tracking error per channel and the cross-channel
     disturbance (:func:`~stcgym.agents.benchmark.mimo.channel_metrics`)."""
     B, T = batch.cost.shape

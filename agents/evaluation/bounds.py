@@ -31,11 +31,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from stcgym.agents.benchmark.env_spec import EnvSpec
-from stcgym.agents.benchmark.episodes import EpisodeSet, run_episodes
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 
 __all__ = [
     "BOUND_MARGIN",
+    "BOUND_SEED",
     "BOUND_QUANTILE",
     "UNIT_QUANTILE",
     "bound_of_peaks",
@@ -45,6 +46,9 @@ __all__ = [
     "round_up",
 ]
 
+#: First seed of the episodes that set the action bound and unit (apart from the test and
+#: validation episodes').
+BOUND_SEED = 20_000
 BOUND_MARGIN = 1.5
 BOUND_QUANTILE = 0.99
 UNIT_QUANTILE = 0.99
@@ -57,7 +61,7 @@ def round_up(x: float, digits: int = 2) -> float:
 
     Examples
     --------
-    >>> from stcgym.agents.benchmark.bounds import round_up
+    >>> from stcgym.agents.evaluation.bounds import round_up
     >>> round_up(3.4501), round_up(0.0123), round_up(120.0)
     (3.5, 0.013, 120.0)
     """
@@ -116,7 +120,7 @@ def lqg_action_unit(inputs: np.ndarray, quantile: float = UNIT_QUANTILE) -> floa
     Examples
     --------
     >>> import numpy as np
-    >>> from stcgym.agents.benchmark.bounds import lqg_action_unit
+    >>> from stcgym.agents.evaluation.bounds import lqg_action_unit
     >>> lqg_action_unit(np.linspace(0.0, 3.0, 101))  # 99 % of the steps within 2.97
     3.0
     """
