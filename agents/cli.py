@@ -55,9 +55,15 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         help="benchmark the self-tuning controller against RL agents",
         description="Benchmark the self-tuning controller against RL agents and known-model "
         "oracles; writes results/<run>/ (metrics.csv, report.md, PNG plots, config.json). "
-        "Without --full it runs the quick preset.",
+        "Without --standard or --full it runs the quick preset.",
     )
     mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--smoke",
+        action="store_true",
+        help="a one-minute end-to-end check: PPO and the self-tuning controllers on a few short "
+        "episodes of one plant and of the family, one run, PPO for one evaluation interval",
+    )
     mode.add_argument(
         "--quick", action="store_true", help="the default: about 10 min on 2 CPU cores"
     )
@@ -249,6 +255,11 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--run", help="run name (default: timestamp and mode)")
     p.add_argument("--overwrite", action="store_true", help="reuse an existing run folder")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument(
+        "--plan",
+        action="store_true",
+        help="print the run's jobs and its estimated time, and stop (nothing is run or written)",
+    )
     bar = p.add_mutually_exclusive_group()
     bar.add_argument(
         "--progress",
@@ -277,6 +288,24 @@ def _eval_parser(sub: argparse._SubParsersAction) -> None:
     )
 
 
+def _report_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "report",
+        help="render a bench run's report, tables and figures from its results store",
+        description="Render report.md, metrics.csv, learning_curves.csv, statistics.json and "
+        "the figures of a bench run folder from its config.json and store/, without evaluating "
+        "or training anything (e.g. a store committed to a repository).",
+    )
+    p.add_argument("run_dir", help="the run folder (holding config.json and store/)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument(
+        "--page",
+        metavar="FILE",
+        help="also write the run's headline tables into the Markdown FILE, between its two "
+        "marker lines for this run",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     from stcgym.agents.sweeps.cli import add_sweep_subcommand
 
@@ -285,6 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True)
     _bench_parser(sub)
+    _report_parser(sub)
     _eval_parser(sub)
     add_sweep_subcommand(sub)
     return parser
@@ -298,7 +328,7 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
         cfg = _resumed_config(args)
     else:
         cfg = build_config(
-            mode="standard" if args.standard else "full" if args.full else "quick",
+            mode=next((m for m in ("smoke", "standard", "full") if getattr(args, m)), "quick"),
             run=args.run,
             out=args.out,
             scenarios=args.scenarios,
@@ -333,6 +363,11 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             bootstrap_reps=args.bootstrap_reps,
         )
     time_limit = None if args.time_limit is None else parse_duration(args.time_limit)
+    if args.plan:
+        from stcgym.agents.benchmark.plan import describe_plan
+
+        print(describe_plan(cfg))
+        return 0
     check_runnable(cfg)
     print(
         f"stcgym bench: {cfg.mode} mode, estimated {format_duration(estimate_seconds(cfg))} on "
@@ -353,15 +388,16 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
 
 
 #: The options ``--resume`` takes next to the run folder (the rest come from config.json).
-_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress", "time_limit")
+_RESUME_OPTIONS = ("jobs", "executor", "address", "no_plots", "progress", "time_limit", "plan")
 
 
 def _resumed_config(args: argparse.Namespace):
     """The config of the run to resume: its ``config.json`` and the options it takes."""
-    import json
+    from dataclasses import replace
     from pathlib import Path
 
-    from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
+    from stcgym.agents.benchmark.config import BenchInputError
+    from stcgym.agents.benchmark.rundir import read_run_config
     from stcgym.agents.executors import EXECUTORS
 
     defaults = vars(build_parser().parse_args(["bench"]))
@@ -373,30 +409,27 @@ def _resumed_config(args: argparse.Namespace):
     if given:
         names = ", ".join("--" + k.replace("_", "-") for k in given)
         raise BenchInputError(f"--resume takes the settings of the run's config.json; drop {names}")
-    run_dir = Path(args.resume)
-    doc_file = run_dir / "config.json"
-    if not doc_file.is_file():
-        raise BenchInputError(f"--resume: {run_dir} holds no config.json (not a bench run)")
     try:
-        cfg = BenchConfig.from_dict(json.loads(doc_file.read_text())["bench"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise BenchInputError(
-            f"--resume: {doc_file} is not a readable bench config: {exc}"
-        ) from None
-    cfg.out, cfg.run = str(run_dir.parent), run_dir.name
+        cfg, _ = read_run_config(Path(args.resume))
+    except BenchInputError as exc:
+        raise BenchInputError(f"--resume: {exc}") from None
+    jobs = cfg.jobs
     if args.jobs is not None:
         if args.jobs < 1:
             raise BenchInputError(f"--jobs must be a positive integer, got {args.jobs}")
-        cfg.jobs = args.jobs
+        jobs = args.jobs
     if args.executor not in EXECUTORS:
         raise BenchInputError(f"--executor must be one of {EXECUTORS}, got {args.executor!r}")
     if args.address is not None and args.executor != "ray":
         raise BenchInputError("--address needs --executor ray")
-    cfg.executor, cfg.address = args.executor, args.address
-    cfg.plots = cfg.plots and not args.no_plots
-    if args.progress is not None:
-        cfg.progress = args.progress
-    return cfg
+    return replace(
+        cfg,
+        jobs=jobs,
+        executor=args.executor,
+        address=args.address,
+        plots=cfg.plots and not args.no_plots,
+        progress=cfg.progress if args.progress is None else args.progress,
+    )
 
 
 def _check_eval_args(args: argparse.Namespace) -> dict:
@@ -458,6 +491,29 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
     return meta
 
 
+def _run_report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from stcgym.agents.benchmark.config import BenchInputError
+    from stcgym.agents.benchmark.render import render_run, update_page
+
+    if args.page is not None and not Path(args.page).is_file():
+        raise BenchInputError(f"--page {args.page}: no such file")
+    run = render_run(Path(args.run_dir), plots=not args.no_plots)
+    if args.page is not None:
+        try:
+            changed = update_page(args.page, args.run_dir)
+        except ValueError as exc:
+            raise BenchInputError(f"--page: {exc}") from None
+        print(f"{args.page}: {'tables updated' if changed else 'tables unchanged'}",
+              file=sys.stderr)  # fmt: skip
+    if run.missing:
+        print(f"partial: {len(run.missing)} of the plan's jobs have no record yet; "
+              f"stcgym bench --resume {args.run_dir} runs them", file=sys.stderr)  # fmt: skip
+    print(Path(args.run_dir) / "report.md")
+    return 0
+
+
 def _run_eval(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -507,6 +563,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "bench":
             return _run_bench(args, argv)
+        if args.command == "report":
+            return _run_report(args)
         return _run_eval(args)
     except (BenchInputError, FileNotFoundError) as exc:
         print(f"stcgym {args.command}: error: {exc}", file=sys.stderr)

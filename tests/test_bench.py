@@ -204,7 +204,8 @@ def test_end_to_end_writes_every_file(tiny_run):
     assert "has not improved on its best by more than 5 % in 3 consecutive" in report
     # every training run's kept checkpoint, as the training callback kept it (agent.json)
     training = report.split("## RL training")[1].split("Departures")[0]
-    assert "| kept step | wall s |" in training
+    header = "| kept step | updates: approx KL, clip fraction, explained variance | wall s |"
+    assert header in training
     for meta_file in (run / "models").glob("*/agent.json"):
         meta = json.loads(meta_file.read_text())
         suffix = f"_{meta['algo']}_s{meta['seed']}"
@@ -298,6 +299,11 @@ def _classical_runs(path):
     return {(r["scenario"], r["controller"], r["run"]) for r in classical}
 
 
+def _rl_records(store):
+    """The RL jobs' record files of a store (a classical record's label names its run)."""
+    return sorted(p for p in store.glob("*.json.gz") if ".run" not in p.name)
+
+
 def _sorted_numbers(path):
     key = lambda r: (r["scenario"], r["controller"], r["seed"], r["run"])  # noqa: E731
     return sorted(_numbers(path), key=key)
@@ -314,28 +320,35 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
     config = json.loads((run / "config.json").read_text())
     config["bench"]["tensorboard_log"] = str(tmp_path / "tb")  # keep the fixture's logs apart
     (run / "config.json").write_text(json.dumps(config))
-    jobs = sorted((run / "jobs").glob("*.json"))
-    assert len(jobs) == 6  # every RL training job kept its result
-    jobs[0].unlink()  # as if the run had been killed before this job finished
-    kept = sorted((run / "jobs" / "classical").glob("*.npz"))
-    assert len(kept) == sum(1 for _ in _classical_runs(source / "metrics.csv"))
+    store = run / "store"
+    rl_records = _rl_records(store)
+    assert len(rl_records) == 6  # every RL training job kept its record
+    rl_records[0].unlink()  # as if the run had been killed before this job finished
+    kept = [
+        p for p in store.glob("*.run*.json.gz")
+        if ".lqg.run" not in p.name and ".zero.run" not in p.name
+    ]  # fmt: skip
+    assert len(kept) == sum(1 for _ in _classical_runs(source / "metrics.csv")) - 2 * len(SCENARIOS)
     kept[0].unlink()  # nor had this classical evaluation
+    # the store alone: no trained model nor per-step cost array is needed to resume
+    shutil.rmtree(run / "models")
+    shutil.rmtree(run / "jobs", ignore_errors=True)
     (run / "report.md").unlink()
     trained, evaluated = [], []
     real = training.train_and_evaluate
-    real_episodes = runner_mod.run_episodes
+    real_evaluate = runner_mod._RunState._evaluate
 
     def counting(task):
         trained.append(task["name"])
         return real(task)
 
-    def counting_episodes(*args, **kwargs):
-        if "record_theta" in kwargs:  # a controller on a scenario, not a learning-curve reference
-            evaluated.append(args[1])
-        return real_episodes(*args, **kwargs)
+    def counting_evaluations(self, sc, name, run):
+        if name not in ("lqg", "zero"):  # the yardstick and zero input are always evaluated
+            evaluated.append((sc.name, name, run))
+        return real_evaluate(self, sc, name, run)
 
     monkeypatch.setattr(training, "train_and_evaluate", counting)
-    monkeypatch.setattr(runner_mod, "run_episodes", counting_episodes)
+    monkeypatch.setattr(runner_mod._RunState, "_evaluate", counting_evaluations)
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         assert main(["bench", "--resume", str(run), "--no-plots"]) == 0
@@ -346,7 +359,7 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
     assert "action bound of" not in err.getvalue()  # the bounds were read back, not measured
     # the same table as the uninterrupted run (the retrained job reproduces its numbers)
     assert _sorted_numbers(run / "metrics.csv") == _sorted_numbers(source / "metrics.csv")
-    assert (run / "report.md").is_file() and len(list((run / "jobs").glob("*.json"))) == 6
+    assert (run / "report.md").is_file() and len(_rl_records(store)) == 6
     assert len(list((tmp_path / "tb").rglob("events.out.tfevents.*"))) == 1
     resumed = json.loads((run / "config.json").read_text())
     assert resumed["argv"] == config["argv"] and resumed["resumed"][0][:2] == ["bench", "--resume"]
@@ -636,16 +649,16 @@ def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
         runner_mod.run_bench(cfg, log=lambda msg: None)
     header, rows = _rows(tmp_path / "int" / "metrics.csv")
     assert header == METRIC_COLUMNS
-    # lqg and zero on both scenarios first; then nominal: oracle and boom; family: oracle, then
-    # boom blows up
+    # the records finished before boom blew up on the family, scenario by scenario: lqg and
+    # zero on both, oracle and boom on nominal, oracle on the family
     order = [(r["scenario"], r["controller"]) for r in rows][::2]
     assert order == [
         ("nominal:stable2", "lqg"),
         ("nominal:stable2", "zero"),
-        ("family:test", "lqg"),
-        ("family:test", "zero"),
         ("nominal:stable2", "oracle"),
         ("nominal:stable2", "boom"),
+        ("family:test", "lqg"),
+        ("family:test", "zero"),
         ("family:test", "oracle"),
     ]
     assert all(r["cost"] for r in rows)
@@ -755,8 +768,8 @@ def test_a_time_limit_leaves_jobs_for_resume_and_the_resumed_run_is_complete(
     assert "time limit: stopped after" in log and f"1 RL job ({long_job})" in log
     assert f"stcgym bench --resume {run}" in log
     report = (run / "report.md").read_text()
-    assert "**PARTIAL: the time limit left jobs to run" in report
-    assert len(list((run / "jobs").glob("*.json"))) == 5  # the other RL jobs are kept
+    assert f"**PARTIAL: jobs left to run (1 of the plan's jobs: {long_job})" in report
+    assert len(_rl_records(run / "store")) == 5  # the other RL jobs are kept
     assert not list(run.glob("*.png"))
     monkeypatch.setattr(runner_mod, "job_weights", real_weights)
     err = io.StringIO()
@@ -788,7 +801,10 @@ def test_a_resume_reads_kept_classical_evaluations_back_whatever_the_time_limit(
     run = tmp_path / "tiny"
     shutil.copytree(source, run)
     (run / "report.md").unlink()
-    kept = sorted((run / "jobs" / "classical").glob("*.npz"))
+    kept = [
+        p for p in (run / "store").glob("*.run*.json.gz")
+        if ".lqg.run" not in p.name and ".zero.run" not in p.name
+    ]  # fmt: skip
     monkeypatch.setattr(runner_mod, "classical_seconds", lambda *args: 1e6)
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -797,3 +813,103 @@ def test_a_resume_reads_kept_classical_evaluations_back_whatever_the_time_limit(
     assert "time limit" not in err.getvalue()  # nothing was left for another session
     assert "PARTIAL" not in (run / "report.md").read_text()
     assert _sorted_numbers(run / "metrics.csv") == _sorted_numbers(source / "metrics.csv")
+
+
+def test_report_renders_the_same_files_from_the_store_alone(tiny_run, tmp_path, capsys):
+    """``stcgym report`` rebuilds the run's report, tables and statistics from config.json and
+    the store, with the trained models and every rendered file gone (a store committed to a
+    repository): byte for byte what the run itself rendered."""
+    import shutil
+
+    source = tiny_run[0]
+    run = tmp_path / "tiny"
+    shutil.copytree(source, run)
+    rendered = ("metrics.csv", "learning_curves.csv", "statistics.json", "report.md")
+    shutil.rmtree(run / "models")
+    shutil.rmtree(run / "jobs", ignore_errors=True)
+    for name in rendered:
+        (run / name).unlink()
+    for png in run.glob("*.png"):
+        png.unlink()
+    assert sorted(p.name for p in run.iterdir()) == ["config.json", "store"]
+    assert main(["report", str(run)]) == 0
+    assert capsys.readouterr().out.strip() == str(run / "report.md")
+    for name in rendered:
+        assert (run / name).read_bytes() == (source / name).read_bytes(), name
+    assert {p.name for p in run.glob("*.png")} == {p.name for p in source.glob("*.png")}
+    stats = json.loads((run / "statistics.json").read_text())
+    assert set(stats) == set(SCENARIOS) and "ratio_median" in stats["family:test"]["stc"]
+    # the store is data: gzip-compressed JSON, no per-step arrays, no pickles
+    assert all(p.name.endswith(".json.gz") for p in (run / "store").iterdir())
+
+
+def test_plan_prints_the_jobs_and_the_estimate_and_runs_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["bench", *TINY, "--out", str(out), "--run", "p", "--plan"]) == 0
+    text = capsys.readouterr().out
+    assert "family_ppo_s0: cap" in text and "nominal:stable2 (3 episodes)" in text
+    assert "estimated wall time on 1 worker(s), from an empty store:" in text
+    assert not out.exists()  # nothing written
+
+
+def test_a_partial_store_renders_a_partial_report_that_names_the_missing_jobs(
+    tiny_run, tmp_path, capsys
+):
+    import shutil
+
+    run = tmp_path / "tiny"
+    shutil.copytree(tiny_run[0], run)
+    (removed,) = [p for p in (run / "store").glob("family_rppo_s1.*.json.gz")]
+    removed.unlink()
+    assert main(["report", str(run), "--no-plots"]) == 0
+    assert "1 of the plan's jobs have no record yet" in capsys.readouterr().err
+    report = (run / "report.md").read_text()
+    assert "**PARTIAL: jobs left to run (1 of the plan's jobs: family_rppo_s1)" in report
+    rows = _numbers(run / "metrics.csv")
+    assert not [r for r in rows if r["controller"] == "rppo" and r["run"] == "1"]
+
+
+def test_the_smoke_preset_is_one_short_run_of_every_stage():
+    cfg = build_config(mode="smoke", run="s")
+    assert cfg.train_seeds == 1 and cfg.scenarios == ["nominal", "family"]
+    assert cfg.rl_agents == ["ppo"] and {"stc", "lqg", "zero"} <= set(cfg.agents)
+    interval = cfg.algo_configs["ppo"]["eval_interval"]
+    assert cfg.family_train_steps["ppo"] == cfg.train_steps["ppo"] == interval
+    assert cfg.eval_interval_for("ppo", "family") == interval
+    assert [sc.name for sc in make_scenarios(cfg)] == ["nominal:stable2", "family:test"]
+
+
+def test_an_output_path_that_is_a_file_is_refused_before_the_estimate(tmp_path, capsys):
+    out = tmp_path / "taken"
+    out.write_text("not a folder")
+    assert main(["bench", *TINY, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--out {out} is a file; a folder is expected" in err
+    assert "estimated" not in err
+
+
+def test_report_writes_the_headline_tables_into_a_page_between_its_markers(
+    tiny_run, tmp_path, capsys
+):
+    import shutil
+
+    from stcgym.agents.benchmark.render import PAGE_END, PAGE_START
+
+    run = tmp_path / "tiny"
+    shutil.copytree(tiny_run[0], run)
+    page = tmp_path / "page.md"
+    start, end = PAGE_START.format(run="tiny"), PAGE_END.format(run="tiny")
+    page.write_text(f"# Results\n\nbefore\n\n{start}\nstale\n{end}\n\nafter\n")
+    assert main(["report", str(run), "--no-plots", "--page", str(page)]) == 0
+    assert "tables updated" in capsys.readouterr().err
+    text = page.read_text()
+    assert text.startswith("# Results\n\nbefore\n\n") and text.endswith("\n\nafter\n")
+    assert "stale" not in text
+    stats = json.loads((run / "statistics.json").read_text())
+    ratio = stats["family:test"]["stc"]["ratio"]
+    assert f"| `stc` | 3 | {ratio['value']:.3g} [{ratio['low']:.3g}, {ratio['high']:.3g}] |" in text
+    assert main(["report", str(run), "--no-plots", "--page", str(page)]) == 0
+    assert "tables unchanged" in capsys.readouterr().err
+    page.write_text("no markers\n")
+    assert main(["report", str(run), "--no-plots", "--page", str(page)]) == 2
+    assert "has no block for tiny" in capsys.readouterr().err

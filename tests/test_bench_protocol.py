@@ -4,6 +4,7 @@ the action bound, batched episodes, the RL agents' vector window and reward, the
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -328,31 +329,32 @@ def test_figures_are_readable_at_page_width_with_one_colour_per_controller():
     assert all(color(n) == COLORS[n] for n in names) and color("new_agent") == color("new_agent")
 
 
-def test_the_training_table_gives_each_training_env_its_own_wall_time():
-    from types import SimpleNamespace
-
+def test_the_training_table_gives_each_run_its_wall_time_and_update_statistics():
+    from stcgym.agents.benchmark.render import RunData
     from stcgym.agents.benchmark.report import _training_table
 
-    scenarios = [
-        SimpleNamespace(name="nominal:stable2", train_key="nominal:stable2"),
-        SimpleNamespace(name="family:test", train_key="family"),
-        SimpleNamespace(name="jump:test", train_key="family"),
-    ]
-    stop = {
-        "status": "cap",
-        "steps": 1000,
-        "cap": 1000,
-        "last_improvement_step": 500,
-        "kept_step": 500,
-    }
-    data = SimpleNamespace(
-        stops={("family", "ppo", 0): stop, ("nominal:stable2", "ppo", 0): stop}, curves=[]
+    def stop(wall):
+        return {
+            "status": "cap",
+            "steps": 1000,
+            "cap": 1000,
+            "last_improvement_step": 500,
+            "kept_step": 500,
+            "wall_s": wall,
+        }
+
+    data = RunData(
+        stops={("family", "ppo", 0): stop(222.0), ("nominal:stable2", "ppo", 0): stop(11.0)},
+        diagnostics={
+            ("family", "ppo", 0): [
+                {"approx_kl": 0.01, "clip_fraction": 0.1, "explained_variance": 0.5},
+                {"approx_kl": 0.03, "clip_fraction": 0.2, "explained_variance": 0.7},
+                {"approx_kl": 0.02, "clip_fraction": 0.3, "explained_variance": float("nan")},
+            ]
+        },
     )
-    rows = [
-        {"family": "rl", "controller": "ppo", "run": 0, "scenario": sc, "train_wall_s": w}
-        for sc, w in [("nominal:stable2", 11.0), ("family:test", 222.0), ("jump:test", 222.0)]
-    ]
     cfg = SimpleNamespace(rl_agents=[])
-    table = _training_table(cfg, data, rows, scenarios)
-    assert "| family | ppo | 0 | cap |" in table[2] and table[2].endswith("| 222 |")
-    assert "| nominal:stable2 | ppo | 0 |" in table[3] and table[3].endswith("| 11 |")
+    table = _training_table(cfg, data)
+    assert "| family | ppo | 0 | cap |" in table[2]
+    assert table[2].endswith("| 0.02, 0.2, 0.6 | 222 |")  # medians; a nan is not counted
+    assert "| nominal:stable2 | ppo | 0 |" in table[3] and table[3].endswith("| -, -, - | 11 |")

@@ -6,10 +6,12 @@ Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their ch
 :mod:`~stcgym.agents.evaluation.episodes` (fixed evaluation episodes, run as a batch),
 :mod:`~stcgym.agents.evaluation.bounds` (one action bound per training distribution, from LQG),
 :mod:`~stcgym.agents.benchmark.mimo` (the MIMO scenario and its environment),
-:mod:`~stcgym.agents.benchmark.plan` (the RL jobs and the ETA),
-:mod:`~stcgym.agents.benchmark.runner` (the run),
-:mod:`~stcgym.agents.benchmark.rundir` (the run folder, the checks before any work),
-:mod:`~stcgym.agents.benchmark.classical_store` (the classical episodes kept for ``--resume``),
+:mod:`~stcgym.agents.benchmark.plan` (the jobs, their estimates and the ETA),
+:mod:`~stcgym.agents.benchmark.runner` (the run: its plan, then its jobs),
+:mod:`~stcgym.agents.benchmark.rundir` (the run folder, the checks before any work, job ids),
+:mod:`~stcgym.agents.benchmark.store` (the results store: one record per finished job),
+:mod:`~stcgym.agents.benchmark.adaptation` (the per-run summary the adaptation figures draw),
+:mod:`~stcgym.agents.benchmark.render` (report, tables and figures from the store),
 :mod:`~stcgym.agents.benchmark.rows` and :mod:`~stcgym.agents.benchmark.metrics_csv`
 (``metrics.csv``: one row per scenario, controller, run and episode),
 :mod:`~stcgym.agents.evaluation.evaluate` (the closed-loop evaluation of one episode,
@@ -53,9 +55,11 @@ classical controllers (``stc``, ``stc_lq``, ``stc_kfmils``, ``stc_mimo``, the ya
 Statistics
 ----------
 The unit is the run: an RL agent's training run, a self-tuning controller's seed. Cost / LQG
-and the normalised score are interquartile means over runs and test plants with rliable's
-stratified bootstrap over runs; comparisons are paired on (plant, episode); divergence is a rate
-with its own interval (:mod:`~stcgym.agents.benchmark.headline`).
+and the normalised score are interquartile means (and medians) over runs and test plants of
+the episodes that stayed bounded, with a bootstrap over runs and plants; divergence is a rate
+beside them with its own interval, never mixed into a ratio; comparisons are paired on
+(plant, episode) (:mod:`~stcgym.agents.benchmark.headline`). An RL run that kept its untrained
+network (no improvement over initialisation) is left out of its agent's estimates and named.
 
 Tiers
 -----
@@ -72,17 +76,22 @@ The driver first sets the action bounds (``config.json`` keeps them), runs the y
 zero input on every scenario, then hands every RL training job (training distribution x agent x
 run, a JSON task of :mod:`stcgym.agents.rl.training`) to the executor of
 :mod:`stcgym.agents.executors` (``jobs`` local processes, or Ray), longest first, while it
-evaluates the other classical controllers in a thread. It writes ``metrics.csv`` run by run and
-logs ``job k/N, ETA``. Each finished job's result is kept in ``jobs/<id>.json``:
-``run_bench(cfg, resume=True)`` (``stcgym bench --resume RUN_DIR``) reads those back instead of
-training them again.
+evaluates the other classical controllers in a thread, and logs ``job k/N, ETA``. Each
+finished job is written at once to the results store (``store/``, a few MB for a whole
+standard run, meant to be committed); ``run_bench(cfg, resume=True)`` (``stcgym bench --resume
+RUN_DIR``) uses the records its plan asks for instead of running those jobs again, also from a
+fresh clone without the trained models. ``metrics.csv``, the report and the figures are
+rendered from the store alone (``stcgym report RUN_DIR``).
 
-Output (``<out>/<run>/``): ``config.json``, ``metrics.csv``, ``learning_curves.csv``,
-``report.md``, PNG plots, ``models/`` (each agent with its per-step test costs) and ``jobs/``.
+Output (``<out>/<run>/``): ``config.json`` and ``store/`` (the run's outcome, as data);
+rendered from them ``metrics.csv``, ``learning_curves.csv``, ``statistics.json``, ``report.md``
+and the PNG plots; and, not needed to resume or render, ``models/`` (each trained agent with its
+per-step test costs).
 """
 
 from stcgym.agents.benchmark.config import BenchConfig, BenchInputError, build_config
 from stcgym.agents.benchmark.plan import estimate_seconds
+from stcgym.agents.benchmark.render import render_run
 from stcgym.agents.benchmark.runner import (
     METRIC_COLUMNS,
     BenchResult,
@@ -101,5 +110,6 @@ __all__ = [
     "check_runnable",
     "estimate_seconds",
     "make_scenarios",
+    "render_run",
     "run_bench",
 ]

@@ -62,9 +62,15 @@ class BenchInputError(ValueError):
     """Bad bench input (names, budgets, output folder, dependencies), raised before any work."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class BenchConfig:
-    """Everything a bench run depends on; ``config.json`` is this, as written."""
+    """Everything a bench run depends on; ``config.json`` is this, as written.
+
+    Frozen: :func:`build_config` validates and completes it once, and a run derives the values
+    it measures or tunes (action bounds and units, tuned settings) into a new config with
+    :func:`dataclasses.replace` while it plans (:mod:`~stcgym.agents.benchmark.runner`),
+    before any job starts; nothing changes it while the jobs run.
+    """
 
     run: str
     out: str = "results"
@@ -98,9 +104,9 @@ class BenchConfig:
     family_train_steps: dict[str, int] = field(default_factory=dict)
     mimo_train_steps: dict[str, int] = field(default_factory=dict)
     #: the plateau rule (stcgym.agents.rl.stopping.PlateauRule)
-    patience: int = 3
-    min_improvement: float = 0.05
-    min_train_fraction: float = 0.25
+    patience: int = PlateauRule.patience
+    min_improvement: float = PlateauRule.min_improvement
+    min_train_fraction: float = PlateauRule.min_fraction
     #: --eval-interval: every algorithm's evaluation interval (None: each config's own)
     eval_interval: int | None = None
     #: runs per controller: RL training seeds, self-tuning controller seeds
@@ -172,7 +178,7 @@ class BenchConfig:
         outside the quick tier a whole multiple of it with at most
         :data:`EVALUATIONS_PER_CAP` evaluations up to the cap."""
         base = int(self.algo_configs[algo]["eval_interval"])
-        if self.mode == "quick" or self.eval_interval is not None:
+        if self.mode in ("smoke", "quick") or self.eval_interval is not None:
             return base
         return base * max(1, math.ceil(self.cap(algo, train_key) / (EVALUATIONS_PER_CAP * base)))
 
@@ -239,7 +245,23 @@ FULL = dict(
     curve_episodes=50,
     tune_trials=20,
 )
-MODES = {"quick": QUICK, "standard": STANDARD, "full": FULL}
+#: A one-minute end-to-end run (``stcgym bench --smoke``): every stage once, on a handful of
+#: short episodes, PPO for one evaluation interval; its numbers check that things run, nothing
+#: more.
+SMOKE = dict(
+    QUICK,
+    mode="smoke",
+    scenarios=["nominal", "family"],
+    agents=["ppo", "stc", "stc_lq", "lqg", "zero"],
+    train_seeds=1,
+    test_plants=5,
+    nominal_episodes=5,
+    curve_episodes=4,
+    curve_points=2,
+    bound_plants=20,
+    episode_steps=200,
+)
+MODES = {"smoke": SMOKE, "quick": QUICK, "standard": STANDARD, "full": FULL}
 
 
 def _split(value: str | Sequence[str] | None) -> list[str] | None:
@@ -307,9 +329,9 @@ def build_config(
     mimo_plants: str | Sequence[str] | None = None,
     agents: str | Sequence[str] | None = None,
     train_steps: str | int | dict | None = None,
-    patience: int = 3,
-    min_improvement: float = 0.05,
-    min_train_fraction: float = 0.25,
+    patience: int = PlateauRule.patience,
+    min_improvement: float = PlateauRule.min_improvement,
+    min_train_fraction: float = PlateauRule.min_fraction,
     first_seed: int = 1000,
     hp: Sequence[str] = (),
     plots: bool = True,
@@ -340,7 +362,7 @@ def build_config(
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     cfg = BenchConfig(run=run or f"{stamp}-{preset['mode']}", out=str(out))
     for key, value in preset.items():
-        setattr(cfg, key, value if not isinstance(value, list) else list(value))
+        _set(cfg, key, value if not isinstance(value, list) else list(value))
     for name, value in (
         ("scenarios", scenarios),
         ("plants", plants),
@@ -350,21 +372,24 @@ def build_config(
     ):
         parsed = _split(value)
         if parsed is not None:
-            setattr(cfg, name, parsed)
+            _set(cfg, name, parsed)
     if family is not None:
-        cfg.family = str(family)
+        _set(cfg, "family", str(family))
     for name, value in plain.items():
         if value is not None:
-            setattr(cfg, name, value)
-    cfg.first_seed = first_seed
-    cfg.plots, cfg.progress = bool(plots), progress
-    cfg.jobs = jobs if jobs is not None else min(2, os.cpu_count() or 1)
-    cfg.executor, cfg.address = executor, address
-    cfg.tensorboard_log = None if tensorboard_log is None else str(tensorboard_log)
-    cfg.bootstrap_reps = bootstrap_reps
-    cfg.patience, cfg.min_improvement = patience, min_improvement
-    cfg.min_train_fraction = min_train_fraction
-    cfg.overrides = list(hp)
+            _set(cfg, name, value)
+    _set(cfg, "first_seed", first_seed)
+    _set(cfg, "plots", bool(plots))
+    _set(cfg, "progress", progress)
+    _set(cfg, "jobs", jobs if jobs is not None else min(2, os.cpu_count() or 1))
+    _set(cfg, "executor", executor)
+    _set(cfg, "address", address)
+    _set(cfg, "tensorboard_log", None if tensorboard_log is None else str(tensorboard_log))
+    _set(cfg, "bootstrap_reps", bootstrap_reps)
+    _set(cfg, "patience", patience)
+    _set(cfg, "min_improvement", min_improvement)
+    _set(cfg, "min_train_fraction", min_train_fraction)
+    _set(cfg, "overrides", list(hp))
     try:
         validate(cfg, train_steps)
     except BenchInputError:
@@ -372,6 +397,12 @@ def build_config(
     except ValueError as exc:
         raise BenchInputError(str(exc)) from exc
     return cfg
+
+
+def _set(cfg: BenchConfig, name: str, value: Any) -> None:
+    """Set a field of a config :func:`build_config` is completing, before anyone else sees it
+    (the frozen dataclass's own ``__post_init__`` idiom)."""
+    object.__setattr__(cfg, name, value)
 
 
 def _finite(value: Any, name: str, *, positive: bool = False) -> float:
@@ -398,9 +429,8 @@ def _check_names(cfg: BenchConfig) -> None:
         )
     if len(set(cfg.agents)) != len(cfg.agents):
         raise ValueError(f"agents listed twice: {cfg.agents}")
-    for name in (YARDSTICK, "zero"):  # every ratio and score needs them
-        if name not in cfg.agents:
-            cfg.agents.append(name)
+    missing = [name for name in (YARDSTICK, "zero") if name not in cfg.agents]
+    _set(cfg, "agents", [*cfg.agents, *missing])  # every ratio and score needs them
     bad = [p for p in cfg.plants if p not in plant_names()]
     if bad:
         raise ValueError(f"unknown plant(s) {bad} in --plants; catalogue: {plant_names()}")
@@ -447,11 +477,11 @@ def _check_numbers(cfg: BenchConfig) -> None:
         "jobs",
         "bootstrap_reps",
     ):
-        setattr(cfg, name, _positive_int(getattr(cfg, name), f"--{name.replace('_', '-')}"))
+        _set(cfg, name, _positive_int(getattr(cfg, name), f"--{name.replace('_', '-')}"))
     if cfg.test_plants is not None:
-        cfg.test_plants = _positive_int(cfg.test_plants, "--test-plants")
+        _set(cfg, "test_plants", _positive_int(cfg.test_plants, "--test-plants"))
     if cfg.tune_trials:
-        cfg.tune_trials = _positive_int(cfg.tune_trials, "--tune-trials")
+        _set(cfg, "tune_trials", _positive_int(cfg.tune_trials, "--tune-trials"))
         if not 0 < float(cfg.tune_fraction) <= 1:
             raise ValueError(f"tune_fraction must be in (0, 1], got {cfg.tune_fraction!r}")
         try:
@@ -459,7 +489,7 @@ def _check_numbers(cfg: BenchConfig) -> None:
         except ImportError:
             raise ValueError("--tune-trials needs optuna (pip install 'stcgym[rl]')") from None
     if cfg.episode_steps is not None:
-        cfg.episode_steps = _positive_int(cfg.episode_steps, "--episode-steps")
+        _set(cfg, "episode_steps", _positive_int(cfg.episode_steps, "--episode-steps"))
         if cfg.episode_steps < 20:
             raise ValueError(f"--episode-steps must be >= 20, got {cfg.episode_steps}")
     try:
@@ -468,9 +498,9 @@ def _check_numbers(cfg: BenchConfig) -> None:
         first = -1
     if first != cfg.first_seed or first < 0:
         raise ValueError(f"--first-seed must be an integer >= 0, got {cfg.first_seed!r}")
-    cfg.first_seed = first
+    _set(cfg, "first_seed", first)
     if cfg.noise_std is not None:
-        cfg.noise_std = _finite(cfg.noise_std, "--noise", positive=True)
+        _set(cfg, "noise_std", _finite(cfg.noise_std, "--noise", positive=True))
     from stcgym.agents.executors import EXECUTORS
 
     if cfg.executor not in EXECUTORS:
@@ -479,10 +509,10 @@ def _check_numbers(cfg: BenchConfig) -> None:
         raise ValueError("--address needs --executor ray")
     if cfg.tensorboard_log is not None and not cfg.rl_agents:
         raise ValueError("--tensorboard-log needs at least one RL agent in --agents")
-    for key, bound in cfg.action_bounds.items():
-        cfg.action_bounds[key] = _finite(bound, f"action bound of {key}", positive=True)
-    for key, unit in cfg.action_units.items():
-        cfg.action_units[key] = _finite(unit, f"action unit of {key}", positive=True)
+    for name in ("action_bounds", "action_units"):
+        what = name.replace("_", " ")[:-1]  # "action bound", "action unit"
+        values = getattr(cfg, name).items()
+        _set(cfg, name, {k: _finite(v, f"{what} of {k}", positive=True) for k, v in values})
 
 
 def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> None:
@@ -496,7 +526,7 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     cfg.plateau  # noqa: B018  (the PlateauRule's ValueError names the option)
     configs = {a: default_config(a) for a in cfg.rl_agents}
     if cfg.eval_interval is not None:
-        cfg.eval_interval = _positive_int(cfg.eval_interval, "--eval-interval")
+        _set(cfg, "eval_interval", _positive_int(cfg.eval_interval, "--eval-interval"))
         for c in configs.values():
             c.eval_interval = cfg.eval_interval
     apply_overrides(configs, cfg.overrides)
@@ -506,14 +536,15 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
     extra = sorted(set(given) - set(cfg.rl_agents))
     if extra and isinstance(train_steps, str) and "=" in train_steps:
         raise ValueError(f"--train-steps names {extra}, which are not among --agents")
-    single, family = _MODE_CAPS[cfg.mode]
-    cfg.train_steps = {a: given.get(a, getattr(configs[a], single)) for a in cfg.rl_agents}
-    cfg.family_train_steps = {a: given.get(a, getattr(configs[a], family)) for a in cfg.rl_agents}
-    cfg.mimo_train_steps = {
+    for name, cap in (("train_steps", _single_cap), ("family_train_steps", _family_cap)):
+        caps = {a: given.get(a, cap(configs[a], cfg.mode)) for a in cfg.rl_agents}
+        _set(cfg, name, caps)
+    mimo_caps = {
         a: given.get(a, _mimo_cap(configs[a], cfg.mode))
         for a in cfg.rl_agents
         if a not in FAMILY_ALGORITHMS  # (trained on the SISO family only)
     }
+    _set(cfg, "mimo_train_steps", mimo_caps)
     for a in cfg.rl_agents:
         caps = [cfg.family_train_steps[a]]
         if a not in FAMILY_ALGORITHMS:  # these agents train on the family only
@@ -527,12 +558,29 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
                 f"interval of the plateau rule ({a}.eval_interval = {interval}); raise the cap "
                 "or lower --eval-interval"
             )
-    cfg.algo_configs = {a: configs[a].to_dict() for a in cfg.rl_agents}
+    _set(cfg, "algo_configs", {a: configs[a].to_dict() for a in cfg.rl_agents})
+
+
+def _single_cap(config: Any, mode: str) -> int:
+    """The default cap on one plant: the config's for the tier; one evaluation interval in the
+    smoke run."""
+    if mode == "smoke":
+        return config.eval_interval
+    return getattr(config, _MODE_CAPS[mode][0])
+
+
+def _family_cap(config: Any, mode: str) -> int:
+    """The default cap on the plant family (as :func:`_single_cap`)."""
+    if mode == "smoke":
+        return config.eval_interval
+    return getattr(config, _MODE_CAPS[mode][1])
 
 
 def _mimo_cap(config: Any, mode: str) -> int:
     """The default cap on a MIMO plant: the single-plant cap of standard and full, and in quick
     :data:`QUICK_MIMO_INTERVALS` evaluation intervals (at most ``quick_steps``)."""
+    if mode == "smoke":
+        return config.eval_interval
     if mode == "quick":
         intervals = QUICK_MIMO_INTERVALS.get(config.algo, 1)
         return min(config.quick_steps, intervals * config.eval_interval)

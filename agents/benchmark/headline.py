@@ -7,9 +7,13 @@ deterministic controller) and :func:`headline` estimates, each with its 95 % int
 
 * the cost ratio to the LQG yardstick on the same episode (whole episode, and the steady
   window: the second half, or before the jump) and the normalised score
-  ``(C_zero - C) / (C_zero - C_LQG)``: interquartile means over (run, plant) of the per-plant
-  means, with rliable's stratified bootstrap over runs (one stratum per test plant);
-* the divergence rate, with its own interval (runs and plants resampled);
+  ``(C_zero - C) / (C_zero - C_LQG)``, over the episodes that stayed bounded only: the IQM
+  (and for the whole episode the median) over (run, plant) of the per-plant means, with a
+  bootstrap over runs and plants (:func:`~stcgym.agents.evaluation.statistics.
+  bounded_estimates`);
+* the divergence rate beside them, with its own interval (runs and plants resampled): a
+  diverged episode's cost is the charge for leaving the bounds, not a control cost, so no
+  statistic mixes the two;
 * steps to get within 1.2x of LQG (RL: training steps read off the validation curve, for
   in-distribution scenarios only; online learners: adaptation steps within the episode),
   re-convergence steps after a jump, and the post-jump cost ratio: medians, with the share of
@@ -24,6 +28,7 @@ deterministic controller) and :func:`headline` estimates, each with its 95 % int
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,7 +37,7 @@ import numpy as np
 from stcgym.agents.evaluation.evaluate import summarize
 from stcgym.agents.evaluation.statistics import (
     Estimate,
-    interval_estimates,
+    bounded_estimates,
     paired_comparison,
     rate_estimate,
 )
@@ -45,6 +50,7 @@ __all__ = [
     "paired",
     "scenario_tables",
     "training_stops",
+    "untrained_runs",
 ]
 
 #: Columns summarised per (scenario, controller) in the report's details.
@@ -106,7 +112,8 @@ def scenario_tables(
             continue
         by_run: dict[Any, list[dict[str, Any]]] = {}
         for r in rs:
-            by_run.setdefault(r["run"], []).append(r)
+            if not _untrained(r):  # the untrained network is no trained agent's cost
+                by_run.setdefault(r["run"], []).append(r)
         runs = [k for k in sorted(by_run, key=_float) if len(by_run[k]) == P * E]
         if not runs:
             continue
@@ -118,6 +125,22 @@ def scenario_tables(
         }
         out[controller] = {"family": rs[0]["family"], "runs": len(runs), "rows": by_run, **table}
     return out
+
+
+def _untrained(row: dict[str, Any]) -> bool:
+    """An RL run whose kept checkpoint is step 0: training never improved on the untrained
+    network's validation score."""
+    return row["family"] == "rl" and _float(row.get("train_kept_step")) == 0
+
+
+def untrained_runs(rows: Sequence[dict[str, Any]], scenario: str) -> dict[str, tuple[int, int]]:
+    """``controller -> (untrained runs, runs)`` of the RL agents on ``scenario`` (runs kept at
+    step 0 are left out of the estimates: "no improvement over initialisation")."""
+    runs: dict[str, dict[Any, bool]] = {}
+    for r in rows:
+        if r["scenario"] == scenario and r["family"] == "rl":
+            runs.setdefault(r["controller"], {})[r["run"]] = _untrained(r)
+    return {c: (sum(flags.values()), len(flags)) for c, flags in runs.items()}
 
 
 def _median_reached(values: np.ndarray) -> dict[str, Any]:
@@ -133,33 +156,34 @@ def _median_reached(values: np.ndarray) -> dict[str, Any]:
     }
 
 
+def _per_plant_bounded(table: dict[str, Any], col: str) -> np.ndarray:
+    """``(runs, plants)``: the mean of ``col`` over each plant's bounded episodes (``nan``
+    where none stayed bounded, or where the column is not defined)."""
+    v = np.where(table["bounded"] > 0, table[col], np.nan)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a plant with no bounded episode
+        return np.nanmean(v, axis=2)
+
+
 def headline(
     tables: dict[str, dict[str, Any]], *, reps: int, seed: int = 0
 ) -> dict[str, dict[str, Any]]:
     """The estimates of one scenario (see the module docstring): ``controller -> {...}``.
 
-    Keys: ``runs``, ``episodes`` (per run), ``ratio``, ``steady`` (the steady window's ratio)
-    and ``score`` (:class:`Estimate`, IQM),
-    ``ratio_mean`` (the mean over runs of each run's mean ratio), ``diverged``
-    (:class:`Estimate`), ``post_jump`` (:class:`Estimate` or ``None``), ``to_target`` and
-    ``reconverge`` (:func:`_median_reached` dicts).
+    Keys: ``runs``, ``episodes`` (per run), ``ratio`` and ``ratio_median`` (cost / LQG over
+    the bounded episodes), ``steady`` (the steady window's ratio) and ``score``
+    (:class:`Estimate`, IQM over the bounded episodes), ``bounded_cells`` (the (run, plant)
+    cells with a bounded episode), ``diverged`` (:class:`Estimate`), ``post_jump``
+    (:class:`Estimate` or ``None``), ``to_target`` and ``reconverge``
+    (:func:`_median_reached` dicts).
     """
-    ratio_data, score_data, steady_data = {}, {}, {}
-    for c, t in tables.items():
-        ratio_data[c] = np.nanmean(t["cost_ratio"], axis=2)
-        steady_data[c] = np.nanmean(t["steady_ratio"], axis=2)
-        score = t["score"]
-        defined = ~np.isnan(score).any(axis=(0, 2))  # plants where it is defined
-        score_data[c] = np.mean(score[:, defined], axis=2) if defined.any() else np.empty((0, 1))
-    est_ratio = interval_estimates(ratio_data, pool_tasks=True, reps=reps, seed=seed)
-    est_score = interval_estimates(score_data, pool_tasks=True, reps=reps, seed=seed)
-    est_steady = interval_estimates(steady_data, pool_tasks=True, reps=reps, seed=seed)
-    post = {
-        c: np.nanmean(t["post_jump_ratio"], axis=2)
+    est = {
+        c: {
+            col: bounded_estimates(_per_plant_bounded(t, col), reps=reps, seed=seed)
+            for col in ("cost_ratio", "steady_ratio", "score", "post_jump_ratio")
+        }
         for c, t in tables.items()
-        if not np.all(np.isnan(t["post_jump_ratio"]))
     }
-    est_post = interval_estimates(post, pool_tasks=True, reps=reps, seed=seed) if post else {}
     out = {}
     for c, t in tables.items():
         targets = t["steps_to_target"]
@@ -169,12 +193,13 @@ def headline(
             "family": t["family"],
             "runs": t["runs"],
             "episodes": int(t["cost"][0].size),
-            "ratio": est_ratio[c]["iqm"][0],
-            "ratio_mean": float(np.mean(ratio_data[c])),
-            "steady": est_steady[c]["iqm"][0],
-            "score": est_score[c]["iqm"][0],
+            "ratio": est[c]["cost_ratio"]["iqm"],
+            "ratio_median": est[c]["cost_ratio"]["median"],
+            "bounded_cells": est[c]["cost_ratio"]["n"],
+            "steady": est[c]["steady_ratio"]["iqm"],
+            "score": est[c]["score"]["iqm"],
             "diverged": rate_estimate(1.0 - t["bounded"], reps=reps, seed=seed),
-            "post_jump": est_post[c]["iqm"][0] if c in est_post else None,
+            "post_jump": post["iqm"] if (post := est[c]["post_jump_ratio"])["n"] else None,
             "to_target": _median_reached(np.ravel(targets)),
             "reconverge": _median_reached(np.ravel(t["reconverge_steps"])),
         }

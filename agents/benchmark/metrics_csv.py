@@ -46,6 +46,7 @@ METRIC_COLUMNS = [
     "train_cap",
     "train_stop",
     "train_last_improvement",
+    "train_kept_step",
     "train_wall_s",
     "step_us",
 ]

@@ -24,6 +24,7 @@ __all__ = [
     "agent_config",
     "classical_seconds",
     "curve_evaluations",
+    "describe_plan",
     "estimate_seconds",
     "format_duration",
     "parse_duration",
@@ -304,3 +305,42 @@ def rl_tasks(
     # together: a long job taken last would leave the other worker idle
     cost = job_weights(cfg, [], tasks)
     return sorted(tasks, key=lambda t: -cost[("rl", t["name"])])
+
+
+def describe_plan(cfg: BenchConfig) -> str:
+    """The jobs of ``cfg`` with their estimated seconds, those its run folder's store already
+    holds marked ``kept``, and the whole run's estimate (``stcgym bench --plan``)."""
+    from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS
+    from stcgym.agents.benchmark.rundir import classical_key, job_id
+    from stcgym.agents.benchmark.store import STORE_FOLDER, ResultsStore
+    from stcgym.agents.controllers import CONTROLLERS
+
+    scenarios = make_scenarios(cfg)
+    envs = training_envs(cfg, scenarios)
+    tasks = rl_tasks(cfg, scenarios, envs, {})
+    weights = job_weights(cfg, scenarios, tasks)
+    kept = ResultsStore(cfg.run_dir / STORE_FOLDER, METRIC_COLUMNS).ids()
+    lines = [f"stcgym bench plan: {cfg.mode} tier, run folder {cfg.run_dir}", ""]
+    lines.append("classical evaluations (the driver), estimated seconds:")
+    for sc in scenarios:
+        names = controllers_for(cfg.classical, sc.env)
+        cells = []
+        for name in names:
+            runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
+            held = sum(classical_key(cfg, sc, name, r)[1] in kept for r in range(runs))
+            cells.append(f"{name} x{runs}" + (f" ({held} kept)" if held else ""))
+        lines.append(f"  {sc.name} ({len(sc.episodes.seeds)} episodes): {', '.join(cells)}; "
+                     f"{weights[('classical', sc.name)]:.0f} s")  # fmt: skip
+    if tasks:
+        lines += ["", f"RL training jobs ({len(tasks)}, longest first; at their cap):"]
+        for t in tasks:
+            mark = "  kept" if job_id(t) in kept else ""
+            lines.append(f"  {t['name']}: cap {t['steps']} env steps, "
+                         f"{format_duration(weights[('rl', t['name'])])}{mark}")  # fmt: skip
+    lines += [
+        "",
+        f"estimated wall time on {cfg.jobs} worker(s), from an empty store: "
+        f"{format_duration(estimate_seconds(cfg))} (every RL agent at its cap; the plateau "
+        "rule can only shorten a run)",
+    ]
+    return "\n".join(lines)

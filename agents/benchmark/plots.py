@@ -6,10 +6,15 @@ of :mod:`stcgym.agents.benchmark.style` (800 px wide, one colour per controller 
   (median over runs, the band between the best and worst run), one row of panels per training
   distribution. Right: what the online learners do with the samples of one episode: cost / LQG
   over each window of the reference's shortest hold against the step within the episode
-  (median over the episodes and runs of the in-distribution test scenario).
+  (median over the episodes of each run of the in-distribution test scenario, median over
+  the runs).
 * ``adaptation.png``: cumulative cost above LQG against the time within the episode, median
-  over episodes and runs with the interquartile band: on the test split (from step 0) and in
-  the jump scenario (from the jump on), for the self-tuning controllers and every RL agent.
+  over episodes with the interquartile band (median over runs of each run's median, mean of
+  its quartiles): on the test split (from step 0) and in the jump scenario (from the jump on),
+  for the self-tuning controllers and every RL agent.
+
+Both read the runs' adaptation summaries of the results store
+(:mod:`~stcgym.agents.benchmark.adaptation`), not per-step costs.
 * ``traces_<scenario>.png``: small multiples, one row per controller on the same axes: y and r
   over the first episode, and the input u.
 * ``theta_<scenario>.png``: a self-tuning controller's estimates against the true parameters
@@ -24,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from stcgym.agents.benchmark.adaptation import combine
 from stcgym.agents.benchmark.style import DPI, WIDTH, color, pyplot
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 
@@ -61,22 +67,13 @@ def _shared_legend(fig: Any, axes: Any) -> None:
 def _learners(data: Any, scenario: str) -> list[str]:
     """The controllers of a scenario that learn: online learners and RL agents."""
     out = []
-    for sc, name in data.costs:
+    for sc, name in data.adaptation:
         if sc != scenario or name in out:
             continue
         info = CONTROLLERS.get(name)
         if info is None or info.online:
             out.append(name)
     return out
-
-
-def _window_ratio(cost: np.ndarray, ref: np.ndarray, span: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cost / reference over consecutive windows of ``span`` steps: (window ends, ratios)."""
-    T = cost.shape[1]
-    ends = np.arange(span, T + 1, span)
-    c = np.add.reduceat(cost[:, : ends[-1]], np.arange(0, ends[-1], span), axis=1)
-    r = np.add.reduceat(ref[:, : ends[-1]], np.arange(0, ends[-1], span), axis=1)
-    return ends, c / np.maximum(r, 1e-12)
 
 
 def plot_data_efficiency(
@@ -121,13 +118,9 @@ def plot_data_efficiency(
     if scenario is None:
         ax.set_axis_off()
     else:
-        ref = np.concatenate([r.cost for r in data.costs[(scenario.name, YARDSTICK)]])
         for name in _learners(data, scenario.name):
-            cost = [r.cost for r in data.costs[(scenario.name, name)]]
-            ends, ratio = _window_ratio(
-                np.concatenate(cost), np.tile(ref, (len(cost), 1)), scenario.env.span
-            )
-            ax.plot(ends, np.median(ratio, axis=0), color=color(name), lw=2, label=name)
+            runs = combine(data.adaptation[(scenario.name, name)])
+            ax.plot(runs["window_ends"], runs["window"], color=color(name), lw=2, label=name)
         ax.axhline(1.0, color=color(YARDSTICK), lw=1, ls="--", label="LQG")
         ax.set(xscale="log", yscale="log", xlabel="step within the episode (online)",
                ylabel="window cost / LQG", title=f"within an episode: {scenario.name}")  # fmt: skip
@@ -135,28 +128,6 @@ def plot_data_efficiency(
         ax.set_axis_off()
     _shared_legend(fig, axes)
     _save(fig, path)
-
-
-def _excess(data: Any, scenario: str, name: str, align: bool) -> np.ndarray | None:
-    """Cumulative cost above LQG per episode and run, ``(runs x episodes, steps)``; aligned
-    on each episode's jump (from it on) with ``align``."""
-    ref = data.costs[(scenario, YARDSTICK)][0]
-    runs = data.costs.get((scenario, name))
-    if not runs:
-        return None
-    out = []
-    for rec in runs:
-        excess = rec.cost.astype(float) - ref.cost
-        if not align:
-            out.append(np.cumsum(excess, axis=1))
-            continue
-        T = excess.shape[1]
-        for i, J in enumerate(ref.jump_step):
-            if J >= 1:
-                row = np.full(T, np.nan)
-                row[: T - J] = np.cumsum(excess[i, J:])
-                out.append(row[None])
-    return np.concatenate(out) if out else None
 
 
 def plot_adaptation(path: Path, data: Any, panels: Sequence[Any]) -> None:
@@ -168,16 +139,14 @@ def plot_adaptation(path: Path, data: Any, panels: Sequence[Any]) -> None:
         align = sc.kind == "jump"
         lowest = 0.0
         for name in _learners(data, sc.name):
-            ex = _excess(data, sc.name, name, align)
-            if ex is None:
+            runs = combine(data.adaptation[(sc.name, name)])
+            if "steps" not in runs:
                 continue
-            live = ~np.all(np.isnan(ex), axis=0)  # steps some episode reaches after its jump
-            ex = ex[:, live]
-            steps = np.arange(1, ex.shape[1] + 1)
-            q = np.nanpercentile(ex, [25, 50, 75], axis=0)
-            ax.plot(steps, q[1], color=color(name), lw=2, label=name)
-            ax.fill_between(steps, q[0], q[2], color=color(name), alpha=0.15, lw=0)
-            lowest = min(lowest, float(np.nanmin(q[0])))
+            steps = runs["steps"]
+            ax.plot(steps, runs["excess_q50"], color=color(name), lw=2, label=name)
+            ax.fill_between(steps, runs["excess_q25"], runs["excess_q75"], color=color(name),
+                            alpha=0.15, lw=0)  # fmt: skip
+            lowest = min(lowest, float(np.nanmin(runs["excess_q25"])))
         ax.axhline(0.0, color=color(YARDSTICK), lw=1, ls="--", label="LQG")
         ax.set_yscale("symlog", linthresh=1.0)  # below LQG only as far as some band goes
         ax.set_ylim(bottom=lowest)

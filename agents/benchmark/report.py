@@ -13,6 +13,8 @@ generated from those numbers, whichever way they fall.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,6 +30,7 @@ from stcgym.agents.benchmark.headline import (
     paired,
     scenario_tables,
     training_stops,
+    untrained_runs,
 )
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 from stcgym.agents.evaluation.statistics import Estimate
@@ -117,19 +120,35 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
         f"`{k}`: median {_g(b['peak_median'])}, max {_g(b['peak_max'])} over {b['episodes']}"
         for k, b in data.bounds.items()
     )
+    kinds = {sc.kind for sc in scenarios}
+    tested = []
+    if kinds & {"family", "ood", "jump"}:
+        on_test = f"its test split ({cfg.episodes_per_plant} episode(s) per plant"
+        on_test += f", the first {cfg.test_plants} plants)" if cfg.test_plants else ")"
+        tested.append(on_test)
+    if "ood" in kinds:
+        tested.append(f"the held-out variants {', '.join(f'`{v}`' for v in cfg.ood)}")
+    plants = (
+        f"the family `{cfg.family}` (`stcgym.envs.families`; splits by plant index: {splits})"
+        + (f"; scenarios test on {' and on '.join(tested)}" if tested else "")
+    )
+    if "nominal" in kinds:
+        plants += f"; `nominal:*` on one catalogue plant ({cfg.nominal_episodes} episodes)"
+    if kinds & {"mimo", "mimo_switch", "mimo_family"}:
+        plants += f"; the MIMO scenarios on {', '.join(f'`{p}`' for p in cfg.mimo_plants)}"
     lines = [
         "## Protocol",
         "",
-        f"- **Plants**: the family `{cfg.family}` (`stcgym.envs.families`; splits by plant "
-        f"index: {splits}); scenarios test on its test split"
-        + (f" (the first {cfg.test_plants} plants)" if cfg.test_plants else "")
-        + f", {cfg.episodes_per_plant} episode(s) per plant, and on the held-out variants "
-        f"{', '.join(f'`{v}`' for v in cfg.ood) or '-'}; `nominal:*` on one catalogue plant "
-        f"({cfg.nominal_episodes} episodes). Every controller meets the same episodes "
-        "(the same plants, seeds, noise, reference and initial state).",
-        "- **Episodes differ**: random initial state, a random-steps reference, output noise, "
-        "and in `jump:test` a parameter jump at a random time in every episode. RL trains on "
-        "episodes drawn the same way, of the same length, with the jump in a share of them.",
+        f"- **Plants**: {plants}. Every controller meets the same episodes (the same plants, "
+        "seeds, noise, reference and initial state).",
+        "- **Episodes differ**: random initial state, a random-steps reference, output noise"
+        + (
+            ", and in `jump:test` a parameter jump at a random time in every episode"
+            if "jump" in kinds
+            else ""
+        )
+        + ". RL trains on episodes drawn the same way, of the same length, with the jump in a "
+        "share of them.",
         "- **Score**: the environments' per-step cost `(y - r)^2 + rho u^2`, undiscounted over "
         "the episode; a diverged episode is charged its last cost for every step it did not "
         "live. RL trains on that cost as its reward (SB3's running reward scale, no squash), "
@@ -152,10 +171,13 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
         "- **The self-tuning controllers' options are the library defaults**, fixed before the "
         "test split was drawn; none was tuned on it.",
         f"- **Runs**: {cfg.train_seeds} per controller with random parts (RL training seeds; "
-        "self-tuning controller seeds), one for the deterministic ones. A run's score is its "
-        "mean over test plants and episodes; intervals bootstrap the runs (stratified by test "
-        f"plant, rliable) with {cfg.bootstrap_reps} replications; paired comparisons and rates "
-        "bootstrap runs and plants.",
+        "self-tuning controller seeds), one for the deterministic ones. Intervals bootstrap "
+        f"the runs and the test plants ({cfg.bootstrap_reps} replications)"
+        + (
+            "; with one run per controller they show the spread over plants only."
+            if cfg.train_seeds == 1
+            else "."
+        ),
         f"- **RL training**: until {cfg.plateau.describe()} (the learning curve: median cost "
         f"ratio to LQG on {cfg.curve_episodes} fixed validation episodes); the checkpoint with "
         "the best validation score is kept.",
@@ -164,13 +186,16 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
     return lines
 
 
-def _headline_table(hl: dict[str, dict[str, Any]], jump: bool, stops: dict) -> list[str]:
+def _headline_table(
+    hl: dict[str, dict[str, Any]], jump: bool, stops: dict, untrained: dict[str, tuple[int, int]]
+) -> list[str]:
     cols = [
         "controller",
         "runs x episodes",
-        "cost / LQG, IQM",
-        "steady / LQG, IQM",
-        "score, IQM",
+        "cost / LQG, IQM (bounded)",
+        "cost / LQG, median (bounded)",
+        "steady / LQG, IQM (bounded)",
+        "score, IQM (bounded)",
         "diverged",
         "steps to <= 1.2x LQG (reached)",
     ]
@@ -179,10 +204,12 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool, stops: dict) -> l
     cols.append("RL training stop")
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for c, res in hl.items():
+        left_out = untrained.get(c, (0, 0))[0]
         cells = [
-            c,
+            c + (f" ({left_out} untrained runs left out)" if left_out else ""),
             f"{res['runs']} x {res['episodes']}",
             res["ratio"].format(3),
+            res["ratio_median"].format(3),
             res["steady"].format(3),
             res["score"].format(3),
             _pct(res["diverged"]),
@@ -193,6 +220,11 @@ def _headline_table(hl: dict[str, dict[str, Any]], jump: bool, stops: dict) -> l
             cells += ["-" if post is None else post.format(3), _steps(res["reconverge"])]
         cells.append(_training_cell(stops.get(c)))
         lines.append("| " + " | ".join(cells) + " |")
+    for c, (n, runs) in untrained.items():
+        if c not in hl and n:  # every run kept its untrained network
+            blank = ["-"] * (len(cols) - 2)
+            cells = [c, f"no improvement over initialisation ({n}/{runs} runs)", *blank]
+            lines.append("| " + " | ".join(cells) + " |")
     return lines
 
 
@@ -295,35 +327,27 @@ def _detail_table(agg: dict, name: str, controllers: Sequence[str]) -> list[str]
     return lines
 
 
-def _training_table(
-    cfg: Any, data: Any, rows: Sequence[dict[str, Any]], scenarios: Sequence[Any]
-) -> list[str]:
+def _training_table(cfg: Any, data: Any) -> list[str]:
     from stcgym.agents.rl.configs import ZOO_DEPARTURES
 
     lines = [
         "| training env | agent | run | stop | steps (cap) | last gain at | best validation "
-        "score | kept step | wall s |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "score | kept step | updates: approx KL, clip fraction, explained variance | wall s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     untrained: dict[str, list[str]] = {}
-    # a training job's wall time is on every row it scored; its training env is the scenario's
-    train_key = {sc.name: sc.train_key for sc in scenarios}
-    walls = {}
-    for r in rows:
-        if r["family"] == "rl" and r["scenario"] in train_key:
-            job = (train_key[r["scenario"]], r["controller"], str(r["run"]))
-            walls[job] = r.get("train_wall_s")
     for (key, algo, ts), stop in sorted(data.stops.items(), key=lambda kv: str(kv[0])):
         curve = [c["score"] for c in data.curves if (c["train_env"], c["algo"], c["train_seed"])
                  == (key, algo, ts)]  # fmt: skip
         kept = stop["kept_step"]
         if kept == 0:
             untrained.setdefault(f"{algo} on {key}", []).append(str(ts))
-        wall = walls.get((key, algo, str(ts)))
+        diagnostics = _diagnostics_cell(data.diagnostics.get((key, algo, ts), []))
         lines.append(
             f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
             f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
-            f"{_g(min(curve)) if curve else '-'} | {_k(kept)} | {_g(_float(wall), 4)} |"
+            f"{_g(min(curve)) if curve else '-'} | {_k(kept)} | {diagnostics} | "
+            f"{_g(_float(stop.get('wall_s')), 4)} |"
         )
     if len(lines) == 2:
         return []
@@ -332,13 +356,33 @@ def _training_table(
         lines += [
             "",
             "Kept at step 0, the untrained policy (training never improved its validation "
-            f"score): {runs}. Their rows are those of the untrained policy.",
+            f"score): {runs}. No improvement over initialisation: these runs are left out of "
+            "the headline's estimates (their rows in `metrics.csv` are the untrained "
+            "network's).",
         ]
     dep = ["| agent | setting | RL Zoo | here | why |", "|---|---|---|---|---|"]
     for agent in cfg.rl_agents:
         for setting, zoo, ours, why in ZOO_DEPARTURES.get(agent, []):
             dep.append(f"| {agent} | {setting} | {zoo} | {ours} | {why} |")
     return [*lines, "", "Departures from the RL Zoo's settings:", "", *dep]
+
+
+#: SB3's update statistics the training table summarises, as its logger names them.
+_DIAGNOSTICS = ("approx_kl", "clip_fraction", "explained_variance")
+
+
+def _diagnostics_cell(diagnostics: Sequence[dict[str, Any]]) -> str:
+    """The median over a run's recorded updates of each of :data:`_DIAGNOSTICS` (``-`` where
+    the algorithm logs none, e.g. SAC's clip fraction)."""
+    cells = []
+    for name in _DIAGNOSTICS:
+        values = [
+            _float(d.get(name, d.get(f"train/{name}")))
+            for d in diagnostics
+        ]  # fmt: skip
+        values = [v for v in values if math.isfinite(v)]
+        cells.append(_g(float(np.median(values)), 2) if values else "-")
+    return ", ".join(cells)
 
 
 def _float(v: Any) -> float:
@@ -358,11 +402,13 @@ def write_report(
     *,
     interrupted: bool = False,
     time_limited: bool = False,
+    missing: Sequence[str] = (),
     sessions: int = 1,
 ) -> Path:
     """Write ``report.md`` from the metric rows (also a partial one after an interrupt, or when
-    the time limit left jobs for ``--resume``: ``time_limited``); ``wall_s`` is the run's wall
-    time over its ``sessions`` (the first and each ``--resume``)."""
+    the time limit left jobs for ``--resume``: ``time_limited``, ``missing`` naming them) and
+    ``statistics.json``, the estimates its tables show; ``wall_s`` is the run's wall time over
+    its ``sessions`` (the first and each ``--resume``)."""
     from stcgym.agents.executors import write_atomic
 
     agg = aggregate(rows)
@@ -372,8 +418,11 @@ def write_report(
     if interrupted:
         out += ["**INTERRUPTED: partial results (the rows finished before the interrupt).**", ""]
     elif time_limited:
+        left = f" ({len(missing)} of the plan's jobs: {', '.join(missing[:8])}" + (
+            ", ...)" if len(missing) > 8 else ")"
+        )
         out += [
-            "**PARTIAL: the time limit left jobs to run; `stcgym bench --resume "
+            f"**PARTIAL: jobs left to run{left if missing else ''}; `stcgym bench --resume "
             f"{run_dir}` continues the run.**",
             "",
         ]
@@ -390,11 +439,16 @@ def write_report(
         "",
         "## Headline",
         "",
-        "Each cell: point estimate [95 % interval]. cost / LQG: interquartile mean (IQM) over "
-        "runs and test plants of the per-plant mean ratio to LQG on the same episodes, the "
-        "whole episode (start-up included) and its steady window (the second half; before "
-        "the jump in `jump:test`); score: the same for the normalised score (higher is "
-        "better); diverged: share of episodes. "
+        "Each cell: point estimate [95 % interval]. cost / LQG: interquartile mean (IQM) and "
+        "median over runs and test plants of the per-plant mean ratio to LQG on the same "
+        "episodes, over the episodes that stayed bounded only, the whole episode (start-up "
+        "included) and its steady window (the second half; before the jump in `jump:test`); "
+        "score: the same for the normalised score (higher is better); diverged: share of "
+        "episodes, beside them (a diverged episode's cost is the charge for leaving the "
+        "bounds, not a control cost, and enters no ratio). Intervals: bootstrap over runs and "
+        "plants. An RL run whose kept checkpoint is step 0 (training never improved on the "
+        "untrained network) is left out of its agent's estimates and counted beside its name; "
+        'an agent with no other run reads "no improvement over initialisation". '
         "Steps to <= 1.2x LQG: for RL the training steps after which its validation score "
         "stays within 1.2x of LQG (in-distribution scenarios only, and only for runs within "
         "1.2x on the test episodes too), for the self-tuning controllers the adaptation steps "
@@ -404,12 +458,14 @@ def write_report(
     sentences = []
     family: list[tuple[str, dict[str, Any]]] = []  # the plant family's scenarios' tables
     family_stops: dict[str, Any] = {}
+    statistics: dict[str, Any] = {}
     for sc in scenarios:
         if sc.name not in present:
             continue
         tables = scenario_tables(rows, sc.name, sc.episodes.units)
         tables = {c: tables[c] for c in order if c in tables}
         hl = headline(tables, reps=cfg.bootstrap_reps)
+        statistics[sc.name] = hl
         stops = {
             c: training_stops([r for rs in t["rows"].values() for r in rs[:1]])
             for c, t in tables.items()
@@ -422,7 +478,9 @@ def write_report(
             for b in tables
             if tables[b]["family"] == "rl"
         ]
-        out += [f"### `{sc.name}`", "", *_headline_table(hl, sc.kind == "jump", stops), ""]
+        untrained = untrained_runs(rows, sc.name)
+        table = _headline_table(hl, sc.kind == "jump", stops, untrained)
+        out += [f"### `{sc.name}`", "", *table, ""]
         if pairs:
             out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
         channels = _channel_table(rows, sc.name, order) if sc.env.plant_kind == "mimo" else []
@@ -461,7 +519,7 @@ def write_report(
             ),
             "",
         ]
-    training = _training_table(cfg, data, rows, scenarios)
+    training = _training_table(cfg, data)
     if training:
         out += [
             "## RL training",
@@ -469,8 +527,10 @@ def write_report(
             "Per training run: how it ended (plateau or cap), env steps used, the step of its "
             "last gain above the rule's minimum, its best validation score (median cost / LQG "
             "on the validation episodes), the step of the checkpoint kept (the best score's; "
-            "0 is the untrained policy) and its wall time (`learning_curves.csv`, "
-            "`data_efficiency.png`).",
+            "0 is the untrained policy), the median over its recorded updates of SB3's "
+            "approx_kl, clip_fraction and explained_variance (healthy PPO: about 0.01-0.03, "
+            "0.05-0.2 and towards 1; `-` where not recorded) and its wall time "
+            "(`learning_curves.csv`, `data_efficiency.png`).",
             "",
             *training,
             "",
@@ -510,4 +570,22 @@ def write_report(
     ]
     path = Path(run_dir) / "report.md"
     write_atomic(path, "\n".join(out))
+    write_atomic(Path(run_dir) / "statistics.json", json.dumps(_jsonable(statistics), indent=1))
     return path
+
+
+def _jsonable(x: Any) -> Any:
+    """The report's estimates as JSON data (an :class:`Estimate` as ``{value, low, high}``;
+    ``nan`` as ``null``, infinities as strings)."""
+    if isinstance(x, Estimate):
+        return _jsonable(dataclasses.asdict(x))
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return None if math.isnan(v) else (("inf" if v > 0 else "-inf") if math.isinf(v) else v)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x

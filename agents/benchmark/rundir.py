@@ -11,12 +11,45 @@ from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
 from stcgym.agents.benchmark.scenarios import TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.rl.configs import FAMILY_ALGORITHMS, RECURRENT_ALGORITHMS, AlgoConfig
 
-__all__ = ["JOBS_FOLDER", "check_runnable", "job_id", "prepare_run_dir", "versions"]
+__all__ = [
+    "check_runnable",
+    "classical_id",
+    "classical_key",
+    "job_id",
+    "prepare_run_dir",
+    "read_run_config",
+    "versions",
+]
 
-#: Where each finished RL job's result is kept (what ``--resume`` reuses).
-JOBS_FOLDER = "jobs"
-#: Task keys that do not shape an RL job's result (where its files go, the progress bar).
-_NOT_RESULT = ("progress", "model_dir", "tensorboard_log")
+#: Task keys that do not shape an RL job's result: where its files go, the progress bar, and
+#: the yardstick's costs on the validation episodes (derived from the other keys, and BLAS
+#: may change their last digits from one machine to the next).
+_NOT_RESULT = ("progress", "model_dir", "tensorboard_log", "curve_reference")
+#: Settings of a run that do not shape a classical controller's episodes: where it is written,
+#: how it is executed, and how the RL agents are trained (their recipes, budgets, learning
+#: curves and stopping rule), so that a run whose RL settings change keeps them.
+_NOT_CLASSICAL = (
+    "run",
+    "out",
+    "plots",
+    "progress",
+    "jobs",
+    "executor",
+    "address",
+    "tensorboard_log",
+    "bootstrap_reps",
+    "algo_configs",
+    "action_units",
+    "train_steps",
+    "family_train_steps",
+    "mimo_train_steps",
+    "eval_interval",
+    "curve_episodes",
+    "curve_points",
+    "patience",
+    "min_improvement",
+    "min_train_fraction",
+)
 
 
 def _check_writable(folder: Path) -> None:
@@ -63,9 +96,17 @@ def _check_dependencies(cfg: BenchConfig) -> None:
         raise BenchInputError("missing dependencies: " + "; ".join(missing))
 
 
+def _check_output(cfg: BenchConfig) -> None:
+    for path, what in ((Path(cfg.out), "--out"), (cfg.run_dir, "the run folder")):
+        if path.exists() and not path.is_dir():
+            raise BenchInputError(f"{what} {path} is a file; a folder is expected (it is "
+                                  "created when missing)")  # fmt: skip
+
+
 def check_runnable(cfg: BenchConfig) -> None:
-    """The checks that need more than the config: dependencies, and every agent's model built
-    once by SB3 itself. Raises :class:`BenchInputError`."""
+    """The checks that need more than the config: the output folder, dependencies, and every
+    agent's model built once by SB3 itself. Raises :class:`BenchInputError`."""
+    _check_output(cfg)
     _check_dependencies(cfg)
     if cfg.rl_agents:
         _check_trainable(cfg, training_envs(cfg, make_scenarios(cfg)))
@@ -97,15 +138,14 @@ def versions() -> dict[str, str]:
 def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = False) -> Path:
     """Create ``<out>/<run>``; refuse to mix two runs in one folder.
 
-    ``overwrite`` starts the run afresh; ``resume`` keeps the finished RL jobs (``jobs/``), the
-    classical controllers' episodes (``jobs/classical/``) and the trained agents, and rebuilds
-    the tables and the report.
+    ``overwrite`` starts the run afresh (the store emptied); ``resume`` keeps the store and the
+    trained agents, and renders the tables and the report again.
     """
     run_dir = cfg.run_dir
     _check_writable(Path(cfg.out))
     if resume and not (run_dir / "config.json").is_file():
         raise BenchInputError(f"--resume: {run_dir} holds no config.json (not a bench run)")
-    if (run_dir / "metrics.csv").exists() and not (overwrite or resume):
+    if (run_dir / "config.json").exists() and not (overwrite or resume):
         raise BenchInputError(
             f"{run_dir} already holds a run; pick another --run, pass --overwrite, or "
             f"--resume {run_dir}"
@@ -115,12 +155,51 @@ def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = Fa
         for name in ("metrics.csv", "learning_curves.csv", "report.md"):
             (run_dir / name).unlink(missing_ok=True)
     if overwrite:
-        from stcgym.agents.benchmark.classical_store import CLASSICAL_FOLDER, ClassicalStore
+        from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS
+        from stcgym.agents.benchmark.store import STORE_FOLDER, ResultsStore
 
-        for old in (run_dir / JOBS_FOLDER).glob("*.json"):
-            old.unlink()
-        ClassicalStore(run_dir / JOBS_FOLDER / CLASSICAL_FOLDER).clear()
+        ResultsStore(run_dir / STORE_FOLDER, METRIC_COLUMNS).clear()
     return run_dir
+
+
+def classical_id(settings: dict, scenario: dict, controller: str, run: int) -> str:
+    """The id a classical controller's run on a scenario is kept under: the run's settings
+    (without those that do not shape it), the scenario (its env and episodes as dicts), the
+    controller's name and the run."""
+    from stcgym.agents.executors import task_id
+
+    shaping = {k: v for k, v in settings.items() if k not in _NOT_CLASSICAL}
+    return task_id({"bench": shaping, "scenario": scenario, "controller": controller, "run": run})
+
+
+def classical_key(cfg: BenchConfig, sc: Any, name: str, run: int) -> tuple[str, str]:
+    """The label and id the store keeps run ``run`` of the classical controller ``name`` on
+    ``sc`` under (:func:`~stcgym.agents.benchmark.rundir.classical_id`)."""
+    scenario = {
+        "name": sc.name,
+        "env": sc.env.to_dict(),
+        "episodes": sc.episodes.to_dict(),
+        "controller_order": sc.controller_order,
+    }
+    return f"{sc.name}.{name}.run{run}", classical_id(cfg.to_dict(), scenario, name, run)
+
+
+def read_run_config(run_dir: Path) -> tuple[BenchConfig, dict[str, Any]]:
+    """A run folder's config (placed in that folder: ``out`` and ``run`` follow the folder,
+    wherever the run was made) and its whole ``config.json``; :class:`BenchInputError` when
+    the folder holds no readable one."""
+    import json
+    from dataclasses import replace
+
+    doc_file = Path(run_dir) / "config.json"
+    if not doc_file.is_file():
+        raise BenchInputError(f"{run_dir} holds no config.json (not a bench run folder)")
+    try:
+        doc = json.loads(doc_file.read_text())
+        cfg = BenchConfig.from_dict(doc["bench"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise BenchInputError(f"{doc_file} is not a readable bench config: {exc}") from None
+    return replace(cfg, out=str(Path(run_dir).parent), run=Path(run_dir).name), doc
 
 
 def job_id(task: dict[str, Any]) -> str:

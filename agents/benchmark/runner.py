@@ -12,25 +12,15 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stcgym.agents.benchmark.classical_store import (
-    CLASSICAL_FOLDER,
-    ClassicalEpisodes,
-    ClassicalStore,
-    classical_id,
-)
+from stcgym.agents.benchmark.adaptation import summarize_adaptation
 from stcgym.agents.benchmark.config import BenchConfig
-from stcgym.agents.benchmark.metrics_csv import (
-    METRIC_COLUMNS,
-    TOLERANCE,
-    MetricsWriter,
-    format_value,
-)
+from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS, TOLERANCE
 from stcgym.agents.benchmark.plan import (
     OUTPUT_SECONDS_PER_SCENARIO,
     JobProgress,
@@ -39,13 +29,12 @@ from stcgym.agents.benchmark.plan import (
     estimate_seconds,
     format_duration,
     job_weights,
-    reference_weights,
     rl_tasks,
 )
 from stcgym.agents.benchmark.rows import Yardstick, episode_rows, rl_steps_to_target
 from stcgym.agents.benchmark.rundir import (
-    JOBS_FOLDER,
     check_runnable,
+    classical_key,
     job_id,
     prepare_run_dir,
     versions,
@@ -56,6 +45,7 @@ from stcgym.agents.benchmark.scenarios import (
     make_scenarios,
     training_envs,
 )
+from stcgym.agents.benchmark.store import STORE_FOLDER, JobRecord, ResultsStore, ScenarioResult
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controller_seeds, controllers_for
 from stcgym.agents.evaluation.episodes import run_episodes
 from stcgym.agents.evaluation.evaluate import response_metrics
@@ -83,37 +73,6 @@ class BenchResult:
     complete: bool = True
 
 
-@dataclass
-class RunRecord:
-    """One run of a controller on a scenario's episodes: per-step costs ``(B, T)`` (float32)
-    and the episodes' jump steps, as the plots and the report read them."""
-
-    run: int
-    cost: np.ndarray
-    jump_step: np.ndarray
-
-
-@dataclass
-class Collected:
-    """What the plots and the report need besides the rows (kept in the driver's memory)."""
-
-    #: (scenario, controller) -> the traces of the first episodes of the first run (y, r, u,
-    #: and theta, theta_hat for the self-tuning controllers)
-    traces: dict[tuple[str, str], dict[str, np.ndarray]] = field(default_factory=dict)
-    #: (scenario, controller) -> every run's per-step costs
-    costs: dict[tuple[str, str], list[RunRecord]] = field(default_factory=dict)
-    #: learning-curve rows (train_env, algo, train_seed, steps, score)
-    curves: list[dict[str, Any]] = field(default_factory=list)
-    #: train_env -> the yardstick's mean cost per step on each learning-curve episode
-    curve_references: dict[str, list[float]] = field(default_factory=dict)
-    #: train_env -> the action bound and the LQG input peaks it was set from
-    bounds: dict[str, dict[str, Any]] = field(default_factory=dict)
-    #: (train_env, algo, train_seed) -> how training ended (StopSummary.to_dict())
-    stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
-    #: the command line of the run (its first session's)
-    argv: list[str] | None = None
-
-
 def run_bench(
     cfg: BenchConfig,
     *,
@@ -131,26 +90,29 @@ def run_bench(
     has been called already). First the action bound of each training distribution is set from
     the LQG yardstick (:mod:`~stcgym.agents.evaluation.bounds`) and written into
     ``config.json``; then the yardstick and zero input run on every scenario, the RL jobs on the
-    workers while the driver evaluates the other classical controllers. Rows are appended to
-    ``metrics.csv`` run by run; on ``KeyboardInterrupt`` (or any error) the finished rows stay,
-    a partial ``report.md`` is written and the exception is re-raised.
+    workers while the driver evaluates the other classical controllers.
 
-    Each finished RL job is kept in ``jobs/<id>.json``, each classical controller's episodes in
-    ``jobs/classical/`` (:mod:`~stcgym.agents.benchmark.classical_store`). ``resume=True``
-    continues the run in ``cfg.run_dir`` (``cfg`` read back from its ``config.json``, the action
-    bounds included): what is kept is read back instead of evaluated or trained again, and the
-    rest is run; the tables and the report are rebuilt, so they equal those of an uninterrupted
-    run.
+    Each finished job is written to the results store (``store/``, one record per job:
+    :mod:`~stcgym.agents.benchmark.store`) as soon as it finishes; the report, ``metrics.csv``,
+    ``learning_curves.csv``, ``statistics.json`` and the figures are then rendered from the
+    store alone (:func:`~stcgym.agents.benchmark.render.render_run`, also ``stcgym report``).
+    On ``KeyboardInterrupt`` (or any error) a partial report is rendered from the records
+    finished so far and the exception is re-raised.
+
+    ``resume=True`` continues the run in ``cfg.run_dir`` (``cfg`` read back from its
+    ``config.json``, the action bounds included): the records the plan asks for that the store
+    holds are used as they are, the rest is run. The store can come from a clone of a
+    repository: trained models are not needed.
 
     ``time_limit`` (seconds from the call, e.g. a batch system's wall-time allocation): no RL
     job or classical evaluation starts unless its estimated duration
     (:func:`~stcgym.agents.benchmark.plan.job_weights`, times :data:`TIME_LIMIT_MARGIN`) ends
     before the limit, less the time to write the report; jobs are then taken longest first
     among those that fit. What could not start is left for ``--resume``: the report is
-    written as partial, without plots, and ``BenchResult.complete`` is False. A job already
+    rendered as partial, without plots, and ``BenchResult.complete`` is False. A job already
     running when the limit passes is not stopped.
     """
-    from stcgym.agents.benchmark.report import write_report
+    from stcgym.agents.benchmark.render import render_run
     from stcgym.agents.executors import write_atomic
 
     t_start = time.perf_counter()
@@ -172,15 +134,16 @@ def run_bench(
         config_doc["started"] = first.get("started")
         config_doc["resumed"] = [*first.get("resumed", []), config_doc.pop("argv")]
         config_doc["argv"] = first.get("argv")
-    writer = MetricsWriter(run_dir / "metrics.csv")
-    state = _RunState(cfg, run_dir, writer, log, t_start)
+        config_doc["bound_measurements"] = first.get("bound_measurements", {})
+    state = _RunState(cfg, run_dir, log, t_start)
     if time_limit is not None:
         state.deadline = t_start + float(time_limit)
-    state.data.argv = config_doc["argv"]
     scenarios: list[Scenario] = []
 
     def write_config() -> None:
-        config_doc["bench"] = cfg.to_dict()
+        config_doc["bench"] = state.cfg.to_dict()
+        measured = config_doc.get("bound_measurements", {})
+        config_doc["bound_measurements"] = {**measured, **state.bounds}
         config_doc["scenarios"] = [
             {
                 "name": s.name,
@@ -191,87 +154,42 @@ def run_bench(
             }
             for s in scenarios
         ]
-        write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
-
-    def report(interrupted: bool, time_limited: bool = False) -> None:
-        # the wall time of every session so far, kept in config.json for the next --resume
+        # the wall time of every session so far, for the next --resume
         config_doc["wall_s"] = wall_before + time.perf_counter() - t_start
         config_doc["sessions"] = sessions
+        write_atomic(run_dir / "config.json", json.dumps(config_doc, indent=2))
+
+    def render(interrupted: bool, time_limited: bool = False, plots: bool = False) -> Any:
         write_config()
-        write_report(
-            run_dir,
-            cfg,
-            scenarios,
-            writer.rows,
-            state.data,
-            config_doc["wall_s"],
-            interrupted=interrupted,
-            time_limited=time_limited,
-            sessions=sessions,
-        )
+        return render_run(
+            run_dir, interrupted=interrupted, time_limited=time_limited, plots=plots,
+            log=state.log,
+        )  # fmt: skip
 
     write_config()
     try:
-        state.measure_bounds(make_scenarios(cfg))
-        scenarios = make_scenarios(cfg)  # with the bounds
+        plan = state.plan()
+        scenarios = plan.scenarios
         write_config()
-        state.run(scenarios, training_envs(cfg, scenarios))
+        state.run(plan)
     except BaseException as exc:  # Ctrl-C or a crash: keep what is finished, then re-raise
-        writer.close()
         what = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"failed ({exc!r})"
-        log(f"{what}: {len(writer.rows)} finished rows kept in {run_dir / 'metrics.csv'}")
+        log(f"{what}: the finished jobs are kept in {run_dir / STORE_FOLDER}")
         try:
-            report(True)
+            render(True)
         except Exception as report_exc:  # never mask the original error
             log(f"could not write the partial report: {report_exc!r}")
         raise
-    writer.close()
     if state.left:
-        report(False, time_limited=True)
+        rendered = render(False, time_limited=True)
         wall = time.perf_counter() - t_start
         log(f"time limit: stopped after {format_duration(wall)} with {state.left} left "
             f"(partial report); continue with: stcgym bench --resume {run_dir}")  # fmt: skip
-        return BenchResult(run_dir, writer.rows, state.data.curves, wall, complete=False)
-    plots = _start_plots(run_dir, cfg, scenarios, writer.rows, state) if cfg.plots else None
-    t0 = time.perf_counter()
-    report(False)
-    state.log(f"report written ({time.perf_counter() - t0:.0f} s)")
-    if plots is not None:
-        plots()
+        return BenchResult(run_dir, rendered.rows, rendered.curves, wall, complete=False)
+    rendered = render(False, plots=state.cfg.plots)
     wall = time.perf_counter() - t_start
     log(f"done in {format_duration(wall)}: {run_dir}")
-    return BenchResult(run_dir, writer.rows, state.data.curves, wall)
-
-
-def _start_plots(
-    run_dir: Path, cfg: BenchConfig, scenarios: list[Scenario], rows: list, state: _RunState
-) -> Callable[[], None]:
-    """Start writing the plots; the returned call waits for them.
-
-    With more than one job they are drawn in a process of their own while the driver writes
-    the report (each takes seconds of one core; the workers are done by then)."""
-    from stcgym.agents.benchmark.plots import write_plots
-
-    t0 = time.perf_counter()
-    args = (run_dir, cfg, scenarios, rows, state.data)
-    if cfg.jobs == 1:
-        write_plots(*args)
-        state.log(f"plots written ({time.perf_counter() - t0:.0f} s)")
-        return lambda: None
-    from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
-
-    pool = ProcessPoolExecutor(1, mp_context=get_context("spawn"))
-    future = pool.submit(write_plots, *args)
-
-    def wait() -> None:
-        try:
-            future.result()
-        finally:
-            pool.shutdown()
-        state.log(f"plots written ({time.perf_counter() - t0:.0f} s, next to the report)")
-
-    return wait
+    return BenchResult(run_dir, rendered.rows, rendered.curves, wall)
 
 
 #: Controller seeds of run ``run`` on the episodes ``seeds`` (one definition, shared with the
@@ -279,25 +197,58 @@ def _start_plots(
 _lane_seeds = controller_seeds
 
 
-def _trace(batch: Any, count: int, theta: bool) -> dict[str, np.ndarray]:
+def _trace(batch: Any, theta: bool) -> dict[str, np.ndarray]:
+    """The first episode's signals (y, r, u; and theta, theta_hat for a self-tuning
+    controller), as ``(1, T, ...)`` arrays."""
     names = ("y", "r", "u", "theta", "theta_hat") if theta else ("y", "r", "u")
-    return {n: np.asarray(getattr(batch, n))[:count] for n in names}
+    return {n: np.asarray(getattr(batch, n))[:1] for n in names}
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run's jobs read, computed once before any starts (:meth:`_RunState.plan`): the
+    config with its measured bounds and units and tuned settings, the scenarios, the RL
+    training envs and the yardstick's cost on each env's learning-curve episodes."""
+
+    cfg: BenchConfig
+    scenarios: list[Scenario]
+    envs: dict[str, TrainingEnv]
+    curve_references: dict[str, list[float]]
+
+
+@dataclass
+class _Evaluated:
+    """One run of a classical controller on a scenario's episodes, before it is scored."""
+
+    cost: np.ndarray
+    jump_step: np.ndarray
+    metrics: dict[str, np.ndarray]
+    trace: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _rl_settings(task: dict[str, Any]) -> dict[str, Any]:
+    """What an RL job's record says of its settings (the id hashes all of them)."""
+    keys = ("algo", "seed", "steps", "train_key", "eval_interval", "plateau", "config")
+    return {k: task[k] for k in keys}
 
 
 class _RunState:
-    """The bench's driver: action bounds, yardstick runs, classical controllers, RL jobs."""
+    """The bench's driver: action bounds, yardstick runs, classical controllers, RL jobs; every
+    finished job goes to the results store."""
 
-    def __init__(self, cfg, run_dir, writer, log, t0) -> None:
-        self.cfg, self.run_dir, self.writer, self._log, self.t0 = cfg, run_dir, writer, log, t0
-        self.data = Collected()
+    def __init__(self, cfg, run_dir, log, t0) -> None:
+        self.cfg, self.run_dir, self._log, self.t0 = cfg, run_dir, log, t0
+        self.store = ResultsStore(run_dir / STORE_FOLDER, METRIC_COLUMNS)
+        #: train_env -> the action bound and the LQG input peaks it was set from
+        self.bounds: dict[str, dict[str, Any]] = {}
+        #: train_env -> the yardstick's mean cost per step on each learning-curve episode
+        self.curve_references: dict[str, list[float]] = {}
         # scenario -> the yardstick's and zero input's numbers per episode
         self.yard: dict[str, Yardstick] = {}
         self.scenarios: dict[str, Scenario] = {}
         # set when the driver fails while the classical controllers run in a thread
         self.halt = threading.Event()
-        # the classical controllers' episodes, kept for a resumed run
-        self.classical_store = ClassicalStore(run_dir / JOBS_FOLDER / CLASSICAL_FOLDER)
-        self.classical_kept = 0  # how many were read back
+        self.kept = 0  # how many classical records were read back
         # the time limit (perf_counter), and what it left for a resumed run ("" when nothing)
         self.deadline: float | None = None
         self.left = ""
@@ -307,74 +258,71 @@ class _RunState:
         self._log(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
 
     # -- before anything is compared -------------------------------------------------------
-    def measure_bounds(self, scenarios: list[Scenario]) -> None:
-        """The action bound and the RL agents' action unit of every training distribution not
-        in ``cfg.action_bounds`` / ``cfg.action_units`` yet (a resumed run reads them back),
-        from the LQG yardstick's input range."""
+    def plan(self) -> RunPlan:
+        """Everything the jobs need, computed once before any of them starts: the action
+        bounds and units, the scenarios and training envs with those bounds, the yardstick's
+        cost on the learning-curve episodes, and (with tuning trials) the tuned settings. The
+        measured and tuned values go into a new config (``self.cfg``), which the jobs read and
+        nothing changes after."""
+        self.cfg = self._with_bounds(make_scenarios(self.cfg))
+        scenarios = make_scenarios(self.cfg)
+        envs = training_envs(self.cfg, scenarios)
+        references = {key: self._curve_reference(env) for key, env in envs.items()}
+        self.curve_references = references
+        if self.cfg.tune_trials and not self.cfg.tuned:
+            self.cfg = self.tune(envs["family"])
+        return RunPlan(self.cfg, scenarios, envs, references)
+
+    def _with_bounds(self, scenarios: list[Scenario]) -> BenchConfig:
+        """The config with the action bound and the RL agents' action unit of every training
+        distribution not in ``cfg.action_bounds`` / ``cfg.action_units`` yet (a resumed run
+        reads them back), measured from the LQG yardstick's input range."""
         from stcgym.agents.evaluation.bounds import bound_of_peaks, lqg_action_unit, lqg_inputs
 
+        bounds, units = dict(self.cfg.action_bounds), dict(self.cfg.action_units)
         for key, env in training_envs(self.cfg, scenarios).items():
-            if key in self.cfg.action_bounds and key in self.cfg.action_units:
+            if key in bounds and key in units:
                 continue
             inputs = lqg_inputs(env.train, env.bound_episodes)
             peaks = inputs.max(axis=(1, 2))
-            bound = bound_of_peaks(peaks)
-            self.cfg.action_units[key] = lqg_action_unit(inputs)
-            if key in self.cfg.action_bounds:  # a run from before the units: its bound stays
+            units[key] = lqg_action_unit(inputs)
+            if key in bounds:  # a run from before the units: its bound stays
                 continue
-            self.cfg.action_bounds[key] = bound
-            self.data.bounds[key] = {
-                "bound": bound,
+            bounds[key] = bound_of_peaks(peaks)
+            self.bounds[key] = {
+                "bound": bounds[key],
                 "episodes": len(peaks),
                 "peak_median": float(np.median(peaks)),
                 "peak_max": float(np.max(peaks)),
             }
-            self.log(f"action bound of {key}: {bound:g}, RL action unit "
-                     f"{self.cfg.action_units[key]:g} (LQG's input peaks: median "
+            self.log(f"action bound of {key}: {bounds[key]:g}, RL action unit "
+                     f"{units[key]:g} (LQG's input peaks: median "
                      f"{np.median(peaks):.3g}, max {np.max(peaks):.3g} over {len(peaks)} "
                      "training episodes)")  # fmt: skip
+        return replace(self.cfg, action_bounds=bounds, action_units=units)
 
     def _yardstick(self, sc: Scenario) -> None:
-        """LQG and zero input on the scenario's episodes: the reference of every row."""
-        lqg = self._kept(sc, YARDSTICK, 0) or self._evaluated(sc, YARDSTICK, 0)
-        zero = self._kept(sc, "zero", 0) or self._evaluated(sc, "zero", 0)
+        """LQG and zero input on the scenario's episodes: the reference of every row. Always
+        evaluated (a second or two a scenario), since the other rows are scored against them;
+        their own records are written once."""
+        lqg = self._evaluate(sc, YARDSTICK, 0)
+        zero = self._evaluate(sc, "zero", 0)
         self.yard[sc.name] = Yardstick(
             lqg.cost, lqg.jump_step, zero.cost.mean(axis=1), zero.metrics["bounded"] > 0
         )
         for name, episodes in ((YARDSTICK, lqg), ("zero", zero)):
-            self._classical_rows(sc, name, 0, episodes)
+            if self.store.load(*classical_key(self.cfg, sc, name, 0)) is None:
+                self._save_classical(sc, name, 0, episodes)
 
     def _curve_reference(self, env: TrainingEnv) -> list[float]:
         """The yardstick's mean cost per step on each learning-curve episode of ``env``."""
-        from types import SimpleNamespace
-
-        sc = SimpleNamespace(env=env.curve, controller_order=env.curve.order)
-        builder = CONTROLLERS[YARDSTICK].build(self.cfg, sc)
+        builder = CONTROLLERS[YARDSTICK].build(self.cfg, env.curve_scenario)
         batch = run_episodes(builder, env.curve, env.curve_episodes, informed=True)
         return [float(c) for c in batch.cost.mean(axis=1)]
 
     # -- classical controllers -------------------------------------------------------------
-    def _classical_key(self, sc: Scenario, name: str, run: int) -> tuple[str, str]:
-        """The label and id run ``run`` of ``name`` on ``sc`` is kept under."""
-        scenario = {
-            "name": sc.name,
-            "env": sc.env.to_dict(),
-            "episodes": sc.episodes.to_dict(),
-            "controller_order": sc.controller_order,
-        }
-        return f"{sc.name}.{name}.run{run}", classical_id(self.cfg.to_dict(), scenario, name, run)
-
-    def _kept(self, sc: Scenario, name: str, run: int) -> ClassicalEpisodes | None:
-        """Run ``run`` of ``name`` on ``sc`` as an earlier session of this run kept it
-        (``--resume``), or None."""
-        kept = self.classical_store.load(*self._classical_key(sc, name, run))
-        self.classical_kept += kept is not None
-        return kept
-
-    def _evaluated(self, sc: Scenario, name: str, run: int) -> ClassicalEpisodes:
-        """Run ``run`` of the classical controller ``name`` on the scenario's episodes, kept
-        for a resumed run."""
-        label, tid = self._classical_key(sc, name, run)
+    def _evaluate(self, sc: Scenario, name: str, run: int) -> _Evaluated:
+        """Run ``run`` of the classical controller ``name`` on the scenario's episodes."""
         info = CONTROLLERS[name]
         seeds = dict(zip(sc.episodes.seeds, _lane_seeds(sc.episodes.seeds, run), strict=True))
         builder = info.build(self.cfg, sc)
@@ -385,34 +333,34 @@ class _RunState:
             informed=info.informed,
             record_theta=info.kind == "adaptive",
         )
-        episodes = ClassicalEpisodes(
+        return _Evaluated(
             cost=batch.cost,
             jump_step=batch.jump_step,
             metrics=response_metrics(batch, sc.env),
-            trace=_trace(batch, 2, info.kind == "adaptive") if run == 0 else {},
+            trace=_trace(batch, info.kind == "adaptive") if run == 0 else {},
         )
-        self.classical_store.save(label, tid, episodes)
-        return episodes
 
-    def _classical_rows(self, sc: Scenario, name: str, run: int, episodes: ClassicalEpisodes):
+    def _scored(
+        self, sc: Scenario, name: str, family: str, run: int, cost: np.ndarray, metrics: dict,
+        trace: dict, *, online: bool, **kw: Any,
+    ) -> ScenarioResult:  # fmt: skip
+        """The rows and the adaptation summary of one run on ``sc``'s episodes."""
+        yard = self.yard[sc.name]
+        rows = episode_rows(sc, name, family, run, cost, metrics, yard, online=online, **kw)
+        summary = summarize_adaptation(
+            cost, yard.cost, yard.jump_step, sc.env.span, align=sc.kind == "jump"
+        )
+        return ScenarioResult(rows, summary, trace)
+
+    def _save_classical(self, sc: Scenario, name: str, run: int, episodes: _Evaluated) -> None:
         info = CONTROLLERS[name]
-        rows = episode_rows(
-            sc,
-            name,
-            info.kind,
-            run,
-            episodes.cost,
-            episodes.metrics,
-            self.yard[sc.name],
-            online=info.online,
-            extra={"train_steps": 0, "train_wall_s": 0.0},
-        )
-        self.writer.write(rows)
-        self.data.costs.setdefault((sc.name, name), []).append(
-            RunRecord(run, episodes.cost.astype(np.float32), episodes.jump_step)
-        )
-        if run == 0:
-            self.data.traces[(sc.name, name)] = episodes.trace
+        label, rid = classical_key(self.cfg, sc, name, run)
+        result = self._scored(
+            sc, name, info.kind, run, episodes.cost, episodes.metrics, episodes.trace,
+            online=info.online, extra={"train_steps": 0, "train_wall_s": 0.0},
+        )  # fmt: skip
+        settings = {"scenario": sc.name, "controller": name, "run": run}
+        self.store.save(JobRecord("classical", label, rid, settings, {sc.name: result}))
 
     def fits(self, seconds: float) -> bool:
         """Whether work estimated at ``seconds`` ends before the time limit (always without
@@ -430,24 +378,24 @@ class _RunState:
         for run in range(runs):
             if self.halt.is_set():
                 raise _Stop
-            episodes = self._kept(sc, name, run)  # read back whatever the time limit
-            if episodes is None:
-                if not self.fits(each):
-                    return False
-                episodes = self._evaluated(sc, name, run)
-            self._classical_rows(sc, name, run, episodes)
+            if self.store.load(*classical_key(self.cfg, sc, name, run)) is not None:
+                self.kept += 1  # kept whatever the time limit
+                continue
+            if not self.fits(each):
+                return False
+            self._save_classical(sc, name, run, self._evaluate(sc, name, run))
         return True
 
     # -- tuning ----------------------------------------------------------------------------
-    def tune(self, env: TrainingEnv) -> None:
+    def tune(self, env: TrainingEnv) -> BenchConfig:
         """The studies of :mod:`~stcgym.agents.benchmark.tuning` on the family's validation
-        episodes: every RL agent's in the executor, the self-tuning controller's here; the best
-        settings go into ``cfg`` (and so ``config.json``)."""
+        episodes: every RL agent's in the executor, the self-tuning controller's here; returns
+        the config with the best settings (and so ``config.json``)."""
         from stcgym.agents.benchmark.tuning import apply_rl_params, tune_rl, tune_stc
         from stcgym.agents.executors import run_tasks
         from stcgym.agents.rl.configs import AlgoConfig
 
-        cfg, reference = self.cfg, self.data.curve_references["family"]
+        cfg, reference = self.cfg, self.curve_references["family"]
         t0 = time.perf_counter()
         tasks = [
             {
@@ -473,14 +421,15 @@ class _RunState:
             tuned[out.task["algo"]] = out.result
         if "stc_tuned" in cfg.agents:
             tuned["stc"] = tune_stc(cfg, env, reference, cfg.tune_trials)
+        configs = dict(cfg.algo_configs)
         for algo in cfg.rl_agents:
             base = AlgoConfig.from_dict(cfg.algo_configs[algo])
-            cfg.algo_configs[algo] = apply_rl_params(base, tuned[algo]["params"]).to_dict()
-        cfg.tuned = tuned
+            configs[algo] = apply_rl_params(base, tuned[algo]["params"]).to_dict()
         self.log(
             f"tuned {', '.join(tuned)} on the validation split ({cfg.tune_trials} trials each, "
             f"{time.perf_counter() - t0:.0f} s)"
         )
+        return replace(cfg, algo_configs=configs, tuned=tuned)
 
     def _classical_all(self, scenarios: Sequence[Scenario], progress: JobProgress) -> int:
         """The classical controllers on every scenario; returns the scenarios the time limit
@@ -494,75 +443,65 @@ class _RunState:
             if complete:
                 progress.finish(("classical", sc.name), f"classical controllers on {sc.name}")
             unfinished += not complete
-        if self.classical_kept:
-            self.log(f"{self.classical_kept} classical evaluations read back from "
-                     f"{self.classical_store.folder}")  # fmt: skip
+        if self.kept:
+            self.log(f"{self.kept} classical evaluations read back from {self.store.folder}")
         return unfinished
 
     # -- RL --------------------------------------------------------------------------------
-    def _collect(self, task: dict[str, Any], result: dict[str, Any]) -> None:
-        key, algo, ts = task["train_key"], result["algo"], result["seed"]
-        for s, c in result["curve"]:
-            self.data.curves.append(
-                {"train_env": key, "algo": algo, "train_seed": ts, "steps": s, "score": c}
-            )
-        self._write_curves()
+    def _record(self, task: dict[str, Any], result: dict[str, Any]) -> JobRecord:
+        """The store's record of a finished RL job: its rows on every scenario it is scored
+        on, against the yardstick, with its learning curve and how training stopped."""
+        algo, ts = result["algo"], result["seed"]
         # with the step of the checkpoint training kept (0: the untrained policy)
-        stop = self.data.stops[(key, algo, ts)] = {
-            **result["stop"],
-            "kept_step": result["best_step"],
-        }
+        stop = {**result["stop"], "kept_step": result["best_step"]}
         folder = Path(task["model_dir"])
+        scenarios = {}
         for ev in result["evaluations"]:
             sc = self.scenarios[ev["scenario"]]
             cost = np.load(folder / ev["costs"], allow_pickle=False).astype(float)
-            yard = self.yard[sc.name]
-            ratios = cost.mean(axis=1) / yard.metrics["cost"]
+            ratios = cost.mean(axis=1) / self.yard[sc.name].metrics["cost"]
             target = rl_steps_to_target(result["curve"], ratios, sc.in_distribution)
             extra = {
                 "train_steps": result["steps"],
                 "train_cap": stop["cap"],
                 "train_stop": stop["status"],
                 "train_last_improvement": stop["last_improvement_step"],
+                "train_kept_step": stop["kept_step"],
                 "train_wall_s": result["wall_s"],
                 "data_steps": result["steps"],
             }
             metrics = {k: np.asarray(v, dtype=float) for k, v in ev["metrics"].items()}
-            rows = episode_rows(
-                sc, algo, "rl", ts, cost, metrics, yard, online=False,
+            trace = {}
+            if ts == 0:
+                trace = {k: np.asarray(v, dtype=float)[:1] for k, v in ev["traces"].items()}
+            scenarios[sc.name] = self._scored(
+                sc, algo, "rl", ts, cost, metrics, trace, online=False,
                 steps_to_target=target, extra=extra,
             )  # fmt: skip
-            self.writer.write(rows)
-            self.data.costs.setdefault((sc.name, algo), []).append(
-                RunRecord(ts, cost.astype(np.float32), np.asarray(ev["jump_step"]))
-            )
-            if ts == 0:
-                self.data.traces[(sc.name, algo)] = {
-                    k: np.asarray(v, dtype=float) for k, v in ev["traces"].items()
-                }
+        return JobRecord(
+            "rl", task["name"], job_id(task), _rl_settings(task), scenarios,
+            curve=[(int(s), float(c)) for s, c in result["curve"]],
+            diagnostics=list(result.get("diagnostics", [])), stop=stop,
+            train_key=task["train_key"], algo=algo, seed=int(ts), wall_s=float(result["wall_s"]),
+        )  # fmt: skip
 
-    def run(self, scenarios: list[Scenario], envs: dict[str, TrainingEnv]) -> None:
+    def run(self, plan: RunPlan) -> None:
         """Yardstick runs, then the RL jobs on the workers while the driver evaluates the
         classical controllers (one core's work, which would otherwise leave a worker's core
-        idle); the RL results are written once the classical rows are in."""
-        from stcgym.agents.executors import ResultStore, run_tasks
+        idle); each finished job is written to the store at once."""
+        from stcgym.agents.executors import run_tasks
         from stcgym.agents.rl.training import train_and_evaluate
 
-        cfg = self.cfg
+        cfg, scenarios, envs = plan.cfg, plan.scenarios, plan.envs
         self.scenarios = {sc.name: sc for sc in scenarios}
         planned = rl_tasks(cfg, scenarios, envs, {}, self.run_dir)
-        weights = job_weights(cfg, scenarios, planned) | reference_weights(cfg, envs)
+        weights = job_weights(cfg, scenarios, planned)  # (the references ran while planning)
         progress = JobProgress(weights, self.log, cfg.jobs)
         workers = "worker" if cfg.jobs == 1 else "workers"
         self.log(
             f"{len(weights)} jobs ({len(planned)} RL trainings on {cfg.jobs} {workers}), "
             f"estimated {format_duration(estimate_seconds(cfg))}"
         )
-        for key, env in envs.items():
-            self.data.curve_references[key] = self._curve_reference(env)
-            progress.finish(("reference", key), f"yardstick on the {key} curve episodes")
-        if cfg.tune_trials and not cfg.tuned:
-            self.tune(envs["family"])
         for sc in scenarios:
             self._yardstick(sc)
         self.log("yardstick and zero input evaluated on every scenario")
@@ -570,18 +509,16 @@ class _RunState:
         if not planned:
             self._leave(self._classical_all(scenarios, progress), [])
             return
-        tasks = rl_tasks(cfg, scenarios, envs, self.data.curve_references, self.run_dir)
-        store = ResultStore(self.run_dir / JOBS_FOLDER)
-        finished = store.done()
-        todo, ready = [], []
+        tasks = rl_tasks(cfg, scenarios, envs, plan.curve_references, self.run_dir)
+        todo = []
         for task in tasks:
-            if job_id(task) in finished:
-                ready.append((task, store.load(job_id(task))))
+            if self.store.load(task["name"], job_id(task)) is not None:
                 progress.drop(("rl", task["name"]))
             else:
                 todo.append(task)
-        if ready:
-            self.log(f"{len(ready)} finished RL jobs read back from {store.folder}")
+        if len(todo) < len(tasks):
+            self.log(f"{len(tasks) - len(todo)} finished RL jobs read back from "
+                     f"{self.store.folder}")  # fmt: skip
         # the classical controllers run in a thread while the workers train; when the RL jobs
         # run in this process (one job, or jobs=1) they go first instead
         background = cfg.executor == "ray" or (cfg.jobs > 1 and len(todo) > 1)
@@ -608,21 +545,16 @@ class _RunState:
                         failures.append(name)
                         self.log(f"RL job {name} FAILED:\n{out.error}")
                     else:
-                        store.save(job_id(out.task), out.result)
-                        ready.append((out.task, out.result))
+                        self.store.save(self._record(out.task, out.result))
                     progress.finish(("rl", name), f"{name}, {out.seconds:.0f} s", out.seconds)
                     if classical.done():
                         classical.result()  # the thread's error, raised in this one
-                        while ready:
-                            self._collect(*ready.pop(0))
             except BaseException:
                 # the thread stops at its next run (leaving the block waits for it) and its
                 # own error, if any, is dropped
                 self.halt.set()
                 raise
             unfinished = classical.result()
-        for task, result in ready:
-            self._collect(task, result)
         if failures:
             raise RuntimeError(f"{len(failures)} RL job(s) failed: {', '.join(failures)}")
         self._leave(unfinished, [t["name"] for t in todo if t["name"] not in ran])
@@ -635,15 +567,6 @@ class _RunState:
         if classical:
             parts.append(f"the classical controllers on {classical} scenario(s)")
         self.left = " and ".join(parts)
-
-    def _write_curves(self) -> None:
-        from stcgym.agents.executors import write_atomic
-
-        cols = ["train_env", "algo", "train_seed", "steps", "score"]
-        lines = [",".join(cols)]
-        for row in self.data.curves:
-            lines.append(",".join(str(format_value(row[c])) for c in cols))
-        write_atomic(self.run_dir / "learning_curves.csv", "\n".join(lines) + "\n")
 
 
 #: Estimated durations are multiplied by this before a job is started under a time limit (the

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 from stcgym.agents.evaluation.bounds import BOUND_SEED
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet
-from stcgym.agents.rl.configs import FAMILY_ALGORITHMS
+from stcgym.agents.evaluation.scenario import Scenario
 
 if TYPE_CHECKING:
     from stcgym.agents.benchmark.config import BenchConfig
@@ -61,37 +61,6 @@ CURVE_SEED = 10_000
 
 
 @dataclass(frozen=True)
-class Scenario:
-    """One evaluation setting: its environment, episodes, and the RL training env it uses.
-
-    ``controller_order`` is the plant order the self-tuning controllers are told (the training
-    distribution's); ``in_distribution`` marks a scenario drawn from the distribution the
-    validation curves are measured on; ``adaptation`` one whose per-step costs are kept (the
-    adaptation figure, re-convergence after a jump).
-    """
-
-    name: str
-    kind: str
-    env: EnvSpec
-    episodes: EpisodeSet
-    train_key: str
-    controller_order: int
-    in_distribution: bool = True
-    adaptation: bool = False
-
-    @property
-    def plant(self) -> str:
-        """The plant label of the scenario's rows (a catalogue name or the family split)."""
-        return self.name.split(":", 1)[1]
-
-    def train_key_for(self, algo: str) -> str | None:
-        """The training environment of ``algo``'s agents evaluated here (``None``: not here)."""
-        if algo in FAMILY_ALGORITHMS:  # trained on the plant family only
-            return self.train_key if self.train_key == "family" else None
-        return self.train_key
-
-
-@dataclass(frozen=True)
 class TrainingEnv:
     """Where the RL agents of one training key train, and the episodes their learning curves
     (validation) and the action bound (training distribution) are measured on."""
@@ -101,6 +70,19 @@ class TrainingEnv:
     curve: EnvSpec
     curve_episodes: EpisodeSet
     bound_episodes: EpisodeSet
+
+    @property
+    def curve_scenario(self) -> Scenario:
+        """The learning-curve (validation) episodes as a scenario, for building a controller
+        on them (the yardstick that scores the curve)."""
+        return Scenario(
+            name=f"{self.key}:curve",
+            kind="curve",
+            env=self.curve,
+            episodes=self.curve_episodes,
+            train_key=self.key,
+            controller_order=self.curve.order,
+        )
 
 
 def _episode_settings(cfg: BenchConfig) -> dict[str, Any]:

@@ -142,13 +142,11 @@ def tune_rl(task: dict[str, Any]) -> dict[str, Any]:
 def tune_stc(cfg: Any, env: TrainingEnv, reference: list[float], trials: int, seed: int = 0):
     """The self-tuning controller's study on ``env``'s validation episodes (the same number of
     trials as each RL agent's); returns its summary with the best trial's parameters."""
-    from types import SimpleNamespace
-
     from stcgym.agents.controllers import self_tuning
 
     ref = np.asarray(reference, dtype=float)
     sampled: dict[int, dict[str, Any]] = {}
-    sc = SimpleNamespace(env=env.curve, controller_order=env.curve.order)
+    sc = env.curve_scenario
 
     def objective(trial: Any) -> float:
         params = sampled[trial.number] = sample_stc(trial)

@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
+from stcgym.agents.evaluation.scenario import Scenario
 
 __all__ = [
     "BOUND_MARGIN",
@@ -139,7 +139,8 @@ def lqg_inputs(spec: EnvSpec, episodes: EpisodeSet) -> np.ndarray:
     from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 
     free = replace(spec, action_bound=_UNBOUNDED)
-    builder = CONTROLLERS[YARDSTICK].build(None, SimpleNamespace(env=free))
+    site = Scenario("bound", "bound", free, episodes, train_key="", controller_order=free.order)
+    builder = CONTROLLERS[YARDSTICK].build(None, site)
     batch = run_episodes(builder, free, episodes, informed=True)
     if batch.diverged.any():
         bad = [episodes.plants[i] for i in np.flatnonzero(batch.diverged)][:5]

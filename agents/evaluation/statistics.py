@@ -26,6 +26,7 @@ import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -35,6 +36,7 @@ __all__ = [
     "PairedComparison",
     "interval_estimates",
     "paired_comparison",
+    "bounded_estimates",
     "probability_of_improvement",
     "rate_estimate",
     "summarize",
@@ -314,6 +316,79 @@ def paired_comparison(
     p = _bootstrap_mean(wins, reps, confidence, seed)
     r = _bootstrap_mean(logs, reps, confidence, seed)
     return PairedComparison(Estimate(*p), Estimate(*(math.exp(v) for v in r)))
+
+
+def _weighted_iqm_median(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """IQM and median of the sorted values ``v`` (n,) under weights ``w`` (reps, n): each value
+    counted ``w`` times; the IQM is the mean of the middle half of the mass (a value that
+    straddles a quartile counts with the part of its weight inside)."""
+    c = np.cumsum(w, axis=1)
+    total = c[:, -1:]
+    lo, hi = 0.25 * total, 0.75 * total
+    before = c - w
+    inside = np.clip(np.minimum(c, hi) - np.maximum(before, lo), 0.0, None)
+    iqm = (inside @ v) / (hi - lo)[:, 0]
+    median = v[np.argmax(c >= 0.5 * total, axis=1)]
+    return iqm, median
+
+
+def bounded_estimates(
+    values: ArrayLike, *, reps: int = 2000, confidence: float = 0.95, seed: int = 0
+) -> dict[str, Any]:
+    """IQM and median of per-(run, plant) values that exist only where an episode stayed
+    bounded (``nan`` elsewhere), with intervals from a bootstrap over runs and plants.
+
+    A cost ratio is no cost figure for an episode that diverged (its cost is the charge for
+    leaving the bounds), so the bench reports the ratio over the bounded episodes and the
+    divergence rate apart (:func:`rate_estimate`), never a statistic that mixes them.
+    rliable's stratified bootstrap needs a value in every cell; here the runs and the plants
+    are resampled independently and the statistics taken over the resampled cells that hold
+    a value.
+
+    Parameters
+    ----------
+    values : array_like, shape (runs, plants)
+        ``nan`` where the run has no bounded episode of the plant.
+    reps, confidence, seed
+        Bootstrap replications, interval size and seed.
+
+    Returns
+    -------
+    dict
+        ``{"iqm": Estimate, "median": Estimate, "n": cells with a value}``; ``nan`` estimates
+        when no cell has one.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.agents.evaluation.statistics import bounded_estimates
+    >>> est = bounded_estimates([[1.0, 2.0, np.nan, 4.0], [1.5, 2.5, 3.0, np.nan]], reps=200)
+    >>> est["n"], round(est["median"].value, 2)
+    (6, 2.0)
+    """
+    x = np.asarray(values, dtype=float)
+    if x.ndim != 2 or 0 in x.shape:
+        raise ValueError(f"values must have shape (runs, plants), got {x.shape}")
+    ok = ~np.isnan(x)
+    if not ok.any():
+        nan = Estimate(math.nan, math.nan, math.nan)
+        return {"iqm": nan, "median": nan, "n": 0}
+    runs, plants = np.nonzero(ok)
+    order = np.argsort(x[ok], kind="stable")
+    v, runs, plants = x[ok][order], runs[order], plants[order]
+    iqm, median = _weighted_iqm_median(v, np.ones((1, v.size)))
+    rng = np.random.default_rng(seed)
+    wr, wp = _counts(rng, reps, x.shape[0]), _counts(rng, reps, x.shape[1])
+    w = wr[:, runs] * wp[:, plants]
+    keep = w.sum(axis=1) > 0  # a draw of only all-diverged cells has no value: left out
+    b_iqm, b_median = _weighted_iqm_median(v, w[keep])
+    alpha = (1.0 - confidence) / 2.0
+    q = [alpha, 1.0 - alpha]
+    return {
+        "iqm": Estimate(float(iqm[0]), *map(float, np.quantile(b_iqm, q))),
+        "median": Estimate(float(median[0]), *map(float, np.quantile(b_median, q))),
+        "n": int(v.size),
+    }
 
 
 def rate_estimate(

@@ -1,0 +1,263 @@
+"""The last stage of a bench run: tables, report and figures rendered from the results store.
+
+:func:`render_run` reads a run folder's ``config.json`` and the records of its ``store/``
+(:mod:`~stcgym.agents.benchmark.store`) that the run's plan asks for, and writes
+``metrics.csv``, ``learning_curves.csv``, ``statistics.json`` (the estimates the report shows),
+``report.md`` and, on request, the figures. It evaluates and trains nothing, so it also serves
+``stcgym report <run folder>`` on a store committed to a repository, and renders a partial
+report of a run cut short (the jobs of the plan with no record are listed as missing).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stcgym.agents.benchmark.config import BenchConfig
+from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS, format_value
+from stcgym.agents.benchmark.rundir import classical_key, job_id, read_run_config
+from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
+from stcgym.agents.benchmark.store import STORE_FOLDER, JobRecord, ResultsStore
+from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controllers_for
+
+__all__ = [
+    "PAGE_END",
+    "PAGE_START",
+    "RunData",
+    "Rendered",
+    "load_run",
+    "page_tables",
+    "planned_records",
+    "render_run",
+    "update_page",
+]
+
+
+@dataclass
+class RunData:
+    """What the report and the figures read besides the rows, all from the store."""
+
+    #: (scenario, controller) -> the first episode's signals of run 0
+    traces: dict[tuple[str, str], dict[str, Any]] = field(default_factory=dict)
+    #: (scenario, controller) -> each run's adaptation summary
+    adaptation: dict[tuple[str, str], list[dict[str, Any]]] = field(default_factory=dict)
+    #: learning-curve rows (train_env, algo, train_seed, steps, score)
+    curves: list[dict[str, Any]] = field(default_factory=list)
+    #: (train_env, algo, train_seed) -> how training ended, with ``kept_step``
+    stops: dict[tuple[str, str, int], dict[str, Any]] = field(default_factory=dict)
+    #: (train_env, algo, train_seed) -> SB3's update statistics at each evaluation
+    diagnostics: dict[tuple[str, str, int], list[dict[str, Any]]] = field(default_factory=dict)
+    #: train_env -> the action bound and the LQG input peaks it was set from
+    bounds: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: the command line of the run (its first session's)
+    argv: list[str] | None = None
+
+
+@dataclass
+class Rendered:
+    """A run read from its store: the config, scenarios, rows in order, the rest, and the
+    planned jobs that have no record yet."""
+
+    cfg: BenchConfig
+    scenarios: list[Any]
+    rows: list[dict[str, Any]]
+    data: RunData
+    missing: list[str]
+    doc: dict[str, Any]
+
+    @property
+    def curves(self) -> list[dict[str, Any]]:
+        return self.data.curves
+
+
+def planned_records(cfg: BenchConfig, scenarios: list[Any], run_dir: Path) -> list[tuple]:
+    """The records the plan of ``cfg`` asks for, in the report's order: ``(kind, label, id)``
+    of every classical controller's run on every scenario, then of every RL job."""
+    out = []
+    for sc in scenarios:
+        for name in controllers_for(cfg.classical, sc.env):
+            runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
+            out += [("classical", *classical_key(cfg, sc, name, run)) for run in range(runs)]
+    if cfg.rl_agents:
+        from stcgym.agents.benchmark.plan import rl_tasks
+
+        tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {}, run_dir)
+        out += [("rl", t["name"], job_id(t)) for t in tasks]
+    return out
+
+
+def _add(record: JobRecord, data: RunData) -> None:
+    for sc_name, result in record.scenarios.items():
+        name = record.algo if record.kind == "rl" else result.rows[0]["controller"]
+        data.adaptation.setdefault((sc_name, name), []).append(result.adaptation)
+        if result.trace:
+            data.traces[(sc_name, name)] = result.trace
+    if record.kind == "rl":
+        job = (record.train_key, record.algo, record.seed)
+        data.stops[job] = {**record.stop, "wall_s": record.wall_s}
+        data.diagnostics[job] = record.diagnostics
+        data.curves += [
+            {"train_env": job[0], "algo": job[1], "train_seed": job[2], "steps": s, "score": c}
+            for s, c in record.curve
+        ]
+
+
+def load_run(run_dir: str | Path) -> Rendered:
+    """Read a run folder: its config, scenarios and the store's records the plan asks for."""
+    run_dir = Path(run_dir)
+    cfg, doc = read_run_config(run_dir)
+    scenarios = make_scenarios(cfg)
+    store = ResultsStore(run_dir / STORE_FOLDER, METRIC_COLUMNS)
+    data = RunData(bounds=dict(doc.get("bound_measurements", {})), argv=doc.get("argv"))
+    records, missing = [], []
+    for _kind, label, rid in planned_records(cfg, scenarios, run_dir):
+        record = store.load(label, rid)
+        if record is None:
+            missing.append(label)
+        else:
+            records.append(record)
+            _add(record, data)
+    # the yardstick and zero input first (every ratio and score is read against them), then
+    # the controllers in the run's order
+    names = [YARDSTICK, "zero", *(a for a in cfg.agents if a not in (YARDSTICK, "zero"))]
+    order = {name: i for i, name in enumerate(names)}
+    rows = []
+    for sc in scenarios:  # scenario by scenario, controllers in that order, runs in order
+        found = [(r.scenarios[sc.name].rows, r) for r in records if sc.name in r.scenarios]
+        found.sort(key=lambda fr: (order.get(fr[0][0]["controller"], len(order)), fr[0][0]["run"]))
+        for rs, _ in found:
+            rows += rs
+    data.curves.sort(key=lambda c: (c["train_env"], c["algo"], c["train_seed"], c["steps"]))
+    return Rendered(cfg, scenarios, rows, data, missing, doc)
+
+
+def _csv(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, columns, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: format_value(row.get(k, "")) for k in columns})
+    return buffer.getvalue()
+
+
+def render_run(
+    run_dir: str | Path,
+    *,
+    interrupted: bool = False,
+    time_limited: bool = False,
+    plots: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> Rendered:
+    """Write ``metrics.csv``, ``learning_curves.csv``, ``statistics.json``, ``report.md`` and
+    (``plots``) the figures of a run folder from its store; returns what was read.
+
+    A plan with jobs that have no record yet (a run cut short, or its store copied before the
+    end) renders a partial report that says so; ``interrupted`` and ``time_limited`` name why.
+    """
+    from stcgym.agents.benchmark.report import write_report
+    from stcgym.agents.executors import write_atomic
+
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    t0 = time.perf_counter()
+    run_dir = Path(run_dir)
+    run = load_run(run_dir)
+    write_atomic(run_dir / "metrics.csv", _csv(run.rows, METRIC_COLUMNS))
+    curve_cols = ["train_env", "algo", "train_seed", "steps", "score"]
+    write_atomic(run_dir / "learning_curves.csv", _csv(run.data.curves, curve_cols))
+    write_report(
+        run_dir,
+        run.cfg,
+        run.scenarios,
+        run.rows,
+        run.data,
+        float(run.doc.get("wall_s", 0.0)),
+        interrupted=interrupted,
+        time_limited=time_limited or (bool(run.missing) and not interrupted),
+        missing=run.missing,
+        sessions=int(run.doc.get("sessions", 1)),
+    )
+    log(f"report written from {len(run.rows)} rows of the store "
+        f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    if plots and not run.missing and run.cfg.plots:
+        from stcgym.agents.benchmark.plots import write_plots
+
+        t0 = time.perf_counter()
+        write_plots(run_dir, run.cfg, run.scenarios, run.rows, run.data)
+        log(f"plots written ({time.perf_counter() - t0:.1f} s)")
+    return run
+
+
+#: The markers around a page's block of tables rendered from a run (``stcgym report --page``).
+PAGE_START = "<!-- tables of results/{run}: rendered by `stcgym report`, do not edit -->"
+PAGE_END = "<!-- end of the tables of results/{run} -->"
+
+
+def _cell(estimate: dict[str, Any] | None, digits: int = 3) -> str:
+    """``value [low, high]`` of an estimate as ``statistics.json`` holds it."""
+    if not estimate or estimate.get("value") is None:
+        return "-"
+
+    def g(v: Any) -> str:
+        if v is None:
+            return "-"
+        if isinstance(v, str):
+            return v
+        return f"{v:.{digits}g}"
+
+    return f"{g(estimate['value'])} [{g(estimate['low'])}, {g(estimate['high'])}]"
+
+
+def page_tables(run_name: str, statistics: dict[str, Any]) -> str:
+    """The headline tables of a run for a documentation page, from its ``statistics.json``:
+    per scenario, cost / LQG over the bounded episodes (IQM and median, 95 % intervals) and
+    the divergence rate beside it, between the :data:`PAGE_START` / :data:`PAGE_END`
+    markers."""
+    lines = [PAGE_START.format(run=run_name), ""]
+    for scenario, table in statistics.items():
+        lines += [
+            f"`{scenario}`: cost / LQG over the bounded episodes, and the diverged share",
+            "",
+            "| controller | runs | IQM [95 % CI] | median [95 % CI] | diverged |",
+            "|---|---|---|---|---|",
+        ]
+        for name, est in table.items():
+            div = est.get("diverged") or {}
+            pct = (
+                "-"
+                if div.get("value") is None
+                else f"{100 * div['value']:.1f} % [{100 * div['low']:.1f}, {100 * div['high']:.1f}]"
+            )
+            lines.append(
+                f"| `{name}` | {est.get('runs', '-')} | {_cell(est.get('ratio'))} | "
+                f"{_cell(est.get('ratio_median'))} | {pct} |"
+            )
+        lines.append("")
+    lines.append(PAGE_END.format(run=run_name))
+    return "\n".join(lines)
+
+
+def update_page(page: str | Path, run_dir: str | Path) -> bool:
+    """Replace the block of ``run_dir``'s tables in the Markdown file ``page`` with tables made
+    from its ``statistics.json``; returns whether the page changed. ``ValueError`` when the
+    page has no block for the run (add the two marker lines where the tables go)."""
+    from stcgym.agents.executors import write_atomic
+
+    page, run_dir = Path(page), Path(run_dir)
+    text = page.read_text()
+    start, end = PAGE_START.format(run=run_dir.name), PAGE_END.format(run=run_dir.name)
+    if start not in text or end not in text:
+        raise ValueError(f"{page} has no block for {run_dir.name}: add the lines\n{start}\n{end}")
+    before, rest = text.split(start, 1)
+    after = rest.split(end, 1)[1]
+    statistics = json.loads((run_dir / "statistics.json").read_text())
+    new = before + page_tables(run_dir.name, statistics) + after
+    if new != text:
+        write_atomic(page, new)
+    return new != text

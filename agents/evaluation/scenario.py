@@ -1,0 +1,48 @@
+"""A scenario: a set of test episodes on an environment, as every controller is scored on it.
+
+The bench (:mod:`stcgym.agents.benchmark.scenarios`) makes its scenarios from a configuration;
+the controllers' builders (:data:`stcgym.agents.controllers.CONTROLLERS`) read a scenario's
+environment and the plant order its self-tuning controllers are told.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet
+
+__all__ = ["Scenario"]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One evaluation setting: its environment, episodes, and the RL training env it uses.
+
+    ``controller_order`` is the plant order the self-tuning controllers are told (the training
+    distribution's); ``in_distribution`` marks a scenario drawn from the distribution the
+    validation curves are measured on; ``adaptation`` one whose per-step costs are kept (the
+    adaptation figure, re-convergence after a jump).
+    """
+
+    name: str
+    kind: str
+    env: EnvSpec
+    episodes: EpisodeSet
+    train_key: str
+    controller_order: int
+    in_distribution: bool = True
+    adaptation: bool = False
+
+    @property
+    def plant(self) -> str:
+        """The plant label of the scenario's rows (a catalogue name or the family split)."""
+        return self.name.split(":", 1)[1]
+
+    def train_key_for(self, algo: str) -> str | None:
+        """The training environment of ``algo``'s agents evaluated here (``None``: not here)."""
+        from stcgym.agents.rl.configs import FAMILY_ALGORITHMS
+
+        if algo in FAMILY_ALGORITHMS:  # trained on the plant family only
+            return self.train_key if self.train_key == "family" else None
+        return self.train_key
