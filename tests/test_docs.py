@@ -99,6 +99,51 @@ def test_every_registered_environment_has_a_card(env_id):
     assert f"{version}:" in card.split("**Version history.**", 1)[1], f"{env_id}: no {version}"
 
 
+NUMBER_WORDS = {"four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9, "ten": 10}
+
+
+def _stated_counts() -> list[tuple[str, str, int]]:
+    """``(page, pattern, count in the code)``: each pattern's group is a count a page states."""
+    from stcgym.adaptive import ALGORITHMS
+    from stcgym.envs import get_family
+
+    ids = [k for k in gym.registry if k.startswith("stcgym/")]
+    family = get_family("siso2-v1")
+    splits = {name: len(family.split_indices(name)) for name in family.split_names}
+    variant_sizes = {splits[v] for v in family.variant_names}
+    assert len(variant_sizes) == 1, variant_sizes  # the page states one size for all
+    return [
+        ("docs/environments.md", r"registers (\w+) Gymnasium environment ids", len(ids)),
+        ("README.md", r"all (\d+) names", len(ALGORITHMS)),
+        ("docs/index.md", r"all (\d+) of the paper", len(ALGORITHMS)),
+        ("docs/glossary.md", r"the paper's (\d+) names", len(ALGORITHMS)),
+        ("docs/estimators.md", r"all (\d+) algorithms", len(ALGORITHMS)),
+        ("docs/environments.md", r"has\s+(\d+) second-order plants", family.count),
+        ("docs/environments.md", r"`train` \((\d+)\)", splits["train"]),
+        ("docs/environments.md", r"`validation` \((\d+)\)", splits["validation"]),
+        ("docs/environments.md", r"`test` \((\d+)\)", splits["test"]),
+        ("docs/environments.md", r"Its (\w+) variants of \d+ plants", len(family.variant_names)),
+        ("docs/environments.md", r"variants of (\d+) plants each", variant_sizes.pop()),
+    ]
+
+
+def test_the_counts_the_pages_state_are_the_codes():
+    wrong = []
+    for page, pattern, count in _stated_counts():
+        stated = re.findall(pattern, (ROOT / page).read_text())
+        assert stated, f"{page} no longer states /{pattern}/: update this test"
+        for word in stated:
+            if NUMBER_WORDS.get(word, word) not in (count, str(count)):
+                wrong.append(f"{page}: '{word}' in /{pattern}/, the code has {count}")
+    assert not wrong, wrong
+
+
+def test_the_environments_table_lists_every_registered_id():
+    text = (DOCS / "environments.md").read_text()
+    table = re.findall(r"^\| \[`(stcgym/[\w-]+)`\]", text[: text.index("\n## ")], re.M)
+    assert table == [k for k in gym.registry if k.startswith("stcgym/")]
+
+
 def _blocks(page: Path) -> list[Example]:
     """The ``python`` and ``output`` code blocks of a page, in order (Sybil's Markdown lexer)."""
     return list(Document.parse(str(page), *BLOCK_PARSERS).examples())
