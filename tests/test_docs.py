@@ -144,6 +144,15 @@ def test_the_environments_table_lists_every_registered_id():
     assert table == [k for k in gym.registry if k.startswith("stcgym/")]
 
 
+#: The README's agreed length: the set-up steps and three examples; the rest lives on the site.
+README_LINES = 170
+
+
+def test_the_readme_stays_short():
+    lines = len((ROOT / "README.md").read_text().splitlines())
+    assert lines <= README_LINES, f"README.md has {lines} lines, over {README_LINES}"
+
+
 def _blocks(page: Path) -> list[Example]:
     """The ``python`` and ``output`` code blocks of a page, in order (Sybil's Markdown lexer)."""
     return list(Document.parse(str(page), *BLOCK_PARSERS).examples())
