@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import logging
 import os
 import re
 import subprocess
@@ -435,6 +436,25 @@ def test_the_site_builds_cleanly(tmp_path):
     assert done.returncode == 0, done.stderr[-5000:]
     problems = _site_problems(tmp_path / "html")
     assert not problems, "\n".join(problems[:40])
+
+
+def test_the_docs_build_logs_the_compile_notice_as_information(caplog):
+    """conf.py hands the ``stcgym`` logger's warning (the first-run compile notice) to
+    Sphinx's log at INFO level: the gallery's first script compiles the kernels."""
+    pytest.importorskip("sphinx")
+    stcgym_log = logging.getLogger("stcgym")
+    handlers, propagate = list(stcgym_log.handlers), stcgym_log.propagate
+    path = list(sys.path)
+    spec = importlib.util.spec_from_file_location("docs_conf", DOCS / "conf.py")
+    try:
+        spec.loader.exec_module(importlib.util.module_from_spec(spec))
+        with caplog.at_level(logging.INFO):
+            stcgym_log.warning("stcgym is compiling its kernels")
+    finally:
+        stcgym_log.handlers[:], stcgym_log.propagate = handlers, propagate
+        sys.path[:] = path
+    seen = [(r.name, r.levelno) for r in caplog.records if "compiling" in r.getMessage()]
+    assert seen == [("sphinx.stcgym", logging.INFO)], seen
 
 
 def test_the_site_check_finds_raw_markup_broken_tables_and_dead_links(tmp_path):
