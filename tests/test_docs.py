@@ -1,5 +1,6 @@
 """The documentation: every public name listed in the API reference, every environment id with
-a card, every Python snippet of the README and of the pages runs as written, code lines fit the
+a card, every Python snippet of the README and of the pages runs as written and prints what the
+``output`` block after it shows, the counts the pages state are the code's, code lines fit the
 site's code box, Markdown tables keep their columns, and the site builds without a warning and
 without raw markup or dead links in its HTML (the gallery's scripts run in
 ``tests/test_examples.py``)."""
@@ -8,16 +9,20 @@ from __future__ import annotations
 
 import ast
 import importlib
+import logging
 import os
 import re
 import subprocess
 import sys
+from dataclasses import dataclass
 from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
 import gymnasium as gym
 import pytest
+from sybil import Document, Example
+from sybil.parsers.markdown import CodeBlockParser
 
 import stcgym.envs  # noqa: F401  (registers the ids)
 
@@ -25,7 +30,10 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 PACKAGES = ("stcgym.envs", "stcgym.adaptive", "stcgym.agents", "stcgym.agents.sweeps")
 PAGES = [ROOT / "README.md", *sorted(DOCS.glob("*.md")), *sorted((DOCS / "api").glob("*.md"))]
-SNIPPET = re.compile(r"```python\n(.*?)```", re.S)
+# Sybil finds a page's fenced ``python`` blocks and the ``output`` blocks after them (``output``
+# is a Pygments lexer: the site shows the block as plain program output).
+BLOCK_PARSERS = (CodeBlockParser("python"), CodeBlockParser("output"))
+NUMBER = re.compile(r"-?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?")
 FENCE = re.compile(r"^(`{3,})([^\n`]*)\n(.*?)^\1[ \t]*$", re.S | re.M)
 # The code box of a page shows 90 characters at a 1400 px window (furo, measured in Chromium:
 # a 708 px box, 7.8 px per character of its monospace font); API entries are indented and show
@@ -34,6 +42,15 @@ CODE_WIDTH = 84
 # Pages whose code blocks are shortened when those pages are next rewritten (with what they
 # describe); every other page is held to CODE_WIDTH. Empty this set, do not grow it.
 WIDE_CODE_PAGES: set[str] = set()
+
+
+@dataclass
+class Snippet:
+    """A Python snippet, where the pages show it, and the output blocks shown after it."""
+
+    code: str
+    where: list[str]
+    outputs: list[tuple[str, str]]
 
 
 def _public_names() -> list[tuple[str, str, object]]:
@@ -81,28 +98,162 @@ def test_every_registered_environment_has_a_card(env_id):
     assert f"{version}:" in card.split("**Version history.**", 1)[1], f"{env_id}: no {version}"
 
 
-def _snippets() -> list[tuple[str, str]]:
-    out = []
+NUMBER_WORDS = {"four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "nine": 9, "ten": 10}
+
+
+def _stated_counts() -> list[tuple[str, str, int]]:
+    """``(page, pattern, count in the code)``: each pattern's group is a count a page states."""
+    from stcgym.adaptive import ALGORITHMS
+    from stcgym.envs import get_family
+
+    ids = [k for k in gym.registry if k.startswith("stcgym/")]
+    family = get_family("siso2-v1")
+    splits = {name: len(family.split_indices(name)) for name in family.split_names}
+    variant_sizes = {splits[v] for v in family.variant_names}
+    assert len(variant_sizes) == 1, variant_sizes  # the page states one size for all
+    return [
+        ("docs/environments.md", r"registers (\w+) Gymnasium environment ids", len(ids)),
+        ("README.md", r"all (\d+) names", len(ALGORITHMS)),
+        ("docs/index.md", r"all (\d+) of the paper", len(ALGORITHMS)),
+        ("docs/glossary.md", r"the paper's (\d+) names", len(ALGORITHMS)),
+        ("docs/estimators.md", r"all (\d+) algorithms", len(ALGORITHMS)),
+        ("docs/environments.md", r"has\s+(\d+) second-order plants", family.count),
+        ("docs/environments.md", r"`train` \((\d+)\)", splits["train"]),
+        ("docs/environments.md", r"`validation` \((\d+)\)", splits["validation"]),
+        ("docs/environments.md", r"`test` \((\d+)\)", splits["test"]),
+        ("docs/environments.md", r"Its (\w+) variants of \d+ plants", len(family.variant_names)),
+        ("docs/environments.md", r"variants of (\d+) plants each", variant_sizes.pop()),
+    ]
+
+
+def test_the_counts_the_pages_state_are_the_codes():
+    wrong = []
+    for page, pattern, count in _stated_counts():
+        stated = re.findall(pattern, (ROOT / page).read_text())
+        assert stated, f"{page} no longer states /{pattern}/: update this test"
+        for word in stated:
+            if NUMBER_WORDS.get(word, word) not in (count, str(count)):
+                wrong.append(f"{page}: '{word}' in /{pattern}/, the code has {count}")
+    assert not wrong, wrong
+
+
+def test_the_environments_table_lists_every_registered_id():
+    text = (DOCS / "environments.md").read_text()
+    table = re.findall(r"^\| \[`(stcgym/[\w-]+)`\]", text[: text.index("\n## ")], re.M)
+    assert table == [k for k in gym.registry if k.startswith("stcgym/")]
+
+
+#: The README's agreed length: the set-up steps and three examples; the rest lives on the site.
+README_LINES = 170
+
+
+def test_the_readme_stays_short():
+    lines = len((ROOT / "README.md").read_text().splitlines())
+    assert lines <= README_LINES, f"README.md has {lines} lines, over {README_LINES}"
+
+
+def _blocks(page: Path) -> list[Example]:
+    """The ``python`` and ``output`` code blocks of a page, in order (Sybil's Markdown lexer)."""
+    return list(Document.parse(str(page), *BLOCK_PARSERS).examples())
+
+
+def _language(block: Example) -> str:
+    return block.region.lexemes["arguments"]
+
+
+def _snippets() -> list[Snippet]:
+    """Every Python snippet of the pages, each distinct one once (the README repeats the
+    landing page's), with the output blocks that follow it on each page."""
+    by_code: dict[str, Snippet] = {}
     for page in PAGES:
-        text = page.read_text()
-        for match in SNIPPET.finditer(text):
-            line = text[: match.start()].count("\n") + 1
-            out.append((f"{page.relative_to(ROOT)}:{line}", match.group(1)))
-    return out
+        previous = None
+        for block in _blocks(page):
+            where = f"{page.relative_to(ROOT)}:{block.line}"
+            if _language(block) == "python":
+                previous = by_code.setdefault(block.parsed, Snippet(block.parsed, [], []))
+                previous.where.append(where)
+            elif previous is None:
+                raise AssertionError(f"{where}: an output block that follows no python block")
+            else:
+                previous.outputs.append((where, str(block.parsed)))
+                previous = None
+    return list(by_code.values())
 
 
-@pytest.mark.parametrize(("where", "code"), _snippets(), ids=[w for w, _ in _snippets()])
-def test_every_python_snippet_runs_as_written(where, code, tmp_path):
-    if "stcgym.agents" in code and importlib.util.find_spec("stable_baselines3") is None:
+def output_mismatch(shown: str, printed: str) -> str | None:
+    """Why ``printed`` is not what an output block ``shown`` says, or None if it is.
+
+    The text must match with whitespace runs equal and ``...`` standing for any text (the
+    doctest conventions); each number must equal the printed one to a unit in the last
+    place either writes (a rounding that another BLAS or compiler may flip), integers exactly.
+    """
+    pattern, numbers = "", []
+    for token in re.split(rf"(\.\.\.|{NUMBER.pattern}|\s+)", shown.strip()):
+        if token == "...":
+            pattern += ".*?"
+        elif NUMBER.fullmatch(token or "x"):
+            pattern += f"({NUMBER.pattern})"
+            numbers.append(token)
+        elif token.isspace():
+            pattern += r"\s+"
+        else:
+            pattern += re.escape(token)
+    match = re.fullmatch(pattern, printed.strip(), re.S)
+    if match is None:
+        return f"the page shows\n{shown}\nthe snippet printed\n{printed}"
+    for want, got in zip(numbers, match.groups(), strict=True):
+        decimals = max(len(n.partition(".")[2].partition("e")[0]) for n in (want, got))
+        unit = 10.0**-decimals if "." in want + got else 0.0  # integers: exactly
+        if abs(float(want) - float(got)) > unit + 1e-12:
+            return f"the page shows {want}, the snippet printed {got}:\n{printed}"
+    return None
+
+
+@pytest.mark.parametrize("snippet", _snippets(), ids=lambda s: s.where[0])
+def test_every_python_snippet_runs_as_written_and_prints_what_the_page_shows(snippet, tmp_path):
+    if "stcgym.agents" in snippet.code and importlib.util.find_spec("stable_baselines3") is None:
         pytest.skip("needs the rl extra")
     script = tmp_path / "snippet.py"
-    script.write_text(code)
+    script.write_text(snippet.code)
     env = {**os.environ, "MPLBACKEND": "Agg"}
     done = subprocess.run(
         [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
         timeout=600,
     )  # fmt: skip
-    assert done.returncode == 0, f"{where} failed:\n{done.stderr[-3000:]}"
+    assert done.returncode == 0, f"{snippet.where} failed:\n{done.stderr[-3000:]}"
+    wrong = [(w, output_mismatch(shown, done.stdout)) for w, shown in snippet.outputs]
+    wrong = [f"{w}: {why}" for w, why in wrong if why]
+    assert not wrong, "\n".join(wrong)
+
+
+@pytest.mark.parametrize(
+    ("shown", "printed", "ok"),
+    [
+        ("stc: 0.172\nppo: ...\noracle: 0.131", "stc: 0.172\nppo: 0.945\noracle: 0.131\n", True),
+        ("stc: 0.172\nppo: 1.558\noracle: 0.131", "stc: 0.172\nppo: 0.945\noracle: 0.131\n", False),
+        ("[-1.498  0.698  1.     0.507]", "[-1.498  0.698  1.     0.507]\n", True),
+        ("[-1.498  0.698  1.     0.507]", "[-1.497  0.698  0.999  0.507]\n", True),  # a rounding
+        ("[-1.498  0.698  1.     0.507]", "[-1.496  0.698  1.     0.507]\n", False),
+        ("15", "16\n", False),
+        ("range(1100, 1300)", "range(1100, 1300)\n", True),
+        ("a 1.0", "b 1.0", False),
+        ("1.0", "1.0\n2.0\n", False),
+    ],
+)
+def test_the_output_check_allows_a_rounding_and_nothing_else(shown, printed, ok):
+    assert (output_mismatch(shown, printed) is None) == ok
+
+
+def test_a_printed_value_is_shown_in_an_output_block_not_a_comment():
+    """A value written in a comment after ``print`` is not checked: it goes in an ``output``
+    block after the snippet, which is."""
+    unchecked = []
+    for snippet in _snippets():
+        for line in snippet.code.splitlines():
+            code, _, comment = line.partition("  # ")
+            if "print(" in code and re.search(r"\d*\.\d|\[\s*-?\d", comment):
+                unchecked.append(f"{snippet.where[0]}: {line.strip()}")
+    assert not unchecked, f"values in comments after print: {unchecked}"
 
 
 def test_code_lines_fit_the_code_box():
@@ -284,6 +435,25 @@ def test_the_site_builds_cleanly(tmp_path):
     assert done.returncode == 0, done.stderr[-5000:]
     problems = _site_problems(tmp_path / "html")
     assert not problems, "\n".join(problems[:40])
+
+
+def test_the_docs_build_logs_the_compile_notice_as_information(caplog):
+    """conf.py hands the ``stcgym`` logger's warning (the first-run compile notice) to
+    Sphinx's log at INFO level: the gallery's first script compiles the kernels."""
+    pytest.importorskip("sphinx")
+    stcgym_log = logging.getLogger("stcgym")
+    handlers, propagate = list(stcgym_log.handlers), stcgym_log.propagate
+    path = list(sys.path)
+    spec = importlib.util.spec_from_file_location("docs_conf", DOCS / "conf.py")
+    try:
+        spec.loader.exec_module(importlib.util.module_from_spec(spec))
+        with caplog.at_level(logging.INFO):
+            stcgym_log.warning("stcgym is compiling its kernels")
+    finally:
+        stcgym_log.handlers[:], stcgym_log.propagate = handlers, propagate
+        sys.path[:] = path
+    seen = [(r.name, r.levelno) for r in caplog.records if "compiling" in r.getMessage()]
+    assert seen == [("sphinx.stcgym", logging.INFO)], seen
 
 
 def test_the_site_check_finds_raw_markup_broken_tables_and_dead_links(tmp_path):
