@@ -439,7 +439,8 @@ def write_report(
         "",
         "## Headline",
         "",
-        "Each cell: point estimate [95 % interval]. cost / LQG: interquartile mean (IQM) and "
+        "Each cell: point estimate [95 % interval] (a value alone: nothing to resample, e.g. "
+        "one run on one plant). cost / LQG: interquartile mean (IQM) and "
         "median over runs and test plants of the per-plant mean ratio to LQG on the same "
         "episodes, over the episodes that stayed bounded only, the whole episode (start-up "
         "included) and its steady window (the second half; before the jump in `jump:test`); "

@@ -45,7 +45,11 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Estimate:
-    """A point estimate with its confidence interval ``[low, high]``."""
+    """A point estimate with its confidence interval ``[low, high]``.
+
+    :meth:`format` writes ``value [low, high]``, or the value alone where the interval is the
+    point (one run on one plant, or the yardstick's own ratio: nothing to resample).
+    """
 
     value: float
     low: float
@@ -59,6 +63,8 @@ class Estimate:
 
         if math.isnan(self.value):
             return "-"
+        if self.low == self.high == self.value:  # nothing to resample: no interval to show
+            return g(self.value)
         return f"{g(self.value)} [{g(self.low)}, {g(self.high)}]"
 
 
@@ -327,7 +333,9 @@ def _weighted_iqm_median(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.n
     lo, hi = 0.25 * total, 0.75 * total
     before = c - w
     inside = np.clip(np.minimum(c, hi) - np.maximum(before, lo), 0.0, None)
-    iqm = (inside @ v) / (hi - lo)[:, 0]
+    # a sum, not a matrix product: BLAS kernels differ by CPU, and a committed run's
+    # statistics must render to the same digits on any machine
+    iqm = (inside * v).sum(axis=1) / (hi - lo)[:, 0]
     median = v[np.argmax(c >= 0.5 * total, axis=1)]
     return iqm, median
 

@@ -1,0 +1,56 @@
+"""The bench runs committed under ``results/``: each store renders, without training, to the
+statistics committed beside it, and the tables the documentation prints from it are those
+statistics (a page edited by hand, or a store changed without rendering the page again, fails
+here)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from stcgym.agents.benchmark.render import PAGE_START, page_tables, render_run
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNS = sorted(p.parent for p in (ROOT / "results").glob("*/config.json"))
+PAGES = [ROOT / "docs" / "benchmark.md", ROOT / "README.md"]
+#: The largest store a committed run may have (the repository carries every version of it).
+MAX_STORE_BYTES = 20 * 2**20
+
+
+def _block(text: str, run: str) -> str | None:
+    start = PAGE_START.format(run=run)
+    if start not in text:
+        return None
+    end_marker = "<!-- end of the tables of results/" + run + " -->"
+    return start + text.split(start, 1)[1].split(end_marker, 1)[0] + end_marker
+
+
+@pytest.mark.skipif(not RUNS, reason="no committed run under results/")
+@pytest.mark.parametrize("run", RUNS, ids=[p.name for p in RUNS])
+def test_a_committed_store_renders_to_its_committed_statistics(run, tmp_path):
+    store = run / "store"
+    size = sum(p.stat().st_size for p in store.iterdir())
+    assert 0 < size <= MAX_STORE_BYTES
+    copy = tmp_path / run.name
+    copy.mkdir()
+    shutil.copy(run / "config.json", copy / "config.json")
+    shutil.copytree(store, copy / "store")
+    rendered = render_run(copy, plots=False, log=lambda msg: None)
+    assert not rendered.missing, f"{run.name}: jobs of the plan without a record"
+    assert json.loads((copy / "statistics.json").read_text()) == json.loads(
+        (run / "statistics.json").read_text()
+    )
+    assert (copy / "report.md").read_text() == (run / "report.md").read_text()
+
+
+@pytest.mark.skipif(not RUNS, reason="no committed run under results/")
+@pytest.mark.parametrize("run", RUNS, ids=[p.name for p in RUNS])
+def test_the_pages_print_the_tables_of_the_committed_statistics(run):
+    statistics = json.loads((run / "statistics.json").read_text())
+    blocks = [b for page in PAGES if (b := _block(page.read_text(), run.name)) is not None]
+    assert blocks, f"no page prints the tables of results/{run.name}"
+    for block in blocks:
+        assert block == page_tables(run.name, statistics)
