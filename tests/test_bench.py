@@ -906,8 +906,10 @@ def test_report_writes_the_headline_tables_into_a_page_between_its_markers(
     assert text.startswith("# Results\n\nbefore\n\n") and text.endswith("\n\nafter\n")
     assert "stale" not in text
     stats = json.loads((run / "statistics.json").read_text())
-    ratio = stats["family:test"]["stc"]["ratio"]
-    assert f"| `stc` | 3 | {ratio['value']:.3g} [{ratio['low']:.3g}, {ratio['high']:.3g}] |" in text
+    stc = stats["family:test"]["stc"]
+    ratio = stc["ratio"]
+    cell = f"{ratio['value']:.3g} [{ratio['low']:.3g}, {ratio['high']:.3g}]"
+    assert f"| `stc` | {stc['runs']} | {cell} |" in text
     assert main(["report", str(run), "--no-plots", "--page", str(page)]) == 0
     assert "tables unchanged" in capsys.readouterr().err
     page.write_text("no markers\n")

@@ -211,6 +211,8 @@ def _cell(estimate: dict[str, Any] | None, digits: int = 3) -> str:
             return v
         return f"{v:.{digits}g}"
 
+    if estimate["low"] == estimate["high"] == estimate["value"]:  # nothing to resample
+        return g(estimate["value"])
     return f"{g(estimate['value'])} [{g(estimate['low'])}, {g(estimate['high'])}]"
 
 
@@ -234,8 +236,11 @@ def page_tables(run_name: str, statistics: dict[str, Any]) -> str:
                 if div.get("value") is None
                 else f"{100 * div['value']:.1f} % [{100 * div['low']:.1f}, {100 * div['high']:.1f}]"
             )
+            runs = f"{est.get('runs', '-')}"
+            if est.get("untrained_runs"):
+                runs += f" (+{est['untrained_runs']} untrained, left out)"
             lines.append(
-                f"| `{name}` | {est.get('runs', '-')} | {_cell(est.get('ratio'))} | "
+                f"| `{name}` | {runs} | {_cell(est.get('ratio'))} | "
                 f"{_cell(est.get('ratio_median'))} | {pct} |"
             )
         lines.append("")

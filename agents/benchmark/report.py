@@ -206,7 +206,7 @@ def _headline_table(
     for c, res in hl.items():
         left_out = untrained.get(c, (0, 0))[0]
         cells = [
-            c + (f" ({left_out} untrained runs left out)" if left_out else ""),
+            c + (f" ({left_out} untrained run{'s' * (left_out > 1)} left out)" if left_out else ""),
             f"{res['runs']} x {res['episodes']}",
             res["ratio"].format(3),
             res["ratio_median"].format(3),
@@ -466,7 +466,7 @@ def write_report(
         tables = scenario_tables(rows, sc.name, sc.episodes.units)
         tables = {c: tables[c] for c in order if c in tables}
         hl = headline(tables, reps=cfg.bootstrap_reps)
-        statistics[sc.name] = hl
+        statistics[sc.name] = dict(hl)
         stops = {
             c: training_stops([r for rs in t["rows"].values() for r in rs[:1]])
             for c, t in tables.items()
@@ -480,6 +480,11 @@ def write_report(
             if tables[b]["family"] == "rl"
         ]
         untrained = untrained_runs(rows, sc.name)
+        for c, (n, _) in untrained.items():  # saved beside the estimates (statistics.json)
+            if n and c in hl:
+                hl[c]["untrained_runs"] = n
+            elif n:  # every run kept its untrained network: no estimate
+                statistics[sc.name][c] = {"family": "rl", "runs": 0, "untrained_runs": n}
         table = _headline_table(hl, sc.kind == "jump", stops, untrained)
         out += [f"### `{sc.name}`", "", *table, ""]
         if pairs:
