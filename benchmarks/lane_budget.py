@@ -51,7 +51,8 @@ import numpy as np
 from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.control.design import DesignConfig, design_work, place_design
+from stcgym.adaptive.control.pole_placement import place_design
+from stcgym.adaptive.control.safe_set import DesignConfig, design_work
 from stcgym.adaptive.estimation.estimator import EstimatorSpec
 from stcgym.adaptive.estimation.estimator_lanes import run_lane
 from stcgym.adaptive.estimation.least_squares import least_squares_increment
@@ -285,7 +286,7 @@ def main(argv: list[str] | None = None) -> None:
 
     _layout_experiment(rng)
 
-    c = SelfTuningController(2)._cfg  # the default poles and safe set
+    c = SelfTuningController(2).compiled_args.cfg  # the default poles and safe set
     cfg = DesignConfig(0, True, True, c.safe, c.alpha)
     gain, work = np.zeros(6), design_work(2, True)
     gen = _best_ns(lambda s: _place_generic(theta.copy(), cfg, gain, work, s), steps)

@@ -203,10 +203,7 @@ def controller_batch_ns(B: int, threads: int, steps: int) -> float:
 
     c = SelfTuningController(2, num_envs=B)
     u, y, r = np.zeros(B), np.full(B, 0.1), np.ones(B)
-    args = (
-        c._state, c._work, c._cfg, c._est, c._est_work, c._est_cfg, c._els_cfg, c._lq_weights,
-        y, r, u,
-    )  # fmt: skip
+    args = (*c.compiled_args, y, r, u)
     types = tuple(numba.typeof(a) for a in args) + (numba.int64, numba.int64)
     loop = kc.controllers_step.dispatcher.compile(types)
     return _blocks_ns(loop, args, B, threads, steps, warmup=200)

@@ -184,7 +184,7 @@ def test_kernel_sources_cover_the_modules_kernels_inline_and_read() -> None:
         "adaptive/control/controller_step.py",  # defines kernels
         "adaptive/control/law.py",  # inlined into the controller step
         "adaptive/estimation/estimator_spec.py",  # no kernel, but its constants are compiled in
-        "adaptive/kernels/variants.py",
+        "adaptive/variants.py",
         "envs/compiled.py",
         "adaptive/control/rollout.py",
     ):

@@ -75,8 +75,8 @@ from stcgym.adaptive.estimation.state_estimation import (
 from stcgym.adaptive.kernels.canonical import companion_into
 from stcgym.adaptive.kernels.linalg import matvec
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
-from stcgym.adaptive.kernels.variants import RULES as _RULES
-from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
+from stcgym.adaptive.variants import RULES as _RULES
+from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.compiled import lane
 
 __all__ = [

@@ -106,7 +106,7 @@ def make_estimator(
         Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.
     **rule_parameters
         The parameters of a rule of its own: each rule of
-        :data:`stcgym.adaptive.kernels.variants.RULES` declares them (``Rule.parameters``:
+        :data:`stcgym.adaptive.variants.RULES` declares them (``Rule.parameters``:
         name, default, range).
 
     Returns

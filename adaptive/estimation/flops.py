@@ -152,9 +152,9 @@ def d_misg(n: int, p: int, *, stacked_r: bool = False) -> int:
 def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> tuple[int, int]:
     """``(parameter update, state estimate)`` flops per step of a named recursive algorithm
     such as ``"KF-D-MILS"`` (the counts each rule and state estimator declares in
-    :mod:`stcgym.adaptive.kernels.variants`; ``p`` ignored by the rules without
+    :mod:`stcgym.adaptive.variants`; ``p`` ignored by the rules without
     multi-innovation)."""
-    from stcgym.adaptive.kernels.variants import variant  # the registry refers to this module
+    from stcgym.adaptive.variants import variant  # the registry refers to this module
 
     try:
         v = variant(name)
