@@ -21,7 +21,7 @@ from stcgym.adaptive.multivariable import mimo_lq
 from stcgym.adaptive.multivariable.controller_step import make_mimo_state
 from stcgym.adaptive.multivariable.state_matrix import make_state_matrix
 from stcgym.adaptive.regression.rls_step import make_rls_state, rls_shapes
-from stcgym.envs.compiled import make_work
+from stcgym.lanes.compiled import make_work
 
 
 def _arrays(tree: tuple) -> dict[str, np.ndarray]:

@@ -41,7 +41,8 @@ from __future__ import annotations
 
 import functools
 import warnings
-from typing import Any, NamedTuple
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -60,7 +61,7 @@ from stcgym.adaptive.control.options import (
     plant_settings,
 )
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
-from stcgym.adaptive.control.safe_set import feedback_gain
+from stcgym.adaptive.control.safe_set import STATUS_NAMES, feedback_gain
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.adaptive.kernels.canonical import OBSERVABILITY, OBSERVER
 from stcgym.adaptive.policy import SelfTuningLanes, episode_starts
@@ -74,8 +75,8 @@ from stcgym.adaptive.variants import (
     controller_estimator,
 )
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.envs.validation import integer
+from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
 
 __all__ = [
     "DEFAULT_POLE",
@@ -92,9 +93,10 @@ __all__ = [
 OBSERVATION_LIMIT = 1e100
 
 
-class _Steps(NamedTuple):
+@dataclass(frozen=True)
+class _Steps:
     """The compiled entry points of one version, their argument types looked up once
-    (:class:`~stcgym.envs.compiled.FixedTypes`)."""
+    (:class:`~stcgym.lanes.compiled.FixedTypes`)."""
 
     step: FixedTypes  # one plant: controller_step(*args, 0, y, r)
     steps: FixedTypes  # every lane: controllers_step(*args, y, r, u)
@@ -106,12 +108,14 @@ class _Steps(NamedTuple):
 # argument types differ between versions.
 _STEPS = {
     CompiledVersion(paper, lq): _Steps(
-        *(FixedTypes(f) for f in (kc.controller_step, kc.controllers_step, kc.controllers_act,
-                                  kc.controllers_commit))
+        step=FixedTypes(kc.controller_step),
+        steps=FixedTypes(kc.controllers_step),
+        act=FixedTypes(kc.controllers_act),
+        commit=FixedTypes(kc.controllers_commit),
     )
     for paper in (False, True)
     for lq in (False, True)
-}  # fmt: skip
+}
 
 
 def _frozen(values: Any) -> NDArray:
@@ -189,6 +193,7 @@ class SelfTuningController(SelfTuningLanes):
     """
 
     observation_limit = OBSERVATION_LIMIT
+    status_names = STATUS_NAMES
 
     def __init__(
         self,
@@ -265,7 +270,7 @@ class SelfTuningController(SelfTuningLanes):
             ew_long=float(cd.long),
             probe_output=float(self.startup.probe_output),
             safe=_frozen(self.safe_set.vector()),
-            alpha=_frozen(characteristic_coefficients(self.poles)),
+            char_poly=_frozen(characteristic_coefficients(self.poles)),
         )
         # the compiled version (variants.compiled_version) is chosen by which of est_cfg /
         # els_cfg is None (the step compiled for one estimator contains none of the other) and

@@ -1,7 +1,7 @@
 """The self-tuning controller step, written once as a compiled lane function.
 
 One call of :func:`controller_step` advances one plant's controller by one sample
-(convention of :mod:`stcgym.envs.compiled`): it reads ``y(t)``, ``r(t)`` and returns ``u(t)``.
+(convention of :mod:`stcgym.lanes.compiled`): it reads ``y(t)``, ``r(t)`` and returns ``u(t)``.
 Every step, in this order:
 
 1. **estimator measurement step** with ``y(t)``: ``theta_hat(t)`` and the innovation ``e(t)``
@@ -58,7 +58,7 @@ from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_up
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
 from stcgym.adaptive.kernels.records import copy_matrix
-from stcgym.envs.compiled import lane, lane_state, lanes
+from stcgym.lanes.compiled import lane, lane_state, lanes
 
 __all__ = [
     "COUNTERS",
@@ -192,7 +192,7 @@ class ControllerConfig(NamedTuple):
     ew_long: float
     probe_output: float  # output level that scales the probe down and ends it early
     safe: NDArray  # [b_min, rcond_min, dc_rcond_min, gain_max]
-    alpha: NDArray  # closed-loop characteristic polynomial (m; pole placement)
+    char_poly: NDArray  # closed-loop characteristic polynomial coefficients (m; pole placement)
 
 
 # ---------------------------------------------------------------------------------- probe

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.control import lq, safe_set
-from stcgym.adaptive.estimation.estimator import REGRESSORS
+from stcgym.adaptive.estimation.estimator_spec import REGRESSORS
 from stcgym.adaptive.variants import (
     CONTROLLER_ESTIMATORS,
     STATE_ESTIMATORS,

@@ -20,8 +20,8 @@ from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.adaptive.kernels import canonical
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
-from stcgym.envs.compiled import FixedTypes, set_lanes, state_arrays
 from stcgym.envs.validation import integer, real_in
+from stcgym.lanes.compiled import FixedTypes, set_lanes, state_arrays
 
 __all__ = ["MAX_SETTING"]
 
@@ -141,11 +141,11 @@ class _KnownModelLoop(LanePolicy):
             canonical.model_matrices_lanes(thetas, self._form_code, A, b.copy())
         return A
 
-    def _design_config(self, alpha: NDArray) -> safe_set.DesignConfig:
+    def _design_config(self, char_poly: NDArray) -> safe_set.DesignConfig:
         """The design's settings: the law's integral action and feed-forward, no safe set."""
         law = self.law
         return safe_set.DesignConfig(
-            self._form_code, bool(law.integral), bool(law.feedforward), _NO_SAFE_SET, alpha
+            self._form_code, bool(law.integral), bool(law.feedforward), _NO_SAFE_SET, char_poly
         )
 
     def _design_lanes(self, a: NDArray, b: NDArray, name: str) -> safe_set.Gain:

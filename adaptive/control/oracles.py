@@ -122,14 +122,14 @@ class KnownModelController(_KnownModelLoop):
     ) -> None:
         a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
         self.poles = check_poles(poles, self.n + int(self.law.integral))
-        self._alpha = characteristic_coefficients(self.poles)
+        self._char_poly = characteristic_coefficients(self.poles)
         self._q = _setting(process_noise, "process_noise", lo=0.0)
         self.R = _setting(measurement_noise, "measurement_noise")
         self._P0 = _setting(P0, "P0")
         self._build(a_l, b_l)
 
     def _design_batch(self, thetas: NDArray, gains: safe_set.Gain, status: NDArray) -> None:
-        cfg = self._design_config(self._alpha)
+        cfg = self._design_config(self._char_poly)
         work = safe_set.design_work(self.n, cfg.integral, thetas.shape[0])
         if thetas.shape[0] == 1:
             status[0] = pole_placement.place_design(thetas[0], cfg, gains, work, 0)

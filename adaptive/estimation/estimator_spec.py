@@ -31,7 +31,6 @@ from stcgym.adaptive.variants import ALGORITHMS, EstimatorName, Rule, parse_name
 from stcgym.adaptive.variants import RULES as _RULES
 from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.compiled import lane_state, state_nbytes_per_lane
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -40,12 +39,11 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
+from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
 
 __all__ = [
     "ALGORITHMS",
     "REGRESSORS",
-    "RULES",
-    "STATE_ESTIMATORS",
     "EstimatorConfig",
     "EstimatorSpec",
     "EstimatorState",
@@ -54,10 +52,6 @@ __all__ = [
     "upper_cholesky",
 ]
 
-#: The rules' names (:data:`.variants.RULES` has what the code knows about each).
-RULES: tuple[str, ...] = tuple(_RULES)
-#: The state estimators' names (:data:`.variants.STATE_ESTIMATORS`).
-STATE_ESTIMATORS: tuple[str, ...] = tuple(_STATES)
 #: Which state estimate the regressor ``phi_hat`` is built from (see :meth:`EstimatorSpec.build`).
 REGRESSORS: tuple[str, ...] = ("predicted", "filtered")
 #: Frozen-signal defaults (see :mod:`.estimator`; calibrated in
@@ -113,7 +107,7 @@ class EstimatorWork(NamedTuple):
 
     delta: NDArray  # the increment of theta (d)
     K: NDArray  # the rule's gain vector P phi (d)
-    w: NDArray  # the least-squares blocks' scratch (2d)
+    factor_work: NDArray  # the least-squares factor updates' scratch (2d)
     theta_prev: NDArray  # theta(t-1) of the projection; the window's theta (d)
     E_replay: NDArray  # the innovation of a replayed block (p)
     E_old: NDArray  # the innovation of the block leaving the window (p)
@@ -523,7 +517,7 @@ class EstimatorSpec:
         for scalar in EstimatorState._fields:
             state.setdefault(scalar, ())
         work = {
-            "delta": (d,), "K": (d,), "w": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
+            "delta": (d,), "K": (d,), "factor_work": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
             "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
             "AP": (n, n), "P_upd": (n, n), "x_reg": (n,),
         }  # fmt: skip

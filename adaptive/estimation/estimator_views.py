@@ -18,9 +18,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation import estimator as _k
-from stcgym.adaptive.estimation.estimator import EstimatorSpec, EstimatorState
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec, EstimatorState
 from stcgym.adaptive.estimation.health import describe_events, health_error
-from stcgym.envs.compiled import set_lanes
+from stcgym.lanes.compiled import set_lanes
 
 __all__ = ["EstimatorViews"]
 

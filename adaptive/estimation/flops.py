@@ -161,8 +161,7 @@ def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -
     except ValueError as exc:
         raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS': {exc}") from None
     _positive(n=n, p=p)
-    rule_flops = v.rule.decomposed_flops if v.decomposed else v.rule.flops
-    return rule_flops(n, p, stacked_r), v.state.flops(n)
+    return v.flops(n, p, stacked_r)
 
 
 def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:
