@@ -47,7 +47,7 @@ test-explore: install
 	MPLBACKEND=Agg $(BIN)/python -m pytest -n 2 --dist worksteal -q --hypothesis-profile=explore
 
 # The suite on the newest numba (and llvmlite) of the registry, past pyproject.toml's upper
-# bound: a numba release that breaks an assumption of stcgym.envs.numba_internals fails
+# bound: a numba release that breaks an assumption of stcgym.lanes.numba_internals fails
 # tests/test_numba_internals.py here before it reaches a user. Its own venv and kernel cache.
 LATEST_VENV ?= .venv-latest
 test-latest:
@@ -68,9 +68,9 @@ lint: install
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
 # Empties the numba cache of the kernels by hand; an edited kernel source empties it on the next
-# import anyway (stcgym.envs.kernel_cache), so this is only needed to measure a cold start.
+# import anyway (stcgym.lanes.kernel_cache), so this is only needed to measure a cold start.
 clean-cache:
-	find envs adaptive agents -name '*.nbi' -delete -o -name '*.nbc' -delete
+	find lanes envs adaptive agents -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 clean: clean-cache
 	rm -rf $(VENV) .venv-latest .numba-cache-latest build *.egg-info .pytest_cache .hypothesis docs/_build docs/generated docs/gallery docs/sg_execution_times.rst

@@ -11,7 +11,7 @@ both.
 
 :class:`LanePolicy` writes ``predict`` once for every policy of stcgym. Such a policy keeps one
 lane per plant (``num_envs=None``: one plant; ``num_envs=B``: ``B`` plants, see
-:mod:`stcgym.envs.compiled`):
+:mod:`stcgym.lanes.compiled`):
 
 * ``num_envs=None`` takes one observation of shape ``(obs_dim,)`` and gives an action of shape
   ``(action_dim,)``; ``num_envs=B`` takes ``(B, obs_dim)`` and gives ``(B, action_dim)``
@@ -41,9 +41,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.control.safe_set import STATUS_NAMES
 from stcgym.adaptive.estimation.recursive import lane_indices
-from stcgym.envs.compiled import set_lanes
+from stcgym.lanes.compiled import set_lanes
 
 __all__ = [
     "LanePolicy",
@@ -291,12 +290,14 @@ class SelfTuningLanes(LanePolicy):
     (``closed_t``, ``-1`` while open) and the counters that :attr:`diagnostics` reports, and
     keeps the ``seed`` of its probe; :meth:`_counter` gives one of them for every lane. A
     controller holds its lane state ``_state`` (a named tuple of batched arrays with those
-    counters as fields, :func:`stcgym.envs.compiled.lane_state`) and its estimator's ``_est``;
+    counters as fields, :func:`stcgym.lanes.compiled.lane_state`) and its estimator's ``_est``;
     a reset copies one lane's initial values ``_init`` and ``_est_init`` into them.
     """
 
     #: One seed per lane.
     seeds: NDArray
+    #: The name of each status code of the designs (``last_rejection`` of :attr:`diagnostics`).
+    status_names: tuple[str, ...]
     _state: Any
     _init: Any
     _est: Any
@@ -353,7 +354,7 @@ class SelfTuningLanes(LanePolicy):
             **flags,
             "closed_at": c("closed_t"),
             "n_rejected": c("n_rejected"),
-            "last_rejection": np.array([STATUS_NAMES[code] for code in c("last_reason")]),
+            "last_rejection": np.array([self.status_names[k] for k in c("last_reason")]),
             "n_alarms": c("n_alarms"),
             "n_saturated": c("n_saturated"),
             "n_probe": c("n_probe"),

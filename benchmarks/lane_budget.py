@@ -7,7 +7,7 @@ Run from the repository root::
 
 The targets are ``>= 5e6`` plant-steps/s through the public batched route and ``>= 1e7``
 through the compiled rollout (n = 2, KF-MILS p = 5). With every lane an independent scalar
-computation (the :mod:`stcgym.envs.compiled` convention), ``c`` cores give at most
+computation (the :mod:`stcgym.lanes.compiled` convention), ``c`` cores give at most
 ``c / t_lane`` plant-steps/s, so the budget is ``c / target`` of one core per lane-step. This
 script prints that budget next to the measured cost of each part of a lane step, every part
 timed in a compiled loop over one lane (no Python in the timing; the best of 20 short runs,
@@ -51,9 +51,10 @@ import numpy as np
 from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.control.design import DesignConfig, design_work, place_design
-from stcgym.adaptive.estimation.estimator import EstimatorSpec
+from stcgym.adaptive.control.pole_placement import place_design
+from stcgym.adaptive.control.safe_set import DesignConfig, design_work
 from stcgym.adaptive.estimation.estimator_lanes import run_lane
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.adaptive.estimation.least_squares import least_squares_increment
 from stcgym.envs import PLANTS
 from stcgym.envs.dynamics import canonical_plant_step
@@ -285,8 +286,8 @@ def main(argv: list[str] | None = None) -> None:
 
     _layout_experiment(rng)
 
-    c = SelfTuningController(2)._cfg  # the default poles and safe set
-    cfg = DesignConfig(0, True, True, c.safe, c.alpha)
+    c = SelfTuningController(2).compiled_args.cfg  # the default poles and safe set
+    cfg = DesignConfig(0, True, True, c.safe, c.char_poly)
     gain, work = np.zeros(6), design_work(2, True)
     gen = _best_ns(lambda s: _place_generic(theta.copy(), cfg, gain, work, s), steps)
     fixed = _best_ns(lambda s: _place_specialised(theta.copy(), cfg, gain, work, s), steps)

@@ -156,7 +156,7 @@ def _blocks_ns(loop, args: tuple, B: int, threads: int, steps: int, warmup: int 
     other processes."""
     import numba
 
-    from stcgym.envs.compiled import run_blocks
+    from stcgym.lanes.compiled import run_blocks
 
     saved = numba.get_num_threads()
     numba.set_num_threads(threads)
@@ -203,10 +203,7 @@ def controller_batch_ns(B: int, threads: int, steps: int) -> float:
 
     c = SelfTuningController(2, num_envs=B)
     u, y, r = np.zeros(B), np.full(B, 0.1), np.ones(B)
-    args = (
-        c._state, c._work, c._cfg, c._est, c._est_work, c._est_cfg, c._els_cfg, c._lq_weights,
-        y, r, u,
-    )  # fmt: skip
+    args = (*c.compiled_args, y, r, u)
     types = tuple(numba.typeof(a) for a in args) + (numba.int64, numba.int64)
     loop = kc.controllers_step.dispatcher.compile(types)
     return _blocks_ns(loop, args, B, threads, steps, warmup=200)
@@ -215,7 +212,7 @@ def controller_batch_ns(B: int, threads: int, steps: int) -> float:
 def threads_table() -> None:
     """One thread against all cores for two batch loops, the plant step and the controller
     step: the basis of :data:`stcgym.envs.dynamics.PARALLEL_MIN_LANES` and
-    :data:`stcgym.envs.compiled.DEFAULT_MIN_LANES`."""
+    :data:`stcgym.lanes.compiled.DEFAULT_MIN_LANES`."""
     import numba
 
     cores = numba.config.NUMBA_NUM_THREADS

@@ -2,7 +2,7 @@
 
 Every environment of :mod:`stcgym.envs.plants` (one plant) and :mod:`stcgym.envs.vector`
 (``B`` plants) advances its plant with the functions of this module, following the convention of
-:mod:`stcgym.envs.compiled`: a *lane function* advances one plant on 1-D (or 2-D matrix) views of
+:mod:`stcgym.lanes.compiled`: a *lane function* advances one plant on 1-D (or 2-D matrix) views of
 that plant's arrays, and a *batch loop* is ``for i in range(first, last): lane_fn(X[i], ...)``.
 A single env therefore equals lane ``i`` of the vector env bit for bit, on any CPU: the same
 machine code runs on the same numbers (no BLAS inside; the small loops are written out).
@@ -33,7 +33,7 @@ arrays float64 and C-contiguous; each function's docstring gives its arguments):
 * batch loops over lanes ``[first, last)``: :func:`canonical_plants_step`,
   :func:`state_space_plants_step`, :func:`performance_rewards`, :func:`noise_inputs`, and at
   reset :func:`canonical_outputs` / :func:`state_outputs`, threaded from
-  :data:`PARALLEL_MIN_LANES` lanes a thread on (:class:`stcgym.envs.compiled.LaneLoop`).
+  :data:`PARALLEL_MIN_LANES` lanes a thread on (:class:`stcgym.lanes.compiled.LaneLoop`).
 
 ``z_w``, ``z_v`` are standard normals (may be empty when the matching ``sigma`` is 0); those of
 a rollout's next steps, with its references and parameters, come from
@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stcgym.envs.compiled import lane, lanes
+from stcgym.lanes.compiled import lane, lanes
 
 __all__ = [
     "OBSERVER",

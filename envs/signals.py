@@ -1,5 +1,6 @@
 """Reference signals and parameter schedules shared by every stcgym environment (defined in
-:mod:`stcgym.envs.references` and :mod:`stcgym.envs.schedules`, re-exported here).
+:mod:`stcgym.envs.references`, :mod:`stcgym.envs.reference_specs` and
+:mod:`stcgym.envs.schedules`, re-exported here).
 
 Both kinds of object produce their values **for a vector of lanes** (the plants of a vector env;
 a single env is one lane), with any per-episode state kept lane by lane inside the object:
@@ -28,9 +29,11 @@ easily a callable ``k -> r`` (:class:`CallableReference`).
 
 from __future__ import annotations
 
+from stcgym.envs import reference_specs as _reference_specs
 from stcgym.envs import references as _references
 from stcgym.envs import schedules as _schedules
+from stcgym.envs.reference_specs import *  # noqa: F403
 from stcgym.envs.references import *  # noqa: F403
 from stcgym.envs.schedules import *  # noqa: F403
 
-__all__ = [*_references.__all__, *_schedules.__all__]
+__all__ = [*_references.__all__, *_reference_specs.__all__, *_schedules.__all__]

@@ -1,6 +1,6 @@
 """Calling a lane helper from a test.
 
-Lane helpers (``@lane`` without ``entry=True``, :func:`stcgym.envs.compiled.lane`) are compiled
+Lane helpers (``@lane`` without ``entry=True``, :func:`stcgym.lanes.compiled.lane`) are compiled
 without numba's CPython wrapper, so Python cannot call them directly. A test reaches one the way
 the lane functions do: through a compiled caller, here a one-line ``njit`` function per helper.
 """

@@ -24,10 +24,12 @@ from numba.core import event
 
 import stcgym.adaptive
 import stcgym.envs
+import stcgym.lanes
 from stcgym.adaptive.control import controller_step as kc
-from stcgym.envs import compiled, kernel_cache
+from stcgym.lanes import compiled, kernel_cache
 
 PACKAGES = {
+    "lanes": Path(stcgym.lanes.__file__).parent,
     "envs": Path(stcgym.envs.__file__).parent,
     "adaptive": Path(stcgym.adaptive.__file__).parent,
 }
@@ -72,7 +74,7 @@ print(json.dumps({"y": ys, "hits": sum(dynamics.canonical_plant_step.stats.cache
 
 
 def _copy_package(root: Path) -> Path:
-    """``root/stcgym/{envs,adaptive}``: a copy of the package without its caches."""
+    """``root/stcgym/{lanes,envs,adaptive}``: a copy of the package without its caches."""
     for name, src in PACKAGES.items():
         shutil.copytree(src, root / "stcgym" / name, ignore=shutil.ignore_patterns("__pycache__"))
     return root
@@ -157,7 +159,7 @@ def test_installed_notice_prints_one_line_on_a_cold_start_only(tmp_path: Path) -
     compile (here with the threshold at 0 s, so the plant step's short compile counts); the
     next process loads the cache and prints nothing."""
     code = (
-        "import stcgym.envs.compiled as c; c.NOTICE.after = 0.0\n"
+        "import stcgym.lanes.compiled as c; c.NOTICE.after = 0.0\n"
         "import gymnasium as gym, numpy as np, stcgym.envs\n"
         "env = gym.make('stcgym/ObserverCanonical-v0', plant='unstable2'); env.reset(seed=0)\n"
         "env.step(np.array([0.0])); env.step(np.array([1.0]))\n"
@@ -178,14 +180,14 @@ def test_installed_notice_prints_one_line_on_a_cold_start_only(tmp_path: Path) -
 
 # ------------------------------------------------------------------------ kernel cache
 def test_kernel_sources_cover_the_modules_kernels_inline_and_read() -> None:
-    root = Path(kernel_cache.__file__).resolve().parents[1]  # holds envs/ and adaptive/
+    root = Path(kernel_cache.__file__).resolve().parents[1]  # holds lanes/, envs/ and adaptive/
     names = {p.relative_to(root).as_posix() for p in kernel_cache.kernel_sources()}
     for expected in (
         "adaptive/control/controller_step.py",  # defines kernels
         "adaptive/control/law.py",  # inlined into the controller step
         "adaptive/estimation/estimator_spec.py",  # no kernel, but its constants are compiled in
-        "adaptive/kernels/variants.py",
-        "envs/compiled.py",
+        "adaptive/variants.py",
+        "lanes/compiled.py",
         "adaptive/control/rollout.py",
     ):
         assert expected in names, names

@@ -1,5 +1,5 @@
 """The deadbeat design, a design added through the registry of variants
-(stcgym.adaptive.kernels.variants.DESIGNS): against python-control's ``acker`` with every pole
+(stcgym.adaptive.variants.DESIGNS): against python-control's ``acker`` with every pole
 at the origin, the nilpotent closed loop, its oracle."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import KnownModelController, SelfTuningController
-from stcgym.adaptive.kernels.variants import DESIGNS
+from stcgym.adaptive.variants import DESIGNS
 from stcgym.envs import get_plant
 from stcgym.envs.canonical import companion_A
 
@@ -49,7 +49,7 @@ def test_the_self_tuning_controller_places_every_pole_at_the_origin():
 
 def test_the_registry_entry_and_its_oracle():
     design = DESIGNS["deadbeat"]
-    assert design.kernel == "place" and design.poles == 0.0
+    assert not design.lq and design.poles == 0.0  # Ackermann's formula, every pole at 0
     plant = get_plant("stable2")
     oracle = design.make_oracle(plant.a, plant.b)
     assert isinstance(oracle, KnownModelController)

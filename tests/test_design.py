@@ -1,4 +1,5 @@
-"""Certainty-equivalence design lane functions (stcgym.adaptive.control.design).
+"""Certainty-equivalence design lane functions (pole_placement, lq, safe_set, law of
+stcgym.adaptive.control).
 
 References: python-control's ``acker`` / ``dlqr`` on the integral-augmented canonical model, the
 steady-state equations solved with numpy, and the tracking law written out by hand.
@@ -15,26 +16,30 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from lane_call import call
 
-from stcgym.adaptive.control import design as d
+from stcgym.adaptive.control import law, lq
+from stcgym.adaptive.control import pole_placement as pp
+from stcgym.adaptive.control import safe_set as ss
 from stcgym.adaptive.control.placement import augment_integral, controllability_matrix
+from stcgym.adaptive.estimation import state_estimation as se
+from stcgym.adaptive.kernels import canonical as cf
 from stcgym.envs.canonical import companion_A
 
-FORMS = {"observer": d.OBSERVER, "observability": d.OBSERVABILITY}
+FORMS = {"observer": cf.OBSERVER, "observability": cf.OBSERVABILITY}
 
 
-def _K(gain: d.Gain, integral: bool, lane: int = 0) -> np.ndarray:
+def _K(gain: ss.Gain, integral: bool, lane: int = 0) -> np.ndarray:
     """The state-feedback gain ``[K_x, k_i]`` (``K_x`` alone without integral action)."""
     return np.r_[gain.K_x[lane], gain.k_i[lane]] if integral else gain.K_x[lane].copy()
 
 
-def _flat(gain: d.Gain, lane: int = 0) -> np.ndarray:
+def _flat(gain: ss.Gain, lane: int = 0) -> np.ndarray:
     """Every field of one lane of a gain, ``[K_x, k_i, N, rcond]``: to compare two gains."""
     return np.r_[gain.K_x[lane], gain.k_i[lane], gain.N[lane], gain.rcond[lane]]
 
 
-def _gain_of(K_x: np.ndarray, k_i: float, N: float) -> d.Gain:
+def _gain_of(K_x: np.ndarray, k_i: float, N: float) -> ss.Gain:
     """A one-lane gain with the given fields (``rcond`` 0.5: any accepted design's)."""
-    gain = d.make_gain(K_x.size, 1)
+    gain = ss.make_gain(K_x.size, 1)
     gain.K_x[0] = K_x
     gain.k_i[0], gain.N[0], gain.rcond[0] = k_i, N, 0.5
     return gain
@@ -73,9 +78,9 @@ def _models(theta: np.ndarray, form: str, integral: bool) -> tuple[np.ndarray, .
     return A, b, Ad, bd
 
 
-def _lq_config(form: int, integral: bool) -> d.DesignConfig:
+def _lq_config(form: int, integral: bool) -> ss.DesignConfig:
     """The settings of an LQ design with feed-forward and no safe set (no poles)."""
-    return d.DesignConfig(form, integral, True, d.safe_set(), np.zeros(0))
+    return ss.DesignConfig(form, integral, True, ss.safe_set(), np.zeros(0))
 
 
 def _alpha(poles: np.ndarray) -> np.ndarray:
@@ -100,10 +105,10 @@ def test_place_design_matches_acker(form: str, n: int, integral: bool, feedforwa
     A, b, Ad, bd = _models(theta, form, integral)
     m = Ad.shape[0]
     poles = np.linspace(0.2, 0.7, m)
-    gain = d.make_gain(n, 1)
-    cfg = d.DesignConfig(FORMS[form], integral, feedforward, d.safe_set(), _alpha(poles))
-    status = d.place_design(theta, cfg, gain, d.design_work(n, integral), 0)
-    assert status == d.OK
+    gain = ss.make_gain(n, 1)
+    cfg = ss.DesignConfig(FORMS[form], integral, feedforward, ss.safe_set(), _alpha(poles))
+    status = pp.place_design(theta, cfg, gain, ss.design_work(n, integral), 0)
+    assert status == ss.OK
     K_ref = np.ravel(control.acker(Ad, bd[:, None], poles))
     K = _K(gain, integral)
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9 * np.abs(K_ref).max())
@@ -138,9 +143,9 @@ def test_place_design_characteristic_polynomial(
     half = radius * np.exp(1j * np.pi * rng.uniform(0, 1, m // 2))
     poles = np.r_[half, half.conj(), radius * rng.uniform(-1, 1, m % 2)]
     alpha = _alpha(poles)
-    gain = d.make_gain(n, 1)
-    cfg = d.DesignConfig(FORMS[form], True, True, d.safe_set(), alpha)
-    assert d.place_design(theta, cfg, gain, d.design_work(n, True), 0) == d.OK
+    gain = ss.make_gain(n, 1)
+    cfg = ss.DesignConfig(FORMS[form], True, True, ss.safe_set(), alpha)
+    assert pp.place_design(theta, cfg, gain, ss.design_work(n, True), 0) == ss.OK
     K = _K(gain, True)
     char = np.poly(Ad - np.outer(bd, K))
     scale = max(1.0, np.abs(K).max() * np.abs(bd).max())
@@ -148,40 +153,40 @@ def test_place_design_characteristic_polynomial(
 
 
 # ------------------------------------------------------------------------------ safe set
-def _status(theta: np.ndarray, safe: np.ndarray, gain: d.Gain, **kw: object) -> int:
+def _status(theta: np.ndarray, safe: np.ndarray, gain: ss.Gain, **kw: object) -> int:
     n = theta.size // 2
     integral = kw.get("integral", True)
-    cfg = d.DesignConfig(
-        kw.get("form", d.OBSERVER), integral, kw.get("feedforward", True), safe,
+    cfg = ss.DesignConfig(
+        kw.get("form", cf.OBSERVER), integral, kw.get("feedforward", True), safe,
         _alpha(np.full(n + 1, 0.5)),
     )  # fmt: skip
-    return d.place_design(theta, cfg, gain, d.design_work(n, integral), 0)
+    return pp.place_design(theta, cfg, gain, ss.design_work(n, integral), 0)
 
 
 def test_safe_set_status_codes_and_last_good_gain_kept() -> None:
     good = np.array([-1.5, 0.7, 1.0, 0.5])  # stable2
-    gain = d.make_gain(2, 1)
-    assert _status(good, d.safe_set(), gain) == d.OK
+    gain = ss.make_gain(2, 1)
+    assert _status(good, ss.safe_set(), gain) == ss.OK
     kept = _flat(gain)
     cases = {
-        d.NONFINITE: (np.array([-1.5, np.nan, 1.0, 0.5]), d.safe_set()),
-        d.B_SMALL: (np.array([-1.5, 0.7, 1e-3, 1e-3]), d.safe_set(b_min=0.01)),
+        ss.NONFINITE: (np.array([-1.5, np.nan, 1.0, 0.5]), ss.safe_set()),
+        ss.B_SMALL: (np.array([-1.5, 0.7, 1e-3, 1e-3]), ss.safe_set(b_min=0.01)),
         # (z - 0.5) cancels: a(z) = (z - 0.5)(z - 0.8), b(z) = z - 0.5
-        d.UNCONTROLLABLE: (np.r_[np.poly([0.5, 0.8])[1:], 1.0, -0.5], d.safe_set()),
-        d.GAIN_LARGE: (good, d.safe_set(gain_max=0.5)),
+        ss.UNCONTROLLABLE: (np.r_[np.poly([0.5, 0.8])[1:], 1.0, -0.5], ss.safe_set()),
+        ss.GAIN_LARGE: (good, ss.safe_set(gain_max=0.5)),
     }
     for code, (theta, safe) in cases.items():
-        assert _status(theta, safe, gain) == code, d.STATUS_NAMES[code]
+        assert _status(theta, safe, gain) == code, ss.STATUS_NAMES[code]
         np.testing.assert_array_equal(_flat(gain), kept)
     near = np.r_[np.poly([0.5, 0.8])[1:], 1.0, -0.5 + 1e-6]
-    assert _status(near, d.safe_set(), gain) == d.OK
-    assert _status(near, d.safe_set(rcond_min=1e-3), gain) == d.UNCONTROLLABLE
+    assert _status(near, ss.safe_set(), gain) == ss.OK
+    assert _status(near, ss.safe_set(rcond_min=1e-3), gain) == ss.UNCONTROLLABLE
     # b(z) = z - 1: a zero at z = 1 (with integral action the integrator would cancel it and
     # the model be uncontrollable, so without)
     zero_at_one = np.array([-1.5, 0.7, 1.0, -1.0])
-    assert _status(zero_at_one, d.safe_set(), gain, integral=False) == d.DC_SINGULAR
-    assert _status(zero_at_one, d.safe_set(), gain, integral=False, feedforward=False) == d.OK
-    assert [d.STATUS_NAMES[c] for c in range(8)] == [
+    assert _status(zero_at_one, ss.safe_set(), gain, integral=False) == ss.DC_SINGULAR
+    assert _status(zero_at_one, ss.safe_set(), gain, integral=False, feedforward=False) == ss.OK
+    assert [ss.STATUS_NAMES[c] for c in range(8)] == [
         "ok", "nonfinite", "b_small", "uncontrollable", "dc_singular", "gain_large",
         "not_stabilisable", "not_converged",
     ]  # fmt: skip
@@ -201,16 +206,16 @@ def test_safe_set_status_codes_and_last_good_gain_kept() -> None:
 )
 def test_safe_set_rejects_nonsense(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
-        d.safe_set(**kwargs)
+        ss.safe_set(**kwargs)
 
 
 @pytest.mark.parametrize(("n", "integral"), [(1, True), (2, False), (3, True)])
 def test_scratch_of_another_order_is_an_error_not_garbage(n: int, integral: bool) -> None:
     theta = np.array([-1.5, 0.7, 1.0, 0.5])
     with pytest.raises(ValueError, match="scratch"):
-        d.place_design(
-            theta, d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), _alpha(np.full(3, 0.5))),
-            d.make_gain(2, 1), d.design_work(n, integral), 0,
+        pp.place_design(
+            theta, ss.DesignConfig(cf.OBSERVER, True, True, ss.safe_set(), _alpha(np.full(3, 0.5))),
+            ss.make_gain(2, 1), ss.design_work(n, integral), 0,
         )  # fmt: skip
 
 
@@ -230,25 +235,25 @@ def test_lq_solve_and_riccati_iteration_match_dlqr(form: str, n: int, integral: 
         Q[n, n] = weights[1]
     K_ref, P_ref, _ = control.dlqr(Ad, bd[:, None], Q, [[weights[2]]])
     K_ref = np.ravel(K_ref)
-    gain = d.make_gain(n, 1)
+    gain = ss.make_gain(n, 1)
     P = np.zeros((m, m))
     cfg = _lq_config(FORMS[form], integral)
-    status = d.lq_solve(
-        theta, cfg, weights, P, gain, d.lq_work(n, integral, solve=True), 0, 1e-12, 64
+    status = lq.lq_solve(
+        theta, cfg, weights, P, gain, lq.lq_work(n, integral, solve=True), 0, 1e-12, 64
     )
-    assert status == d.OK
+    assert status == ss.OK
     K = _K(gain, integral)
     np.testing.assert_allclose(K, K_ref, rtol=1e-7, atol=1e-10 * np.abs(K_ref).max())
     np.testing.assert_allclose(P, P_ref, rtol=1e-7, atol=1e-10 * np.abs(P_ref).max())
     x_ss, u_ss = _dc_reference(A, b)
     assert gain.N[0] == pytest.approx(u_ss + K_ref[:n] @ x_ss, rel=1e-7, abs=1e-10)
     # one Riccati iteration per call from the cold start P = Q converges to the same gain
-    P_it = d.lq_initial_P(n, integral, weights)
+    P_it = lq.lq_initial_P(n, integral, weights)
     np.testing.assert_array_equal(P_it, Q)
-    g_it = d.make_gain(n, 1)
-    work = d.lq_work(n, integral)
+    g_it = ss.make_gain(n, 1)
+    work = lq.lq_work(n, integral)
     for _ in range(3000):
-        assert d.lq_design(theta, cfg, weights, P_it, g_it, work, 0) == d.OK
+        assert lq.lq_design(theta, cfg, weights, P_it, g_it, work, 0) == ss.OK
     expected = _flat(gain)
     np.testing.assert_allclose(_flat(g_it), expected, rtol=1e-6, atol=1e-9 * np.abs(expected).max())
 
@@ -262,9 +267,9 @@ def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
     L = rng.normal(size=(3, 3))
     P = L @ L.T
     P_ref = P.copy()
-    gain = d.make_gain(2, 1)
-    cfg = _lq_config(d.OBSERVER, True)
-    assert d.lq_design(theta, cfg, weights, P, gain, d.lq_work(2, True), 0) == d.OK
+    gain = ss.make_gain(2, 1)
+    cfg = _lq_config(cf.OBSERVER, True)
+    assert lq.lq_design(theta, cfg, weights, P, gain, lq.lq_work(2, True), 0) == ss.OK
     Q = np.diag([1.0, 0.0, 0.01])
     rho = 0.01
     s = rho + bd @ P_ref @ bd
@@ -277,35 +282,37 @@ def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
 def test_lq_not_stabilisable_plant() -> None:
     # a(z) = (z - 1)(z - 2), b(z) = z - 2: the unstable pole at 2 is cancelled
     theta = np.array([-3.0, 2.0, 1.0, -2.0 + 1e-9])
-    weights = np.array(d.DEFAULT_LQ_WEIGHTS)
-    gain = d.make_gain(2, 1)
+    weights = np.array(lq.DEFAULT_LQ_WEIGHTS)
+    gain = ss.make_gain(2, 1)
     P = np.zeros((3, 3))
-    cfg = _lq_config(d.OBSERVER, True)
-    status = d.lq_solve(theta, cfg, weights, P, gain, d.lq_work(2, True, solve=True), 0, 1e-12, 64)
-    assert status == d.NOT_STABILISABLE
+    cfg = _lq_config(cf.OBSERVER, True)
+    status = lq.lq_solve(
+        theta, cfg, weights, P, gain, lq.lq_work(2, True, solve=True), 0, 1e-12, 64
+    )
+    assert status == ss.NOT_STABILISABLE
     assert not _flat(gain).any() and not P.any()
     # the per-step iteration blows up and restarts from Q with NOT_STABILISABLE
-    P = d.lq_initial_P(2, True, weights)
+    P = lq.lq_initial_P(2, True, weights)
     codes = set()
     for _ in range(200):
-        codes.add(d.lq_design(theta, cfg, weights, P, gain, d.lq_work(2, True), 0))
-        assert np.all(np.isfinite(P)) and np.abs(P).max() <= d.P_MAX
-    assert d.NOT_STABILISABLE in codes
+        codes.add(lq.lq_design(theta, cfg, weights, P, gain, lq.lq_work(2, True), 0))
+        assert np.all(np.isfinite(P)) and np.abs(P).max() <= lq.P_MAX
+    assert ss.NOT_STABILISABLE in codes
 
 
 def test_lq_solve_ill_conditioned_but_stabilisable() -> None:
     """A near cancellation of an unstable pole: huge but valid gain (python-control agrees)."""
     theta = np.array([-3.0, 2.0, 1.0, -2.0 + 1e-3])
-    weights = np.array(d.DEFAULT_LQ_WEIGHTS)
+    weights = np.array(lq.DEFAULT_LQ_WEIGHTS)
     _, _, Ad, bd = _models(theta, "observer", True)
     q_y, q_i, rho = weights
     K_ref, _, E = control.dlqr(Ad, bd[:, None], np.diag([q_y, 0.0, q_i]), [[rho]])
     assert np.abs(E).max() < 1
-    gain = d.make_gain(2, 1)
+    gain = ss.make_gain(2, 1)
     P = np.zeros((3, 3))
-    cfg = _lq_config(d.OBSERVER, True)
-    work = d.lq_work(2, True, solve=True)
-    assert d.lq_solve(theta, cfg, weights, P, gain, work, 0, 1e-12, 64) == d.OK
+    cfg = _lq_config(cf.OBSERVER, True)
+    work = lq.lq_work(2, True, solve=True)
+    assert lq.lq_solve(theta, cfg, weights, P, gain, work, 0, 1e-12, 64) == ss.OK
     np.testing.assert_allclose(_K(gain, True), np.ravel(K_ref), rtol=1e-5)
 
 
@@ -332,7 +339,7 @@ def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> No
     x = np.array([0.3, -0.7])
     gain = _gain_of(K, ki if integral else 0.0, N)
     u, xi_next, saturated, u_unsat = call(
-        d.track, gain, 0, True, xi, x, y, r, e, bound, integral, anti_windup
+        law.track, gain, 0, True, xi, x, y, r, e, bound, integral, anti_windup
     )
     u_ref, xi_ref, sat_ref, u_unsat_ref = _law_by_hand(
         K, ki if integral else 0.0, N, xi, x, y, r, e, bound, integral, anti_windup
@@ -344,15 +351,15 @@ def test_track_matches_the_law_by_hand(vals, bound, integral, anti_windup) -> No
 
 
 def test_track_without_gain_applies_only_the_excitation() -> None:
-    gain = d.make_gain(2, 1)
+    gain = ss.make_gain(2, 1)
     gain.K_x[0] = [5.0, 5.0]  # never used without a gain
     u, xi, saturated, _ = call(
-        d.track, gain, 0, False, 0.7, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True
+        law.track, gain, 0, False, 0.7, np.ones(2), 0.0, 1.0, 0.25, 10.0, True, True
     )
     assert (u, saturated) == (0.25, False)
     assert xi == 0.7  # the integrator waits for a gain
     u, _, saturated, _ = call(
-        d.track, gain, 0, False, 0.7, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True
+        law.track, gain, 0, False, 0.7, np.ones(2), 0.0, 1.0, 30.0, 10.0, True, True
     )
     assert (u, saturated) == (10.0, True)
 
@@ -363,7 +370,7 @@ def test_filtered_state_is_the_kalman_correction() -> None:
     L = np.random.default_rng(1).normal(size=(3, 3))
     P = L @ L.T
     xf = np.empty(3)
-    innov = d.filtered_state(x, P, 0.3, 1.5, xf)
+    innov = se.filtered_state(x, P, 0.3, 1.5, xf)
     c = np.eye(1, 3)
     gain_ref = P @ c.T / (0.3 + (c @ P @ c.T).item())
     np.testing.assert_allclose(xf, x + gain_ref.ravel() * (1.5 - 0.2), rtol=1e-13)
@@ -382,12 +389,12 @@ def test_filtered_state_is_the_kalman_correction() -> None:
 )
 def test_lq_weights_reject_nonsense(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
-        d.lq_weights(**kwargs)
+        lq.lq_weights(**kwargs)
 
 
 def test_lq_weights_defaults_and_no_integral() -> None:
-    np.testing.assert_array_equal(d.lq_weights(), d.DEFAULT_LQ_WEIGHTS)
-    np.testing.assert_array_equal(d.lq_weights(q_i=0.0, integral=False), [1.0, 0.0, 1e-2])
+    np.testing.assert_array_equal(lq.lq_weights(), lq.DEFAULT_LQ_WEIGHTS)
+    np.testing.assert_array_equal(lq.lq_weights(q_i=0.0, integral=False), [1.0, 0.0, 1e-2])
 
 
 def test_batch_loops_equal_the_lane_functions() -> None:
@@ -396,30 +403,30 @@ def test_batch_loops_equal_the_lane_functions() -> None:
     thetas = np.array([_plant(rng, 3, "observer")[0] for _ in range(6)])
     thetas[2, 4] = np.nan  # one lane outside the safe set
     alpha = _alpha(np.full(4, 0.4))
-    gains = d.make_gain(3, 6)
+    gains = ss.make_gain(3, 6)
     status = np.zeros(6, dtype=np.int64)
-    work = d.design_work(3, True, 6)
-    cfg = d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), alpha)
-    d.place_design_lanes(thetas, cfg, gains, status, work)
-    weights = d.lq_weights()
+    work = ss.design_work(3, True, 6)
+    cfg = ss.DesignConfig(cf.OBSERVER, True, True, ss.safe_set(), alpha)
+    pp.place_design_lanes(thetas, cfg, gains, status, work)
+    weights = lq.lq_weights()
     Ps = np.zeros((6, 4, 4))
-    gains_lq = d.make_gain(3, 6)
+    gains_lq = ss.make_gain(3, 6)
     status_lq = np.zeros(6, dtype=np.int64)
-    work_lq = d.lq_work(3, True, 6, solve=True)
-    d.lq_solve_lanes(thetas, cfg, weights, Ps, gains_lq, status_lq, work_lq, 1e-12, 64)
+    work_lq = lq.lq_work(3, True, 6, solve=True)
+    lq.lq_solve_lanes(thetas, cfg, weights, Ps, gains_lq, status_lq, work_lq, 1e-12, 64)
     for i in range(6):
-        g = d.make_gain(3, 1)
-        work = d.lq_work(3, True, solve=True)  # every design reads only its own fields
-        st_i = d.place_design(thetas[i], cfg, g, work, 0)
+        g = ss.make_gain(3, 1)
+        work = lq.lq_work(3, True, solve=True)  # every design reads only its own fields
+        st_i = pp.place_design(thetas[i], cfg, g, work, 0)
         assert status[i] == st_i
         np.testing.assert_array_equal(_flat(gains, i), _flat(g))
         P = np.zeros((4, 4))
-        g_lq = d.make_gain(3, 1)
-        st_lq = d.lq_solve(thetas[i], cfg, weights, P, g_lq, work, 0, 1e-12, 64)
+        g_lq = ss.make_gain(3, 1)
+        st_lq = lq.lq_solve(thetas[i], cfg, weights, P, g_lq, work, 0, 1e-12, 64)
         assert status_lq[i] == st_lq
         np.testing.assert_array_equal(_flat(gains_lq, i), _flat(g_lq))
         np.testing.assert_array_equal(Ps[i], P)
-    assert status[2] == d.NONFINITE and status_lq[2] == d.NONFINITE
+    assert status[2] == ss.NONFINITE and status_lq[2] == ss.NONFINITE
 
 
 @pytest.mark.parametrize("form", list(FORMS))
@@ -429,8 +436,8 @@ def test_kalman_covariance_lanes_match_dlqe(form: str) -> None:
     W = np.stack([1e-4 * np.outer(t[3:], t[3:]) + 1e-6 * np.eye(3) for t in thetas])
     Ps = np.zeros((3, 3, 3))
     status = np.zeros(3, dtype=np.int64)
-    work = d.dare_work(3, 3)
-    d.kalman_covariance_lanes(thetas, FORMS[form], W, 0.05**2, Ps, status, work, 1e-12, 64)
+    work = lq.dare_work(3, 3)
+    lq.kalman_covariance_lanes(thetas, FORMS[form], W, 0.05**2, Ps, status, work, 1e-12, 64)
     assert not status.any()
     for t, Wi, P in zip(thetas, W, Ps, strict=True):
         A = companion_A(t[:3], form)
@@ -443,8 +450,8 @@ def test_the_safe_set_and_weight_vectors_are_read_by_name() -> None:
     from stcgym.adaptive.control.lq import weight_fields
     from stcgym.adaptive.control.safe_set import safe_bounds
 
-    safe = d.safe_set(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3, gain_max=4.0)
-    assert call(safe_bounds, safe) == d.SafeSetBounds(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3,
+    safe = ss.safe_set(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3, gain_max=4.0)
+    assert call(safe_bounds, safe) == ss.SafeSetBounds(b_min=0.1, rcond_min=0.2, dc_rcond_min=0.3,
                                                 gain_max=4.0)  # fmt: skip
-    weights = d.lq_weights(2.0, 0.5, 0.25)
-    assert call(weight_fields, weights) == d.LQWeights(q_y=2.0, q_i=0.5, rho=0.25)
+    weights = lq.lq_weights(2.0, 0.5, 0.25)
+    assert call(weight_fields, weights) == lq.LQWeights(q_y=2.0, q_i=0.5, rho=0.25)

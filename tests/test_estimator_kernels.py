@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from lane_call import call
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
-from stcgym.adaptive.estimation import estimator as K
 from stcgym.adaptive.estimation.estimator_lanes import predict_lanes, update_lanes
+from stcgym.adaptive.estimation.estimator_spec import ALGORITHMS
 from stcgym.adaptive.estimation.least_squares import (
     OK,
     carlson_update,
@@ -29,7 +29,7 @@ from stcgym.adaptive.estimation.reference import ReferenceEstimator
 from stcgym.adaptive.estimation.state_estimation import kalman_step
 from stcgym.adaptive.kernels.canonical import companion_into
 from stcgym.envs.canonical import canonical_matrices, companion_A
-from stcgym.envs.compiled import set_lanes
+from stcgym.lanes.compiled import set_lanes
 
 FORMS = ("observer", "observability")
 A_TRUE, B_TRUE = np.array([-0.6, 0.2]), np.array([0.5, 1.0])
@@ -147,7 +147,7 @@ def test_kalman_step_matches_a_textbook_filter(form):
 # Every algorithm against the dense reference
 # --------------------------------------------------------------------------------------------
 
-NAMES = [*K.ALGORITHMS, "CO-RLS", "CO-D-MISG"]
+NAMES = [*ALGORITHMS, "CO-RLS", "CO-D-MISG"]
 
 
 @pytest.mark.parametrize("form", FORMS)

@@ -8,8 +8,8 @@ import numba
 import numpy as np
 import pytest
 
-from stcgym.envs import compiled
-from stcgym.envs.compiled import FixedTypes, LaneLoop, lane, lanes, run_blocks
+from stcgym.lanes import compiled
+from stcgym.lanes.compiled import FixedTypes, LaneLoop, lane, lanes, run_blocks
 
 
 @lane(entry=True)

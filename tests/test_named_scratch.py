@@ -8,18 +8,20 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from stcgym.adaptive.control import design as d
 from stcgym.adaptive.control import lq, safe_set
+from stcgym.adaptive.control import pole_placement as pp
+from stcgym.adaptive.control import safe_set as ss
 from stcgym.adaptive.control.controller_step import make_controller_state
 from stcgym.adaptive.control.extended_ls import make_extended_ls
 from stcgym.adaptive.control.known_model import make_oracle_state, oracle_shapes
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.adaptive.estimation.least_squares import least_squares_work
+from stcgym.adaptive.kernels import canonical as cf
 from stcgym.adaptive.multivariable import mimo_lq
 from stcgym.adaptive.multivariable.controller_step import make_mimo_state
 from stcgym.adaptive.multivariable.state_matrix import make_state_matrix
 from stcgym.adaptive.regression.rls_step import make_rls_state, rls_shapes
-from stcgym.envs.compiled import make_work
+from stcgym.lanes.compiled import make_work
 
 
 def _arrays(tree: tuple) -> dict[str, np.ndarray]:
@@ -40,10 +42,10 @@ def _assert_disjoint(tree: tuple) -> None:
 
 
 SCRATCH = {
-    "DesignWork": lambda: d.design_work(3, True, 4),
-    "LQWork": lambda: d.lq_work(2, False, 3),
-    "LQSolveWork": lambda: d.lq_work(4, True, 2, solve=True),
-    "DareWork": lambda: d.dare_work(3, 2),
+    "DesignWork": lambda: ss.design_work(3, True, 4),
+    "LQWork": lambda: lq.lq_work(2, False, 3),
+    "LQSolveWork": lambda: lq.lq_work(4, True, 2, solve=True),
+    "DareWork": lambda: lq.dare_work(3, 2),
     "MimoDesignWork": lambda: mimo_lq.mimo_design_work(4, 2, 3),
     "ControllerState+Work": lambda: make_controller_state(2, 3, True, True),
     "MimoState+Work": lambda: make_mimo_state(3, 2, 2),
@@ -75,7 +77,7 @@ def test_no_two_fields_share_memory(kind: str) -> None:
 @pytest.mark.parametrize(("n", "integral"), [(1, False), (2, True), (5, True)])
 def test_design_scratch_has_the_declared_shapes(n: int, integral: bool) -> None:
     m = n + int(integral)
-    work = d.lq_work(n, integral, 3, solve=True)
+    work = lq.lq_work(n, integral, 3, solve=True)
     shapes = lq.lq_shapes(n, integral)
     assert set(shapes) == set(lq.LQSolveWork._fields)
     for name, field in zip(work._fields, work, strict=True):
@@ -108,7 +110,7 @@ def test_state_shapes_declare_every_field() -> None:
     # the gain is a lane state of its own (safe_set.gain_shapes)
     assert set(state) | {"gain"} == set(s._fields) and set(proposal) == set(p._fields)
     assert s.t.dtype == np.int64 and s.saturated.dtype == np.bool_
-    assert type(s.gain) is d.Gain and s.gain.K_x.shape == (2, 3) and s.gain.N.shape == (2,)
+    assert type(s.gain) is ss.Gain and s.gain.K_x.shape == (2, 3) and s.gain.N.shape == (2,)
     state, work = rls_shapes(3, 2, 4)
     s, w = make_rls_state(3, 2, 4, 5)
     assert set(state) == set(s._fields) and set(work) == set(w._fields)
@@ -127,16 +129,16 @@ def test_a_design_reads_only_its_own_lane() -> None:
     and 2 are never written."""
     theta = np.array([-1.5, 0.7, 1.0, 0.5])
     alpha = np.array([-1.5, 0.75, -0.125])  # (z - 0.5)^3
-    cfg = d.DesignConfig(d.OBSERVER, True, True, d.safe_set(), alpha)
-    gain_one = d.make_gain(2, 1)
-    assert d.place_design(theta, cfg, gain_one, d.design_work(2, True), 0) == d.OK
-    work = d.design_work(2, True, 3)
-    gain = d.make_gain(2, 3)
+    cfg = ss.DesignConfig(cf.OBSERVER, True, True, ss.safe_set(), alpha)
+    gain_one = ss.make_gain(2, 1)
+    assert pp.place_design(theta, cfg, gain_one, ss.design_work(2, True), 0) == ss.OK
+    work = ss.design_work(2, True, 3)
+    gain = ss.make_gain(2, 3)
     for field in (*work, *gain):
         field[0] = np.nan
         field[2] = np.nan
-    status = d.place_design(theta, cfg, gain, work, 1)
-    assert status == d.OK
+    status = pp.place_design(theta, cfg, gain, work, 1)
+    assert status == ss.OK
     for one, field in zip(gain_one, gain, strict=True):
         np.testing.assert_array_equal(field[1], one[0])
     for field in (*work, *gain):

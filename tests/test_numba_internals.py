@@ -1,4 +1,4 @@
-"""Each assumption stcgym makes about numba's internals (stcgym.envs.numba_internals).
+"""Each assumption stcgym makes about numba's internals (stcgym.lanes.numba_internals).
 
 A numba release that changes one of them fails here, by name, before any kernel misbehaves;
 ``pyproject.toml`` bounds numba to the releases this file passed on (``make test-latest`` runs
@@ -14,7 +14,7 @@ import numba
 import numpy as np
 import pytest
 
-from stcgym.envs import numba_internals as ni
+from stcgym.lanes import numba_internals as ni
 
 
 def _sum_tail(a):

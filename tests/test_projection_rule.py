@@ -1,5 +1,5 @@
 """The normalised-gradient (projection) rule ``NG``, a rule added through the registry of variants
-(stcgym.adaptive.kernels.variants): against the equations by hand, the dense reference, its
+(stcgym.adaptive.variants): against the equations by hand, the dense reference, its
 defining property, its flops, its keywords, single = lane."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Named lane state and the no-allocation rule of lane functions (stcgym.envs.compiled)."""
+"""Named lane state and the no-allocation rule of lane functions (stcgym.lanes.compiled)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from lane_call import call
 
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
-from stcgym.envs.compiled import FixedTypes, lane, lane_state, set_lanes, state_arrays
+from stcgym.lanes.compiled import FixedTypes, lane, lane_state, set_lanes, state_arrays
 
 
 def test_copies_write_every_entry():

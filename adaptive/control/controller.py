@@ -41,14 +41,15 @@ from __future__ import annotations
 
 import functools
 import warnings
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control import controller_step as kc
-from stcgym.adaptive.control import design as dz
 from stcgym.adaptive.control.extended_ls import ExtendedLSConfig, make_extended_ls
+from stcgym.adaptive.control.lq import lq_initial_P
 from stcgym.adaptive.control.options import (
     DEFAULT_POLE,
     ChangeDetection,
@@ -60,12 +61,22 @@ from stcgym.adaptive.control.options import (
     plant_settings,
 )
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
+from stcgym.adaptive.control.safe_set import STATUS_NAMES, feedback_gain
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
-from stcgym.adaptive.kernels.variants import DESIGNS, RULES, variant
+from stcgym.adaptive.kernels.canonical import OBSERVABILITY, OBSERVER
 from stcgym.adaptive.policy import SelfTuningLanes, episode_starts
+from stcgym.adaptive.variants import (
+    DESIGNS,
+    RULES,
+    STATE_ESTIMATORS,
+    CompiledVersion,
+    EstimatorName,
+    compiled_version,
+    controller_estimator,
+)
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.envs.validation import integer
+from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
 
 __all__ = [
     "DEFAULT_POLE",
@@ -81,16 +92,30 @@ __all__ = [
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
 
-# The controller step with its argument types looked up once (see FixedTypes), one lookup per
-# compiled version: (paper estimator, LQ design) -> step; the types differ between versions.
-_VERSIONS = [(paper, lq) for paper in (False, True) for lq in (False, True)]
-_controller_step = {v: FixedTypes(kc.controller_step) for v in _VERSIONS}
-_controllers_step = {v: FixedTypes(kc.controllers_step) for v in _VERSIONS}
-# steps 1-5 and step 6 apart (propose / commit): another input than the controller's applied
-_controllers_act = {v: FixedTypes(kc.controllers_act) for v in _VERSIONS}
-_controllers_commit = {v: FixedTypes(kc.controllers_commit) for v in _VERSIONS}
-#: Estimator names besides the paper's: extended least squares on the ARMAX form.
-EXTRA_ESTIMATORS = ("ELS",)
+
+@dataclass(frozen=True)
+class _Steps:
+    """The compiled entry points of one version, their argument types looked up once
+    (:class:`~stcgym.lanes.compiled.FixedTypes`)."""
+
+    step: FixedTypes  # one plant: controller_step(*args, 0, y, r)
+    steps: FixedTypes  # every lane: controllers_step(*args, y, r, u)
+    act: FixedTypes  # steps 1-5 (propose): controllers_act(*args, y, r, u)
+    commit: FixedTypes  # step 6 (commit) with the applied input: controllers_commit(*args, u)
+
+
+# One set a compiled version (variants.compiled_version: the estimator and the design); the
+# argument types differ between versions.
+_STEPS = {
+    CompiledVersion(paper, lq): _Steps(
+        step=FixedTypes(kc.controller_step),
+        steps=FixedTypes(kc.controllers_step),
+        act=FixedTypes(kc.controllers_act),
+        commit=FixedTypes(kc.controllers_commit),
+    )
+    for paper in (False, True)
+    for lq in (False, True)
+}
 
 
 def _frozen(values: Any) -> NDArray:
@@ -111,7 +136,7 @@ class SelfTuningController(SelfTuningLanes):
         ``"ELS"`` (default) or a paper name (``"O-RLS"``, ``"KF-MILS"``, ...; the SG, MISG and
         D- rules warn that they do not hold the loop on many plants).
     design
-        A name of :data:`~stcgym.adaptive.kernels.variants.DESIGNS` (each entry says what it
+        A name of :data:`~stcgym.adaptive.variants.DESIGNS` (each entry says what it
         computes and its known-model oracle): ``"pole_placement"`` (Ackermann on the
         integral-augmented model, ``poles``) or ``"lq"`` (one Riccati iteration per step,
         weights ``law.lq_weights``).
@@ -168,6 +193,7 @@ class SelfTuningController(SelfTuningLanes):
     """
 
     observation_limit = OBSERVATION_LIMIT
+    status_names = STATUS_NAMES
 
     def __init__(
         self,
@@ -195,7 +221,7 @@ class SelfTuningController(SelfTuningLanes):
         if not isinstance(design, str) or design not in DESIGNS:
             raise ValueError(f"design must be one of {tuple(DESIGNS)}, got {design!r}")
         self.design = design
-        lq = DESIGNS[design].kernel == "lq"
+        d = DESIGNS[design]
         self.estimator_options = eo = option_group(
             estimator_options, EstimatorOptions, "estimator_options"
         )
@@ -206,60 +232,22 @@ class SelfTuningController(SelfTuningLanes):
         )
         self.law = lw = option_group(law, LawOptions, "law")
         m = n + int(lw.integral)
-        fixed = DESIGNS[design].poles
-        self.poles = check_poles(poles if fixed is None else fixed, m)
+        self.poles = check_poles(poles if d.poles is None else d.poles, m)
         self.seeds = self._lane_ints(seed, "seed")
-        # -- estimator
-        if not isinstance(estimator, str):
-            raise ValueError(f"estimator must be a name (str), got {estimator!r}")
-        self.estimator = estimator.strip().upper()
-        if self.estimator != "ELS":
-            try:
-                v = variant(estimator)
-            except ValueError as exc:
-                raise ValueError(f"estimator must be 'ELS' or a paper name: {exc}") from None
+        # -- estimator: its name resolved once into the registry's record
+        v = controller_estimator(estimator)
+        self.estimator = v.name
         # the canonical form the estimator identifies (ELS: always the observer form)
-        plant_form = self.estimator != "ELS" and eo.estimation_form == "plant"
+        plant_form = v.plant_form and eo.estimation_form == "plant"
         self._estimation_form = self.form if plant_form else "observer"
         #: ``P(0) = p0 I`` in use (``estimator_options.p0`` or the estimator's default)
-        self.p0 = eo.initial_covariance(self.estimator)
-        if self.estimator == "ELS":
-            self._spec = None
-        else:
-            if v.decomposed or not v.rule.holds_loop:
-                slow = ", ".join(r for r, rule in RULES.items() if not rule.holds_loop)
-                good = [r for r, rule in RULES.items() if rule.holds_loop]
-                holding = [f"'{s}-{r}'" for s in ("KF", "O") for r in good]
-                warnings.warn(
-                    f"estimator {estimator!r} does not hold the loop on a sizeable share of "
-                    f"ordinary plants: the gradient rules ({slow}) adapt too slowly for a cold "
-                    "start, and the decomposition rules (D-) update a and b as if their "
-                    "regressors were uncorrelated, which feedback makes them not; "
-                    f"{', '.join(holding)} or the default 'ELS' hold it",
-                    UserWarning,
-                    stacklevel=2,
-                )
-            kw: dict[str, Any] = {
-                "p0": self.p0, "form": self._estimation_form, "forgetting": eo.forgetting,
-                "theta0": np.zeros(2 * n),
-            }  # fmt: skip
-            if v.rule.multi_innovation:
-                kw["p"] = eo.p
-            if v.state.filtered_regressor:
-                kw["regressor"] = eo.regressor
-            if v.state.injection and eo.regressor == "filtered":
-                kw["injection"] = eo.injection
-                kw["injection_warmup"] = eo.injection_warmup
-            if v.state.name == "KF":
-                kw["process_noise"] = eo.process_noise_floor * np.eye(n)
-                kw["measurement_noise"] = eo.kf_measurement_noise
-            self._spec = EstimatorSpec.build(estimator, n, **kw)
-            self.estimator = self._spec.name
+        self.p0 = eo.initial_covariance(v)
+        self._spec = self._paper_spec(v, estimator) if v.paper else None
         ps = self.startup.probe_steps
         probe_steps = 2 * n if ps is None else int(ps)
         pm = self.startup.max_probe_steps
         observability = self._estimation_form == "observability"
-        self._cfg = kc.ControllerConfig(
+        cfg = kc.ControllerConfig(
             n=int(n),
             integral=bool(lw.integral),
             feedforward=bool(lw.feedforward),
@@ -270,7 +258,7 @@ class SelfTuningController(SelfTuningLanes):
             detect=bool(cd.enabled),
             holdoff=int(cd.holdoff),
             # ELS estimates the observer-form transfer function
-            form=dz.OBSERVABILITY if observability else dz.OBSERVER,
+            form=OBSERVABILITY if observability else OBSERVER,
             action_bound=float(self.action_bound),
             probe_amplitude=float(self.startup.probe_amplitude),
             q_gain=float(eo.process_noise_gain),
@@ -282,39 +270,90 @@ class SelfTuningController(SelfTuningLanes):
             ew_long=float(cd.long),
             probe_output=float(self.startup.probe_output),
             safe=_frozen(self.safe_set.vector()),
-            alpha=_frozen(characteristic_coefficients(self.poles)),
+            char_poly=_frozen(characteristic_coefficients(self.poles)),
         )
-        if self._spec is None:
-            # extended least squares (est_cfg None: the step compiled for it contains no paper
-            # estimator, and els_cfg None none of ELS, controller_step)
+        # the compiled version (variants.compiled_version) is chosen by which of est_cfg /
+        # els_cfg is None (the step compiled for one estimator contains none of the other) and
+        # whether lq_weights is None (the step compiled for pole placement has no LQ design)
+        self._version = compiled_version(v, d)
+        if self._spec is None:  # extended least squares
             self._est_init, _ = make_extended_ls(n, 1, self.p0)
-            self._est, self._est_work = make_extended_ls(n, self.B, self.p0)
-            self._est_cfg = None
-            self._els_cfg = ExtendedLSConfig(float(eo.forgetting), float(self.p0))
+            est, est_work = make_extended_ls(n, self.B, self.p0)
+            est_cfg, els_cfg = None, ExtendedLSConfig(float(eo.forgetting), float(self.p0))
         else:
             self._est_init = self._spec.initial_state()
-            self._est = self._spec.make_state(self.B)
-            self._est_work = self._spec.make_work(self.B)
-            self._est_cfg = self._spec.config
-            self._els_cfg = None
-        # the LQ weights, or None: the step compiled for pole placement contains no LQ design
-        self._lq_weights = _frozen(lw.lq_weights) if lq else None
-        self._version = (self._spec is not None, lq)
+            est, est_work = self._spec.make_state(self.B), self._spec.make_work(self.B)
+            est_cfg, els_cfg = self._spec.config, None
         # a reset lane starts here: Kalman filter at x(1) = 0, P1(1) = I; no gain; the loop
         # open (the estimator at theta(0) = 0, P(0) = p0 I: _est_init)
-        init, _ = kc.make_controller_state(n, 1, lw.integral, lq)
+        init, _ = kc.make_controller_state(n, 1, lw.integral, d.lq)
         init.P1[0] = np.eye(n)
-        if lq:
-            init.P_lq[0] = dz.lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
+        if d.lq:
+            init.P_lq[0] = lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
         init.closed_t[0] = -1
         self._init = init
-        self._state, self._work = kc.make_controller_state(n, self.B, lw.integral, lq)
-        self._state.seed[:] = self.seeds
-        self._state.episode[:] = -1  # the first reset starts episode 0
+        state, work = kc.make_controller_state(n, self.B, lw.integral, d.lq)
+        state.seed[:] = self.seeds
+        state.episode[:] = -1  # the first reset starts episode 0
+        self._args = kc.ControllerArgs(
+            s=state, w=work, cfg=cfg, est=est, est_work=est_work, est_cfg=est_cfg,
+            els_cfg=els_cfg, lq_weights=_frozen(lw.lq_weights) if d.lq else None,
+        )  # fmt: skip
         self._u = np.zeros(self.B)
         self._step_one: Any = None  # the single plant's bound step (_act_one)
         self._open = False  # propose() has opened a sample that commit() has not ended
         self.reset()
+
+    def _paper_spec(self, v: EstimatorName, estimator: str) -> EstimatorSpec:
+        """The paper estimator ``v`` with the closed-loop settings of ``estimator_options``
+        (the keywords that apply to its rule and state estimator); warns when it does not hold
+        the loop."""
+        if not v.holds_loop:
+            slow = ", ".join(r for r, rule in RULES.items() if not rule.holds_loop)
+            good = [r for r, rule in RULES.items() if rule.holds_loop]
+            states = [name for name, st in STATE_ESTIMATORS.items() if st.paper]
+            holding = [f"'{s}-{r}'" for s in reversed(states) for r in good]
+            warnings.warn(
+                f"estimator {estimator!r} does not hold the loop on a sizeable share of "
+                f"ordinary plants: the gradient rules ({slow}) adapt too slowly for a cold "
+                "start, and the decomposition rules (D-) update a and b as if their "
+                "regressors were uncorrelated, which feedback makes them not; "
+                f"{', '.join(holding)} or the default 'ELS' hold it",
+                UserWarning,
+                stacklevel=3,
+            )
+        n, eo = self.n, self.estimator_options
+        kw: dict[str, Any] = {
+            "p0": self.p0, "form": self._estimation_form, "forgetting": eo.forgetting,
+            "theta0": np.zeros(2 * n),
+        }  # fmt: skip
+        if v.rule.multi_innovation:
+            kw["p"] = eo.p
+        if v.state.filtered_regressor:
+            kw["regressor"] = eo.regressor
+        if v.state.injection and eo.regressor == "filtered":
+            kw["injection"] = eo.injection
+            kw["injection_warmup"] = eo.injection_warmup
+        if v.state.kalman:
+            kw["process_noise"] = eo.process_noise_floor * np.eye(n)
+            kw["measurement_noise"] = eo.kf_measurement_noise
+        return EstimatorSpec.build(v, n, **kw)
+
+    # ------------------------------------------------------------------ the compiled arguments
+    @property
+    def compiled_args(self) -> kc.ControllerArgs:
+        """The arguments of the compiled steps (lane state, scratch, configurations), in
+        their order: ``controller_step(*ctl.compiled_args, i, y, r)``. Its arrays are the
+        controller's own: a compiled call through them advances the controller."""
+        return self._args
+
+    @property
+    def _state(self) -> kc.ControllerState:
+        return self._args.s
+
+    @property
+    def _est(self) -> Any:
+        return self._args.est
 
     # ------------------------------------------------------------------ protocol
     def _act_one(self, observation: NDArray, values: list, deterministic: bool) -> NDArray:
@@ -323,11 +362,8 @@ class SelfTuningController(SelfTuningLanes):
         step = self._step_one
         if step is None:  # the first call (or the first after unpickling)
             self._act(observation[None, :], None, deterministic)
-            version = _controller_step[self._version]
-            self._step_one = functools.partial(
-                version.entry, self._state, self._work, self._cfg, self._est, self._est_work, 0,
-                self._est_cfg, self._els_cfg, self._lq_weights,
-            )  # fmt: skip
+            step = _STEPS[self._version].step
+            self._step_one = functools.partial(step.entry, *self._args, 0)
             return self._u.copy()
         if self._open:
             self._refuse_open()
@@ -350,17 +386,11 @@ class SelfTuningController(SelfTuningLanes):
         u = self._u
         if self.B == 1:
             y, r = obs[0].tolist()  # Python floats: the cheapest arguments for numba's dispatch
-            u[0] = _controller_step[self._version](
-                self._state, self._work, self._cfg, self._est, self._est_work, 0, self._est_cfg,
-                self._els_cfg, self._lq_weights, y, r,
-            )  # fmt: skip
+            u[0] = _STEPS[self._version].step(*self._args, 0, y, r)
         else:
             y = np.ascontiguousarray(obs[:, 0])
             r = np.ascontiguousarray(obs[:, 1])
-            _controllers_step[self._version](
-                self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
-                self._els_cfg, self._lq_weights, y, r, u,
-            )  # fmt: skip
+            _STEPS[self._version].steps(*self._args, y, r, u)
         return u.copy()
 
     # ------------------------------------------------------------------ applied input
@@ -416,11 +446,8 @@ class SelfTuningController(SelfTuningLanes):
         if starts.any():
             self._reset_lanes(np.flatnonzero(starts))
         u = self._u
-        _controllers_act[self._version](
-            self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
-            self._els_cfg, self._lq_weights, np.ascontiguousarray(obs[:, 0]),
-            np.ascontiguousarray(obs[:, 1]), u,
-        )  # fmt: skip
+        y = np.ascontiguousarray(obs[:, 0])
+        _STEPS[self._version].act(*self._args, y, np.ascontiguousarray(obs[:, 1]), u)
         self._open = True
         return u.copy() if single else u.reshape(-1, 1).copy()
 
@@ -454,10 +481,7 @@ class SelfTuningController(SelfTuningLanes):
         u = np.ascontiguousarray(u.reshape(self.B))
         if not np.all(np.isfinite(u)):
             raise ValueError(f"applied must be finite, got {u}")
-        _controllers_commit[self._version](
-            self._state, self._work, self._cfg, self._est, self._est_work, self._est_cfg,
-            self._els_cfg, u,
-        )  # fmt: skip
+        _STEPS[self._version].commit(*self._args, u)
         self._open = False
 
     def _refuse_open(self) -> None:
@@ -495,7 +519,7 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def K(self) -> NDArray:
         """Gain in use ``[K_x, k_i]`` (zeros before the first accepted design)."""
-        return self._lanes_out(dz.feedback_gain(self._state.gain, self.law.integral))
+        return self._lanes_out(feedback_gain(self._state.gain, self.law.integral))
 
     @property
     def N(self) -> NDArray | float:
@@ -515,7 +539,8 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def nbytes_per_lane(self) -> int:
         """Memory of one lane's state and scratch (the controller's and the estimator's)."""
-        return sum(map(state_nbytes_per_lane, (self._state, self._work, self._est, self._est_work)))
+        a = self._args
+        return sum(map(state_nbytes_per_lane, (a.s, a.w, a.est, a.est_work)))
 
     def __repr__(self) -> str:
         lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"

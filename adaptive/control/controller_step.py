@@ -1,7 +1,7 @@
 """The self-tuning controller step, written once as a compiled lane function.
 
 One call of :func:`controller_step` advances one plant's controller by one sample
-(convention of :mod:`stcgym.envs.compiled`): it reads ``y(t)``, ``r(t)`` and returns ``u(t)``.
+(convention of :mod:`stcgym.lanes.compiled`): it reads ``y(t)``, ``r(t)`` and returns ``u(t)``.
 Every step, in this order:
 
 1. **estimator measurement step** with ``y(t)``: ``theta_hat(t)`` and the innovation ``e(t)``
@@ -58,7 +58,7 @@ from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_up
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
 from stcgym.adaptive.kernels.records import copy_matrix
-from stcgym.envs.compiled import lane, lane_state, lanes
+from stcgym.lanes.compiled import lane, lane_state, lanes
 
 __all__ = [
     "COUNTERS",
@@ -192,7 +192,7 @@ class ControllerConfig(NamedTuple):
     ew_long: float
     probe_output: float  # output level that scales the probe down and ends it early
     safe: NDArray  # [b_min, rcond_min, dc_rcond_min, gain_max]
-    alpha: NDArray  # closed-loop characteristic polynomial (m; pole placement)
+    char_poly: NDArray  # closed-loop characteristic polynomial coefficients (m; pole placement)
 
 
 # ---------------------------------------------------------------------------------- probe
@@ -285,13 +285,32 @@ def process_noise(S, n, y, u, q, q_floor, Q):
             Q[j, i] = v
 
 
+class ControllerArgs(NamedTuple):
+    """The compiled arguments of one controller, in the order every step function takes them
+    (spread: ``controller_step(*args, i, y, r)``, ``controllers_step(*args, y, r, u)``).
+
+    ``est_cfg`` / ``els_cfg`` (one of them ``None``) and ``lq_weights`` (``None`` or the LQ
+    weights) choose the compiled version (:func:`stcgym.adaptive.variants.compiled_version`).
+    """
+
+    s: ControllerState  # the controller's lane state
+    w: ControllerWork  # its scratch
+    cfg: ControllerConfig
+    est: Any  # the estimator's lane state: EstimatorState or ExtendedLSState
+    est_work: Any  # its scratch: EstimatorWork or ExtendedLSWork
+    est_cfg: Any  # the paper estimator's EstimatorConfig, or None (extended least squares)
+    els_cfg: Any  # extended least squares' ExtendedLSConfig, or None (a paper estimator)
+    lq_weights: NDArray | None  # [q_y, q_i, rho] of the LQ design, or None (pole placement)
+
+
 # --------------------------------------------------------------------------------- the step
 @lane(entry=True, inline=True)
-def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r):
+def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
+    The arguments before ``i`` are one :class:`ControllerArgs`, spread:
     ``s``/``w``: the controllers' :class:`ControllerState` and :class:`ControllerWork`, of
-    which this call reads and writes lane ``lane`` only; ``cfg``: a :class:`ControllerConfig`;
+    which this call reads and writes lane ``i`` only; ``cfg``: a :class:`ControllerConfig`;
     ``est``/``est_work``: the estimator's lane state and scratch, either an ``EstimatorState``
     and ``EstimatorWork`` with the paper estimator's configuration ``est_cfg`` (``els_cfg``
     ``None``), or an ``ExtendedLSState`` and ``ExtendedLSWork`` with extended least squares'
@@ -300,13 +319,13 @@ def controller_step(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights
     docstring). It is :func:`controller_act` followed by :func:`controller_commit` of the
     input it chose.
     """
-    u = controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r)
-    controller_commit(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, u)
+    u = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r)
+    controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, u)
     return u
 
 
 @lane(inline=True, inline_ir=True)
-def controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r):
+def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r):
     """Steps 1-5 of :func:`controller_step` (arguments alike): the estimator's measurement
     step with ``y(t)``, change detection, design, ``x(t|t)`` and the input ``u(t)`` the law
     chooses, which it returns. The time update (step 6) waits for :func:`controller_commit`
@@ -314,119 +333,120 @@ def controller_act(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights,
     in the lane state (``s.y``, ``s.eps``), the estimated model in the lane's design scratch.
     """
     n = cfg.n
-    t = s.t[lane]
-    theta = est.theta[lane][: 2 * n]  # [a; b] (extended least squares: of [a; b; c])
-    S = est.S[lane]
+    t = s.t[i]
+    theta = est.theta[i][: 2 * n]  # [a; b] (extended least squares: of [a; b; c])
+    S = est.S[i]
     # -- 1. estimator measurement step (each branch compiled only in its own version)
     e = eps = 0.0
     if els_cfg is not None:  # extended least squares
-        e, eps = extended_ls_update(est, est_work, lane, y, els_cfg.forgetting, els_cfg.p0)
+        e, eps = extended_ls_update(est, est_work, i, y, els_cfg.forgetting, els_cfg.p0)
     if est_cfg is not None:  # a paper estimator
-        s.est_status[lane] |= estimator_update(est, est_work, lane, est_cfg, y)
-        e = est.E[lane][0]
+        s.est_status[i] |= estimator_update(est, est_work, i, est_cfg, y)
+        e = est.E[i][0]
         eps = e
-    s.e[lane] = e
-    s.eps[lane] = eps
-    s.y[lane] = y
+    s.e[i] = e
+    s.eps[i] = eps
+    s.y[i] = y
     # -- 2. change detection: covariance resetting on a jump of the innovation variance
-    closed_t = s.closed_t[lane]
-    alarm, s.ews[lane], s.ewl[lane] = change_alarm(
-        cfg, s.ews[lane], s.ewl[lane], e * e, True, t, closed_t, s.last_alarm[lane]
+    closed_t = s.closed_t[i]
+    alarm, s.ews[i], s.ewl[i] = change_alarm(
+        cfg, s.ews[i], s.ewl[i], e * e, True, t, closed_t, s.last_alarm[i]
     )
     if alarm:
         inflate_covariance(S, cfg.inflation)
-        s.n_alarms[lane] += 1
-        s.last_alarm[lane] = t
+        s.n_alarms[i] += 1
+        s.last_alarm[i] = t
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
     if lq_weights is None:
-        status = place_design(theta, cfg, s.gain, w.design, lane)
+        status = place_design(theta, cfg, s.gain, w.design, i)
     else:
-        status = lq_design(theta, cfg, lq_weights, s.P_lq[lane], s.gain, w.design, lane)
-    s.last_reason[lane] = status
+        status = lq_design(theta, cfg, lq_weights, s.P_lq[i], s.gain, w.design, i)
+    s.last_reason[i] = status
     if status == OK:
-        s.has_gain[lane] = True
+        s.has_gain[i] = True
     else:
-        s.n_rejected[lane] += 1
+        s.n_rejected[i] += 1
     # -- 4. state estimate x(t|t): Kalman filter on the estimated model (built by the design
     # too, when the design got that far: the same numbers)
-    A = w.design.A[lane]
-    b = w.design.b[lane]
+    A = w.design.A[i]
+    b = w.design.b[i]
     model_matrices(theta, cfg.form, A, b)
-    xf = s.xf[lane]
-    filtered_state(s.x[lane], s.P1[lane], cfg.R, y, xf)
+    xf = s.xf[i]
+    filtered_state(s.x[i], s.P1[i], cfg.R, y, xf)
     # -- 5. control: the probe while the loop is open, then the tracking law
-    return control(s, lane, cfg, y, r, xf if cfg.filtered else s.x[lane])
+    return control(s, i, cfg, y, r, xf if cfg.filtered else s.x[i])
 
 
 @lane(inline=True, inline_ir=True)
-def controller_commit(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, u):
+def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, u):
     """Step 6 of :func:`controller_step` with the input ``u(t)`` the plant was given (the
-    one :func:`controller_act` chose, or another: a residual on top of it, a clipped one):
+    one :func:`controller_act` chose, or another: a residual on top of it, a clipped one;
+    ``lq_weights`` is not read: every step function takes the same :class:`ControllerArgs`):
     process noise, the Kalman time update, the estimator's state step or regressor shift;
     the sample ends (``t`` advances). Reads ``y(t)`` and the residual :func:`controller_act`
     kept and its model ``A, b`` of ``theta_hat(t)`` in the lane's design scratch.
     """
     n = cfg.n
-    y = s.y[lane]
-    S = est.S[lane]
-    A = w.design.A[lane]
-    b = w.design.b[lane]
-    x = s.x[lane]
-    P1 = s.P1[lane]
-    s.u[lane] = u
+    y = s.y[i]
+    S = est.S[i]
+    A = w.design.A[i]
+    b = w.design.b[i]
+    x = s.x[i]
+    P1 = s.P1[i]
+    s.u[i] = u
     # -- 6. process noise, Kalman time update, estimator state step
-    Q = s.Q[lane]
+    Q = s.Q[i]
     process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
-    x_next = s.x_next[lane]
-    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[lane], w.AP[lane], w.P_upd[lane]) == 0:
-        for i in range(n):
-            x[i] = x_next[i]
+    x_next = s.x_next[i]
+    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[i], w.AP[i], w.P_upd[i]) == 0:
+        for k in range(n):
+            x[k] = x_next[k]
     else:  # numerical trouble in the filter: back to x(1) = 0, P1(1) = I (counted)
-        s.n_kf_resets[lane] += 1
-        for i in range(n):
-            x[i] = 0.0
+        s.n_kf_resets[i] += 1
+        for k in range(n):
+            x[k] = 0.0
             for j in range(n):
-                P1[i, j] = 1.0 if i == j else 0.0
+                P1[k, j] = 1.0 if k == j else 0.0
     if els_cfg is not None:
-        extended_ls_push(est, lane, n, y, u, s.eps[lane])
+        extended_ls_push(est, i, n, y, u, s.eps[i])
     if est_cfg is not None:
-        Q_est = est.Q[lane]
+        Q_est = est.Q[i]
         if Q_est.shape[0] == n:  # the paper's Kalman filter gets the same process noise
             copy_matrix(Q, Q_est)
-        s.est_status[lane] |= estimator_predict(est, est_work, lane, est_cfg, u)
-    s.t[lane] += 1
+        s.est_status[i] |= estimator_predict(est, est_work, i, est_cfg, u)
+    s.t[i] += 1
 
 
 @lane(inline=True)
-def control(s, lane, cfg, y, r, xc):
+def control(s, i, cfg, y, r, xc):
     """Step 5: the probe while the loop is open (and while no design has been accepted), else
     the tracking law on the state estimate ``xc``; returns ``u(t)``, closes the loop on its
     first law sample (``closed_t``) and counts probe and saturated samples."""
-    t = s.t[lane]
-    closed_t = s.closed_t[lane]
+    t = s.t[i]
+    closed_t = s.closed_t[i]
     bound = cfg.action_bound
     level = cfg.probe_output
     open_loop = closed_t < 0
-    ymax = s.ymax[lane]
+    ymax = s.ymax[i]
     if open_loop:
         ymax = max(ymax, abs(y))
-        s.ymax[lane] = ymax
+        s.ymax[i] = ymax
     probing = open_loop and (t < cfg.probe_steps or (t < cfg.probe_max and ymax < level))
-    if probing or not s.has_gain[lane]:
+    if probing or not s.has_gain[i]:
         # the probe is scaled down once the output exceeds the probe level
         amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
-        u = min(max(amp * probe_sign(s.seed[lane], s.episode[lane], t), -bound), bound)
-        s.n_probe[lane] += 1
-        s.saturated[lane] = False
+        u = min(max(amp * probe_sign(s.seed[i], s.episode[i], t), -bound), bound)
+        s.n_probe[i] += 1
+        s.saturated[i] = False
         return u
     if open_loop:
-        s.closed_t[lane] = t
-    u, s.xi[lane], saturated, s.u_unsat[lane] = track(
-        s.gain, lane, True, s.xi[lane], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
+        s.closed_t[i] = t
+    u, s.xi[i], saturated, s.u_unsat[i] = track(
+        s.gain, i, True, s.xi[i], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
     )
-    s.saturated[lane] = saturated
+    s.saturated[i] = saturated
     if saturated:
-        s.n_saturated[lane] += 1
+        s.n_saturated[i] += 1
     return u
 
 
@@ -435,7 +455,7 @@ def controllers_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, 
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in range(first, last):
         u[i] = controller_step(
-            s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, y[i], r[i]
+            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y[i], r[i]
         )
 
 
@@ -443,11 +463,11 @@ def controllers_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, 
 def controllers_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, r, u, first, last):
     """:func:`controller_act` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in range(first, last):
-        u[i] = controller_act(s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, y[i], r[i])
+        u[i] = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y[i], r[i])
 
 
 @lanes
-def controllers_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, u, first, last):
+def controllers_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, u, first, last):
     """:func:`controller_commit` for every lane with the applied input ``u[i]``."""
     for i in range(first, last):
-        controller_commit(s, w, cfg, est, est_work, i, est_cfg, els_cfg, u[i])
+        controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, u[i])

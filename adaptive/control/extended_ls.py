@@ -44,7 +44,7 @@ from stcgym.adaptive.estimation.least_squares import (
     least_squares_shapes,
     least_squares_step,
 )
-from stcgym.envs.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
 
 __all__ = [
     "ExtendedLSConfig",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from stcgym.envs.compiled import lane
+from stcgym.lanes.compiled import lane
 
 __all__ = ["track"]
 

@@ -20,9 +20,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.control import design as dz
-from stcgym.adaptive.estimation.estimator import REGRESSORS
-from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS, variant
+from stcgym.adaptive.control import lq, safe_set
+from stcgym.adaptive.estimation.estimator_spec import REGRESSORS
+from stcgym.adaptive.variants import (
+    CONTROLLER_ESTIMATORS,
+    STATE_ESTIMATORS,
+    EstimatorName,
+    ExtendedLS,
+    controller_estimator,
+)
 from stcgym.envs.canonical import check_form
 from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
 
@@ -45,7 +51,7 @@ DEFAULT_POLE = 0.5
 #: Saturation of the input when neither ``action_bound`` nor an env gives one (the envs' default).
 DEFAULT_ACTION_BOUND = 10.0
 #: Default ``P(0) = p0 I`` of extended least squares and of the paper's ``O-`` estimators.
-P0_ELS = STATE_ESTIMATORS["O"].controller_p0
+P0_ELS = CONTROLLER_ESTIMATORS["ELS"].controller_p0
 #: Default ``P(0) = p0 I`` of the paper's ``KF-`` estimators.
 P0_KF = STATE_ESTIMATORS["KF"].controller_p0
 
@@ -140,26 +146,28 @@ class EstimatorOptions:
         integer(self.injection_warmup, "injection_warmup", 0)
         one_of(self.estimation_form, "estimation_form", ("observer", "plant"))
 
-    def initial_covariance(self, estimator: str) -> float:
+    def initial_covariance(self, estimator: str | EstimatorName | ExtendedLS) -> float:
         """``p0`` for the (canonical) estimator name: the given value or the name's default.
 
         Parameters
         ----------
-        estimator : str
-            An estimator name (``"ELS"``, ``"O-RLS"``, ``"KF-MILS"``, ...).
+        estimator : str or a record of :mod:`stcgym.adaptive.variants`
+            An estimator name (``"ELS"``, ``"O-RLS"``, ``"KF-MILS"``, ...) or its record
+            (:func:`~stcgym.adaptive.variants.controller_estimator`).
 
         Returns
         -------
         float
-            ``p0`` if given, else :data:`P0_ELS` for ``"ELS"`` and the state estimator's
-            ``controller_p0`` (:data:`~stcgym.adaptive.kernels.variants.STATE_ESTIMATORS`:
-            :data:`P0_KF` for ``KF-`` names, :data:`P0_ELS` for ``O-``) otherwise.
+            ``p0`` if given, else the estimator's ``controller_p0`` in the registry:
+            :data:`P0_ELS` for ``"ELS"`` (:data:`~stcgym.adaptive.variants.CONTROLLER_ESTIMATORS`)
+            and ``O-`` names, :data:`P0_KF` for ``KF-`` names
+            (:data:`~stcgym.adaptive.variants.STATE_ESTIMATORS`).
         """
         if self.p0 is not None:
             return float(self.p0)
-        if estimator.strip().upper() == "ELS":
-            return P0_ELS
-        return variant(estimator).state.controller_p0
+        if isinstance(estimator, str):
+            estimator = controller_estimator(estimator)
+        return estimator.controller_p0
 
 
 @dataclass(frozen=True)
@@ -260,14 +268,14 @@ class SafeSet:
     gain_max: float = 1e3
 
     def __post_init__(self) -> None:
-        dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
+        safe_set.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
     def vector(self) -> NDArray:
         """The safe-set vector the design lane functions read.
 
         See :func:`~stcgym.adaptive.control.safe_set.safe_set`.
         """
-        return dz.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
+        return safe_set.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
 
 
 @dataclass(frozen=True)
@@ -381,7 +389,7 @@ class LawOptions:
     feedforward: bool = True
     anti_windup: bool = True
     filtered: bool = True
-    lq_weights: tuple[float, float, float] = dz.DEFAULT_LQ_WEIGHTS
+    lq_weights: tuple[float, float, float] = lq.DEFAULT_LQ_WEIGHTS
 
     def __post_init__(self) -> None:
         for name in ("integral", "feedforward", "anti_windup", "filtered"):
@@ -403,7 +411,7 @@ def cost_weights(control_cost: float) -> tuple[float, float, float]:
     """LQ weights ``[q_y, q_i, rho]`` of the envs' cost ``(y - r)^2 + control_cost u^2``: ``q_y =
     1``, ``rho = control_cost`` and the default integrator weight ``q_i`` of :class:`LawOptions`
     (``LawOptions(lq_weights=cost_weights(c))`` is the law for an env of ``control_cost=c``)."""
-    return (1.0, dz.DEFAULT_LQ_WEIGHTS[1], float(control_cost))
+    return (1.0, lq.DEFAULT_LQ_WEIGHTS[1], float(control_cost))
 
 
 def option_group(value: Any, cls: type, name: str) -> Any:

@@ -14,22 +14,23 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.control import design as _design
+from stcgym.adaptive.control import known_model, safe_set
 from stcgym.adaptive.control.options import LawOptions, option_group, plant_settings
 from stcgym.adaptive.estimation.recursive import lane_indices
+from stcgym.adaptive.kernels import canonical
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
-from stcgym.envs.compiled import FixedTypes, set_lanes, state_arrays
 from stcgym.envs.validation import integer, real_in
+from stcgym.lanes.compiled import FixedTypes, set_lanes, state_arrays
 
 __all__ = ["MAX_SETTING"]
 
 # the single-plant step with its argument types looked up once (see FixedTypes)
-_known_model_propose = FixedTypes(_design.known_model_propose)
-_known_model_commit = FixedTypes(_design.known_model_commit)
+_known_model_propose = FixedTypes(known_model.known_model_propose)
+_known_model_commit = FixedTypes(known_model.known_model_commit)
 
 #: The oracles know the model: no safe set, only the design's numerical floors reject it.
-_NO_SAFE_SET = _design.safe_set()
+_NO_SAFE_SET = safe_set.safe_set()
 #: Largest accepted noise level, weight or covariance scale: squares and products of settings
 #: beyond it overflow in the filter and design, so such a value is an input error, not a setting.
 MAX_SETTING = 1e100
@@ -100,7 +101,7 @@ class _KnownModelLoop(LanePolicy):
         return a_l, b_l
 
     def _build(self, a: NDArray, b: NDArray) -> None:
-        state, self._proposal = _design.make_oracle_state(self.n, a.shape[0])
+        state, self._proposal = known_model.make_oracle_state(self.n, a.shape[0])
         self._state = state
         state.R[:] = self.R
         state.Q0[:] = self._process_noise(b)
@@ -114,7 +115,7 @@ class _KnownModelLoop(LanePolicy):
 
     # -- hooks -----------------------------------------------------------------------------
     @abstractmethod
-    def _design_batch(self, thetas: NDArray, gains: _design.Gain, status: NDArray) -> None:
+    def _design_batch(self, thetas: NDArray, gains: safe_set.Gain, status: NDArray) -> None:
         """Design every lane of ``thetas`` ``(lanes, 2n)`` into ``gains``, codes into ``status``."""
 
     @abstractmethod
@@ -128,28 +129,28 @@ class _KnownModelLoop(LanePolicy):
     # -- lane state -------------------------------------------------------------------------
     @property
     def _form_code(self) -> int:
-        return _design.OBSERVER if self.form == "observer" else _design.OBSERVABILITY
+        return canonical.OBSERVER if self.form == "observer" else canonical.OBSERVABILITY
 
     def _model_matrices(self, a: NDArray, b: NDArray) -> NDArray:
         """Canonical ``A`` of every lane, ``(lanes, n, n)`` (lane function ``model_matrices``)."""
         A = np.empty((a.shape[0], self.n, self.n))
         thetas = np.hstack((a, b))
         if a.shape[0] == 1:  # one plant: the lane function itself (no parallel compile)
-            _design.model_matrices(thetas[0], self._form_code, A[0], b[0].copy())
+            canonical.model_matrices(thetas[0], self._form_code, A[0], b[0].copy())
         else:
-            _design.model_matrices_lanes(thetas, self._form_code, A, b.copy())
+            canonical.model_matrices_lanes(thetas, self._form_code, A, b.copy())
         return A
 
-    def _design_config(self, alpha: NDArray) -> _design.DesignConfig:
+    def _design_config(self, char_poly: NDArray) -> safe_set.DesignConfig:
         """The design's settings: the law's integral action and feed-forward, no safe set."""
         law = self.law
-        return _design.DesignConfig(
-            self._form_code, bool(law.integral), bool(law.feedforward), _NO_SAFE_SET, alpha
+        return safe_set.DesignConfig(
+            self._form_code, bool(law.integral), bool(law.feedforward), _NO_SAFE_SET, char_poly
         )
 
-    def _design_lanes(self, a: NDArray, b: NDArray, name: str) -> _design.Gain:
+    def _design_lanes(self, a: NDArray, b: NDArray, name: str) -> safe_set.Gain:
         """The design of every lane's model; ``ValueError`` (nothing changed) if one fails."""
-        gains = _design.make_gain(self.n, a.shape[0])
+        gains = safe_set.make_gain(self.n, a.shape[0])
         status = np.zeros(a.shape[0], dtype=np.int64)
         self._design_batch(np.hstack((a, b)), gains, status)
         bad = np.flatnonzero(status)
@@ -160,7 +161,7 @@ class _KnownModelLoop(LanePolicy):
         return gains
 
     def _failure(self, status: int) -> str:
-        return f"no design on the given model: {_design.STATUS_NAMES[status]}"
+        return f"no design on the given model: {safe_set.STATUS_NAMES[status]}"
 
     def _reset_state(self, rows: NDArray | slice = slice(None)) -> None:
         s = self._state
@@ -204,7 +205,7 @@ class _KnownModelLoop(LanePolicy):
     @property
     def K(self) -> NDArray:
         """State-feedback gain ``[K_x, k_i]`` (``k_i`` only with integral action)."""
-        return self._lane0(_design.feedback_gain(self._state.gain, self.law.integral))
+        return self._lane0(safe_set.feedback_gain(self._state.gain, self.law.integral))
 
     @property
     def N(self) -> float | NDArray:
@@ -283,8 +284,8 @@ class _KnownModelLoop(LanePolicy):
             u[0] = _known_model_commit(s, p, 0)
             return u
         status = np.zeros(B, dtype=np.int64)
-        _design.known_model_propose_lanes(s, p, y, r, *flags, status)
+        known_model.known_model_propose_lanes(s, p, y, r, *flags, status)
         if status.any():
             return None
-        _design.known_model_commit_lanes(s, p, u)
+        known_model.known_model_commit_lanes(s, p, u)
         return u

@@ -3,21 +3,21 @@
 Both see only what the envs observe, ``[y(t), r(t)]``, and estimate the state with a Kalman
 filter on the *true* model; they differ from :class:`~stcgym.adaptive.control.controller.
 SelfTuningController` only in knowing ``(a, b)``. Both run the same compiled lane step
-(:func:`~stcgym.adaptive.control.design.known_model_propose`: the Kalman correction, the
-regulator's tracking law :func:`~stcgym.adaptive.control.design.track`, the Kalman time update
+(:func:`~stcgym.adaptive.control.known_model.known_model_propose`: the Kalman correction, the
+regulator's tracking law :func:`~stcgym.adaptive.control.law.track`, the Kalman time update
 ``kalman_step``) and differ in their design and filter tuning:
 
 * :class:`KnownModelController` places the regulator's poles on the known ``(A, b)``
-  (:func:`~stcgym.adaptive.control.design.place_design`: the same integral action, feed-forward,
-  saturation and anti-windup), with the regulator's kind of state estimate: the seed paper's
-  time-varying Kalman filter (Ding & Ma 2014, eq. (66)-(72): ``Q = 0``, ``R = 1``,
+  (:func:`~stcgym.adaptive.control.pole_placement.place_design`: the same integral action,
+  feed-forward, saturation and anti-windup), with the regulator's kind of state estimate: the
+  seed paper's time-varying Kalman filter (Ding & Ma 2014, eq. (66)-(72): ``Q = 0``, ``R = 1``,
   ``P1(1) = I``), corrected by the current sample. With ``Q = 0`` the filter is optimal for the
   envs' noise model (output noise only), so the oracle's state estimate converges to the true
   state: the ratio of the regulator's cost to this oracle's is the price of not knowing the
   parameters.
 * :class:`LQGController` is the optimal linear design for the env's own cost
   ``(y - r)^2 + rho u^2``: the LQ gain of the (optionally integral-augmented) model solved to
-  convergence (:func:`~stcgym.adaptive.control.design.lq_solve`, ``Q = c^T c``, ``R = rho``),
+  convergence (:func:`~stcgym.adaptive.control.lq.lq_solve`, ``Q = c^T c``, ``R = rho``),
   the reference feed-forward of the steady state, and the steady-state Kalman filter (the same
   Riccati solver on the dual problem) used as a current estimator ``x(t|t)``.
 
@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.control import design as _design
+from stcgym.adaptive.control import lq, pole_placement, safe_set
 from stcgym.adaptive.control.options import DEFAULT_POLE, LawOptions
 from stcgym.adaptive.control.oracle_loop import (
     MAX_SETTING,
@@ -52,6 +52,7 @@ from stcgym.adaptive.control.oracle_loop import (
     _setting,
 )
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
+from stcgym.adaptive.estimation import state_estimation
 from stcgym.adaptive.estimation.state_estimation import kalman_step
 
 __all__ = ["KalmanObserver", "KnownModelController", "LQGController"]
@@ -121,22 +122,22 @@ class KnownModelController(_KnownModelLoop):
     ) -> None:
         a_l, b_l = self._settings(a, b, num_envs, action_bound, form, env, law)
         self.poles = check_poles(poles, self.n + int(self.law.integral))
-        self._alpha = characteristic_coefficients(self.poles)
+        self._char_poly = characteristic_coefficients(self.poles)
         self._q = _setting(process_noise, "process_noise", lo=0.0)
         self.R = _setting(measurement_noise, "measurement_noise")
         self._P0 = _setting(P0, "P0")
         self._build(a_l, b_l)
 
-    def _design_batch(self, thetas: NDArray, gains: _design.Gain, status: NDArray) -> None:
-        cfg = self._design_config(self._alpha)
-        work = _design.design_work(self.n, cfg.integral, thetas.shape[0])
+    def _design_batch(self, thetas: NDArray, gains: safe_set.Gain, status: NDArray) -> None:
+        cfg = self._design_config(self._char_poly)
+        work = safe_set.design_work(self.n, cfg.integral, thetas.shape[0])
         if thetas.shape[0] == 1:
-            status[0] = _design.place_design(thetas[0], cfg, gains, work, 0)
+            status[0] = pole_placement.place_design(thetas[0], cfg, gains, work, 0)
         else:
-            _design.place_design_lanes(thetas, cfg, gains, status, work)
+            pole_placement.place_design_lanes(thetas, cfg, gains, status, work)
 
     def _failure(self, status: int) -> str:
-        return f"cannot place the poles on the given model: {_design.STATUS_NAMES[status]}"
+        return f"cannot place the poles on the given model: {safe_set.STATUS_NAMES[status]}"
 
     def _process_noise(self, b: NDArray) -> NDArray:
         return self._q * np.eye(self.n)
@@ -155,7 +156,7 @@ class LQGController(_KnownModelLoop):
     ``law.lq_weights`` (default the envs' cost with ``control_cost = 0.01`` and ``q_i = 1e-4``;
     :func:`~stcgym.adaptive.control.options.cost_weights` gives them for another ``control_cost``).
     Both
-    gains come from :func:`~stcgym.adaptive.control.design.lq_solve` (doubling to convergence;
+    gains come from :func:`~stcgym.adaptive.control.lq.lq_solve` (doubling to convergence;
     tested against python-control's ``dlqr``). The state comes from the steady-state Kalman
     filter for process noise ``input_noise_std^2 b b^T + process_noise_floor I`` (a small
     input-disturbance model keeps the filter alive on stable plants) and measurement variance
@@ -227,27 +228,27 @@ class LQGController(_KnownModelLoop):
         self._weights = np.array(self.law.lq_weights, dtype=float)
         self._build(a_l, b_l)
 
-    def _design_batch(self, thetas: NDArray, gains: _design.Gain, status: NDArray) -> None:
+    def _design_batch(self, thetas: NDArray, gains: safe_set.Gain, status: NDArray) -> None:
         cfg = self._design_config(np.zeros(0))
         m = self.n + int(cfg.integral)
         Ps = np.zeros((thetas.shape[0], m, m))
-        work = _design.lq_work(self.n, cfg.integral, thetas.shape[0], solve=True)
+        work = lq.lq_work(self.n, cfg.integral, thetas.shape[0], solve=True)
         w = self._weights
         if thetas.shape[0] == 1:
-            status[0] = _design.lq_solve(thetas[0], cfg, w, Ps[0], gains, work, 0, 1e-12, 64)
+            status[0] = lq.lq_solve(thetas[0], cfg, w, Ps[0], gains, work, 0, 1e-12, 64)
         else:
-            _design.lq_solve_lanes(thetas, cfg, w, Ps, gains, status, work, 1e-12, 64)
+            lq.lq_solve_lanes(thetas, cfg, w, Ps, gains, status, work, 1e-12, 64)
 
     def _failure(self, status: int) -> str:
-        if status in (_design.UNCONTROLLABLE, _design.NOT_STABILISABLE, _design.NOT_CONVERGED):
+        if status in (safe_set.UNCONTROLLABLE, safe_set.NOT_STABILISABLE, safe_set.NOT_CONVERGED):
             return (
-                f"the plant cannot be stabilised by an LQ design ({_design.STATUS_NAMES[status]}: "
+                f"the plant cannot be stabilised by an LQ design ({safe_set.STATUS_NAMES[status]}: "
                 "a mode the input cannot reach, e.g. a pole cancelled by a zero, or with "
                 "integral action a zero at z = 1)"
             )
-        if status == _design.DC_SINGULAR:
+        if status == safe_set.DC_SINGULAR:
             return "the model has a zero (or pole/zero cancellation) at z = 1: no tracking"
-        return f"no LQ design on the given model: {_design.STATUS_NAMES[status]}"
+        return f"no LQ design on the given model: {safe_set.STATUS_NAMES[status]}"
 
     def _process_noise(self, b: NDArray) -> NDArray:
         return self.input_noise_std**2 * np.einsum(
@@ -260,20 +261,20 @@ class LQGController(_KnownModelLoop):
         status = np.zeros(a.shape[0], dtype=np.int64)
         W = np.ascontiguousarray(self._process_noise(b))
         thetas = np.hstack((a, b))
-        work = _design.dare_work(self.n, a.shape[0])
+        work = lq.dare_work(self.n, a.shape[0])
         if a.shape[0] == 1:
-            status[0] = _design.kalman_covariance(
+            status[0] = lq.kalman_covariance(
                 thetas[0], self._form_code, W[0], self.R, P[0], work, 0, 1e-12, 64
             )
         else:
-            _design.kalman_covariance_lanes(
+            lq.kalman_covariance_lanes(
                 thetas, self._form_code, W, self.R, P, status, work, 1e-12, 64
             )
         bad = np.flatnonzero(status)
         if bad.size:
             raise ValueError(
                 f"no steady-state Kalman filter for the model (lane {int(bad[0])}): "
-                f"{_design.STATUS_NAMES[int(status[bad[0]])]}"
+                f"{safe_set.STATUS_NAMES[int(status[bad[0]])]}"
             )
         return P
 
@@ -294,9 +295,9 @@ class LQGController(_KnownModelLoop):
     def _steady(self) -> tuple[NDArray, NDArray]:
         A, b = self._state.A, self._state.b
         u_ss = np.zeros(A.shape[0])
-        work = _design.design_work(self.n, False, A.shape[0])
+        work = safe_set.design_work(self.n, False, A.shape[0])
         for i in range(A.shape[0]):
-            u_ss[i], _ = _design.steady_state(A[i], b[i], work, i)
+            u_ss[i], _ = safe_set.steady_state(A[i], b[i], work, i)
         return work.x_ss, u_ss
 
 
@@ -312,8 +313,8 @@ class KalmanObserver:
 
     The step is split like the recursive estimators: :meth:`correct` takes ``y(t)`` and returns
     the filtered estimate ``x(t|t)`` (lane function
-    :func:`~stcgym.adaptive.control.design.filtered_state`); :meth:`predict` takes ``u(t)`` and
-    forms ``x(t+1|t)`` (lane function ``kalman_step`` of
+    :func:`~stcgym.adaptive.estimation.state_estimation.filtered_state`); :meth:`predict` takes
+    ``u(t)`` and forms ``x(t+1|t)`` (lane function ``kalman_step`` of
     :mod:`stcgym.adaptive.estimation.state_estimation`). When the covariance update is not finite,
     ``P`` is kept, the state advances open loop and ``n_failures`` counts it. ``A`` and ``b`` may
     be replaced between steps (:meth:`set_model`).
@@ -431,7 +432,7 @@ class KalmanObserver:
             ``g = P1 c^T / (R + c P1 c^T)`` (the object itself: copy it to keep it).
         """
         self._y = float(y)
-        self._innov = _design.filtered_state(self.x, self.P, self.R, self._y, self.x_filt)
+        self._innov = state_estimation.filtered_state(self.x, self.P, self.R, self._y, self.x_filt)
         return self.x_filt
 
     def predict(self, u: float) -> NDArray:

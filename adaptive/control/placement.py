@@ -3,8 +3,8 @@
 The self-tuning regulator re-designs its state feedback at every step on the estimated model
 ``(A_hat(t), b_hat(t))`` built from ``theta_hat(t)`` (Ding & Ma 2014, eq. (59)-(60) for O-RLS,
 the same matrices for every estimator). The algorithms live once, as compiled lane functions in
-:mod:`stcgym.adaptive.control.design`; this module validates numpy input, calls them, and turns
-their status codes into exceptions:
+:mod:`.pole_placement`, :mod:`.lq` and :mod:`.safe_set`; this module validates numpy input,
+calls them, and turns their status codes into exceptions:
 
 * :func:`ackermann` / :func:`place_poles`: Ackermann's formula
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.control import design as _design
+from stcgym.adaptive.control import pole_placement, safe_set
 from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.multivariable import mimo_lq as _mimo_lq
 from stcgym.adaptive.multivariable.lqr import lq_failure_reason
@@ -192,8 +192,8 @@ def ackermann(
     m = A.shape[0]
     alpha = finite_vector(np.reshape(alpha, -1), "alpha", length=m)
     K = np.zeros(m)
-    rcond = float(_design.ackermann_gain(A, b, alpha, K, _design.design_work(m, False), 0))
-    if not rcond > max(rcond_min, _design.RCOND_FLOOR):
+    rcond = float(pole_placement.ackermann_gain(A, b, alpha, K, safe_set.design_work(m, False), 0))
+    if not rcond > max(rcond_min, safe_set.RCOND_FLOOR):
         raise UncontrollableError(
             f"(A, b) is (nearly) uncontrollable: rcond of the controllability matrix {rcond:.3g}"
         )
@@ -204,7 +204,7 @@ def place_poles(A: ArrayLike, b: ArrayLike, poles: ArrayLike, *, rcond_min: floa
     """Validate ``poles`` and return the Ackermann gain ``K`` (1-D) with ``eig(A - b K) = poles``.
 
     Equivalent to ``control.acker(A, b, poles)`` (and to ``control.place`` for distinct poles),
-    closed-form (the lane function :func:`stcgym.adaptive.control.design.ackermann_gain`).
+    closed-form (the lane function :func:`stcgym.adaptive.control.pole_placement.ackermann_gain`).
 
     Parameters
     ----------
@@ -313,8 +313,8 @@ def steady_state_gains(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, float, floa
     """
     A, b = _single_input_model(A, b)
     n = A.shape[0]
-    work = _design.design_work(n, False)
-    u_ss, rcond = _design.steady_state(A, b, work, 0)
+    work = safe_set.design_work(n, False)
+    u_ss, rcond = safe_set.steady_state(A, b, work, 0)
     return work.x_ss[0].copy(), float(u_ss), float(rcond)
 
 
@@ -397,7 +397,7 @@ def lq_gain(
     work = _mimo_lq.mimo_design_work(m, 1)
     problem = _mimo_lq.LQProblem(Q, R_mat, N, float(tol), int(max_iter))
     status = _mimo_lq.dare_solve(A, B, problem, P, K, work, 0)
-    if status != _design.OK:
+    if status != safe_set.OK:
         raise UncontrollableError(
             "no stabilising LQ solution: " + lq_failure_reason(A, B, Q, R_mat, N, status)
         )

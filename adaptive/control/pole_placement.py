@@ -1,13 +1,13 @@
 """Pole placement by Ackermann's formula on the (integral-augmented) model: lane functions.
 
-``place_design(theta, cfg, gain, w, lane) -> int``
+``place_design(theta, cfg, gain, w, i) -> int``
     Ackermann pole placement of the ``m`` poles with monic characteristic polynomial
-    ``z^m + alpha[0] z^{m-1} + ... + alpha[m-1]`` (``cfg.alpha``, length ``m``) on the
-    (augmented) model of ``theta``; ``N = u_ss + K_x x_ss`` from the steady state. ``cfg``: a
-    :class:`.safe_set.DesignConfig` (form, integral action, feed-forward, safe set); ``w`` is a
-    :data:`.safe_set.DesignWork` (:func:`.safe_set.design_work`), of which lane ``lane`` is
+    ``z^m + char_poly[0] z^{m-1} + ... + char_poly[m-1]`` (``cfg.char_poly``, length ``m``) on
+    the (augmented) model of ``theta``; ``N = u_ss + K_x x_ss`` from the steady state. ``cfg``:
+    a :class:`.safe_set.DesignConfig` (form, integral action, feed-forward, safe set); ``w`` is
+    a :data:`.safe_set.DesignWork` (:func:`.safe_set.design_work`), of which lane ``i`` is
     used. Returns the status code of :mod:`.safe_set`; ``gain`` is written only on success.
-``ackermann_gain(A, b, alpha, K, w, lane) -> rcond``
+``ackermann_gain(A, b, char_poly, K, w, i) -> rcond``
     The same formula on a general pair (``rcond <= 0``: singular; ``K`` written only when
     ``rcond > 0``; ``w`` with the fields of :class:`.safe_set.ControllabilityWork`), used by
     the numpy helpers of :mod:`stcgym.adaptive.control.placement`.
@@ -18,31 +18,33 @@
 from __future__ import annotations
 
 from stcgym.adaptive.control.safe_set import OK, controllability, design_start, finish
-from stcgym.envs.compiled import lane, lanes
+from stcgym.lanes.compiled import lane, lanes
 
 __all__ = ["ackermann_gain", "place_design", "place_design_lanes"]
 
 
 @lane(inline=True)
-def _ackermann_from_ctrb(A, alpha, K, w, lane):
-    """``K = e_m^T Ctrb^{-1} phi_d(A) = sum_k alpha_{m-k} v^T A^k`` with ``v`` the last row of
+def _ackermann_from_ctrb(A, char_poly, K, w, i):
+    """Ackermann's formula ``K = e_m^T Ctrb^{-1} phi_d(A)`` (Ackermann 1972; Franklin, Powell &
+    Workman, *Digital Control of Dynamic Systems*, 3rd ed.) with ``phi_d(z) = z^m + c_1 z^{m-1}
+    + ... + c_m`` (``c = char_poly``), as ``K = sum_k c_{m-k} v A^k`` with ``v`` the last row of
     ``Ctrb^{-1}`` (``phi_d(A)`` never formed: ``m`` row-vector/matrix products), from the
     inverse ``w.Cinv`` and column norms ``w.norms`` that :func:`.safe_set.controllability`
-    left in lane ``lane``."""
+    left in lane ``i``."""
     m = A.shape[0]
-    Cinv = w.Cinv[lane]
-    norms = w.norms[lane]
-    v = w.v[lane]
-    vA = w.v_next[lane]
-    for j in range(m):
+    Cinv = w.Cinv[i]
+    norms = w.norms[i]
+    v = w.v[i]
+    vA = w.v_next[i]
+    for j in range(m):  # v = e_m^T Ctrb^{-1} (the columns of Ctrb were scaled by norms)
         v[j] = Cinv[m - 1, j] / norms[m - 1]
-        K[j] = alpha[m - 1] * v[j]
-    for k in range(1, m + 1):
-        coef = alpha[m - 1 - k] if k < m else 1.0
+        K[j] = char_poly[m - 1] * v[j]  # c_m v A^0
+    for k in range(1, m + 1):  # + c_{m-k} v A^k, k = 1..m (c_0 = 1): K = v phi_d(A)
+        coef = char_poly[m - 1 - k] if k < m else 1.0
         for j in range(m):
             acc = 0.0
-            for i in range(m):
-                acc += v[i] * A[i, j]
+            for r in range(m):
+                acc += v[r] * A[r, j]
             vA[j] = acc
         for j in range(m):
             v[j] = vA[j]
@@ -50,34 +52,34 @@ def _ackermann_from_ctrb(A, alpha, K, w, lane):
 
 
 @lane(entry=True)
-def ackermann_gain(A, b, alpha, K, w, lane):
+def ackermann_gain(A, b, char_poly, K, w, i):
     """Ackermann gain of a general pair ``(A, b)`` (``m x m``; ``w`` with the fields of
-    :class:`.safe_set.ControllabilityWork` for order ``m``, lane ``lane`` used).
+    :class:`.safe_set.ControllabilityWork` for order ``m``, lane ``i`` used).
 
-    ``eig(A - b K)`` are the roots of ``z^m + alpha[0] z^{m-1} + ... + alpha[m-1]``. Returns the
-    reciprocal 1-norm condition of the column-normalised controllability matrix (``<= 0``:
-    singular or non-finite, ``K`` untouched).
+    ``eig(A - b K)`` are the roots of ``z^m + char_poly[0] z^{m-1} + ... + char_poly[m-1]``.
+    Returns the reciprocal 1-norm condition of the column-normalised controllability matrix
+    (``<= 0``: singular or non-finite, ``K`` untouched).
     """
     if w.C.shape[1] != A.shape[0]:
         raise ValueError("ackermann_gain: w is not the scratch of this order")
-    rcond = controllability(A, b, w, lane)
+    rcond = controllability(A, b, w, i)  # Ctrb = [b, A b, ..., A^{m-1} b] and its inverse
     if rcond > 0.0:
-        _ackermann_from_ctrb(A, alpha, K, w, lane)
+        _ackermann_from_ctrb(A, char_poly, K, w, i)
     return rcond
 
 
 @lane(entry=True, inline=True)
-def place_design(theta, cfg, gain, w, lane):
+def place_design(theta, cfg, gain, w, i):
     """Pole placement on the (augmented) model of ``theta``; see the module docstring.
 
-    Returns the status code; lane ``lane`` of ``gain`` (a :class:`.safe_set.Gain`) is written
+    Returns the status code; lane ``i`` of ``gain`` (a :class:`.safe_set.Gain`) is written
     only when it is ``OK`` (0).
     """
-    status, rcond = design_start(theta, cfg, w, lane)
+    status, rcond = design_start(theta, cfg, w, i)  # model, augmentation, Ctrb^{-1}
     if status != OK:
         return status
-    _ackermann_from_ctrb(w.A_aug[lane], cfg.alpha, w.K[lane], w, lane)
-    return finish(theta, cfg, rcond, gain, w, lane)
+    _ackermann_from_ctrb(w.A_aug[i], cfg.char_poly, w.K[i], w, i)
+    return finish(theta, cfg, rcond, gain, w, i)  # safe set, steady state, N
 
 
 @lanes(min_lanes=16)  # one design a lane

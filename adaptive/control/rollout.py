@@ -26,9 +26,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control.controller import SelfTuningController
 from stcgym.adaptive.control.controller_step import controller_step
-from stcgym.envs.compiled import lane, lanes
 from stcgym.envs.dynamics import canonical_plant_step
 from stcgym.envs.validation import integer, non_negative
+from stcgym.lanes.compiled import lane, lanes
 
 __all__ = ["RolloutResult", "charge_divergence", "rollout"]
 
@@ -69,19 +69,19 @@ def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
 
 
 @lane(inline=True)
-def rollout_lane(s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, x, theta,
+def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, x, theta,
                  theta_after, jump_at, form, bound, sigma_v, z, r, rho, y_bound, window, cost,
                  y_tr, u_tr, traces):  # fmt: skip
-    """``T = r.size - 1`` closed-loop steps of one lane; returns ``(steps_run, diverged)``."""
+    """``T = r.size - 1`` closed-loop steps of lane ``i`` (the arguments before ``i``: the
+    controller's :class:`~stcgym.adaptive.control.controller_step.ControllerArgs`); returns
+    ``(steps_run, diverged)``."""
     T = r.shape[0] - 1
     none = z[0:0]  # no schedule: an empty view (lane functions never allocate)
     y = x[0] + sigma_v * z[0]
     if traces:
         y_tr[0] = y
     for k in range(T):
-        u_raw = controller_step(
-            s, w, cfg, est, est_work, lane, est_cfg, els_cfg, lq_weights, y, r[k]
-        )
+        u_raw = controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r[k])
         th = theta_after if k >= jump_at else theta
         reward, _, diverged, u, _, y = canonical_plant_step(
             x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form
@@ -102,7 +102,7 @@ def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, X, The
     """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
     for i in range(first, last):
         steps_run[i], diverged[i] = rollout_lane(
-            s, w, cfg, est, est_work, i, est_cfg, els_cfg, lq_weights, X[i], Theta[i],
+            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, X[i], Theta[i],
             Theta_after[i], jump_at, form, bound, sigma_v, Z[i], R[i], rho, y_bound, window,
             Cost[i], Y[i], U[i], traces,
         )  # fmt: skip
@@ -211,11 +211,10 @@ def rollout(
     steps_run = np.zeros(B, dtype=np.int64)
     diverged = np.zeros(B, dtype=bool)
     form = 1 if controller.form == "observability" else 0
-    c = controller
     # the compiled loop sums over windows of 1 step: the rule needs each lane's last cost
     rollout_lanes(
-        c._state, c._work, c._cfg, c._est, c._est_work, c._est_cfg, c._els_cfg, c._lq_weights,
-        X, th, th_after, jump_at, form, c.action_bound, float(noise_std), Z, R,
+        *controller.compiled_args, X, th, th_after, jump_at, form, controller.action_bound,
+        float(noise_std), Z, R,
         float(control_cost), float(y_bound), 1, step_cost, Y, U, bool(traces), steps_run,
         diverged,
     )  # fmt: skip

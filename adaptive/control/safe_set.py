@@ -45,8 +45,8 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
-from stcgym.envs.compiled import fields_of, lane, lane_state, make_work
 from stcgym.envs.validation import real_in
+from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
 
 __all__ = [
     "STATUS_NAMES",
@@ -192,7 +192,7 @@ class DesignConfig(NamedTuple):
     integral: bool  # integral action: the design is on the augmented model (m = n + 1)
     feedforward: bool  # the reference feed-forward N
     safe: NDArray  # the safe set [b_min, rcond_min, dc_rcond_min, gain_max] (safe_set())
-    alpha: NDArray  # pole placement: the closed-loop characteristic polynomial (m,)
+    char_poly: NDArray  # pole placement: the closed-loop characteristic polynomial (m,)
 
 
 class SafeSetBounds(NamedTuple):
@@ -210,7 +210,7 @@ def safe_bounds(safe):
     place that knows the order of its entries.
 
     The lane functions take the vector and build the tuple inside, so the safe set travels
-    like the other configuration vectors (``alpha``, the LQ weights): one float64 array.
+    like the other configuration vectors (``char_poly``, the LQ weights): one float64 array.
     """
     return SafeSetBounds(safe[0], safe[1], safe[2], safe[3])
 

@@ -41,19 +41,9 @@ import math
 from numpy.typing import NDArray
 
 from stcgym.adaptive.estimation.estimator_spec import (
-    ALGORITHMS,
-    FROZEN_GAIN,
-    FROZEN_RATE,
-    FROZEN_RATIO,
-    REGRESSORS,
-    RULES,
-    STATE_ESTIMATORS,
     EstimatorConfig,
-    EstimatorSpec,
     EstimatorState,
     EstimatorWork,
-    parse_name,
-    upper_cholesky,
 )
 from stcgym.adaptive.estimation.least_squares import (
     block_trace_is_finite,
@@ -75,28 +65,15 @@ from stcgym.adaptive.estimation.state_estimation import (
 from stcgym.adaptive.kernels.canonical import companion_into
 from stcgym.adaptive.kernels.linalg import matvec
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
-from stcgym.adaptive.kernels.variants import RULES as _RULES
-from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
-from stcgym.envs.compiled import lane
+from stcgym.adaptive.variants import RULES as _RULES
+from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
+from stcgym.lanes.compiled import lane
 
 __all__ = [
-    "ALGORITHMS",
-    "FROZEN_GAIN",
-    "FROZEN_RATE",
-    "FROZEN_RATIO",
-    "REGRESSORS",
-    "RULES",
-    "STATE_ESTIMATORS",
-    "EstimatorConfig",
-    "EstimatorSpec",
-    "EstimatorState",
-    "EstimatorWork",
     "estimator_predict",
     "estimator_restart",
     "estimator_update",
-    "parse_name",
     "reset_covariance",
-    "upper_cholesky",
 ]
 
 # ---- the variants' codes (compile-time constants; compared for equality only) ------------------
@@ -146,17 +123,17 @@ def _rule_increment(
     d = 2 * n
     p = cfg.p
     lam = cfg.forgetting
-    S, r, delta, K, scratch = s.S[i], s.r[i], w.delta[i], w.K[i], w.w[i]
+    S, r, delta, K, scratch = s.S[i], s.r[i], w.delta[i], w.K[i], w.factor_work[i]
     nblocks = 2 if cfg.decomposed else 1
     ok = True
     for blk in range(nblocks):
         lo = 0 if nblocks == 1 else blk * n
         hi = d if nblocks == 1 else lo + n
         if cfg.rule == RULE_RLS or cfg.rule == RULE_MILS:
-            alpha = least_squares_increment(
+            denom = least_squares_increment(
                 S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, K, scratch
             )
-            ok = ok and alpha > 0.0 and math.isfinite(alpha) and block_trace_is_finite(S, lo, hi)
+            ok = ok and denom > 0.0 and math.isfinite(denom) and block_trace_is_finite(S, lo, hi)
         elif cfg.rule == RULE_SG or cfg.rule == RULE_MISG:
             r_new = gradient_increment(r[blk], lo, hi, Phi, E, p, lam, cfg.stacked_r, delta)
             ok = ok and r_new > 0.0 and math.isfinite(r_new)
@@ -184,7 +161,7 @@ def _replay_window(
     count = s.count[i]  # read before the reset empties the window
     reset_covariance(s, i, cfg)
     S, theta0, hist_Phi, hist_Y = s.S[i], s.theta0[i], s.hist_Phi[i], s.hist_Y[i]
-    delta, K, scratch, E = w.delta[i], w.K[i], w.w[i], w.E_replay[i]
+    delta, K, scratch, E = w.delta[i], w.K[i], w.factor_work[i], w.E_replay[i]
     for j in range(d):
         theta_w[j] = theta0[j]
     first = count % W  # the oldest block (the newest was written just before)
@@ -241,7 +218,7 @@ def _slide_window(
             lo = 0 if nblocks == 1 else blk * n
             hi = d if nblocks == 1 else lo + n
             if ok:
-                ok = downdate_block(S, lo, hi, hPhi, E_old, p, delta, w.w[i])
+                ok = downdate_block(S, lo, hi, hPhi, E_old, p, delta, w.factor_work[i])
         if not ok:
             copy_matrix(saved, S)
             copy_matrix(Phi[:p], hPhi)
@@ -295,7 +272,8 @@ def estimator_update(
     d = 2 * n
     p = cfg.p
     theta, Phi, Y, E, phi = s.theta[i], s.Phi[i], s.Y[i], s.E[i], s.phi[i]
-    for k in range(p - 1, 0, -1):  # column j of the paper's Phi(p, t) is phi_hat(t - j)
+    # Phi(p, t), Y(p, t): column j of the paper's Phi is phi_hat(t - j)      (41)-(42), (19)-(20)
+    for k in range(p - 1, 0, -1):
         for j in range(d):
             Phi[k, j] = Phi[k - 1, j]
         Y[k] = Y[k - 1]
@@ -307,13 +285,14 @@ def estimator_update(
     s.y[i] = y
     s.phase[i] = True
     status = 0
-    _innovation(theta, Phi, Y, p, E)
+    _innovation(theta, Phi, Y, p, E)  # E(p, t) = Y(p, t) - Phi^T theta(t-1)       (38), (17)
     if not s.enabled[i]:
         return status
     delta, theta_prev = w.delta[i], w.theta_prev[i]
     S = s.S[i]
     least_squares = cfg.covariance
     q = _gain(S, phi) if least_squares else 0.0
+    # delta = L(t) E(p, t) with L, P of (33)-(34) / (39)-(40); Phi E / r(t) with r of (13) / (18)
     ok = _rule_increment(s, w, i, cfg, Phi, E)
     if windowed is not None and ok and cfg.window > 0:
         status |= _slide_window(s, w, i, cfg, theta, Phi, Y)
@@ -337,7 +316,7 @@ def estimator_update(
         for j in range(d):
             theta_prev[j] = theta[j]
     for j in range(d):
-        theta[j] += delta[j]
+        theta[j] += delta[j]  # theta(t) = theta(t-1) + delta           (32), (37); (12), (16)
     if cfg.project_stable and not is_schur_stable(theta, n, w.K[i]):
         for j in range(d):
             theta[j] = theta_prev[j]

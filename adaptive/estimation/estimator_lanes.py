@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.estimator_spec import EstimatorConfig, EstimatorState, EstimatorWork
-from stcgym.envs.compiled import lane, lanes
+from stcgym.lanes.compiled import lane, lanes
 
 __all__ = ["predict_lanes", "run_lane", "update_lanes"]
 

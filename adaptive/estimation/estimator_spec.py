@@ -27,11 +27,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation.least_squares import upper_factor
-from stcgym.adaptive.kernels.variants import ALGORITHMS, Rule, parse_name, variant
-from stcgym.adaptive.kernels.variants import RULES as _RULES
-from stcgym.adaptive.kernels.variants import STATE_ESTIMATORS as _STATES
+from stcgym.adaptive.variants import ALGORITHMS, EstimatorName, Rule, parse_name, variant
+from stcgym.adaptive.variants import RULES as _RULES
+from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.compiled import lane_state, state_nbytes_per_lane
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -40,12 +39,11 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
+from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
 
 __all__ = [
     "ALGORITHMS",
     "REGRESSORS",
-    "RULES",
-    "STATE_ESTIMATORS",
     "EstimatorConfig",
     "EstimatorSpec",
     "EstimatorState",
@@ -54,10 +52,6 @@ __all__ = [
     "upper_cholesky",
 ]
 
-#: The rules' names (:data:`.variants.RULES` has what the code knows about each).
-RULES: tuple[str, ...] = tuple(_RULES)
-#: The state estimators' names (:data:`.variants.STATE_ESTIMATORS`).
-STATE_ESTIMATORS: tuple[str, ...] = tuple(_STATES)
 #: Which state estimate the regressor ``phi_hat`` is built from (see :meth:`EstimatorSpec.build`).
 REGRESSORS: tuple[str, ...] = ("predicted", "filtered")
 #: Frozen-signal defaults (see :mod:`.estimator`; calibrated in
@@ -113,7 +107,7 @@ class EstimatorWork(NamedTuple):
 
     delta: NDArray  # the increment of theta (d)
     K: NDArray  # the rule's gain vector P phi (d)
-    w: NDArray  # the least-squares blocks' scratch (2d)
+    factor_work: NDArray  # the least-squares factor updates' scratch (2d)
     theta_prev: NDArray  # theta(t-1) of the projection; the window's theta (d)
     E_replay: NDArray  # the innovation of a replayed block (p)
     E_old: NDArray  # the innovation of the block leaving the window (p)
@@ -175,6 +169,11 @@ def _rule_parameters(rule: Rule, given: dict[str, Any]) -> tuple[float, ...]:
     return tuple(q.check(given.get(q.name, q.default)) for q in rule.parameters)
 
 
+def _states_with(kalman: bool) -> str:
+    """The names of the state estimators that are (or are not) Kalman filters, ``"O/CO"``."""
+    return "/".join(e.name for e in _STATES.values() if e.kalman == kalman)
+
+
 def _read_only(values: tuple[float, ...]) -> NDArray:
     arr = np.array(values, dtype=np.float64)
     arr.setflags(write=False)
@@ -191,19 +190,20 @@ def upper_cholesky(P: NDArray) -> NDArray:
 
 @dataclass(frozen=True, eq=False)
 class EstimatorSpec:
-    """One validated estimator configuration: record layout, config arrays, initial record.
+    """One validated estimator configuration: lane-state shapes, configuration, initial state.
 
     Build it with :meth:`build` (the keywords of :func:`stcgym.adaptive.make_estimator`).
     ``theta0``, ``P0``, ``x_init``, ``P1_init``, ``Q`` are the per-lane initial values written
-    by :meth:`initial_record`. ``observer_gain`` may be a callable (evaluated by the Python
-    class before every state step); the lane functions read the gain ``K`` from the record.
+    by :meth:`initial_state`. ``observer_gain`` may be a callable (evaluated by the Python
+    class before every state step); the lane functions read the gain ``K`` from the state.
 
     Parameters
     ----------
     name, n, p, form
         Canonical algorithm name (upper case), plant order, innovation length, canonical form.
     state, decomposed, rule
-        The parts of ``name`` (:func:`parse_name`).
+        The parts of ``name`` (:func:`parse_name`); :attr:`variant` holds their registry
+        entries.
     forgetting, window, stacked_r, project_stable, pd_check_every, on_failure, enabled
         As for :func:`stcgym.adaptive.make_estimator`.
     theta0, P0, r0, x_init, P1_init, Q, R, observer_gain
@@ -266,12 +266,14 @@ class EstimatorSpec:
     injection_warmup: int = 0
     #: the values of the rule's own parameters (:attr:`.variants.Rule.parameters`), in order
     rule_parameters: tuple[float, ...] = ()
+    #: the registry entries of ``name`` (resolved from it when not given)
+    variant: EstimatorName = field(default=None, repr=False, compare=False)  # type: ignore[assignment]
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
     def build(
         cls,
-        name: str,
+        name: str | EstimatorName,
         n: int,
         *,
         p: int = 1,
@@ -303,7 +305,8 @@ class EstimatorSpec:
         Parameters
         ----------
         name, n, **options
-            As for :func:`stcgym.adaptive.make_estimator`, which documents each.
+            As for :func:`stcgym.adaptive.make_estimator`, which documents each; ``name`` may
+            be the registry's record of a name already resolved (:func:`.variants.variant`).
 
         Returns
         -------
@@ -315,8 +318,8 @@ class EstimatorSpec:
             An unknown name, or an argument out of its range, of the wrong shape or not
             applying to the rule or state estimator.
         """
-        v = variant(name)
-        state, decomposed, rule = v.state.name, v.decomposed, v.rule.name
+        v = name if isinstance(name, EstimatorName) else variant(name)
+        decomposed, rule = v.decomposed, v.rule.name
         n = integer(n, "n", 1)
         p = integer(p, "p", 1)
         if not v.rule.multi_innovation and p != 1:
@@ -362,9 +365,12 @@ class EstimatorSpec:
         P1 = Q = None
         R = 1.0
         gain: Any = None
-        if state == "KF":
+        if v.state.kalman:
             if observer_gain is not None:
-                raise ValueError("observer_gain applies to O/CO state estimators, not KF")
+                raise ValueError(
+                    f"observer_gain applies to {_states_with(False)} state estimators, not "
+                    f"{v.state.name}"
+                )
             P1 = np.eye(n) if P1_init is None else covariance(P1_init, n, "P1_init")
             Q = (
                 np.zeros((n, n))
@@ -376,11 +382,15 @@ class EstimatorSpec:
         else:
             given = [k for k, v in kf.items() if v is not None]
             if given:
-                raise ValueError(f"{', '.join(given)} apply to KF state estimators only")
-            if state == "CO" and observer_gain is None:
-                raise ValueError("CO (closed-loop observer) needs observer_gain=K (or a callable)")
-            if observer_gain is not None:
-                state = "CO"
+                raise ValueError(
+                    f"{', '.join(given)} apply to {_states_with(True)} state estimators only"
+                )
+            if v.state.observer_gain and observer_gain is None:
+                raise ValueError(
+                    f"{v.state.name} (closed-loop observer) needs observer_gain=K (or a callable)"
+                )
+            if observer_gain is not None:  # the closed-loop observer on that gain
+                v = v._replace(state=next(e for e in _STATES.values() if e.observer_gain))
                 if callable(observer_gain):
                     gain = observer_gain
                 else:
@@ -397,7 +407,7 @@ class EstimatorSpec:
             frozen_ratio, "frozen_ratio (math.inf: no frozen signal)", 0.0, lo_open=True
         )
         one_of(regressor, "regressor", REGRESSORS)
-        if regressor == "filtered" and state == "CO":
+        if regressor == "filtered" and not v.state.filtered_regressor:
             raise ValueError(
                 "regressor='filtered' applies to the open-loop observer (O) and the Kalman filter "
                 "(KF); the closed-loop observer (CO, observer_gain) has its own output injection"
@@ -405,18 +415,17 @@ class EstimatorSpec:
         injection = real_in(injection, "injection", 0.0, 1.0)
         injection_warmup = integer(injection_warmup, "injection_warmup", 0)
         partial = injection != 1.0 or injection_warmup != 0
-        if partial and (state != "O" or regressor != "filtered"):
+        if partial and (not v.state.injection or regressor != "filtered"):
             raise ValueError(
                 "injection and injection_warmup apply to the open-loop observer (O) with "
-                f"regressor='filtered', not to {state} with regressor={regressor!r}"
+                f"regressor='filtered', not to {v.state.name} with regressor={regressor!r}"
             )
-        canonical = f"{state}-{'D-' if decomposed else ''}{rule}"
         return cls(
-            name=canonical,
+            name=v.name,
             n=n,
             p=p,
             form=form,
-            state=state,
+            state=v.state.name,
             rule=rule,
             decomposed=decomposed,
             forgetting=lam,
@@ -439,10 +448,13 @@ class EstimatorSpec:
             injection=injection,
             injection_warmup=injection_warmup,
             rule_parameters=_rule_parameters(v.rule, rule_parameters),
+            variant=v,
         )
 
     def __post_init__(self) -> None:
-        v = variant(self.name)
+        if self.variant is None:
+            object.__setattr__(self, "variant", variant(self.name))
+        v = self.variant
         config = EstimatorConfig(
             n=self.n,
             p=self.p,
@@ -476,7 +488,7 @@ class EstimatorSpec:
         the one place they are declared (a field the rule or state estimator does not keep
         has a zero in its shape, with the dimensions the lane functions index it by)."""
         n, p, d = self.n, self.p, 2 * self.n
-        v = variant(self.name)
+        v = self.variant
         W = self.window or 0
         state: dict[str, tuple[int, ...]] = {
             "theta": (d,),
@@ -505,7 +517,7 @@ class EstimatorSpec:
         for scalar in EstimatorState._fields:
             state.setdefault(scalar, ())
         work = {
-            "delta": (d,), "K": (d,), "w": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
+            "delta": (d,), "K": (d,), "factor_work": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
             "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
             "AP": (n, n), "P_upd": (n, n), "x_reg": (n,),
         }  # fmt: skip
@@ -528,12 +540,12 @@ class EstimatorSpec:
     @property
     def normaliser(self) -> bool:
         """Whether the rule keeps the gradient normalisers ``r`` (SG, MISG)."""
-        return variant(self.name).rule.normaliser
+        return self.variant.rule.normaliser
 
     @property
     def least_squares(self) -> bool:
         """Whether the rule keeps a covariance ``P = S S^T`` (RLS, MILS)."""
-        return variant(self.name).rule.covariance
+        return self.variant.rule.covariance
 
     def initial_state(
         self, theta0: NDArray | None = None, P0: NDArray | None = None
@@ -574,11 +586,11 @@ class EstimatorSpec:
             s.r0[0] = self.r0
         s.x_hat[0] = self.x_init
         s.x_init[0] = self.x_init
-        if self.state == "KF":
+        if self.variant.state.kalman:
             s.P1[0] = self.P1_init
             s.P1_init[0] = self.P1_init
             s.Q[0] = self.Q
-        if self.state == "CO" and not callable(self.observer_gain):
+        if self.variant.state.observer_gain and not callable(self.observer_gain):
             s.K[0] = self.observer_gain
         s.enabled[0] = self.enabled
         return s

@@ -18,9 +18,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation import estimator as _k
-from stcgym.adaptive.estimation.estimator import EstimatorSpec, EstimatorState
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec, EstimatorState
 from stcgym.adaptive.estimation.health import describe_events, health_error
-from stcgym.envs.compiled import set_lanes
+from stcgym.lanes.compiled import set_lanes
 
 __all__ = ["EstimatorViews"]
 
@@ -166,23 +166,23 @@ class EstimatorViews:
     @property
     def P1(self) -> NDArray | None:
         """Kalman covariance ``P1(t+1)`` (KF only), else ``None``."""
-        return self._out(self._field("P1")) if self.spec.state == "KF" else None
+        return self._out(self._field("P1")) if self.spec.variant.state.kalman else None
 
     @property
     def L1(self) -> NDArray | None:
         """Last Kalman gain ``L1(t)`` (KF only), else ``None``."""
-        return self._out(self._field("L1")) if self.spec.state == "KF" else None
+        return self._out(self._field("L1")) if self.spec.variant.state.kalman else None
 
     @property
     def R(self) -> float | None:
         """Measurement-noise variance of the Kalman filter (KF only), else ``None``."""
-        return self.spec.R if self.spec.state == "KF" else None
+        return self.spec.R if self.spec.variant.state.kalman else None
 
     @property
     def Q(self) -> NDArray | None:
         """Process-noise covariance of the Kalman filter (KF only); settable between steps
         (shape ``(n, n)``, or ``(B, n, n)`` per lane)."""
-        return self._out(self._field("Q")) if self.spec.state == "KF" else None
+        return self._out(self._field("Q")) if self.spec.variant.state.kalman else None
 
     @Q.setter
     def Q(self, value: ArrayLike) -> None:

@@ -1,9 +1,10 @@
 """The recursive estimators of Ding & Ma (2014) by name: :func:`make_estimator`.
 
 A paper name (``"O-SG"`` ... ``"KF-D-MILS"``, case-insensitive; ``"CO-..."`` for the
-closed-loop observer) is parsed by :func:`stcgym.adaptive.estimation.estimator.parse_name`, the
-keywords are validated by :meth:`~stcgym.adaptive.estimation.estimator.EstimatorSpec.build`, and
-per-lane initial values (``num_envs=B``) are checked here. The estimator itself, with the
+closed-loop observer) is resolved by the registry (:func:`stcgym.adaptive.variants.variant`),
+the keywords are validated by
+:meth:`~stcgym.adaptive.estimation.estimator_spec.EstimatorSpec.build`, and per-lane initial
+values (``num_envs=B``) are checked here. The estimator itself, with the
 algorithms, the time convention and the two half-steps, is
 :class:`stcgym.adaptive.estimation.recursive.RecursiveEstimator`.
 """
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stcgym.adaptive.estimation.estimator import EstimatorSpec
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.envs.validation import covariance, integer
 
 if TYPE_CHECKING:
@@ -106,7 +107,7 @@ def make_estimator(
         Number of lanes ``B`` stepped together (``None``: one plant). The same class either way.
     **rule_parameters
         The parameters of a rule of its own: each rule of
-        :data:`stcgym.adaptive.kernels.variants.RULES` declares them (``Rule.parameters``:
+        :data:`stcgym.adaptive.variants.RULES` declares them (``Rule.parameters``:
         name, default, range).
 
     Returns

@@ -152,17 +152,16 @@ def d_misg(n: int, p: int, *, stacked_r: bool = False) -> int:
 def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> tuple[int, int]:
     """``(parameter update, state estimate)`` flops per step of a named recursive algorithm
     such as ``"KF-D-MILS"`` (the counts each rule and state estimator declares in
-    :mod:`stcgym.adaptive.kernels.variants`; ``p`` ignored by the rules without
+    :mod:`stcgym.adaptive.variants`; ``p`` ignored by the rules without
     multi-innovation)."""
-    from stcgym.adaptive.kernels.variants import variant  # the registry refers to this module
+    from stcgym.adaptive.variants import variant  # the registry refers to this module
 
     try:
         v = variant(name)
     except ValueError as exc:
         raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS': {exc}") from None
     _positive(n=n, p=p)
-    rule_flops = v.rule.decomposed_flops if v.decomposed else v.rule.flops
-    return rule_flops(n, p, stacked_r), v.state.flops(n)
+    return v.flops(n, p, stacked_r)
 
 
 def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:

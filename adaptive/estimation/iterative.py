@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.estimation import flops as _flops
 from stcgym.adaptive.estimation.recursive import NumericalHealthError
 from stcgym.adaptive.estimation.state_estimation import state_trajectory
+from stcgym.adaptive.variants import STATE_ESTIMATORS
 from stcgym.envs.canonical import check_form, companion_A
 from stcgym.envs.validation import integer, non_negative, positive, vector_pair
 
@@ -420,7 +421,7 @@ def fit_iterative(
         if state_est is not None:
             A_hat = companion_A(theta[:n], form)
             b_hat = theta[n:]
-            if state_est == "O":
+            if not STATE_ESTIMATORS[state_est].kalman:
                 x_prev = _states(A_hat, b_hat, u_arr, Y, x1, False, 0.0, 1.0)
             else:
                 x_prev = _states(A_hat, b_hat, u_arr, Y, x1, True, kalman_q, kalman_r)

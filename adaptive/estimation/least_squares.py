@@ -47,7 +47,7 @@ from typing import Any, NamedTuple
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.records import copy_matrix
-from stcgym.envs.compiled import fields_of, lane, make_work
+from stcgym.lanes.compiled import fields_of, lane, make_work
 
 __all__ = [
     "DOWNDATE_TOL",
@@ -88,7 +88,7 @@ class LeastSquaresWork(NamedTuple):
     delta: NDArray  # the increment of theta (d,)
     K: NDArray  # the gain P phi of a factor update (d,)
     E: NDArray  # the innovation E(p, t) = Y - Phi theta(t-1) (p,)
-    w: NDArray  # the factor updates' scratch (2 d,)
+    factor_work: NDArray  # the factor updates' scratch (2 d,)
 
 
 class DowndateWork(NamedTuple):
@@ -109,7 +109,7 @@ def least_squares_shapes(d: int, p: int, window: bool = False) -> dict[str, tupl
     :data:`WindowedLeastSquaresWork`) for ``d`` parameters and blocks of ``p`` rows: the one
     place they are declared."""
     d, p = int(d), int(p)
-    shapes = {"delta": (d,), "K": (d,), "E": (p,), "w": (2 * d,)}
+    shapes = {"delta": (d,), "K": (d,), "E": (p,), "factor_work": (2 * d,)}
     return {**shapes, "S_saved": (d, d)} if window else shapes
 
 
@@ -213,28 +213,28 @@ def least_squares_increment(
     ``scalar`` (RLS, ``p = 1``): ``L(t) = P(t-1) phi / (lam + phi^T P(t-1) phi)``, eq. (33);
     otherwise (MILS, any ``p``) ``L(t) E = P(t) Phi^T E``, eq. (39)-(41), so that "MILS with
     ``p = 1`` equals RLS" compares two different formulas. Returns the last denominator
-    ``alpha`` (``> 0`` and finite unless ``P`` overflowed).
+    ``denom`` (``> 0`` and finite unless ``P`` overflowed).
     """
     inv_sqrt_lam = 1.0 / math.sqrt(lam) if lam != 1.0 else 1.0
-    alpha = carlson_update(S, lo, hi, Phi[0], lam, K)
+    denom = carlson_update(S, lo, hi, Phi[0], lam, K)
     if lam != 1.0:
         for j in range(lo, hi):
             for i in range(lo, j + 1):
                 S[i, j] *= inv_sqrt_lam
     if scalar:
-        scale = E[0] / alpha
+        scale = E[0] / denom
         for i in range(lo, hi):
             delta[i] = K[i] * scale
-        return alpha
+        return denom
     for k in range(1, p):
-        alpha = carlson_update(S, lo, hi, Phi[k], 1.0, K)
+        denom = carlson_update(S, lo, hi, Phi[k], 1.0, K)
     for i in range(lo, hi):  # g = Phi^T E on the block
         acc = 0.0
         for k in range(p):
             acc += Phi[k, i] * E[k]
         K[i] = acc
     _p_times(S, lo, hi, K, w, delta)
-    return alpha
+    return denom
 
 
 @lane
@@ -275,15 +275,15 @@ def projection_increment(
     lo: int, hi: int, phi: NDArray, e: float, parameters: NDArray, delta: NDArray
 ) -> float:
     """Normalised-gradient (projection) increment on the block ``[lo, hi)``: writes
-    ``mu phi e / (alpha + phi^T phi)`` into ``delta[lo:hi]`` and returns the denominator.
+    ``mu phi e / (bias + phi^T phi)`` into ``delta[lo:hi]`` and returns the denominator.
 
     Astrom & Wittenmark, *Adaptive Control* (2nd ed., 1995), sec. 2.3, the projection
     algorithm; MATLAB's ``recursiveLS`` ``"NormalizedGradient"``. ``parameters`` are the
     rule's, in the order it declares them: ``mu`` (``adaptation_gain``, in ``(0, 2)``) and
-    ``alpha`` (``normalization_bias``, ``> 0``).
+    the bias (``normalization_bias``, ``> 0``).
     """
-    mu, alpha = parameters[0], parameters[1]
-    norm = alpha
+    mu, bias = parameters[0], parameters[1]
+    norm = bias
     for i in range(lo, hi):
         norm += phi[i] * phi[i]
     scale = mu * e / norm
@@ -304,28 +304,30 @@ def block_trace_is_finite(S: NDArray, lo: int, hi: int) -> bool:
 
 @lane(inline=True)
 def least_squares_step(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, lane: int
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, i: int
 ) -> int:
     """One RLS (``p = 1``, (32)-(36)) or MILS (``p > 1``, (37)-(44)) step on a generic
-    regressor; see the module docstring for the arguments."""
+    regressor, with lane ``i`` of the scratch ``w``; see the module docstring for the
+    arguments."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = w.delta[lane]
-    K = w.K[lane]
-    E = w.E[lane]
-    for k in range(p):
+    delta = w.delta[i]
+    K = w.K[i]
+    E = w.E[i]
+    for k in range(p):  # E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)     (38); p = 1: in (32)
         acc = Y[k]
-        for i in range(d):
-            acc -= Phi[k, i] * theta[i]
+        for j in range(d):
+            acc -= Phi[k, j] * theta[j]
         E[k] = acc
-    alpha = least_squares_increment(S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.w[lane])
-    if not (alpha > 0.0 and math.isfinite(alpha) and factor_is_healthy(S, 0, d)):
+    # L(t) (33)/(39) and P(t) = S S^T (34)/(40) by Carlson's rotations; delta = L(t) E(p, t)
+    denom = least_squares_increment(S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.factor_work[i])
+    if not (denom > 0.0 and math.isfinite(denom) and factor_is_healthy(S, 0, d)):
         return FAIL_COVARIANCE
-    for i in range(d):
-        if not math.isfinite(delta[i]):
+    for j in range(d):
+        if not math.isfinite(delta[j]):
             return FAIL_COVARIANCE
-    for i in range(d):
-        theta[i] += delta[i]
+    for j in range(d):
+        theta[j] += delta[j]  # theta(t) = theta(t-1) + L(t) E(p, t)            (32)/(37)
     return OK
 
 
@@ -391,7 +393,7 @@ def least_squares_downdate(
         E[k] = acc
     for i in range(d):
         delta[i] = 0.0
-    if not downdate_block(S, 0, d, Phi, E, p, delta, w.w[lane]):
+    if not downdate_block(S, 0, d, Phi, E, p, delta, w.factor_work[lane]):
         copy_matrix(saved, S)
         return FAIL_DOWNDATE
     for i in range(d):

@@ -51,11 +51,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation import estimator as _k
 from stcgym.adaptive.estimation import estimator_lanes as _lanes
-from stcgym.adaptive.estimation import flops as _flops
-from stcgym.adaptive.estimation.estimator import (
+from stcgym.adaptive.estimation.estimator_spec import (
     ALGORITHMS,
-    RULES,
-    STATE_ESTIMATORS,
     EstimatorSpec,
     EstimatorState,
     parse_name,
@@ -64,7 +61,6 @@ from stcgym.adaptive.estimation.estimator_views import EstimatorViews
 from stcgym.adaptive.estimation.factory import make_estimator
 from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable as _schur_lane
-from stcgym.envs.compiled import FixedTypes, set_lanes
 from stcgym.envs.validation import (
     finite_vector,
     lane_indices,
@@ -72,11 +68,10 @@ from stcgym.envs.validation import (
     real_number,
     vector_pair,
 )
+from stcgym.lanes.compiled import FixedTypes, set_lanes
 
 __all__ = [
     "ALGORITHMS",
-    "RULES",
-    "STATE_ESTIMATORS",
     "EstimatorSpec",
     "NumericalHealthError",
     "RecursiveEstimator",
@@ -129,7 +124,7 @@ class RecursiveEstimator(EstimatorViews):
     Attributes
     ----------
     spec : EstimatorSpec
-        The validated configuration (record layout, config arrays, initial values).
+        The validated configuration (lane-state shapes, configuration, initial values).
     name, n, p, form, num_envs : the algorithm name (upper case), order, innovation length,
         canonical form, number of lanes (``None`` for a single plant).
     theta, a, b : ndarray
@@ -210,7 +205,7 @@ class RecursiveEstimator(EstimatorViews):
         self._signal = np.zeros(B)  # y(t) or u(t) of a single plant's step
         self._last_event: str | None = None
         self._frozen_warned = False  # the frozen signal warns once (until reset)
-        self._flops = _flops.recursive_parts(spec.name, spec.n, spec.p, stacked_r=spec.stacked_r)
+        self._flops = spec.variant.flops(spec.n, spec.p, spec.stacked_r)
         self._gain_fn = callable(spec.observer_gain)
 
     # ---- lifecycle ----------------------------------------------------------------------------

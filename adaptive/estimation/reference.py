@@ -11,7 +11,7 @@ to a stated tolerance (``tests/test_estimator_kernels.py``), so it is an indepen
 * RLS (32)-(36): ``L = P phi / (lambda + phi^T P phi)``, ``P = (P - L phi^T P) / lambda``;
 * MILS (37)-(44): ``L = P Phi (lambda I + Phi^T P Phi)^{-1}``, ``P = (P - L Phi^T P) / lambda``;
 * NG, the normalised-gradient (projection) algorithm (Astrom & Wittenmark, not in the paper):
-  ``theta(t) = theta(t-1) + mu phi e / (alpha + phi^T phi)``;
+  ``theta(t) = theta(t-1) + mu phi e / (bias + phi^T phi)``;
 * D- rules (96)-(145): the same on ``a`` (rows ``0..n-1``) and ``b`` (rows ``n..2n-1``), both
   with the innovation computed from ``theta(t-1)``;
 * open-loop observer (46), closed-loop observer (50), Kalman filter (66)-(68) with ``Q``, ``R``;
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stcgym.adaptive.kernels.variants import variant
+from stcgym.adaptive.variants import variant
 from stcgym.envs.canonical import companion_A
 
 __all__ = ["ReferenceEstimator"]
@@ -65,7 +65,7 @@ class ReferenceEstimator:
         normalization_bias: float = np.finfo(float).eps,
     ) -> None:
         v = variant(name)  # the registry's parser: the names only, none of the kernels' math
-        self.state, self.rule, self.decomposed = v.state.name, v.rule.name, v.decomposed
+        self.state, self.rule, self.decomposed = v.state, v.rule, v.decomposed  # registry entries
         self.n, self.p, self.form, self.lam = n, p, form, forgetting
         d = 2 * n
         self.theta = np.full(d, 1.0 / p0) if theta0 is None else np.array(theta0, float)
@@ -78,7 +78,7 @@ class ReferenceEstimator:
         self.R = R
         self.K = None if K is None else np.array(K, float)
         self.filtered = filtered
-        self.mu, self.alpha = adaptation_gain, normalization_bias
+        self.mu, self.bias = adaptation_gain, normalization_bias
         self.injection, self.injection_warmup = injection, injection_warmup
         self.t = 0
         self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
@@ -104,17 +104,17 @@ class ReferenceEstimator:
         lam = self.lam
         for k, blk in enumerate(self.blocks()):
             Phi = self.Phi[blk]
-            if self.rule in ("SG", "MISG"):
+            if self.rule.normaliser:  # SG, MISG
                 inc = np.sum(Phi**2) if self.stacked_r else np.sum(Phi[:, 0] ** 2)
                 self.r[k] = lam * self.r[k] + inc
                 delta[blk] = Phi @ E / self.r[k]
                 continue
-            if self.rule == "NG":
+            if not self.rule.covariance:  # NG
                 phi = Phi[:, 0]
-                delta[blk] = self.mu * phi * E[0] / (self.alpha + phi @ phi)
+                delta[blk] = self.mu * phi * E[0] / (self.bias + phi @ phi)
                 continue
             P = self.P[blk, blk]
-            if self.rule == "RLS":
+            if not self.rule.multi_innovation:  # RLS
                 phi = Phi[:, 0]
                 L = P @ phi / (lam + phi @ P @ phi)
                 self.P[blk, blk] = (P - np.outer(L, phi @ P)) / lam
@@ -137,14 +137,14 @@ class ReferenceEstimator:
         c = np.eye(n)[0]
         x_reg = x  # the state estimate the regressor is built from
         if self.filtered:  # x_hat(t|t) = x_hat(t) + g (y(t) - c x_hat(t))
-            if self.state == "KF":
+            if self.state.kalman:
                 g = self.P1 @ c / (self.R + c @ self.P1 @ c)
             else:  # deadbeat: c g = 1 and A (I - g c) nilpotent
                 g = np.linalg.matrix_power(A, n - 1) @ np.eye(n)[n - 1]
                 if self.t > self.injection_warmup:  # then a fraction of it
                     g = self.injection * g
             x_reg = x + g * (self.y - x[0])
-        if self.state == "KF":
+        if self.state.kalman:
             s = self.R + c @ self.P1 @ c
             L1 = A @ self.P1 @ c / s
             x_next = A @ x + b * u + L1 * (self.y - x[0])

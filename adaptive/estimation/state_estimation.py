@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.linalg import matmul
-from stcgym.envs.compiled import lane
+from stcgym.lanes.compiled import lane
 
 __all__ = [
     "advance_regressor",
@@ -94,17 +94,17 @@ def kalman_step(
     """Kalman filter step (66)-(68); see the module docstring. ``x_next`` must not alias ``x``;
     ``AP``, ``P_upd``: ``(n, n)`` scratch."""
     n = x.shape[0]
-    matmul(A, P1, AP)
-    s = R + P1[0, 0]
+    matmul(A, P1, AP)  # g = A P1 c^T = AP[:, 0]                                      (67)/(81)
+    s = R + P1[0, 0]  # s = R + c P1 c^T                                              (67)/(81)
     innov = y - x[0]
-    for i in range(n):
+    for i in range(n):  # A x_hat + b u, the prediction part of                      (66)/(80)
         acc = 0.0
         for j in range(n):
             acc += A[i, j] * x[j]
         x_next[i] = acc + b[i] * u
     finite = s > 0.0 and math.isfinite(s)
     inv_s = 1.0 / s
-    # P1(t+1) = A P1 A^T - g g^T / s + Q with g = A P1 c^T = AP[:, 0]
+    # P1(t+1) = A P1 A^T - g g^T / s + Q                                              (68)/(82)
     for i in range(n):
         for j in range(n):
             acc = 0.0
@@ -120,8 +120,8 @@ def kalman_step(
     if not finite:
         return 1
     for i in range(n):
-        L1[i] = AP[i, 0] * inv_s
-        x_next[i] += L1[i] * innov
+        L1[i] = AP[i, 0] * inv_s  # L1 = g / s                                        (67)/(81)
+        x_next[i] += L1[i] * innov  # + L1 [y - c x_hat]                               (66)/(80)
     for i in range(n):
         for j in range(n):
             P1[i, j] = P_upd[i, j]

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from numpy.typing import NDArray
 
-from stcgym.envs.compiled import lane, lanes
+from stcgym.lanes.compiled import lane, lanes
 
 __all__ = [
     "OBSERVABILITY",

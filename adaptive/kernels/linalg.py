@@ -1,7 +1,7 @@
 """Small dense linear algebra written out for lane functions (no BLAS, no LAPACK, no allocation).
 
 The matrices of a lane are a few rows wide (the order of a plant plus an integrator), where a
-call into a library costs more than the arithmetic; see :mod:`stcgym.envs.compiled`. All are
+call into a library costs more than the arithmetic; see :mod:`stcgym.lanes.compiled`. All are
 inlined into their callers. ``matvec`` is the plants' own (:func:`stcgym.envs.dynamics.matvec`,
 which computes their output ``y = C x``), re-exported here.
 """
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 
-from stcgym.envs.compiled import lane
 from stcgym.envs.dynamics import matvec
+from stcgym.lanes.compiled import lane
 
 __all__ = ["all_finite", "invert", "matmul", "matvec", "max_abs", "norm1"]
 

@@ -2,7 +2,7 @@
 
 A whole-array assignment ``dst[:] = src`` inside a compiled lane function may allocate a
 temporary for operands that could overlap, which lane functions (compiled without numba's
-reference-counting runtime, :func:`stcgym.envs.compiled.lane`) must not do: these loops copy
+reference-counting runtime, :func:`stcgym.lanes.compiled.lane`) must not do: these loops copy
 element by element instead.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from numpy.typing import NDArray
 
-from stcgym.envs.compiled import lane
+from stcgym.lanes.compiled import lane
 
 __all__ = ["copy_matrix", "copy_vector"]
 

@@ -31,11 +31,12 @@ from stcgym.adaptive.control.options import (
     StartupOptions,
     option_group,
 )
+from stcgym.adaptive.control.safe_set import STATUS_NAMES
 from stcgym.adaptive.multivariable import controller_step as km
 from stcgym.adaptive.multivariable.state_matrix import make_state_matrix
 from stcgym.adaptive.policy import SelfTuningLanes
-from stcgym.envs.compiled import FixedTypes
 from stcgym.envs.validation import integer, real_in
+from stcgym.lanes.compiled import FixedTypes
 
 __all__ = [
     "MultivariableSelfTuningController",
@@ -360,6 +361,8 @@ class MultivariableSelfTuningController(SelfTuningLanes):
     >>> np.round(x, 3)
     array([0.976, 0.024])
     """
+
+    status_names = STATUS_NAMES
 
     observation_limit = OBSERVATION_LIMIT
 

@@ -59,7 +59,7 @@ from stcgym.adaptive.multivariable.mimo_lq import (
     riccati_step,
 )
 from stcgym.adaptive.multivariable.state_matrix import RESET, state_matrix_update
-from stcgym.envs.compiled import lane, lane_state, lanes
+from stcgym.lanes.compiled import lane, lane_state, lanes
 
 __all__ = [
     "COUNTERS",

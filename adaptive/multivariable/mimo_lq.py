@@ -57,7 +57,7 @@ from stcgym.adaptive.control.safe_set import (
 )
 from stcgym.adaptive.kernels.linalg import invert, matmul, max_abs
 from stcgym.adaptive.kernels.records import copy_matrix
-from stcgym.envs.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
 
 __all__ = [
     "P_MAX",

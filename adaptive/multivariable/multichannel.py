@@ -39,7 +39,6 @@ from stcgym.adaptive.estimation.least_squares import (
     upper_factor,
 )
 from stcgym.adaptive.estimation.recursive import NumericalHealthError
-from stcgym.envs.compiled import lane
 from stcgym.envs.validation import (
     finite_vector,
     forgetting_factor,
@@ -49,6 +48,7 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
+from stcgym.lanes.compiled import lane
 
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
@@ -85,12 +85,12 @@ def matrix_rls_step(theta, S, x, y, lam, w, lane):
         for i in range(d):
             acc -= x[0, i] * theta[i, j]
         E[j] = acc
-    alpha = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w.w[lane])
+    denom = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w.factor_work[lane])
     healthy = factor_is_healthy(S, 0, d) and block_trace_is_finite(S, 0, d)
-    if not (alpha > 0.0 and math.isfinite(alpha) and healthy):
+    if not (denom > 0.0 and math.isfinite(denom) and healthy):
         return FAIL_COVARIANCE
     for i in range(d):
-        K[i] /= alpha
+        K[i] /= denom
         for j in range(q):
             if not math.isfinite(K[i] * E[j]):
                 return FAIL_COVARIANCE

@@ -41,7 +41,7 @@ from stcgym.adaptive.estimation.least_squares import (
 )
 from stcgym.adaptive.kernels.linalg import invert
 from stcgym.adaptive.multivariable.multichannel import matrix_rls_step
-from stcgym.envs.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
 
 __all__ = [
     "DEPENDENT",

@@ -39,7 +39,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.estimation.estimator import upper_cholesky
+from stcgym.adaptive.estimation.estimator_spec import upper_cholesky
 from stcgym.adaptive.estimation.recursive import NumericalHealthError
 from stcgym.adaptive.regression.rls_step import (
     FAILED,
@@ -49,7 +49,6 @@ from stcgym.adaptive.regression.rls_step import (
     rls_run,
     rls_run_lanes,
 )
-from stcgym.envs.compiled import state_nbytes_per_lane
 from stcgym.envs.validation import (
     covariance,
     forgetting_factor,
@@ -58,6 +57,7 @@ from stcgym.envs.validation import (
     one_of,
     real_array,
 )
+from stcgym.lanes.compiled import state_nbytes_per_lane
 
 __all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
 

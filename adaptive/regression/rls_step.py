@@ -30,7 +30,7 @@ from stcgym.adaptive.estimation.least_squares import (
 )
 from stcgym.adaptive.estimation.least_squares import OK as LS_OK
 from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
-from stcgym.envs.compiled import fields_of, lane, lane_state, lanes, make_work
+from stcgym.lanes.compiled import fields_of, lane, lane_state, lanes, make_work
 
 __all__ = [
     "FAILED",

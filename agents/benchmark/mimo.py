@@ -70,7 +70,6 @@ __all__ = [
     "OutputLQG",
     "channel_metrics",
     "check_mimo_plants",
-    "estimate_error",
     "formulation",
     "has_yardstick",
     "mimo_scenarios",
@@ -572,10 +571,3 @@ def channel_metrics(z: NDArray, r: NDArray, span: int) -> dict[str, NDArray]:
         if peaks:
             out["cross_peak"][b] = float(np.mean(peaks))
     return out
-
-
-def estimate_error(theta: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
-    """Relative error ``||[A_hat B_hat] - [A B]||_F / ||[A B]||_F`` after each step (``nan``
-    where there is no estimate); ``theta`` ``(T + 1, n (n + m))``, ``theta_hat`` ``(T, ...)``."""
-    true = theta[1:]
-    return np.linalg.norm(theta_hat - true, axis=1) / np.linalg.norm(true, axis=1)

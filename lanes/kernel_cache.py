@@ -47,11 +47,13 @@ _checked: set[Path] = set()
 
 
 def _roots() -> dict[str, Path]:
-    """Package name -> directory of the two packages that hold kernels."""
-    roots = {"stcgym.envs": Path(__file__).resolve().parent}
-    spec = find_spec("stcgym.adaptive")
-    if spec is not None and spec.submodule_search_locations:
-        roots["stcgym.adaptive"] = Path(next(iter(spec.submodule_search_locations))).resolve()
+    """Package name -> directory of the packages that hold kernels: this one (the lane
+    framework), the plants' and the estimators' and controllers'."""
+    roots = {"stcgym.lanes": Path(__file__).resolve().parent}
+    for package in ("stcgym.envs", "stcgym.adaptive"):
+        spec = find_spec(package)
+        if spec is not None and spec.submodule_search_locations:
+            roots[package] = Path(next(iter(spec.submodule_search_locations))).resolve()
     return roots
 
 
@@ -59,14 +61,14 @@ def _roots() -> dict[str, Path]:
 def kernel_sources() -> tuple[Path, ...]:
     """The modules whose text the compiled kernels depend on, sorted.
 
-    Every module of ``stcgym.envs`` and ``stcgym.adaptive`` that defines compiled functions
-    (decorated ``@lane``/``@lanes`` or ``numba.njit``) or named tuples (the lane state and
-    configuration kernels run on, and the constants beside them, such as
-    ``estimation.estimator_spec``'s), and every module of the shared kernels package
-    ``stcgym.adaptive.kernels``: the functions a kernel calls or inlines and the constants it
-    reads are defined there. Kernels read no constant from elsewhere; the Python classes around them
-    (``SelfTuningController``, validation, options) are not part of the fingerprint, so editing
-    them keeps the cache.
+    Every module of ``stcgym.lanes``, ``stcgym.envs`` and ``stcgym.adaptive`` that defines
+    compiled functions (decorated ``@lane``/``@lanes`` or ``numba.njit``) or named tuples (the
+    lane state and configuration kernels run on, and the constants beside them, such as
+    ``estimation.estimator_spec``'s and the registry's codes), and every module of the shared
+    kernels package ``stcgym.adaptive.kernels``: the functions a kernel calls or inlines and
+    the constants it reads are defined there. Kernels read no constant from elsewhere; the
+    Python classes around them (``SelfTuningController``, validation, options) are not part
+    of the fingerprint, so editing them keeps the cache.
     """
     roots = _roots()
     files = set()

@@ -34,7 +34,7 @@ compiles nothing and a second process starts fast. A compile that is still runni
 :data:`COMPILE_NOTICE_AFTER` seconds is announced once per process, on the ``stcgym`` logger
 (:class:`CompileNotice`). ``NUMBA_DISABLE_JIT=1`` runs the very same source as plain Python
 (slow, but debuggable with pdb and coverage). Where the cache lives and why an edited kernel
-never runs stale machine code: :mod:`stcgym.envs.kernel_cache`.
+never runs stale machine code: :mod:`stcgym.lanes.kernel_cache`.
 """
 
 from __future__ import annotations
@@ -52,8 +52,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.envs import numba_internals as internals
-from stcgym.envs.kernel_cache import guard_cache
+from stcgym.lanes import numba_internals as internals
+from stcgym.lanes.kernel_cache import guard_cache
 
 F = TypeVar("F", bound=Callable[..., Any])
 R = TypeVar("R", bound=tuple)
