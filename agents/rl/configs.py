@@ -191,6 +191,14 @@ class AlgoConfig:
         Running reward scaling (SB3's ``VecNormalize``, the Zoo's ``normalize``).
     normalize_obs : bool, default True
         Observation normalisation (``VecNormalize``; its statistics travel with the model).
+    reward : str, default "lqg_ratio"
+        The training reward (:mod:`stcgym.agents.rl.reward`): ``"lqg_ratio"``, the scored
+        per-step cost in units of the episode's plant's LQG cost, capped at ``cost_cap``
+        (SISO plants; multivariable plants train on the raw cost); ``"cost"``, the raw
+        per-step cost (an ablation).
+    cost_cap : float or None, default 100.0
+        The largest per-step cost of ``"lqg_ratio"`` in LQG units, also the charge per step of
+        a diverged episode's remainder (``None``: no cap).
     reward_scale : float, default 1.0
         Fixed factor on the training reward (:class:`~stcgym.agents.TrainingReward`).
     cost_squash : float or None, default None
@@ -225,6 +233,8 @@ class AlgoConfig:
     n_envs: int = 1
     normalize_reward: bool = False
     normalize_obs: bool = True
+    reward: str = "lqg_ratio"
+    cost_cap: float | None = 100.0
     reward_scale: float = 1.0
     cost_squash: float | None = None
     noise_std: float = 0.0

@@ -270,6 +270,8 @@ class TrainedAgent:
     best_step: int | None = None
     #: how training ended (with a plateau rule; ``None`` for a fixed budget)
     stop: StopSummary | None = None
+    #: the health of each policy update (:func:`~stcgym.agents.rl.learning_curve.update_record`)
+    updates: list[dict[str, float]] = field(default_factory=list)
 
 
 def _progress_bar_wanted(progress: bool | None) -> bool:
@@ -289,8 +291,8 @@ def interface_of(config: AlgoConfig, train_spec: EnvSpec, seed: int) -> Interfac
 def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: Any) -> Any:
     """``n_envs`` lanes of the native vector env of ``train_spec``, seeded ``seed + i``,
     behind ``VecMonitor`` (raw returns into the file ``monitor``), the window, the agent's
-    interface and the training reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`)
-    and ``VecNormalize``."""
+    interface and the training reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`;
+    ``config.reward``: :mod:`stcgym.agents.rl.reward`) and ``VecNormalize``."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
@@ -299,9 +301,19 @@ def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: A
     lanes = SB3VecEnv(train_spec.make_vec(int(config.n_envs), info_keys=()))
     lanes.seed(int(seed))
     vec = VecMonitor(lanes, filename=monitor)
+    score = {}
+    if config.reward == "lqg_ratio" and train_spec.plant_kind == "siso":
+        from stcgym.agents.rl.reward import plant_lqg_costs
+
+        native = lanes.venv
+        score = dict(
+            plant_costs=plant_lqg_costs(train_spec),
+            plant_index=lambda: native.plant_index,
+            cost_cap=config.cost_cap,
+        )
     vec = VecHistoryWindow(
         vec, window, train_spec.steps, config.reward_scale, config.cost_squash,
-        interface=interface_of(config, train_spec, seed),
+        interface=interface_of(config, train_spec, seed), **score,
     )  # fmt: skip
     if config.normalize_obs or config.normalize_reward:
         vec = VecNormalize(
@@ -541,6 +553,7 @@ def train_agent(
         lanes.obs_norm = norm
 
     curve: list[tuple[int, float]] = []
+    updates: list[dict[str, float]] = []
     callback = make_curve_callback(
         curve,
         lanes,
@@ -552,6 +565,7 @@ def train_agent(
         int(steps),
         snapshot,
         restore,
+        updates,
     )
     t0 = time.perf_counter()
     model.learn(
@@ -580,6 +594,7 @@ def train_agent(
         out,
         callback.best_step,
         stop,
+        updates,
     )
     if out is not None:
         save_agent(agent, out)
@@ -609,6 +624,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "curve": [list(p) for p in agent.curve],
         "best_step": agent.best_step,
         "stop": None if agent.stop is None else agent.stop.to_dict(),
+        "updates": agent.updates,
     }
     write_atomic(folder / "agent.json", json.dumps(meta, indent=2))
     return folder
@@ -671,4 +687,5 @@ def load_agent(folder: str | Path) -> TrainedAgent:
         folder,
         meta.get("best_step"),
         None if meta.get("stop") is None else StopSummary(**meta["stop"]),
+        meta.get("updates", []),
     )

@@ -24,6 +24,7 @@ from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.evaluation.evaluate import response_metrics
 from stcgym.agents.rl.configs import AlgoConfig
+from stcgym.agents.rl.learning_curve import summarise_updates
 from stcgym.agents.rl.stopping import PlateauRule
 
 __all__ = ["TRACE_EPISODES", "costs_file", "train_and_evaluate", "training_task"]
@@ -141,5 +142,7 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
         "best_step": agent.best_step,
         "stop": agent.stop.to_dict(),
         "curve": [[int(s), float(c)] for s, c in agent.curve],
+        "updates": agent.updates,
+        "update_summary": summarise_updates(agent.updates),
         "evaluations": evaluations,
     }
