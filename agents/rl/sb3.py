@@ -50,6 +50,7 @@ __all__ = [
     "curve_checkpoints",
     "curve_cost",
     "load_agent",
+    "improved_on_start",
     "measured_action_unit",
     "train_agent",
 ]
@@ -582,6 +583,10 @@ def train_agent(
     if plateau is not None:
         status = "cap" if callback.stopped_at is None else "plateau"
         stop = callback.tracker.summary(status, used, int(steps), eval_interval)
+        stop.best_step, stop.improved = (
+            callback.best_step,
+            improved_on_start(curve, callback.best_step),
+        )
     agent = TrainedAgent(
         algo,
         lanes.with_lanes(None),
@@ -599,6 +604,25 @@ def train_agent(
     if out is not None:
         save_agent(agent, out)
     return agent
+
+
+def improved_on_start(curve: Sequence[tuple[int, float]], kept_step: int) -> bool:
+    """Whether the checkpoint kept at ``kept_step`` scores below the untrained policy (the
+    curve's step 0): ``False`` for a run kept at step 0, or one whose kept score (its last
+    evaluation at or before ``kept_step``) is not lower.
+
+    Examples
+    --------
+    >>> from stcgym.agents.rl.sb3 import improved_on_start
+    >>> improved_on_start([(0, 10.0), (100, 8.0)], 100), improved_on_start([(0, 10.0)], 0)
+    (True, False)
+    """
+    scores = dict(curve)
+    measured = [step for step in scores if step <= kept_step]
+    if kept_step <= 0 or 0 not in scores or not measured:
+        return False
+    # a run stopped by the rule ends a step or two after its last evaluation
+    return bool(scores[max(measured)] < scores[0])
 
 
 def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
