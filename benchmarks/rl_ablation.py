@@ -18,8 +18,9 @@ Usage (what ``benchmarks/rl_ablation_summary.json`` was made with)::
     nice python benchmarks/rl_ablation.py --family ladder-l1-v1 --recipe healthy \\
         --gamma 0.95 --seed 0 --steps 100000 --out ablation/runs.jsonl
 
-``--reference`` instead writes the references' lines (zero input, LQG, ``fixed_pi``) for the
-same validation episodes; ``--summarise`` turns a runs file into the summary table.
+``--reference zero lqg fixed_pi stc`` instead writes the classical controllers' lines for the
+same validation episodes; ``--summarise FILE ...`` turns runs files into the summary table
+(written to ``--out``).
 """
 
 from __future__ import annotations
@@ -96,7 +97,10 @@ def train_run(args: argparse.Namespace) -> dict[str, Any]:
     config = default_config(args.agent)
     recipe = dict(RECIPES[args.recipe])
     config.n_envs = recipe.pop("n_envs")
-    config.hyperparams = {**BASE, **recipe, "gamma": args.gamma}
+    shared = {k: v for k, v in BASE.items() if k != "policy_kwargs"}  # the agent's own net
+    config.hyperparams = {**config.hyperparams, **shared, **recipe, "gamma": args.gamma}
+    if args.agent in ("ppo", "oracle_ppo", "theta_ppo"):
+        config.hyperparams["policy_kwargs"] = BASE["policy_kwargs"]
     config.normalize_reward, config.normalize_obs = True, True
     config.reward = args.reward
     t0 = time.perf_counter()
@@ -108,7 +112,10 @@ def train_run(args: argparse.Namespace) -> dict[str, Any]:
         tb_log_name=f"{args.family}_{args.agent}_{args.recipe}_g{args.gamma}_s{args.seed}",
     )  # fmt: skip
     final = run_episodes(
-        lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds), val, episodes
+        lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds, plants),
+        val,
+        episodes,
+        informed=agent.policy.informed,
     )
     curve = [[int(s), float(c)] for s, c in agent.curve]
     return {
@@ -132,16 +139,17 @@ def reference_runs(args: argparse.Namespace) -> list[dict[str, Any]]:
     return out
 
 
-def summarise(path: Path) -> dict[str, Any]:
-    """Per (family, agent, recipe, reward, gamma): the seeds' final median ratios, their median
-    and range, and the medians of the runs' update diagnostics."""
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+def summarise(paths: list[Path]) -> dict[str, Any]:
+    """Per (family, agent, recipe, reward, gamma, budget): the seeds' final median ratios,
+    their median and range, and the medians of the runs' update diagnostics."""
+    rows = [
+        json.loads(line) for path in paths for line in path.read_text().splitlines() if line.strip()
+    ]
     groups: dict[str, list[dict[str, Any]]] = {}
     for row in rows:
-        key = "/".join(
-            str(row.get(k, "-")) for k in ("family", "agent", "recipe", "reward", "gamma")
-        )
-        groups.setdefault(key, []).append(row)
+        budget = f"{round(row['steps'], -4):.0e}" if "steps" in row else "-"
+        fields = [str(row.get(k, "-")) for k in ("family", "agent", "recipe", "reward", "gamma")]
+        groups.setdefault("/".join([*fields, budget]), []).append(row)
     table = {}
     for key, runs in sorted(groups.items()):
         final = [r["final"]["median_ratio"] for r in runs]
@@ -165,6 +173,28 @@ def summarise(path: Path) -> dict[str, Any]:
     return table
 
 
+def markdown(table: dict[str, Any]) -> str:
+    """The summary as a Markdown table: the seeds' median (range) of the final median cost /
+    LQG, the divergence rate and the update diagnostics' medians."""
+
+    def num(entry: dict[str, Any], key: str) -> str:
+        return f"{entry[key]:.3g}" if key in entry else "-"
+
+    lines = [
+        "| family / agent / recipe / reward / gamma / steps | runs | cost / LQG: median (range) "
+        "| diverged | approx_kl | clip_fraction | explained var. |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for key, e in table.items():
+        div = float(np.median(e["diverged"]))
+        lines.append(
+            f"| {key} | {e['runs']} | {e['median']:.2f} ({e['min']:.2f}-{e['max']:.2f}) "
+            f"| {div:.2f} | {num(e, 'approx_kl')} | {num(e, 'clip_fraction')} "
+            f"| {num(e, 'explained_variance')} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--family", default="ladder-l1-v1")
@@ -177,15 +207,15 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("ablation/runs.jsonl"))
     parser.add_argument("--tensorboard", type=Path, default=None)
     parser.add_argument("--reference", nargs="*", default=None)
-    parser.add_argument("--summarise", type=Path, default=None)
+    parser.add_argument("--summarise", type=Path, nargs="+", default=None)
     args = parser.parse_args()
     if args.summarise is not None:
-        text = json.dumps(summarise(args.summarise), indent=1)
+        table = summarise(args.summarise)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         tmp = args.out.with_suffix(".tmp")
-        tmp.write_text(text + "\n")
+        tmp.write_text(json.dumps(table, indent=1) + "\n")
         os.replace(tmp, args.out)
-        print(text)
+        print(markdown(table))
         return
     rows = reference_runs(args) if args.reference else [train_run(args)]
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,10 @@ and variant names must therefore differ.
 
 **Named families**: :data:`FAMILIES` maps a name to its spec; :func:`get_family` accepts such a
 name, a spec dict, a path to a YAML/JSON file or a :class:`FamilySpec`. ``"siso2-v1"`` is the
-benchmark's default family (see :data:`FAMILIES`).
+benchmark's default family (see :data:`FAMILIES`); :data:`LADDER` names four families of its
+plants that add one difficulty at a time (``ladder-l1-v1``: stable, minimum phase, positive
+gain; ... ``ladder-l4-v1``: ``siso2-v1``'s plants). The keys of a spec and their validation are
+in :mod:`stcgym.envs.family_spec`.
 
 :func:`plant_features` lists what the sweep tables report about a plant (largest pole
 magnitude, |DC gain|, ...). The independent check against python-control (poles, zeros, DC

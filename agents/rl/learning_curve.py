@@ -93,15 +93,19 @@ def curve_cost(
     spec: EnvSpec,
     episodes: EpisodeSet,
     reference: Sequence[float] | None = None,
+    *,
+    informed: bool = False,
 ) -> float:
-    """One learning-curve point: ``policy`` (for ``len(episodes)`` lanes) on ``episodes``.
+    """One learning-curve point: ``policy`` (for ``len(episodes)`` lanes, or a lane builder)
+    on ``episodes`` (``informed``: told the true parameters, :func:`~stcgym.agents.evaluation.
+    episodes.run_episodes`).
 
     With ``reference`` (one cost per episode, the yardstick's mean cost per step on it): the
     median over episodes of ``cost / reference``, the score the plateau rule reads (a median,
     so that one diverged validation episode does not decide it); without: the mean cost per
     step over the episodes.
     """
-    cost = run_episodes(policy, spec, episodes).cost.mean(axis=1)
+    cost = run_episodes(policy, spec, episodes, informed=informed).cost.mean(axis=1)
     if reference is None:
         return float(np.mean(cost))
     ref = np.asarray(reference, dtype=float)

@@ -192,6 +192,7 @@ class SB3Policy(LanePolicy):
             raise ValueError(f"seeds must hold one seed per lane ({self.num_lanes}), got {seeds}")
         self.seeds = None if seeds is None else [int(s) for s in seeds]
         self._lanes = self._build_lanes()
+        self._theta: NDArray | None = None
         self._lstm: Any = None
         # lanes whose next observation starts an episode (every lane before the first call)
         self._fresh = np.ones(self.num_lanes, dtype=bool)
@@ -207,27 +208,64 @@ class SB3Policy(LanePolicy):
             self.window, self.action_bound, self.num_lanes, self.channels, self.seeds
         )
 
-    def with_lanes(self, num_envs: int | None, seeds: Sequence[int] | None = None) -> SB3Policy:
+    def with_lanes(
+        self,
+        num_envs: int | None,
+        seeds: Sequence[int] | None = None,
+        plants: Sequence[Any] | None = None,
+    ) -> SB3Policy:
         """The same model (shared, not copied) behind a fresh adapter for ``num_envs`` lanes.
 
         ``seeds``: the episode seeds of the lanes, from which a residual agent's controller
         seeds follow (:func:`~stcgym.agents.controllers.controller_seeds` with the training
-        run, as the bench seeds its ``stc`` runs)."""
+        run, as the bench seeds its ``stc`` runs). ``plants``: the plant specs the lanes start
+        on (``.a``, ``.b``), told to an agent of the ``"true"`` interface."""
         lanes = None
         if seeds is not None and self.interface.kind == "residual":
             from stcgym.agents.controllers import controller_seeds
 
             lanes = controller_seeds(seeds, self.interface.run)
-        return SB3Policy(
+        policy = SB3Policy(
             self.model, self.window, self.action_bound, num_envs, self.channels, self.obs_norm,
             self.interface, lanes,
         )  # fmt: skip
+        if plants is not None and self.informed:
+            policy.set_model([p.a for p in plants], [p.b for p in plants])
+        return policy
+
+    @property
+    def informed(self) -> bool:
+        """Whether the agent observes the true parameters (the ``"true"`` interface): the
+        evaluation tells it the plants and every jump (``run_episodes(..., informed=True)``)."""
+        return self.interface.kind == "true"
+
+    @property
+    def theta(self) -> NDArray | None:
+        """The true parameters ``[a | b]`` per lane an informed agent was told (``None`` for
+        the other interfaces)."""
+        return self._lanes.theta.copy() if self.informed else None
+
+    def set_model(self, a: Any, b: Any, lanes: Any = None) -> None:
+        """Tell an agent of the ``"true"`` interface the true parameters of ``lanes``
+        (default all), as the known-model oracles are told them.
+
+        Raises
+        ------
+        ValueError
+            The agent does not observe the parameters.
+        """
+        if not self.informed:
+            raise ValueError(f"an agent of the {self.interface.kind!r} interface is told no model")
+        self._lanes.set_model(a, b, lanes)
+        self._theta = self._lanes.theta.copy()  # kept across a reset of every lane
 
     def reset(self, lanes: Any = None) -> None:
         """A new episode on every lane (a fresh estimator or controller too), or on ``lanes``
         (indices or a boolean mask)."""
         if lanes is None:
             self._lanes = self._build_lanes()
+            if self._theta is not None:
+                self._lanes.theta[:] = self._theta
         super().reset(lanes)
 
     def _reset_lanes(self, idx: NDArray) -> None:
@@ -312,9 +350,13 @@ def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: A
             plant_index=lambda: native.plant_index,
             cost_cap=config.cost_cap,
         )
+    interface = interface_of(config, train_spec, seed)
+    if interface.kind == "true":  # the lanes' true parameters, read after every step
+        native_params = lanes.venv
+        score["true_params"] = lambda: native_params.params
     vec = VecHistoryWindow(
         vec, window, train_spec.steps, config.reward_scale, config.cost_squash,
-        interface=interface_of(config, train_spec, seed), **score,
+        interface=interface, **score,
     )  # fmt: skip
     if config.normalize_obs or config.normalize_reward:
         vec = VecNormalize(
@@ -555,11 +597,23 @@ def train_agent(
 
     curve: list[tuple[int, float]] = []
     updates: list[dict[str, float]] = []
+    if lanes.informed:  # told the plants the episodes start on, and every jump
+
+        def measure(p: SB3Policy) -> float:
+            def builder(plants: list[Any], seeds: list[int]) -> SB3Policy:
+                return p.with_lanes(len(plants), seeds, plants)
+
+            return curve_cost(builder, cspec, episodes, curve_reference, informed=True)
+    else:
+
+        def measure(p: SB3Policy) -> float:
+            return curve_cost(p, cspec, episodes, curve_reference)
+
     callback = make_curve_callback(
         curve,
         lanes,
         curve_checkpoints(int(steps), curve_points, eval_interval if plateau else None),
-        lambda p: curve_cost(p, cspec, episodes, curve_reference),
+        measure,
         keep_best,
         plateau,
         eval_interval,

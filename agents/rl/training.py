@@ -118,9 +118,10 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
     for ev in task["evaluations"]:
         spec = EnvSpec.from_dict(ev["env"])
         batch = run_episodes(
-            lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds),
+            lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds, plants),
             spec,
             EpisodeSet.from_dict(ev["episodes"]),
+            informed=agent.policy.informed,
         )
         name = costs_file(ev["scenario"])
         np.save(folder / name, batch.cost.astype(np.float32), allow_pickle=False)

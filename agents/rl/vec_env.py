@@ -132,6 +132,10 @@ class VecHistoryWindow(VecEnvWrapper):
     cost_cap : float, optional
         The largest per-step cost after the division (:func:`~stcgym.agents.rl.wrappers.
         training_reward`).
+    true_params : callable, optional
+        Returns each lane's true parameters ``(num_envs, 2 n)`` (the native vector env's
+        ``params``): told to the ``"true"`` interface after every step (a lane restarted
+        within the step keeps its old plant's in its terminal features).
 
     Examples
     --------
@@ -172,6 +176,7 @@ class VecHistoryWindow(VecEnvWrapper):
         plant_costs: ArrayLike | None = None,
         plant_index: Callable[[], NDArray] | None = None,
         cost_cap: float | None = None,
+        true_params: Callable[[], NDArray] | None = None,
     ) -> None:
         box = venv.action_space
         if not isinstance(box, spaces.Box) or len(box.shape) != 1:
@@ -189,6 +194,7 @@ class VecHistoryWindow(VecEnvWrapper):
         p, m = shape[0] // 2, box.shape[0]
         self.plant_costs = None if plant_costs is None else np.asarray(plant_costs, dtype=float)
         self.plant_index, self.cost_cap = plant_index, cost_cap
+        self.true_params = true_params
         self._lqg: NDArray | None = None
         self.config, self.action_bound = config, bound
         self.horizon, self.reward_scale, self.cost_squash = int(horizon), reward_scale, cost_squash
@@ -204,8 +210,15 @@ class VecHistoryWindow(VecEnvWrapper):
         action_space = spaces.Box(-limit, limit, shape=(m,), dtype=np.float32)
         super().__init__(venv, observation_space, action_space)
 
+    def _tell_params(self) -> None:
+        if self.true_params is not None:
+            theta = np.asarray(self.true_params()).reshape(self.num_envs, -1)
+            n = theta.shape[1] // 2
+            self._lanes.set_model(theta[:, :n], theta[:, n:])
+
     def reset(self) -> NDArray:
         obs = self.venv.reset()
+        self._tell_params()
         self._lanes.observe(obs, np.ones(self.num_envs, dtype=bool))
         self._k[:] = 0
         return self._lanes.features()
@@ -238,5 +251,6 @@ class VecHistoryWindow(VecEnvWrapper):
             for i in np.flatnonzero(done):
                 infos[i]["terminal_observation"] = final[i]
             self._k[done] = 0
+        self._tell_params()
         self._lanes.observe(obs, done)
         return self._lanes.features(), r.astype(np.float32), dones, infos
