@@ -62,9 +62,14 @@ RECIPES: dict[str, dict[str, Any]] = {
 
 
 def specs(family: str, bound_episodes: int = 200) -> tuple[EnvSpec, EnvSpec, EpisodeSet]:
-    """The rung's training and validation specs under its LQG-measured action bound, and the
-    validation episodes."""
-    train = EnvSpec(family=family, split="train")
+    """The rung's training and validation specs (the family's episode settings, as the bench's)
+    under its LQG-measured action bound, and the validation episodes."""
+    from stcgym.envs.families import get_family
+
+    fam = get_family(family)
+    settings = {k: fam[k] for k in ("steps", "noise_std", "control_cost", "y_bound", "reference",
+                                    "initial_state_std")}  # fmt: skip
+    train = EnvSpec(family=family, split="train", **settings)
     eps = EpisodeSet.of(train, 1, BOUND_SEED, bound_episodes)
     bound, _ = lqg_action_bound(train, eps)
     train = replace(train, action_bound=bound)
