@@ -317,7 +317,7 @@ CONTROLLERS: dict[str, ControllerInfo] = {
             "order": "none",
             "integral": "yes (PI), with anti-windup",
             "model": "none: one PI law, tuned on the training split's plants",
-            "data": "200 training-split episodes (tuning: grid and Nelder-Mead on the score)",
+            "data": "200 training-split episodes (tuning: grid and Nelder-Mead)",
         },
     ),
     "stc_mimo": ControllerInfo(
