@@ -13,14 +13,33 @@ Recipes (``--recipe``): ``zoo``, the RL Zoo's Pendulum-v1 PPO entry as the bench
 (16 plants per update), 10 epochs of batch 256, lr 3e-4, ``target_kl`` 0.03. The reward is
 ``--reward`` (``lqg_ratio`` or ``cost``).
 
-Usage (what ``benchmarks/rl_ablation_summary.json`` was made with)::
+Usage: one run appends one line to ``--out``::
 
-    nice python benchmarks/rl_ablation.py --family ladder-l1-v1 --recipe healthy \\
-        --gamma 0.95 --seed 0 --steps 100000 --out ablation/runs.jsonl
+    nice python benchmarks/rl_ablation.py --family ladder-l1-v1 --recipe healthy \
+        --gamma 0.9 --seed 0 --steps 100000 --out ablation/runs.jsonl
 
-``--reference zero lqg fixed_pi stc`` instead writes the classical controllers' lines for the
-same validation episodes; ``--summarise FILE ...`` turns runs files into the summary table
-(written to ``--out``).
+``benchmarks/rl_ablation_runs.jsonl`` holds these runs, each for seeds 0, 1 and 2 (two
+processes side by side on the shared 2-core machine, about 40 s per 10^5 steps each):
+
+- ``--recipe healthy --gamma G --steps 100000`` for G in 0.9, 0.95, 0.99 on ``ladder-l1-v1``
+  and ``ladder-l4-v1``;
+- ``--recipe zoo --gamma 0.99 --steps 100000`` on ``ladder-l1-v1``;
+- ``--recipe healthy --reward cost --gamma 0.9 --steps 100000`` on ``ladder-l1-v1`` and
+  ``ladder-l4-v1``;
+- ``--recipe healthy --gamma G --steps 300000`` on ``ladder-l1-v1`` for G in 0.9, 0.95, 0.99,
+  and ``--agent oracle_ppo`` with G 0.9;
+- ``--recipe healthy --gamma 0.9 --steps 200000`` on ``ladder-l2-v1``, ``ladder-l3-v1``,
+  ``ladder-l4-v1``;
+- ``--recipe healthy --gamma 0.9 --steps 1000000`` on ``ladder-l1-v1``, for ``ppo`` and
+  ``oracle_ppo``.
+
+The references (deterministic, one line each per rung)::
+
+    python benchmarks/rl_ablation.py --family ladder-l1-v1 --reference zero lqg fixed_pi stc \
+        --out ablation/references.jsonl
+
+and the summary: ``python benchmarks/rl_ablation.py --summarise ablation/runs.jsonl
+ablation/references.jsonl --out benchmarks/rl_ablation_summary.json`` (prints the table).
 """
 
 from __future__ import annotations

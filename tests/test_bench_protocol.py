@@ -301,7 +301,7 @@ def test_rl_trains_on_the_scored_cost_by_default():
         assert cfg.cost_squash is None and cfg.normalize_obs
         # the PPO-family update's discount was chosen by the ablation of the RL-baselines page
         ppo_family = cfg.hyperparams.get("target_kl") is not None
-        assert cfg.hyperparams["gamma"] == (0.95 if ppo_family else 0.99)
+        assert cfg.hyperparams["gamma"] == (0.9 if ppo_family else 0.99)
         assert cfg.reward == "lqg_ratio"
         # the integral of the tracking error is an input, but in its ablation
         assert cfg.window.get("include_integral", True) == (algo not in ABLATIONS)
