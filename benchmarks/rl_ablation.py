@@ -31,7 +31,9 @@ processes side by side on the shared 2-core machine, about 40 s per 10^5 steps e
 - ``--recipe healthy --gamma 0.9 --steps 200000`` on ``ladder-l2-v1``, ``ladder-l3-v1``,
   ``ladder-l4-v1``;
 - ``--recipe healthy --gamma 0.9 --steps 1000000`` on ``ladder-l1-v1``, for ``ppo`` and
-  ``oracle_ppo``.
+  ``oracle_ppo``;
+- ``--agent rppo --recipe healthy --gamma 0.9 --steps 100000`` on ``ladder-l1-v1``, seed 0
+  only.
 
 The references (deterministic, one line each per rung)::
 

@@ -67,9 +67,9 @@ def summarise_updates(updates: Sequence[dict[str, float]]) -> dict[str, dict[str
     Examples
     --------
     >>> from stcgym.agents.rl.learning_curve import summarise_updates
-    >>> s = summarise_updates([{"step": 1, "approx_kl": 0.01}, {"step": 2, "approx_kl": 0.09}])
+    >>> s = summarise_updates([{"step": 1, "approx_kl": 0.02}, {"step": 2, "approx_kl": 0.06}])
     >>> s["approx_kl"]["median"], s["approx_kl"]["above_healthy"]
-    (0.05, 0.5)
+    (0.04, 0.5)
     """
     out: dict[str, dict[str, float]] = {}
     for name in UPDATE_DIAGNOSTICS:
