@@ -22,6 +22,8 @@ controllers look at it) with the controller seed ``seeds[i]``.
   integral action (:class:`~stcgym.adaptive.KnownModelController`), told the new parameters
   at a jump: the self-tuning controller's design with the identification problem removed.
 * ``zero``: zero input, the reference of the normalised score.
+* ``fixed_pi``: the best fixed PI law for the scenario's training split, tuned on it
+  (:mod:`stcgym.agents.fixed_pi`): what one robust controller without adaptation reaches.
 * ``stc_mimo``: the multivariable self-tuning LQ controller
   (:class:`~stcgym.adaptive.MultivariableSelfTuningController`) weighted by the scenario's
   cost ``||C_z x + D_z u - r||^2 + control_cost ||u||^2`` (``Q = C_z' C_z``,
@@ -209,6 +211,14 @@ def _lqg(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     return builder
 
 
+def _fixed_pi(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
+    from stcgym.agents.fixed_pi import FixedPI, training_split, tune_fixed_pi
+
+    gains = tune_fixed_pi(training_split(sc.env))
+    bound = sc.env.action_bound
+    return lambda plants, seeds: FixedPI(gains.kp, gains.ki, bound, len(plants))
+
+
 def _zero(cfg: Any, sc: Any) -> Callable[[list[Any], list[int]], Any]:
     m = sc.env.channels[1]
     return lambda plants, seeds: ZeroController(len(plants), m)
@@ -297,6 +307,18 @@ CONTROLLERS: dict[str, ControllerInfo] = {
         "zero input",
         ("siso", "mimo"),
         knows={"order": "-", "integral": "-", "model": "-", "data": "-"},
+    ),
+    "fixed_pi": ControllerInfo(
+        "reference",
+        _fixed_pi,
+        False,
+        "the best fixed PI law for the training split (one law for every plant)",
+        knows={
+            "order": "none",
+            "integral": "yes (PI), with anti-windup",
+            "model": "none: one PI law, tuned on the training split's plants",
+            "data": "200 training-split episodes (tuning: grid and Nelder-Mead)",
+        },
     ),
     "stc_mimo": ControllerInfo(
         "adaptive",

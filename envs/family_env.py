@@ -1,7 +1,9 @@
 """The plant-family environment: every episode a plant drawn from one split of a family.
 
 ``gym.make("stcgym/PlantFamily-v0", family="siso2-v1", split="train")`` gives any RL library
-the plant distribution the benchmark scores on: a :class:`~stcgym.envs.families.FamilySpec`
+the plant distribution the benchmark scores on (``family="ladder-l1-v1"`` ... ``"ladder-l4-v1"``:
+the rungs of the difficulty ladder, :data:`~stcgym.envs.families.LADDER`, without jumps unless
+``jump_probability`` asks for them): a :class:`~stcgym.envs.families.FamilySpec`
 (:data:`~stcgym.envs.families.FAMILIES`), one of its splits (or variants), and the family's
 noise, reference, cost, bounds, random initial state, episode length and random jumps.
 ``gym.make_vec("stcgym/PlantFamily-v0", num_envs=B, ...)`` builds the native vector env

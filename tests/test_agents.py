@@ -269,18 +269,18 @@ def test_parse_and_apply_overrides():
     apply_overrides(
         cfgs,
         [
-            "ppo.learning_rate=3e-4",
+            "ppo.learning_rate=1e-4",
             "ppo.n_envs=2",
             "ppo.policy_kwargs.net_arch=[32]",
             "ppo.hyperparams.gamma=0.9",
             "sac.batch_size=128",
         ],
     )
-    assert cfgs["ppo"].hyperparams["learning_rate"] == 3e-4 and cfgs["ppo"].n_envs == 2
+    assert cfgs["ppo"].hyperparams["learning_rate"] == 1e-4 and cfgs["ppo"].n_envs == 2
     assert cfgs["ppo"].hyperparams["policy_kwargs"]["net_arch"] == [32]
     assert cfgs["ppo"].hyperparams["gamma"] == 0.9
     assert cfgs["sac"].hyperparams["batch_size"] == 128
-    assert DEFAULT_CONFIGS["ppo"].hyperparams["learning_rate"] == 1e-3  # defaults untouched
+    assert DEFAULT_CONFIGS["ppo"].hyperparams["learning_rate"] == 3e-4  # defaults untouched
     for bad in ("ppo.no_such_arg=1", "dqn.learning_rate=1", "ppo=1", "learning_rate=1"):
         with pytest.raises(ValueError):
             apply_overrides({}, [bad])

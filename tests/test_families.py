@@ -320,7 +320,7 @@ def test_the_registry_and_get_family(tmp_path):
     (tmp_path / "f.json").write_text(json.dumps(FAMILIES["siso2-v1"]))
     assert get_family(tmp_path / "f.yaml").to_dict() == SISO2.to_dict()
     assert get_family(str(tmp_path / "f.json")).to_dict() == SISO2.to_dict()
-    with pytest.raises(ValueError, match=r"registered name \(one of \['siso2-v1'"):
+    with pytest.raises(ValueError, match=r"registered name \(one of \[.*'siso2-v1'"):
         get_family("siso3-v1")
     with pytest.raises(FileNotFoundError):
         get_family(tmp_path / "missing.yaml")

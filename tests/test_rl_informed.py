@@ -308,7 +308,8 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
         cfg, ref = default_config(agent), default_config(base)
         assert ALGORITHMS[agent] == ALGORITHMS[base] and base_algorithm(agent) == base
         assert agent in FAMILY_ALGORITHMS and what
-        assert cfg.window == ref.window and cfg.interface["kind"] in ("estimate", "residual")
+        kinds = ("estimate", "residual", "true")
+        assert cfg.window == ref.window and cfg.interface["kind"] in kinds
         assert (cfg.standard_family_steps, cfg.eval_interval) == (
             ref.standard_family_steps,
             ref.eval_interval,
@@ -321,7 +322,8 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
         }
         assert kept <= set(ZOO_DEPARTURES[agent])
         knows = agent_knowledge(agent, cfg.to_dict())
-        assert "n" in knows["order"] and knows["model"].startswith("none:")
+        told = "true (a, b)" if agent == "oracle_ppo" else "none:"  # the privileged one
+        assert "n" in knows["order"] and knows["model"].startswith(told)
     residual = default_config("residual_ppo")
     assert residual.hyperparams["policy_kwargs"]["log_std_init"] == -2.0
     assert [e[2] for e in ZOO_DEPARTURES["residual_ppo"] if e[0] == "log_std_init"] == ["-2"]

@@ -156,6 +156,31 @@ def test_training_that_still_improves_runs_to_the_cap(monkeypatch):
     assert agent.stop.last_improvement_step == 5 * ROLLOUT
 
 
+def test_a_run_kept_at_step_0_says_it_did_not_improve(monkeypatch):
+    """Every evaluation worse than the untrained policy's 50: the kept checkpoint is step 0 and
+    the stop summary says so; one that learned says it improved."""
+    _scripted(monkeypatch, [60.0] * 8)
+    agent = _train(8 * ROLLOUT, PlateauRule(0.05, 3))
+    assert agent.best_step == 0 and agent.stop.best_step == 0
+    assert agent.stop.improved is False
+    assert agent.stop.to_dict()["improved"] is False
+    _scripted(monkeypatch, FLAT_START)
+    learned = _train(8 * ROLLOUT, PlateauRule(0.05, 3))
+    assert learned.stop.improved is True and learned.stop.best_step == 8 * ROLLOUT
+
+
+def test_the_default_rule_never_stops_before_half_the_cap(monkeypatch):
+    """A curve flat from the start: with the default rule the first stop comes once half the
+    cap is trained, and not before."""
+    _scripted(monkeypatch, [50.0] * 40)
+    rule = PlateauRule()
+    assert rule.min_fraction == 0.5
+    agent = _train(20 * ROLLOUT, rule)
+    assert agent.stop.status == "plateau"
+    assert 10 * ROLLOUT <= agent.curve[-1][0] < 20 * ROLLOUT
+    assert "50 % of the cap" in agent.stop.rule
+
+
 def test_cap_below_one_interval_is_refused():
     with pytest.raises(ValueError, match="below one evaluation interval"):
         train_agent(

@@ -123,6 +123,8 @@ FIELD_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "n_envs": _COUNT,
     "normalize_reward": _BOOL,
     "normalize_obs": _BOOL,
+    "reward": _rule(lambda v: v in ("lqg_ratio", "cost"), "'lqg_ratio' or 'cost'"),
+    "cost_cap": _OPT_POSITIVE,
     "reward_scale": _POSITIVE,
     "cost_squash": _OPT_POSITIVE,
     "noise_std": _NONNEG,

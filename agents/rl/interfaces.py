@@ -33,6 +33,14 @@ Every agent of the bench sees the window of :class:`~stcgym.agents.rl.wrappers.H
     are in the RL-baselines page of the documentation). The estimator has no change
     detection (the controller's, not the estimator's): after a parameter jump the innovation
     is the agent's signal.
+``"true"`` (:class:`TrueParameterInterface`): the universal policy with the true parameters
+    The window, then the true parameters of the lane's plant, ``[a_1 .. a_n | b_1 .. b_n]``
+    (observer form, Ding & Ma (2014) eq. (1)-(5)), updated at a parameter jump: privileged
+    information, the "universal policy" half of UP-OSI (Yu et al., RSS 2017) with the
+    identification given. How far it stays from LQG is how far RL's design is from the
+    optimal controller when identification is free. Training reads the parameters from the
+    vector env; evaluation is told them (the plants the lanes start on, and
+    ``SB3Policy.set_model`` at a jump, as the known-model oracles are).
 ``"residual"`` (:class:`ResidualInterface`): residual RL on the self-tuning controller
     A :class:`~stcgym.adaptive.SelfTuningController` with its defaults, told the order ``n``,
     runs on the same observations; the agent sees the window and the controller's input
@@ -93,11 +101,12 @@ __all__ = [
     "EstimateInterface",
     "InterfaceSpec",
     "ResidualInterface",
+    "TrueParameterInterface",
     "WindowInterface",
 ]
 
 #: Interface kinds (see the module docstring).
-KINDS = ("window", "estimate", "residual")
+KINDS = ("window", "estimate", "residual", "true")
 #: ``action_unit`` value that asks the bench to measure the unit (module docstring).
 MEASURED_UNIT = "lqg"
 #: Estimators of the estimate-conditioned agents: the paper's least-squares rules that hold a
@@ -111,7 +120,7 @@ class InterfaceSpec:
 
     Parameters
     ----------
-    kind : {"window", "estimate", "residual"}
+    kind : {"window", "estimate", "residual", "true"}
         See the module docstring.
     estimator : str, default "O-RLS"
         ``"estimate"``: one of :data:`ESTIMATORS` (case-insensitive), run with the
@@ -202,6 +211,8 @@ class InterfaceSpec:
         if self.kind == "estimate":
             d = 2 * self._order()
             return d + (d if self.log_p else 0) + int(self.innovation)
+        if self.kind == "true":
+            return 2 * self._order()
         return 1 if self.kind == "residual" else 0
 
     def n_features(self, window: WindowConfig, channels: tuple[int, int] = (1, 1)) -> int:
@@ -244,6 +255,8 @@ class InterfaceSpec:
             raise ValueError(f"the {self.kind!r} interface runs on SISO plants, got {channels}")
         if self.kind == "estimate":
             return EstimateInterface(window, action_bound, batch, self)
+        if self.kind == "true":
+            return TrueParameterInterface(window, action_bound, batch, self)
         if seeds is None:
             from stcgym.agents.controllers import controller_seeds
 
@@ -418,6 +431,49 @@ class EstimateInterface(WindowInterface):
             warnings.simplefilter("ignore")
             self.estimator.predict(u[:, 0])
         return u
+
+
+class TrueParameterInterface(WindowInterface):
+    """The window and the true parameters ``[a | b]`` of each lane's plant (module docstring):
+    :meth:`set_model` tells them (zero until told).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stcgym.agents import WindowConfig
+    >>> from stcgym.agents.rl.interfaces import InterfaceSpec
+    >>> lanes = InterfaceSpec("true", order=2).build(WindowConfig(window=2), 5.0, batch=2)
+    >>> lanes.set_model(np.array([[-1.5, 0.7]]), np.array([[1.0, 0.5]]), lanes=[1])
+    >>> lanes.observe(np.array([[0.1, 1.0], [0.2, 1.0]]), starts=np.ones(2, bool))
+    >>> lanes.features()[:, -4:]
+    array([[ 0. ,  0. ,  0. ,  0. ],
+           [-1.5,  0.7,  1. ,  0.5]], dtype=float32)
+    """
+
+    def __init__(
+        self, window: WindowConfig, action_bound: float, batch: int, spec: InterfaceSpec
+    ) -> None:
+        super().__init__(window, action_bound, batch, action_unit=spec.action_unit)
+        self.spec = spec
+        self.theta = np.zeros((self.batch, 2 * spec._order()))
+
+    @property
+    def n_features(self) -> int:
+        return super().n_features + self.spec.extra_features
+
+    def set_model(self, a: ArrayLike, b: ArrayLike, lanes: ArrayLike | None = None) -> None:
+        """The true ``a``, ``b`` (one row per selected lane) of the lanes ``lanes`` (a boolean
+        mask or indices; default all), as the known-model oracles are told them."""
+        idx = np.arange(self.batch) if lanes is None else np.arange(self.batch)[lanes]
+        n = self.spec._order()
+        rows = np.concatenate([np.reshape(a, (idx.size, n)), np.reshape(b, (idx.size, n))], axis=1)
+        self.theta[idx] = rows
+
+    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
+        return self._with_extra(super().terminal_features(last, lanes), self.theta)
+
+    def features(self) -> NDArray:
+        return self._with_extra(super().features(), self.theta)
 
 
 def closed_loop_estimator(name: str, n: int, batch: int) -> Any:

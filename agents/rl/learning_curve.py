@@ -21,7 +21,71 @@ from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
 
-__all__ = ["curve_checkpoints", "curve_cost", "make_curve_callback"]
+__all__ = [
+    "UPDATE_DIAGNOSTICS",
+    "curve_checkpoints",
+    "curve_cost",
+    "make_curve_callback",
+    "summarise_updates",
+    "update_record",
+]
+
+#: The health of a policy update, from SB3's logger (``train/<name>``): PPO's and RecurrentPPO's
+#: ``approx_kl`` (the mean KL estimate of the last epoch), ``clip_fraction``,
+#: ``explained_variance`` (of the value function on the rollout), ``entropy_loss`` (minus the
+#: policy's entropy) and ``std`` (the exploration scale); SAC's and TD3's losses and entropy
+#: coefficient. Healthy PPO: ``approx_kl`` about 0.01-0.03, ``clip_fraction`` 0.05-0.2.
+UPDATE_DIAGNOSTICS: tuple[str, ...] = (
+    "approx_kl",
+    "clip_fraction",
+    "explained_variance",
+    "entropy_loss",
+    "std",
+    "value_loss",
+    "n_updates",
+    "actor_loss",
+    "critic_loss",
+    "ent_coef",
+)
+
+
+def update_record(logged: dict[str, Any], step: int) -> dict[str, float] | None:
+    """``{"step", <diagnostic>: value}`` of the :data:`UPDATE_DIAGNOSTICS` SB3's logger holds
+    (``logged``: its ``name_to_value``) after an update; ``None`` before the first."""
+    values = {
+        name: float(logged[f"train/{name}"])
+        for name in UPDATE_DIAGNOSTICS
+        if f"train/{name}" in logged and np.isfinite(logged[f"train/{name}"])
+    }
+    return None if not values else {"step": int(step), **values}
+
+
+def summarise_updates(updates: Sequence[dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Median and 10-90 % range of each diagnostic over a run's updates (the report's
+    summary of a run), and the share of PPO updates outside the healthy ranges.
+
+    Examples
+    --------
+    >>> from stcgym.agents.rl.learning_curve import summarise_updates
+    >>> s = summarise_updates([{"step": 1, "approx_kl": 0.02}, {"step": 2, "approx_kl": 0.06}])
+    >>> s["approx_kl"]["median"], s["approx_kl"]["above_healthy"]
+    (0.04, 0.5)
+    """
+    out: dict[str, dict[str, float]] = {}
+    for name in UPDATE_DIAGNOSTICS:
+        values = np.array([u[name] for u in updates if name in u], dtype=float)
+        if values.size == 0:
+            continue
+        lo, med, hi = np.quantile(values, [0.1, 0.5, 0.9])
+        out[name] = {"median": float(med), "p10": float(lo), "p90": float(hi),
+                     "updates": int(values.size)}  # fmt: skip
+        if name in HEALTHY:
+            out[name]["above_healthy"] = float(np.mean(values > HEALTHY[name][1]))
+    return out
+
+
+#: The usual ranges of PPO's update diagnostics in well-tuned runs (what the report flags).
+HEALTHY: dict[str, tuple[float, float]] = {"approx_kl": (0.01, 0.03), "clip_fraction": (0.05, 0.2)}
 
 
 def curve_cost(
@@ -29,15 +93,19 @@ def curve_cost(
     spec: EnvSpec,
     episodes: EpisodeSet,
     reference: Sequence[float] | None = None,
+    *,
+    informed: bool = False,
 ) -> float:
-    """One learning-curve point: ``policy`` (for ``len(episodes)`` lanes) on ``episodes``.
+    """One learning-curve point: ``policy`` (for ``len(episodes)`` lanes, or a lane builder)
+    on ``episodes`` (``informed``: told the true parameters, :func:`~stcgym.agents.evaluation.
+    episodes.run_episodes`).
 
     With ``reference`` (one cost per episode, the yardstick's mean cost per step on it): the
     median over episodes of ``cost / reference``, the score the plateau rule reads (a median,
     so that one diverged validation episode does not decide it); without: the mean cost per
     step over the episodes.
     """
-    cost = run_episodes(policy, spec, episodes).cost.mean(axis=1)
+    cost = run_episodes(policy, spec, episodes, informed=informed).cost.mean(axis=1)
     if reference is None:
         return float(np.mean(cost))
     ref = np.asarray(reference, dtype=float)
@@ -75,6 +143,7 @@ def make_curve_callback(
     cap: int = 0,
     snapshot: Callable[[], Any] | None = None,
     restore: Callable[[Any], None] | None = None,
+    updates: list | None = None,
 ) -> Any:
     """The learning-curve callback: SB3's ``EvalCallback`` pattern on the bench's own score.
 
@@ -86,6 +155,8 @@ def make_curve_callback(
     ``snapshot()`` is called before each point and returns what must travel with the kept
     checkpoint besides the policy's weights (the observation normaliser's statistics, which the
     policy evaluated takes then); ``restore(state)`` puts the kept one back at the end.
+    ``updates``, when given, receives one :func:`update_record` per policy update (read at the
+    start of the next rollout, before anything else is logged).
     """
     import copy
 
@@ -145,7 +216,15 @@ def make_curve_callback(
                 self.best_cost, self.best_step = cost, int(self.num_timesteps)
                 self.best_state = (copy.deepcopy(self.model.policy.state_dict()), extra)
 
+        def _take_update(self) -> None:
+            if updates is not None:
+                record = update_record(self.logger.name_to_value, self.num_timesteps)
+                last = {} if not updates else {k: v for k, v in updates[-1].items() if k != "step"}
+                if record is not None and {k: v for k, v in record.items() if k != "step"} != last:
+                    updates.append(record)
+
         def _on_rollout_start(self) -> None:
+            self._take_update()
             if self._continue and self._marks and self.num_timesteps >= self._marks[0]:
                 self._record()
 
@@ -154,6 +233,7 @@ def make_curve_callback(
             return self._continue
 
         def _on_training_end(self) -> None:
+            self._take_update()  # the last update, logged after the last rollout
             # (after a stop the policy is the one just evaluated: no second evaluation)
             if self.stopped_at is None and curve[-1][0] != self.num_timesteps:
                 self._record()

@@ -50,6 +50,7 @@ __all__ = [
     "curve_checkpoints",
     "curve_cost",
     "load_agent",
+    "improved_on_start",
     "measured_action_unit",
     "train_agent",
 ]
@@ -191,6 +192,7 @@ class SB3Policy(LanePolicy):
             raise ValueError(f"seeds must hold one seed per lane ({self.num_lanes}), got {seeds}")
         self.seeds = None if seeds is None else [int(s) for s in seeds]
         self._lanes = self._build_lanes()
+        self._theta: NDArray | None = None
         self._lstm: Any = None
         # lanes whose next observation starts an episode (every lane before the first call)
         self._fresh = np.ones(self.num_lanes, dtype=bool)
@@ -206,27 +208,64 @@ class SB3Policy(LanePolicy):
             self.window, self.action_bound, self.num_lanes, self.channels, self.seeds
         )
 
-    def with_lanes(self, num_envs: int | None, seeds: Sequence[int] | None = None) -> SB3Policy:
+    def with_lanes(
+        self,
+        num_envs: int | None,
+        seeds: Sequence[int] | None = None,
+        plants: Sequence[Any] | None = None,
+    ) -> SB3Policy:
         """The same model (shared, not copied) behind a fresh adapter for ``num_envs`` lanes.
 
         ``seeds``: the episode seeds of the lanes, from which a residual agent's controller
         seeds follow (:func:`~stcgym.agents.controllers.controller_seeds` with the training
-        run, as the bench seeds its ``stc`` runs)."""
+        run, as the bench seeds its ``stc`` runs). ``plants``: the plant specs the lanes start
+        on (``.a``, ``.b``), told to an agent of the ``"true"`` interface."""
         lanes = None
         if seeds is not None and self.interface.kind == "residual":
             from stcgym.agents.controllers import controller_seeds
 
             lanes = controller_seeds(seeds, self.interface.run)
-        return SB3Policy(
+        policy = SB3Policy(
             self.model, self.window, self.action_bound, num_envs, self.channels, self.obs_norm,
             self.interface, lanes,
         )  # fmt: skip
+        if plants is not None and self.informed:
+            policy.set_model([p.a for p in plants], [p.b for p in plants])
+        return policy
+
+    @property
+    def informed(self) -> bool:
+        """Whether the agent observes the true parameters (the ``"true"`` interface): the
+        evaluation tells it the plants and every jump (``run_episodes(..., informed=True)``)."""
+        return self.interface.kind == "true"
+
+    @property
+    def theta(self) -> NDArray | None:
+        """The true parameters ``[a | b]`` per lane an informed agent was told (``None`` for
+        the other interfaces)."""
+        return self._lanes.theta.copy() if self.informed else None
+
+    def set_model(self, a: Any, b: Any, lanes: Any = None) -> None:
+        """Tell an agent of the ``"true"`` interface the true parameters of ``lanes``
+        (default all), as the known-model oracles are told them.
+
+        Raises
+        ------
+        ValueError
+            The agent does not observe the parameters.
+        """
+        if not self.informed:
+            raise ValueError(f"an agent of the {self.interface.kind!r} interface is told no model")
+        self._lanes.set_model(a, b, lanes)
+        self._theta = self._lanes.theta.copy()  # kept across a reset of every lane
 
     def reset(self, lanes: Any = None) -> None:
         """A new episode on every lane (a fresh estimator or controller too), or on ``lanes``
         (indices or a boolean mask)."""
         if lanes is None:
             self._lanes = self._build_lanes()
+            if self._theta is not None:
+                self._lanes.theta[:] = self._theta
         super().reset(lanes)
 
     def _reset_lanes(self, idx: NDArray) -> None:
@@ -270,6 +309,8 @@ class TrainedAgent:
     best_step: int | None = None
     #: how training ended (with a plateau rule; ``None`` for a fixed budget)
     stop: StopSummary | None = None
+    #: the health of each policy update (:func:`~stcgym.agents.rl.learning_curve.update_record`)
+    updates: list[dict[str, float]] = field(default_factory=list)
 
 
 def _progress_bar_wanted(progress: bool | None) -> bool:
@@ -289,8 +330,8 @@ def interface_of(config: AlgoConfig, train_spec: EnvSpec, seed: int) -> Interfac
 def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: Any) -> Any:
     """``n_envs`` lanes of the native vector env of ``train_spec``, seeded ``seed + i``,
     behind ``VecMonitor`` (raw returns into the file ``monitor``), the window, the agent's
-    interface and the training reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`)
-    and ``VecNormalize``."""
+    interface and the training reward (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`;
+    ``config.reward``: :mod:`stcgym.agents.rl.reward`) and ``VecNormalize``."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
@@ -299,9 +340,23 @@ def _training_env(config: AlgoConfig, train_spec: EnvSpec, seed: int, monitor: A
     lanes = SB3VecEnv(train_spec.make_vec(int(config.n_envs), info_keys=()))
     lanes.seed(int(seed))
     vec = VecMonitor(lanes, filename=monitor)
+    score = {}
+    if config.reward == "lqg_ratio" and train_spec.plant_kind == "siso":
+        from stcgym.agents.rl.reward import plant_lqg_costs
+
+        native = lanes.venv
+        score = dict(
+            plant_costs=plant_lqg_costs(train_spec),
+            plant_index=lambda: native.plant_index,
+            cost_cap=config.cost_cap,
+        )
+    interface = interface_of(config, train_spec, seed)
+    if interface.kind == "true":  # the lanes' true parameters, read after every step
+        native_params = lanes.venv
+        score["true_params"] = lambda: native_params.params
     vec = VecHistoryWindow(
         vec, window, train_spec.steps, config.reward_scale, config.cost_squash,
-        interface=interface_of(config, train_spec, seed),
+        interface=interface, **score,
     )  # fmt: skip
     if config.normalize_obs or config.normalize_reward:
         vec = VecNormalize(
@@ -541,17 +596,31 @@ def train_agent(
         lanes.obs_norm = norm
 
     curve: list[tuple[int, float]] = []
+    updates: list[dict[str, float]] = []
+    if lanes.informed:  # told the plants the episodes start on, and every jump
+
+        def measure(p: SB3Policy) -> float:
+            def builder(plants: list[Any], seeds: list[int]) -> SB3Policy:
+                return p.with_lanes(len(plants), seeds, plants)
+
+            return curve_cost(builder, cspec, episodes, curve_reference, informed=True)
+    else:
+
+        def measure(p: SB3Policy) -> float:
+            return curve_cost(p, cspec, episodes, curve_reference)
+
     callback = make_curve_callback(
         curve,
         lanes,
         curve_checkpoints(int(steps), curve_points, eval_interval if plateau else None),
-        lambda p: curve_cost(p, cspec, episodes, curve_reference),
+        measure,
         keep_best,
         plateau,
         eval_interval,
         int(steps),
         snapshot,
         restore,
+        updates,
     )
     t0 = time.perf_counter()
     model.learn(
@@ -568,6 +637,10 @@ def train_agent(
     if plateau is not None:
         status = "cap" if callback.stopped_at is None else "plateau"
         stop = callback.tracker.summary(status, used, int(steps), eval_interval)
+        stop.best_step, stop.improved = (
+            callback.best_step,
+            improved_on_start(curve, callback.best_step),
+        )
     agent = TrainedAgent(
         algo,
         lanes.with_lanes(None),
@@ -580,10 +653,30 @@ def train_agent(
         out,
         callback.best_step,
         stop,
+        updates,
     )
     if out is not None:
         save_agent(agent, out)
     return agent
+
+
+def improved_on_start(curve: Sequence[tuple[int, float]], kept_step: int) -> bool:
+    """Whether the checkpoint kept at ``kept_step`` scores below the untrained policy (the
+    curve's step 0): ``False`` for a run kept at step 0, or one whose kept score (its last
+    evaluation at or before ``kept_step``) is not lower.
+
+    Examples
+    --------
+    >>> from stcgym.agents.rl.sb3 import improved_on_start
+    >>> improved_on_start([(0, 10.0), (100, 8.0)], 100), improved_on_start([(0, 10.0)], 0)
+    (True, False)
+    """
+    scores = dict(curve)
+    measured = [step for step in scores if step <= kept_step]
+    if kept_step <= 0 or 0 not in scores or not measured:
+        return False
+    # a run stopped by the rule ends a step or two after its last evaluation
+    return bool(scores[max(measured)] < scores[0])
 
 
 def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
@@ -609,6 +702,7 @@ def save_agent(agent: TrainedAgent, folder: str | Path) -> Path:
         "curve": [list(p) for p in agent.curve],
         "best_step": agent.best_step,
         "stop": None if agent.stop is None else agent.stop.to_dict(),
+        "updates": agent.updates,
     }
     write_atomic(folder / "agent.json", json.dumps(meta, indent=2))
     return folder
@@ -671,4 +765,5 @@ def load_agent(folder: str | Path) -> TrainedAgent:
         folder,
         meta.get("best_step"),
         None if meta.get("stop") is None else StopSummary(**meta["stop"]),
+        meta.get("updates", []),
     )

@@ -24,6 +24,7 @@ from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.evaluation.evaluate import response_metrics
 from stcgym.agents.rl.configs import AlgoConfig
+from stcgym.agents.rl.learning_curve import summarise_updates
 from stcgym.agents.rl.stopping import PlateauRule
 
 __all__ = ["TRACE_EPISODES", "costs_file", "train_and_evaluate", "training_task"]
@@ -117,9 +118,10 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
     for ev in task["evaluations"]:
         spec = EnvSpec.from_dict(ev["env"])
         batch = run_episodes(
-            lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds),
+            lambda plants, seeds: agent.policy.with_lanes(len(plants), seeds, plants),
             spec,
             EpisodeSet.from_dict(ev["episodes"]),
+            informed=agent.policy.informed,
         )
         name = costs_file(ev["scenario"])
         np.save(folder / name, batch.cost.astype(np.float32), allow_pickle=False)
@@ -141,5 +143,7 @@ def train_and_evaluate(task: dict[str, Any]) -> dict[str, Any]:
         "best_step": agent.best_step,
         "stop": agent.stop.to_dict(),
         "curve": [[int(s), float(c)] for s, c in agent.curve],
+        "updates": agent.updates,
+        "update_summary": summarise_updates(agent.updates),
         "evaluations": evaluations,
     }

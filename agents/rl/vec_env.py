@@ -4,12 +4,13 @@ once."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from stcgym.agents.rl.interfaces import InterfaceSpec
@@ -120,6 +121,21 @@ class VecHistoryWindow(VecEnvWrapper):
         What the agent observes besides the window and how its action becomes the input
         (:mod:`stcgym.agents.rl.interfaces`: an estimator's estimate, a self-tuning
         controller's input corrected by the action); default the window alone.
+    plant_costs : array_like, optional
+        LQG's cost per step of each plant of the training distribution
+        (:func:`~stcgym.agents.rl.reward.plant_lqg_costs`): the reward is then the score per
+        step, the cost in units of the lane's plant's (read from ``plant_index`` when the
+        step is asked for, so a lane restarted within the step is charged its old plant's).
+    plant_index : callable, optional
+        Returns each lane's plant, an index into ``plant_costs`` (the native vector env's
+        ``plant_index``); required with ``plant_costs``.
+    cost_cap : float, optional
+        The largest per-step cost after the division (:func:`~stcgym.agents.rl.wrappers.
+        training_reward`).
+    true_params : callable, optional
+        Returns each lane's true parameters ``(num_envs, 2 n)`` (the native vector env's
+        ``params``): told to the ``"true"`` interface after every step (a lane restarted
+        within the step keeps its old plant's in its terminal features).
 
     Examples
     --------
@@ -157,6 +173,10 @@ class VecHistoryWindow(VecEnvWrapper):
         cost_squash: float | None = None,
         *,
         interface: InterfaceSpec | None = None,
+        plant_costs: ArrayLike | None = None,
+        plant_index: Callable[[], NDArray] | None = None,
+        cost_cap: float | None = None,
+        true_params: Callable[[], NDArray] | None = None,
     ) -> None:
         box = venv.action_space
         if not isinstance(box, spaces.Box) or len(box.shape) != 1:
@@ -167,7 +187,15 @@ class VecHistoryWindow(VecEnvWrapper):
             raise ValueError(f"VecHistoryWindow needs the observation [y, r], got shape {shape}")
         if int(horizon) != horizon or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+        if (plant_costs is None) != (plant_index is None):
+            raise ValueError("plant_costs and plant_index go together")
+        if cost_cap is not None and not cost_cap > 0:
+            raise ValueError(f"cost_cap must be positive or None, got {cost_cap!r}")
         p, m = shape[0] // 2, box.shape[0]
+        self.plant_costs = None if plant_costs is None else np.asarray(plant_costs, dtype=float)
+        self.plant_index, self.cost_cap = plant_index, cost_cap
+        self.true_params = true_params
+        self._lqg: NDArray | None = None
         self.config, self.action_bound = config, bound
         self.horizon, self.reward_scale, self.cost_squash = int(horizon), reward_scale, cost_squash
         self.interface = InterfaceSpec() if interface is None else interface
@@ -182,13 +210,22 @@ class VecHistoryWindow(VecEnvWrapper):
         action_space = spaces.Box(-limit, limit, shape=(m,), dtype=np.float32)
         super().__init__(venv, observation_space, action_space)
 
+    def _tell_params(self) -> None:
+        if self.true_params is not None:
+            theta = np.asarray(self.true_params()).reshape(self.num_envs, -1)
+            n = theta.shape[1] // 2
+            self._lanes.set_model(theta[:, :n], theta[:, n:])
+
     def reset(self) -> NDArray:
         obs = self.venv.reset()
+        self._tell_params()
         self._lanes.observe(obs, np.ones(self.num_envs, dtype=bool))
         self._k[:] = 0
         return self._lanes.features()
 
     def step_async(self, actions: NDArray) -> None:
+        if self.plant_costs is not None:
+            self._lqg = self.plant_costs[np.asarray(self.plant_index())]
         self._u = self._lanes.to_input(actions)
         self.venv.step_async(self._u)
 
@@ -203,8 +240,9 @@ class VecHistoryWindow(VecEnvWrapper):
             ]
         )
         r = training_reward(
-            rewards, self._k, diverged, self.horizon, self.reward_scale, self.cost_squash
-        )
+            rewards, self._k, diverged, self.horizon, self.reward_scale, self.cost_squash,
+            lqg_cost=self._lqg, cost_cap=self.cost_cap,
+        )  # fmt: skip
         if done.any():
             last = np.array(obs, dtype=float)
             for i in np.flatnonzero(done):
@@ -213,5 +251,6 @@ class VecHistoryWindow(VecEnvWrapper):
             for i in np.flatnonzero(done):
                 infos[i]["terminal_observation"] = final[i]
             self._k[done] = 0
+        self._tell_params()
         self._lanes.observe(obs, done)
         return self._lanes.features(), r.astype(np.float32), dones, infos

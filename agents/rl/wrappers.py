@@ -334,14 +334,16 @@ class HistoryWindow(gym.Wrapper):
 class TrainingReward(gym.Wrapper):
     """The reward an RL agent is trained on: the scored cost, with divergence charged.
 
-    By default the reward is the environment's own ``-cost``, the per-step cost every
-    controller is scored on, so RL optimises what it is measured by. One change is needed for
-    that to hold over an episode: a diverged episode is charged for the steps it did not live.
-    The reward is a negative cost per step, so an episode that ends early would collect *less*
-    cost than a well-controlled one and an agent would learn to blow the loop up. On divergence
-    (``terminated`` with ``info["diverged"]``) the terminal step's cost is charged once more for
-    every step left until ``horizon``, the convention the evaluation scores failed runs by
-    (:func:`stcgym.adaptive.control.rollout.charge_divergence`).
+    Given ``plant_costs`` (each plant's LQG cost per step, :func:`~stcgym.agents.rl.reward.
+    plant_lqg_costs`), the reward is the score per step, ``-min(cost / c_LQG(plant),
+    cost_cap)``, on the plant each reset draws (``info["plant"]``): the bench's default
+    (:mod:`stcgym.agents.rl.reward`). Without, it is the environment's own ``-cost``. In both,
+    a diverged episode is charged for the steps it did not live: the reward is a negative cost
+    per step, so an episode that ends early would collect *less* cost than a well-controlled
+    one and an agent would learn to blow the loop up. On divergence (``terminated`` with
+    ``info["diverged"]``) the terminal step's reward is charged once more for every step left
+    until ``horizon``, the convention the evaluation scores failed runs by
+    (:func:`stcgym.adaptive.control.rollout.charge_divergence`), at most ``cost_cap`` per step.
 
     ``reward_scale`` then multiplies every reward (a constant rescaling; a running one is
     SB3's ``VecNormalize``). ``cost_squash=s`` optionally compresses the per-step cost,
@@ -351,23 +353,30 @@ class TrainingReward(gym.Wrapper):
     Parameters
     ----------
     env : gymnasium.Env
-        An stcgym environment (reward ``-cost``, ``info["diverged"]`` on divergence).
+        An stcgym environment (reward ``-cost``, ``info["diverged"]`` on divergence; the
+        plant's name in ``info["plant"]`` or ``env.unwrapped.plant.name``).
     horizon : int
         Episode length the divergence charge runs to, ``>= 1``.
     reward_scale : float, default 1.0
         Factor on every reward.
     cost_squash : float or None, default None
         ``s > 0`` of the compression, or ``None`` (the scored cost).
+    plant_costs : mapping of str to float, optional
+        LQG's cost per step by plant name: the reward is then in units of it.
+    cost_cap : float, optional
+        The largest per-step cost after the division (``None``: no cap).
 
     Raises
     ------
     ValueError
-        ``horizon`` not a positive integer or ``cost_squash`` not positive.
+        ``horizon`` not a positive integer, ``cost_squash`` or ``cost_cap`` not positive; on
+        reset, a plant that ``plant_costs`` does not hold.
 
     Examples
     --------
     The first step of ``unstable2`` costs 0.26 (see its env's example), and that is the
-    reward; with the compression it would be ``-log(1 + 0.26)``:
+    reward; with the compression it would be ``-log(1 + 0.26)``; in units of an LQG cost of
+    0.13 per step, -2:
 
     >>> import gymnasium as gym
     >>> import numpy as np
@@ -383,6 +392,11 @@ class TrainingReward(gym.Wrapper):
     >>> _ = squashed.reset(seed=0)
     >>> round(squashed.step(np.array([1.0]))[1], 6), round(-float(np.log1p(0.26)), 6)
     (-0.231112, -0.231112)
+    >>> ratio = TrainingReward(gym.make("stcgym/ObserverCanonical-v0", plant="unstable2"),
+    ...                        horizon=100, plant_costs={"unstable2": 0.13}, cost_cap=100.0)
+    >>> _ = ratio.reset(seed=0)
+    >>> round(ratio.step(np.array([1.0]))[1], 6)
+    -2.0
     """
 
     def __init__(
@@ -391,26 +405,42 @@ class TrainingReward(gym.Wrapper):
         horizon: int,
         reward_scale: float = 1.0,
         cost_squash: float | None = None,
+        *,
+        plant_costs: dict[str, float] | None = None,
+        cost_cap: float | None = None,
     ) -> None:
         super().__init__(env)
         if int(horizon) != horizon or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
         if cost_squash is not None and not cost_squash > 0:
             raise ValueError(f"cost_squash must be positive or None, got {cost_squash!r}")
+        if cost_cap is not None and not cost_cap > 0:
+            raise ValueError(f"cost_cap must be positive or None, got {cost_cap!r}")
         self.horizon, self.reward_scale = int(horizon), float(reward_scale)
-        self.cost_squash = cost_squash
+        self.cost_squash, self.cost_cap = cost_squash, cost_cap
+        self.plant_costs = None if plant_costs is None else dict(plant_costs)
         self._k = 0
+        self._lqg: float | None = None
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
         self._k = 0
-        return self.env.reset(**kwargs)
+        if self.plant_costs is not None:
+            plant = getattr(self.env.unwrapped, "plant", None)
+            name = info.get("plant") or getattr(plant, "name", None)
+            if name not in self.plant_costs:
+                raise ValueError(f"plant_costs holds no LQG cost of the plant {name!r}")
+            self._lqg = float(self.plant_costs[name])
+        return obs, info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._k += 1
         diverged = bool(terminated and info.get("diverged", False))
-        r = training_reward(reward, self._k, diverged, self.horizon, self.reward_scale,
-                            self.cost_squash)  # fmt: skip
+        r = training_reward(
+            reward, self._k, diverged, self.horizon, self.reward_scale, self.cost_squash,
+            lqg_cost=self._lqg, cost_cap=self.cost_cap,
+        )  # fmt: skip
         return obs, float(r), terminated, truncated, info
 
 
@@ -421,6 +451,9 @@ def training_reward(
     horizon: int,
     reward_scale: float = 1.0,
     cost_squash: float | None = None,
+    *,
+    lqg_cost: ArrayLike | None = None,
+    cost_cap: float | None = None,
 ) -> NDArray:
     """The training reward of :class:`TrainingReward` for one step of one or many lanes.
 
@@ -434,14 +467,33 @@ def training_reward(
         Lanes whose episode ended in a divergence at this step.
     horizon, reward_scale, cost_squash
         As :class:`TrainingReward`.
+    lqg_cost : array_like, optional
+        Each lane's plant's LQG cost per step: the cost is divided by it (the score per step,
+        :mod:`stcgym.agents.rl.reward`).
+    cost_cap : float, optional
+        The largest per-step cost (after the division), charged at most per step not lived.
 
     Returns
     -------
     ndarray
-        ``reward_scale * r`` with ``r`` the (optionally compressed) reward, times
-        ``1 + horizon - steps`` on the diverged lanes.
+        ``reward_scale * r`` with ``r = -min(cost / lqg_cost, cost_cap)`` (optionally
+        compressed), times ``1 + horizon - steps`` on the diverged lanes.
+
+    Examples
+    --------
+    A cost of 0.5 on a plant whose LQG cost is 0.1 is 5x LQG; a divergence at step 998 of
+    1000 with a cost of 900x LQG is charged the cap for this step and the two not lived:
+
+    >>> from stcgym.agents.rl.wrappers import training_reward
+    >>> training_reward([-0.5, -90.0], [10, 998], [False, True], 1000,
+    ...                 lqg_cost=[0.1, 0.1], cost_cap=100.0)
+    array([  -5., -300.])
     """
     r = np.asarray(reward, dtype=float)
+    if lqg_cost is not None:
+        r = r / np.asarray(lqg_cost, dtype=float)
+    if cost_cap is not None:
+        r = np.maximum(r, -float(cost_cap))
     if cost_squash is not None:
         r = -cost_squash * np.log1p(np.maximum(-r, 0.0) / cost_squash)
     left = np.maximum(horizon - np.asarray(steps), 0)
