@@ -4,9 +4,9 @@
     The self-tuning controllers, PPO, SAC and estimate-conditioned PPO (3 runs each, trained on
     the spot through the task executor), pole placement on the true model and zero input, all
     scored against LQG on the true model, on the same episodes of the nominal, plant-family
-    (test split and held-out variants), parameter-jump and MIMO scenarios; about 10 minutes on
+    (test split and held-out variants), parameter-jump and MIMO scenarios; about 4 minutes on
     2 CPU cores.
-    ``stcgym bench --standard`` (about 12 hours with every RL agent at its cap) has 5 runs,
+    ``stcgym bench --standard`` (about 10 hours with every RL agent at its cap) has 5 runs,
     the whole test split, every held-out variant and RL caps of 10^6 steps on the family;
     ``stcgym bench --full`` is the long version (10 runs, every MIMO plant, TD3 and A2C too,
     longer caps: about 48 hours).
@@ -65,14 +65,14 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         "episodes of one plant and of the family, one run, PPO for one evaluation interval",
     )
     mode.add_argument(
-        "--quick", action="store_true", help="the default: about 10 min on 2 CPU cores"
+        "--quick", action="store_true", help="the default: about 4 min on 2 CPU cores"
     )
     mode.add_argument(
         "--standard",
         action="store_true",
         help="5 runs per controller, the whole test split and every held-out variant, RL "
         "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 12 hours on 2 CPU cores at the caps (the estimate is "
+        "RecurrentPPO (2e5 for SAC): about 10 hours on 2 CPU cores at the caps (the estimate is "
         "printed first; the plateau rule stops most agents earlier)",
     )
     mode.add_argument(
@@ -299,6 +299,12 @@ def _report_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("run_dir", help="the run folder (holding config.json and store/)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument(
+        "--prune",
+        action="store_true",
+        help="first delete the store's records the run's plan does not ask for (left by "
+        "settings changed since), e.g. before committing the store",
+    )
+    p.add_argument(
         "--page",
         metavar="FILE",
         help="also write the run's headline tables into the Markdown FILE, between its two "
@@ -495,10 +501,13 @@ def _run_report(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from stcgym.agents.benchmark.config import BenchInputError
-    from stcgym.agents.benchmark.render import render_run, update_page
+    from stcgym.agents.benchmark.render import prune_store, render_run, update_page
 
     if args.page is not None and not Path(args.page).is_file():
         raise BenchInputError(f"--page {args.page}: no such file")
+    if args.prune:
+        stale = prune_store(args.run_dir)
+        print(f"{len(stale)} records no longer in the plan deleted", file=sys.stderr)
     run = render_run(Path(args.run_dir), plots=not args.no_plots)
     if args.page is not None:
         try:
@@ -536,8 +545,11 @@ def _run_eval(args: argparse.Namespace) -> int:
     names = spec.plant_names()
     plants = tuple(names[i % len(names)] for i in range(args.seeds))
     episodes = EpisodeSet(plants, tuple(args.first_seed + i for i in range(args.seeds)))
-    batch = run_episodes(
-        lambda lanes, seeds: agent.policy.with_lanes(len(lanes), seeds), spec, episodes
+    batch = run_episodes(  # (an agent told the true parameters gets them: oracle_ppo)
+        lambda lanes, seeds: agent.policy.with_lanes(len(lanes), seeds, lanes),
+        spec,
+        episodes,
+        informed=agent.policy.informed,
     )
     costs = batch.cost.mean(axis=1)
     s = summarize(costs, batch.diverged)

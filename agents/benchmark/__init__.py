@@ -63,7 +63,7 @@ network (no improvement over initialisation) is left out of its agent's estimate
 
 Tiers
 -----
-``quick`` (the default, about 10 minutes on 2 cores: 3 runs, 40 test plants, two held-out
+``quick`` (the default, about 4 minutes on 2 cores: 3 runs, 40 test plants, two held-out
 variants, short RL caps), ``standard`` (about 8.5 hours: 5 runs, the whole test split of 200
 plants, every held-out variant, RL caps of 10^6 env steps on the family for PPO and
 RecurrentPPO) and ``full`` (about 38 hours: 10 runs, every MIMO plant, TD3 and A2C too). In every

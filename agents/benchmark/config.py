@@ -219,7 +219,9 @@ STANDARD = dict(
     mode="standard",
     scenarios=list(SCENARIO_KINDS),
     mimo_plants=["quadruple_tank", "quadruple_tank_nmp"],
-    agents=["ppo", "sac", "rppo", *_INFORMED, *_CLASSICAL],
+    # with the two references that locate RL's failure: PPO told the true parameters, and
+    # the best fixed PI law of the training split
+    agents=["ppo", "sac", "rppo", *_INFORMED, "oracle_ppo", "fixed_pi", *_CLASSICAL],
     ood=[
         "ood_fast_unstable",
         "ood_near_zero",
@@ -239,7 +241,19 @@ FULL = dict(
     # every MIMO plant with an LQ yardstick for its cost (not ac1: mimo.has_yardstick)
     mimo_plants=[p for p in mimo_plant_names() if p != "ac1"],
     plants=["stable2", "unstable2"],
-    agents=["ppo", "ppo_noint", "sac", "td3", "a2c", "rppo", *_INFORMED, "stc_tuned", *_CLASSICAL],
+    agents=[
+        "ppo",
+        "ppo_noint",
+        "sac",
+        "td3",
+        "a2c",
+        "rppo",
+        *_INFORMED,
+        "oracle_ppo",
+        "fixed_pi",
+        "stc_tuned",
+        *_CLASSICAL,
+    ],  # fmt: skip
     train_seeds=10,
     episodes_per_plant=2,
     curve_episodes=50,
@@ -438,7 +452,7 @@ def _check_names(cfg: BenchConfig) -> None:
         raise ValueError("--plants takes time-invariant plants (jumps: the jump scenario)")
     if "nominal" in cfg.scenarios and not cfg.plants:
         raise ValueError("the nominal scenario needs at least one plant (--plants)")
-    check_mimo_plants(cfg.mimo_plants)
+    check_mimo_plants(cfg.mimo_plants, yardstick=False)  # names only: the rest comes last
     if "mimo" in cfg.scenarios and not cfg.mimo_plants:
         raise ValueError("the mimo scenario needs at least one plant (--mimo-plants)")
     from stcgym.envs.families import get_family
@@ -559,6 +573,8 @@ def validate(cfg: BenchConfig, train_steps: str | int | dict | None = None) -> N
                 "or lower --eval-interval"
             )
     _set(cfg, "algo_configs", {a: configs[a].to_dict() for a in cfg.rl_agents})
+    if {"mimo", "mimo_switch", "mimo_family"} & set(cfg.scenarios):
+        check_mimo_plants(cfg.mimo_plants)  # compiles the Riccati solver: after every cheap check
 
 
 def _single_cap(config: Any, mode: str) -> int:

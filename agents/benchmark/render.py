@@ -35,6 +35,7 @@ __all__ = [
     "load_run",
     "page_tables",
     "planned_records",
+    "prune_store",
     "render_run",
     "update_page",
 ]
@@ -91,6 +92,21 @@ def planned_records(cfg: BenchConfig, scenarios: list[Any], run_dir: Path) -> li
         tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {}, run_dir)
         out += [("rl", t["name"], job_id(t)) for t in tasks]
     return out
+
+
+def prune_store(run_dir: str | Path) -> list[Path]:
+    """Delete the records of a run folder's store that its plan does not ask for (left by a
+    run whose settings changed since: a store about to be committed keeps only what it
+    renders); returns the files deleted."""
+    run_dir = Path(run_dir)
+    cfg, _ = read_run_config(run_dir)
+    wanted = {rid for _k, _l, rid in planned_records(cfg, make_scenarios(cfg), run_dir)}
+    stale = [
+        p for p in (run_dir / STORE_FOLDER).glob("*.json.gz") if p.name.split(".")[-3] not in wanted
+    ]
+    for path in stale:
+        path.unlink()
+    return stale
 
 
 def _add(record: JobRecord, data: RunData) -> None:

@@ -226,6 +226,19 @@ class _Evaluated:
     trace: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+#: Update records an RL job's store record keeps at most (SAC logs one per gradient step).
+MAX_UPDATES_KEPT = 100
+
+
+def _thinned(updates: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """At most :data:`MAX_UPDATES_KEPT` of a run's update records, evenly spaced, the last
+    one always kept: what the report summarises and the store keeps small."""
+    if len(updates) <= MAX_UPDATES_KEPT:
+        return list(updates)
+    keep = np.unique(np.linspace(0, len(updates) - 1, MAX_UPDATES_KEPT).round().astype(int))
+    return [updates[i] for i in keep]
+
+
 def _rl_settings(task: dict[str, Any]) -> dict[str, Any]:
     """What an RL job's record says of its settings (the id hashes all of them)."""
     keys = ("algo", "seed", "steps", "train_key", "eval_interval", "plateau", "config")
@@ -481,7 +494,7 @@ class _RunState:
         return JobRecord(
             "rl", task["name"], job_id(task), _rl_settings(task), scenarios,
             curve=[(int(s), float(c)) for s, c in result["curve"]],
-            diagnostics=list(result.get("diagnostics", [])), stop=stop,
+            diagnostics=_thinned(result.get("updates", [])), stop=stop,
             train_key=task["train_key"], algo=algo, seed=int(ts), wall_s=float(result["wall_s"]),
         )  # fmt: skip
 

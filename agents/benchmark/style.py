@@ -48,6 +48,8 @@ COLORS = {
     "theta_ppo": "#E69F00",
     "theta_sac": "#44AA99",
     "residual_ppo": "#332288",
+    "oracle_ppo": "#117733",
+    "fixed_pi": "#661100",
 }
 _SPARE = ("#117733", "#661100", "#6699CC", "#DDCC77", "#88CCEE", "#AA4466")
 
