@@ -41,11 +41,11 @@ __all__ = [
 #: run's RecurrentPPO jobs. Only the schedule, the ETA, the announced estimate and
 #: ``--time-limit`` use them.
 SECONDS_PER_STEP = {
-    # PPO's update on 16 lanes x 256 steps, batch 256: 7-8 s of training for the quick tier's
-    # 40 960 steps on the family (results/quick-v2)
-    "ppo": 0.25e-3,
-    "ppo_noint": 0.25e-3,
-    "oracle_ppo": 0.25e-3,
+    # PPO's update on 16 lanes x 256 steps, batch 256: 10^6 env steps of training (validation
+    # curve included) in 74-78 s per core on the family (results/ladder-l1-standard)
+    "ppo": 0.08e-3,
+    "ppo_noint": 0.08e-3,
+    "oracle_ppo": 0.085e-3,
     "a2c": 0.9e-3,
     "sac": 10.0e-3,
     "td3": 9.5e-3,
@@ -53,8 +53,8 @@ SECONDS_PER_STEP = {
     "rppo": 5.5e-3,
     # their estimator or controller on every lane: 1.05-1.2x their base agent's (measured
     # against it in one process)
-    "theta_ppo": 0.27e-3,
-    "residual_ppo": 0.3e-3,
+    "theta_ppo": 0.09e-3,
+    "residual_ppo": 0.1e-3,
     "theta_sac": 10.5e-3,
 }
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
