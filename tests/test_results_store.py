@@ -219,3 +219,11 @@ def test_the_adaptation_summary_equals_a_direct_computation():
     assert np.allclose(both["window"], s["window"])
     assert np.allclose(both["excess_q25"], (2 * np.array(s["excess_q25"]) + b["excess_q25"]) / 3)
     assert list(log_grid(1)) == [1] and log_grid(0).size == 0
+
+
+def test_prune_deletes_only_the_records_not_asked_for(tmp_path):
+    store = ResultsStore(tmp_path, METRIC_COLUMNS)
+    keep = store.save(_record(np.random.default_rng(4), "keep"))
+    gone = store.save(_record(np.random.default_rng(5), "gone"))
+    assert store.prune({"keep", "elsewhere"}) == [gone]
+    assert keep.is_file() and not gone.exists() and store.ids() == {"keep"}

@@ -101,12 +101,7 @@ def prune_store(run_dir: str | Path) -> list[Path]:
     run_dir = Path(run_dir)
     cfg, _ = read_run_config(run_dir)
     wanted = {rid for _k, _l, rid in planned_records(cfg, make_scenarios(cfg), run_dir)}
-    stale = [
-        p for p in (run_dir / STORE_FOLDER).glob("*.json.gz") if p.name.split(".")[-3] not in wanted
-    ]
-    for path in stale:
-        path.unlink()
-    return stale
+    return ResultsStore(run_dir / STORE_FOLDER, METRIC_COLUMNS).prune(wanted)
 
 
 def _add(record: JobRecord, data: RunData) -> None:

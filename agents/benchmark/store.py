@@ -215,6 +215,19 @@ class JobRecord:
         )
 
 
+def _id_of(path: Path) -> str:
+    """The id in a record's file name (:func:`record_path`)."""
+    return path.name.split(".")[-3]
+
+
+def _read(path: Path) -> JobRecord | None:
+    """The record in ``path``, or ``None`` when it is unreadable (damaged, or another schema)."""
+    try:
+        return JobRecord.from_dict(json.loads(gzip.decompress(path.read_bytes())))
+    except (OSError, ValueError, KeyError, TypeError, EOFError):
+        return None
+
+
 def record_path(folder: Path, label: str, rid: str) -> Path:
     """Where the record ``rid`` of job ``label`` is kept."""
     return Path(folder) / f"{quote(label, safe='')}.{rid}.json.gz"
@@ -238,12 +251,7 @@ class ResultsStore:
     def load(self, label: str, rid: str) -> JobRecord | None:
         """The record kept under ``rid``, or ``None`` (none, or unreadable: run again)."""
         path = record_path(self.folder, label, rid)
-        if not path.is_file():
-            return None
-        try:
-            return JobRecord.from_dict(json.loads(gzip.decompress(path.read_bytes())))
-        except (OSError, ValueError, KeyError, TypeError, EOFError):
-            return None
+        return _read(path) if path.is_file() else None
 
     def save(self, record: JobRecord) -> Path:
         """Write ``record`` atomically (gzip with no time stamp: the same record, the same
@@ -257,15 +265,21 @@ class ResultsStore:
 
     def ids(self) -> set[str]:
         """The ids of every record kept (whatever its settings)."""
-        return {p.name.split(".")[-3] for p in self.folder.glob("*.json.gz")}
+        return {_id_of(p) for p in self.folder.glob("*.json.gz")}
 
     def records(self) -> Iterator[JobRecord]:
         """Every readable record, in file-name order."""
         for path in sorted(self.folder.glob("*.json.gz")):
-            try:
-                yield JobRecord.from_dict(json.loads(gzip.decompress(path.read_bytes())))
-            except (OSError, ValueError, KeyError, TypeError, EOFError):
-                continue
+            record = _read(path)
+            if record is not None:
+                yield record
+
+    def prune(self, keep: set[str]) -> list[Path]:
+        """Delete every record whose id is not in ``keep``; returns the files deleted."""
+        stale = [p for p in self.folder.glob("*.json.gz") if _id_of(p) not in keep]
+        for path in stale:
+            path.unlink()
+        return stale
 
     def clear(self) -> None:
         """Remove every record (a run started afresh with ``--overwrite``)."""
