@@ -110,6 +110,16 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         f"{','.join(QUICK['ood'])}; standard and full: {','.join(STANDARD['ood'])})",
     )
     p.add_argument(
+        "--ladder",
+        help="rungs of the difficulty ladder tested by the ladder scenarios (default: "
+        f"{','.join(defaults.ladder)}; the last rung, ladder-l4-v1, has siso2-v1's plants)",
+    )
+    p.add_argument(
+        "--ladder-agents",
+        help="the RL agents of --agents trained on each rung (default: "
+        f"{','.join(defaults.ladder_agents)}); the classical controllers run on every rung",
+    )
+    p.add_argument(
         "--mimo-plants",
         help="MIMO plants of the mimo scenario (measured state; default: "
         f"{','.join(defaults.mimo_plants)}; full: {','.join(FULL['mimo_plants'])}; MIMO "
@@ -201,8 +211,14 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--tune-trials",
         type=int,
-        help="Optuna trials per RL agent and for the self-tuning controller (stc_tuned) on the "
-        f"family's validation split (full default {FULL['tune_trials']}; others none)",
+        help="Optuna trials per tuned RL agent and for the self-tuning controller (stc_tuned) "
+        f"on the family's validation split (standard default {STANDARD['tune_trials']}, full "
+        f"{FULL['tune_trials']}; quick none)",
+    )
+    p.add_argument(
+        "--tune-agents",
+        help="the RL agents tuned with --tune-trials (standard default: "
+        f"{','.join(STANDARD['tune_agents'])}; full: every RL agent)",
     )
     p.add_argument("--first-seed", type=int, default=1000, help="first test episode seed (>= 0)")
     p.add_argument(
@@ -341,6 +357,9 @@ def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
             plants=args.plants,
             family=args.family,
             ood=args.ood,
+            ladder=args.ladder,
+            ladder_agents=args.ladder_agents,
+            tune_agents=args.tune_agents,
             mimo_plants=args.mimo_plants,
             agents=args.agents,
             train_steps=args.train_steps,

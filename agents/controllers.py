@@ -98,7 +98,8 @@ class ControllerInfo:
     controller that learns from the episode (its data use is the episode's steps); ``plants``
     the kinds of plant it runs on (``"siso"``, ``"mimo"``); ``informed`` a known-model
     controller told the true parameters whenever they change; ``seeded`` a controller with
-    random parts (its runs are controller seeds); ``knows`` what it is given, for the report.
+    random parts (its runs are controller seeds); ``knows`` what it is given, for the report;
+    ``tuned`` the tuning study it reads.
     """
 
     kind: str
@@ -109,6 +110,8 @@ class ControllerInfo:
     informed: bool = False
     seeded: bool = False
     knows: dict[str, str] = field(default_factory=dict)
+    #: the tuning study (a key of ``BenchConfig.tuned``) it is built from, if any
+    tuned: str | None = None
 
     def runs_on(self, spec: Any) -> bool:
         """Whether the controller runs on the plants of the env spec ``spec``."""
@@ -266,9 +269,13 @@ _ADAPTIVE = {
 _KNOWN = {"order": "true", "model": "true (a, b), told the jump", "data": "none"}
 
 
-def _adaptive(build: Any, description: str, knows: dict[str, str] = _ADAPTIVE) -> ControllerInfo:
+def _adaptive(
+    build: Any, description: str, knows: dict[str, str] = _ADAPTIVE, tuned: str | None = None
+) -> ControllerInfo:
     """A self-tuning controller's entry: online, seeded, SISO."""
-    return ControllerInfo("adaptive", build, True, description, seeded=True, knows=knows)
+    return ControllerInfo(
+        "adaptive", build, True, description, seeded=True, knows=knows, tuned=tuned
+    )
 
 
 #: Classical controllers by name (tests may register more).
@@ -279,6 +286,7 @@ CONTROLLERS: dict[str, ControllerInfo] = {
         _stc_tuned,
         "the self-tuning controller with options tuned on the validation split",
         {**_ADAPTIVE, "data": "the episode so far; options tuned on validation episodes"},
+        tuned="stc",
     ),
     "stc_kfmils": _adaptive(
         _stc_kfmils, "the self-tuning controller on the paper's KF-MILS estimator"

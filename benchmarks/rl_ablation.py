@@ -79,6 +79,11 @@ RECIPES: dict[str, dict[str, Any]] = {
             "learning_rate": 1e-3, "target_kl": None},
     "healthy": {"n_envs": 16, "n_steps": 256, "batch_size": 256, "n_epochs": 10,
                 "learning_rate": 3e-4, "target_kl": 0.03},
+    # SAC: the Zoo's Pendulum-v1 entry (one gradient step per env step), and two that take a
+    # quarter of the gradient steps: every fourth step of one env, or two steps per step of 8
+    "sac_zoo": {"n_envs": 1, "train_freq": 1, "gradient_steps": 1},
+    "sac_every4": {"n_envs": 1, "train_freq": 4, "gradient_steps": 1},
+    "sac_vec8": {"n_envs": 8, "train_freq": 1, "gradient_steps": 2},
 }  # fmt: skip
 
 
@@ -123,7 +128,9 @@ def train_run(args: argparse.Namespace) -> dict[str, Any]:
     config = default_config(args.agent)
     recipe = dict(RECIPES[args.recipe])
     config.n_envs = recipe.pop("n_envs")
-    shared = {k: v for k, v in BASE.items() if k != "policy_kwargs"}  # the agent's own net
+    # the PPO family shares BASE; SAC keeps its own settings but for the recipe's
+    on_policy = not args.recipe.startswith("sac")
+    shared = {k: v for k, v in BASE.items() if k != "policy_kwargs"} if on_policy else {}
     config.hyperparams = {**config.hyperparams, **shared, **recipe, "gamma": args.gamma}
     if args.agent in ("ppo", "oracle_ppo", "theta_ppo"):
         config.hyperparams["policy_kwargs"] = BASE["policy_kwargs"]

@@ -341,7 +341,7 @@ def test_resume_reads_finished_jobs_back_and_trains_only_the_rest(tiny_run, tmp_
     real_evaluate = runner_mod._RunState._evaluate
 
     def counting(task):
-        trained.append(task["name"])
+        trained.append(task.name)
         return real(task)
 
     def counting_evaluations(self, sc, name, run):
@@ -527,9 +527,17 @@ def test_standard_tier_meets_the_protocol(monkeypatch):
     for name in ("plants", "family", "first_seed", "episode_steps"):
         assert getattr(std, name) == getattr(quick, name), name
     assert set(quick.agents) <= set(std.agents)  # and the informed RL agents
-    # the quick scenarios, the quadruple tank's valve switch and its family of valve settings
+    # the quick scenarios, the difficulty ladder, the quadruple tank's valve switch and its
+    # family of valve settings
     assert quick.scenarios == ["nominal", "family", "ood", "jump", "mimo"]
-    assert std.scenarios == [*quick.scenarios, "mimo_switch", "mimo_family"]
+    assert std.scenarios == [*quick.scenarios[:4], "ladder", "mimo", "mimo_switch", "mimo_family"]
+    # every rung of the ladder: its first three, and the family's plants are the last one's
+    from stcgym.envs.families import LADDER
+
+    assert [*std.ladder, "ladder-l4-v1"] == list(LADDER) and std.family == "siso2-v1"
+    assert {"ppo", "theta_ppo", "oracle_ppo"} <= set(std.ladder_agents)
+    # the same small Optuna budget for PPO and the self-tuning controller
+    assert std.tune_trials >= 10 and std.tuned_rl_agents == ["ppo"] and "stc_tuned" in std.agents
     # at least 5 training runs, every plant of the test split (200), every held-out variant
     scenarios = make_scenarios(std)
     assert std.train_seeds >= 5 and std.test_plants is None
@@ -546,9 +554,9 @@ def test_standard_tier_meets_the_protocol(monkeypatch):
     tasks = rl_tasks(std, scenarios, training_envs(std, scenarios), {})
     # outside the quick tier at most 20 evaluations of the plateau rule per cap
     for t in tasks:
-        assert t["steps"] // t["eval_interval"] <= EVALUATIONS_PER_CAP
-        assert t["plateau"] == {"min_improvement": 0.05, "patience": 3, "min_fraction": 0.5}
-        assert len(t["curve_episodes"]["seeds"]) >= 20
+        assert t.steps // t.eval_interval <= EVALUATIONS_PER_CAP
+        assert t.plateau.to_dict() == {"min_improvement": 0.05, "patience": 3, "min_fraction": 0.5}
+        assert len(t.curve_episodes.seeds) >= 20
     # a few hours on 2 cores at the caps, the quick tier a few minutes
     assert 2 * 3600 <= benchmark.estimate_seconds(std) <= 14 * 3600
     assert 2 * 60 <= benchmark.estimate_seconds(quick) <= 10 * 60  # measured: 3 min 15 s
@@ -677,7 +685,7 @@ def test_curve_evaluations_count_the_points_each_training_measured(tiny_run):
         measured[key] = measured.get(key, 0) + 1
     scenarios = make_scenarios(cfg)
     tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})
-    assert {(t["train_key"], t["algo"], t["seed"]): curve_evaluations(t) for t in tasks} == measured
+    assert {(t.train_key, t.algo, t.seed): curve_evaluations(t) for t in tasks} == measured
 
 
 def test_schedule_gives_each_job_to_the_first_free_worker():
@@ -690,7 +698,7 @@ def test_schedule_gives_each_job_to_the_first_free_worker():
     scenarios = make_scenarios(cfg)
     tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})
     weights = job_weights(cfg, [], tasks)
-    cost = [weights[("rl", t["name"])] for t in tasks]
+    cost = [weights[("rl", t.name)] for t in tasks]
     assert cost == sorted(cost, reverse=True)
     busy = schedule(cost, 2)
     assert max(busy) - min(busy) <= min(cost)

@@ -243,13 +243,13 @@ def test_every_tier_runs_mimo():
     scenarios = make_scenarios(quick)
     mimo = next(s for s in scenarios if s.kind == "mimo")
     envs = training_envs(quick, scenarios)
-    tasks = [t for t in rl_tasks(quick, scenarios, envs, {}) if t["train_key"] == mimo.train_key]
-    assert sorted((t["algo"], t["seed"]) for t in tasks) == [
+    tasks = [t for t in rl_tasks(quick, scenarios, envs, {}) if t.train_key == mimo.train_key]
+    assert sorted((t.algo, t.seed) for t in tasks) == [
         (a, s) for a in ("ppo", "sac") for s in range(quick.train_seeds)
     ]
     for t in tasks:
-        (ev,) = t["evaluations"]
-        assert ev["env"] == mimo.env.to_dict() and ev["episodes"] == mimo.episodes.to_dict()
+        (ev,) = t.evaluations
+        assert ev.env == mimo.env and ev.episodes == mimo.episodes
     assert {"stc_mimo", "lqg", "zero"} == set(controllers_for(quick.classical, mimo.env))
     assert "mimo_switch" not in quick.scenarios  # the quick tier stays within its minutes
     standard = build_config(mode="standard", run="s")

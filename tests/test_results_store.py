@@ -7,6 +7,7 @@ from __future__ import annotations
 import gzip
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 from hypothesis import given
@@ -20,7 +21,8 @@ from stcgym.agents.benchmark.adaptation import (
     window_ratio,
 )
 from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS
-from stcgym.agents.benchmark.rundir import classical_id, job_id
+from stcgym.agents.benchmark.rundir import classical_key, job_id
+from stcgym.agents.benchmark.scenarios import make_scenarios
 from stcgym.agents.benchmark.store import (
     JobRecord,
     ResultsStore,
@@ -152,26 +154,31 @@ def test_a_damaged_or_foreign_record_is_run_again(tmp_path):
 
 
 def test_the_classical_id_follows_what_shapes_the_episodes(tmp_path):
-    cfg = build_config(mode="quick", out=str(tmp_path), run="a").to_dict()
-    scenario = {"name": "family:test", "env": {"plant": "stable2"}, "episodes": {"seeds": [1, 2]}}
-    base = classical_id(cfg, scenario, "stc", 0)
-    # where it is written and how it is executed do not matter ...
-    elsewhere = cfg | {"run": "b", "out": "/elsewhere", "jobs": 7, "plots": False}
-    assert classical_id(elsewhere, scenario, "stc", 0) == base
-    # nor how the RL agents are trained
-    retrained = cfg | {
-        "algo_configs": {},
-        "family_train_steps": 1,
-        "patience": 9,
-        "action_units": {"family": 3.0},
-    }
-    assert classical_id(retrained, scenario, "stc", 0) == base
-    # ... the settings, the scenario, the controller and the run do
-    assert classical_id(cfg | {"first_seed": 1}, scenario, "stc", 0) != base
-    assert classical_id(cfg | {"action_bounds": {"family": 2.0}}, scenario, "stc", 0) != base
-    assert classical_id(cfg, scenario | {"episodes": {"seeds": [1, 3]}}, "stc", 0) != base
-    assert classical_id(cfg, scenario, "stc_lq", 0) != base
-    assert classical_id(cfg, scenario, "stc", 1) != base
+    cfg = build_config(mode="quick", out=str(tmp_path), run="a", scenarios="family")
+    sc = make_scenarios(cfg)[0]
+    label, base = classical_key(cfg, sc, "stc", 0)
+    assert label == "family:test.stc.run0"
+    # where it is written, how it is executed, the other agents and scenarios of the run and
+    # how the RL agents are trained do not matter ...
+    for change in (
+        {"run": "b", "out": "/elsewhere", "jobs": 7, "plots": False},
+        {"agents": ["ppo", "stc", "lqg", "zero"], "scenarios": ["family", "ladder"]},
+        {"ladder": ["ladder-l1-v1"], "ood": ["ood_order3"], "mimo_plants": ["quadruple_tank"]},
+        {"family_train_steps": {"ppo": 1}, "patience": 9, "action_units": {"family": 3.0}},
+        {"tuned": {"stc": {"params": {"forgetting": 0.99}}}},  # stc is not built from it
+    ):
+        assert classical_key(replace(cfg, **change), sc, "stc", 0)[1] == base, change
+    # ... the scenario's episodes and env, the controller, the run and its study do
+    moved = make_scenarios(replace(cfg, first_seed=1))[0]
+    bounded = make_scenarios(replace(cfg, action_bounds={"family": 2.0}))[0]
+    assert classical_key(cfg, moved, "stc", 0)[1] != base
+    assert classical_key(cfg, bounded, "stc", 0)[1] != base
+    assert classical_key(cfg, sc, "stc_lq", 0)[1] != base
+    assert classical_key(cfg, sc, "stc", 1)[1] != base
+    study = {"stc": {"params": {"forgetting": 0.99}}}
+    tuned_a = classical_key(replace(cfg, tuned=study), sc, "stc_tuned", 0)[1]
+    study_b = {"stc": {"params": {"forgetting": 0.98}}}
+    assert classical_key(replace(cfg, tuned=study_b), sc, "stc_tuned", 0)[1] != tuned_a
 
 
 def test_an_rl_job_id_ignores_where_it_writes_and_the_yardsticks_last_digits():

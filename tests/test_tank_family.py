@@ -226,12 +226,12 @@ def test_scenario_trains_on_the_training_split_and_is_scored_on_the_test_split()
     assert sc.episodes.plants == tuple(p.name for p in TANK_FAMILY.members("test"))
     envs = training_envs(cfg, [sc])
     tasks = rl_tasks(cfg, [sc], envs, {})
-    assert {t["algo"] for t in tasks} == {"ppo"}
+    assert {t.algo for t in tasks} == {"ppo"}
     for t in tasks:
-        assert t["train_env"]["split"] == "train" and t["curve_env"]["split"] == "validation"
-        assert all("/validation/" in p for p in t["curve_episodes"]["plants"])
-        (ev,) = t["evaluations"]
-        assert ev["env"] == sc.env.to_dict() and ev["episodes"] == sc.episodes.to_dict()
+        assert t.train_env.split == "train" and t.curve_env.split == "validation"
+        assert all("/validation/" in p for p in t.curve_episodes.plants)
+        (ev,) = t.evaluations
+        assert ev.env == sc.env and ev.episodes == sc.episodes
 
 
 def test_tiny_bench_run_scores_every_controller_on_the_test_plants(tmp_path, capsys):

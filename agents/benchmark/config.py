@@ -34,10 +34,12 @@ from stcgym.agents.rl.configs import (
 )
 from stcgym.agents.rl.stopping import PlateauRule
 from stcgym.envs.catalogue import get_plant, plant_names
+from stcgym.envs.families import LADDER
 from stcgym.envs.mimo_plants import mimo_plant_names
 
 __all__ = [
     "EVALUATIONS_PER_CAP",
+    "FAMILY_KINDS",
     "FULL",
     "MODES",
     "QUICK",
@@ -47,11 +49,16 @@ __all__ = [
     "BenchConfig",
     "BenchInputError",
     "build_config",
+    "is_family_key",
     "parse_train_steps",
     "validate",
 ]
 
-SCENARIO_KINDS = ("nominal", "family", "ood", "jump", "mimo", "mimo_switch", "mimo_family")
+SCENARIO_KINDS = (
+    "nominal", "family", "ood", "jump", "ladder", "mimo", "mimo_switch", "mimo_family",
+)  # fmt: skip
+#: The scenario kinds on the plant family's splits and variants (``cfg.family``)
+FAMILY_KINDS = ("family", "ood", "jump")
 #: Quick-tier RL cap in the mimo scenario: this many evaluation intervals (at most quick_steps).
 QUICK_MIMO_INTERVALS = {"ppo": 2, "a2c": 2, "sac": 1, "td3": 1}
 #: Outside the quick tier, evaluations of the plateau rule per cap at most.
@@ -82,6 +89,11 @@ class BenchConfig:
     family: str = "siso2-v1"
     #: the family's held-out variants tested (the ood scenarios)
     ood: list[str] = field(default_factory=lambda: ["ood_near_zero", "ood_order3"])
+    #: the rungs of the difficulty ladder tested beside the family (the ladder scenarios: each
+    #: rung's test split, its RL agents trained on its training split)
+    ladder: list[str] = field(default_factory=lambda: list(LADDER[:3]))
+    #: the RL agents trained on each rung (those of ``agents``; the classical ones run on all)
+    ladder_agents: list[str] = field(default_factory=lambda: ["ppo", "theta_ppo", "oracle_ppo"])
     #: MIMO catalogue plants of the mimo scenarios (mimo_switch: the quadruple tank's valves)
     mimo_plants: list[str] = field(default_factory=lambda: ["quadruple_tank"])
     agents: list[str] = field(
@@ -135,6 +147,8 @@ class BenchConfig:
     #: (0: no tuning), each RL trial training for tune_fraction of the agent's family cap
     tune_trials: int = 0
     tune_fraction: float = 0.1
+    #: the RL agents tuned (None: every RL agent of ``agents``)
+    tune_agents: list[str] | None = None
     #: the studies' results (filled by a run that tunes): agent -> summary and best params
     tuned: dict[str, dict[str, Any]] = field(default_factory=dict)
     algo_configs: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -156,6 +170,13 @@ class BenchConfig:
         return [a for a in self.agents if a in ALGORITHMS]
 
     @property
+    def tuned_rl_agents(self) -> list[str]:
+        """The RL agents whose hyperparameters a run with tuning trials tunes."""
+        if not self.tune_trials:
+            return []
+        return [a for a in self.rl_agents if self.tune_agents is None or a in self.tune_agents]
+
+    @property
     def classical(self) -> list[str]:
         """Classical controllers in evaluation order: the yardstick and zero input first (every
         ratio and score needs them)."""
@@ -171,7 +192,13 @@ class BenchConfig:
         """The training cap of ``algo``'s agents on the training env ``train_key``."""
         if train_key.startswith("mimo"):
             return self.mimo_train_steps[algo]
-        return (self.family_train_steps if train_key == "family" else self.train_steps)[algo]
+        family = is_family_key(train_key)
+        return (self.family_train_steps if family else self.train_steps)[algo]
+
+    def trains_on(self, algo: str, train_key: str) -> bool:
+        """Whether the RL agent ``algo`` trains on ``train_key``: a rung of the ladder
+        (``"family:<rung>"``) trains the :attr:`ladder_agents` only."""
+        return not train_key.startswith("family:") or algo in self.ladder_agents
 
     def eval_interval_for(self, algo: str, train_key: str) -> int:
         """The plateau rule's evaluation interval of ``algo`` on ``train_key``: the config's,
@@ -200,7 +227,7 @@ _CLASSICAL = ["stc", "stc_lq", "stc_kfmils", "stc_mimo", "oracle", "lqg", "zero"
 _INFORMED = ["theta_ppo", "theta_sac", "residual_ppo"]
 QUICK = dict(
     mode="quick",
-    scenarios=[k for k in SCENARIO_KINDS if k not in ("mimo_switch", "mimo_family")],
+    scenarios=[k for k in SCENARIO_KINDS if k not in ("ladder", "mimo_switch", "mimo_family")],
     plants=["stable2"],
     ood=["ood_near_zero", "ood_order3"],
     # RecurrentPPO is the slowest to train (about a quarter of the tier's CPU time) and at
@@ -221,7 +248,17 @@ STANDARD = dict(
     mimo_plants=["quadruple_tank", "quadruple_tank_nmp"],
     # with the two references that locate RL's failure: PPO told the true parameters, and
     # the best fixed PI law of the training split
-    agents=["ppo", "sac", "rppo", *_INFORMED, "oracle_ppo", "fixed_pi", *_CLASSICAL],
+    agents=[
+        "ppo",
+        "sac",
+        "rppo",
+        "theta_ppo",
+        "residual_ppo",
+        "oracle_ppo",
+        "fixed_pi",
+        "stc_tuned",
+        *_CLASSICAL,
+    ],  # fmt: skip
     ood=[
         "ood_fast_unstable",
         "ood_near_zero",
@@ -234,6 +271,10 @@ STANDARD = dict(
     nominal_episodes=100,
     curve_episodes=20,
     curve_points=10,
+    # the same small Optuna budget for PPO and the self-tuning controller, on the family's
+    # validation split
+    tune_trials=10,
+    tune_agents=["ppo"],
 )
 FULL = dict(
     STANDARD,
@@ -258,6 +299,7 @@ FULL = dict(
     episodes_per_plant=2,
     curve_episodes=50,
     tune_trials=20,
+    tune_agents=None,
 )
 #: A one-minute end-to-end run (``stcgym bench --smoke``): every stage once, on a handful of
 #: short episodes, PPO for one evaluation interval; its numbers check that things run, nothing
@@ -340,6 +382,9 @@ def build_config(
     plants: str | Sequence[str] | None = None,
     family: str | None = None,
     ood: str | Sequence[str] | None = None,
+    ladder: str | Sequence[str] | None = None,
+    ladder_agents: str | Sequence[str] | None = None,
+    tune_agents: str | Sequence[str] | None = None,
     mimo_plants: str | Sequence[str] | None = None,
     agents: str | Sequence[str] | None = None,
     train_steps: str | int | dict | None = None,
@@ -381,6 +426,9 @@ def build_config(
         ("scenarios", scenarios),
         ("plants", plants),
         ("ood", ood),
+        ("ladder", ladder),
+        ("ladder_agents", ladder_agents),
+        ("tune_agents", tune_agents),
         ("mimo_plants", mimo_plants),
         ("agents", agents),
     ):
@@ -392,6 +440,11 @@ def build_config(
     for name, value in plain.items():
         if value is not None:
             _set(cfg, name, value)
+    if plain.get("tune_trials") is None and not set(FAMILY_KINDS) & set(cfg.scenarios):
+        # the preset's studies tune on the family's validation split: none without the family
+        _set(cfg, "tune_trials", 0)
+        if agents is None:
+            _set(cfg, "agents", [a for a in cfg.agents if a != "stc_tuned"])
     _set(cfg, "first_seed", first_seed)
     _set(cfg, "plots", bool(plots))
     _set(cfg, "progress", progress)
@@ -417,6 +470,12 @@ def _set(cfg: BenchConfig, name: str, value: Any) -> None:
     """Set a field of a config :func:`build_config` is completing, before anyone else sees it
     (the frozen dataclass's own ``__post_init__`` idiom)."""
     object.__setattr__(cfg, name, value)
+
+
+def is_family_key(train_key: str) -> bool:
+    """Whether a training key is a plant family's training split: ``"family"`` (the bench's
+    family) or ``"family:<rung>"`` (a rung of the ladder)."""
+    return train_key == "family" or train_key.startswith("family:")
 
 
 def _finite(value: Any, name: str, *, positive: bool = False) -> float:
@@ -469,14 +528,43 @@ def _check_names(cfg: BenchConfig) -> None:
         raise ValueError(f"unknown --ood variant(s) {bad}; {cfg.family} has {fam.variant_names}")
     if "ood" in cfg.scenarios and not cfg.ood:
         raise ValueError("the ood scenarios need at least one --ood variant")
+    _check_ladder(cfg)
+    unknown = [a for a in cfg.tune_agents or [] if a not in ALGORITHMS]
+    if unknown:
+        raise ValueError(
+            f"--tune-agents: unknown RL agent(s) {unknown}; choose from {sorted(ALGORITHMS)}"
+        )
     if "stc_tuned" in cfg.agents and not (cfg.tune_trials or "stc" in cfg.tuned):
         raise ValueError("stc_tuned needs tuning trials (--tune-trials N, N >= 1)")
-    if cfg.tune_trials and not {"family", "ood", "jump"} & set(cfg.scenarios):
+    if cfg.tune_trials and not set(FAMILY_KINDS) & set(cfg.scenarios):
         raise ValueError("--tune-trials tunes on the family's validation split: add its scenarios")
     family_only = [a for a in cfg.rl_agents if a in FAMILY_ALGORITHMS]
-    if family_only and not {"family", "ood", "jump"} & set(cfg.scenarios):
+    on_ladder = "ladder" in cfg.scenarios and set(family_only) <= set(cfg.ladder_agents)
+    if family_only and not (set(FAMILY_KINDS) & set(cfg.scenarios) or on_ladder):
         raise ValueError(
             f"{family_only} train on the plant family: add the family, ood or jump scenario"
+        )
+
+
+def _check_ladder(cfg: BenchConfig) -> None:
+    """The rungs (registered families with the three splits) and the agents trained on them."""
+    from stcgym.envs.families import get_family
+
+    if "ladder" in cfg.scenarios and not cfg.ladder:
+        raise ValueError("the ladder scenarios need at least one rung (--ladder)")
+    if len(set(cfg.ladder)) != len(cfg.ladder):
+        raise ValueError(f"--ladder lists a rung twice: {cfg.ladder}")
+    for rung in cfg.ladder:
+        try:
+            fam = get_family(rung)
+        except (KeyError, ValueError, FileNotFoundError) as exc:
+            raise ValueError(f"--ladder: {exc}") from None
+        if any(s not in fam.splits for s in ("train", "validation", "test")):
+            raise ValueError(f"--ladder: {rung!r} needs the splits train, validation and test")
+    unknown = [a for a in cfg.ladder_agents if a not in ALGORITHMS]
+    if unknown:
+        raise ValueError(
+            f"--ladder-agents: unknown RL agent(s) {unknown}; choose from {sorted(ALGORITHMS)}"
         )
 
 

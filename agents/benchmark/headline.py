@@ -47,7 +47,10 @@ __all__ = [
     "SELF_TUNING",
     "aggregate",
     "headline",
+    "STRATA",
+    "by_stratum",
     "paired",
+    "plant_strata",
     "scenario_tables",
     "training_stops",
     "untrained_runs",
@@ -203,6 +206,47 @@ def headline(
             "to_target": _median_reached(np.ravel(targets)),
             "reconverge": _median_reached(np.ravel(t["reconverge_steps"])),
         }
+    return out
+
+
+#: The strata of a family's plants: the last feature of the difficulty ladder a plant has
+#: (:data:`~stcgym.envs.families.LADDER`: L1's features, then a negative gain, a
+#: nonminimum-phase zero, an unstable pole).
+STRATA = ("L1: stable, minimum phase, gain > 0", "gain < 0", "nonminimum phase", "unstable")
+
+
+def plant_strata(plants: Sequence[str]) -> np.ndarray:
+    """The :data:`STRATA` index of each family plant, named ``<family>/<split>/<index>``."""
+    from stcgym.envs.families import draw_plant, get_family, plant_features
+
+    out = []
+    for name in plants:
+        family, _split, index = name.rsplit("/", 2)
+        f = plant_features(draw_plant(get_family(family), int(index)))
+        hardest = [True, f["dc_gain"] < 0, bool(f["nonminimum_phase"]), bool(f["unstable"])]
+        out.append(max(i for i, has in enumerate(hardest) if has))
+    return np.array(out, dtype=int)
+
+
+def by_stratum(
+    tables: dict[str, dict[str, Any]], strata: np.ndarray, *, reps: int, seed: int = 0
+) -> dict[str, list[dict[str, Any] | None]]:
+    """``controller -> [per stratum: {"ratio": Estimate (median over the bounded episodes),
+    "diverged": Estimate, "plants": n} or None]`` from :func:`scenario_tables`' arrays;
+    ``strata`` gives each plant's stratum (:func:`plant_strata`, the plants in table order)."""
+    out: dict[str, list[dict[str, Any] | None]] = {}
+    for c, t in tables.items():
+        ratios = _per_plant_bounded(t, "cost_ratio")
+        cells: list[dict[str, Any] | None] = []
+        for k in range(len(STRATA)):
+            mask = strata == k
+            if not mask.any():
+                cells.append(None)
+                continue
+            est = bounded_estimates(ratios[:, mask], reps=reps, seed=seed)
+            diverged = rate_estimate(1.0 - t["bounded"][:, mask], reps=reps, seed=seed)
+            cells.append({"ratio": est["median"], "diverged": diverged, "plants": int(mask.sum())})
+        out[c] = cells
     return out
 
 

@@ -6,14 +6,18 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stcgym.agents.benchmark.config import BenchConfig
 from stcgym.agents.benchmark.scenarios import Scenario, TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.controllers import controllers_for
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.rl.configs import AlgoConfig, with_action_unit
+
+if TYPE_CHECKING:
+    from stcgym.agents.rl.training import TrainingTask
 
 __all__ = [
     "SECONDS_PER_EVAL_STEP",
@@ -32,6 +36,7 @@ __all__ = [
     "reference_weights",
     "rl_tasks",
     "schedule",
+    "tuning_seconds",
 ]
 
 
@@ -95,21 +100,22 @@ def classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
     return runs * _batch_seconds(sc.env, len(sc.episodes.seeds), SECONDS_PER_EVAL_STEP, lane)
 
 
-def curve_evaluations(task: dict[str, Any]) -> int:
+def curve_evaluations(task: TrainingTask) -> int:
     """How many learning-curve evaluations an RL job runs at its cap: step 0, then the first
     rollout boundary at or after each checkpoint (checkpoints inside one rollout share it)."""
     from stcgym.agents.rl.sb3 import curve_checkpoints
 
-    config = task["config"]
-    hp = config["hyperparams"]
+    hp = task.config.hyperparams
     step = hp.get("n_steps", hp.get("train_freq", 1))  # (train_freq may be (n, "episode"))
-    per_rollout = max(1, (step if isinstance(step, int) else 1) * int(config.get("n_envs", 1)))
-    marks = curve_checkpoints(task["steps"], task["curve_points"], task["eval_interval"])
+    per_rollout = max(1, (step if isinstance(step, int) else 1) * int(task.config.n_envs))
+    marks = curve_checkpoints(task.steps, task.curve_points, task.eval_interval)
     boundaries = {-(-m // per_rollout) * per_rollout for m in marks if m > 0}
     return 1 + len(boundaries)
 
 
-def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence[dict]) -> dict:
+def job_weights(
+    cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence[TrainingTask]
+) -> dict:
     """Estimated seconds of every job, RL jobs at their cap (the plateau rule may stop them
     earlier; the ETA then adapts): training steps, learning-curve episodes and evaluation
     episodes of the policy, classical controllers on the scenarios."""
@@ -120,19 +126,15 @@ def job_weights(cfg: BenchConfig, scenarios: Sequence[Scenario], tasks: Sequence
         for sc in scenarios
     }
     for t in tasks:
-        per_step = SECONDS_PER_POLICY_STEP.get(t["algo"], DEFAULT_POLICY_STEP)
-        curve = EnvSpec.from_dict(t["curve_env"])
-        lanes = len(t["curve_episodes"]["seeds"])
-        curve_s = _batch_seconds(curve, lanes, per_step, SECONDS_PER_LANE_STEP)
+        per_step = SECONDS_PER_POLICY_STEP.get(t.algo, DEFAULT_POLICY_STEP)
+        lanes = len(t.curve_episodes.seeds)
+        curve_s = _batch_seconds(t.curve_env, lanes, per_step, SECONDS_PER_LANE_STEP)
         evals = sum(
-            _batch_seconds(
-                EnvSpec.from_dict(e["env"]), len(e["episodes"]["seeds"]), per_step,
-                SECONDS_PER_LANE_STEP,
-            )
-            for e in t["evaluations"]
-        )  # fmt: skip
-        train = t["steps"] * SECONDS_PER_STEP.get(t["algo"], 5e-3)
-        out[("rl", t["name"])] = train + curve_evaluations(t) * curve_s + evals
+            _batch_seconds(e.env, len(e.episodes.seeds), per_step, SECONDS_PER_LANE_STEP)
+            for e in t.evaluations
+        )
+        train = t.steps * SECONDS_PER_STEP.get(t.algo, 5e-3)
+        out[("rl", t.name)] = train + curve_evaluations(t) * curve_s + evals
     return out
 
 
@@ -158,10 +160,38 @@ def reference_weights(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> dict:
     }
 
 
+#: Learning-curve evaluations of one RL tuning trial (step 0 and its two curve points).
+TUNING_CURVE_EVALUATIONS = 3
+
+
+def tuning_seconds(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> float:
+    """Estimated wall seconds of the tuning studies (:meth:`_RunState.tune`): each tuned RL
+    agent's trials on one worker, the studies side by side, then the self-tuning controller's
+    trials in the driver."""
+    if not cfg.tune_trials or "family" not in envs:
+        return 0.0
+    env = envs["family"]
+    lanes = len(env.curve_episodes.seeds)
+    studies = []
+    for algo in cfg.tuned_rl_agents:
+        per_step = SECONDS_PER_POLICY_STEP.get(algo, DEFAULT_POLICY_STEP)
+        curve = _batch_seconds(env.curve, lanes, per_step, SECONDS_PER_LANE_STEP)
+        steps = max(1, int(cfg.tune_fraction * cfg.family_train_steps[algo]))
+        trial = steps * SECONDS_PER_STEP.get(algo, 5e-3) + TUNING_CURVE_EVALUATIONS * curve
+        studies.append(cfg.tune_trials * trial)
+    rl = max(schedule(studies, cfg.jobs)) if studies else 0.0
+    stc = 0.0
+    if "stc_tuned" in cfg.agents:
+        per_step, lane = SECONDS_PER_EVAL_STEP, SECONDS_PER_EVAL_LANE_STEP
+        stc = cfg.tune_trials * _batch_seconds(env.curve, lanes, per_step, lane)
+    return rl + stc
+
+
 def estimate_seconds(cfg: BenchConfig) -> float:
     """Rough wall time of ``cfg`` on ``cfg.jobs`` cores (announced before long runs).
 
-    The reference runs come first, in the driver; then the RL jobs on ``cfg.jobs`` workers,
+    The reference runs come first, in the driver, then the tuning studies (with tuning
+    trials: :func:`tuning_seconds`); then the RL jobs on ``cfg.jobs`` workers,
     longest first, while the driver evaluates the classical controllers (their work shares
     the cores); then the plots and the report, side by side.
     """
@@ -171,7 +201,7 @@ def estimate_seconds(cfg: BenchConfig) -> float:
     weights = job_weights(cfg, scenarios, tasks)
     classical = sum(w for (kind, _), w in weights.items() if kind == "classical")
     references = sum(reference_weights(cfg, envs).values())
-    rl = [weights[("rl", t["name"])] for t in tasks]
+    rl = [weights[("rl", t.name)] for t in tasks]
     cores = max(1, cfg.jobs)
     if not rl:
         train = classical
@@ -179,7 +209,7 @@ def estimate_seconds(cfg: BenchConfig) -> float:
         # the classical evaluations take their share of the cores from the workers
         train = max(schedule(rl, cfg.jobs)) + classical / cores
     output = OUTPUT_SECONDS_PER_SCENARIO * len(scenarios) * (1 if cores > 1 else 2)
-    return references + train + output
+    return references + tuning_seconds(cfg, envs) + train + output
 
 
 def parse_duration(text: str) -> float:
@@ -266,51 +296,47 @@ def rl_tasks(
     envs: dict[str, TrainingEnv],
     references: dict[str, list[float]],
     run_dir: Path | None = None,
-) -> list[dict[str, Any]]:
+) -> list[TrainingTask]:
     """The RL jobs, longest first by :func:`job_weights`; ``references`` holds the yardstick's
     cost on each learning-curve episode of every training key."""
-    from stcgym.agents.rl.training import training_task
+    from stcgym.agents.rl.training import Evaluation, TrainingTask
 
     tasks = []
     folder = Path("models") if run_dir is None else run_dir / "models"
+    tb = None if cfg.tensorboard_log is None else str(Path(cfg.tensorboard_log) / cfg.run)
     for key, env in envs.items():
         for algo in cfg.rl_agents:
+            if not cfg.trains_on(algo, key):
+                continue
             users = [sc for sc in scenarios if sc.train_key_for(algo) == key]
             if not users:
                 continue
-            evaluations = [
-                {"scenario": sc.name, "env": sc.env.to_dict(), "episodes": sc.episodes.to_dict()}
-                for sc in users
-            ]
+            evaluations = tuple(Evaluation(sc.name, sc.env, sc.episodes) for sc in users)
+            reference = references.get(key)
             for ts in range(cfg.train_seeds):
-                name = f"{key.replace(':', '-')}_{algo}_s{ts}"
-                tb = None
-                if cfg.tensorboard_log is not None:
-                    tb = str(Path(cfg.tensorboard_log) / cfg.run)
-                tasks.append(
-                    training_task(
-                        algo=algo,
-                        config=agent_config(cfg, algo, key),
-                        seed=ts,
-                        steps=cfg.cap(algo, key),
-                        eval_interval=cfg.eval_interval_for(algo, key),
-                        plateau=cfg.plateau,
-                        train_key=key,
-                        train_env=env.train,
-                        curve_env=env.curve,
-                        curve_episodes=env.curve_episodes,
-                        curve_points=cfg.curve_points,
-                        curve_reference=references.get(key),
-                        evaluations=evaluations,
-                        model_dir=str(folder / name),
-                        tensorboard_log=tb,
-                        progress=cfg.progress if cfg.jobs == 1 else False,
-                    )
+                task = TrainingTask(
+                    algo=algo,
+                    config=agent_config(cfg, algo, key),
+                    seed=ts,
+                    steps=cfg.cap(algo, key),
+                    eval_interval=cfg.eval_interval_for(algo, key),
+                    plateau=cfg.plateau,
+                    train_key=key,
+                    train_env=env.train,
+                    curve_env=env.curve,
+                    curve_episodes=env.curve_episodes,
+                    curve_points=cfg.curve_points,
+                    curve_reference=None if reference is None else tuple(reference),
+                    evaluations=evaluations,
+                    model_dir="",
+                    tensorboard_log=tb,
+                    progress=cfg.progress if cfg.jobs == 1 else False,
                 )
+                tasks.append(replace(task, model_dir=str(folder / task.name)))
     # longest first (training, curve and evaluation episodes), so that the workers finish
     # together: a long job taken last would leave the other worker idle
     cost = job_weights(cfg, [], tasks)
-    return sorted(tasks, key=lambda t: -cost[("rl", t["name"])])
+    return sorted(tasks, key=lambda t: -cost[("rl", t.name)])
 
 
 def describe_plan(cfg: BenchConfig) -> str:
@@ -337,12 +363,17 @@ def describe_plan(cfg: BenchConfig) -> str:
             cells.append(f"{name} x{runs}" + (f" ({held} kept)" if held else ""))
         lines.append(f"  {sc.name} ({len(sc.episodes.seeds)} episodes): {', '.join(cells)}; "
                      f"{weights[('classical', sc.name)]:.0f} s")  # fmt: skip
+    tuning = tuning_seconds(cfg, envs)
+    if tuning:
+        studies = [*cfg.tuned_rl_agents, *(["stc"] if "stc_tuned" in cfg.agents else [])]
+        lines += ["", f"tuning before the jobs: {cfg.tune_trials} Optuna trials each for "
+                  f"{', '.join(studies)}; {format_duration(tuning)}"]  # fmt: skip
     if tasks:
         lines += ["", f"RL training jobs ({len(tasks)}, longest first; at their cap):"]
         for t in tasks:
             mark = "  kept" if job_id(t) in kept else ""
-            lines.append(f"  {t['name']}: cap {t['steps']} env steps, "
-                         f"{format_duration(weights[('rl', t['name'])])}{mark}")  # fmt: skip
+            lines.append(f"  {t.name}: cap {t.steps} env steps, "
+                         f"{format_duration(weights[('rl', t.name)])}{mark}")  # fmt: skip
     lines += [
         "",
         f"estimated wall time on {cfg.jobs} worker(s), from an empty store: "

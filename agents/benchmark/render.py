@@ -90,7 +90,7 @@ def planned_records(cfg: BenchConfig, scenarios: list[Any], run_dir: Path) -> li
         from stcgym.agents.benchmark.plan import rl_tasks
 
         tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {}, run_dir)
-        out += [("rl", t["name"], job_id(t)) for t in tasks]
+        out += [("rl", t.name, job_id(t)) for t in tasks]
     return out
 
 

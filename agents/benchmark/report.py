@@ -25,9 +25,12 @@ import numpy as np
 from stcgym.agents.benchmark.attribution import identification_or_design
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
+    STRATA,
     aggregate,
+    by_stratum,
     headline,
     paired,
+    plant_strata,
     scenario_tables,
     training_stops,
     untrained_runs,
@@ -151,9 +154,7 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
         "share of them.",
         "- **Score**: the environments' per-step cost `(y - r)^2 + rho u^2`, undiscounted over "
         "the episode; a diverged episode is charged its last cost for every step it did not "
-        "live. RL trains on that cost as its reward (SB3's running reward scale, no squash), "
-        "with gamma 0.99, normalised observations and the integral of the tracking error "
-        "among its inputs.",
+        f"live. {_rl_objective(cfg)}",
         f"- **One action bound per training distribution** for every controller: {bounds} "
         f"(1.5 x the 99th percentile of LQG's input peak per training episode; peaks: "
         f"{peaks or 'read back from config.json'}). The Gaussian-policy RL agents (PPO and "
@@ -184,6 +185,97 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
         "",
     ]
     return lines
+
+
+def _rl_objective(cfg: Any) -> str:
+    """What the run's RL agents were trained on, read from their configs."""
+    if not cfg.algo_configs:
+        return ""
+    by_reward: dict[str, list[str]] = {}
+    for algo, c in cfg.algo_configs.items():
+        gamma = c["hyperparams"].get("gamma", 0.99)
+        key = f"{c.get('reward', 'lqg_ratio')}|{gamma:g}|{c.get('cost_cap')}"
+        by_reward.setdefault(key, []).append(algo)
+    parts = []
+    for key, algos in by_reward.items():
+        reward, gamma, cap = key.split("|")
+        what = (
+            "the per-step cost over the LQG cost of the episode's own plant, capped at "
+            f"{cap} (the score's unit; that LQG cost is privileged information, in the "
+            "reward only)"
+            if reward == "lqg_ratio"
+            else "the raw per-step cost"
+        )
+        parts.append(f"{', '.join(f'`{a}`' for a in algos)}: {what}, gamma {gamma}")
+    return (
+        "RL's reward, with SB3's running reward scale, normalised observations and the "
+        "integral of the tracking error among its inputs: " + "; ".join(parts) + "."
+    )
+
+
+def _ladder_table(cfg: Any, scenarios: Sequence[Any], statistics: dict[str, Any]) -> list[str]:
+    """The difficulty ladder at a glance: each controller's cost / LQG (IQM over the bounded
+    episodes, with its interval) and divergence rate (where not 0) on every rung's test
+    split, the family's test split last when the family is the last rung's distribution."""
+    from stcgym.envs.families import LADDER
+
+    rungs = [(sc.name, sc.name.split(":")[0]) for sc in scenarios if sc.kind == "ladder"]
+    if not rungs:
+        return []
+    if cfg.family in ("siso2-v1", LADDER[-1]) and "family:test" in statistics:
+        rungs.append(("family:test", f"{LADDER[-1]} (family:test)"))
+    rungs = [(name, label) for name, label in rungs if name in statistics]
+    names: list[str] = []
+    for name, _ in rungs:
+        names += [c for c in statistics[name] if c not in names]
+    lines = [
+        "| controller | " + " | ".join(label for _, label in rungs) + " |",
+        "|---|" + "---|" * len(rungs),
+    ]
+    for c in names:
+        cells = []
+        for name, _ in rungs:
+            res = statistics[name].get(c)
+            if res is None:
+                cells.append("-")
+            elif "ratio" not in res:
+                cells.append("no improvement over initialisation")
+            else:
+                div = res["diverged"].value
+                cells.append(res["ratio"].format(3) + (f"; {100 * div:.0f} % div." if div else ""))
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _strata_section(sc: Any, tables: dict[str, Any], reps: int) -> list[str]:
+    """Cost / LQG and divergences by stratum of the family's plants (:data:`STRATA`), where
+    the scenario's plants fall in more than one."""
+    strata = plant_strata(sc.episodes.plants[:: sc.episodes.units[1]])
+    present = [k for k in range(len(STRATA)) if (strata == k).any()]
+    if len(present) < 2:
+        return []
+    cells = by_stratum(tables, strata, reps=reps)
+    counts = [int((strata == k).sum()) for k in present]
+    head = [f"{STRATA[k]} ({n} plant{'s' * (n > 1)})" for k, n in zip(present, counts, strict=True)]
+    lines = [
+        "By stratum of the test plants, each plant under the last ladder feature it has: "
+        "cost / LQG, median over the bounded episodes [95 % interval], and the diverged share "
+        "where any.",
+        "",
+        "| controller | " + " | ".join(head) + " |",
+        "|---|" + "---|" * len(present),
+    ]
+    for c, per in cells.items():
+        row = []
+        for k in present:
+            ratio, div = per[k]["ratio"], per[k]["diverged"].value
+            diverged = f"{100 * div:.0f} % div."
+            if math.isnan(ratio.value):  # every episode of the stratum diverged
+                row.append(diverged)
+            else:
+                row.append(ratio.format(3) + (f"; {diverged}" if div else ""))
+        lines.append(f"| {c} | " + " | ".join(row) + " |")
+    return [*lines, ""]
 
 
 def _headline_table(
@@ -487,6 +579,8 @@ def write_report(
                 statistics[sc.name][c] = {"family": "rl", "runs": 0, "untrained_runs": n}
         table = _headline_table(hl, sc.kind == "jump", stops, untrained)
         out += [f"### `{sc.name}`", "", *table, ""]
+        if sc.kind in ("family", "ladder"):
+            out += _strata_section(sc, tables, cfg.bootstrap_reps)
         if pairs:
             out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
         channels = _channel_table(rows, sc.name, order) if sc.env.plant_kind == "mimo" else []
@@ -503,6 +597,21 @@ def write_report(
         if sc.kind in ("family", "ood", "jump"):
             family.append((sc.name, tables))
             family_stops = family_stops or stops
+    ladder = _ladder_table(cfg, scenarios, statistics)
+    if ladder:
+        out += [
+            "## The difficulty ladder",
+            "",
+            "Cost / LQG (IQM over the bounded episodes [95 % interval]) and the share of "
+            "diverged episodes (where any) on each rung's test split, one feature added per "
+            "rung (L1 stable, minimum phase, positive gain; L2 both gain signs; L3 "
+            "nonminimum-phase zeros; L4 unstable poles: `stcgym.envs.families.LADDER`). The "
+            "RL agents of a rung trained on its training split; on the family's test split "
+            "they trained on the family's, with its parameter jumps.",
+            "",
+            *ladder,
+            "",
+        ]
     out += ["## Conclusions", "", *(s for s in sentences if s), ""]
     answer = identification_or_design(family, reps=cfg.bootstrap_reps, stops=family_stops)
     if answer:

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import platform
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from stcgym.agents.benchmark.config import BenchConfig, BenchInputError
+from stcgym.agents.benchmark.config import BenchConfig, BenchInputError, is_family_key
 from stcgym.agents.benchmark.scenarios import TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.rl.configs import FAMILY_ALGORITHMS, RECURRENT_ALGORITHMS, AlgoConfig
+
+if TYPE_CHECKING:
+    from stcgym.agents.rl.training import TrainingTask
 
 __all__ = [
     "check_runnable",
@@ -25,31 +28,6 @@ __all__ = [
 #: the yardstick's costs on the validation episodes (derived from the other keys, and BLAS
 #: may change their last digits from one machine to the next).
 _NOT_RESULT = ("progress", "model_dir", "tensorboard_log", "curve_reference")
-#: Settings of a run that do not shape a classical controller's episodes: where it is written,
-#: how it is executed, and how the RL agents are trained (their recipes, budgets, learning
-#: curves and stopping rule), so that a run whose RL settings change keeps them.
-_NOT_CLASSICAL = (
-    "run",
-    "out",
-    "plots",
-    "progress",
-    "jobs",
-    "executor",
-    "address",
-    "tensorboard_log",
-    "bootstrap_reps",
-    "algo_configs",
-    "action_units",
-    "train_steps",
-    "family_train_steps",
-    "mimo_train_steps",
-    "eval_interval",
-    "curve_episodes",
-    "curve_points",
-    "patience",
-    "min_improvement",
-    "min_train_fraction",
-)
 
 
 def _check_writable(folder: Path) -> None:
@@ -117,7 +95,14 @@ def _check_trainable(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> None:
     from stcgym.agents.rl.sb3 import check_trainable
 
     for algo in cfg.rl_agents:
-        key = "family" if algo in FAMILY_ALGORITHMS else next(iter(envs))
+        keys = [
+            k
+            for k in envs
+            if cfg.trains_on(algo, k) and (algo not in FAMILY_ALGORITHMS or is_family_key(k))
+        ]
+        if not keys:  # (validation refuses an agent with nothing to train on)
+            continue
+        key = keys[0]
         try:
             check_trainable(algo, AlgoConfig.from_dict(cfg.algo_configs[algo]), envs[key].train)
         except ValueError as exc:
@@ -162,26 +147,34 @@ def prepare_run_dir(cfg: BenchConfig, overwrite: bool = False, resume: bool = Fa
     return run_dir
 
 
-def classical_id(settings: dict, scenario: dict, controller: str, run: int) -> str:
-    """The id a classical controller's run on a scenario is kept under: the run's settings
-    (without those that do not shape it), the scenario (its env and episodes as dicts), the
-    controller's name and the run."""
+def classical_id(scenario: dict, controller: str, run: int, tuned: Any = None) -> str:
+    """The id a classical controller's run on a scenario is kept under: what shapes its
+    episodes and nothing else: the scenario (its env, with the action bound, and its episodes,
+    with their seeds, as dicts), the controller's name, the run and, for a controller built
+    from a tuning study, that study's result. So a run that adds agents, scenarios or rungs, or
+    trains its RL agents otherwise, keeps the classical records it has."""
     from stcgym.agents.executors import task_id
 
-    shaping = {k: v for k, v in settings.items() if k not in _NOT_CLASSICAL}
-    return task_id({"bench": shaping, "scenario": scenario, "controller": controller, "run": run})
+    key = {"scenario": scenario, "controller": controller, "run": run}
+    if tuned is not None:
+        key["tuned"] = tuned
+    return task_id(key)
 
 
 def classical_key(cfg: BenchConfig, sc: Any, name: str, run: int) -> tuple[str, str]:
     """The label and id the store keeps run ``run`` of the classical controller ``name`` on
     ``sc`` under (:func:`~stcgym.agents.benchmark.rundir.classical_id`)."""
+    from stcgym.agents.controllers import CONTROLLERS
+
     scenario = {
         "name": sc.name,
         "env": sc.env.to_dict(),
         "episodes": sc.episodes.to_dict(),
         "controller_order": sc.controller_order,
     }
-    return f"{sc.name}.{name}.run{run}", classical_id(cfg.to_dict(), scenario, name, run)
+    study = CONTROLLERS[name].tuned
+    tuned = None if study is None else cfg.tuned.get(study)
+    return f"{sc.name}.{name}.run{run}", classical_id(scenario, name, run, tuned)
 
 
 def read_run_config(run_dir: Path) -> tuple[BenchConfig, dict[str, Any]]:
@@ -202,9 +195,10 @@ def read_run_config(run_dir: Path) -> tuple[BenchConfig, dict[str, Any]]:
     return replace(cfg, out=str(Path(run_dir).parent), run=Path(run_dir).name), doc
 
 
-def job_id(task: dict[str, Any]) -> str:
+def job_id(task: TrainingTask | dict[str, Any]) -> str:
     """The id a finished RL job is kept under: everything that shapes its result (not where
     its files go, nor the progress bar), so a resumed run finds it under another --jobs."""
     from stcgym.agents.executors import task_id
 
-    return task_id({k: v for k, v in task.items() if k not in _NOT_RESULT})
+    data = task if isinstance(task, dict) else task.to_dict()
+    return task_id({k: v for k, v in data.items() if k not in _NOT_RESULT})

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -49,6 +49,9 @@ from stcgym.agents.benchmark.store import STORE_FOLDER, JobRecord, ResultsStore,
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controller_seeds, controllers_for
 from stcgym.agents.evaluation.episodes import run_episodes
 from stcgym.agents.evaluation.evaluate import response_metrics
+
+if TYPE_CHECKING:
+    from stcgym.agents.rl.training import TrainingResult, TrainingTask
 
 __all__ = [
     "METRIC_COLUMNS",
@@ -239,10 +242,11 @@ def _thinned(updates: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return [updates[i] for i in keep]
 
 
-def _rl_settings(task: dict[str, Any]) -> dict[str, Any]:
+def _rl_settings(task: TrainingTask) -> dict[str, Any]:
     """What an RL job's record says of its settings (the id hashes all of them)."""
+    data = task.to_dict()
     keys = ("algo", "seed", "steps", "train_key", "eval_interval", "plateau", "config")
-    return {k: task[k] for k in keys}
+    return {k: data[k] for k in keys}
 
 
 class _RunState:
@@ -423,7 +427,7 @@ class _RunState:
                 "steps": max(1, int(cfg.tune_fraction * cfg.family_train_steps[algo])),
                 "seed": 0,
             }
-            for algo in cfg.rl_agents
+            for algo in cfg.tuned_rl_agents
         ]
         tuned: dict[str, dict[str, Any]] = {}
         runs = run_tasks(tune_rl, tasks, executor=cfg.executor, jobs=cfg.jobs,
@@ -435,7 +439,7 @@ class _RunState:
         if "stc_tuned" in cfg.agents:
             tuned["stc"] = tune_stc(cfg, env, reference, cfg.tune_trials)
         configs = dict(cfg.algo_configs)
-        for algo in cfg.rl_agents:
+        for algo in cfg.tuned_rl_agents:
             base = AlgoConfig.from_dict(cfg.algo_configs[algo])
             configs[algo] = apply_rl_params(base, tuned[algo]["params"]).to_dict()
         self.log(
@@ -461,41 +465,40 @@ class _RunState:
         return unfinished
 
     # -- RL --------------------------------------------------------------------------------
-    def _record(self, task: dict[str, Any], result: dict[str, Any]) -> JobRecord:
+    def _record(self, task: TrainingTask, result: TrainingResult) -> JobRecord:
         """The store's record of a finished RL job: its rows on every scenario it is scored
         on, against the yardstick, with its learning curve and how training stopped."""
-        algo, ts = result["algo"], result["seed"]
         # with the step of the checkpoint training kept (0: the untrained policy)
-        stop = {**result["stop"], "kept_step": result["best_step"]}
-        folder = Path(task["model_dir"])
+        stop = {**result.stop, "kept_step": result.best_step}
+        folder = Path(task.model_dir)
         scenarios = {}
-        for ev in result["evaluations"]:
-            sc = self.scenarios[ev["scenario"]]
-            cost = np.load(folder / ev["costs"], allow_pickle=False).astype(float)
+        for ev in result.evaluations:
+            sc = self.scenarios[ev.scenario]
+            cost = np.load(folder / ev.costs, allow_pickle=False).astype(float)
             ratios = cost.mean(axis=1) / self.yard[sc.name].metrics["cost"]
-            target = rl_steps_to_target(result["curve"], ratios, sc.in_distribution)
+            target = rl_steps_to_target(result.curve, ratios, sc.in_distribution)
             extra = {
-                "train_steps": result["steps"],
+                "train_steps": result.steps,
                 "train_cap": stop["cap"],
                 "train_stop": stop["status"],
                 "train_last_improvement": stop["last_improvement_step"],
                 "train_kept_step": stop["kept_step"],
-                "train_wall_s": result["wall_s"],
-                "data_steps": result["steps"],
+                "train_wall_s": result.wall_s,
+                "data_steps": result.steps,
             }
-            metrics = {k: np.asarray(v, dtype=float) for k, v in ev["metrics"].items()}
+            metrics = {k: np.asarray(v, dtype=float) for k, v in ev.metrics.items()}
             trace = {}
-            if ts == 0:
-                trace = {k: np.asarray(v, dtype=float)[:1] for k, v in ev["traces"].items()}
+            if result.seed == 0:
+                trace = {k: np.asarray(v, dtype=float)[:1] for k, v in ev.traces.items()}
             scenarios[sc.name] = self._scored(
-                sc, algo, "rl", ts, cost, metrics, trace, online=False,
+                sc, result.algo, "rl", result.seed, cost, metrics, trace, online=False,
                 steps_to_target=target, extra=extra,
             )  # fmt: skip
         return JobRecord(
-            "rl", task["name"], job_id(task), _rl_settings(task), scenarios,
-            curve=[(int(s), float(c)) for s, c in result["curve"]],
-            diagnostics=_thinned(result.get("updates", [])), stop=stop,
-            train_key=task["train_key"], algo=algo, seed=int(ts), wall_s=float(result["wall_s"]),
+            "rl", task.name, job_id(task), _rl_settings(task), scenarios,
+            curve=[(int(s), float(c)) for s, c in result.curve],
+            diagnostics=_thinned(result.updates), stop=stop, train_key=task.train_key,
+            algo=result.algo, seed=int(result.seed), wall_s=float(result.wall_s),
         )  # fmt: skip
 
     def run(self, plan: RunPlan) -> None:
@@ -525,8 +528,8 @@ class _RunState:
         tasks = rl_tasks(cfg, scenarios, envs, plan.curve_references, self.run_dir)
         todo = []
         for task in tasks:
-            if self.store.load(task["name"], job_id(task)) is not None:
-                progress.drop(("rl", task["name"]))
+            if self.store.load(task.name, job_id(task)) is not None:
+                progress.drop(("rl", task.name))
             else:
                 todo.append(task)
         if len(todo) < len(tasks):
@@ -550,9 +553,9 @@ class _RunState:
                     jobs=cfg.jobs,
                     address=cfg.address,
                     threads=1,
-                    admit=lambda task: self.fits(weights[("rl", task["name"])]),
+                    admit=lambda task: self.fits(weights[("rl", task.name)]),
                 ):
-                    name = out.task["name"]
+                    name = out.task.name
                     ran.add(name)
                     if out.error is not None:
                         failures.append(name)
@@ -570,7 +573,7 @@ class _RunState:
             unfinished = classical.result()
         if failures:
             raise RuntimeError(f"{len(failures)} RL job(s) failed: {', '.join(failures)}")
-        self._leave(unfinished, [t["name"] for t in todo if t["name"] not in ran])
+        self._leave(unfinished, [t.name for t in todo if t.name not in ran])
 
     def _leave(self, classical: int, rl: list[str]) -> None:
         """Note what the time limit left for a resumed run (``self.left``)."""

@@ -19,6 +19,11 @@ lqg_action_bound`).
     self-tuning controllers keep the training distribution's order.
 ``jump:test``
     The test split with the parameter jump in every episode, at a random time.
+``<rung>:test``
+    The test split of a rung of the difficulty ladder (``BenchConfig.ladder``, e.g.
+    ``ladder-l1-v1``: :data:`~stcgym.envs.families.LADDER`), under the rung's own action
+    bound; the RL agents of ``BenchConfig.ladder_agents`` train on the rung's training split
+    (training key ``family:<rung>``), the classical controllers run as on the family.
 ``mimo:P``
     The MIMO catalogue plant ``P`` with measured state and the cost of its performance output
     (:mod:`stcgym.agents.benchmark.mimo`).
@@ -36,6 +41,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from stcgym.agents.benchmark.config import is_family_key
 from stcgym.agents.evaluation.bounds import BOUND_SEED
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet
@@ -85,11 +91,12 @@ class TrainingEnv:
         )
 
 
-def _episode_settings(cfg: BenchConfig) -> dict[str, Any]:
-    """The family's episode settings every SISO scenario shares (``BenchConfig`` overrides)."""
+def _episode_settings(cfg: BenchConfig, family: str | None = None) -> dict[str, Any]:
+    """The episode settings of ``family`` (default: the bench's family, whose settings every
+    other SISO scenario shares), with the ``BenchConfig`` overrides."""
     from stcgym.envs.families import get_family
 
-    fam = get_family(cfg.family)
+    fam = get_family(family or cfg.family)
     return dict(
         steps=cfg.episode_steps or fam.steps,
         noise_std=fam["noise_std"] if cfg.noise_std is None else cfg.noise_std,
@@ -110,21 +117,23 @@ def nominal_spec(cfg: BenchConfig, plant: str) -> EnvSpec:
     return EnvSpec((plant,), action_bound=_bound(cfg, f"nominal:{plant}"), **_episode_settings(cfg))
 
 
-def family_spec(cfg: BenchConfig, split: str, jump_probability: float | None) -> EnvSpec:
-    """The family split ``split`` with the bench's episode settings and the family's bound."""
-    settings = _episode_settings(cfg)
+def family_spec(
+    cfg: BenchConfig, split: str, jump_probability: float | None, rung: str | None = None
+) -> EnvSpec:
+    """The family split ``split`` with the bench's episode settings and the family's bound:
+    of the bench's family, or of the ladder's ``rung`` (under its own bound)."""
     return EnvSpec(
-        family=cfg.family,
+        family=rung or cfg.family,
         split=split,
         jump_probability=jump_probability,
-        action_bound=_bound(cfg, "family"),
-        **settings,
+        action_bound=_bound(cfg, "family" if rung is None else f"family:{rung}"),
+        **_episode_settings(cfg, rung),
     )
 
 
-def family_train_spec(cfg: BenchConfig) -> EnvSpec:
+def family_train_spec(cfg: BenchConfig, rung: str | None = None) -> EnvSpec:
     """The RL agents' training distribution: the training split, the family's own jumps."""
-    return family_spec(cfg, "train", None)
+    return family_spec(cfg, "train", None, rung)
 
 
 def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
@@ -159,6 +168,11 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
                 )
         if "jump" in cfg.scenarios:
             out.append(split_scenario("jump:test", "jump", "test", 1.0, adaptation=True))
+    if "ladder" in cfg.scenarios:
+        for rung in cfg.ladder:
+            env = family_spec(cfg, "test", 0.0, rung)
+            eps = EpisodeSet.of(env, cfg.episodes_per_plant, first, cfg.test_plants)
+            out.append(Scenario(f"{rung}:test", "ladder", env, eps, f"family:{rung}", env.order))
     if {"mimo", "mimo_switch", "mimo_family"} & set(cfg.scenarios):
         from stcgym.agents.benchmark.mimo import mimo_scenarios
 
@@ -168,7 +182,8 @@ def make_scenarios(cfg: BenchConfig) -> list[Scenario]:
 
 def training_envs(cfg: BenchConfig, scenarios: Sequence[Scenario]) -> dict[str, TrainingEnv]:
     """``train_key -> TrainingEnv`` for every key a scenario uses (and so RL, the action bound
-    and the learning curves): ``"nominal:<plant>"``, ``"family"``, ``"mimo:<plant>"``,
+    and the learning curves): ``"nominal:<plant>"``, ``"family"``, ``"family:<rung>"``,
+    ``"mimo:<plant>"``,
     ``"mimo_switch"`` or ``"mimo_family"``.
 
     Training episodes are evaluation episodes: the same length, noise, reference, initial
@@ -180,10 +195,11 @@ def training_envs(cfg: BenchConfig, scenarios: Sequence[Scenario]) -> dict[str, 
     out: dict[str, TrainingEnv] = {}
     n = cfg.curve_episodes
     for key in keys:
-        if key in ("family", "mimo_family"):
-            if key == "family":
-                train = family_train_spec(cfg)
-                curve = family_spec(cfg, "validation", None)
+        if is_family_key(key) or key == "mimo_family":
+            if is_family_key(key):
+                rung = key.split(":", 1)[1] if ":" in key else None
+                train = family_train_spec(cfg, rung)
+                curve = family_spec(cfg, "validation", None, rung)
             else:
                 from stcgym.agents.benchmark.mimo import tank_family_spec
 

@@ -43,6 +43,7 @@ class Scenario:
         """The training environment of ``algo``'s agents evaluated here (``None``: not here)."""
         from stcgym.agents.rl.configs import FAMILY_ALGORITHMS
 
-        if algo in FAMILY_ALGORITHMS:  # trained on the plant family only
-            return self.train_key if self.train_key == "family" else None
+        if algo in FAMILY_ALGORITHMS:  # trained on a plant family only (or a ladder's rung)
+            family = self.train_key == "family" or self.train_key.startswith("family:")
+            return self.train_key if family else None
         return self.train_key

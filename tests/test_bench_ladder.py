@@ -1,0 +1,158 @@
+"""The difficulty ladder in the bench: one scenario per rung, its RL agents trained on the rung,
+the report's table across rungs; and the tuning studies a run plans."""
+
+from __future__ import annotations
+
+import pytest
+
+from stcgym.agents.benchmark import build_config
+from stcgym.agents.benchmark.config import BenchInputError
+from stcgym.agents.benchmark.plan import describe_plan, rl_tasks, tuning_seconds
+from stcgym.agents.benchmark.report import _ladder_table
+from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
+from stcgym.agents.evaluation.statistics import Estimate
+from stcgym.envs.families import LADDER, get_family
+
+
+def _ladder_config(**kw):
+    kw = {"scenarios": "family,ladder", "agents": "ppo,sac,oracle_ppo,stc", **kw}
+    return build_config(run="l", train_seeds=2, test_plants=4, **kw)
+
+
+def test_each_rung_is_a_scenario_on_its_own_test_split_and_training_key():
+    cfg = _ladder_config(ladder="ladder-l1-v1,ladder-l3-v1")
+    by_name = {sc.name: sc for sc in make_scenarios(cfg)}
+    assert list(by_name) == ["family:test", "ladder-l1-v1:test", "ladder-l3-v1:test"]
+    for rung in ("ladder-l1-v1", "ladder-l3-v1"):
+        sc = by_name[f"{rung}:test"]
+        assert sc.kind == "ladder" and sc.train_key == f"family:{rung}"
+        assert sc.env.family == rung and sc.env.split == "test"
+        first = get_family(rung).split_indices("test")[0]
+        assert sc.episodes.plants == tuple(f"{rung}/test/{first + i}" for i in range(4))
+    envs = training_envs(cfg, list(by_name.values()))
+    assert set(envs) == {"family", "family:ladder-l1-v1", "family:ladder-l3-v1"}
+    rung = envs["family:ladder-l1-v1"]
+    assert (rung.train.family, rung.train.split) == ("ladder-l1-v1", "train")
+    assert (rung.curve.family, rung.curve.split) == ("ladder-l1-v1", "validation")
+
+
+def test_only_the_ladder_agents_train_on_the_rungs_and_each_is_scored_on_its_own_rung():
+    cfg = _ladder_config(ladder="ladder-l2-v1", ladder_agents="ppo,oracle_ppo")
+    scenarios = make_scenarios(cfg)
+    tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})
+    jobs = {(t.train_key, t.algo) for t in tasks}
+    assert jobs == {
+        ("family", "ppo"),
+        ("family", "sac"),
+        ("family", "oracle_ppo"),
+        ("family:ladder-l2-v1", "ppo"),
+        ("family:ladder-l2-v1", "oracle_ppo"),
+    }
+    for t in tasks:
+        wanted = "family:test" if t.train_key == "family" else "ladder-l2-v1:test"
+        assert [e.scenario for e in t.evaluations] == [wanted]
+        assert t.steps == cfg.family_train_steps[t.algo]  # a rung is a family: its cap
+    assert sum(t.name.startswith("family-ladder-l2-v1_ppo_s") for t in tasks) == 2
+
+
+def test_the_ladder_alone_trains_the_agents_that_need_a_family():
+    cfg = _ladder_config(scenarios="ladder", ladder="ladder-l1-v1", agents="oracle_ppo,stc")
+    assert [sc.name for sc in make_scenarios(cfg)] == ["ladder-l1-v1:test"]
+    with pytest.raises(BenchInputError, match="train on the plant family"):
+        _ladder_config(scenarios="ladder", ladder_agents="ppo", agents="oracle_ppo,stc")
+
+
+@pytest.mark.parametrize(
+    ("kw", "message"),
+    [
+        ({"ladder": ""}, "at least one rung"),
+        ({"ladder": "ladder-l1-v1,ladder-l1-v1"}, "lists a rung twice"),
+        ({"ladder": "ladder-l9-v1"}, "--ladder"),
+        ({"ladder_agents": "ppo,dqn"}, "--ladder-agents: unknown RL agent"),
+        ({"tune_agents": "ppo,dqn", "tune_trials": 2}, "--tune-agents: unknown RL agent"),
+    ],
+)
+def test_bad_ladder_or_tuning_input_names_the_option(kw, message):
+    with pytest.raises(BenchInputError, match=message):
+        _ladder_config(**kw)
+
+
+def test_the_ladder_table_puts_the_rungs_side_by_side_with_the_family_last():
+    cfg = _ladder_config(ladder=",".join(LADDER[:2]))
+    scenarios = make_scenarios(cfg)
+
+    def res(ratio, diverged):
+        return {"ratio": Estimate(ratio, ratio * 0.9, ratio * 1.1),
+                "diverged": Estimate(diverged, 0.0, diverged)}  # fmt: skip
+
+    statistics = {
+        "ladder-l1-v1:test": {"ppo": res(2.5, 0.0), "stc": res(1.8, 0.0)},
+        "ladder-l2-v1:test": {
+            "ppo": {"family": "rl", "runs": 0, "untrained_runs": 2},
+            "stc": res(1.9, 0.0),
+        },  # fmt: skip
+        "family:test": {"ppo": res(7.0, 0.25), "stc": res(2.2, 0.01)},
+    }
+    lines = _ladder_table(cfg, scenarios, statistics)
+    assert lines[0] == ("| controller | ladder-l1-v1 | ladder-l2-v1 | ladder-l4-v1 (family:test) |")
+    assert lines[2] == (
+        "| ppo | 2.5 [2.25, 2.75] | no improvement over initialisation | 7 [6.3, 7.7]; 25 % div. |"
+    )
+    assert lines[3] == "| stc | 1.8 [1.62, 1.98] | 1.9 [1.71, 2.09] | 2.2 [1.98, 2.42]; 1 % div. |"
+    # another family is not the last rung: the rungs alone
+    other = _ladder_config(ladder="ladder-l1-v1", family="ladder-l2-v1", ood="ood_order3")
+    assert "family:test" not in _ladder_table(other, make_scenarios(other), statistics)[0]
+
+
+def test_a_tuning_run_plans_its_studies_and_tunes_only_the_agents_named():
+    plain = build_config(run="t", mode="standard", tune_trials=0, agents="ppo,sac,stc")
+    assert plain.tuned_rl_agents == [] and "tuning" not in describe_plan(plain)
+    cfg = build_config(
+        run="t", mode="standard", agents="ppo,sac,stc,stc_tuned", tune_trials=4,
+        tune_agents="ppo",
+    )  # fmt: skip
+    assert cfg.tuned_rl_agents == ["ppo"]
+    envs = training_envs(cfg, make_scenarios(cfg))
+    alone = tuning_seconds(cfg, envs)
+    assert alone > 0 and "4 Optuna trials each for ppo, stc" in describe_plan(cfg)
+    both = build_config(
+        run="t", mode="standard", agents="ppo,sac,stc,stc_tuned", tune_trials=4,
+        tune_agents="ppo,sac",
+    )  # fmt: skip
+    assert tuning_seconds(both, envs) > alone  # SAC's study on the other worker is longer
+
+
+def test_plant_strata_follow_the_ladder_features_of_each_plant():
+    from stcgym.agents.benchmark.headline import plant_strata
+    from stcgym.envs.families import draw_plant
+
+    l1 = [f"ladder-l1-v1/test/{i}" for i in range(1100, 1120)]
+    assert (plant_strata(l1) == 0).all()  # L1 has its own features only
+    names = [f"siso2-v1/test/{i}" for i in range(1100, 1300)]
+    strata = plant_strata(names)
+    fam = get_family("siso2-v1")
+    for name, k in zip(names, strata, strict=True):
+        p = draw_plant(fam, int(name.rsplit("/", 1)[1]))
+        unstable = abs(p.poles).max() >= 1
+        nmp = p.zeros.size > 0 and abs(p.zeros).max() >= 1
+        want = 3 if unstable else 2 if nmp else 1 if p.dc_gain < 0 else 0
+        assert k == want, name
+    assert set(strata) == {0, 1, 2, 3}  # the family's test split has every stratum
+
+
+def test_by_stratum_takes_the_median_and_divergences_of_each_strata_plants():
+    import numpy as np
+
+    from stcgym.agents.benchmark.headline import by_stratum
+
+    ratio = np.array([[[1.0], [2.0], [3.0], [10.0]], [[1.5], [2.5], [3.5], [20.0]]])
+    bounded = np.ones_like(ratio)
+    bounded[1, 3, 0] = 0.0  # run 1 diverged on plant 3
+    tables = {"c": {"cost_ratio": ratio, "bounded": bounded}}
+    strata = np.array([0, 0, 3, 3])
+    cells = by_stratum(tables, strata, reps=200)["c"]
+    assert cells[1] is None and cells[2] is None
+    # the lower median of the (run, plant) cells: the statistics' weighted median
+    assert cells[0]["plants"] == 2 and cells[0]["ratio"].value == 1.5
+    assert cells[3]["ratio"].value == 3.5  # of 3.0, 3.5 and 10: the bounded cells only
+    assert cells[3]["diverged"].value == 0.25 and cells[0]["diverged"].value == 0.0
