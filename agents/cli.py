@@ -6,10 +6,11 @@
     scored against LQG on the true model, on the same episodes of the nominal, plant-family
     (test split and held-out variants), parameter-jump and MIMO scenarios; about 4 minutes on
     2 CPU cores.
-    ``stcgym bench --standard`` (about 10 hours with every RL agent at its cap) has 5 runs,
-    the whole test split, every held-out variant and RL caps of 10^6 steps on the family;
+    ``stcgym bench --standard`` (about 2 h 20 min with every RL agent at its cap) has 5 runs,
+    the whole test split, every held-out variant and rung of the difficulty ladder, and RL
+    caps of 10^6 steps on the family;
     ``stcgym bench --full`` is the long version (10 runs, every MIMO plant, TD3 and A2C too,
-    longer caps: about 48 hours).
+    longer caps: about 23 hours).
     Every tier trains each RL agent until its learning curve plateaus or it reaches its cap,
     and announces its estimated time. ``stcgym bench --resume results/<run>`` continues an
     interrupted run without retraining its finished jobs; ``--time-limit 2h45m`` starts only
@@ -70,15 +71,15 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     mode.add_argument(
         "--standard",
         action="store_true",
-        help="5 runs per controller, the whole test split and every held-out variant, RL "
-        "trained to the plateau with caps of 1e6 env steps on the family for PPO and "
-        "RecurrentPPO (2e5 for SAC): about 10 hours on 2 CPU cores at the caps (the estimate is "
-        "printed first; the plateau rule stops most agents earlier)",
+        help="5 runs per controller, the whole test split, every held-out variant and rung of "
+        "the difficulty ladder, RL trained to the plateau with caps of 1e6 env steps on the "
+        "family for PPO and RecurrentPPO (2e5 for SAC): about 2 h 20 min on 2 CPU cores at the "
+        "caps (the estimate is printed first; the plateau rule stops most agents earlier)",
     )
     mode.add_argument(
         "--full",
         action="store_true",
-        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 48 hours; the "
+        help="10 runs, every MIMO plant, TD3 and A2C too, longer caps (about 23 hours; the "
         "estimate is printed first)",
     )
     p.add_argument(

@@ -120,8 +120,26 @@ def scores(batch: Any, lqg: np.ndarray) -> dict[str, float]:
     }
 
 
+def _zero_started_models() -> None:
+    """Make every model this process builds start with its mean action at zero (the
+    untrained policy is zero input), as the residual agents' do: the ``--zero-start`` arm."""
+    from stcgym.agents.rl import sb3
+
+    build = sb3.build_model
+
+    def zero_started(*args: Any, **kw: Any) -> Any:
+        model = build(*args, **kw)
+        sb3._zero_mean_action(model.policy)
+        return model
+
+    sb3.build_model = zero_started
+
+
 def train_run(args: argparse.Namespace) -> dict[str, Any]:
     from stcgym.agents.rl.sb3 import train_agent
+
+    if args.zero_start:
+        _zero_started_models()
 
     train, val, episodes = specs(args.family)
     lqg = controller_costs("lqg", val, episodes).cost.mean(axis=1)
@@ -153,6 +171,7 @@ def train_run(args: argparse.Namespace) -> dict[str, Any]:
     curve = [[int(s), float(c)] for s, c in agent.curve]
     return {
         "family": args.family, "agent": args.agent, "recipe": args.recipe,
+        "zero_start": args.zero_start,
         "reward": args.reward, "gamma": args.gamma, "seed": args.seed, "steps": agent.steps,
         "action_bound": train.action_bound, "wall_s": time.perf_counter() - t0,
         "final": scores(final, lqg), "best_curve": min(c for _, c in curve),
@@ -182,6 +201,8 @@ def summarise(paths: list[Path]) -> dict[str, Any]:
     for row in rows:
         budget = f"{round(row['steps'], -4):.0e}" if "steps" in row else "-"
         fields = [str(row.get(k, "-")) for k in ("family", "agent", "recipe", "reward", "gamma")]
+        if row.get("zero_start"):  # the --zero-start arm
+            fields[2] += "+zero_start"
         groups.setdefault("/".join([*fields, budget]), []).append(row)
     table = {}
     for key, runs in sorted(groups.items()):
@@ -236,6 +257,8 @@ def main() -> None:
     parser.add_argument("--reward", default="lqg_ratio", choices=("lqg_ratio", "cost"))
     parser.add_argument("--gamma", type=float, default=0.95)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--zero-start", action="store_true",
+                        help="start every policy's mean action at zero (zero input)")
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--out", type=Path, default=Path("ablation/runs.jsonl"))
     parser.add_argument("--tensorboard", type=Path, default=None)

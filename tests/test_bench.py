@@ -535,7 +535,7 @@ def test_standard_tier_meets_the_protocol(monkeypatch):
     from stcgym.envs.families import LADDER
 
     assert [*std.ladder, "ladder-l4-v1"] == list(LADDER) and std.family == "siso2-v1"
-    assert {"ppo", "theta_ppo", "oracle_ppo"} <= set(std.ladder_agents)
+    assert {"ppo", "oracle_ppo"} <= set(std.ladder_agents) and "fixed_pi" in std.agents
     # the same small Optuna budget for PPO and the self-tuning controller
     assert std.tune_trials >= 10 and std.tuned_rl_agents == ["ppo"] and "stc_tuned" in std.agents
     # at least 5 training runs, every plant of the test split (200), every held-out variant

@@ -92,8 +92,10 @@ class BenchConfig:
     #: the rungs of the difficulty ladder tested beside the family (the ladder scenarios: each
     #: rung's test split, its RL agents trained on its training split)
     ladder: list[str] = field(default_factory=lambda: list(LADDER[:3]))
-    #: the RL agents trained on each rung (those of ``agents``; the classical ones run on all)
-    ladder_agents: list[str] = field(default_factory=lambda: ["ppo", "theta_ppo", "oracle_ppo"])
+    #: the RL agents trained on each rung (those of ``agents``; the classical ones run on all):
+    #: the window PPO and the two references that locate its failure, PPO told the true
+    #: parameters and (classical) the best fixed PI law
+    ladder_agents: list[str] = field(default_factory=lambda: ["ppo", "oracle_ppo"])
     #: MIMO catalogue plants of the mimo scenarios (mimo_switch: the quadruple tank's valves)
     mimo_plants: list[str] = field(default_factory=lambda: ["quadruple_tank"])
     agents: list[str] = field(

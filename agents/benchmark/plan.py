@@ -52,15 +52,18 @@ SECONDS_PER_STEP = {
     "ppo_noint": 0.08e-3,
     "oracle_ppo": 0.085e-3,
     "a2c": 0.9e-3,
-    "sac": 10.0e-3,
+    # SAC on 8 lanes, 2 gradient steps per vector step (a quarter of one per env step):
+    # 12 000 steps of ladder-l1-v1 in 21 s, learning curve included, beside another job
+    "sac": 1.75e-3,
     "td3": 9.5e-3,
-    # measured with the update used before 16 lanes x 256 steps; not yet with that one
-    "rppo": 5.5e-3,
+    # RecurrentPPO with PPO's update (16 lanes x 256 steps): 20 480 steps of ladder-l1-v1 in
+    # 25 s, learning curve included, beside another job
+    "rppo": 1.25e-3,
     # their estimator or controller on every lane: 1.05-1.2x their base agent's (measured
     # against it in one process)
     "theta_ppo": 0.09e-3,
     "residual_ppo": 0.1e-3,
-    "theta_sac": 10.5e-3,
+    "theta_sac": 1.85e-3,
 }
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
 #: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.

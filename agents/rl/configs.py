@@ -24,8 +24,8 @@ tracking error on by default) and the training caps of each bench tier (``quick_
 with the evaluation interval of the plateau rule (``eval_interval``,
 :mod:`stcgym.agents.rl.stopping`): every tier trains an agent until its learning curve plateaus
 or it reaches the tier's cap. The standard tier gives PPO and RecurrentPPO 10^6 environment
-steps on the family (through the native vector env); SAC, which makes one gradient step per
-environment step, gets what fits (2 x 10^5).
+steps on the family (through the native vector env); SAC, on 8 lanes with a quarter of the
+Zoo's gradient steps per environment step, gets 2 x 10^5.
 
 ``eval_interval`` is a whole number of PPO / RecurrentPPO rollouts (``n_steps x n_envs``), so
 that each evaluation sees a freshly updated policy.
@@ -361,9 +361,13 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
         eval_interval=20_480,  # 5 rollouts of 16 x 256
         interface=dict(_GAUSSIAN),
     ),
+    # SAC steps 8 lanes of the native vector env and makes 2 gradient steps per vector step, a
+    # quarter of the Zoo's gradient steps per env step: 4x its env steps per second on a CPU
+    # core (see ZOO_DEPARTURES and benchmarks/rl_ablation.py for what it costs in quality)
     "sac": AlgoConfig(
         "sac",
-        {**_OFF_POLICY, "policy_kwargs": dict(_NET)},
+        {**_OFF_POLICY, "gradient_steps": 2, "policy_kwargs": dict(_NET)},
+        n_envs=8,
         normalize_reward=True,
         **_OFF_POLICY_BUDGETS,
     ),
@@ -496,6 +500,10 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
         ("net_arch", "[256, 256]", "[64, 64]", "one gradient step per env step on a CPU core: "
          "4x fewer multiply-adds fit the tier's time"),
         ("learning_starts", "100", "1000", "one episode of random actions before learning"),
+        ("n_envs, gradient_steps", "1, 1 (one gradient step per env step)",
+         "8, 2 (a quarter of the gradient steps per env step)",
+         "about 4x the env steps per second on one CPU core; what it costs at 10^5 steps: "
+         "benchmarks/rl_ablation_summary.json"),
         ("normalize", "off", "observations and rewards", "as for PPO"),
         ("n_timesteps", "2e4", "cap 2e5 on the family (5e4 on one plant), plateau rule",
          "what fits the tier's time"),
