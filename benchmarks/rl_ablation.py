@@ -10,7 +10,9 @@ range of each update diagnostic (approx_kl, clip_fraction, explained_variance, e
 
 Recipes (``--recipe``): ``zoo``, the RL Zoo's Pendulum-v1 PPO entry as the bench ran it
 (4 envs x 1024 steps, 10 epochs of batch 64, lr 1e-3); ``healthy``, 16 envs x 256 steps
-(16 plants per update), 10 epochs of batch 256, lr 3e-4, ``target_kl`` 0.03. The reward is
+(16 plants per update), 10 epochs of batch 256, lr 3e-4, ``target_kl`` 0.03. For SAC:
+``sac_zoo``, the Zoo's one gradient step per env step; ``sac_every4``, one every fourth step;
+``sac_vec8``, 8 envs and 2 gradient steps per vector step (the bench's). The reward is
 ``--reward`` (``lqg_ratio`` or ``cost``).
 
 Usage: one run appends one line to ``--out``::
@@ -33,7 +35,11 @@ processes side by side on the shared 2-core machine, about 40 s per 10^5 steps e
 - ``--recipe healthy --gamma 0.9 --steps 1000000`` on ``ladder-l1-v1``, for ``ppo`` and
   ``oracle_ppo``;
 - ``--agent rppo --recipe healthy --gamma 0.9 --steps 100000`` on ``ladder-l1-v1``, seed 0
-  only.
+  only;
+- ``--agent sac --recipe R --gamma 0.9 --steps 100000`` on ``ladder-l1-v1`` for R in
+  ``sac_zoo`` and ``sac_vec8``, seeds 0 and 1; ``sac_vec8`` with ``--gamma 0.99`` and with
+  ``--zero-start``, seed 0 (these ran beside other jobs: their wall times are no throughput
+  figures).
 
 The references (deterministic, one line each per rung)::
 
@@ -257,8 +263,11 @@ def main() -> None:
     parser.add_argument("--reward", default="lqg_ratio", choices=("lqg_ratio", "cost"))
     parser.add_argument("--gamma", type=float, default=0.95)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--zero-start", action="store_true",
-                        help="start every policy's mean action at zero (zero input)")
+    parser.add_argument(
+        "--zero-start",
+        action="store_true",
+        help="start every policy's mean action at zero (zero input)",
+    )
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--out", type=Path, default=Path("ablation/runs.jsonl"))
     parser.add_argument("--tensorboard", type=Path, default=None)
