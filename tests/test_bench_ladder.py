@@ -156,3 +156,16 @@ def test_by_stratum_takes_the_median_and_divergences_of_each_strata_plants():
     assert cells[0]["plants"] == 2 and cells[0]["ratio"].value == 1.5
     assert cells[3]["ratio"].value == 3.5  # of 3.0, 3.5 and 10: the bounded cells only
     assert cells[3]["diverged"].value == 0.25 and cells[0]["diverged"].value == 0.0
+
+
+def test_an_agent_told_the_true_parameters_skips_plants_of_another_order():
+    cfg = build_config(
+        run="o", scenarios="family,ood", ood="ood_order3,ood_near_zero",
+        agents="oracle_ppo,ppo,stc", train_seeds=1, test_plants=4,
+    )  # fmt: skip
+    scenarios = make_scenarios(cfg)
+    tasks = {t.algo: t for t in rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})}
+    every = ["family:test", "family:ood_order3", "family:ood_near_zero"]
+    assert [e.scenario for e in tasks["ppo"].evaluations] == every
+    # (a, b) of a second-order plant are its input: a third-order plant has none to give
+    assert [e.scenario for e in tasks["oracle_ppo"].evaluations] == [every[0], every[2]]

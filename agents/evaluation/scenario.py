@@ -41,8 +41,10 @@ class Scenario:
 
     def train_key_for(self, algo: str) -> str | None:
         """The training environment of ``algo``'s agents evaluated here (``None``: not here)."""
-        from stcgym.agents.rl.configs import FAMILY_ALGORITHMS
+        from stcgym.agents.rl.configs import FAMILY_ALGORITHMS, TRUE_PARAMETER_ALGORITHMS
 
+        if algo in TRUE_PARAMETER_ALGORITHMS and self.env.order != self.controller_order:
+            return None  # told (a, b) of the training order: another order has no such input
         if algo in FAMILY_ALGORITHMS:  # trained on a plant family only (or a ladder's rung)
             family = self.train_key == "family" or self.train_key.startswith("family:")
             return self.train_key if family else None

@@ -57,6 +57,7 @@ __all__ = [
     "INFORMED",
     "HYPERPARAMETER_RULES",
     "RECURRENT_ALGORITHMS",
+    "TRUE_PARAMETER_ALGORITHMS",
     "RESERVED_ARGS",
     "validate_config",
     "AlgoConfig",
@@ -463,6 +464,11 @@ DEFAULT_CONFIGS["theta_ppo"] = _informed("theta_ppo", kind="estimate")
 DEFAULT_CONFIGS["theta_sac"] = _informed("theta_sac", kind="estimate")
 DEFAULT_CONFIGS["residual_ppo"] = _informed("residual_ppo", kind="residual", fraction=0.25)
 DEFAULT_CONFIGS["oracle_ppo"] = _informed("oracle_ppo", kind="true")
+#: The agents told the true plant parameters (the ``"true"`` interface): they run only on
+#: plants of their training distribution's order.
+TRUE_PARAMETER_ALGORITHMS: tuple[str, ...] = tuple(
+    a for a, c in DEFAULT_CONFIGS.items() if c.interface.get("kind") == "true"
+)
 # Exploration around the controller's input (the Zoo's log_std_init -2 of A2C Pendulum and its
 # MuJoCo entries): with SB3's default the noise is itself a large input disturbance of the
 # loop (on the family the validation cost went from 1.8x LQG to 150x within 4096 steps).
