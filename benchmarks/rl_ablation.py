@@ -257,8 +257,11 @@ def main() -> None:
     parser.add_argument("--reward", default="lqg_ratio", choices=("lqg_ratio", "cost"))
     parser.add_argument("--gamma", type=float, default=0.95)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--zero-start", action="store_true",
-                        help="start every policy's mean action at zero (zero input)")
+    parser.add_argument(
+        "--zero-start",
+        action="store_true",
+        help="start every policy's mean action at zero (zero input)",
+    )
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--out", type=Path, default=Path("ablation/runs.jsonl"))
     parser.add_argument("--tensorboard", type=Path, default=None)
