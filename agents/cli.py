@@ -487,7 +487,7 @@ def _check_eval_args(args: argparse.Namespace) -> dict:
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise BenchInputError(f"{meta_file} is not a readable agent description: {exc}") from None
     if args.plant is not None and mimo and spec.get("family") is not None:
-        from stcgym.agents.benchmark.mimo import SWITCH
+        from stcgym.agents.evaluation.mimo import SWITCH
 
         if args.plant not in SWITCH:  # the quadruple tank at P- and P+
             raise BenchInputError(

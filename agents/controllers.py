@@ -16,7 +16,7 @@ controllers look at it) with the controller seed ``seeds[i]``.
 * ``lqg``: the yardstick, LQG on the true model for the bench's own cost (the steady-state
   LQ gain and Kalman filter, the reference fed forward through the steady state), told the new
   parameters at a jump; on a measured-state MIMO plant the LQR on the true ``(A, B)``
-  (:class:`~stcgym.agents.benchmark.mimo.InformedLQR`) with the weights of the scenario's
+  (:class:`~stcgym.agents.evaluation.mimo.InformedLQR`) with the weights of the scenario's
   performance-output cost, told the new model at a valve switch.
 * ``oracle``: pole placement on the true model with the self-tuning controller's poles and
   integral action (:class:`~stcgym.adaptive.KnownModelController`), told the new parameters
@@ -235,7 +235,7 @@ def _mimo_weights(env: Any) -> dict[str, Any]:
 
 
 def _mimo_lqr(env: Any) -> Callable[[list[Any], list[int]], Any]:
-    from stcgym.agents.benchmark.mimo import InformedLQR
+    from stcgym.agents.evaluation.mimo import InformedLQR
 
     def lqr(plants: list[Any], seeds: list[int]) -> Any:
         A, B = (np.array(m) for m in zip(*(p.discrete() for p in plants), strict=True))

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -153,9 +152,10 @@ def tune_fixed_pi(spec: Any, plants: int = TUNING_PLANTS) -> PIGains:
 
     from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
     from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
+    from stcgym.agents.evaluation.scenario import Scenario
 
     episodes = EpisodeSet.of(spec, 1, TUNING_SEED, int(plants))
-    yardstick = CONTROLLERS[YARDSTICK].build(None, SimpleNamespace(env=spec))
+    yardstick = CONTROLLERS[YARDSTICK].build(None, Scenario.of("fixed_pi", spec, episodes))
     lqg = run_episodes(yardstick, spec, episodes, informed=True).cost.mean(axis=1)
     count = 0
 

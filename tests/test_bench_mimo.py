@@ -16,13 +16,13 @@ import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import LQRController, MultivariableSelfTuningController
 from stcgym.agents.benchmark import build_config, make_scenarios
 from stcgym.agents.benchmark.config import FULL, QUICK
-from stcgym.agents.benchmark.mimo import TANK_REFERENCE, MimoEnvSpec
 from stcgym.agents.benchmark.plan import rl_tasks
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import controllers_for
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet
 from stcgym.agents.evaluation.evaluate import run_episode
+from stcgym.agents.evaluation.mimo import TANK_REFERENCE, MimoEnvSpec
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, WindowConfig
 from stcgym.envs import get_mimo_plant, mimo_plant_names
 

@@ -243,7 +243,7 @@ def test_lqr_and_lqg_oracles_cost_what_the_riccati_solutions_say_on_he1():
     ``tr(P W)`` and ``tr(P W) + tr(S_f K' (R + B'PB) K)`` from python-control's Riccati
     solutions (``S_f`` the filtered error covariance)."""
     from stcgym.adaptive import LQRController
-    from stcgym.agents.benchmark.mimo import OutputLQG
+    from stcgym.agents.evaluation.mimo import OutputLQG
 
     plant = get_mimo_plant("he1")
     (A, B), G, C = plant.discrete(), plant.noise_input(), np.array(plant.C_y)

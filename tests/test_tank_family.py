@@ -19,11 +19,11 @@ from scipy.linalg import expm
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import LQRController
 from stcgym.agents.benchmark import build_config, make_scenarios
-from stcgym.agents.benchmark.mimo import TANK_REFERENCE, MimoEnvSpec
 from stcgym.agents.benchmark.plan import rl_tasks
 from stcgym.agents.benchmark.scenarios import training_envs
 from stcgym.agents.cli import main
 from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.mimo import TANK_REFERENCE, MimoEnvSpec
 from stcgym.envs import get_mimo_plant
 from stcgym.envs.tank_family import (
     GRAVITY,

@@ -5,7 +5,8 @@ Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their ch
 :mod:`~stcgym.agents.evaluation.env_spec` (a scenario's environment as data),
 :mod:`~stcgym.agents.evaluation.episodes` (fixed evaluation episodes, run as a batch),
 :mod:`~stcgym.agents.evaluation.bounds` (one action bound per training distribution, from LQG),
-:mod:`~stcgym.agents.benchmark.mimo` (the MIMO scenario and its environment),
+:mod:`~stcgym.agents.benchmark.mimo` (the MIMO scenarios;
+:mod:`~stcgym.agents.evaluation.mimo`: their environments and yardsticks),
 :mod:`~stcgym.agents.benchmark.plan` (the jobs, their estimates and the ETA),
 :mod:`~stcgym.agents.benchmark.runner` (the run: its plan, then its jobs),
 :mod:`~stcgym.agents.benchmark.rundir` (the run folder, the checks before any work, job ids),

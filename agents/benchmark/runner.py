@@ -408,25 +408,23 @@ class _RunState:
         """The studies of :mod:`~stcgym.agents.benchmark.tuning` on the family's validation
         episodes: every RL agent's in the executor, the self-tuning controller's here; returns
         the config with the best settings (and so ``config.json``)."""
-        from stcgym.agents.benchmark.tuning import apply_rl_params, tune_rl, tune_stc
+        from stcgym.agents.benchmark.tuning import TuningTask, apply_rl_params, tune_rl, tune_stc
         from stcgym.agents.executors import run_tasks
         from stcgym.agents.rl.configs import AlgoConfig
 
         cfg, reference = self.cfg, self.curve_references["family"]
         t0 = time.perf_counter()
         tasks = [
-            {
-                "name": f"tune_{algo}",
-                "algo": algo,
-                "config": agent_config(cfg, algo, "family").to_dict(),
-                "train": env.train.to_dict(),
-                "curve": env.curve.to_dict(),
-                "curve_episodes": env.curve_episodes.to_dict(),
-                "reference": reference,
-                "trials": cfg.tune_trials,
-                "steps": max(1, int(cfg.tune_fraction * cfg.family_train_steps[algo])),
-                "seed": 0,
-            }
+            TuningTask(
+                algo=algo,
+                config=agent_config(cfg, algo, "family"),
+                train=env.train,
+                curve=env.curve,
+                curve_episodes=env.curve_episodes,
+                reference=tuple(reference),
+                trials=cfg.tune_trials,
+                steps=max(1, int(cfg.tune_fraction * cfg.family_train_steps[algo])),
+            )
             for algo in cfg.tuned_rl_agents
         ]
         tuned: dict[str, dict[str, Any]] = {}
@@ -434,8 +432,8 @@ class _RunState:
                          address=cfg.address, threads=1)  # fmt: skip
         for out in runs:
             if out.error is not None:
-                raise RuntimeError(f"tuning {out.task['algo']} failed:\n{out.error}")
-            tuned[out.task["algo"]] = out.result
+                raise RuntimeError(f"tuning {out.task.algo} failed:\n{out.error}")
+            tuned[out.task.algo] = out.result
         if "stc_tuned" in cfg.agents:
             tuned["stc"] = tune_stc(cfg, env, reference, cfg.tune_trials)
         configs = dict(cfg.algo_configs)

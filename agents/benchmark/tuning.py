@@ -21,15 +21,25 @@ from __future__ import annotations
 
 import copy
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from stcgym.agents.benchmark.scenarios import TrainingEnv
-from stcgym.agents.evaluation.episodes import run_episodes
+from stcgym.agents.evaluation.env_spec import EnvSpec
+from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig, base_algorithm
 
-__all__ = ["apply_rl_params", "sample_rl", "sample_stc", "stc_options", "tune_rl", "tune_stc"]
+__all__ = [
+    "TuningTask",
+    "apply_rl_params",
+    "sample_rl",
+    "sample_stc",
+    "stc_options",
+    "tune_rl",
+    "tune_stc",
+]
 
 
 def sample_rl(trial: Any, algo: str) -> dict[str, Any]:
@@ -112,31 +122,47 @@ def _summary(study: Any) -> dict[str, Any]:
     }
 
 
-def tune_rl(task: dict[str, Any]) -> dict[str, Any]:
-    """One RL agent's study (a JSON task, so the executor can run studies in parallel):
-    ``{"algo", "config", "env" (TrainingEnv as JSON), "reference", "trials", "steps", "seed"}``.
-    Returns the study's summary with the best trial's parameters (:func:`sample_rl` form)."""
-    from stcgym.agents.evaluation.env_spec import EnvSpec
-    from stcgym.agents.evaluation.episodes import EpisodeSet
+@dataclass(frozen=True)
+class TuningTask:
+    """One RL agent's study, a job for the executor (the studies run side by side): ``trials``
+    trials, each training ``algo`` from ``config`` with the sampled settings for ``steps`` env
+    steps on ``train`` and scored on ``curve_episodes`` of ``curve`` against ``reference``,
+    the yardstick's cost on each of them."""
+
+    algo: str
+    config: AlgoConfig
+    train: EnvSpec
+    curve: EnvSpec
+    curve_episodes: EpisodeSet
+    reference: tuple[float, ...]
+    trials: int
+    steps: int
+    seed: int = 0
+
+    @property
+    def name(self) -> str:
+        return f"tune_{self.algo}"
+
+
+def tune_rl(task: TuningTask) -> dict[str, Any]:
+    """One RL agent's study; returns its summary with the best trial's parameters
+    (:func:`sample_rl` form)."""
     from stcgym.agents.rl.sb3 import train_agent
 
-    config = AlgoConfig.from_dict(task["config"])
-    train, curve = EnvSpec.from_dict(task["train"]), EnvSpec.from_dict(task["curve"])
-    episodes = EpisodeSet.from_dict(task["curve_episodes"])
     sampled: dict[int, dict[str, Any]] = {}
 
     def objective(trial: Any) -> float:
-        params = sampled[trial.number] = sample_rl(trial, task["algo"])
+        params = sampled[trial.number] = sample_rl(trial, task.algo)
         agent = train_agent(
-            task["algo"], apply_rl_params(config, params), train, int(task["steps"]),
-            int(task["seed"]) + trial.number, curve_spec=curve, curve_episodes=episodes,
-            curve_points=2, curve_reference=task["reference"],
+            task.algo, apply_rl_params(task.config, params), task.train, task.steps,
+            task.seed + trial.number, curve_spec=task.curve, curve_episodes=task.curve_episodes,
+            curve_points=2, curve_reference=task.reference,
         )  # fmt: skip
         best = min(score for _, score in agent.curve)
         return best if math.isfinite(best) else 1e12
 
-    study = _study(int(task["seed"]))
-    study.optimize(objective, n_trials=int(task["trials"]))
+    study = _study(task.seed)
+    study.optimize(objective, n_trials=task.trials)
     return {**_summary(study), "params": sampled[study.best_trial.number]}
 
 

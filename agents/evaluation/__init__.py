@@ -12,5 +12,7 @@ module level:
 - :mod:`~stcgym.agents.evaluation.evaluate`: :func:`evaluate` and the per-episode metrics;
 - :mod:`~stcgym.agents.evaluation.response`: step-response figures (settling, overshoot);
 - :mod:`~stcgym.agents.evaluation.statistics`: bootstrap intervals, IQM;
-- :mod:`~stcgym.agents.evaluation.bounds`: the action bound and unit measured from LQG.
+- :mod:`~stcgym.agents.evaluation.bounds`: the action bound and unit measured from LQG;
+- :mod:`~stcgym.agents.evaluation.mimo`: the MIMO plants' environments (:class:`MimoEnvSpec`)
+  and their known-model yardsticks.
 """

@@ -139,8 +139,7 @@ def lqg_inputs(spec: EnvSpec, episodes: EpisodeSet) -> np.ndarray:
     from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 
     free = replace(spec, action_bound=_UNBOUNDED)
-    site = Scenario("bound", "bound", free, episodes, train_key="", controller_order=free.order)
-    builder = CONTROLLERS[YARDSTICK].build(None, site)
+    builder = CONTROLLERS[YARDSTICK].build(None, Scenario.of("bound", free, episodes))
     batch = run_episodes(builder, free, episodes, informed=True)
     if batch.diverged.any():
         bad = [episodes.plants[i] for i in np.flatnonzero(batch.diverged)][:5]

@@ -328,7 +328,7 @@ class EnvSpec:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EnvSpec:
         """Inverse of :meth:`to_dict` (JSON data back to a spec; ``kind: "mimo"`` gives a
-        :class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`).
+        :class:`~stcgym.agents.evaluation.mimo.MimoEnvSpec`).
 
         Parameters
         ----------
@@ -346,7 +346,7 @@ class EnvSpec:
         """
         d = dict(data)
         if d.pop("kind", "siso") == "mimo":
-            from stcgym.agents.benchmark.mimo import MimoEnvSpec
+            from stcgym.agents.evaluation.mimo import MimoEnvSpec
 
             return MimoEnvSpec(**{**d, "plants": tuple(d["plants"])})
         d["plants"] = tuple(d.get("plants", ()))

@@ -6,7 +6,7 @@ controller, the known-model oracles) is driven through the shared policy protoco
 (:func:`stcgym.agents.closed_loop.run_closed_loop`): ``policy.reset()``, then
 ``policy.predict(obs, deterministic=True)`` on the *raw* observation
 ``[y(k), r(k)]`` of the environment (``y`` the plant's outputs: the state ``x`` of a MIMO
-plant, :class:`~stcgym.agents.benchmark.mimo.MimoEnvSpec`). For a given :class:`EnvSpec` and
+plant, :class:`~stcgym.agents.evaluation.mimo.MimoEnvSpec`). For a given :class:`EnvSpec` and
 seed the environment is built afresh and reset with ``reset(seed=seed)``, so every controller
 in a comparison meets the same plant, the same output noise and the same reference.
 
@@ -363,7 +363,7 @@ def response_metrics(batch: Any, spec: EnvSpec) -> dict[str, NDArray]:
     the second half (``overshoot_pct``, ``settling_steps``) and of the first reference step
     (``startup_settling_steps``; one output only, :func:`~stcgym.agents.evaluation.response.
     step_response`); on a MIMO plant the tracking error per channel and the cross-channel
-    disturbance (:func:`~stcgym.agents.benchmark.mimo.channel_metrics`)."""
+    disturbance (:func:`~stcgym.agents.evaluation.mimo.channel_metrics`)."""
     B, T = batch.cost.shape
     lived = np.maximum(batch.steps_run, 1)
     u = np.nan_to_num(batch.u.reshape(B, T, -1))
@@ -386,7 +386,7 @@ def response_metrics(batch: Any, spec: EnvSpec) -> dict[str, NDArray]:
             out["settling_steps"][i] = steady["settling_steps"]
             out["startup_settling_steps"][i] = start["settling_steps"]
     elif spec.plant_kind == "mimo":  # several channels: tracking per channel, cross-coupling
-        from stcgym.agents.benchmark.mimo import channel_metrics
+        from stcgym.agents.evaluation.mimo import channel_metrics
 
         out.update(channel_metrics(batch.y, batch.r, spec.span))
     return out

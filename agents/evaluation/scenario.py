@@ -34,6 +34,13 @@ class Scenario:
     in_distribution: bool = True
     adaptation: bool = False
 
+    @classmethod
+    def of(cls, name: str, env: EnvSpec, episodes: EpisodeSet) -> Scenario:
+        """``env``'s ``episodes`` as a scenario of kind ``name``, with no training key: what a
+        controller is built on outside the bench's scenarios (the action bound's and the
+        reward's LQG runs, the fixed PI law's tuning)."""
+        return cls(name, name, env, episodes, train_key="", controller_order=env.order)
+
     @property
     def plant(self) -> str:
         """The plant label of the scenario's rows (a catalogue name or the family split)."""

@@ -35,13 +35,13 @@ from __future__ import annotations
 
 import functools
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
+from stcgym.agents.evaluation.scenario import Scenario
 
 __all__ = [
     "DEFAULT_COST_CAP",
@@ -92,7 +92,7 @@ def plant_lqg_costs(spec: EnvSpec, episodes: int = LQG_COST_EPISODES) -> NDArray
 
     free = replace(spec, action_bound=_UNBOUNDED)
     eps = EpisodeSet.of(free, int(episodes), LQG_COST_SEED)
-    builder = CONTROLLERS[YARDSTICK].build(None, SimpleNamespace(env=free))
+    builder = CONTROLLERS[YARDSTICK].build(None, Scenario.of("reward", free, eps))
     batch = run_episodes(builder, free, eps, informed=True)
     if batch.diverged.any():
         bad = [eps.plants[i] for i in np.flatnonzero(batch.diverged)][:5]
