@@ -38,8 +38,8 @@ processes side by side on the shared 2-core machine, about 40 s per 10^5 steps e
   only;
 - ``--agent sac --recipe R --gamma 0.9 --steps 100000`` on ``ladder-l1-v1`` for R in
   ``sac_zoo`` and ``sac_vec8``, seeds 0 and 1; ``sac_vec8`` with ``--gamma 0.99`` and with
-  ``--zero-start``, and ``sac_vec8_lowent``, seed 0 (these ran beside other jobs: their wall times are no throughput
-  figures).
+  ``--zero-start``, and ``sac_vec8_lowent``, seed 0 (these ran beside other jobs: their wall
+  times are no throughput figures).
 
 The references (deterministic, one line each per rung)::
 
