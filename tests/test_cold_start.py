@@ -195,7 +195,7 @@ def test_kernel_sources_cover_the_modules_kernels_inline_and_read() -> None:
         "adaptive/control/options.py",
         "adaptive/control/controller.py",
         "adaptive/estimation/recursive.py",
-        "envs/validation.py",
+        "lanes/validation.py",
     ):
         assert (root / python_only).is_file()
         assert python_only not in names  # no kernel reads them: editing them keeps the cache

@@ -75,8 +75,8 @@ from stcgym.adaptive.variants import (
     controller_estimator,
 )
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.validation import integer
 from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
+from stcgym.lanes.validation import integer
 
 __all__ = [
     "DEFAULT_POLE",

@@ -45,8 +45,8 @@ from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_ma
 from stcgym.adaptive.kernels.linalg import all_finite, matmul, max_abs
 from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
-from stcgym.envs.validation import real_in
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.validation import real_in
 
 __all__ = [
     "DEFAULT_LQ_WEIGHTS",

@@ -30,7 +30,7 @@ from stcgym.adaptive.variants import (
     controller_estimator,
 )
 from stcgym.envs.canonical import check_form
-from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
+from stcgym.lanes.validation import flag, forgetting_factor, integer, one_of, real_in
 
 __all__ = [
     "DEFAULT_ACTION_BOUND",

@@ -20,8 +20,8 @@ from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.adaptive.kernels import canonical
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
-from stcgym.envs.validation import integer, real_in
 from stcgym.lanes.compiled import FixedTypes, set_lanes, state_arrays
+from stcgym.lanes.validation import integer, real_in
 
 __all__ = ["MAX_SETTING"]
 

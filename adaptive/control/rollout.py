@@ -27,8 +27,8 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.control.controller import SelfTuningController
 from stcgym.adaptive.control.controller_step import controller_step
 from stcgym.envs.dynamics import canonical_plant_step
-from stcgym.envs.validation import integer, non_negative
 from stcgym.lanes.compiled import lane, lanes
+from stcgym.lanes.validation import integer, non_negative
 
 __all__ = ["RolloutResult", "charge_divergence", "rollout"]
 

@@ -45,8 +45,8 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
 from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
-from stcgym.envs.validation import real_in
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.validation import real_in
 
 __all__ = [
     "STATUS_NAMES",

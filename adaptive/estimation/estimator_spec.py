@@ -31,7 +31,8 @@ from stcgym.adaptive.variants import ALGORITHMS, EstimatorName, Rule, parse_name
 from stcgym.adaptive.variants import RULES as _RULES
 from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.validation import (
+from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
+from stcgym.lanes.validation import (
     covariance,
     forgetting_factor,
     integer,
@@ -39,7 +40,6 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
-from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
 
 __all__ = [
     "ALGORITHMS",

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
-from stcgym.envs.validation import covariance, integer
+from stcgym.lanes.validation import covariance, integer
 
 if TYPE_CHECKING:
     from stcgym.adaptive.estimation.recursive import RecursiveEstimator

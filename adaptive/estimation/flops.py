@@ -7,7 +7,7 @@ order, ``p`` the innovation length and ``L`` the batch length.
 
 from __future__ import annotations
 
-from stcgym.envs.validation import integer
+from stcgym.lanes.validation import integer
 
 
 def _positive(**values: int) -> None:

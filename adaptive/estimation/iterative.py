@@ -43,7 +43,7 @@ from stcgym.adaptive.estimation.recursive import NumericalHealthError
 from stcgym.adaptive.estimation.state_estimation import state_trajectory
 from stcgym.adaptive.variants import STATE_ESTIMATORS
 from stcgym.envs.canonical import check_form, companion_A
-from stcgym.envs.validation import integer, non_negative, positive, vector_pair
+from stcgym.lanes.validation import integer, non_negative, positive, vector_pair
 
 __all__ = [
     "ITERATIVE_NAMES",

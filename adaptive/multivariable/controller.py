@@ -35,8 +35,8 @@ from stcgym.adaptive.control.safe_set import STATUS_NAMES
 from stcgym.adaptive.multivariable import controller_step as km
 from stcgym.adaptive.multivariable.state_matrix import make_state_matrix
 from stcgym.adaptive.policy import SelfTuningLanes
-from stcgym.envs.validation import integer, real_in
 from stcgym.lanes.compiled import FixedTypes
+from stcgym.lanes.validation import integer, real_in
 
 __all__ = [
     "MultivariableSelfTuningController",

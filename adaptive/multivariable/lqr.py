@@ -25,7 +25,7 @@ from stcgym.adaptive.multivariable.controller import (
     split_observation,
 )
 from stcgym.adaptive.policy import LanePolicy
-from stcgym.envs.validation import matrix
+from stcgym.lanes.validation import matrix
 
 __all__ = ["LQRController", "lqr_design"]
 

@@ -39,7 +39,8 @@ from stcgym.adaptive.estimation.least_squares import (
     upper_factor,
 )
 from stcgym.adaptive.estimation.recursive import NumericalHealthError
-from stcgym.envs.validation import (
+from stcgym.lanes.compiled import lane
+from stcgym.lanes.validation import (
     finite_vector,
     forgetting_factor,
     integer,
@@ -48,7 +49,6 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
-from stcgym.lanes.compiled import lane
 
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
