@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from stcgym.adaptive import SelfTuningController, make_estimator
 from stcgym.adaptive.estimation import flops as F
 from stcgym.adaptive.estimation.reference import ReferenceEstimator
+from stcgym.adaptive.variants import variant
 
 REF_RTOL = 1e-9
 
@@ -88,8 +89,8 @@ def test_unit_gain_projects_onto_the_measurement(theta, x, u, y):
 
 
 def test_flops_and_the_registry_entry():
-    assert F.recursive_parts("O-NG", 3) == (12 * 3 + 2, F.open_loop_observer(3))
-    assert F.recursive("KF-D-NG", 2) == 12 * 2 + 4 + F.kalman_filter(2)
+    assert variant("O-NG").flops(3) == (12 * 3 + 2, F.open_loop_observer(3))
+    assert sum(variant("KF-D-NG").flops(2)) == 12 * 2 + 4 + F.kalman_filter(2)
     # the paper's 16 names stay the paper's
     from stcgym.adaptive import ALGORITHMS
 

@@ -447,7 +447,7 @@ def fit_iterative(
         x_hat=x_prev,
         iterations=k,
         converged=converged,
-        flops_per_iteration=_flops.iterative(canonical, n, L),
+        flops_per_iteration=_flops.iterative(state_est, rule, n, L),
         step_sizes=step_arr,
         rank_deficient=rank_deficient,
     )
