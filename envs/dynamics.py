@@ -175,7 +175,7 @@ def state_space_transition(x, AB, u, tmp):
 @lane(inline=True, entry=True)
 def matvec(A, v, out):
     """``out = A @ v`` (``out`` distinct from ``v``): the output ``y = C x`` of a plant without
-    feedthrough, and the small products of :mod:`stcgym.adaptive.kernels`."""
+    feedthrough, and the small products of the estimators' lane functions."""
     for i in range(A.shape[0]):
         acc = 0.0
         for j in range(A.shape[1]):

@@ -57,8 +57,8 @@ from stcgym.adaptive.control.safe_set import OK, design_work, make_gain
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
     "COUNTERS",

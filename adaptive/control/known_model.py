@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from stcgym.adaptive.control.law import track
 from stcgym.adaptive.control.safe_set import make_gain
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
-from stcgym.adaptive.kernels.linalg import all_finite
 from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.lanes.linalg import all_finite
 
 __all__ = [
     "OracleProposal",

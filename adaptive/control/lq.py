@@ -42,10 +42,9 @@ from stcgym.adaptive.control.safe_set import (
 )
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
-from stcgym.adaptive.kernels.linalg import all_finite, matmul, max_abs
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.linalg import all_finite, copy_matrix, matmul, max_abs
 from stcgym.lanes.validation import real_in
 
 __all__ = [

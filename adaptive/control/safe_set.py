@@ -44,8 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
-from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
+from stcgym.envs.dynamics import matvec
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.linalg import all_finite, invert, norm1
 from stcgym.lanes.validation import real_in
 
 __all__ = [

@@ -63,11 +63,11 @@ from stcgym.adaptive.estimation.state_estimation import (
     observer_step,
 )
 from stcgym.adaptive.kernels.canonical import companion_into
-from stcgym.adaptive.kernels.linalg import matvec
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
 from stcgym.adaptive.variants import RULES as _RULES
 from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
+from stcgym.envs.dynamics import matvec
 from stcgym.lanes.compiled import lane
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 __all__ = [
     "estimator_predict",

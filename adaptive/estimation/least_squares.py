@@ -46,8 +46,8 @@ from typing import Any, NamedTuple
 
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.lanes.compiled import fields_of, lane, make_work
+from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
     "DOWNDATE_TOL",

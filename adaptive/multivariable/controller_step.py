@@ -48,7 +48,6 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.control.controller_step import change_alarm, inflate_covariance, probe_sign
 from stcgym.adaptive.control.safe_set import NONFINITE, NOT_STABILISABLE, OK
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.multivariable.mimo_lq import (
     P_MAX,
     dare_solve,
@@ -60,6 +59,7 @@ from stcgym.adaptive.multivariable.mimo_lq import (
 )
 from stcgym.adaptive.multivariable.state_matrix import RESET, state_matrix_update
 from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
     "COUNTERS",

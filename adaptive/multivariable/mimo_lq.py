@@ -55,9 +55,8 @@ from stcgym.adaptive.control.safe_set import (
     OK,
     UNIT_CIRCLE_MODE,
 )
-from stcgym.adaptive.kernels.linalg import invert, matmul, max_abs
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.linalg import copy_matrix, invert, matmul, max_abs
 
 __all__ = [
     "P_MAX",

@@ -39,9 +39,9 @@ from stcgym.adaptive.estimation.least_squares import (
     least_squares_shapes,
     upper_factor,
 )
-from stcgym.adaptive.kernels.linalg import invert
 from stcgym.adaptive.multivariable.multichannel import matrix_rls_step
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.linalg import invert
 
 __all__ = [
     "DEPENDENT",

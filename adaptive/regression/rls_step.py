@@ -29,8 +29,8 @@ from stcgym.adaptive.estimation.least_squares import (
     least_squares_step,
 )
 from stcgym.adaptive.estimation.least_squares import OK as LS_OK
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
 from stcgym.lanes.compiled import fields_of, lane, lane_state, lanes, make_work
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 __all__ = [
     "FAILED",
