@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive import SelfTuningController, make_estimator
+from stcgym.adaptive import EstimatorSpec, SelfTuningController, make_estimator
 from stcgym.adaptive.estimation import flops as F
 from stcgym.adaptive.estimation.reference import ReferenceEstimator
 from stcgym.adaptive.variants import variant
@@ -51,15 +51,12 @@ def test_first_steps_by_hand():
 def test_equals_the_dense_reference(name, form):
     u, y = _data()
     kw: dict = {"adaptation_gain": 0.3, "normalization_bias": 0.5}
-    ref_kw: dict = dict(kw)
     if name.startswith("KF"):
         kw |= {"process_noise": 0.01, "measurement_noise": 0.5}
-        ref_kw |= {"Q": 0.01 * np.eye(2), "R": 0.5}
     if name.startswith("CO"):
         kw["observer_gain"] = [0.3, -0.1]
-        ref_kw["K"] = [0.3, -0.1]
     est = make_estimator(name, 2, p0=100.0, form=form, **kw)
-    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, **ref_kw)
+    ref = ReferenceEstimator(EstimatorSpec.build(name, 2, p0=100.0, form=form, **kw))
     for k in range(len(u)):
         np.testing.assert_allclose(est.update(y[k]), ref.update(y[k]), rtol=REF_RTOL, atol=1e-12)
         np.testing.assert_allclose(est.predict(u[k]), ref.predict(u[k]), rtol=REF_RTOL, atol=1e-12)
