@@ -58,7 +58,6 @@ from stcgym.adaptive.control.options import (
     SafeSet,
     StartupOptions,
     option_group,
-    plant_settings,
 )
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.control.safe_set import STATUS_NAMES, feedback_gain
@@ -75,6 +74,7 @@ from stcgym.adaptive.variants import (
     controller_estimator,
 )
 from stcgym.envs.canonical import observer_to_observability_b
+from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.lanes.validation import integer
 
@@ -145,7 +145,7 @@ class SelfTuningController(SelfTuningLanes):
         a design that fixes the poles itself ignores it.
     action_bound
         Saturation (default: the env's, else
-        :data:`~stcgym.adaptive.control.options.DEFAULT_ACTION_BOUND` = 10).
+        :data:`~stcgym.envs.env_settings.DEFAULT_ACTION_BOUND` = 10).
     num_envs
         ``None`` for one plant (``predict`` on ``(2,)`` gives ``(1,)``), or ``B`` lanes
         (``predict`` on ``(B, 2)`` gives ``(B, 1)``).

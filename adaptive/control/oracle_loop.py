@@ -15,11 +15,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control import known_model, safe_set
-from stcgym.adaptive.control.options import LawOptions, option_group, plant_settings
+from stcgym.adaptive.control.options import LawOptions, option_group
 from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.adaptive.kernels import canonical
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
+from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, set_lanes, state_arrays
 from stcgym.lanes.validation import integer, real_in
 
