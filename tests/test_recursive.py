@@ -22,14 +22,10 @@ from true_state import (
 )
 
 from stcgym.adaptive.estimation import flops
-from stcgym.adaptive.estimation.recursive import (
-    ALGORITHMS,
-    NumericalHealthError,
-    RecursiveEstimator,
-    is_schur_stable,
-    make_estimator,
-    parse_name,
-)
+from stcgym.adaptive.estimation.estimator_spec import ALGORITHMS, parse_name
+from stcgym.adaptive.estimation.factory import make_estimator
+from stcgym.adaptive.estimation.health import NumericalHealthError
+from stcgym.adaptive.estimation.recursive import RecursiveEstimator, is_schur_stable
 from stcgym.adaptive.variants import variant
 from stcgym.envs.canonical import canonical_matrices
 

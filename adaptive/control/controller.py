@@ -78,16 +78,7 @@ from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.lanes.validation import integer
 
-__all__ = [
-    "DEFAULT_POLE",
-    "OBSERVATION_LIMIT",
-    "ChangeDetection",
-    "EstimatorOptions",
-    "LawOptions",
-    "SafeSet",
-    "SelfTuningController",
-    "StartupOptions",
-]
+__all__ = ["OBSERVATION_LIMIT", "SelfTuningController"]
 
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
@@ -343,7 +334,7 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def compiled_args(self) -> kc.ControllerArgs:
         """The arguments of the compiled steps (lane state, scratch, configurations), in
-        their order: ``controller_step(*ctl.compiled_args, i, y, r)``. Its arrays are the
+        their order: ``controller_step(*ctl.compiled_args, lane_i, y, r)``. Its arrays are the
         controller's own: a compiled call through them advances the controller."""
         return self._args
 

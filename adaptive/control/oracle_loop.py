@@ -16,13 +16,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control import known_model, safe_set
 from stcgym.adaptive.control.options import LawOptions, option_group
-from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.adaptive.kernels import canonical
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
 from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, set_lanes, state_arrays
-from stcgym.lanes.validation import integer, real_in
+from stcgym.lanes.validation import integer, lane_indices, real_in
 
 __all__ = ["MAX_SETTING"]
 

@@ -2,17 +2,17 @@
 
 Published interface (other modules build on these signatures; they do not change):
 
-``least_squares_step(theta, S, Phi, Y, lam, w, lane) -> int``
+``least_squares_step(theta, S, Phi, Y, lam, w, lane_i) -> int``
     One recursive least-squares step on a *generic* regressor: ``theta`` (d,), ``S`` (d, d) the
     upper-triangular factor of ``P = S S^T`` (updated in place), ``Phi`` (p, d) whose row ``j``
     is the regressor ``phi(t - j)^T`` (``p = 1``: RLS (32)-(36); ``p > 1``: the multi-innovation
     MILS (37)-(44)), ``Y`` (p,) the matching outputs, ``lam`` the forgetting factor in (0, 1]
-    (``P^{-1}(t) = lam P^{-1}(t-1) + Phi^T Phi``); its scratch is lane ``lane`` of the
+    (``P^{-1}(t) = lam P^{-1}(t-1) + Phi^T Phi``); its scratch is lane ``lane_i`` of the
     :class:`LeastSquaresWork` fields of ``w`` (shapes :func:`least_squares_shapes`). On return
     ``w.E[lane]`` holds the innovation ``E(p, t) = Y - Phi theta(t-1)`` (eq. (38)). Returns
     ``OK`` (0) or ``FAIL_COVARIANCE`` (1): then ``theta`` is untouched and ``S`` must be reset by
     the caller (e.g. to ``S(0)``).
-``least_squares_downdate(theta, S, Phi, Y, w, lane) -> int``
+``least_squares_downdate(theta, S, Phi, Y, w, lane_i) -> int``
     Removes a data block (finite history): ``P^{-1} <- P^{-1} - Phi^T Phi`` and
     ``theta <- theta - P Phi^T E`` with ``E = Y - Phi theta`` (the same scratch and
     :class:`DowndateWork`'s). Returns ``OK``
@@ -304,23 +304,25 @@ def block_trace_is_finite(S: NDArray, lo: int, hi: int) -> bool:
 
 @lane(inline=True)
 def least_squares_step(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, i: int
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, lane_i: int
 ) -> int:
     """One RLS (``p = 1``, (32)-(36)) or MILS (``p > 1``, (37)-(44)) step on a generic
-    regressor, with lane ``i`` of the scratch ``w``; see the module docstring for the
+    regressor, with lane ``lane_i`` of the scratch ``w``; see the module docstring for the
     arguments."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = w.delta[i]
-    K = w.K[i]
-    E = w.E[i]
+    delta = w.delta[lane_i]
+    K = w.K[lane_i]
+    E = w.E[lane_i]
     for k in range(p):  # E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)     (38); p = 1: in (32)
         acc = Y[k]
         for j in range(d):
             acc -= Phi[k, j] * theta[j]
         E[k] = acc
     # L(t) (33)/(39) and P(t) = S S^T (34)/(40) by Carlson's rotations; delta = L(t) E(p, t)
-    denom = least_squares_increment(S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.factor_work[i])
+    denom = least_squares_increment(
+        S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.factor_work[lane_i]
+    )
     if not (denom > 0.0 and math.isfinite(denom) and factor_is_healthy(S, 0, d)):
         return FAIL_COVARIANCE
     for j in range(d):
@@ -377,14 +379,14 @@ def downdate_block(
 
 @lane(inline=True)
 def least_squares_downdate(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, w: Any, lane: int
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, w: Any, lane_i: int
 ) -> int:
     """Remove one data block from a least-squares estimate; see the module docstring."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = w.delta[lane]
-    E = w.E[lane]
-    saved = w.S_saved[lane]
+    delta = w.delta[lane_i]
+    E = w.E[lane_i]
+    saved = w.S_saved[lane_i]
     copy_matrix(S, saved)
     for k in range(p):
         acc = Y[k]
@@ -393,7 +395,7 @@ def least_squares_downdate(
         E[k] = acc
     for i in range(d):
         delta[i] = 0.0
-    if not downdate_block(S, 0, d, Phi, E, p, delta, w.factor_work[lane]):
+    if not downdate_block(S, 0, d, Phi, E, p, delta, w.factor_work[lane_i]):
         copy_matrix(saved, S)
         return FAIL_DOWNDATE
     for i in range(d):

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation.estimator_spec import upper_cholesky
-from stcgym.adaptive.estimation.recursive import NumericalHealthError
+from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.regression.rls_step import (
     FAILED,
     OK,
