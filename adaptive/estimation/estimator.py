@@ -123,11 +123,11 @@ def _rule_increment(
     d = 2 * n
     p = cfg.p
     lam = cfg.forgetting
-    S, r, delta, K, scratch = (
+    S, r, delta, gain, scratch = (
         s.S[lane_i],
         s.r[lane_i],
         w.delta[lane_i],
-        w.K[lane_i],
+        w.gain[lane_i],
         w.factor_work[lane_i],
     )
     nblocks = 2 if cfg.decomposed else 1
@@ -137,7 +137,7 @@ def _rule_increment(
         hi = d if nblocks == 1 else lo + n
         if cfg.rule == RULE_RLS or cfg.rule == RULE_MILS:
             denom = least_squares_increment(
-                S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, K, scratch
+                S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, gain, scratch
             )
             ok = ok and denom > 0.0 and math.isfinite(denom) and block_trace_is_finite(S, lo, hi)
         elif cfg.rule == RULE_SG or cfg.rule == RULE_MISG:
@@ -172,7 +172,12 @@ def _replay_window(
         s.hist_Phi[lane_i],
         s.hist_Y[lane_i],
     )
-    delta, K, scratch, E = w.delta[lane_i], w.K[lane_i], w.factor_work[lane_i], w.E_replay[lane_i]
+    delta, gain, scratch, E = (
+        w.delta[lane_i],
+        w.gain[lane_i],
+        w.factor_work[lane_i],
+        w.E_replay[lane_i],
+    )
     for j in range(d):
         theta_w[j] = theta0[j]
     first = count % W  # the oldest block (the newest was written just before)
@@ -184,11 +189,11 @@ def _replay_window(
             for blk in range(2):
                 lo = blk * n
                 for j in range(p):
-                    carlson_update(S, lo, lo + n, Phi[j], 1.0, K)
+                    carlson_update(S, lo, lo + n, Phi[j], 1.0, gain)
         else:
             _innovation(theta_w, Phi, Yk, p, E)
             scalar = cfg.rule == RULE_RLS
-            least_squares_increment(S, 0, d, Phi, E, p, 1.0, scalar, delta, K, scratch)
+            least_squares_increment(S, 0, d, Phi, E, p, 1.0, scalar, delta, gain, scratch)
             for j in range(d):
                 theta_w[j] += delta[j]
     s.count[lane_i] = count
@@ -328,7 +333,8 @@ def estimator_update(
             theta_prev[j] = theta[j]
     for j in range(d):
         theta[j] += delta[j]  # theta(t) = theta(t-1) + delta           (32), (37); (12), (16)
-    if cfg.project_stable and not is_schur_stable(theta, n, w.K[lane_i]):
+    # the gain vector's row is scratch here: the Schur test of A_hat(t) runs in it
+    if cfg.project_stable and not is_schur_stable(theta, n, w.gain[lane_i]):
         for j in range(d):
             theta[j] = theta_prev[j]
         s.n_projections[lane_i] += 1

@@ -86,7 +86,7 @@ class LeastSquaresWork(NamedTuple):
     :func:`least_squares_shapes`; a caller's scratch may hold more fields)."""
 
     delta: NDArray  # the increment of theta (d,)
-    K: NDArray  # the gain P phi of a factor update (d,)
+    gain: NDArray  # a factor update's P phi (the numerator of L(t), (33)); MILS: Phi^T E (d,)
     E: NDArray  # the innovation E(p, t) = Y - Phi theta(t-1) (p,)
     factor_work: NDArray  # the factor updates' scratch (2 d,)
 
@@ -109,7 +109,7 @@ def least_squares_shapes(d: int, p: int, window: bool = False) -> dict[str, tupl
     :data:`WindowedLeastSquaresWork`) for ``d`` parameters and blocks of ``p`` rows: the one
     place they are declared."""
     d, p = int(d), int(p)
-    shapes = {"delta": (d,), "K": (d,), "E": (p,), "factor_work": (2 * d,)}
+    shapes = {"delta": (d,), "gain": (d,), "E": (p,), "factor_work": (2 * d,)}
     return {**shapes, "S_saved": (d, d)} if window else shapes
 
 
@@ -121,15 +121,17 @@ def least_squares_work(d: int, p: int, num_lanes: int = 1, *, window: bool = Fal
 
 
 @lane
-def carlson_update(S: NDArray, lo: int, hi: int, phi: NDArray, alpha0: float, K: NDArray) -> float:
+def carlson_update(
+    S: NDArray, lo: int, hi: int, phi: NDArray, alpha0: float, P_phi: NDArray
+) -> float:
     """``P <- P - P phi phi^T P / (alpha0 + phi^T P phi)`` on the block ``[lo, hi)`` of ``S``.
 
     ``S`` is upper triangular with ``P = S S^T``; only rows/columns ``lo..hi-1`` are read and
-    written. ``K[lo:hi]`` receives ``P_old phi`` (the unnormalised gain of (33)). Returns
+    written. ``P_phi[lo:hi]`` receives ``P_old phi`` (the unnormalised gain of (33)). Returns
     ``alpha = alpha0 + phi^T P_old phi`` (the denominator of (33)).
     """
     for i in range(lo, hi):
-        K[i] = 0.0
+        P_phi[i] = 0.0
     alpha = alpha0
     for j in range(lo, hi):
         fj = 0.0
@@ -141,8 +143,8 @@ def carlson_update(S: NDArray, lo: int, hi: int, phi: NDArray, alpha0: float, K:
         c = fj * inv_r  # fj / sqrt(alpha alpha_new)
         for i in range(lo, j + 1):
             sij = S[i, j]
-            S[i, j] = b * sij - c * K[i]
-            K[i] += fj * sij
+            S[i, j] = b * sij - c * P_phi[i]
+            P_phi[i] += fj * sij
         alpha = alpha_new
     return alpha
 
@@ -204,7 +206,7 @@ def least_squares_increment(
     lam: float,
     scalar: bool,
     delta: NDArray,
-    K: NDArray,
+    gain: NDArray,
     w: NDArray,
 ) -> float:
     """Update the factor of ``P`` with the first ``p`` rows of ``Phi`` on the block ``[lo, hi)``
@@ -216,7 +218,7 @@ def least_squares_increment(
     ``denom`` (``> 0`` and finite unless ``P`` overflowed).
     """
     inv_sqrt_lam = 1.0 / math.sqrt(lam) if lam != 1.0 else 1.0
-    denom = carlson_update(S, lo, hi, Phi[0], lam, K)
+    denom = carlson_update(S, lo, hi, Phi[0], lam, gain)
     if lam != 1.0:
         for j in range(lo, hi):
             for i in range(lo, j + 1):
@@ -224,16 +226,16 @@ def least_squares_increment(
     if scalar:
         scale = E[0] / denom
         for i in range(lo, hi):
-            delta[i] = K[i] * scale
+            delta[i] = gain[i] * scale
         return denom
     for k in range(1, p):
-        denom = carlson_update(S, lo, hi, Phi[k], 1.0, K)
+        denom = carlson_update(S, lo, hi, Phi[k], 1.0, gain)
     for i in range(lo, hi):  # g = Phi^T E on the block
         acc = 0.0
         for k in range(p):
             acc += Phi[k, i] * E[k]
-        K[i] = acc
-    _p_times(S, lo, hi, K, w, delta)
+        gain[i] = acc
+    _p_times(S, lo, hi, gain, w, delta)
     return denom
 
 
@@ -312,7 +314,7 @@ def least_squares_step(
     d = theta.shape[0]
     p = Phi.shape[0]
     delta = w.delta[lane_i]
-    K = w.K[lane_i]
+    gain = w.gain[lane_i]
     E = w.E[lane_i]
     for k in range(p):  # E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)     (38); p = 1: in (32)
         acc = Y[k]
@@ -321,7 +323,7 @@ def least_squares_step(
         E[k] = acc
     # L(t) (33)/(39) and P(t) = S S^T (34)/(40) by Carlson's rotations; delta = L(t) E(p, t)
     denom = least_squares_increment(
-        S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.factor_work[lane_i]
+        S, 0, d, Phi, E, p, lam, p == 1, delta, gain, w.factor_work[lane_i]
     )
     if not (denom > 0.0 and math.isfinite(denom) and factor_is_healthy(S, 0, d)):
         return FAIL_COVARIANCE

@@ -71,13 +71,13 @@ def matrix_rls_step(theta, S, x, y, lam, w, lane_i):
     ``y`` ``(q,)``; scratch: lane ``lane_i`` of a
     :class:`~stcgym.adaptive.estimation.least_squares.LeastSquaresWork` for ``d`` parameters and
     ``q`` outputs. Every output channel ``j`` shares the gain ``K = P x / (lam + x^T P x)``
-    (``w.K[lane]`` on return) and the factor update, so ``theta[:, j] += K e_j`` with the
-    innovation ``e = y - theta^T x`` (``w.E[lane]``). Returns ``OK``, or ``FAIL_COVARIANCE``
+    (``w.gain[lane_i]`` on return) and the factor update, so ``theta[:, j] += K e_j`` with the
+    innovation ``e = y - theta^T x`` (``w.E[lane_i]``). Returns ``OK``, or ``FAIL_COVARIANCE``
     (``theta`` untouched, ``S`` to be reset by the caller) when the factor is unhealthy,
     ``trace(P)`` or an increment is not finite.
     """
     d, q = theta.shape
-    K = w.K[lane_i]
+    K = w.gain[lane_i]
     delta = w.delta[lane_i]
     E = w.E[lane_i]
     for j in range(q):
@@ -292,7 +292,7 @@ class MatrixRLS:
         self.t = t
         if status == OK:
             self._decay *= lam
-            self.K = self._work.K[0].copy() if self.symmetric else K
+            self.K = self._work.gain[0].copy() if self.symmetric else K
             return self.theta
         problem = "P lost positive definiteness or P, the gain or Theta overflowed"
         if self.on_failure == "raise":
