@@ -42,7 +42,7 @@ from stcgym.envs.env_settings import (
     split_observation,
 )
 from stcgym.lanes.compiled import FixedTypes
-from stcgym.lanes.validation import real_in
+from stcgym.lanes.validation import covariance, real_in
 
 __all__ = [
     "MultivariableSelfTuningController",
@@ -68,35 +68,15 @@ SETTLE_TOL = 0.01
 LAG_TOL = 0.05
 
 
-def _weight(value: Any, size: int, default: float, name: str) -> NDArray:
-    if value is None:
-        value = default
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        arr = float(arr) * np.eye(size)
-    if arr.shape != (size, size) or not np.all(np.isfinite(arr)):
-        raise ValueError(
-            f"{name} must be a number or a finite {size} x {size} matrix, got {value!r}"
-        )
-    arr = 0.5 * (arr + arr.T)
-    return arr
-
-
 def lq_weight_matrices(
     n: int, m: int, Q: Any = None, R: Any = None, control_cost: float = 0.01
 ) -> tuple[NDArray, NDArray]:
     """Validated LQ weights: ``Q`` (``n x n``, symmetric positive semidefinite, default ``I``)
-    and ``R`` (``m x m``, positive definite, default ``control_cost I``), the env's cost
-    ``||x - r||^2 + control_cost ||u||^2``. A scalar means that multiple of the identity."""
-    Qm = _weight(Q, n, 1.0, "Q")
-    Rm = _weight(R, m, control_cost, "R")
-    if np.min(np.linalg.eigvalsh(Qm)) < -1e-12 * max(1.0, np.max(np.abs(Qm))):
-        raise ValueError(f"Q must be symmetric positive semidefinite, got {Q!r}")
-    if not np.min(np.linalg.eigvalsh(Rm)) > 0:
-        raise ValueError(
-            f"R must be symmetric positive definite, got {R!r} (control_cost={control_cost})"
-        )
-    return Qm, Rm
+    and ``R`` (``m x m``, symmetric positive definite, default ``control_cost I``), the env's
+    cost ``||x - r||^2 + control_cost ||u||^2``. A scalar means that multiple of the identity,
+    a vector the diagonal (:func:`stcgym.lanes.validation.covariance`)."""
+    Qm = covariance(1.0 if Q is None else Q, n, "Q", allow_singular=True)
+    return Qm, covariance(control_cost if R is None else R, m, "R")
 
 
 def cross_weight(N: Any, Q: NDArray, R: NDArray) -> NDArray:
