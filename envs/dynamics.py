@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 
 from stcgym.lanes.compiled import lane, lanes
+from stcgym.lanes.linalg import all_finite
 
 __all__ = [
     "OBSERVER",
@@ -204,15 +205,6 @@ def static_output(theta, u, y):
         for i in range(u.shape[0]):
             s += u[i] * theta[i, j]
         y[j] = s
-
-
-@lane
-def all_finite(x):
-    """Whether every entry of ``x`` is finite."""
-    for i in range(x.shape[0]):
-        if not np.isfinite(x[i]):
-            return False
-    return True
 
 
 @lane(entry=True)

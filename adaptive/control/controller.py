@@ -62,7 +62,6 @@ from stcgym.adaptive.control.options import (
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.control.safe_set import STATUS_NAMES, feedback_gain
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
-from stcgym.adaptive.kernels.canonical import OBSERVABILITY, OBSERVER
 from stcgym.adaptive.policy import SelfTuningLanes, episode_starts
 from stcgym.adaptive.variants import (
     DESIGNS,
@@ -74,6 +73,7 @@ from stcgym.adaptive.variants import (
     controller_estimator,
 )
 from stcgym.envs.canonical import observer_to_observability_b
+from stcgym.envs.dynamics import OBSERVABILITY, OBSERVER
 from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
 from stcgym.lanes.validation import integer
