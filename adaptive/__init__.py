@@ -11,12 +11,12 @@ single plant equals its lane of a batch bit for bit.
 
 from __future__ import annotations
 
-from stcgym.adaptive.control.controller import (
+from stcgym.adaptive.control.controller import SelfTuningController
+from stcgym.adaptive.control.options import (
     ChangeDetection,
     EstimatorOptions,
     LawOptions,
     SafeSet,
-    SelfTuningController,
     StartupOptions,
 )
 from stcgym.adaptive.control.oracles import KalmanObserver, KnownModelController, LQGController
@@ -27,17 +27,14 @@ from stcgym.adaptive.control.placement import (
     lq_gain,
     place_poles,
 )
+from stcgym.adaptive.estimation import estimator_spec as _spec
 from stcgym.adaptive.estimation import flops
 from stcgym.adaptive.estimation import iterative as _iterative
-from stcgym.adaptive.estimation import recursive as _recursive
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec, parse_name
+from stcgym.adaptive.estimation.factory import make_estimator
+from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.estimation.iterative import IterativeResult, fit_iterative
-from stcgym.adaptive.estimation.recursive import (
-    EstimatorSpec,
-    NumericalHealthError,
-    RecursiveEstimator,
-    make_estimator,
-    parse_name,
-)
+from stcgym.adaptive.estimation.recursive import RecursiveEstimator
 from stcgym.adaptive.multivariable.controller import MultivariableSelfTuningController
 from stcgym.adaptive.multivariable.lqr import LQRController
 from stcgym.adaptive.multivariable.multichannel import MatrixRLS, StateMatrixEstimator
@@ -56,7 +53,7 @@ from stcgym.adaptive.regression.rls import RecursiveLeastSquares
 #: estimator ``O`` (open-loop observer) or ``KF`` (Kalman filter), ``D-`` for model
 #: decomposition, rule ``SG``, ``MISG``, ``RLS`` or ``MILS``. :func:`make_estimator` also accepts
 #: the closed-loop observer variants ``CO-...``.
-ALGORITHMS: tuple[str, ...] = _recursive.ALGORITHMS
+ALGORITHMS: tuple[str, ...] = _spec.ALGORITHMS
 
 #: The 8 iterative (batch) estimators of Ding & Ma (2014), section 5, by name, for
 #: :func:`fit_iterative`: ``O`` or ``KF`` state re-estimation, ``D-`` for model decomposition,

@@ -41,8 +41,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.estimation.recursive import lane_indices
 from stcgym.lanes.compiled import set_lanes
+from stcgym.lanes.validation import lane_indices
 
 __all__ = [
     "LanePolicy",

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 from stcgym.adaptive.estimation import flops as _flops
-from stcgym.envs.validation import real_in
+from stcgym.lanes.validation import real_in
 
 __all__ = [
     "ALGORITHMS",

@@ -53,6 +53,7 @@ def _measure(
     """One estimator's rows of the table (closures bind this call's objects)."""
     from stcgym.adaptive import make_estimator
     from stcgym.adaptive.estimation.estimator_lanes import predict_lanes, run_lane, update_lanes
+    from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
     from stcgym.adaptive.estimation.reference import ReferenceEstimator
 
     T, B = u.size, U.shape[1]
@@ -65,10 +66,7 @@ def _measure(
     batch.predict(U[0])
     compile_s = time.perf_counter() - t0
 
-    ref_kw = {"p": kw.get("p", 1)}
-    if "process_noise" in kw:
-        ref_kw["Q"] = kw["process_noise"] * np.eye(2)
-    ref = ReferenceEstimator(name, 2, **ref_kw)
+    ref = ReferenceEstimator(EstimatorSpec.build(name, 2, **kw))
     Tr = max(T // 10, 100)
 
     def ref_loop() -> None:

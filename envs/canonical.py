@@ -20,8 +20,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import finite_vector as as_finite_vector
-from stcgym.envs.validation import vector_pair
+from stcgym.lanes.validation import finite_vector as as_finite_vector
+from stcgym.lanes.validation import vector_pair
 
 Form = Literal["observer", "observability"]
 FORMS: tuple[str, ...] = ("observer", "observability")

@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 
 from stcgym.lanes.compiled import lane, lanes
+from stcgym.lanes.linalg import all_finite
 
 __all__ = [
     "OBSERVER",
@@ -175,7 +176,7 @@ def state_space_transition(x, AB, u, tmp):
 @lane(inline=True, entry=True)
 def matvec(A, v, out):
     """``out = A @ v`` (``out`` distinct from ``v``): the output ``y = C x`` of a plant without
-    feedthrough, and the small products of :mod:`stcgym.adaptive.kernels`."""
+    feedthrough, and the small products of the estimators' lane functions."""
     for i in range(A.shape[0]):
         acc = 0.0
         for j in range(A.shape[1]):
@@ -204,15 +205,6 @@ def static_output(theta, u, y):
         for i in range(u.shape[0]):
             s += u[i] * theta[i, j]
         y[j] = s
-
-
-@lane
-def all_finite(x):
-    """Whether every entry of ``x`` is finite."""
-    for i in range(x.shape[0]):
-        if not np.isfinite(x[i]):
-            return False
-    return True
 
 
 @lane(entry=True)

@@ -26,8 +26,8 @@ from stcgym.envs.canonical_plants import ObserverCanonicalEnv
 from stcgym.envs.catalogue import PlantSpec
 from stcgym.envs.families import FamilySpec, draw_plant, get_family
 from stcgym.envs.schedules import RandomJump, RandomWalk, Schedule
-from stcgym.envs.validation import integer, real_in
 from stcgym.envs.vector import ObserverCanonicalVectorEnv
+from stcgym.lanes.validation import integer, real_in
 
 __all__ = ["PlantFamilyEnv", "PlantFamilyVectorEnv"]
 

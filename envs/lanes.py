@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import real_array
+from stcgym.lanes.validation import real_array
 
 __all__ = [
     "NOISE_BUFFER_BYTES",

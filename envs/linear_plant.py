@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.envs import dynamics
 from stcgym.envs.catalogue import PlantSpec
 from stcgym.envs.signals import Reference, Schedule, make_references, make_schedule
-from stcgym.envs.validation import non_negative, positive, real_array
+from stcgym.lanes.validation import non_negative, positive, real_array
 
 __all__ = ["LinearPlantEnv"]
 

@@ -23,7 +23,7 @@ from stcgym.envs.references import (
     Step,
     Zero,
 )
-from stcgym.envs.validation import real_number
+from stcgym.lanes.validation import real_number
 
 __all__ = ["make_reference", "make_references"]
 

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import integer, integer_range, non_negative, real_number
+from stcgym.lanes.validation import integer, integer_range, non_negative, real_number
 
 __all__ = [
     "Reference",

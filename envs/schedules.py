@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.envs.references import _LANE0, _lanes, _repr
-from stcgym.envs.validation import finite_array, integer_range, real_in, real_number
+from stcgym.lanes.validation import finite_array, integer_range, real_in, real_number
 
 __all__ = [
     "NEVER",

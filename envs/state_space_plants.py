@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.envs import dynamics
 from stcgym.envs.linear_plant import _EMPTY, LinearPlantEnv
 from stcgym.envs.mimo_plants import get_mimo_plant
-from stcgym.envs.validation import matrix, positive, real_array
+from stcgym.lanes.validation import matrix, positive, real_array
 
 __all__ = ["DEFAULT_STATE_SPACE", "MultichannelStaticEnv", "StateSpaceEnv"]
 

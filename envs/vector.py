@@ -58,8 +58,8 @@ from stcgym.envs.plants import (
     StateSpaceEnv,
 )
 from stcgym.envs.signals import Schedule
-from stcgym.envs.validation import real_array
 from stcgym.envs.vector_base import USER_SCHEDULE, LinearPlantVectorEnv
+from stcgym.lanes.validation import real_array
 
 __all__ = [
     "LinearPlantVectorEnv",

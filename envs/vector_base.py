@@ -38,7 +38,7 @@ from stcgym.envs.lanes import (
 )
 from stcgym.envs.plants import LinearPlantEnv
 from stcgym.envs.signals import Schedule
-from stcgym.envs.validation import non_negative as _non_negative
+from stcgym.lanes.validation import non_negative as _non_negative
 
 __all__ = ["LinearPlantVectorEnv", "USER_SCHEDULE"]
 

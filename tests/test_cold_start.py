@@ -195,7 +195,7 @@ def test_kernel_sources_cover_the_modules_kernels_inline_and_read() -> None:
         "adaptive/control/options.py",
         "adaptive/control/controller.py",
         "adaptive/estimation/recursive.py",
-        "envs/validation.py",
+        "lanes/validation.py",
     ):
         assert (root / python_only).is_file()
         assert python_only not in names  # no kernel reads them: editing them keeps the cache
@@ -261,8 +261,8 @@ def test_read_only_package_caches_in_the_user_directory(tmp_path: Path) -> None:
     """A read-only installation: numba cannot write next to the sources and caches in the
     user-wide directory (``$XDG_CACHE_HOME/numba``); the second process loads from there."""
     pkg = _copy_package(tmp_path / "pkg")
-    folders = ("envs", "adaptive", "adaptive/kernels", "adaptive/estimation", "adaptive/control",
-               "adaptive/multivariable", "adaptive/regression")  # fmt: skip
+    folders = ("lanes", "envs", "adaptive", "adaptive/kernels", "adaptive/estimation",
+               "adaptive/control", "adaptive/multivariable", "adaptive/regression")  # fmt: skip
     for name in folders:
         (pkg / "stcgym" / name / "__pycache__").write_text("")  # no cache directory possible
     for path in [pkg, *pkg.rglob("*")]:

@@ -21,10 +21,10 @@ from stcgym.adaptive.control import pole_placement as pp
 from stcgym.adaptive.control import safe_set as ss
 from stcgym.adaptive.control.placement import augment_integral, controllability_matrix
 from stcgym.adaptive.estimation import state_estimation as se
-from stcgym.adaptive.kernels import canonical as cf
 from stcgym.envs.canonical import companion_A
+from stcgym.envs.dynamics import FORM_CODES, OBSERVER
 
-FORMS = {"observer": cf.OBSERVER, "observability": cf.OBSERVABILITY}
+FORMS = FORM_CODES
 
 
 def _K(gain: ss.Gain, integral: bool, lane: int = 0) -> np.ndarray:
@@ -157,7 +157,7 @@ def _status(theta: np.ndarray, safe: np.ndarray, gain: ss.Gain, **kw: object) ->
     n = theta.size // 2
     integral = kw.get("integral", True)
     cfg = ss.DesignConfig(
-        kw.get("form", cf.OBSERVER), integral, kw.get("feedforward", True), safe,
+        kw.get("form", OBSERVER), integral, kw.get("feedforward", True), safe,
         _alpha(np.full(n + 1, 0.5)),
     )  # fmt: skip
     return pp.place_design(theta, cfg, gain, ss.design_work(n, integral), 0)
@@ -214,7 +214,7 @@ def test_scratch_of_another_order_is_an_error_not_garbage(n: int, integral: bool
     theta = np.array([-1.5, 0.7, 1.0, 0.5])
     with pytest.raises(ValueError, match="scratch"):
         pp.place_design(
-            theta, ss.DesignConfig(cf.OBSERVER, True, True, ss.safe_set(), _alpha(np.full(3, 0.5))),
+            theta, ss.DesignConfig(OBSERVER, True, True, ss.safe_set(), _alpha(np.full(3, 0.5))),
             ss.make_gain(2, 1), ss.design_work(n, integral), 0,
         )  # fmt: skip
 
@@ -268,7 +268,7 @@ def test_lq_riccati_iteration_is_the_riccati_difference_equation() -> None:
     P = L @ L.T
     P_ref = P.copy()
     gain = ss.make_gain(2, 1)
-    cfg = _lq_config(cf.OBSERVER, True)
+    cfg = _lq_config(OBSERVER, True)
     assert lq.lq_design(theta, cfg, weights, P, gain, lq.lq_work(2, True), 0) == ss.OK
     Q = np.diag([1.0, 0.0, 0.01])
     rho = 0.01
@@ -285,7 +285,7 @@ def test_lq_not_stabilisable_plant() -> None:
     weights = np.array(lq.DEFAULT_LQ_WEIGHTS)
     gain = ss.make_gain(2, 1)
     P = np.zeros((3, 3))
-    cfg = _lq_config(cf.OBSERVER, True)
+    cfg = _lq_config(OBSERVER, True)
     status = lq.lq_solve(
         theta, cfg, weights, P, gain, lq.lq_work(2, True, solve=True), 0, 1e-12, 64
     )
@@ -310,7 +310,7 @@ def test_lq_solve_ill_conditioned_but_stabilisable() -> None:
     assert np.abs(E).max() < 1
     gain = ss.make_gain(2, 1)
     P = np.zeros((3, 3))
-    cfg = _lq_config(cf.OBSERVER, True)
+    cfg = _lq_config(OBSERVER, True)
     work = lq.lq_work(2, True, solve=True)
     assert lq.lq_solve(theta, cfg, weights, P, gain, work, 0, 1e-12, 64) == ss.OK
     np.testing.assert_allclose(_K(gain, True), np.ravel(K_ref), rtol=1e-5)
@@ -406,7 +406,7 @@ def test_batch_loops_equal_the_lane_functions() -> None:
     gains = ss.make_gain(3, 6)
     status = np.zeros(6, dtype=np.int64)
     work = ss.design_work(3, True, 6)
-    cfg = ss.DesignConfig(cf.OBSERVER, True, True, ss.safe_set(), alpha)
+    cfg = ss.DesignConfig(OBSERVER, True, True, ss.safe_set(), alpha)
     pp.place_design_lanes(thetas, cfg, gains, status, work)
     weights = lq.lq_weights()
     Ps = np.zeros((6, 4, 4))

@@ -16,7 +16,7 @@ from lane_call import call
 
 from stcgym.adaptive import NumericalHealthError, RecursiveEstimator, make_estimator
 from stcgym.adaptive.estimation.estimator_lanes import predict_lanes, update_lanes
-from stcgym.adaptive.estimation.estimator_spec import ALGORITHMS
+from stcgym.adaptive.estimation.estimator_spec import ALGORITHMS, EstimatorSpec
 from stcgym.adaptive.estimation.least_squares import (
     OK,
     carlson_update,
@@ -156,16 +156,15 @@ def test_kernels_equal_the_dense_reference(name, form):
     u, y = data(form=form)
     mi = "MI" in name
     kw: dict = {"p": 3} if mi else {}
-    ref_kw: dict = dict(kw)
     if name.startswith("CO"):
         kw["observer_gain"] = [0.3, -0.1]
-        ref_kw["K"] = [0.3, -0.1]
     lam = 0.98 if "RLS" in name else 1.0
     if name.startswith("KF"):
         kw |= {"process_noise": 0.01, "measurement_noise": 0.5}
-        ref_kw |= {"Q": 0.01 * np.eye(2), "R": 0.5}
     est = make_estimator(name, 2, p0=100.0, form=form, forgetting=lam, **kw)
-    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, forgetting=lam, **ref_kw)
+    ref = ReferenceEstimator(
+        EstimatorSpec.build(name, 2, p0=100.0, form=form, forgetting=lam, **kw)
+    )
     for k in range(len(u)):
         th = est.update(y[k])
         th_ref = ref.update(y[k])
@@ -189,13 +188,13 @@ def test_kernels_equal_the_dense_reference(name, form):
 def test_filtered_regressor_equals_the_dense_reference(name, form):
     u, y = data(form=form)
     kw: dict = {"p": 3} if "MI" in name else {}
-    ref_kw: dict = dict(kw)
     if name.startswith("KF"):
         kw |= {"process_noise": 0.01, "measurement_noise": 0.5}
-        ref_kw |= {"Q": 0.01 * np.eye(2), "R": 0.5}
     est = make_estimator(name, 2, p0=100.0, form=form, regressor="filtered", **kw)
-    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, filtered=True, **ref_kw)
-    paper = ReferenceEstimator(name, 2, p0=100.0, form=form, **ref_kw)
+    ref = ReferenceEstimator(
+        EstimatorSpec.build(name, 2, p0=100.0, form=form, regressor="filtered", **kw)
+    )
+    paper = ReferenceEstimator(EstimatorSpec.build(name, 2, p0=100.0, form=form, **kw))
     for k in range(len(u)):
         th, th_ref, th_paper = est.update(y[k]), ref.update(y[k]), paper.update(y[k])
         np.testing.assert_allclose(th, th_ref, rtol=REF_RTOL, atol=1e-12)
@@ -213,8 +212,9 @@ def test_partial_injection_equals_the_dense_reference(name, form):
     kw: dict = {"p": 3} if "MI" in name else {}
     opts = {"injection": 0.4, "injection_warmup": 10}
     est = make_estimator(name, 2, p0=100.0, form=form, regressor="filtered", **opts, **kw)
-    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, filtered=True, **opts, **kw)
-    whole = ReferenceEstimator(name, 2, p0=100.0, form=form, filtered=True, **kw)
+    filtered = {"p0": 100.0, "form": form, "regressor": "filtered"}
+    ref = ReferenceEstimator(EstimatorSpec.build(name, 2, **filtered, **opts, **kw))
+    whole = ReferenceEstimator(EstimatorSpec.build(name, 2, **filtered, **kw))
     for k in range(len(u)):
         th, th_ref, th_whole = est.update(y[k]), ref.update(y[k]), whole.update(y[k])
         np.testing.assert_allclose(th, th_ref, rtol=REF_RTOL, atol=1e-12)

@@ -16,11 +16,11 @@ from stcgym.adaptive.control.extended_ls import make_extended_ls
 from stcgym.adaptive.control.known_model import make_oracle_state, oracle_shapes
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.adaptive.estimation.least_squares import least_squares_work
-from stcgym.adaptive.kernels import canonical as cf
 from stcgym.adaptive.multivariable import mimo_lq
 from stcgym.adaptive.multivariable.controller_step import make_mimo_state
 from stcgym.adaptive.multivariable.state_matrix import make_state_matrix
 from stcgym.adaptive.regression.rls_step import make_rls_state, rls_shapes
+from stcgym.envs.dynamics import OBSERVER
 from stcgym.lanes.compiled import make_work
 
 
@@ -129,7 +129,7 @@ def test_a_design_reads_only_its_own_lane() -> None:
     and 2 are never written."""
     theta = np.array([-1.5, 0.7, 1.0, 0.5])
     alpha = np.array([-1.5, 0.75, -0.125])  # (z - 0.5)^3
-    cfg = ss.DesignConfig(cf.OBSERVER, True, True, ss.safe_set(), alpha)
+    cfg = ss.DesignConfig(OBSERVER, True, True, ss.safe_set(), alpha)
     gain_one = ss.make_gain(2, 1)
     assert pp.place_design(theta, cfg, gain_one, ss.design_work(2, True), 0) == ss.OK
     work = ss.design_work(2, True, 3)

@@ -17,10 +17,11 @@ from hypothesis import strategies as st
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive.control.controller import SelfTuningController
-from stcgym.adaptive.control.options import DEFAULT_ACTION_BOUND, LawOptions
+from stcgym.adaptive.control.options import LawOptions
 from stcgym.adaptive.control.oracles import KalmanObserver, KnownModelController, LQGController
 from stcgym.adaptive.policy import Policy
 from stcgym.envs.canonical import companion_A, observer_to_observability_b
+from stcgym.envs.env_settings import DEFAULT_ACTION_BOUND
 
 A_S2, B_S2 = (-1.5, 0.7), (1.0, 0.5)  # stable2
 A_U2, B_U2 = (-1.7, 0.66), (1.0, 0.6)  # unstable2 (poles 1.1, 0.6)

@@ -9,9 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stcgym.adaptive import SelfTuningController, make_estimator
+from stcgym.adaptive import EstimatorSpec, SelfTuningController, make_estimator
 from stcgym.adaptive.estimation import flops as F
 from stcgym.adaptive.estimation.reference import ReferenceEstimator
+from stcgym.adaptive.variants import variant
 
 REF_RTOL = 1e-9
 
@@ -50,15 +51,12 @@ def test_first_steps_by_hand():
 def test_equals_the_dense_reference(name, form):
     u, y = _data()
     kw: dict = {"adaptation_gain": 0.3, "normalization_bias": 0.5}
-    ref_kw: dict = dict(kw)
     if name.startswith("KF"):
         kw |= {"process_noise": 0.01, "measurement_noise": 0.5}
-        ref_kw |= {"Q": 0.01 * np.eye(2), "R": 0.5}
     if name.startswith("CO"):
         kw["observer_gain"] = [0.3, -0.1]
-        ref_kw["K"] = [0.3, -0.1]
     est = make_estimator(name, 2, p0=100.0, form=form, **kw)
-    ref = ReferenceEstimator(name, 2, p0=100.0, form=form, **ref_kw)
+    ref = ReferenceEstimator(EstimatorSpec.build(name, 2, p0=100.0, form=form, **kw))
     for k in range(len(u)):
         np.testing.assert_allclose(est.update(y[k]), ref.update(y[k]), rtol=REF_RTOL, atol=1e-12)
         np.testing.assert_allclose(est.predict(u[k]), ref.predict(u[k]), rtol=REF_RTOL, atol=1e-12)
@@ -88,8 +86,8 @@ def test_unit_gain_projects_onto_the_measurement(theta, x, u, y):
 
 
 def test_flops_and_the_registry_entry():
-    assert F.recursive_parts("O-NG", 3) == (12 * 3 + 2, F.open_loop_observer(3))
-    assert F.recursive("KF-D-NG", 2) == 12 * 2 + 4 + F.kalman_filter(2)
+    assert variant("O-NG").flops(3) == (12 * 3 + 2, F.open_loop_observer(3))
+    assert sum(variant("KF-D-NG").flops(2)) == 12 * 2 + 4 + F.kalman_filter(2)
     # the paper's 16 names stay the paper's
     from stcgym.adaptive import ALGORITHMS
 

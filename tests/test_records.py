@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from lane_call import call
 
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
 from stcgym.lanes.compiled import FixedTypes, lane, lane_state, set_lanes, state_arrays
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 
 def test_copies_write_every_entry():
@@ -129,7 +129,7 @@ def test_fixed_types_calls_the_same_compiled_code():
 def test_a_lane_helper_called_from_python_raises_and_runs_through_a_compiled_caller() -> None:
     """Helpers have no CPython wrapper: a Python call is a clear error, before and after the
     helper was compiled for a lane function, never a jump to a null address."""
-    from stcgym.adaptive.kernels.linalg import norm1
+    from stcgym.lanes.linalg import norm1
 
     M = np.array([[1.0, -2.0], [3.0, 0.5]])
     with pytest.raises(TypeError, match="lane helper"):

@@ -22,14 +22,11 @@ from true_state import (
 )
 
 from stcgym.adaptive.estimation import flops
-from stcgym.adaptive.estimation.recursive import (
-    ALGORITHMS,
-    NumericalHealthError,
-    RecursiveEstimator,
-    is_schur_stable,
-    make_estimator,
-    parse_name,
-)
+from stcgym.adaptive.estimation.estimator_spec import ALGORITHMS, parse_name
+from stcgym.adaptive.estimation.factory import make_estimator
+from stcgym.adaptive.estimation.health import NumericalHealthError
+from stcgym.adaptive.estimation.recursive import RecursiveEstimator, is_schur_stable
+from stcgym.adaptive.variants import variant
 from stcgym.envs.canonical import canonical_matrices
 
 # --------------------------------------------------------------------------------------------
@@ -521,13 +518,11 @@ def test_documented_flops_are_consistent():
         assert flops.misg(n, 1) == flops.sg(n) and flops.d_misg(n, 1) == flops.d_sg(n)
         assert flops.mils(n, 1) == flops.rls(n) + 1
         for p in range(1, 5):
-            assert flops.recursive("KF-MILS", n, p) == flops.kf_mils(n, p)
+            assert sum(variant("KF-MILS").flops(n, p)) == flops.kf_mils(n, p)
             for name in ALGORITHMS:
                 est = make_estimator(name, n, p=p if "MI" in name else 1)
-                assert est.flops_per_step == flops.recursive(name, n, p)
+                assert est.flops_per_step == sum(variant(name).flops(n, p))
                 assert est.flops_per_step == est.flops_parameters + est.flops_state
-    with pytest.raises(ValueError, match="name must look like"):
-        flops.recursive("X-RLS", 2)
 
 
 # --------------------------------------------------------------------------------------------

@@ -9,13 +9,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from lane_call import call
 
+from stcgym.adaptive.estimation.factory import make_estimator
 from stcgym.adaptive.estimation.least_squares import (
     least_squares_downdate,
     least_squares_step,
     least_squares_work,
     upper_factor,
 )
-from stcgym.adaptive.estimation.recursive import is_schur_stable, make_estimator
+from stcgym.adaptive.estimation.recursive import is_schur_stable
 from stcgym.envs.canonical import canonical_matrices
 
 SETTINGS = settings(

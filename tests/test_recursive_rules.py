@@ -17,7 +17,7 @@ from true_state import (
     true_state_data,
 )
 
-from stcgym.adaptive.estimation.recursive import make_estimator
+from stcgym.adaptive.estimation.factory import make_estimator
 
 # --------------------------------------------------------------------------------------------
 # Parameter rules against batch least squares and hand-worked cases

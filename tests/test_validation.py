@@ -1,4 +1,4 @@
-"""The shared argument checks (stcgym.envs.validation): what they accept, and exceptions that
+"""The shared argument checks (stcgym.lanes.validation): what they accept, and exceptions that
 name the argument and the expected form."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stcgym.envs import validation as v
+from stcgym.lanes import validation as v
 
 
 @pytest.mark.parametrize("value", [3, np.int64(3), np.uint8(3)])

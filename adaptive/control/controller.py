@@ -58,12 +58,10 @@ from stcgym.adaptive.control.options import (
     SafeSet,
     StartupOptions,
     option_group,
-    plant_settings,
 )
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.control.safe_set import STATUS_NAMES, feedback_gain
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
-from stcgym.adaptive.kernels.canonical import OBSERVABILITY, OBSERVER
 from stcgym.adaptive.policy import SelfTuningLanes, episode_starts
 from stcgym.adaptive.variants import (
     DESIGNS,
@@ -75,19 +73,12 @@ from stcgym.adaptive.variants import (
     controller_estimator,
 )
 from stcgym.envs.canonical import observer_to_observability_b
-from stcgym.envs.validation import integer
+from stcgym.envs.dynamics import OBSERVABILITY, OBSERVER
+from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
+from stcgym.lanes.validation import integer
 
-__all__ = [
-    "DEFAULT_POLE",
-    "OBSERVATION_LIMIT",
-    "ChangeDetection",
-    "EstimatorOptions",
-    "LawOptions",
-    "SafeSet",
-    "SelfTuningController",
-    "StartupOptions",
-]
+__all__ = ["OBSERVATION_LIMIT", "SelfTuningController"]
 
 #: Observations beyond this magnitude are rejected (squares would overflow inside the step).
 OBSERVATION_LIMIT = 1e100
@@ -145,7 +136,7 @@ class SelfTuningController(SelfTuningLanes):
         a design that fixes the poles itself ignores it.
     action_bound
         Saturation (default: the env's, else
-        :data:`~stcgym.adaptive.control.options.DEFAULT_ACTION_BOUND` = 10).
+        :data:`~stcgym.envs.env_settings.DEFAULT_ACTION_BOUND` = 10).
     num_envs
         ``None`` for one plant (``predict`` on ``(2,)`` gives ``(1,)``), or ``B`` lanes
         (``predict`` on ``(B, 2)`` gives ``(B, 1)``).
@@ -343,7 +334,7 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def compiled_args(self) -> kc.ControllerArgs:
         """The arguments of the compiled steps (lane state, scratch, configurations), in
-        their order: ``controller_step(*ctl.compiled_args, i, y, r)``. Its arrays are the
+        their order: ``controller_step(*ctl.compiled_args, lane_i, y, r)``. Its arrays are the
         controller's own: a compiled call through them advances the controller."""
         return self._args
 

@@ -57,8 +57,8 @@ from stcgym.adaptive.control.safe_set import OK, design_work, make_gain
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
     "COUNTERS",
@@ -243,14 +243,14 @@ def change_alarm(cfg, ews, ewl, e2, update, t, closed_t, last_alarm):
 
 # ------------------------------------------------------------------------ parameter covariance
 @lane(inline=True)
-def covariance_entry(S, i, j):
+def covariance_entry(S, lane_i, j):
     """``P_ij = (S S^T)_ij`` of the estimator's square-root factor ``S`` (0 without one)."""
     d = S.shape[0]
     if d == 0:
         return 0.0
     acc = 0.0
-    for k in range(max(i, j), d):  # S upper triangular
-        acc += S[i, k] * S[j, k]
+    for k in range(max(lane_i, j), d):  # S upper triangular
+        acc += S[lane_i, k] * S[j, k]
     return acc
 
 
@@ -287,7 +287,7 @@ def process_noise(S, n, y, u, q, q_floor, Q):
 
 class ControllerArgs(NamedTuple):
     """The compiled arguments of one controller, in the order every step function takes them
-    (spread: ``controller_step(*args, i, y, r)``, ``controllers_step(*args, y, r, u)``).
+    (spread: ``controller_step(*args, lane_i, y, r)``, ``controllers_step(*args, y, r, u)``).
 
     ``est_cfg`` / ``els_cfg`` (one of them ``None``) and ``lq_weights`` (``None`` or the LQ
     weights) choose the compiled version (:func:`stcgym.adaptive.variants.compiled_version`).
@@ -305,12 +305,12 @@ class ControllerArgs(NamedTuple):
 
 # --------------------------------------------------------------------------------- the step
 @lane(entry=True, inline=True)
-def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r):
+def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
-    The arguments before ``i`` are one :class:`ControllerArgs`, spread:
+    The arguments before ``lane_i`` are one :class:`ControllerArgs`, spread:
     ``s``/``w``: the controllers' :class:`ControllerState` and :class:`ControllerWork`, of
-    which this call reads and writes lane ``i`` only; ``cfg``: a :class:`ControllerConfig`;
+    which this call reads and writes lane ``lane_i`` only; ``cfg``: a :class:`ControllerConfig`;
     ``est``/``est_work``: the estimator's lane state and scratch, either an ``EstimatorState``
     and ``EstimatorWork`` with the paper estimator's configuration ``est_cfg`` (``els_cfg``
     ``None``), or an ``ExtendedLSState`` and ``ExtendedLSWork`` with extended least squares'
@@ -319,13 +319,13 @@ def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y
     docstring). It is :func:`controller_act` followed by :func:`controller_commit` of the
     input it chose.
     """
-    u = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r)
-    controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, u)
+    u = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r)
+    controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, u)
     return u
 
 
 @lane(inline=True, inline_ir=True)
-def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r):
+def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r):
     """Steps 1-5 of :func:`controller_step` (arguments alike): the estimator's measurement
     step with ``y(t)``, change detection, design, ``x(t|t)`` and the input ``u(t)`` the law
     chooses, which it returns. The time update (step 6) waits for :func:`controller_commit`
@@ -333,52 +333,52 @@ def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y,
     in the lane state (``s.y``, ``s.eps``), the estimated model in the lane's design scratch.
     """
     n = cfg.n
-    t = s.t[i]
-    theta = est.theta[i][: 2 * n]  # [a; b] (extended least squares: of [a; b; c])
-    S = est.S[i]
+    t = s.t[lane_i]
+    theta = est.theta[lane_i][: 2 * n]  # [a; b] (extended least squares: of [a; b; c])
+    S = est.S[lane_i]
     # -- 1. estimator measurement step (each branch compiled only in its own version)
     e = eps = 0.0
     if els_cfg is not None:  # extended least squares
-        e, eps = extended_ls_update(est, est_work, i, y, els_cfg.forgetting, els_cfg.p0)
+        e, eps = extended_ls_update(est, est_work, lane_i, y, els_cfg.forgetting, els_cfg.p0)
     if est_cfg is not None:  # a paper estimator
-        s.est_status[i] |= estimator_update(est, est_work, i, est_cfg, y)
-        e = est.E[i][0]
+        s.est_status[lane_i] |= estimator_update(est, est_work, lane_i, est_cfg, y)
+        e = est.E[lane_i][0]
         eps = e
-    s.e[i] = e
-    s.eps[i] = eps
-    s.y[i] = y
+    s.e[lane_i] = e
+    s.eps[lane_i] = eps
+    s.y[lane_i] = y
     # -- 2. change detection: covariance resetting on a jump of the innovation variance
-    closed_t = s.closed_t[i]
-    alarm, s.ews[i], s.ewl[i] = change_alarm(
-        cfg, s.ews[i], s.ewl[i], e * e, True, t, closed_t, s.last_alarm[i]
+    closed_t = s.closed_t[lane_i]
+    alarm, s.ews[lane_i], s.ewl[lane_i] = change_alarm(
+        cfg, s.ews[lane_i], s.ewl[lane_i], e * e, True, t, closed_t, s.last_alarm[lane_i]
     )
     if alarm:
         inflate_covariance(S, cfg.inflation)
-        s.n_alarms[i] += 1
-        s.last_alarm[i] = t
+        s.n_alarms[lane_i] += 1
+        s.last_alarm[lane_i] = t
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
     if lq_weights is None:
-        status = place_design(theta, cfg, s.gain, w.design, i)
+        status = place_design(theta, cfg, s.gain, w.design, lane_i)
     else:
-        status = lq_design(theta, cfg, lq_weights, s.P_lq[i], s.gain, w.design, i)
-    s.last_reason[i] = status
+        status = lq_design(theta, cfg, lq_weights, s.P_lq[lane_i], s.gain, w.design, lane_i)
+    s.last_reason[lane_i] = status
     if status == OK:
-        s.has_gain[i] = True
+        s.has_gain[lane_i] = True
     else:
-        s.n_rejected[i] += 1
+        s.n_rejected[lane_i] += 1
     # -- 4. state estimate x(t|t): Kalman filter on the estimated model (built by the design
     # too, when the design got that far: the same numbers)
-    A = w.design.A[i]
-    b = w.design.b[i]
+    A = w.design.A[lane_i]
+    b = w.design.b[lane_i]
     model_matrices(theta, cfg.form, A, b)
-    xf = s.xf[i]
-    filtered_state(s.x[i], s.P1[i], cfg.R, y, xf)
+    xf = s.xf[lane_i]
+    filtered_state(s.x[lane_i], s.P1[lane_i], cfg.R, y, xf)
     # -- 5. control: the probe while the loop is open, then the tracking law
-    return control(s, i, cfg, y, r, xf if cfg.filtered else s.x[i])
+    return control(s, lane_i, cfg, y, r, xf if cfg.filtered else s.x[lane_i])
 
 
 @lane(inline=True, inline_ir=True)
-def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, u):
+def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, u):
     """Step 6 of :func:`controller_step` with the input ``u(t)`` the plant was given (the
     one :func:`controller_act` chose, or another: a residual on top of it, a clipped one;
     ``lq_weights`` is not read: every step function takes the same :class:`ControllerArgs`):
@@ -387,66 +387,71 @@ def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i,
     kept and its model ``A, b`` of ``theta_hat(t)`` in the lane's design scratch.
     """
     n = cfg.n
-    y = s.y[i]
-    S = est.S[i]
-    A = w.design.A[i]
-    b = w.design.b[i]
-    x = s.x[i]
-    P1 = s.P1[i]
-    s.u[i] = u
+    y = s.y[lane_i]
+    S = est.S[lane_i]
+    A = w.design.A[lane_i]
+    b = w.design.b[lane_i]
+    x = s.x[lane_i]
+    P1 = s.P1[lane_i]
+    s.u[lane_i] = u
     # -- 6. process noise, Kalman time update, estimator state step
-    Q = s.Q[i]
+    Q = s.Q[lane_i]
     process_noise(S, n, y, u, cfg.q_gain, cfg.q_floor, Q)
-    x_next = s.x_next[i]
-    if kalman_step(A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[i], w.AP[i], w.P_upd[i]) == 0:
+    x_next = s.x_next[lane_i]
+    if (
+        kalman_step(
+            A, b, P1, Q, cfg.R, x, u, y, x_next, s.L1[lane_i], w.AP[lane_i], w.P_upd[lane_i]
+        )
+        == 0
+    ):
         for k in range(n):
             x[k] = x_next[k]
     else:  # numerical trouble in the filter: back to x(1) = 0, P1(1) = I (counted)
-        s.n_kf_resets[i] += 1
+        s.n_kf_resets[lane_i] += 1
         for k in range(n):
             x[k] = 0.0
             for j in range(n):
                 P1[k, j] = 1.0 if k == j else 0.0
     if els_cfg is not None:
-        extended_ls_push(est, i, n, y, u, s.eps[i])
+        extended_ls_push(est, lane_i, n, y, u, s.eps[lane_i])
     if est_cfg is not None:
-        Q_est = est.Q[i]
+        Q_est = est.Q[lane_i]
         if Q_est.shape[0] == n:  # the paper's Kalman filter gets the same process noise
             copy_matrix(Q, Q_est)
-        s.est_status[i] |= estimator_predict(est, est_work, i, est_cfg, u)
-    s.t[i] += 1
+        s.est_status[lane_i] |= estimator_predict(est, est_work, lane_i, est_cfg, u)
+    s.t[lane_i] += 1
 
 
 @lane(inline=True)
-def control(s, i, cfg, y, r, xc):
+def control(s, lane_i, cfg, y, r, xc):
     """Step 5: the probe while the loop is open (and while no design has been accepted), else
     the tracking law on the state estimate ``xc``; returns ``u(t)``, closes the loop on its
     first law sample (``closed_t``) and counts probe and saturated samples."""
-    t = s.t[i]
-    closed_t = s.closed_t[i]
+    t = s.t[lane_i]
+    closed_t = s.closed_t[lane_i]
     bound = cfg.action_bound
     level = cfg.probe_output
     open_loop = closed_t < 0
-    ymax = s.ymax[i]
+    ymax = s.ymax[lane_i]
     if open_loop:
         ymax = max(ymax, abs(y))
-        s.ymax[i] = ymax
+        s.ymax[lane_i] = ymax
     probing = open_loop and (t < cfg.probe_steps or (t < cfg.probe_max and ymax < level))
-    if probing or not s.has_gain[i]:
+    if probing or not s.has_gain[lane_i]:
         # the probe is scaled down once the output exceeds the probe level
         amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
-        u = min(max(amp * probe_sign(s.seed[i], s.episode[i], t), -bound), bound)
-        s.n_probe[i] += 1
-        s.saturated[i] = False
+        u = min(max(amp * probe_sign(s.seed[lane_i], s.episode[lane_i], t), -bound), bound)
+        s.n_probe[lane_i] += 1
+        s.saturated[lane_i] = False
         return u
     if open_loop:
-        s.closed_t[i] = t
-    u, s.xi[i], saturated, s.u_unsat[i] = track(
-        s.gain, i, True, s.xi[i], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
+        s.closed_t[lane_i] = t
+    u, s.xi[lane_i], saturated, s.u_unsat[lane_i] = track(
+        s.gain, lane_i, True, s.xi[lane_i], xc, y, r, 0.0, bound, cfg.integral, cfg.anti_windup
     )
-    s.saturated[i] = saturated
+    s.saturated[lane_i] = saturated
     if saturated:
-        s.n_saturated[i] += 1
+        s.n_saturated[lane_i] += 1
     return u
 
 

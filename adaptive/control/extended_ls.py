@@ -110,7 +110,7 @@ def make_extended_ls(
 
 
 @lane(inline=True)
-def extended_ls_update(els, work, lane, y, lam, p0):
+def extended_ls_update(els, work, lane_i, y, lam, p0):
     """Measurement step with ``y(t)``: ``theta(t)``, ``P(t)``; returns ``(e(t), eps(t))``.
 
     A failed least-squares step (non-positive or non-finite denominator, unhealthy factor,
@@ -118,19 +118,19 @@ def extended_ls_update(els, work, lane, y, lam, p0):
     innovation restarts ``P`` at ``p0 I`` and keeps ``theta`` (returns the prior residual for
     both).
     """
-    theta = els.theta[lane]
-    S = els.S[lane]
-    Phi = els.Phi[lane]
-    Y = work.Y[lane]
+    theta = els.theta[lane_i]
+    S = els.S[lane_i]
+    Phi = els.Phi[lane_i]
+    Y = work.Y[lane_i]
     d = theta.size
     Y[0] = y
-    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, work, lane) != OK:
+    if not math.isfinite(y) or least_squares_step(theta, S, Phi, Y, lam, work, lane_i) != OK:
         e = y
         for i in range(d):
             e -= Phi[0, i] * theta[i]
         extended_ls_restart(theta, S, p0)
         return e, e
-    e = work.E[lane][0]  # the innovation E(1, t) with theta(t-1), left there by the step
+    e = work.E[lane_i][0]  # the innovation E(1, t) with theta(t-1), left there by the step
     eps = y
     for i in range(d):
         eps -= Phi[0, i] * theta[i]
@@ -151,9 +151,9 @@ def extended_ls_restart(theta, S, p0):
 
 
 @lane(inline=True)
-def extended_ls_push(els, lane, n, y, u, eps):
+def extended_ls_push(els, lane_i, n, y, u, eps):
     """Shift ``y(t)``, ``u(t)``, ``eps(t)`` into the regressor: it becomes ``phi(t+1)``."""
-    phi = els.Phi[lane, 0]
+    phi = els.Phi[lane_i, 0]
     d = phi.size
     for k in range(n - 1, 0, -1):
         phi[k] = phi[k - 1]

@@ -1,9 +1,9 @@
 """The known-model controllers' step (the oracles of :mod:`stcgym.adaptive.control.oracles`).
 
-``known_model_propose(s, p, lane, y, r, filtered, integral, anti_windup, action_bound) -> int``
+``known_model_propose(s, p, lane_i, y, r, filtered, integral, anti_windup, action_bound) -> int``
 computes one step (Kalman correction, the tracking law :func:`~.law.track`, Kalman prediction)
-of lane ``lane`` of the lane state ``s`` (:class:`OracleState`) into the proposal ``p``
-(:class:`OracleProposal`) without touching ``s``; ``known_model_commit(s, p, lane) -> u`` makes
+of lane ``lane_i`` of the lane state ``s`` (:class:`OracleState`) into the proposal ``p``
+(:class:`OracleProposal`) without touching ``s``; ``known_model_commit(s, p, lane_i) -> u`` makes
 it the state. Both are named tuples of batched arrays (lane ``i``'s field ``f`` is ``s.f[i]``;
 shapes in :func:`oracle_shapes`). The batch loops ``known_model_propose_lanes`` /
 ``known_model_commit_lanes`` let a batched ``predict`` reject a step atomically (no lane changes
@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from stcgym.adaptive.control.law import track
 from stcgym.adaptive.control.safe_set import make_gain
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
-from stcgym.adaptive.kernels.linalg import all_finite
 from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.lanes.linalg import all_finite
 
 __all__ = [
     "OracleProposal",
@@ -110,38 +110,38 @@ def make_oracle_state(n: int, num_lanes: int) -> tuple[OracleState, OraclePropos
 
 
 @lane(entry=True)
-def known_model_propose(s, p, lane, y, r, filtered, integral, anti_windup, action_bound):
-    """One step of a known-model controller, written to lane ``lane`` of the proposal ``p``.
+def known_model_propose(s, p, lane_i, y, r, filtered, integral, anti_windup, action_bound):
+    """One step of a known-model controller, written to lane ``lane_i`` of the proposal ``p``.
 
     The Kalman correction with ``y(t)`` (:func:`filtered_state`), the tracking law on ``x(t|t)``
     (``filtered``) or ``x(t|t-1)`` (:func:`track`), the Kalman time update with the applied
     ``u(t)`` (:func:`kalman_step`). Returns 0 when everything proposed is finite (then
     :func:`known_model_commit` makes it the state), 1 otherwise; the state ``s`` is only read.
     """
-    x = s.x[lane]
-    P = s.P[lane]
-    R = s.R[lane]
-    x_next = p.x[lane]
-    x_filt = p.x_filt[lane]
-    P_next = p.P[lane]
+    x = s.x[lane_i]
+    P = s.P[lane_i]
+    R = s.R[lane_i]
+    x_next = p.x[lane_i]
+    x_filt = p.x_filt[lane_i]
+    P_next = p.P[lane_i]
     innov = filtered_state(x, P, R, y, x_filt)
     xc = x_filt if filtered else x
     # a known model always has a gain (its design must succeed)
     u, xi, saturated, u_unsat = track(
-        s.gain, lane, True, s.xi[lane], xc, y, r, 0.0, action_bound, integral, anti_windup
+        s.gain, lane_i, True, s.xi[lane_i], xc, y, r, 0.0, action_bound, integral, anti_windup
     )
-    p.xi[lane] = xi
-    p.saturated[lane] = saturated
-    p.u_unsat[lane] = u_unsat
+    p.xi[lane_i] = xi
+    p.saturated[lane_i] = saturated
+    p.u_unsat[lane_i] = u_unsat
     for i in range(P.shape[0]):
         for j in range(P.shape[1]):
             P_next[i, j] = P[i, j]
     kf_status = kalman_step(
-        s.A[lane], s.b[lane], P_next, s.Q[lane], R, x, u, y, x_next, p.L1[lane], p.AP[lane],
-        p.P_upd[lane],
+        s.A[lane_i], s.b[lane_i], P_next, s.Q[lane_i], R, x, u, y, x_next, p.L1[lane_i],
+        p.AP[lane_i], p.P_upd[lane_i],
     )  # fmt: skip
-    p.innov[lane] = innov
-    p.u[lane] = u
+    p.innov[lane_i] = innov
+    p.u[lane_i] = u
     if kf_status != 0:
         return 1
     finite = all_finite(x_next) and all_finite(x_filt) and all_finite(P_next)
@@ -151,22 +151,22 @@ def known_model_propose(s, p, lane, y, r, filtered, integral, anti_windup, actio
 
 
 @lane(entry=True)
-def known_model_commit(s, p, lane):
-    """Make lane ``lane`` of the proposal ``p`` of :func:`known_model_propose` the lane's state;
+def known_model_commit(s, p, lane_i):
+    """Make lane ``lane_i`` of the proposal ``p`` of :func:`known_model_propose` the lane's state;
     returns ``u``."""
-    x, x_filt, P = s.x[lane], s.x_filt[lane], s.P[lane]
-    x_next, x_filt_next, P_next = p.x[lane], p.x_filt[lane], p.P[lane]
+    x, x_filt, P = s.x[lane_i], s.x_filt[lane_i], s.P[lane_i]
+    x_next, x_filt_next, P_next = p.x[lane_i], p.x_filt[lane_i], p.P[lane_i]
     for i in range(x.size):
         x[i] = x_next[i]
         x_filt[i] = x_filt_next[i]
         for j in range(x.size):
             P[i, j] = P_next[i, j]
-    s.innov[lane] = p.innov[lane]
-    s.xi[lane] = p.xi[lane]
-    s.saturated[lane] = p.saturated[lane]
-    s.u_unsat[lane] = p.u_unsat[lane]
-    s.t[lane] += 1
-    return p.u[lane]
+    s.innov[lane_i] = p.innov[lane_i]
+    s.xi[lane_i] = p.xi[lane_i]
+    s.saturated[lane_i] = p.saturated[lane_i]
+    s.u_unsat[lane_i] = p.u_unsat[lane_i]
+    s.t[lane_i] += 1
+    return p.u[lane_i]
 
 
 @lanes

@@ -2,7 +2,7 @@
 
 :func:`track` is a pure function of the law state, the integrator ``xi``: it returns the input,
 ``xi(t+1)``, whether the input saturated and the input before saturation. ``gain`` is the
-:class:`.safe_set.Gain` of the lanes (``K_x``, ``k_i``, ``N``), ``lane`` the one to read;
+:class:`.safe_set.Gain` of the lanes (``K_x``, ``k_i``, ``N``), ``lane_i`` the one to read;
 whether a design has been accepted yet (``has_gain``) is the caller's, kept beside it.
 """
 
@@ -16,7 +16,7 @@ __all__ = ["track"]
 
 
 @lane(inline=True)
-def track(gain, lane, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_windup):
+def track(gain, lane_i, has_gain, xi, x, y, r, excitation, action_bound, integral, anti_windup):
     """``u(t) = sat(-K_x x(t) - k_i xi(t) + N r(t) + e(t))``; returns
     ``(u(t), xi(t+1), saturated, u_unsat)``.
 
@@ -26,10 +26,10 @@ def track(gain, lane, has_gain, xi, x, y, r, excitation, action_bound, integral,
     excitation is applied and ``xi`` stays. ``action_bound = inf`` means no saturation.
     """
     n = x.size
-    K_x = gain.K_x[lane]
-    k_i = gain.k_i[lane]
+    K_x = gain.K_x[lane_i]
+    k_i = gain.k_i[lane_i]
     if has_gain:
-        u = gain.N[lane] * r + excitation - k_i * xi
+        u = gain.N[lane_i] * r + excitation - k_i * xi
         for i in range(n):
             u -= K_x[i] * x[i]
     else:

@@ -1,6 +1,6 @@
 """Linear-quadratic designs on the (integral-augmented) model: lane functions.
 
-``lq_design(theta, cfg, weights, P, gain, w, lane) -> int``
+``lq_design(theta, cfg, weights, P, gain, w, lane_i) -> int``
     Self-tuning LQ: **one** Riccati iteration per call on the (augmented) model of ``theta``
     (``cfg``: a :class:`.safe_set.DesignConfig`), warm-started from ``P`` (``m x m``,
     C-contiguous 2-D, updated in place); the gain is the LQ gain of the updated ``P``.
@@ -9,14 +9,14 @@
     ``DEFAULT_LQ_WEIGHTS = (1, 1e-4, 1e-2)``, explained in
     :class:`stcgym.adaptive.control.options.LawOptions`. Initialise ``P`` with :func:`lq_initial_P`
     (``= Q``) or a converged solution; a ``P`` that is not finite on entry restarts from ``Q``.
-    ``w``: an :data:`LQWork` (:func:`lq_work`), of which lane ``lane`` is used.
-``lq_solve(theta, cfg, weights, P, gain, w, lane, tol, max_iter) -> int``
+    ``w``: an :data:`LQWork` (:func:`lq_work`), of which lane ``lane_i`` is used.
+``lq_solve(theta, cfg, weights, P, gain, w, lane_i, tol, max_iter) -> int``
     The same design solved to convergence (structured doubling, for a fresh model; ``w`` an
     :data:`LQSolveWork`);
-``dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter) -> int``
+``dare(A, b, Q, rho, char_A, P, K, w, lane_i, tol, max_iter) -> int``
     The discrete algebraic Riccati equation of a general single-input pair (status 0 / 6 / 7;
     ``char_A`` the coefficients of ``det(zI - A)``; ``w`` a :data:`DareWork`).
-``kalman_covariance(theta, form, W, R, P, w, lane, tol, max_iter) -> int``
+``kalman_covariance(theta, form, W, R, P, w, lane_i, tol, max_iter) -> int``
     The steady-state Kalman filter covariance of the canonical model of ``theta``: :func:`dare`
     on the dual problem.
 
@@ -42,11 +42,10 @@ from stcgym.adaptive.control.safe_set import (
 )
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
-from stcgym.adaptive.kernels.linalg import all_finite, matmul, max_abs
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
-from stcgym.envs.validation import real_in
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.linalg import all_finite, copy_matrix, matmul, max_abs
+from stcgym.lanes.validation import real_in
 
 __all__ = [
     "DEFAULT_LQ_WEIGHTS",
@@ -231,36 +230,36 @@ def _weight_matrix(n, integral, weights, Q):
 
 
 @lane(entry=True, inline=True)
-def lq_design(theta, cfg, weights, P, gain, w, lane):
+def lq_design(theta, cfg, weights, P, gain, w, lane_i):
     """One Riccati iteration on the (augmented) model of ``theta`` warm-started from ``P``.
 
-    Returns the status code; lane ``lane`` of ``gain`` (a :class:`.safe_set.Gain`) is written
+    Returns the status code; lane ``lane_i`` of ``gain`` (a :class:`.safe_set.Gain`) is written
     only on ``OK``. A Riccati matrix that is not
     finite on entry or blows up (``> P_MAX``: the model is not stabilisable) is re-initialised
     to ``Q`` and ``NOT_STABILISABLE`` returned.
     """
-    status, rcond = design_start(theta, cfg, w, lane)
+    status, rcond = design_start(theta, cfg, w, lane_i)
     if status != OK:
         return status
-    Ad = w.A_aug[lane]
-    bd = w.b_aug[lane]
-    K = w.K[lane]
+    Ad = w.A_aug[lane_i]
+    bd = w.b_aug[lane_i]
+    K = w.K[lane_i]
     m = Ad.shape[0]
-    Q = w.Q[lane]
+    Q = w.Q[lane_i]
     _weight_matrix(theta.size // 2, cfg.integral, weights, Q)
     if not all_finite(P):
         for i in range(m):
             for j in range(m):
                 P[i, j] = Q[i, j]
     rho = weight_fields(weights).rho
-    _riccati_step(Ad, bd, Q, rho, P, K, w.A_cl[lane], w.P_Acl[lane])
+    _riccati_step(Ad, bd, Q, rho, P, K, w.A_cl[lane_i], w.P_Acl[lane_i])
     if not (max_abs(P) <= P_MAX):
         for i in range(m):
             for j in range(m):
                 P[i, j] = Q[i, j]
         return NOT_STABILISABLE
     _lq_gain(Ad, bd, rho, P, K)
-    return finish(theta, cfg, rcond, gain, w, lane)
+    return finish(theta, cfg, rcond, gain, w, lane_i)
 
 
 @lane(inline=True)
@@ -293,77 +292,77 @@ def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
 
 
 @lane
-def _dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter):
+def _dare(A, b, Q, rho, char_A, P, K, w, lane_i, tol, max_iter):
     """Stabilising solution of ``P = Q + A^T P A - A^T P b (rho + b^T P b)^{-1} b^T P A`` by the
     structure-preserving doubling algorithm (quadratic convergence; :func:`.mimo_lq.doubling`):
 
         W = I + G_k H_k,  A_{k+1} = A_k W^{-1} A_k,  G_{k+1} = G_k + A_k W^{-1} G_k A_k^T,
         H_{k+1} = H_k + A_k^T H_k W^{-1} A_k,    A_0 = A, G_0 = b b^T / rho, H_0 = Q -> P,
 
-    on the :data:`DareWork` fields of lane ``lane`` of ``w``.
+    on the :data:`DareWork` fields of lane ``lane_i`` of ``w``.
     """
     m = A.shape[0]
-    Ak = w.A_k[lane]
-    Gk = w.G_k[lane]
-    Hk = w.H_k[lane]
+    Ak = w.A_k[lane_i]
+    Gk = w.G_k[lane_i]
+    Hk = w.H_k[lane_i]
     for i in range(m):
         for j in range(m):
             Ak[i, j] = A[i, j]
             Gk[i, j] = b[i] * b[j] / rho
             Hk[i, j] = 0.5 * (Q[i, j] + Q[j, i])
-    status = doubling(Ak, Gk, Hk, w, lane, tol, max_iter)
+    status = doubling(Ak, Gk, Hk, w, lane_i, tol, max_iter)
     if status != OK:
         return status
     copy_matrix(Hk, P)
     _lq_gain(A, b, rho, P, K)
-    c = w.char_cl[lane]
-    if not _closed_loop_is_stable(A, b, char_A, K, w.adj_v[lane], w.adj_v_next[lane], c):
+    c = w.char_cl[lane_i]
+    if not _closed_loop_is_stable(A, b, char_A, K, w.adj_v[lane_i], w.adj_v_next[lane_i], c):
         return NOT_STABILISABLE
     return OK
 
 
 @lane(entry=True)
-def dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter):
+def dare(A, b, Q, rho, char_A, P, K, w, lane_i, tol, max_iter):
     """Discrete algebraic Riccati equation of a general single-input pair (see :func:`_dare`).
 
     ``char_A = [a_1, ..., a_m]``: the characteristic polynomial ``det(zI - A)`` (for the test
     of the closed loop); ``w``: a :data:`DareWork` of order ``m`` (:func:`dare_work`),
-    lane ``lane`` used. Writes the stabilising ``P`` and the gain ``K`` on success; returns
+    lane ``lane_i`` used. Writes the stabilising ``P`` and the gain ``K`` on success; returns
     ``OK``, ``NOT_STABILISABLE`` (diverging doubling or a closed loop that is not Schur: no
     stabilising solution) or ``NOT_CONVERGED``.
     """
     if w.A_k.shape[1] != A.shape[0]:
         raise ValueError("dare: w is not the scratch of this order (dare_work(m))")
-    return _dare(A, b, Q, rho, char_A, P, K, w, lane, tol, max_iter)
+    return _dare(A, b, Q, rho, char_A, P, K, w, lane_i, tol, max_iter)
 
 
 @lane(entry=True)
-def lq_solve(theta, cfg, weights, P, gain, w, lane, tol, max_iter):
+def lq_solve(theta, cfg, weights, P, gain, w, lane_i, tol, max_iter):
     """The LQ design of :func:`lq_design` solved to convergence (doubling) for a fresh model.
 
-    ``w``: an :data:`LQSolveWork` (``lq_work(n, integral, solve=True)``), lane ``lane`` used;
+    ``w``: an :data:`LQSolveWork` (``lq_work(n, integral, solve=True)``), lane ``lane_i`` used;
     ``tol`` (e.g. ``1e-12``) bounds the last doubling increment of ``P`` relative to
     ``max(1, max |P|)``, ``max_iter`` (e.g. 64) the number of doubling steps (each squares the
     horizon).
 
-    Writes the Riccati solution into ``P`` and the design into lane ``lane`` of ``gain`` (a
+    Writes the Riccati solution into ``P`` and the design into lane ``lane_i`` of ``gain`` (a
     :class:`.safe_set.Gain`) on ``OK``; both are left untouched otherwise.
     """
-    status, rcond = design_start(theta, cfg, w, lane)
+    status, rcond = design_start(theta, cfg, w, lane_i)
     if status != OK:
         return status
-    Ad = w.A_aug[lane]
+    Ad = w.A_aug[lane_i]
     m = Ad.shape[0]
-    Q = w.Q[lane]
+    Q = w.Q[lane_i]
     _weight_matrix(theta.size // 2, cfg.integral, weights, Q)
-    Psol = w.P_sol[lane]
-    char_A = w.char_A[lane]
+    Psol = w.P_sol[lane_i]
+    char_A = w.char_A[lane_i]
     augmented_characteristic(theta, cfg.integral, char_A)
     rho = weight_fields(weights).rho
-    status = _dare(Ad, w.b_aug[lane], Q, rho, char_A, Psol, w.K[lane], w, lane, tol, max_iter)
+    status = _dare(Ad, w.b_aug[lane_i], Q, rho, char_A, Psol, w.K[lane_i], w, lane_i, tol, max_iter)
     if status != OK:
         return status
-    status = finish(theta, cfg, rcond, gain, w, lane)
+    status = finish(theta, cfg, rcond, gain, w, lane_i)
     if status == OK:
         for i in range(m):
             for j in range(m):
@@ -380,11 +379,11 @@ def lq_solve_lanes(thetas, cfg, weights, Ps, gains, status, w, tol, max_iter, fi
 
 
 @lane(allocates=True, entry=True)
-def kalman_covariance(theta, form, W, R, P, w, lane, tol, max_iter):
+def kalman_covariance(theta, form, W, R, P, w, lane_i, tol, max_iter):
     """Steady-state (a-priori) Kalman filter covariance of the canonical model of ``theta``:
     the stabilising solution of the dual Riccati equation ``dare(A^T, c^T, W, R)`` (``W``
     ``(n, n)`` process noise, ``R`` the measurement variance; ``P`` ``(n, n)`` out; ``w`` a
-    :data:`DareWork` of order ``n``, lane ``lane`` used). Returns the status of
+    :data:`DareWork` of order ``n``, lane ``lane_i`` used). Returns the status of
     :func:`dare`."""
     n = theta.size // 2
     A = np.empty((n, n))
@@ -395,7 +394,7 @@ def kalman_covariance(theta, form, W, R, P, w, lane, tol, max_iter):
     c[0] = 1.0
     char_A = np.ascontiguousarray(theta[:n])  # det(zI - A^T) = z^n + a_1 z^{n-1} + ...
     K = np.empty(n)
-    return dare(At, c, W, R, char_A, P, K, w, lane, tol, max_iter)
+    return dare(At, c, W, R, char_A, P, K, w, lane_i, tol, max_iter)
 
 
 @lanes(allocates=True, min_lanes=4)  # a solve to convergence a lane

@@ -5,11 +5,9 @@ The settings are grouped like SB3's ``policy_kwargs``: :class:`EstimatorOptions`
 controller alone; :class:`LawOptions` (integral action, feed-forward, anti-windup, control on the
 filtered state, the LQ weights ``[q_y, q_i, rho]``) is the tracking law of the controller *and*
 of the oracles, with the same defaults. Each group is a frozen dataclass validated on
-construction; :func:`option_group` also accepts a dict of its fields.
-
-:func:`plant_settings` resolves the settings every policy of a plant shares (``num_envs``,
-``action_bound``, ``form``) against an optional env: ``action_bound`` defaults to the env's, else
-:data:`DEFAULT_ACTION_BOUND`; ``form`` to the env's, else ``"observer"``.
+construction; :func:`option_group` also accepts a dict of its fields. The settings read from an
+env (``num_envs``, ``action_bound``, ``form``) are resolved by
+:func:`stcgym.envs.env_settings.plant_settings`.
 """
 
 from __future__ import annotations
@@ -17,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.control import lq, safe_set
@@ -29,11 +26,9 @@ from stcgym.adaptive.variants import (
     ExtendedLS,
     controller_estimator,
 )
-from stcgym.envs.canonical import check_form
-from stcgym.envs.validation import flag, forgetting_factor, integer, one_of, real_in
+from stcgym.lanes.validation import flag, forgetting_factor, integer, one_of, real_in
 
 __all__ = [
-    "DEFAULT_ACTION_BOUND",
     "DEFAULT_POLE",
     "ChangeDetection",
     "EstimatorOptions",
@@ -41,15 +36,11 @@ __all__ = [
     "SafeSet",
     "StartupOptions",
     "cost_weights",
-    "env_settings",
     "option_group",
-    "plant_settings",
 ]
 
 #: Default location of every closed-loop pole (controller and known-model oracle).
 DEFAULT_POLE = 0.5
-#: Saturation of the input when neither ``action_bound`` nor an env gives one (the envs' default).
-DEFAULT_ACTION_BOUND = 10.0
 #: Default ``P(0) = p0 I`` of extended least squares and of the paper's ``O-`` estimators.
 P0_ELS = CONTROLLER_ESTIMATORS["ELS"].controller_p0
 #: Default ``P(0) = p0 I`` of the paper's ``KF-`` estimators.
@@ -427,62 +418,3 @@ def option_group(value: Any, cls: type, name: str) -> Any:
         except TypeError as exc:
             raise ValueError(f"{name}: {exc}") from exc
     raise ValueError(f"{name} must be a {cls.__name__} or a dict of its fields, got {value!r}")
-
-
-def env_settings(env: Any) -> tuple[int | None, float | None, str | None, int | None]:
-    """``(n, action_bound, form, num_envs)`` of an stcgym env, vector env or wrapper."""
-    base = getattr(env, "unwrapped", env)
-    n_inputs = getattr(base, "n_inputs", 1)
-    n_outputs = getattr(base, "n_outputs", 1)
-    if n_inputs != 1 or n_outputs != 1:
-        raise ValueError(
-            f"the controllers are single-input single-output; the env has "
-            f"{n_inputs} inputs and {n_outputs} outputs (a plant with measured state takes "
-            f"stcgym.adaptive.MultivariableSelfTuningController and LQRController)"
-        )
-    n = getattr(base, "n_states", None)
-    bound = getattr(base, "action_bound", None)
-    form = getattr(base, "form", None)
-    num = getattr(env, "num_envs", None)
-    return (
-        None if n is None else int(n),
-        None if bound is None else float(np.max(bound)),
-        None if form is None else str(form),
-        None if num is None else int(num),
-    )
-
-
-def plant_settings(
-    n: int,
-    *,
-    num_envs: Any = None,
-    action_bound: Any = None,
-    form: Any = None,
-    env: Any = None,
-) -> tuple[int | None, float, str]:
-    """``(num_envs, action_bound, form)`` of a controller of order ``n``, checked against ``env``.
-
-    ``action_bound=None`` takes the env's bound, else :data:`DEFAULT_ACTION_BOUND`
-    (``math.inf``: no saturation); ``form=None`` the env's form, else ``"observer"``. With an
-    env, ``n``, ``num_envs`` and ``form`` must match it and ``action_bound`` must not exceed it.
-    Raises ``ValueError`` naming the setting.
-    """
-    env_n, env_bound, env_form, env_num = (None,) * 4 if env is None else env_settings(env)
-    if env_n is not None and env_n != n:
-        raise ValueError(f"n={n} does not match the env's plant order n={env_n}")
-    if num_envs is not None:
-        num_envs = integer(num_envs, "num_envs", 1)
-    if env_num is not None and num_envs != env_num:
-        raise ValueError(
-            f"num_envs={num_envs} does not match the env's num_envs={env_num}: build the "
-            f"controller with num_envs={env_num}"
-        )
-    if action_bound is None:
-        action_bound = env_bound if env_bound is not None else DEFAULT_ACTION_BOUND
-    bound = real_in(action_bound, "action_bound", lo=0.0, lo_open=True)
-    if env_bound is not None and bound > env_bound:
-        raise ValueError(f"action_bound={bound} exceeds the env's action_bound={env_bound}")
-    form = check_form((env_form or "observer") if form is None else form)
-    if env_form is not None and env_form != form:
-        raise ValueError(f"form={form!r} does not match the env's form {env_form!r}")
-    return num_envs, bound, form

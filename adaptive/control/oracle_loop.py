@@ -15,13 +15,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control import known_model, safe_set
-from stcgym.adaptive.control.options import LawOptions, option_group, plant_settings
-from stcgym.adaptive.estimation.recursive import lane_indices
+from stcgym.adaptive.control.options import LawOptions, option_group
 from stcgym.adaptive.kernels import canonical
 from stcgym.adaptive.policy import LanePolicy
 from stcgym.envs.canonical import as_finite_vector
-from stcgym.envs.validation import integer, real_in
+from stcgym.envs.dynamics import FORM_CODES
+from stcgym.envs.env_settings import plant_settings
 from stcgym.lanes.compiled import FixedTypes, set_lanes, state_arrays
+from stcgym.lanes.validation import integer, lane_indices, real_in
 
 __all__ = ["MAX_SETTING"]
 
@@ -129,7 +130,7 @@ class _KnownModelLoop(LanePolicy):
     # -- lane state -------------------------------------------------------------------------
     @property
     def _form_code(self) -> int:
-        return canonical.OBSERVER if self.form == "observer" else canonical.OBSERVABILITY
+        return FORM_CODES[self.form]
 
     def _model_matrices(self, a: NDArray, b: NDArray) -> NDArray:
         """Canonical ``A`` of every lane, ``(lanes, n, n)`` (lane function ``model_matrices``)."""

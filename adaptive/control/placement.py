@@ -31,7 +31,7 @@ from stcgym.adaptive.control import pole_placement, safe_set
 from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.multivariable import mimo_lq as _mimo_lq
 from stcgym.adaptive.multivariable.lqr import lq_failure_reason
-from stcgym.envs.validation import finite_vector, matrix, positive, square_matrix
+from stcgym.lanes.validation import finite_vector, matrix, positive, square_matrix
 
 __all__ = [
     "UncontrollableError",

@@ -1,13 +1,13 @@
 """Pole placement by Ackermann's formula on the (integral-augmented) model: lane functions.
 
-``place_design(theta, cfg, gain, w, i) -> int``
+``place_design(theta, cfg, gain, w, lane_i) -> int``
     Ackermann pole placement of the ``m`` poles with monic characteristic polynomial
     ``z^m + char_poly[0] z^{m-1} + ... + char_poly[m-1]`` (``cfg.char_poly``, length ``m``) on
     the (augmented) model of ``theta``; ``N = u_ss + K_x x_ss`` from the steady state. ``cfg``:
     a :class:`.safe_set.DesignConfig` (form, integral action, feed-forward, safe set); ``w`` is
-    a :data:`.safe_set.DesignWork` (:func:`.safe_set.design_work`), of which lane ``i`` is
+    a :data:`.safe_set.DesignWork` (:func:`.safe_set.design_work`), of which lane ``lane_i`` is
     used. Returns the status code of :mod:`.safe_set`; ``gain`` is written only on success.
-``ackermann_gain(A, b, char_poly, K, w, i) -> rcond``
+``ackermann_gain(A, b, char_poly, K, w, lane_i) -> rcond``
     The same formula on a general pair (``rcond <= 0``: singular; ``K`` written only when
     ``rcond > 0``; ``w`` with the fields of :class:`.safe_set.ControllabilityWork`), used by
     the numpy helpers of :mod:`stcgym.adaptive.control.placement`.
@@ -24,18 +24,18 @@ __all__ = ["ackermann_gain", "place_design", "place_design_lanes"]
 
 
 @lane(inline=True)
-def _ackermann_from_ctrb(A, char_poly, K, w, i):
+def _ackermann_from_ctrb(A, char_poly, K, w, lane_i):
     """Ackermann's formula ``K = e_m^T Ctrb^{-1} phi_d(A)`` (Ackermann 1972; Franklin, Powell &
     Workman, *Digital Control of Dynamic Systems*, 3rd ed.) with ``phi_d(z) = z^m + c_1 z^{m-1}
     + ... + c_m`` (``c = char_poly``), as ``K = sum_k c_{m-k} v A^k`` with ``v`` the last row of
     ``Ctrb^{-1}`` (``phi_d(A)`` never formed: ``m`` row-vector/matrix products), from the
     inverse ``w.Cinv`` and column norms ``w.norms`` that :func:`.safe_set.controllability`
-    left in lane ``i``."""
+    left in lane ``lane_i``."""
     m = A.shape[0]
-    Cinv = w.Cinv[i]
-    norms = w.norms[i]
-    v = w.v[i]
-    vA = w.v_next[i]
+    Cinv = w.Cinv[lane_i]
+    norms = w.norms[lane_i]
+    v = w.v[lane_i]
+    vA = w.v_next[lane_i]
     for j in range(m):  # v = e_m^T Ctrb^{-1} (the columns of Ctrb were scaled by norms)
         v[j] = Cinv[m - 1, j] / norms[m - 1]
         K[j] = char_poly[m - 1] * v[j]  # c_m v A^0
@@ -52,9 +52,9 @@ def _ackermann_from_ctrb(A, char_poly, K, w, i):
 
 
 @lane(entry=True)
-def ackermann_gain(A, b, char_poly, K, w, i):
+def ackermann_gain(A, b, char_poly, K, w, lane_i):
     """Ackermann gain of a general pair ``(A, b)`` (``m x m``; ``w`` with the fields of
-    :class:`.safe_set.ControllabilityWork` for order ``m``, lane ``i`` used).
+    :class:`.safe_set.ControllabilityWork` for order ``m``, lane ``lane_i`` used).
 
     ``eig(A - b K)`` are the roots of ``z^m + char_poly[0] z^{m-1} + ... + char_poly[m-1]``.
     Returns the reciprocal 1-norm condition of the column-normalised controllability matrix
@@ -62,24 +62,24 @@ def ackermann_gain(A, b, char_poly, K, w, i):
     """
     if w.C.shape[1] != A.shape[0]:
         raise ValueError("ackermann_gain: w is not the scratch of this order")
-    rcond = controllability(A, b, w, i)  # Ctrb = [b, A b, ..., A^{m-1} b] and its inverse
+    rcond = controllability(A, b, w, lane_i)  # Ctrb = [b, A b, ..., A^{m-1} b] and its inverse
     if rcond > 0.0:
-        _ackermann_from_ctrb(A, char_poly, K, w, i)
+        _ackermann_from_ctrb(A, char_poly, K, w, lane_i)
     return rcond
 
 
 @lane(entry=True, inline=True)
-def place_design(theta, cfg, gain, w, i):
+def place_design(theta, cfg, gain, w, lane_i):
     """Pole placement on the (augmented) model of ``theta``; see the module docstring.
 
-    Returns the status code; lane ``i`` of ``gain`` (a :class:`.safe_set.Gain`) is written
+    Returns the status code; lane ``lane_i`` of ``gain`` (a :class:`.safe_set.Gain`) is written
     only when it is ``OK`` (0).
     """
-    status, rcond = design_start(theta, cfg, w, i)  # model, augmentation, Ctrb^{-1}
+    status, rcond = design_start(theta, cfg, w, lane_i)  # model, augmentation, Ctrb^{-1}
     if status != OK:
         return status
-    _ackermann_from_ctrb(w.A_aug[i], cfg.char_poly, w.K[i], w, i)
-    return finish(theta, cfg, rcond, gain, w, i)  # safe set, steady state, N
+    _ackermann_from_ctrb(w.A_aug[lane_i], cfg.char_poly, w.K[lane_i], w, lane_i)
+    return finish(theta, cfg, rcond, gain, w, lane_i)  # safe set, steady state, N
 
 
 @lanes(min_lanes=16)  # one design a lane

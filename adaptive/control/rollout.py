@@ -27,8 +27,8 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.control.controller import SelfTuningController
 from stcgym.adaptive.control.controller_step import controller_step
 from stcgym.envs.dynamics import canonical_plant_step
-from stcgym.envs.validation import integer, non_negative
 from stcgym.lanes.compiled import lane, lanes
+from stcgym.lanes.validation import integer, non_negative
 
 __all__ = ["RolloutResult", "charge_divergence", "rollout"]
 
@@ -69,10 +69,10 @@ def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
 
 
 @lane(inline=True)
-def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, x, theta,
+def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, x, theta,
                  theta_after, jump_at, form, bound, sigma_v, z, r, rho, y_bound, window, cost,
                  y_tr, u_tr, traces):  # fmt: skip
-    """``T = r.size - 1`` closed-loop steps of lane ``i`` (the arguments before ``i``: the
+    """``T = r.size - 1`` closed-loop steps of lane ``lane_i`` (the arguments before ``lane_i``: the
     controller's :class:`~stcgym.adaptive.control.controller_step.ControllerArgs`); returns
     ``(steps_run, diverged)``."""
     T = r.shape[0] - 1
@@ -81,7 +81,9 @@ def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, x, t
     if traces:
         y_tr[0] = y
     for k in range(T):
-        u_raw = controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y, r[k])
+        u_raw = controller_step(
+            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r[k]
+        )
         th = theta_after if k >= jump_at else theta
         reward, _, diverged, u, _, y = canonical_plant_step(
             x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form

@@ -44,9 +44,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
-from stcgym.adaptive.kernels.linalg import all_finite, invert, matvec, norm1
-from stcgym.envs.validation import real_in
+from stcgym.envs.dynamics import matvec
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.linalg import all_finite, invert, norm1
+from stcgym.lanes.validation import real_in
 
 __all__ = [
     "STATUS_NAMES",
@@ -238,18 +239,18 @@ def safe_set(
 
 
 @lane(inline=True)
-def controllability(A, b, w, lane):
+def controllability(A, b, w, lane_i):
     """Invert the column-normalised controllability matrix ``C = Ctrb / norms`` of ``(A, b)``
     (``m x m``): writes ``w.C``, ``w.Cinv = C^{-1}`` and the column norms ``w.norms`` of lane
-    ``lane``; returns the reciprocal 1-norm condition of ``C`` (0.0 when singular or
+    ``lane_i``; returns the reciprocal 1-norm condition of ``C`` (0.0 when singular or
     non-finite)."""
     m = A.shape[0]
-    C = w.C[lane]
-    C_lu = w.C_lu[lane]
-    Cinv = w.Cinv[lane]
-    norms = w.norms[lane]
-    v = w.v[lane]
-    Av = w.v_next[lane]
+    C = w.C[lane_i]
+    C_lu = w.C_lu[lane_i]
+    Cinv = w.Cinv[lane_i]
+    norms = w.norms[lane_i]
+    v = w.v[lane_i]
+    Av = w.v_next[lane_i]
     for i in range(m):
         v[i] = b[i]
     for k in range(m):
@@ -277,12 +278,12 @@ def controllability(A, b, w, lane):
 
 
 @lane(inline=True)
-def _steady_state(A, b, w, lane):
+def _steady_state(A, b, w, lane_i):
     n = A.shape[0]
-    M = w.M[lane]
-    Minv = w.Minv[lane]
-    M_lu = w.M_lu[lane]
-    x_ss = w.x_ss[lane]
+    M = w.M[lane_i]
+    Minv = w.Minv[lane_i]
+    M_lu = w.M_lu[lane_i]
+    x_ss = w.x_ss[lane_i]
     for i in range(n + 1):
         for j in range(n + 1):
             M[i, j] = 0.0
@@ -305,7 +306,7 @@ def _steady_state(A, b, w, lane):
 
 
 @lane(entry=True)
-def steady_state(A, b, w, lane):
+def steady_state(A, b, w, lane_i):
     """Steady state of ``x = A x + b u``, ``y = x_1 = 1``: writes ``x_ss`` into ``w.x_ss[lane]``,
     returns ``(u_ss, rcond)`` from the Rosenbrock system ``[[A - I, b], [c, 0]] [x_ss; u_ss] =
     [0; 1]`` (regular exactly when the model has no zero at ``z = 1``; works with an integrator
@@ -313,11 +314,11 @@ def steady_state(A, b, w, lane):
     :class:`SteadyStateWork` and ``x_ss`` (a :data:`DesignWork` of order ``n``)."""
     if w.M.shape[1] != A.shape[0] + 1:
         raise ValueError("steady_state: w is not the scratch of this order (design_work(n))")
-    return _steady_state(A, b, w, lane)
+    return _steady_state(A, b, w, lane_i)
 
 
 @lane(inline=True)
-def _prepare(theta, cfg, w, lane):
+def _prepare(theta, cfg, w, lane_i):
     """The safe-set tests every design shares, in order (finite, ``b_min``, controllability);
     builds ``A``, ``b`` and ``(A_aug, b_aug)`` in ``w`` and leaves ``C^{-1}`` there.
     Returns ``(status, rcond)``."""
@@ -330,22 +331,22 @@ def _prepare(theta, cfg, w, lane):
         bmax = max(bmax, abs(theta[n + i]))
     if bmax < bounds.b_min:
         return B_SMALL, 0.0
-    Ad = w.A_aug[lane]
-    bd = w.b_aug[lane]
-    A = w.A[lane]
-    b = w.b[lane]
+    Ad = w.A_aug[lane_i]
+    bd = w.b_aug[lane_i]
+    A = w.A[lane_i]
+    b = w.b[lane_i]
     model_matrices(theta, cfg.form, A, b)
     augment_integral(A, b, cfg.integral, Ad, bd)
-    rcond = controllability(Ad, bd, w, lane)
+    rcond = controllability(Ad, bd, w, lane_i)
     if not rcond > max(bounds.rcond_min, RCOND_FLOOR):
         return UNCONTROLLABLE, rcond
     return OK, rcond
 
 
 @lane(inline=True)
-def design_start(theta, cfg, w, lane):
+def design_start(theta, cfg, w, lane_i):
     """The start every design shares (``cfg``: a :class:`DesignConfig`): the model of ``theta``
-    built into lane ``lane`` of the scratch ``w`` (``w.A``, ``w.b``, the augmented ``w.A_aug``,
+    built into lane ``lane_i`` of the scratch ``w`` (``w.A``, ``w.b``, the augmented ``w.A_aug``,
     ``w.b_aug`` of size ``m = n + integral``) and the safe-set tests passed in order (finite,
     ``b_min``, controllability; ``w.Cinv`` left for Ackermann's formula). Returns
     ``(status, rcond)``; the design goes on only when ``status == OK``. A scratch built for
@@ -354,21 +355,21 @@ def design_start(theta, cfg, w, lane):
     m = n + (1 if cfg.integral else 0)
     if w.A.shape[1] != n or w.A_aug.shape[1] != m:
         raise ValueError("design scratch of another order: build it with design_work(n, integral)")
-    return _prepare(theta, cfg, w, lane)
+    return _prepare(theta, cfg, w, lane_i)
 
 
 @lane(inline=True)
-def finish(theta, cfg, rcond, gain, w, lane):
+def finish(theta, cfg, rcond, gain, w, lane_i):
     """Feed-forward from the steady state, the gain bound, and the commit: the candidate gain
-    ``w.K[lane]`` (``[K_x, k_i]``), the feed-forward ``N`` and ``rcond`` become lane ``lane``
+    ``w.K[lane]`` (``[K_x, k_i]``), the feed-forward ``N`` and ``rcond`` become lane ``lane_i``
     of the :class:`Gain` ``gain``."""
     n = theta.size // 2
     bounds = safe_bounds(cfg.safe)
-    K = w.K[lane]
-    x_ss = w.x_ss[lane]
+    K = w.K[lane_i]
+    x_ss = w.x_ss[lane_i]
     N = 0.0
     if cfg.feedforward:
-        u_ss, dc_rcond = _steady_state(w.A[lane], w.b[lane], w, lane)
+        u_ss, dc_rcond = _steady_state(w.A[lane_i], w.b[lane_i], w, lane_i)
         if not dc_rcond >= max(bounds.dc_rcond_min, DC_RCOND_FLOOR):
             return DC_SINGULAR
         N = u_ss
@@ -381,10 +382,10 @@ def finish(theta, cfg, rcond, gain, w, lane):
             kmax = abs(K[i]) if math.isfinite(K[i]) else math.inf
     if not (kmax <= bounds.gain_max and math.isfinite(N)):
         return GAIN_LARGE
-    K_x = gain.K_x[lane]
+    K_x = gain.K_x[lane_i]
     for i in range(n):
         K_x[i] = K[i]
-    gain.k_i[lane] = K[n] if cfg.integral else 0.0
-    gain.N[lane] = N
-    gain.rcond[lane] = rcond
+    gain.k_i[lane_i] = K[n] if cfg.integral else 0.0
+    gain.N[lane_i] = N
+    gain.rcond[lane_i] = rcond
     return OK

@@ -1,24 +1,24 @@
 """The joint state/parameter estimator of Ding & Ma (2014): the lane functions of one step.
 
-Lane ``i`` of the state ``s`` (an :class:`EstimatorState`) and the scratch ``w`` (an
+Lane ``lane_i`` of the state ``s`` (an :class:`EstimatorState`) and of the scratch ``w`` (an
 :class:`EstimatorWork`), with the configuration ``cfg`` of :class:`EstimatorSpec`:
 
-``status = estimator_update(s, w, i, cfg, y, windowed=None)``
+``status = estimator_update(s, w, lane_i, cfg, y, windowed=None)``
     Measurement step at time ``t``: shift the stacked ``Phi(p, t)``, ``Y(p, t)`` ((19)-(20),
     (74)-(75)), the innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta_hat(t-1)`` and the rule
     of :data:`.variants.RULES`: SG (12)-(15), MISG (16)-(22), RLS (32)-(36), MILS (37)-(44),
     their D- forms (96)-(145), NG (the projection algorithm); as a whole O-RLS (54)-(57),
     KF-MILS (73)-(79). ``windowed=True`` compiles the finite-history downdate and replay.
-``status = estimator_predict(s, w, i, cfg, u)``
+``status = estimator_predict(s, w, lane_i, cfg, u)``
     State step with ``u(t)``: ``A_hat(t)``, ``b_hat(t)`` ((59)-(60), (83)-(84)),
     ``x_hat(t+1)`` by the open-loop observer (58), the closed-loop observer (50) or the Kalman
     filter (80)-(82), and ``phi_hat(t+1)`` ((57)/(153)); with ``regressor="filtered"`` (not
     the paper's) ``phi_hat`` is built from ``x_hat(t|t) = x_hat(t) + g [y(t) - c x_hat(t)]``.
-``ok = estimator_restart(s, w, i, cfg, theta, P)``
+``ok = estimator_restart(s, w, lane_i, cfg, theta, P)``
     Restart at ``theta`` with covariance ``P`` (only its diagonal blocks for D- rules); the
     normalisers back to ``r(0)``; the window emptied. ``False`` (nothing changed) when ``P`` is
     not positive definite.
-``reset_covariance(s, i, cfg)``
+``reset_covariance(s, lane_i, cfg)``
     ``P <- P(0)`` (``r <- r(0)``), window emptied, ``theta`` kept: the documented safe action.
 
 The batch loops and the ``T``-step loop of one lane are in :mod:`.estimator_lanes`.
@@ -63,11 +63,11 @@ from stcgym.adaptive.estimation.state_estimation import (
     observer_step,
 )
 from stcgym.adaptive.kernels.canonical import companion_into
-from stcgym.adaptive.kernels.linalg import matvec
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
 from stcgym.adaptive.variants import RULES as _RULES
 from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
+from stcgym.envs.dynamics import matvec
 from stcgym.lanes.compiled import lane
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 __all__ = [
     "estimator_predict",
@@ -89,16 +89,16 @@ ST_STATE_RESET, ST_KF_RESET, ST_PD_LOST = 16, 32, 64
 
 # ============================================================================================
 # Lane functions: ``s`` the estimator's lane state, ``w`` its scratch (:class:`EstimatorState`,
-# :class:`EstimatorWork`: named batched arrays), ``i`` the lane
+# :class:`EstimatorWork`: named batched arrays), ``lane_i`` the lane
 # ============================================================================================
 
 
 @lane(entry=True)
-def reset_covariance(s: EstimatorState, i: int, cfg: EstimatorConfig) -> None:
+def reset_covariance(s: EstimatorState, lane_i: int, cfg: EstimatorConfig) -> None:
     """``P <- P(0)`` / ``r <- r(0)`` and an empty finite-history window; ``theta`` kept."""
-    copy_matrix(s.S0[i], s.S[i])  # empty without a covariance
-    copy_vector(s.r0[i], s.r[i])  # empty without normalisers
-    s.count[i] = 0
+    copy_matrix(s.S0[lane_i], s.S[lane_i])  # empty without a covariance
+    copy_vector(s.r0[lane_i], s.r[lane_i])  # empty without normalisers
+    s.count[lane_i] = 0
 
 
 @lane
@@ -114,7 +114,7 @@ def _innovation(theta: NDArray, Phi: NDArray, Y: NDArray, p: int, E: NDArray) ->
 
 @lane(inline=True)
 def _rule_increment(
-    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, Phi: NDArray, E: NDArray
+    s: EstimatorState, w: EstimatorWork, lane_i: int, cfg: EstimatorConfig, Phi: NDArray, E: NDArray
 ) -> bool:
     """``w.delta = increment of theta`` for the plain rule or both halves of a D- rule (each
     half sees the same innovation ``E`` computed with ``theta(t-1)``, (96)-(97), (124));
@@ -123,7 +123,13 @@ def _rule_increment(
     d = 2 * n
     p = cfg.p
     lam = cfg.forgetting
-    S, r, delta, K, scratch = s.S[i], s.r[i], w.delta[i], w.K[i], w.factor_work[i]
+    S, r, delta, gain, scratch = (
+        s.S[lane_i],
+        s.r[lane_i],
+        w.delta[lane_i],
+        w.gain[lane_i],
+        w.factor_work[lane_i],
+    )
     nblocks = 2 if cfg.decomposed else 1
     ok = True
     for blk in range(nblocks):
@@ -131,7 +137,7 @@ def _rule_increment(
         hi = d if nblocks == 1 else lo + n
         if cfg.rule == RULE_RLS or cfg.rule == RULE_MILS:
             denom = least_squares_increment(
-                S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, K, scratch
+                S, lo, hi, Phi, E, p, lam, cfg.rule == RULE_RLS, delta, gain, scratch
             )
             ok = ok and denom > 0.0 and math.isfinite(denom) and block_trace_is_finite(S, lo, hi)
         elif cfg.rule == RULE_SG or cfg.rule == RULE_MISG:
@@ -149,7 +155,7 @@ def _rule_increment(
 
 @lane
 def _replay_window(
-    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, theta_w: NDArray
+    s: EstimatorState, w: EstimatorWork, lane_i: int, cfg: EstimatorConfig, theta_w: NDArray
 ) -> None:
     """Exact finite-history estimate by replaying the stored blocks from ``P(0)``: plain rules
     also replay ``theta`` from ``theta(0)`` into ``theta_w`` (regularised least squares over the
@@ -158,10 +164,20 @@ def _replay_window(
     d = 2 * n
     p = cfg.p
     W = cfg.window
-    count = s.count[i]  # read before the reset empties the window
-    reset_covariance(s, i, cfg)
-    S, theta0, hist_Phi, hist_Y = s.S[i], s.theta0[i], s.hist_Phi[i], s.hist_Y[i]
-    delta, K, scratch, E = w.delta[i], w.K[i], w.factor_work[i], w.E_replay[i]
+    count = s.count[lane_i]  # read before the reset empties the window
+    reset_covariance(s, lane_i, cfg)
+    S, theta0, hist_Phi, hist_Y = (
+        s.S[lane_i],
+        s.theta0[lane_i],
+        s.hist_Phi[lane_i],
+        s.hist_Y[lane_i],
+    )
+    delta, gain, scratch, E = (
+        w.delta[lane_i],
+        w.gain[lane_i],
+        w.factor_work[lane_i],
+        w.E_replay[lane_i],
+    )
     for j in range(d):
         theta_w[j] = theta0[j]
     first = count % W  # the oldest block (the newest was written just before)
@@ -173,21 +189,21 @@ def _replay_window(
             for blk in range(2):
                 lo = blk * n
                 for j in range(p):
-                    carlson_update(S, lo, lo + n, Phi[j], 1.0, K)
+                    carlson_update(S, lo, lo + n, Phi[j], 1.0, gain)
         else:
             _innovation(theta_w, Phi, Yk, p, E)
             scalar = cfg.rule == RULE_RLS
-            least_squares_increment(S, 0, d, Phi, E, p, 1.0, scalar, delta, K, scratch)
+            least_squares_increment(S, 0, d, Phi, E, p, 1.0, scalar, delta, gain, scratch)
             for j in range(d):
                 theta_w[j] += delta[j]
-    s.count[i] = count
+    s.count[lane_i] = count
 
 
 @lane
 def _slide_window(
     s: EstimatorState,
     w: EstimatorWork,
-    i: int,
+    lane_i: int,
     cfg: EstimatorConfig,
     theta: NDArray,
     Phi: NDArray,
@@ -199,18 +215,18 @@ def _slide_window(
     d = 2 * n
     p = cfg.p
     W = cfg.window
-    count = s.count[i]
+    count = s.count[lane_i]
     k = count % W
-    s.count[i] = count + 1
-    hPhi = s.hist_Phi[i][k]
-    hY = s.hist_Y[i][k]
-    delta = w.delta[i]
+    s.count[lane_i] = count + 1
+    hPhi = s.hist_Phi[lane_i][k]
+    hY = s.hist_Y[lane_i][k]
+    delta = w.delta[lane_i]
     if count >= W:
-        E_old, tw = w.E_old[i], w.theta_prev[i]
+        E_old, tw = w.E_old[lane_i], w.theta_prev[lane_i]
         for j in range(d):
             tw[j] = theta[j] + delta[j]
         _innovation(tw, hPhi, hY, p, E_old)
-        S, saved = s.S[i], w.S_saved[i]
+        S, saved = s.S[lane_i], w.S_saved[lane_i]
         copy_matrix(S, saved)
         nblocks = 2 if cfg.decomposed else 1
         ok = True
@@ -218,14 +234,14 @@ def _slide_window(
             lo = 0 if nblocks == 1 else blk * n
             hi = d if nblocks == 1 else lo + n
             if ok:
-                ok = downdate_block(S, lo, hi, hPhi, E_old, p, delta, w.factor_work[i])
+                ok = downdate_block(S, lo, hi, hPhi, E_old, p, delta, w.factor_work[lane_i])
         if not ok:
             copy_matrix(saved, S)
             copy_matrix(Phi[:p], hPhi)
             for j in range(p):
                 hY[j] = Y[j]
-            s.n_window_recomputes[i] += 1
-            _replay_window(s, w, i, cfg, tw)
+            s.n_window_recomputes[lane_i] += 1
+            _replay_window(s, w, lane_i, cfg, tw)
             if not cfg.decomposed:
                 for j in range(d):
                     delta[j] = tw[j] - theta[j]
@@ -253,12 +269,12 @@ def _gain(S: NDArray, phi: NDArray) -> float:
 def estimator_update(
     s: EstimatorState,
     w: EstimatorWork,
-    i: int,
+    lane_i: int,
     cfg: EstimatorConfig,
     y: float,
     windowed: bool | None = None,
 ) -> int:
-    """Measurement step at time ``t`` of lane ``i``; see the module docstring.
+    """Measurement step at time ``t`` of lane ``lane_i``; see the module docstring.
 
     ``windowed``: ``True`` where the configuration may have a finite history window
     (``cfg.window > 0``). Left out (``None``), the compiled version has no window code at all
@@ -271,7 +287,7 @@ def estimator_update(
     n = cfg.n
     d = 2 * n
     p = cfg.p
-    theta, Phi, Y, E, phi = s.theta[i], s.Phi[i], s.Y[i], s.E[i], s.phi[i]
+    theta, Phi, Y, E, phi = s.theta[lane_i], s.Phi[lane_i], s.Y[lane_i], s.E[lane_i], s.phi[lane_i]
     # Phi(p, t), Y(p, t): column j of the paper's Phi is phi_hat(t - j)      (41)-(42), (19)-(20)
     for k in range(p - 1, 0, -1):
         for j in range(d):
@@ -280,22 +296,22 @@ def estimator_update(
     for j in range(d):
         Phi[0, j] = phi[j]
     Y[0] = y
-    t = s.t[i] + 1
-    s.t[i] = t
-    s.y[i] = y
-    s.phase[i] = True
+    t = s.t[lane_i] + 1
+    s.t[lane_i] = t
+    s.y[lane_i] = y
+    s.phase[lane_i] = True
     status = 0
     _innovation(theta, Phi, Y, p, E)  # E(p, t) = Y(p, t) - Phi^T theta(t-1)       (38), (17)
-    if not s.enabled[i]:
+    if not s.enabled[lane_i]:
         return status
-    delta, theta_prev = w.delta[i], w.theta_prev[i]
-    S = s.S[i]
+    delta, theta_prev = w.delta[lane_i], w.theta_prev[lane_i]
+    S = s.S[lane_i]
     least_squares = cfg.covariance
     q = _gain(S, phi) if least_squares else 0.0
     # delta = L(t) E(p, t) with L, P of (33)-(34) / (39)-(40); Phi E / r(t) with r of (13) / (18)
-    ok = _rule_increment(s, w, i, cfg, Phi, E)
+    ok = _rule_increment(s, w, lane_i, cfg, Phi, E)
     if windowed is not None and ok and cfg.window > 0:
-        status |= _slide_window(s, w, i, cfg, theta, Phi, Y)
+        status |= _slide_window(s, w, lane_i, cfg, theta, Phi, Y)
     if ok:
         for j in range(d):
             ok = ok and math.isfinite(delta[j])
@@ -309,88 +325,96 @@ def estimator_update(
             ok = False
             status |= ST_PD_LOST
     if not ok:
-        reset_covariance(s, i, cfg)
-        s.n_resets[i] += 1
+        reset_covariance(s, lane_i, cfg)
+        s.n_resets[lane_i] += 1
         return status | ST_RESET
     if cfg.project_stable:
         for j in range(d):
             theta_prev[j] = theta[j]
     for j in range(d):
         theta[j] += delta[j]  # theta(t) = theta(t-1) + delta           (32), (37); (12), (16)
-    if cfg.project_stable and not is_schur_stable(theta, n, w.K[i]):
+    # the gain vector's row is scratch here: the Schur test of A_hat(t) runs in it
+    if cfg.project_stable and not is_schur_stable(theta, n, w.gain[lane_i]):
         for j in range(d):
             theta[j] = theta_prev[j]
-        s.n_projections[i] += 1
+        s.n_projections[lane_i] += 1
         status |= ST_PROJECTED
     if least_squares:
-        status |= _frozen_signal(s, i, cfg, E[0], y, q, t)
+        status |= _frozen_signal(s, lane_i, cfg, E[0], y, q, t)
     return status
 
 
 @lane(inline=True)
 def _frozen_signal(
-    s: EstimatorState, i: int, cfg: EstimatorConfig, e: float, y: float, q: float, t: int
+    s: EstimatorState, lane_i: int, cfg: EstimatorConfig, e: float, y: float, q: float, t: int
 ) -> int:
     """Update the running means of ``e^2``, ``y^2``, ``q`` and the ``frozen`` flag."""
     rate = cfg.frozen_rate
-    ewma_e2 = s.ewma_e2[i] + rate * (e * e - s.ewma_e2[i])
-    ewma_y2 = s.ewma_y2[i] + rate * (y * y - s.ewma_y2[i])
-    ewma_q = s.ewma_q[i] + rate * (q - s.ewma_q[i])
-    s.ewma_e2[i] = ewma_e2
-    s.ewma_y2[i] = ewma_y2
-    s.ewma_q[i] = ewma_q
-    was = s.frozen[i]
+    ewma_e2 = s.ewma_e2[lane_i] + rate * (e * e - s.ewma_e2[lane_i])
+    ewma_y2 = s.ewma_y2[lane_i] + rate * (y * y - s.ewma_y2[lane_i])
+    ewma_q = s.ewma_q[lane_i] + rate * (q - s.ewma_q[lane_i])
+    s.ewma_e2[lane_i] = ewma_e2
+    s.ewma_y2[lane_i] = ewma_y2
+    s.ewma_q[lane_i] = ewma_q
+    was = s.frozen[lane_i]
     # hysteresis: on above ratio * mean y^2, off again below half of that
     ratio = cfg.frozen_ratio * (0.5 if was else 1.0)
     frozen = (
         t * rate > 2.0 and ewma_e2 > ratio * ewma_y2 and ewma_y2 > 0.0 and ewma_q < cfg.frozen_gain
     )
-    s.frozen[i] = frozen
+    s.frozen[lane_i] = frozen
     return ST_FROZEN if (frozen and not was) else 0
 
 
 @lane(inline=True)
 def estimator_predict(
-    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, u: float
+    s: EstimatorState, w: EstimatorWork, lane_i: int, cfg: EstimatorConfig, u: float
 ) -> int:
-    """State step of lane ``i`` with the applied input ``u(t)``; see the module docstring."""
+    """State step of lane ``lane_i`` with the applied input ``u(t)``; see the module docstring."""
     n = cfg.n
-    theta, x, y = s.theta[i], s.x_hat[i], s.y[i]
-    A, x_next, x_reg = w.A[i], w.x_next[i], w.x_reg[i]
+    theta, x, y = s.theta[lane_i], s.x_hat[lane_i], s.y[lane_i]
+    A, x_next, x_reg = w.A[lane_i], w.x_next[lane_i], w.x_reg[lane_i]
     companion_into(theta, n, cfg.observability, A)
     b = theta[n:]
     status = 0
     if cfg.filtered:
-        _corrected_state(s, i, cfg, A, x, y, x_reg, x_next)
+        _corrected_state(s, lane_i, cfg, A, x, y, x_reg, x_next)
     if cfg.state == STATE_KF:
-        P1, L1 = s.P1[i], s.L1[i]
-        if kalman_step(A, b, P1, s.Q[i], cfg.R, x, u, y, x_next, L1, w.AP[i], w.P_upd[i]) != 0:
-            copy_matrix(s.P1_init[i], P1)
+        P1, L1 = s.P1[lane_i], s.L1[lane_i]
+        if (
+            kalman_step(
+                A, b, P1, s.Q[lane_i], cfg.R, x, u, y, x_next, L1, w.AP[lane_i], w.P_upd[lane_i]
+            )
+            != 0
+        ):
+            copy_matrix(s.P1_init[lane_i], P1)
             for j in range(n):
                 L1[j] = 0.0
-            s.n_kf_resets[i] += 1
+            s.n_kf_resets[lane_i] += 1
             status |= ST_KF_RESET
     else:  # filtered O: x_hat(t+1) = A_hat x_hat(t|t) + b_hat u(t), the injection is in x_reg
         xo = x_reg if cfg.filtered else x
-        observer_step(A, b, xo, u, y, s.K[i], cfg.state == STATE_CO, x_next)
-    advance_regressor(s.phi[i], s.xs[i], x_reg if cfg.filtered else x, u, n, cfg.observability)
+        observer_step(A, b, xo, u, y, s.K[lane_i], cfg.state == STATE_CO, x_next)
+    advance_regressor(
+        s.phi[lane_i], s.xs[lane_i], x_reg if cfg.filtered else x, u, n, cfg.observability
+    )
     finite = True
     for j in range(n):
         finite = finite and math.isfinite(x_next[j])
     if not finite:
-        copy_vector(s.x_init[i], x_next)
-        s.n_state_resets[i] += 1
+        copy_vector(s.x_init[lane_i], x_next)
+        s.n_state_resets[lane_i] += 1
         status |= ST_STATE_RESET
     for j in range(n):
         x[j] = x_next[j]
-    s.phase[i] = False
+    s.phase[lane_i] = False
     return status
 
 
 @lane
 def _corrected_state(
     s: EstimatorState,
-    i: int,
+    lane_i: int,
     cfg: EstimatorConfig,
     A: NDArray,
     x: NDArray,
@@ -406,10 +430,10 @@ def _corrected_state(
     scratch."""
     n = cfg.n
     if cfg.state == STATE_KF:
-        filtered_state(x, s.P1[i], cfg.R, y, x_reg)
+        filtered_state(x, s.P1[lane_i], cfg.R, y, x_reg)
         return
     innov = y - x[0]
-    if s.t[i] > cfg.injection_warmup:  # after the warm-up: a fraction of the injection
+    if s.t[lane_i] > cfg.injection_warmup:  # after the warm-up: a fraction of the injection
         innov *= cfg.injection
     for j in range(n):  # g = A^{n-1} e_n, built in x_reg
         x_reg[j] = 1.0 if j == n - 1 else 0.0
@@ -423,13 +447,18 @@ def _corrected_state(
 
 @lane(entry=True)
 def estimator_restart(
-    s: EstimatorState, w: EstimatorWork, i: int, cfg: EstimatorConfig, theta: NDArray, P: NDArray
+    s: EstimatorState,
+    w: EstimatorWork,
+    lane_i: int,
+    cfg: EstimatorConfig,
+    theta: NDArray,
+    P: NDArray,
 ) -> bool:
-    """Restart lane ``i`` at ``theta`` and ``P``; see the module docstring."""
+    """Restart lane ``lane_i`` at ``theta`` and ``P``; see the module docstring."""
     n = cfg.n
     d = 2 * n
     if cfg.covariance:
-        F = w.S_saved[i]
+        F = w.S_saved[lane_i]
         if cfg.decomposed:
             F[:, :] = 0.0
             ok = upper_factor(P[:n, :n], F[:n, :n]) and upper_factor(P[n:, n:], F[n:, n:])
@@ -437,11 +466,11 @@ def estimator_restart(
             ok = upper_factor(P, F)
         if not ok:
             return False
-        copy_matrix(F, s.S[i])
+        copy_matrix(F, s.S[lane_i])
     else:
-        reset_covariance(s, i, cfg)
-    s.count[i] = 0
-    th = s.theta[i]
+        reset_covariance(s, lane_i, cfg)
+    s.count[lane_i] = 0
+    th = s.theta[lane_i]
     for j in range(d):
         th[j] = theta[j]
     return True

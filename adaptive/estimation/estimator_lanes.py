@@ -2,8 +2,8 @@
 
 ``update_lanes(s, w, cfg, y, status)`` and ``predict_lanes(s, w, cfg, u, status)`` run
 ``estimator_update`` / ``estimator_predict`` on every lane of the state ``s`` and scratch ``w``
-(blocks of lanes on threads for a large batch); ``run_lane(s, w, i, cfg, u, y, thetas, status,
-stop_mask)`` runs ``T`` steps of lane ``i`` in one compiled call. All three may slide a finite
+(blocks of lanes on threads for a large batch); ``run_lane(s, w, lane_i, cfg, u, y, thetas, status,
+stop_mask)`` runs ``T`` steps of lane ``lane_i`` in one compiled call. All three may slide a finite
 history window (``windowed=True``).
 """
 
@@ -52,7 +52,7 @@ def predict_lanes(
 def run_lane(
     s: EstimatorState,
     w: EstimatorWork,
-    i: int,
+    lane_i: int,
     cfg: EstimatorConfig,
     u: NDArray,
     y: NDArray,
@@ -60,18 +60,18 @@ def run_lane(
     status: NDArray,
     stop_mask: int,
 ) -> int:
-    """``T`` steps ``update(y[k])``, ``predict(u[k])`` of lane ``i``; ``thetas[k] = theta_hat``
+    """``T`` steps ``update(y[k])``, ``predict(u[k])`` of lane ``lane_i``; ``thetas[k] = theta_hat``
     after the update, ``status[k]`` the events of step ``k``. Stops after the first step whose
     status has a bit of ``stop_mask``; returns the number of steps done."""
-    theta = s.theta[i]
+    theta = s.theta[lane_i]
     for k in range(u.shape[0]):
-        st = estimator_update(s, w, i, cfg, y[k], True)
+        st = estimator_update(s, w, lane_i, cfg, y[k], True)
         for j in range(theta.shape[0]):
             thetas[k, j] = theta[j]
         if st & stop_mask:
             status[k] = st
             return k + 1
-        st |= estimator_predict(s, w, i, cfg, u[k])
+        st |= estimator_predict(s, w, lane_i, cfg, u[k])
         status[k] = st
         if st & stop_mask:
             return k + 1

@@ -31,7 +31,8 @@ from stcgym.adaptive.variants import ALGORITHMS, EstimatorName, Rule, parse_name
 from stcgym.adaptive.variants import RULES as _RULES
 from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.envs.validation import (
+from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
+from stcgym.lanes.validation import (
     covariance,
     forgetting_factor,
     integer,
@@ -39,7 +40,6 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
-from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
 
 __all__ = [
     "ALGORITHMS",
@@ -106,7 +106,7 @@ class EstimatorWork(NamedTuple):
     """The estimator's scratch, one row a lane (its content is irrelevant between calls)."""
 
     delta: NDArray  # the increment of theta (d)
-    K: NDArray  # the rule's gain vector P phi (d)
+    gain: NDArray  # the rule's P phi (the numerator of L(t), (33)); MILS: Phi^T E (d)
     factor_work: NDArray  # the least-squares factor updates' scratch (2d)
     theta_prev: NDArray  # theta(t-1) of the projection; the window's theta (d)
     E_replay: NDArray  # the innovation of a replayed block (p)
@@ -517,8 +517,8 @@ class EstimatorSpec:
         for scalar in EstimatorState._fields:
             state.setdefault(scalar, ())
         work = {
-            "delta": (d,), "K": (d,), "factor_work": (2 * d,), "theta_prev": (d,), "E_replay": (p,),
-            "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
+            "delta": (d,), "gain": (d,), "factor_work": (2 * d,), "theta_prev": (d,),
+            "E_replay": (p,), "E_old": (p,), "S_saved": (d, d), "A": (n, n), "x_next": (n,),
             "AP": (n, n), "P_upd": (n, n), "x_reg": (n,),
         }  # fmt: skip
         return state, work

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
-from stcgym.envs.validation import covariance, integer
+from stcgym.lanes.validation import covariance, integer
 
 if TYPE_CHECKING:
     from stcgym.adaptive.estimation.recursive import RecursiveEstimator
@@ -158,9 +158,7 @@ def make_estimator(
         n_ = spec.n
         if np.any(lane_P0[:, :n_, n_:] != 0.0) or np.any(lane_P0[:, n_:, :n_] != 0.0):
             raise ValueError("per-lane P0 must be block-diagonal diag(P_a, P_b) for D- rules")
-    from stcgym.adaptive.estimation.recursive import (
-        RecursiveEstimator,  # recursive.py re-exports this module
-    )
+    from stcgym.adaptive.estimation.recursive import RecursiveEstimator  # imports this module
 
     return RecursiveEstimator(spec, num_envs, lane_theta0=lane_theta0, lane_P0=lane_P0)
 

@@ -7,7 +7,7 @@ order, ``p`` the innovation length and ``L`` the batch length.
 
 from __future__ import annotations
 
-from stcgym.envs.validation import integer
+from stcgym.lanes.validation import integer
 
 
 def _positive(**values: int) -> None:
@@ -149,31 +149,6 @@ def d_misg(n: int, p: int, *, stacked_r: bool = False) -> int:
     return 8 * n * p + 4 * n + 2 * p
 
 
-def recursive_parts(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> tuple[int, int]:
-    """``(parameter update, state estimate)`` flops per step of a named recursive algorithm
-    such as ``"KF-D-MILS"`` (the counts each rule and state estimator declares in
-    :mod:`stcgym.adaptive.variants`; ``p`` ignored by the rules without
-    multi-innovation)."""
-    from stcgym.adaptive.variants import variant  # the registry refers to this module
-
-    try:
-        v = variant(name)
-    except ValueError as exc:
-        raise ValueError(f"name must look like 'O-RLS' or 'KF-D-MILS': {exc}") from None
-    _positive(n=n, p=p)
-    return v.flops(n, p, stacked_r)
-
-
-def recursive(name: str, n: int, p: int = 1, *, stacked_r: bool = False) -> int:
-    """Total flops per step (parameter update + state estimate) of a named recursive algorithm.
-
-    ``recursive("O-RLS", n) == o_rls(n)`` (table 1) and
-    ``recursive("KF-MILS", n, p) == kf_mils(n, p)`` (table 2).
-    """
-    a, b = recursive_parts(name, n, p, stacked_r=stacked_r)
-    return a + b
-
-
 # --------------------------------------------------------------------------------------------
 # Iterative algorithms without a table in the paper (appended for
 # stcgym.adaptive.estimation.iterative).
@@ -234,17 +209,14 @@ _ITERATIVE_STATES = {"O": observer_states, "KF": kalman_states}
 _ITERATIVE_TABLES = {"O-LSI": o_lsi, "KF-D-LSI": kf_d_lsi}
 
 
-def iterative(name: str, n: int, L: int) -> int:
-    """Flops per iteration of the iterative algorithm ``name`` (e.g. ``"KF-D-LSI"``).
+def iterative(states: str | None, rule: str, n: int, L: int) -> int:
+    """Flops per iteration of the iterative rule ``rule`` (``"GI"``, ``"D-GI"``, ``"LSI"``,
+    ``"D-LSI"``) with the state estimator ``states`` (``"O"``, ``"KF"``, or ``None`` for the
+    parameter update alone, as used with known states): the parts of a name as
+    :func:`~stcgym.adaptive.estimation.iterative.parse_iterative_name` returns them.
 
-    Tables 5-8 for LSI, D-LSI, O-LSI and KF-D-LSI; the counts above for the others. Plain names
-    (``"GI"``, ``"LSI"``, ...) are the parameter update alone, as used with known states.
+    Tables 5-8 for LSI, D-LSI, O-LSI and KF-D-LSI; the counts above for the others.
     """
-    from stcgym.adaptive.estimation.iterative import (
-        parse_iterative_name,  # that module imports this one
-    )
-
-    states, rule = parse_iterative_name(name)
     key = rule if states is None else f"{states}-{rule}"
     if key in _ITERATIVE_TABLES:
         return _ITERATIVE_TABLES[key](n, L)

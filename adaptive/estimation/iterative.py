@@ -39,11 +39,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation import flops as _flops
-from stcgym.adaptive.estimation.recursive import NumericalHealthError
+from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.estimation.state_estimation import state_trajectory
 from stcgym.adaptive.variants import STATE_ESTIMATORS
 from stcgym.envs.canonical import check_form, companion_A
-from stcgym.envs.validation import integer, non_negative, positive, vector_pair
+from stcgym.lanes.validation import integer, non_negative, positive, vector_pair
 
 __all__ = [
     "ITERATIVE_NAMES",
@@ -276,8 +276,7 @@ def fit_iterative(
     x: ArrayLike | None = None,
     mu: float | tuple[float, float] | None = None,
     p0: float = 1e6,
-    kalman_q: float = 0.0,
-    kalman_r: float = 1.0,
+    kalman: tuple[float, float] = (0.0, 1.0),
 ) -> IterativeResult:
     """Run an iterative (batch) joint parameter and state estimator on ``L`` samples.
 
@@ -312,9 +311,9 @@ def fit_iterative(
         (D-GI: a float or a pair ``(mu_a, mu_b)``) fixes it; exceeding the bound (168) warns.
     p0
         The paper's large number: ``theta_0 = 1_{2n} / p0`` and ``x_hat_k(1) = 1_n / p0``.
-    kalman_q, kalman_r
-        Process-noise variance (times ``I``) and measurement-noise weight of the Kalman filter;
-        the paper's filter (258)-(263) is ``q = 0``, ``r = 1``.
+    kalman
+        ``(q, r)``: the process-noise variance (times ``I``) and the measurement-noise weight of
+        the Kalman filter; the paper's filter (258)-(263) is ``(0, 1)``.
 
     Returns
     -------
@@ -369,8 +368,10 @@ def fit_iterative(
     iterations = integer(iterations, "iterations")
     tol = non_negative(tol, "tol")
     p0 = positive(p0, "p0")
-    kalman_q = non_negative(kalman_q, "kalman_q")
-    kalman_r = positive(kalman_r, "kalman_r")
+    if not isinstance(kalman, (tuple, list)) or len(kalman) != 2:
+        raise ValueError(f"kalman must be a pair (q, r), got {kalman!r}")
+    kalman_q = non_negative(kalman[0], "kalman q")
+    kalman_r = positive(kalman[1], "kalman r")
     mu_a, mu_b = _parse_mu(mu, rule)
 
     if state_est is None:
@@ -447,7 +448,7 @@ def fit_iterative(
         x_hat=x_prev,
         iterations=k,
         converged=converged,
-        flops_per_iteration=_flops.iterative(canonical, n, L),
+        flops_per_iteration=_flops.iterative(state_est, rule, n, L),
         step_sizes=step_arr,
         rank_deficient=rank_deficient,
     )

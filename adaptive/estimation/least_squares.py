@@ -2,17 +2,17 @@
 
 Published interface (other modules build on these signatures; they do not change):
 
-``least_squares_step(theta, S, Phi, Y, lam, w, lane) -> int``
+``least_squares_step(theta, S, Phi, Y, lam, w, lane_i) -> int``
     One recursive least-squares step on a *generic* regressor: ``theta`` (d,), ``S`` (d, d) the
     upper-triangular factor of ``P = S S^T`` (updated in place), ``Phi`` (p, d) whose row ``j``
     is the regressor ``phi(t - j)^T`` (``p = 1``: RLS (32)-(36); ``p > 1``: the multi-innovation
     MILS (37)-(44)), ``Y`` (p,) the matching outputs, ``lam`` the forgetting factor in (0, 1]
-    (``P^{-1}(t) = lam P^{-1}(t-1) + Phi^T Phi``); its scratch is lane ``lane`` of the
+    (``P^{-1}(t) = lam P^{-1}(t-1) + Phi^T Phi``); its scratch is lane ``lane_i`` of the
     :class:`LeastSquaresWork` fields of ``w`` (shapes :func:`least_squares_shapes`). On return
     ``w.E[lane]`` holds the innovation ``E(p, t) = Y - Phi theta(t-1)`` (eq. (38)). Returns
     ``OK`` (0) or ``FAIL_COVARIANCE`` (1): then ``theta`` is untouched and ``S`` must be reset by
     the caller (e.g. to ``S(0)``).
-``least_squares_downdate(theta, S, Phi, Y, w, lane) -> int``
+``least_squares_downdate(theta, S, Phi, Y, w, lane_i) -> int``
     Removes a data block (finite history): ``P^{-1} <- P^{-1} - Phi^T Phi`` and
     ``theta <- theta - P Phi^T E`` with ``E = Y - Phi theta`` (the same scratch and
     :class:`DowndateWork`'s). Returns ``OK``
@@ -46,8 +46,8 @@ from typing import Any, NamedTuple
 
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.lanes.compiled import fields_of, lane, make_work
+from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
     "DOWNDATE_TOL",
@@ -86,7 +86,7 @@ class LeastSquaresWork(NamedTuple):
     :func:`least_squares_shapes`; a caller's scratch may hold more fields)."""
 
     delta: NDArray  # the increment of theta (d,)
-    K: NDArray  # the gain P phi of a factor update (d,)
+    gain: NDArray  # a factor update's P phi (the numerator of L(t), (33)); MILS: Phi^T E (d,)
     E: NDArray  # the innovation E(p, t) = Y - Phi theta(t-1) (p,)
     factor_work: NDArray  # the factor updates' scratch (2 d,)
 
@@ -109,7 +109,7 @@ def least_squares_shapes(d: int, p: int, window: bool = False) -> dict[str, tupl
     :data:`WindowedLeastSquaresWork`) for ``d`` parameters and blocks of ``p`` rows: the one
     place they are declared."""
     d, p = int(d), int(p)
-    shapes = {"delta": (d,), "K": (d,), "E": (p,), "factor_work": (2 * d,)}
+    shapes = {"delta": (d,), "gain": (d,), "E": (p,), "factor_work": (2 * d,)}
     return {**shapes, "S_saved": (d, d)} if window else shapes
 
 
@@ -121,15 +121,17 @@ def least_squares_work(d: int, p: int, num_lanes: int = 1, *, window: bool = Fal
 
 
 @lane
-def carlson_update(S: NDArray, lo: int, hi: int, phi: NDArray, alpha0: float, K: NDArray) -> float:
+def carlson_update(
+    S: NDArray, lo: int, hi: int, phi: NDArray, alpha0: float, P_phi: NDArray
+) -> float:
     """``P <- P - P phi phi^T P / (alpha0 + phi^T P phi)`` on the block ``[lo, hi)`` of ``S``.
 
     ``S`` is upper triangular with ``P = S S^T``; only rows/columns ``lo..hi-1`` are read and
-    written. ``K[lo:hi]`` receives ``P_old phi`` (the unnormalised gain of (33)). Returns
+    written. ``P_phi[lo:hi]`` receives ``P_old phi`` (the unnormalised gain of (33)). Returns
     ``alpha = alpha0 + phi^T P_old phi`` (the denominator of (33)).
     """
     for i in range(lo, hi):
-        K[i] = 0.0
+        P_phi[i] = 0.0
     alpha = alpha0
     for j in range(lo, hi):
         fj = 0.0
@@ -141,8 +143,8 @@ def carlson_update(S: NDArray, lo: int, hi: int, phi: NDArray, alpha0: float, K:
         c = fj * inv_r  # fj / sqrt(alpha alpha_new)
         for i in range(lo, j + 1):
             sij = S[i, j]
-            S[i, j] = b * sij - c * K[i]
-            K[i] += fj * sij
+            S[i, j] = b * sij - c * P_phi[i]
+            P_phi[i] += fj * sij
         alpha = alpha_new
     return alpha
 
@@ -204,7 +206,7 @@ def least_squares_increment(
     lam: float,
     scalar: bool,
     delta: NDArray,
-    K: NDArray,
+    gain: NDArray,
     w: NDArray,
 ) -> float:
     """Update the factor of ``P`` with the first ``p`` rows of ``Phi`` on the block ``[lo, hi)``
@@ -216,7 +218,7 @@ def least_squares_increment(
     ``denom`` (``> 0`` and finite unless ``P`` overflowed).
     """
     inv_sqrt_lam = 1.0 / math.sqrt(lam) if lam != 1.0 else 1.0
-    denom = carlson_update(S, lo, hi, Phi[0], lam, K)
+    denom = carlson_update(S, lo, hi, Phi[0], lam, gain)
     if lam != 1.0:
         for j in range(lo, hi):
             for i in range(lo, j + 1):
@@ -224,16 +226,16 @@ def least_squares_increment(
     if scalar:
         scale = E[0] / denom
         for i in range(lo, hi):
-            delta[i] = K[i] * scale
+            delta[i] = gain[i] * scale
         return denom
     for k in range(1, p):
-        denom = carlson_update(S, lo, hi, Phi[k], 1.0, K)
+        denom = carlson_update(S, lo, hi, Phi[k], 1.0, gain)
     for i in range(lo, hi):  # g = Phi^T E on the block
         acc = 0.0
         for k in range(p):
             acc += Phi[k, i] * E[k]
-        K[i] = acc
-    _p_times(S, lo, hi, K, w, delta)
+        gain[i] = acc
+    _p_times(S, lo, hi, gain, w, delta)
     return denom
 
 
@@ -304,23 +306,25 @@ def block_trace_is_finite(S: NDArray, lo: int, hi: int) -> bool:
 
 @lane(inline=True)
 def least_squares_step(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, i: int
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, lam: float, w: Any, lane_i: int
 ) -> int:
     """One RLS (``p = 1``, (32)-(36)) or MILS (``p > 1``, (37)-(44)) step on a generic
-    regressor, with lane ``i`` of the scratch ``w``; see the module docstring for the
+    regressor, with lane ``lane_i`` of the scratch ``w``; see the module docstring for the
     arguments."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = w.delta[i]
-    K = w.K[i]
-    E = w.E[i]
+    delta = w.delta[lane_i]
+    gain = w.gain[lane_i]
+    E = w.E[lane_i]
     for k in range(p):  # E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)     (38); p = 1: in (32)
         acc = Y[k]
         for j in range(d):
             acc -= Phi[k, j] * theta[j]
         E[k] = acc
     # L(t) (33)/(39) and P(t) = S S^T (34)/(40) by Carlson's rotations; delta = L(t) E(p, t)
-    denom = least_squares_increment(S, 0, d, Phi, E, p, lam, p == 1, delta, K, w.factor_work[i])
+    denom = least_squares_increment(
+        S, 0, d, Phi, E, p, lam, p == 1, delta, gain, w.factor_work[lane_i]
+    )
     if not (denom > 0.0 and math.isfinite(denom) and factor_is_healthy(S, 0, d)):
         return FAIL_COVARIANCE
     for j in range(d):
@@ -377,14 +381,14 @@ def downdate_block(
 
 @lane(inline=True)
 def least_squares_downdate(
-    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, w: Any, lane: int
+    theta: NDArray, S: NDArray, Phi: NDArray, Y: NDArray, w: Any, lane_i: int
 ) -> int:
     """Remove one data block from a least-squares estimate; see the module docstring."""
     d = theta.shape[0]
     p = Phi.shape[0]
-    delta = w.delta[lane]
-    E = w.E[lane]
-    saved = w.S_saved[lane]
+    delta = w.delta[lane_i]
+    E = w.E[lane_i]
+    saved = w.S_saved[lane_i]
     copy_matrix(S, saved)
     for k in range(p):
         acc = Y[k]
@@ -393,7 +397,7 @@ def least_squares_downdate(
         E[k] = acc
     for i in range(d):
         delta[i] = 0.0
-    if not downdate_block(S, 0, d, Phi, E, p, delta, w.factor_work[lane]):
+    if not downdate_block(S, 0, d, Phi, E, p, delta, w.factor_work[lane_i]):
         copy_matrix(saved, S)
         return FAIL_DOWNDATE
     for i in range(d):

@@ -52,33 +52,21 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.estimation import estimator as _k
 from stcgym.adaptive.estimation import estimator_lanes as _lanes
 from stcgym.adaptive.estimation.estimator_spec import (
-    ALGORITHMS,
     EstimatorSpec,
     EstimatorState,
-    parse_name,
 )
 from stcgym.adaptive.estimation.estimator_views import EstimatorViews
-from stcgym.adaptive.estimation.factory import make_estimator
-from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable as _schur_lane
-from stcgym.envs.validation import (
+from stcgym.lanes.compiled import FixedTypes, set_lanes
+from stcgym.lanes.validation import (
     finite_vector,
     lane_indices,
     lane_vector,
     real_number,
     vector_pair,
 )
-from stcgym.lanes.compiled import FixedTypes, set_lanes
 
-__all__ = [
-    "ALGORITHMS",
-    "EstimatorSpec",
-    "NumericalHealthError",
-    "RecursiveEstimator",
-    "is_schur_stable",
-    "make_estimator",
-    "parse_name",
-]
+__all__ = ["RecursiveEstimator", "is_schur_stable"]
 
 
 def is_schur_stable(a: ArrayLike) -> bool:

@@ -2,7 +2,7 @@
 
 A statement to read beside the paper: one method a half-step, ``P`` held explicitly (no
 square-root factor, no structure exploited, no health checks, no speed). The compiled lane
-functions of :mod:`stcgym.adaptive.kernels` never import it; the tests compare them against it
+functions of :mod:`stcgym.adaptive.estimation` never import it; the tests compare them against it
 to a stated tolerance (``tests/test_estimator_kernels.py``), so it is an independent check.
 
 * innovation ``E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)`` (17), (38);
@@ -25,61 +25,40 @@ from __future__ import annotations
 
 import numpy as np
 
-from stcgym.adaptive.variants import variant
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.envs.canonical import companion_A
 
 __all__ = ["ReferenceEstimator"]
 
 
 class ReferenceEstimator:
-    """One plant's estimator ``name`` (``"KF-D-MILS"``, ``"O-NG"``, ...) of order ``n``.
-
-    The keywords mirror :func:`stcgym.adaptive.make_estimator` (``Q``, ``R``, ``K`` for its
-    ``process_noise``, ``measurement_noise``, ``observer_gain``; ``filtered`` for
-    ``regressor="filtered"``); the defaults are the paper's. :meth:`update` and
-    :meth:`predict` are the two half-steps, :meth:`run` a pass over recorded data.
+    """One plant's estimator as ``spec`` configures it (:meth:`EstimatorSpec.build
+    <stcgym.adaptive.estimation.estimator_spec.EstimatorSpec.build>`, the keywords of
+    :func:`stcgym.adaptive.make_estimator`; a finite ``window`` and a callable
+    ``observer_gain`` are not covered). The spec gives the settings and initial values only;
+    the update is this class's own. :meth:`update` and :meth:`predict` are the two
+    half-steps, :meth:`run` a pass over recorded data.
     """
 
-    def __init__(
-        self,
-        name: str,
-        n: int,
-        *,
-        p: int = 1,
-        p0: float = 1e6,
-        form: str = "observer",
-        forgetting: float = 1.0,
-        theta0=None,
-        P0=None,
-        r0: float = 1.0,
-        stacked_r: bool = False,
-        x_init=None,
-        P1_init=None,
-        Q=None,
-        R: float = 1.0,
-        K=None,
-        filtered: bool = False,
-        injection: float = 1.0,
-        injection_warmup: int = 0,
-        adaptation_gain: float = 1.0,
-        normalization_bias: float = np.finfo(float).eps,
-    ) -> None:
-        v = variant(name)  # the registry's parser: the names only, none of the kernels' math
-        self.state, self.rule, self.decomposed = v.state, v.rule, v.decomposed  # registry entries
-        self.n, self.p, self.form, self.lam = n, p, form, forgetting
+    def __init__(self, spec: EstimatorSpec) -> None:
+        v = spec.variant  # registry entries: the names only, none of the kernels' math
+        self.state, self.rule, self.decomposed = v.state, v.rule, v.decomposed
+        n, p = spec.n, spec.p
+        self.n, self.p, self.form, self.lam = n, p, spec.form, spec.forgetting
         d = 2 * n
-        self.theta = np.full(d, 1.0 / p0) if theta0 is None else np.array(theta0, float)
-        self.P = p0 * np.eye(d) if P0 is None else np.array(P0, float)
-        self.r = np.array([r0, r0])
-        self.stacked_r = stacked_r
-        self.x = np.full(n, 1.0 / p0) if x_init is None else np.array(x_init, float)
-        self.P1 = np.eye(n) if P1_init is None else np.array(P1_init, float)
-        self.Q = np.zeros((n, n)) if Q is None else np.array(Q, float)
-        self.R = R
-        self.K = None if K is None else np.array(K, float)
-        self.filtered = filtered
-        self.mu, self.bias = adaptation_gain, normalization_bias
-        self.injection, self.injection_warmup = injection, injection_warmup
+        self.theta = np.array(spec.theta0, float)
+        self.P = None if spec.P0 is None else np.array(spec.P0, float)
+        self.r = np.array([spec.r0, spec.r0])
+        self.stacked_r = spec.stacked_r
+        self.x = np.array(spec.x_init, float)
+        self.P1 = np.eye(n) if spec.P1_init is None else np.array(spec.P1_init, float)
+        self.Q = np.zeros((n, n)) if spec.Q is None else np.array(spec.Q, float)
+        self.R = spec.R
+        self.K = None if spec.observer_gain is None else np.array(spec.observer_gain, float)
+        self.filtered = spec.regressor == "filtered"
+        # the normalised gradient's mu and bias (the rule's own parameters, in order)
+        self.mu, self.bias = spec.rule_parameters if v.rule.name == "NG" else (None, None)
+        self.injection, self.injection_warmup = spec.injection, spec.injection_warmup
         self.t = 0
         self.Phi = np.zeros((d, p))  # column j = phi_hat(t - j)
         self.Y = np.zeros(p)

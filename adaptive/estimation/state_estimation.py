@@ -40,8 +40,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from stcgym.adaptive.kernels.linalg import matmul
 from stcgym.lanes.compiled import lane
+from stcgym.lanes.linalg import matmul
 
 __all__ = [
     "advance_regressor",

@@ -1,8 +1,9 @@
-"""Lane-function helpers every concept shares: small dense linear algebra (:mod:`.linalg`),
-element-wise copies between lane-state arrays (:mod:`.records`) and the canonical-form model of an
-estimate (:mod:`.canonical`).
+"""The canonical-form model of an estimate, shared by the estimators' and the controllers' lane
+functions (:mod:`.canonical`: companion matrices, integral augmentation).
 
-See :mod:`stcgym.lanes.compiled` for the lane-function convention. The compiled steps themselves
-live with their concept: :mod:`stcgym.adaptive.estimation`, :mod:`stcgym.adaptive.control`,
-:mod:`stcgym.adaptive.multivariable` and :mod:`stcgym.adaptive.regression`.
+See :mod:`stcgym.lanes.compiled` for the lane-function convention and :mod:`stcgym.lanes.linalg`
+for the small dense linear algebra and copies every lane function uses. The compiled steps
+themselves live with their concept: :mod:`stcgym.adaptive.estimation`,
+:mod:`stcgym.adaptive.control`, :mod:`stcgym.adaptive.multivariable` and
+:mod:`stcgym.adaptive.regression`.
 """

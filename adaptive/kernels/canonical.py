@@ -2,10 +2,10 @@
 
 ``theta = [a_1..a_n, b_1..b_n]`` of a canonical form (Ding & Ma 2014) with ``c = [1, 0, ..., 0]``:
 
-* observer form (``form = OBSERVER`` (0)), eq. (1)/(47): ``A`` has the first column ``-a`` and
-  ones on the superdiagonal;
-* observability form (``form = OBSERVABILITY`` (1)), eq. (146): ones on the superdiagonal and
-  the last row ``[-a_n, ..., -a_1]``;
+* observer form (``form =`` :data:`stcgym.envs.dynamics.OBSERVER`), eq. (1)/(47): ``A`` has
+  the first column ``-a`` and ones on the superdiagonal;
+* observability form (:data:`~stcgym.envs.dynamics.OBSERVABILITY`), eq. (146): ones on the
+  superdiagonal and the last row ``[-a_n, ..., -a_1]``;
 
 and ``b`` is ``theta[n:]`` in both ((48)/(147)). The integral-augmented model of the tracking
 error integral ``xi(t+1) = xi(t) + r(t) - y(t)`` is
@@ -21,21 +21,16 @@ from __future__ import annotations
 
 from numpy.typing import NDArray
 
+from stcgym.envs.dynamics import OBSERVABILITY
 from stcgym.lanes.compiled import lane, lanes
 
 __all__ = [
-    "OBSERVABILITY",
-    "OBSERVER",
     "augment_integral",
     "augmented_characteristic",
     "companion_into",
     "model_matrices",
     "model_matrices_lanes",
 ]
-
-#: Canonical form codes (kinds, not offsets).
-OBSERVER = 0
-OBSERVABILITY = 1
 
 
 @lane(inline=True)

@@ -48,7 +48,6 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.control.controller_step import change_alarm, inflate_covariance, probe_sign
 from stcgym.adaptive.control.safe_set import NONFINITE, NOT_STABILISABLE, OK
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.adaptive.multivariable.mimo_lq import (
     P_MAX,
     dare_solve,
@@ -60,6 +59,7 @@ from stcgym.adaptive.multivariable.mimo_lq import (
 )
 from stcgym.adaptive.multivariable.state_matrix import RESET, state_matrix_update
 from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
     "COUNTERS",
@@ -224,47 +224,47 @@ def _model(theta, A, B):
 
 
 @lane(inline=True)
-def _design(s, w, est, lane, cfg):
+def _design(s, w, est, lane_i, cfg):
     """Step 3: a candidate gain (Riccati step or full solve), accepted in the safe set."""
-    theta = est.theta[lane]
-    A = s.A[lane]
-    B = s.B[lane]
+    theta = est.theta[lane_i]
+    A = s.A[lane_i]
+    B = s.B[lane_i]
     settled = _model_change(theta, A, B) < cfg.settle_tol
     _model(theta, A, B)
-    P = s.P_try[lane]
-    K = s.K_try[lane]
-    P_lq = s.P_lq[lane]
+    P = s.P_try[lane_i]
+    K = s.K_try[lane_i]
+    P_lq = s.P_lq[lane_i]
     work = w.design
-    fresh = s.fresh[lane] or not s.has_gain[lane]
+    fresh = s.fresh[lane_i] or not s.has_gain[lane_i]
     q, n = theta.shape
     for i in range(q):
         for j in range(n):
             if not math.isfinite(theta[i, j]):
                 return NONFINITE
     if fresh:
-        status = dare_solve(A, B, cfg, P, K, work, lane)
+        status = dare_solve(A, B, cfg, P, K, work, lane_i)
         if status != OK:
             return status
     else:
         copy_matrix(P_lq, P)
-        riccati_step(A, B, cfg, P, K, work, lane)
+        riccati_step(A, B, cfg, P, K, work, lane_i)
         big = False
         for i in range(n):
             for j in range(n):
                 big = big or not abs(P[i, j]) <= P_MAX
-        if big or not lq_gain(A, B, cfg, P, K, work, lane):
+        if big or not lq_gain(A, B, cfg, P, K, work, lane_i):
             copy_matrix(cfg.Q, P_lq)  # restart the iteration at P = Q
             return NOT_STABILISABLE
         if settled and _lagging(P, P_lq, cfg.lag_tol):
-            s.n_catch_up[lane] += 1
-            status = dare_solve(A, B, cfg, P, K, work, lane)
+            s.n_catch_up[lane_i] += 1
+            status = dare_solve(A, B, cfg, P, K, work, lane_i)
             if status != OK:
                 return status
-    status = design_checks(A, B, cfg, K, s.F[lane], work, lane)
+    status = design_checks(A, B, cfg, K, s.F[lane_i], work, lane_i)
     if status == OK:
         copy_matrix(P, P_lq)
-        copy_matrix(K, s.K[lane])
-        s.has_gain[lane] = True
+        copy_matrix(K, s.K[lane_i])
+        s.has_gain[lane_i] = True
     return status
 
 
@@ -280,8 +280,8 @@ def _state_cost(Q, x, r):
 
 
 @lane(entry=True)
-def mimo_step(s, w, est, est_work, lane, cfg, x, r, u):
-    """One sample of lane ``lane`` of the controller (module docstring, steps 1-4): ``u(t)``
+def mimo_step(s, w, est, est_work, lane_i, cfg, x, r, u):
+    """One sample of lane ``lane_i`` of the controller (module docstring, steps 1-4): ``u(t)``
     from ``x(t)``, ``r(t)`` (1-D arrays of ``n``, ``n`` and ``m`` floats).
 
     ``s``/``w``: the controllers' :class:`MimoState` and :class:`MimoWork`; ``est``/``est_work``:
@@ -291,47 +291,47 @@ def mimo_step(s, w, est, est_work, lane, cfg, x, r, u):
     n = cfg.n
     m = cfg.m
     q = n + m
-    t = s.t[lane]
+    t = s.t[lane_i]
     # -- 1. estimator update with the sample (z(t-1), x(t))
     e2 = 0.0
     if t > 0:
-        status = state_matrix_update(est, est_work, lane, x, cfg.forgetting, cfg.dependence_tol,
+        status = state_matrix_update(est, est_work, lane_i, x, cfg.forgetting, cfg.dependence_tol,
                                      cfg.p0)  # fmt: skip
         if status == RESET:
-            s.n_resets[lane] += 1
-        e = est.e[lane]
+            s.n_resets[lane_i] += 1
+        e = est.e[lane_i]
         for i in range(n):
             e2 += e[i] * e[i]
     # -- 2. change detection: covariance resetting on a jump of the innovation variance (no
     # sample at t = 0, before the first estimator update)
-    closed_t = s.closed_t[lane]
-    alarm, s.ews[lane], s.ewl[lane] = change_alarm(
-        cfg, s.ews[lane], s.ewl[lane], e2, t > 0, t, closed_t, s.last_alarm[lane]
+    closed_t = s.closed_t[lane_i]
+    alarm, s.ews[lane_i], s.ewl[lane_i] = change_alarm(
+        cfg, s.ews[lane_i], s.ewl[lane_i], e2, t > 0, t, closed_t, s.last_alarm[lane_i]
     )
     if alarm:
-        inflate_covariance(est.S[lane], cfg.inflation)
-        s.n_alarms[lane] += 1
-        s.last_alarm[lane] = t
-        s.fresh[lane] = True
+        inflate_covariance(est.S[lane_i], cfg.inflation)
+        s.n_alarms[lane_i] += 1
+        s.last_alarm[lane_i] = t
+        s.fresh[lane_i] = True
     # -- 3. certainty-equivalence design once the estimate has full rank
-    if est.rank[lane] >= q:
-        status = _design(s, w, est, lane, cfg)
-        s.last_reason[lane] = status
+    if est.rank[lane_i] >= q:
+        status = _design(s, w, est, lane_i, cfg)
+        s.last_reason[lane_i] = status
         if status == OK:
-            s.fresh[lane] = False
+            s.fresh[lane_i] = False
         else:
-            s.n_rejected[lane] += 1
-            s.fresh[lane] = True
+            s.n_rejected[lane_i] += 1
+            s.fresh[lane_i] = True
     # -- 4. control: the probe while the loop is open, then the feedback law
     open_loop = closed_t < 0
-    ymax = s.ymax[lane]
-    cmax = s.cmax[lane]
+    ymax = s.ymax[lane_i]
+    cmax = s.cmax[lane_i]
     if open_loop:
         for i in range(n):
             ymax = max(ymax, abs(x[i]))
-        s.ymax[lane] = ymax
+        s.ymax[lane_i] = ymax
         cmax = max(cmax, _state_cost(cfg.Q, x, r))
-        s.cmax[lane] = cmax
+        s.cmax[lane_i] = cmax
     level = cfg.probe_output
     amp = cfg.probe_amplitude * (level / ymax if ymax > level else 1.0)
     # the probe follows the scale of the state and the input: its input cost a^2 trace(R)
@@ -346,31 +346,31 @@ def mimo_step(s, w, est, est_work, lane, cfg, x, r, u):
     # an excited state needs no longer probe: the extension is for a plant near rest
     extend = t < cfg.probe_max and ymax < level and not capped
     probing = open_loop and (t < (cfg.probe_min if capped else cfg.probe_steps) or extend)
-    low = s.u_low[lane]
-    high = s.u_high[lane]
-    if probing or not s.has_gain[lane]:
-        seed = s.seed[lane]
-        episode = s.episode[lane]
+    low = s.u_low[lane_i]
+    high = s.u_high[lane_i]
+    if probing or not s.has_gain[lane_i]:
+        seed = s.seed[lane_i]
+        episode = s.episode[lane_i]
         for j in range(m):
             u[j] = min(max(amp * probe_sign(seed, episode, t * m + j), low[j]), high[j])
-        s.n_probe[lane] += 1
+        s.n_probe[lane_i] += 1
     else:
         if open_loop:
-            s.closed_t[lane] = t
-        saturated = feedback_law(s.K[lane], s.F[lane], x, r, cfg.action_bound, u)
+            s.closed_t[lane_i] = t
+        saturated = feedback_law(s.K[lane_i], s.F[lane_i], x, r, cfg.action_bound, u)
         for j in range(m):
             if not low[j] <= u[j] <= high[j]:
                 u[j] = min(max(u[j], low[j]), high[j])
                 saturated += 1
         if saturated > 0:
-            s.n_saturated[lane] += 1
+            s.n_saturated[lane_i] += 1
     # -- the next regressor z(t) = [x(t); u(t)]
-    z = est.z[lane]
+    z = est.z[lane_i]
     for i in range(n):
         z[i] = x[i]
     for j in range(m):
         z[n + j] = u[j]
-    s.t[lane] = t + 1
+    s.t[lane_i] = t + 1
 
 
 @lanes

@@ -21,11 +21,10 @@ from stcgym.adaptive.multivariable.controller import (
     OBSERVATION_LIMIT,
     cross_weight,
     lq_weight_matrices,
-    resolve_dimensions,
-    split_observation,
 )
 from stcgym.adaptive.policy import LanePolicy
-from stcgym.envs.validation import matrix
+from stcgym.envs.env_settings import resolve_dimensions, split_observation
+from stcgym.lanes.validation import matrix
 
 __all__ = ["LQRController", "lqr_design"]
 

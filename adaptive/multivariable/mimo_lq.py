@@ -30,7 +30,7 @@ convention; the StateSpace env's cost is ``Q = I``, ``R = rho I``, ``N = 0``), t
 
 Matrices are C-ordered rows of the lane state; the scratch is a :data:`MimoDesignWork` (named
 fields, one row a lane, shapes in :func:`mimo_design_shapes`), of which each function uses lane
-``lane`` and the fields it names.
+``lane_i`` and the fields it names.
 
 Status codes (:mod:`.safe_set`): ``NOT_STABILISABLE`` when ``(A, B)`` is not stabilisable (the
 regularised problem has no stabilising solution either), ``UNIT_CIRCLE_MODE`` when it is but a
@@ -55,9 +55,8 @@ from stcgym.adaptive.control.safe_set import (
     OK,
     UNIT_CIRCLE_MODE,
 )
-from stcgym.adaptive.kernels.linalg import invert, matmul, max_abs
-from stcgym.adaptive.kernels.records import copy_matrix
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.linalg import copy_matrix, invert, matmul, max_abs
 
 __all__ = [
     "P_MAX",
@@ -205,17 +204,17 @@ def _closed_loop(A, B, K, Acl):
 
 
 @lane(entry=True, inline=True)
-def lq_gain(A, B, c, P, K, w, lane):
+def lq_gain(A, B, c, P, K, w, lane_i):
     """``K = (R + B^T P B)^{-1} (B^T P A + N^T)`` (``R``, ``N`` of the :class:`LQProblem`
     ``c``); ``False`` when ``R + B^T P B`` is singular (scratch: the :class:`GainWork` fields of
-    lane ``lane`` of ``w``)."""
+    lane ``lane_i`` of ``w``)."""
     R, N = c.R, c.N
     n = A.shape[0]
     m = B.shape[1]
-    PB = w.PB[lane]
-    Sm = w.S[lane]
-    Sinv = w.S_inv[lane]
-    T = w.BPA[lane]
+    PB = w.PB[lane_i]
+    Sm = w.S[lane_i]
+    Sinv = w.S_inv[lane_i]
+    T = w.BPA[lane_i]
     matmul(P, B, PB, False, False)
     matmul(B, PB, Sm, True, False)
     for i in range(m):
@@ -248,15 +247,15 @@ def _stage_weight(Q, R, N, K, KR, M):
 
 
 @lane(inline=True)
-def riccati_step(A, B, c, P, K, w, lane):
+def riccati_step(A, B, c, P, K, w, lane_i):
     """One Riccati iteration (Joseph form) on ``P`` in place for the :class:`LQProblem` ``c``;
     ``K`` the gain of the old ``P``. Returns ``False`` when the gain is undefined."""
     n = A.shape[0]
-    if not lq_gain(A, B, c, P, K, w, lane):
+    if not lq_gain(A, B, c, P, K, w, lane_i):
         return False
-    Acl = w.A_cl[lane]
-    T = w.P_Acl[lane]
-    KR = w.RK[lane]
+    Acl = w.A_cl[lane_i]
+    T = w.P_Acl[lane_i]
+    KR = w.RK[lane_i]
     _closed_loop(A, B, K, Acl)
     matmul(P, Acl, T, False, False)
     _stage_weight(c.Q, c.R, c.N, K, KR, P)
@@ -272,15 +271,15 @@ def riccati_step(A, B, c, P, K, w, lane):
 
 
 @lane(inline=True)
-def schur_stable(M, w, lane):
+def schur_stable(M, w, lane_i):
     """Spectral radius of ``M`` below 1, by repeated squaring (scratch ``w.X``, ``w.X2``).
 
     Stable when ``||M^(2^k)||_F < 1/2`` for some ``k <= MAX_SQUARINGS``; unstable when a norm
     exceeds ``1e100`` or is not finite; undecided counts as unstable.
     """
     n = M.shape[0]
-    X = w.X[lane]
-    Y = w.X2[lane]
+    X = w.X[lane_i]
+    Y = w.X2[lane_i]
     copy_matrix(M, X)
     for _ in range(MAX_SQUARINGS):
         fro = 0.0
@@ -297,7 +296,7 @@ def schur_stable(M, w, lane):
 
 
 @lane
-def doubling(Ak, Gk, Hk, w, lane, tol, max_iter):
+def doubling(Ak, Gk, Hk, w, lane_i, tol, max_iter):
     """The structure-preserving doubling iteration, from ``A_0``, ``G_0``, ``H_0`` in ``Ak``,
     ``Gk``, ``Hk`` (``n x n``, overwritten; ``G_0`` and ``H_0`` symmetric):
     ``W = I + G_k H_k``, ``A_{k+1} = A_k W^{-1} A_k``, ``G_{k+1} = G_k + A_k W^{-1} G_k A_k^T``,
@@ -306,14 +305,14 @@ def doubling(Ak, Gk, Hk, w, lane, tol, max_iter):
 
     Returns ``OK`` (``Hk`` converged), ``NOT_STABILISABLE`` (a singular ``W``, or an iterate
     above :data:`P_MAX` or not finite: diverging) or ``NOT_CONVERGED``. Scratch: the
-    :class:`DoublingWork` fields of lane ``lane`` of ``w``.
+    :class:`DoublingWork` fields of lane ``lane_i`` of ``w``.
     """
     n = Ak.shape[0]
-    W = w.W[lane]
-    Winv = w.W_inv[lane]
-    T1 = w.T1[lane]
-    T2 = w.T2[lane]
-    T3 = w.T3[lane]
+    W = w.W[lane_i]
+    Winv = w.W_inv[lane_i]
+    T1 = w.T1[lane_i]
+    T2 = w.T2[lane_i]
+    T3 = w.T3[lane_i]
     for _ in range(max_iter):
         matmul(Gk, Hk, W, False, False)
         for i in range(n):
@@ -344,18 +343,18 @@ def doubling(Ak, Gk, Hk, w, lane, tol, max_iter):
 
 
 @lane
-def _doubling_from(B, delta, c, w, lane):
+def _doubling_from(B, delta, c, w, lane_i):
     """:func:`doubling` from ``A_0 = A_N``, ``G_0 = B R^{-1} B^T``, ``H_0 = Q_N + delta I``
     (``A_N``, ``R^{-1}``, ``Q_N`` in ``w`` from :func:`dare_solve`); the result in
     ``w.H_k[lane]``."""
-    AN = w.A_N[lane]
-    QN = w.Q_N[lane]
-    Rinv = w.R_inv[lane]
+    AN = w.A_N[lane_i]
+    QN = w.Q_N[lane_i]
+    Rinv = w.R_inv[lane_i]
     n = AN.shape[0]
-    Ak = w.A_k[lane]
-    Gk = w.G_k[lane]
-    Hk = w.H_k[lane]
-    RB = w.RinvBt[lane]
+    Ak = w.A_k[lane_i]
+    Gk = w.G_k[lane_i]
+    Hk = w.H_k[lane_i]
+    RB = w.RinvBt[lane_i]
     matmul(Rinv, B, RB, False, True)  # R^{-1} B^T
     matmul(B, RB, Gk, False, False)
     for i in range(n):
@@ -363,60 +362,60 @@ def _doubling_from(B, delta, c, w, lane):
             Ak[i, j] = AN[i, j]
             Hk[i, j] = QN[i, j]
         Hk[i, i] += delta
-    return doubling(Ak, Gk, Hk, w, lane, c.solve_tol, c.solve_max_iter)
+    return doubling(Ak, Gk, Hk, w, lane_i, c.solve_tol, c.solve_max_iter)
 
 
 @lane
-def _stabilising_gain(A, B, c, P, K, w, lane):
+def _stabilising_gain(A, B, c, P, K, w, lane_i):
     """``K`` the gain of ``P``, and whether ``A - B K`` is Schur stable."""
-    if not lq_gain(A, B, c, P, K, w, lane):
+    if not lq_gain(A, B, c, P, K, w, lane_i):
         return False
-    Acl = w.A_cl[lane]
+    Acl = w.A_cl[lane_i]
     _closed_loop(A, B, K, Acl)
-    return schur_stable(Acl, w, lane)
+    return schur_stable(Acl, w, lane_i)
 
 
 @lane
-def _stein(F0, X, c, w, lane):
+def _stein(F0, X, c, w, lane_i):
     """``X <- sum_k F0^{kT} X F0^k``, the solution of the Stein equation ``X = F0^T X F0 + M``
     from ``X = M`` on entry: Smith's doubling ``X_{j+1} = X_j + F_j^T X_j F_j``,
     ``F_{j+1} = F_j^2``, which is :func:`doubling` with ``A_0 = F0``, ``G_0 = 0``, ``H_0 = X``.
     Returns ``OK``, ``NOT_STABILISABLE`` (diverging: ``F0`` is not Schur stable) or
     ``NOT_CONVERGED``."""
     n = F0.shape[0]
-    F = w.A_k[lane]
-    G = w.G_k[lane]
+    F = w.A_k[lane_i]
+    G = w.G_k[lane_i]
     copy_matrix(F0, F)
     for i in range(n):
         for j in range(n):
             G[i, j] = 0.0
-    return doubling(F, G, X, w, lane, c.solve_tol, c.solve_max_iter)
+    return doubling(F, G, X, w, lane_i, c.solve_tol, c.solve_max_iter)
 
 
 @lane
-def _newton(A, B, c, P, K, w, lane):
+def _newton(A, B, c, P, K, w, lane_i):
     """Newton's method (Hewer's iteration, :func:`dare_solve`) from the stabilising gain ``K``.
     Returns ``OK`` with the stabilising solution in ``P`` and its gain in ``K``,
     ``UNIT_CIRCLE_MODE`` when the limit's closed loop is not Schur stable, or
     ``NOT_CONVERGED``."""
     n = A.shape[0]
     tol = c.solve_tol
-    Acl = w.A_cl[lane]
-    KR = w.RK[lane]
-    Pprev = w.P_prev[lane]
+    Acl = w.A_cl[lane_i]
+    KR = w.RK[lane_i]
+    Pprev = w.P_prev[lane_i]
     d_prev = math.inf
     status = NOT_CONVERGED
     for _ in range(NEWTON_MAX_ITER):
         copy_matrix(P, Pprev)
         _closed_loop(A, B, K, Acl)
         _stage_weight(c.Q, c.R, c.N, K, KR, P)
-        if _stein(Acl, P, c, w, lane) != OK:
+        if _stein(Acl, P, c, w, lane_i) != OK:
             # the previous gain stabilised, this one barely does: the iterates approach a
             # closed loop on the unit circle
             copy_matrix(Pprev, P)
             status = UNIT_CIRCLE_MODE
             break
-        if not lq_gain(A, B, c, P, K, w, lane):
+        if not lq_gain(A, B, c, P, K, w, lane_i):
             return NOT_STABILISABLE
         d = 0.0
         for i in range(n):
@@ -430,13 +429,13 @@ def _newton(A, B, c, P, K, w, lane):
         d_prev = d
     if status == NOT_CONVERGED:
         return status
-    if not _stabilising_gain(A, B, c, P, K, w, lane):
+    if not _stabilising_gain(A, B, c, P, K, w, lane_i):
         return UNIT_CIRCLE_MODE
     return status
 
 
 @lane(entry=True)
-def dare_solve(A, B, c, P, K, w, lane):
+def dare_solve(A, B, c, P, K, w, lane_i):
     """Stabilising DARE solution ``P`` and its gain ``K``.
 
     The cross weight is removed first (``A_N = A - B R^{-1} N^T``, ``Q_N = Q - N R^{-1} N^T``;
@@ -458,17 +457,17 @@ def dare_solve(A, B, c, P, K, w, lane):
     ``UNIT_CIRCLE_MODE`` (a mode on the unit circle unobservable through ``Q_N``) or
     ``NOT_CONVERGED``. ``P`` and ``K`` are written only on ``OK``. ``c``: the weights and limits
     (an :class:`LQProblem`); ``w``: a :data:`MimoDesignWork` for ``(n, m)``
-    (:func:`mimo_design_work`), lane ``lane`` used.
+    (:func:`mimo_design_work`), lane ``lane_i`` used.
     """
     Q, R, N = c.Q, c.R, c.N
     n = A.shape[0]
     if w.A_N.shape[1] != n or w.R_inv.shape[1] != B.shape[1]:
         raise ValueError("dare_solve: w is not the scratch of this (n, m) (mimo_design_work)")
-    Rinv = w.R_inv[lane]
-    Rc = w.R_lu[lane]
-    RNt = w.RinvNt[lane]
-    AN = w.A_N[lane]
-    QN = w.Q_N[lane]
+    Rinv = w.R_inv[lane_i]
+    Rc = w.R_lu[lane_i]
+    RNt = w.RinvNt[lane_i]
+    AN = w.A_N[lane_i]
+    QN = w.Q_N[lane_i]
     copy_matrix(R, Rc)
     if not invert(Rc, Rinv):
         return NOT_STABILISABLE
@@ -484,12 +483,12 @@ def dare_solve(A, B, c, P, K, w, lane):
             v = 0.5 * (Q[i, j] + Q[j, i]) - 0.5 * (QN[i, j] + QN[j, i])
             QN[i, j] = v
             QN[j, i] = v
-    Psol = w.P_sol[lane]
-    Kt = w.K_sol[lane]
-    status = _doubling_from(B, 0.0, c, w, lane)
+    Psol = w.P_sol[lane_i]
+    Kt = w.K_sol[lane_i]
+    status = _doubling_from(B, 0.0, c, w, lane_i)
     if status == OK:
-        copy_matrix(w.H_k[lane], Psol)
-        if _stabilising_gain(A, B, c, Psol, Kt, w, lane):
+        copy_matrix(w.H_k[lane_i], Psol)
+        if _stabilising_gain(A, B, c, Psol, Kt, w, lane_i):
             copy_matrix(Psol, P)
             copy_matrix(Kt, K)
             return OK
@@ -503,15 +502,15 @@ def dare_solve(A, B, c, P, K, w, lane):
         delta = max(delta, max_abs(R) / (bmax * bmax))
     if not delta > 0.0:
         delta = 1.0
-    status = _doubling_from(B, delta, c, w, lane)
+    status = _doubling_from(B, delta, c, w, lane_i)
     if status == NOT_CONVERGED:
         return status
     if status != OK:
         return NOT_STABILISABLE
-    copy_matrix(w.H_k[lane], Psol)
-    if not _stabilising_gain(A, B, c, Psol, Kt, w, lane):
+    copy_matrix(w.H_k[lane_i], Psol)
+    if not _stabilising_gain(A, B, c, Psol, Kt, w, lane_i):
         return NOT_STABILISABLE
-    status = _newton(A, B, c, Psol, Kt, w, lane)
+    status = _newton(A, B, c, Psol, Kt, w, lane_i)
     if status != OK:
         return status
     copy_matrix(Psol, P)
@@ -520,7 +519,7 @@ def dare_solve(A, B, c, P, K, w, lane):
 
 
 @lane(entry=True, inline=True)
-def steady_state_feedforward(A, B, c, K, F, w, lane):
+def steady_state_feedforward(A, B, c, K, F, w, lane_i):
     """``F = M_u + K M_x`` of the cheapest equilibrium; ``False`` when the KKT matrix is
     singular (no equilibrium for some reference: an uncontrollable mode at ``z = 1``). ``F`` is
     written only on success.
@@ -538,8 +537,8 @@ def steady_state_feedforward(A, B, c, K, F, w, lane):
     n = A.shape[0]
     m = B.shape[1]
     s = 2 * n + m
-    M = w.KKT[lane]
-    Minv = w.KKT_inv[lane]
+    M = w.KKT[lane_i]
+    Minv = w.KKT_inv[lane_i]
     for i in range(s):
         for j in range(s):
             M[i, j] = 0.0
@@ -559,8 +558,8 @@ def steady_state_feedforward(A, B, c, K, F, w, lane):
             M[n + i, n + j] = R[i, j]
     if not invert(M, Minv):
         return False
-    Mx = w.M_x[lane]
-    Mu = w.M_u[lane]
+    Mx = w.M_x[lane_i]
+    Mu = w.M_u[lane_i]
     for i in range(n):  # M_x = Minv[:n, :n] Q + Minv[:n, n:n+m] N^T
         for j in range(n):
             acc = 0.0
@@ -590,7 +589,7 @@ def steady_state_feedforward(A, B, c, K, F, w, lane):
 
 
 @lane(inline=True)
-def design_checks(A, B, cfg, K, F, w, lane):
+def design_checks(A, B, cfg, K, F, w, lane_i):
     """The safe set of a candidate gain ``K`` on the model ``(A, B)``: finite, ``max |B| >=
     cfg.b_min``, closed loop Schur stable, feed-forward defined (the weights of ``cfg``, an
     :class:`LQProblem` with ``b_min`` and ``gain_max``, such as the multivariable controller's
@@ -600,12 +599,12 @@ def design_checks(A, B, cfg, K, F, w, lane):
         return NONFINITE
     if not max_abs(B) >= cfg.b_min:
         return B_SMALL
-    Acl = w.A_cl[lane]
+    Acl = w.A_cl[lane_i]
     _closed_loop(A, B, K, Acl)
-    if not schur_stable(Acl, w, lane):
+    if not schur_stable(Acl, w, lane_i):
         return NOT_STABILISABLE
-    Fc = w.F_try[lane]
-    if not steady_state_feedforward(A, B, cfg, K, Fc, w, lane):
+    Fc = w.F_try[lane_i]
+    if not steady_state_feedforward(A, B, cfg, K, Fc, w, lane_i):
         return DC_SINGULAR
     gain_max = cfg.gain_max
     if not (max_abs(K) <= gain_max and max_abs(Fc) <= gain_max):

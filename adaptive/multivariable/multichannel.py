@@ -29,6 +29,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.estimation.least_squares import (
     FAIL_COVARIANCE,
     OK,
@@ -38,8 +39,8 @@ from stcgym.adaptive.estimation.least_squares import (
     least_squares_work,
     upper_factor,
 )
-from stcgym.adaptive.estimation.recursive import NumericalHealthError
-from stcgym.envs.validation import (
+from stcgym.lanes.compiled import lane
+from stcgym.lanes.validation import (
     finite_vector,
     forgetting_factor,
     integer,
@@ -48,7 +49,6 @@ from stcgym.envs.validation import (
     positive,
     real_in,
 )
-from stcgym.lanes.compiled import lane
 
 __all__ = ["MatrixRLS", "NumericalHealthError", "StateMatrixEstimator"]
 
@@ -64,28 +64,28 @@ def _is_spd(P: NDArray) -> bool:
 
 
 @lane(entry=True, inline=True)
-def matrix_rls_step(theta, S, x, y, lam, w, lane):
+def matrix_rls_step(theta, S, x, y, lam, w, lane_i):
     """One step of appendix 2's recursion (P.6)-(P.8) on ``P = S S^T``; returns a status.
 
     ``theta`` ``(d, q)``, ``S`` ``(d, d)`` upper triangular, ``x`` ``(1, d)`` the regressor,
-    ``y`` ``(q,)``; scratch: lane ``lane`` of a
+    ``y`` ``(q,)``; scratch: lane ``lane_i`` of a
     :class:`~stcgym.adaptive.estimation.least_squares.LeastSquaresWork` for ``d`` parameters and
     ``q`` outputs. Every output channel ``j`` shares the gain ``K = P x / (lam + x^T P x)``
-    (``w.K[lane]`` on return) and the factor update, so ``theta[:, j] += K e_j`` with the
-    innovation ``e = y - theta^T x`` (``w.E[lane]``). Returns ``OK``, or ``FAIL_COVARIANCE``
+    (``w.gain[lane_i]`` on return) and the factor update, so ``theta[:, j] += K e_j`` with the
+    innovation ``e = y - theta^T x`` (``w.E[lane_i]``). Returns ``OK``, or ``FAIL_COVARIANCE``
     (``theta`` untouched, ``S`` to be reset by the caller) when the factor is unhealthy,
     ``trace(P)`` or an increment is not finite.
     """
     d, q = theta.shape
-    K = w.K[lane]
-    delta = w.delta[lane]
-    E = w.E[lane]
+    K = w.gain[lane_i]
+    delta = w.delta[lane_i]
+    E = w.E[lane_i]
     for j in range(q):
         acc = y[j]
         for i in range(d):
             acc -= x[0, i] * theta[i, j]
         E[j] = acc
-    denom = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w.factor_work[lane])
+    denom = least_squares_increment(S, 0, d, x, E, 1, lam, True, delta, K, w.factor_work[lane_i])
     healthy = factor_is_healthy(S, 0, d) and block_trace_is_finite(S, 0, d)
     if not (denom > 0.0 and math.isfinite(denom) and healthy):
         return FAIL_COVARIANCE
@@ -292,7 +292,7 @@ class MatrixRLS:
         self.t = t
         if status == OK:
             self._decay *= lam
-            self.K = self._work.K[0].copy() if self.symmetric else K
+            self.K = self._work.gain[0].copy() if self.symmetric else K
             return self.theta
         problem = "P lost positive definiteness or P, the gain or Theta overflowed"
         if self.on_failure == "raise":

@@ -39,9 +39,9 @@ from stcgym.adaptive.estimation.least_squares import (
     least_squares_shapes,
     upper_factor,
 )
-from stcgym.adaptive.kernels.linalg import invert
 from stcgym.adaptive.multivariable.multichannel import matrix_rls_step
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
+from stcgym.lanes.linalg import invert
 
 __all__ = [
     "DEPENDENT",
@@ -130,16 +130,16 @@ def make_state_matrix(n: int, m: int, num_lanes: int) -> tuple[StateMatrixState,
 
 
 @lane(inline=True)
-def _switch_to_rls(est, work, lane, p0):
-    """``P = G^{-1}`` (19) and ``Theta = G^{-1} H`` (11) of lane ``lane``; a singular ``G`` keeps
+def _switch_to_rls(est, work, lane_i, p0):
+    """``P = G^{-1}`` (19) and ``Theta = G^{-1} H`` (11) of lane ``lane_i``; a singular ``G`` keeps
     ``Theta`` and starts ``P`` at ``p0 I``."""
-    theta = est.theta[lane]
-    S = est.S[lane]
-    gram = est.gram[lane]
-    cross = est.cross[lane]
-    M = work.M[lane]
-    Ginv = work.Ginv[lane]
-    T = work.T[lane]
+    theta = est.theta[lane_i]
+    S = est.S[lane_i]
+    gram = est.gram[lane_i]
+    cross = est.cross[lane_i]
+    M = work.M[lane_i]
+    Ginv = work.Ginv[lane_i]
+    T = work.T[lane_i]
     q, n = theta.shape
     for i in range(q):
         for j in range(q):
@@ -177,40 +177,40 @@ def _restart_covariance(S, p0):
 
 
 @lane
-def state_matrix_update(est, work, lane, x_next, lam, tol, p0):
-    """One sample ``(z(t), x(t+1))`` of lane ``lane`` of the estimator (module docstring);
+def state_matrix_update(est, work, lane_i, x_next, lam, tol, p0):
+    """One sample ``(z(t), x(t+1))`` of lane ``lane_i`` of the estimator (module docstring);
     returns the status.
 
     ``est``/``work``: a :class:`StateMatrixState` and its :class:`StateMatrixWork`. ``z(t)`` is
     read from the state (the caller writes it after choosing ``u(t)``); the innovation ``e =
     x(t+1) - C z(t)`` is written to the state before the update.
     """
-    theta = est.theta[lane]
+    theta = est.theta[lane_i]
     q, n = theta.shape
-    z = est.z[lane]
-    e = est.e[lane]
+    z = est.z[lane_i]
+    e = est.e[lane_i]
     for j in range(n):
         acc = x_next[j]
         for i in range(q):
             acc -= theta[i, j] * z[i]
         e[j] = acc
-    rank = est.rank[lane]
-    S = est.S[lane]
+    rank = est.rank[lane_i]
+    S = est.S[lane_i]
     if rank >= q:
-        status = matrix_rls_step(theta, S, est.z[lane : lane + 1], x_next, lam, work, lane)
+        status = matrix_rls_step(theta, S, est.z[lane_i : lane_i + 1], x_next, lam, work, lane_i)
         if status != OK:
             _restart_covariance(S, p0)
             return RESET
         return OK
-    gram = est.gram[lane]
-    cross = est.cross[lane]
+    gram = est.gram[lane_i]
+    cross = est.cross[lane_i]
     for i in range(q):
         for j in range(q):
             gram[i, j] = lam * gram[i, j] + z[i] * z[j]
         for j in range(n):
             cross[i, j] = lam * cross[i, j] + z[i] * x_next[j]
-    R = est.R[lane]
-    Rz = work.Rz[lane]
+    R = est.R[lane_i]
+    Rz = work.Rz[lane_i]
     gamma = 0.0
     zz = 0.0
     for i in range(q):
@@ -229,7 +229,7 @@ def state_matrix_update(est, work, lane, x_next, lam, tol, p0):
         for k in range(q):
             R[i, k] -= Rz[i] * Rz[k] / gamma
     rank += 1
-    est.rank[lane] = rank
+    est.rank[lane_i] = rank
     if rank == q:
-        _switch_to_rls(est, work, lane, p0)
+        _switch_to_rls(est, work, lane_i, p0)
     return OK

@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.regression.greybox_regression import GreyBoxRegression
-from stcgym.envs.validation import finite_array, integer, matrix, one_of
+from stcgym.lanes.validation import finite_array, integer, matrix, one_of
 
 __all__ = [
     "AffineStateSpace",

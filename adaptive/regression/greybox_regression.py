@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.envs.validation import finite_array
+from stcgym.lanes.validation import finite_array
 
 __all__ = ["GreyBoxRegression"]
 

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.estimation.estimator_spec import upper_cholesky
-from stcgym.adaptive.estimation.recursive import NumericalHealthError
+from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.regression.rls_step import (
     FAILED,
     OK,
@@ -49,7 +49,8 @@ from stcgym.adaptive.regression.rls_step import (
     rls_run,
     rls_run_lanes,
 )
-from stcgym.envs.validation import (
+from stcgym.lanes.compiled import state_nbytes_per_lane
+from stcgym.lanes.validation import (
     covariance,
     forgetting_factor,
     integer,
@@ -57,7 +58,6 @@ from stcgym.envs.validation import (
     one_of,
     real_array,
 )
-from stcgym.lanes.compiled import state_nbytes_per_lane
 
 __all__ = ["NumericalHealthError", "RecursiveLeastSquares"]
 

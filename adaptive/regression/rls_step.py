@@ -29,8 +29,8 @@ from stcgym.adaptive.estimation.least_squares import (
     least_squares_step,
 )
 from stcgym.adaptive.estimation.least_squares import OK as LS_OK
-from stcgym.adaptive.kernels.records import copy_matrix, copy_vector
 from stcgym.lanes.compiled import fields_of, lane, lane_state, lanes, make_work
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 __all__ = [
     "FAILED",
@@ -152,7 +152,7 @@ def make_rls_state(d: int, p: int, window: int, num_lanes: int) -> tuple[RLSStat
 
 
 @lane
-def replay_window(theta, S, cfg, hist_Phi, hist_Y, first, w, lane):  # pragma: no cover
+def replay_window(theta, S, cfg, hist_Phi, hist_Y, first, w, lane_i):  # pragma: no cover
     """Finite-history estimate recomputed by replaying the stored samples from the prior.
 
     ``theta <- theta0``, ``S <- S0`` (of the :class:`RLSConfig` ``cfg``), then
@@ -165,7 +165,7 @@ def replay_window(theta, S, cfg, hist_Phi, hist_Y, first, w, lane):  # pragma: n
     copy_matrix(cfg.S0, S)
     for k in range(W):
         slot = (first + k) % W
-        if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, w, lane) != LS_OK:
+        if least_squares_step(theta, S, hist_Phi[slot], hist_Y[slot], 1.0, w, lane_i) != LS_OK:
             return False
     return True
 
@@ -220,8 +220,8 @@ def _gain(K, S, Phi, g):  # pragma: no cover - compiled
 
 
 @lane(inline=True)
-def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
-    """One step of :class:`RecursiveLeastSquares` on lane ``lane``; returns a status code.
+def rls_step(s, w, lane_i, cfg, Phi, Y):  # pragma: no cover
+    """One step of :class:`RecursiveLeastSquares` on lane ``lane_i``; returns a status code.
 
     ``s``/``w``: an :class:`RLSState` and its :class:`RLSWork`; ``cfg``: an :class:`RLSConfig`;
     ``Phi`` (p, d), ``Y`` (p,). The rule is :func:`least_squares_step` (square-root RLS/MILS
@@ -234,13 +234,13 @@ def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
     """
     p, d = Phi.shape
     window = cfg.window
-    theta = s.theta[lane]
-    S = s.S[lane]
-    hPhi = s.hist_Phi[lane]
-    hY = s.hist_Y[lane]
-    th = w.theta_try[lane]
-    Sn = w.S_try[lane]
-    y_pred = w.y_pred[lane]
+    theta = s.theta[lane_i]
+    S = s.S[lane_i]
+    hPhi = s.hist_Phi[lane_i]
+    hY = s.hist_Y[lane_i]
+    th = w.theta_try[lane_i]
+    Sn = w.S_try[lane_i]
+    y_pred = w.y_pred[lane_i]
     for r in range(p):  # prediction with theta(t-1); innovation e(t) = y(t) - y_pred
         acc = 0.0
         for i in range(d):
@@ -250,21 +250,21 @@ def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
     if cfg.adapt:
         copy_vector(theta, th)
         copy_matrix(S, Sn)
-        ok = least_squares_step(th, Sn, Phi, Y, cfg.lam, w, lane) == LS_OK
-        count = s.count[lane]
+        ok = least_squares_step(th, Sn, Phi, Y, cfg.lam, w, lane_i) == LS_OK
+        count = s.count[lane_i]
         slot = count % window if window > 0 else 0
         if ok and window > 0 and count >= window:
             if not (
-                downdate_is_accurate(Sn, hPhi[slot], w.F[lane], w.M[lane])
-                and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], w, lane) == LS_OK
+                downdate_is_accurate(Sn, hPhi[slot], w.F[lane_i], w.M[lane_i])
+                and least_squares_downdate(th, Sn, hPhi[slot], hY[slot], w, lane_i) == LS_OK
             ):
-                saved_Phi = w.saved_Phi[lane]  # recompute over the window after this step
-                saved_Y = w.saved_Y[lane]
+                saved_Phi = w.saved_Phi[lane_i]  # recompute over the window after this step
+                saved_Y = w.saved_Y[lane_i]
                 copy_matrix(hPhi[slot], saved_Phi)
                 copy_vector(hY[slot], saved_Y)
                 copy_matrix(Phi, hPhi[slot])
                 copy_vector(Y, hY[slot])
-                ok = replay_window(th, Sn, cfg, hPhi, hY, (slot + 1) % window, w, lane)
+                ok = replay_window(th, Sn, cfg, hPhi, hY, (slot + 1) % window, w, lane_i)
                 copy_matrix(saved_Phi, hPhi[slot])
                 copy_vector(saved_Y, hY[slot])
                 status = RECOMPUTED
@@ -275,8 +275,8 @@ def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
             if not cfg.reset_on_failure:
                 return FAILED
             copy_matrix(cfg.S0, S)
-            s.count[lane] = 0
-            s.n_resets[lane] += 1
+            s.count[lane_i] = 0
+            s.n_resets[lane_i] += 1
             status = FAILED
         else:
             copy_vector(th, theta)
@@ -284,22 +284,22 @@ def rls_step(s, w, lane, cfg, Phi, Y):  # pragma: no cover
             if window > 0:
                 copy_matrix(Phi, hPhi[slot])
                 copy_vector(Y, hY[slot])
-                s.count[lane] = count + 1
+                s.count[lane_i] = count + 1
             if status == RECOMPUTED:
-                s.n_recomputes[lane] += 1
-        _gain(s.K[lane], S, Phi, th)
-    y_hat = s.y_hat[lane]
-    innovation = s.innovation[lane]
+                s.n_recomputes[lane_i] += 1
+        _gain(s.K[lane_i], S, Phi, th)
+    y_hat = s.y_hat[lane_i]
+    innovation = s.innovation[lane_i]
     for r in range(p):
         y_hat[r] = y_pred[r]
         innovation[r] = Y[r] - y_pred[r]
-    s.t[lane] += 1
+    s.t[lane_i] += 1
     return status
 
 
 @lane(entry=True)
-def rls_run(s, w, lane, cfg, Phis, Ys, out):  # pragma: no cover
-    """``T`` steps of :func:`rls_step` on lane ``lane``: ``out[t] = theta(t)``.
+def rls_run(s, w, lane_i, cfg, Phis, Ys, out):  # pragma: no cover
+    """``T`` steps of :func:`rls_step` on lane ``lane_i``: ``out[t] = theta(t)``.
 
     Returns ``(failures, first failing step or -1)``; without ``cfg.reset_on_failure`` it stops
     at the first failure (that step not applied).
@@ -307,14 +307,14 @@ def rls_run(s, w, lane, cfg, Phis, Ys, out):  # pragma: no cover
     failures = 0
     first = -1
     for t in range(Phis.shape[0]):
-        status = rls_step(s, w, lane, cfg, Phis[t], Ys[t])
+        status = rls_step(s, w, lane_i, cfg, Phis[t], Ys[t])
         if status == FAILED:
             failures += 1
             if first < 0:
                 first = t
             if not cfg.reset_on_failure:
                 return failures, first
-        copy_vector(s.theta[lane], out[t])
+        copy_vector(s.theta[lane_i], out[t])
     return failures, first
 
 

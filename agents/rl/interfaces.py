@@ -92,7 +92,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from stcgym.agents.rl.wrappers import HistoryBuffer, WindowConfig
-from stcgym.envs.validation import positive
+from stcgym.lanes.validation import positive
 
 __all__ = [
     "ESTIMATORS",

@@ -39,7 +39,7 @@ from stcgym.agents.rl.interfaces import InterfaceSpec
 from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
 from stcgym.agents.rl.stopping import PlateauRule, StopSummary
 from stcgym.agents.rl.wrappers import WindowConfig
-from stcgym.envs.validation import integer
+from stcgym.lanes.validation import integer
 
 __all__ = [
     "ObsNorm",

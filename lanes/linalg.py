@@ -1,19 +1,24 @@
-"""Small dense linear algebra written out for lane functions (no BLAS, no LAPACK, no allocation).
+"""Small dense linear algebra and copies written out for lane functions (no BLAS, no LAPACK, no
+allocation).
 
 The matrices of a lane are a few rows wide (the order of a plant plus an integrator), where a
 call into a library costs more than the arithmetic; see :mod:`stcgym.lanes.compiled`. All are
-inlined into their callers. ``matvec`` is the plants' own (:func:`stcgym.envs.dynamics.matvec`,
-which computes their output ``y = C x``), re-exported here.
+inlined into their callers. A whole-array assignment ``dst[:] = src`` inside a compiled lane
+function may allocate a temporary for operands that could overlap, which lane functions
+(compiled without numba's reference-counting runtime) must not do: :func:`copy_matrix` and
+:func:`copy_vector` copy element by element instead. The plants' ``y = C x`` is
+:func:`stcgym.envs.dynamics.matvec`.
 """
 
 from __future__ import annotations
 
 import math
 
-from stcgym.envs.dynamics import matvec
+from numpy.typing import NDArray
+
 from stcgym.lanes.compiled import lane
 
-__all__ = ["all_finite", "invert", "matmul", "matvec", "max_abs", "norm1"]
+__all__ = ["all_finite", "copy_matrix", "copy_vector", "invert", "matmul", "max_abs", "norm1"]
 
 
 @lane(inline=True)
@@ -99,3 +104,18 @@ def invert(M, Minv):
                         M[i, j] -= f * M[col, j]
                         Minv[i, j] -= f * Minv[col, j]
     return True
+
+
+@lane(inline=True)
+def copy_matrix(src: NDArray, dst: NDArray) -> None:
+    """``dst[:, :] = src`` written out."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@lane(inline=True)
+def copy_vector(src: NDArray, dst: NDArray) -> None:
+    """``dst[:] = src`` written out."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
