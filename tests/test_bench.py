@@ -23,6 +23,7 @@ from stcgym.agents.benchmark.plan import (
     schedule,
 )
 from stcgym.agents.benchmark.scenarios import training_envs
+from stcgym.agents.benchmark.store import ResultsStore
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 
@@ -955,3 +956,31 @@ def test_common_mistakes_get_one_line_naming_the_flag_before_any_work(args, flag
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and flag in err, err
     assert "estimated" not in err and not out.exists()
+
+
+def test_the_ray_executor_runs_the_same_plan_to_the_same_records(tmp_path):
+    """``--executor ray`` (a local Ray instance here, as on a cluster's head node) runs the
+    plan the local process pool runs: the same jobs under the same ids, the same rows."""
+    ray = pytest.importorskip("ray")
+    small = [
+        *TINY[TINY.index("--train-steps") : TINY.index("--agents")],
+        "--scenarios", "family", "--agents", "ppo,stc,lqg", "--bootstrap-reps", "50",
+        "--no-plots", "--out", str(tmp_path),
+    ]  # fmt: skip
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["bench", *small, "--run", "local", "--jobs", "2"]) == 0, err.getvalue()
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        try:
+            rc = main(["bench", *small, "--run", "ray", "--executor", "ray", "--jobs", "2"])
+        finally:
+            ray.shutdown()
+    assert rc == 0, err.getvalue()
+    ids = {name: ResultsStore(tmp_path / name / "store", METRIC_COLUMNS).ids()
+           for name in ("local", "ray")}  # fmt: skip
+    assert ids["ray"] == ids["local"] and len(ids["local"]) == 6  # lqg, zero; stc, ppo: 2 runs
+    _, local_rows = _rows(tmp_path / "local" / "metrics.csv")
+    _, ray_rows = _rows(tmp_path / "ray" / "metrics.csv")
+    drop = ("train_wall_s", "step_us")  # the columns of wall time
+    diff = {k for a, b in zip(ray_rows, local_rows, strict=True) for k in a if a[k] != b[k]}
+    assert diff <= set(drop), diff

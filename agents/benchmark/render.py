@@ -59,6 +59,9 @@ class RunData:
     bounds: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: the command line of the run (its first session's)
     argv: list[str] | None = None
+    #: agent -> the RL Zoo departures its runs trained with (``config.json``; ``None``: a run
+    #: that did not record them, reported with this version's)
+    departures: dict[str, list[list[str]]] | None = None
 
 
 @dataclass
@@ -126,7 +129,11 @@ def load_run(run_dir: str | Path) -> Rendered:
     cfg, doc = read_run_config(run_dir)
     scenarios = make_scenarios(cfg)
     store = ResultsStore(run_dir / STORE_FOLDER, METRIC_COLUMNS)
-    data = RunData(bounds=dict(doc.get("bound_measurements", {})), argv=doc.get("argv"))
+    data = RunData(
+        bounds=dict(doc.get("bound_measurements", {})),
+        argv=doc.get("argv"),
+        departures=doc.get("zoo_departures"),
+    )
     records, missing = [], []
     for _kind, label, rid in planned_records(cfg, scenarios, run_dir):
         record = store.load(label, rid)

@@ -453,8 +453,9 @@ def _training_table(cfg: Any, data: Any) -> list[str]:
             "network's).",
         ]
     dep = ["| agent | setting | RL Zoo | here | why |", "|---|---|---|---|---|"]
+    recorded = data.departures or {}  # the run's own, where config.json keeps them
     for agent in cfg.rl_agents:
-        for setting, zoo, ours, why in ZOO_DEPARTURES.get(agent, []):
+        for setting, zoo, ours, why in recorded.get(agent, ZOO_DEPARTURES.get(agent, [])):
             dep.append(f"| {agent} | {setting} | {zoo} | {ours} | {why} |")
     return [*lines, "", "Departures from the RL Zoo's settings:", "", *dep]
 

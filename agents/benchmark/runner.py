@@ -138,13 +138,22 @@ def run_bench(
         config_doc["resumed"] = [*first.get("resumed", []), config_doc.pop("argv")]
         config_doc["argv"] = first.get("argv")
         config_doc["bound_measurements"] = first.get("bound_measurements", {})
+        if "zoo_departures" in first:
+            config_doc["zoo_departures"] = first["zoo_departures"]
     state = _RunState(cfg, run_dir, log, t_start)
     if time_limit is not None:
         state.deadline = t_start + float(time_limit)
     scenarios: list[Scenario] = []
 
     def write_config() -> None:
+        from stcgym.agents.rl.configs import ZOO_DEPARTURES
+
         config_doc["bench"] = state.cfg.to_dict()
+        # the departures from the RL Zoo these agents train with, for the report to cite
+        config_doc.setdefault(
+            "zoo_departures",
+            {a: [list(row) for row in ZOO_DEPARTURES.get(a, [])] for a in state.cfg.rl_agents},
+        )
         measured = config_doc.get("bound_measurements", {})
         config_doc["bound_measurements"] = {**measured, **state.bounds}
         config_doc["scenarios"] = [
