@@ -186,6 +186,11 @@ class BenchConfig:
         first = [YARDSTICK, "zero"]
         return [*first, *[a for a in names if a not in first]]
 
+    def runs_of(self, controller: str) -> int:
+        """Runs of the classical ``controller``: one per seed for one with random parts (the
+        self-tuning controllers' probes), one for a deterministic one."""
+        return self.train_seeds if CONTROLLERS[controller].seeded else 1
+
     @property
     def plateau(self) -> PlateauRule:
         return PlateauRule(self.min_improvement, self.patience, self.min_train_fraction)

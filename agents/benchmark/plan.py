@@ -96,7 +96,7 @@ def classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
     """Estimated seconds of every run of the classical controller ``name`` on ``sc``."""
     from stcgym.agents.controllers import CONTROLLERS
 
-    runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
+    runs = cfg.runs_of(name)
     lane = SECONDS_PER_EVAL_LANE_STEP
     if sc.env.plant_kind == "mimo" and CONTROLLERS[name].online:
         lane = SECONDS_PER_MIMO_EVAL_LANE_STEP
@@ -348,7 +348,6 @@ def describe_plan(cfg: BenchConfig) -> str:
     from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS
     from stcgym.agents.benchmark.rundir import classical_key, job_id
     from stcgym.agents.benchmark.store import STORE_FOLDER, ResultsStore
-    from stcgym.agents.controllers import CONTROLLERS
 
     scenarios = make_scenarios(cfg)
     envs = training_envs(cfg, scenarios)
@@ -361,7 +360,7 @@ def describe_plan(cfg: BenchConfig) -> str:
         names = controllers_for(cfg.classical, sc.env)
         cells = []
         for name in names:
-            runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
+            runs = cfg.runs_of(name)
             held = sum(classical_key(cfg, sc, name, r)[1] in kept for r in range(runs))
             cells.append(f"{name} x{runs}" + (f" ({held} kept)" if held else ""))
         lines.append(f"  {sc.name} ({len(sc.episodes.seeds)} episodes): {', '.join(cells)}; "

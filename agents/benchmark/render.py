@@ -25,7 +25,7 @@ from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS, format_value
 from stcgym.agents.benchmark.rundir import classical_key, job_id, read_run_config
 from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
 from stcgym.agents.benchmark.store import STORE_FOLDER, JobRecord, ResultsStore
-from stcgym.agents.controllers import CONTROLLERS, YARDSTICK, controllers_for
+from stcgym.agents.controllers import YARDSTICK, controllers_for
 
 __all__ = [
     "PAGE_END",
@@ -87,7 +87,7 @@ def planned_records(cfg: BenchConfig, scenarios: list[Any], run_dir: Path) -> li
     out = []
     for sc in scenarios:
         for name in controllers_for(cfg.classical, sc.env):
-            runs = cfg.train_seeds if CONTROLLERS[name].seeded else 1
+            runs = cfg.runs_of(name)
             out += [("classical", *classical_key(cfg, sc, name, run)) for run in range(runs)]
     if cfg.rl_agents:
         from stcgym.agents.benchmark.plan import rl_tasks

@@ -399,7 +399,7 @@ class _RunState:
     def _classical(self, sc: Scenario, name: str) -> bool:
         """Every run of ``name`` on ``sc``; False when the time limit left some for a resumed
         run."""
-        runs = self.cfg.train_seeds if CONTROLLERS[name].seeded else 1
+        runs = self.cfg.runs_of(name)
         each = classical_seconds(self.cfg, sc, name) / runs
         for run in range(runs):
             if self.halt.is_set():
