@@ -6,7 +6,7 @@
     scored against LQG on the true model, on the same episodes of the nominal, plant-family
     (test split and held-out variants), parameter-jump and MIMO scenarios; about 4 minutes on
     2 CPU cores.
-    ``stcgym bench --standard`` (about 2 h 20 min with every RL agent at its cap) has 5 runs,
+    ``stcgym bench --standard`` (about 2 hours with every RL agent at its cap) has 5 runs,
     the whole test split, every held-out variant and rung of the difficulty ladder, and RL
     caps of 10^6 steps on the family;
     ``stcgym bench --full`` is the long version (10 runs, every MIMO plant, TD3 and A2C too,
@@ -73,7 +73,7 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="5 runs per controller, the whole test split, every held-out variant and rung of "
         "the difficulty ladder, RL trained to the plateau with caps of 1e6 env steps on the "
-        "family for PPO and RecurrentPPO (2e5 for SAC): about 2 h 20 min on 2 CPU cores at the "
+        "family for PPO and RecurrentPPO (2e5 for SAC): about 2 hours on 2 CPU cores at the "
         "caps (the estimate is printed first; the plateau rule stops most agents earlier)",
     )
     mode.add_argument(

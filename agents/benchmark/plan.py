@@ -56,9 +56,10 @@ SECONDS_PER_STEP = {
     # 12 000 steps of ladder-l1-v1 in 21 s, learning curve included, beside another job
     "sac": 1.75e-3,
     "td3": 9.5e-3,
-    # RecurrentPPO with PPO's update (16 lanes x 256 steps): 20 480 steps of ladder-l1-v1 in
-    # 25 s, learning curve included, beside another job
-    "rppo": 1.25e-3,
+    # RecurrentPPO with PPO's update (16 lanes x 256 steps): 6.8 x 10^5 steps on the family
+    # in 358-385 s, learning curves included, beside another job and a test run (the
+    # standard run's first two)
+    "rppo": 0.56e-3,
     # their estimator or controller on every lane: 1.05-1.2x their base agent's (measured
     # against it in one process)
     "theta_ppo": 0.09e-3,
