@@ -169,3 +169,28 @@ def test_an_agent_told_the_true_parameters_skips_plants_of_another_order():
     assert [e.scenario for e in tasks["ppo"].evaluations] == every
     # (a, b) of a second-order plant are its input: a third-order plant has none to give
     assert [e.scenario for e in tasks["oracle_ppo"].evaluations] == [every[0], every[2]]
+
+
+def test_a_page_opens_a_runs_tables_with_the_ladder_across_its_rungs():
+    from stcgym.agents.benchmark.render import page_tables
+
+    def est(value, low, high):
+        return {"value": value, "low": low, "high": high}
+
+    statistics = {
+        "family:test": {"ppo": {"ratio": est(9.0, 8.0, 10.0), "diverged": est(0.3, 0.2, 0.4)}},
+        "ladder-l1-v1:test": {
+            "ppo": {"ratio": est(2.5, 2.0, 3.0), "diverged": est(0.0, 0.0, 0.0)},
+            "fixed_pi": {"ratio": est(4.0, 4.0, 4.0), "diverged": est(0.0, 0.0, 0.0)},
+        },
+    }
+    lines = page_tables("r", statistics).splitlines()
+    assert lines[4:8] == [
+        "| controller | `ladder-l1-v1:test` | `family:test` |",
+        "|---|---|---|",
+        "| `ppo` | 2.5 [2, 3] | 9 [8, 10]; 30 % div. |",
+        "| `fixed_pi` | 4 | - |",
+    ]
+    # without rungs, the per-scenario tables alone
+    plain = page_tables("r", {"family:test": statistics["family:test"]}).splitlines()
+    assert plain[2].startswith("`family:test`: cost / LQG")

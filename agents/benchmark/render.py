@@ -239,7 +239,7 @@ def page_tables(run_name: str, statistics: dict[str, Any]) -> str:
     per scenario, cost / LQG over the bounded episodes (IQM and median, 95 % intervals) and
     the divergence rate beside it, between the :data:`PAGE_START` / :data:`PAGE_END`
     markers."""
-    lines = [PAGE_START.format(run=run_name), ""]
+    lines = [PAGE_START.format(run=run_name), "", *_ladder_page_table(statistics)]
     for scenario, table in statistics.items():
         lines += [
             f"`{scenario}`: cost / LQG over the bounded episodes, and the diverged share",
@@ -264,6 +264,37 @@ def page_tables(run_name: str, statistics: dict[str, Any]) -> str:
         lines.append("")
     lines.append(PAGE_END.format(run=run_name))
     return "\n".join(lines)
+
+
+def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
+    """Where the run has the ladder's rungs: cost / LQG (IQM over the bounded episodes) of
+    every controller on each rung's test split, the family's (``siso2-v1``, the last rung's
+    plants) last, with the divergence rate where any."""
+    rungs = [s for s in statistics if s.startswith("ladder-") and s.endswith(":test")]
+    if not rungs:
+        return []
+    columns = [*rungs, *(["family:test"] if "family:test" in statistics else [])]
+    names = list(dict.fromkeys(c for s in columns for c in statistics[s]))
+    lines = [
+        "The ladder: cost / LQG, IQM over the bounded episodes [95 % CI], and the diverged "
+        "share where any",
+        "",
+        "| controller | " + " | ".join(f"`{s}`" for s in columns) + " |",
+        "|---|" + "---|" * len(columns),
+    ]
+    for name in names:
+        cells = []
+        for s in columns:
+            est = statistics[s].get(name)
+            if est is None:
+                cells.append("-")
+            elif "ratio" not in est:
+                cells.append("no improvement over initialisation")
+            else:
+                div = (est.get("diverged") or {}).get("value") or 0.0
+                cells.append(_cell(est["ratio"]) + (f"; {100 * div:.0f} % div." if div else ""))
+        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
+    return [*lines, ""]
 
 
 def update_page(page: str | Path, run_dir: str | Path) -> bool:
