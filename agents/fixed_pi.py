@@ -41,6 +41,10 @@ TUNING_SEED = 40_000
 #: The grid: ``K_p`` and ``K_i`` of either sign (the same for both), magnitudes log-spaced.
 _KP_GRID = np.geomspace(0.01, 3.0, 8)
 _KI_GRID = np.geomspace(0.001, 1.0, 8)
+#: Nelder-Mead's budget from the grid's best point, and the batches of ``TUNING_PLANTS``
+#: episodes a tuning runs at most (the grid's, then Nelder-Mead's)
+NELDER_MEAD_EVALUATIONS = 60
+TUNING_EVALUATIONS = 2 * _KP_GRID.size * _KI_GRID.size + NELDER_MEAD_EVALUATIONS
 
 
 class FixedPI(LanePolicy):
@@ -175,7 +179,12 @@ def tune_fixed_pi(spec: Any, plants: int = TUNING_PLANTS) -> PIGains:
         lambda x: score(sign * np.exp(x[0]), sign * np.exp(x[1])),
         np.log([kp0, ki0]),
         method="Nelder-Mead",
-        options={"maxfev": 60, "xatol": 0.02, "fatol": 1e-3, "initial_simplex": None},
+        options={
+            "maxfev": NELDER_MEAD_EVALUATIONS,
+            "xatol": 0.02,
+            "fatol": 1e-3,
+            "initial_simplex": None,
+        },  # fmt: skip
     )
     if result.fun < best:
         kp0, ki0, best = float(np.exp(result.x[0])), float(np.exp(result.x[1])), float(result.fun)

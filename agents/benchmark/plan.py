@@ -101,7 +101,15 @@ def classical_seconds(cfg: BenchConfig, sc: Scenario, name: str) -> float:
     lane = SECONDS_PER_EVAL_LANE_STEP
     if sc.env.plant_kind == "mimo" and CONTROLLERS[name].online:
         lane = SECONDS_PER_MIMO_EVAL_LANE_STEP
-    return runs * _batch_seconds(sc.env, len(sc.episodes.seeds), SECONDS_PER_EVAL_STEP, lane)
+    seconds = runs * _batch_seconds(sc.env, len(sc.episodes.seeds), SECONDS_PER_EVAL_STEP, lane)
+    if name == "fixed_pi" and sc.kind in ("nominal", "family", "ladder"):
+        # its tuning on the scenario's training split (the held-out and jump scenarios reuse
+        # the family's, cached within the process)
+        from stcgym.agents.fixed_pi import TUNING_EVALUATIONS, TUNING_PLANTS
+
+        batch = _batch_seconds(sc.env, TUNING_PLANTS, SECONDS_PER_EVAL_STEP, lane)
+        seconds += TUNING_EVALUATIONS * batch
+    return seconds
 
 
 def curve_evaluations(task: TrainingTask) -> int:
