@@ -53,8 +53,9 @@ SECONDS_PER_STEP = {
     "oracle_ppo": 0.085e-3,
     "a2c": 0.9e-3,
     # SAC on 8 lanes, 2 gradient steps per vector step (a quarter of one per env step):
-    # 12 000 steps of ladder-l1-v1 in 21 s, learning curve included, beside another job
-    "sac": 1.75e-3,
+    # 10^5 steps of ladder-l1-v1 in 217 s, learning curve included, beside another job (the
+    # standard run's family jobs, beside a test suite too: 1.8 x 10^5 steps in 805 s)
+    "sac": 2.0e-3,
     "td3": 9.5e-3,
     # RecurrentPPO with PPO's update (16 lanes x 256 steps): 6.8 x 10^5 steps on the family
     # in 358-385 s, learning curves included, beside another job and a test run (the
@@ -64,7 +65,7 @@ SECONDS_PER_STEP = {
     # against it in one process)
     "theta_ppo": 0.09e-3,
     "residual_ppo": 0.1e-3,
-    "theta_sac": 1.85e-3,
+    "theta_sac": 2.1e-3,
 }
 #: Seconds per batched step of an RL policy in a learning-curve or evaluation episode (SB3's
 #: predict on all lanes at once: about constant up to a few hundred lanes) and per lane.
