@@ -5,6 +5,9 @@ through the public API like the registry's own.
 * a design with settings of its own on a compiled design: the registry entry alone, here a
   toy design with every pole at 0.8, against the controller with ``poles=0.8`` (the same
   compiled code: bit for bit) and its oracle;
+* a compiled design: a new module and the registry entry, here Ackermann's formula on poles
+  the design's compiled argument carries (every pole at 0.8), against the controller's pole
+  placement with ``poles=0.8`` (the same arithmetic: bit for bit);
 * a state estimator: the registry entry, its lane function and its branch in the estimator's
   state step, applied to a copy of the package (``TOY``: the closed-loop observer (50) with the
   gain fixed at ``K = e_1 / 2``), run in a fresh process, against ``CO-`` with that gain.
@@ -27,7 +30,7 @@ import stcgym.adaptive
 import stcgym.envs
 import stcgym.lanes
 from stcgym.adaptive import KnownModelController, SelfTuningController
-from stcgym.adaptive.variants import DESIGNS, Design
+from stcgym.adaptive.variants import DESIGNS, PLACEMENT, Design
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {
@@ -44,10 +47,26 @@ def _recipe_files(title: str) -> list[str]:
     return re.findall(r"^\d+\. `([\w/]+\.py)`", section, flags=re.M)
 
 
+def _closed_loop(controller: SelfTuningController, other: SelfTuningController) -> None:
+    """150 samples of ``controller`` on a second-order plant (every lane), ``other`` seeing the
+    same observations: their inputs equal bit for bit."""
+    A = np.array([[1.5, 1.0], [-0.56, 0.0]])
+    b = np.array([1.0, 0.5])
+    x = np.zeros(2)
+    rng = np.random.default_rng(0)
+    for _ in range(150):
+        obs = np.array([x[0] + 0.01 * rng.standard_normal(), 1.0])
+        if controller.num_envs is not None:
+            obs = np.tile(obs, (controller.num_envs, 1))
+        u = controller.predict(obs)[0]
+        np.testing.assert_array_equal(u, other.predict(obs)[0])
+        x = A @ x + b * np.ravel(u)[0]
+
+
 # ------------------------------------------------------------------------------ a design
 TOY_DESIGN = Design(
     name="toy_slow",
-    lq=False,
+    compiled=PLACEMENT,
     doc="Ackermann's formula with every closed-loop pole at z = 0.8",
     parameters=(),
     oracle="KnownModelController",
@@ -61,20 +80,81 @@ def test_a_design_on_a_compiled_design_is_one_registry_entry(monkeypatch) -> Non
     assert _recipe_files("Adding a design") == ["adaptive/variants.py"]
     monkeypatch.setitem(DESIGNS, TOY_DESIGN.name, TOY_DESIGN)
     toy = SelfTuningController(2, design="toy_slow", seed=3)
-    same = SelfTuningController(2, poles=0.8, seed=3)
-    A = np.array([[1.5, 1.0], [-0.56, 0.0]])
-    b = np.array([1.0, 0.5])
-    x = np.zeros(2)
-    rng = np.random.default_rng(0)
-    for _ in range(150):
-        obs = np.array([x[0] + 0.01 * rng.standard_normal(), 1.0])
-        u = toy.predict(obs)[0]
-        np.testing.assert_array_equal(u, same.predict(obs)[0])
-        x = A @ x + b * u[0]
+    _closed_loop(toy, SelfTuningController(2, poles=0.8, seed=3))
     np.testing.assert_array_equal(toy.poles, np.full(3, 0.8))
     oracle = TOY_DESIGN.make_oracle([-1.5, 0.56], [1.0, 0.5])
     assert isinstance(oracle, KnownModelController)
     np.testing.assert_array_equal(oracle.poles, np.full(3, 0.8))
+
+
+# ------------------------------------------------------------------------ a compiled design
+# the recipe's new module: Ackermann's formula on the characteristic polynomial its compiled
+# argument carries (the controller's pole placement reads the controller's own)
+TOY_MODULE = '''
+from typing import NamedTuple
+
+import numpy as np
+
+from stcgym.adaptive.control.placement import characteristic_coefficients
+from stcgym.adaptive.control.pole_placement import ackermann_gain
+from stcgym.adaptive.control.safe_set import OK, design_start, design_work, finish
+from stcgym.adaptive.variants import CompiledDesign
+from stcgym.lanes.compiled import lane
+
+
+class SlowPoles(NamedTuple):
+    char_poly: np.ndarray  # every closed-loop pole at 0.8
+
+
+class NoState(NamedTuple):
+    """The design keeps no lane state."""
+
+
+@lane(inline=True)
+def controller_design(design, theta, cfg, state, gain, w, lane_i):
+    status, rcond = design_start(theta, cfg, w, lane_i)
+    if status != OK:
+        return status
+    ackermann_gain(w.A_aug[lane_i], w.b_aug[lane_i], design.char_poly, w.K[lane_i], w, lane_i)
+    return finish(theta, cfg, rcond, gain, w, lane_i)
+
+
+def _argument(n, law):
+    return SlowPoles(characteristic_coefficients(np.full(n + int(law.integral), 0.8)))
+
+
+COMPILED_DESIGN = CompiledDesign(
+    argument=SlowPoles,
+    step=controller_design,
+    make_argument=_argument,
+    make_state=lambda n, law, num_lanes: NoState(),
+    make_work=design_work,
+)
+'''
+
+
+@pytest.mark.equality
+def test_a_compiled_design_is_a_new_module_and_its_registry_entry(monkeypatch, tmp_path) -> None:
+    new_module, registry = _recipe_files("Adding a compiled design")
+    assert registry == "adaptive/variants.py"
+    name = Path(new_module).stem
+    (tmp_path / f"{name}.py").write_text(TOY_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    entry = Design(
+        name="toy_compiled",
+        compiled=name,
+        doc="Ackermann's formula with every pole at 0.8, from the design's own argument",
+        parameters=(),
+        oracle="KnownModelController",
+        oracle_options={"poles": 0.8},
+    )
+    monkeypatch.setitem(DESIGNS, entry.name, entry)
+    toy = SelfTuningController(2, design="toy_compiled", seed=3, num_envs=2)
+    same = SelfTuningController(2, poles=0.8, seed=3, num_envs=2)
+    assert toy.compiled_args.design.char_poly.shape == (3,)  # its own argument
+    _closed_loop(toy, same)
+    np.testing.assert_array_equal(toy.K, same.K)
+    assert toy.diagnostics["n_rejected"].tolist() == same.diagnostics["n_rejected"].tolist()
 
 
 # ----------------------------------------------------------------------- a state estimator

@@ -69,7 +69,7 @@ def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
 
 
 @lane(inline=True)
-def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, x, theta,
+def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, x, theta,
                  theta_after, jump_at, form, bound, sigma_v, z, r, rho, y_bound, window, cost,
                  y_tr, u_tr, traces):  # fmt: skip
     """``T = r.size - 1`` closed-loop steps of lane ``lane_i`` (the arguments before ``lane_i``: the
@@ -81,9 +81,7 @@ def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i,
     if traces:
         y_tr[0] = y
     for k in range(T):
-        u_raw = controller_step(
-            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r[k]
-        )
+        u_raw = controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, y, r[k])
         th = theta_after if k >= jump_at else theta
         reward, _, diverged, u, _, y = canonical_plant_step(
             x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form
@@ -98,13 +96,13 @@ def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i,
 
 
 @lanes(min_lanes=1)  # a lane is a whole episode
-def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, X, Theta,
+def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, design, X, Theta,
                   Theta_after, jump_at, form, bound, sigma_v, Z, R, rho, y_bound, window, Cost, Y,
                   U, traces, steps_run, diverged, first: int, last: int):  # fmt: skip
     """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
     for i in range(first, last):
         steps_run[i], diverged[i] = rollout_lane(
-            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, X[i], Theta[i],
+            s, w, cfg, est, est_work, est_cfg, els_cfg, design, i, X[i], Theta[i],
             Theta_after[i], jump_at, form, bound, sigma_v, Z[i], R[i], rho, y_bound, window,
             Cost[i], Y[i], U[i], traces,
         )  # fmt: skip
