@@ -126,8 +126,7 @@ def rollout(
     *,
     reference: ArrayLike,
     noise_std: float = 0.05,
-    seed: int = 0,
-    z: ArrayLike | None = None,
+    z: ArrayLike | int = 0,
     control_cost: float = 0.01,
     y_bound: float = 100.0,
     x0: ArrayLike | None = None,
@@ -155,9 +154,9 @@ def rollout(
         ``r(0..T)``, ``(T + 1,)`` (every lane) or ``(B, T + 1)``; the controller sees ``r(k)``
         at step ``k``, and the cost of step ``k`` is ``(y_clean(k+1) - r(k+1))^2 + rho u(k)^2``
         (the env's ``-reward``, ``rho = control_cost``).
-    noise_std, seed, z
+    noise_std, z
         Output noise ``noise_std * z``, ``z`` ``(B, T + 1)`` standard normals (``z[:, 0]`` for
-        ``y(0)``), drawn from ``numpy.random.default_rng(seed)`` unless given.
+        ``y(0)``), or an int: the seed they are drawn from (``numpy.random.default_rng(z)``).
     control_cost
         ``rho``.
     y_bound
@@ -198,8 +197,8 @@ def rollout(
     R = _per_lane(reference, B, steps + 1, "reference")
     X = _per_lane(np.zeros(n) if x0 is None else x0, B, n, "x0").copy()
     noise_std = non_negative(noise_std, "noise_std")
-    if z is None:
-        Z = np.random.default_rng(seed).standard_normal((B, steps + 1))
+    if isinstance(z, (int, np.integer)):
+        Z = np.random.default_rng(z).standard_normal((B, steps + 1))
     else:
         Z = _per_lane(z, B, steps + 1, "z")
     window = steps if window is None else int(window)
