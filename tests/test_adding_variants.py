@@ -21,6 +21,7 @@ import re
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -140,14 +141,8 @@ def test_a_compiled_design_is_a_new_module_and_its_registry_entry(monkeypatch, t
     name = Path(new_module).stem
     (tmp_path / f"{name}.py").write_text(TOY_MODULE)
     monkeypatch.syspath_prepend(str(tmp_path))
-    entry = Design(
-        name="toy_compiled",
-        compiled=name,
-        doc="Ackermann's formula with every pole at 0.8, from the design's own argument",
-        parameters=(),
-        oracle="KnownModelController",
-        oracle_options={"poles": 0.8},
-    )
+    # the same oracle as the toy design above; the poles are the compiled argument's
+    entry = replace(TOY_DESIGN, name="toy_compiled", compiled=name, poles=None)
     monkeypatch.setitem(DESIGNS, entry.name, entry)
     toy = SelfTuningController(2, design="toy_compiled", seed=3, num_envs=2)
     same = SelfTuningController(2, poles=0.8, seed=3, num_envs=2)
