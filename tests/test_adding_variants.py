@@ -5,9 +5,10 @@ through the public API like the registry's own.
 * a design with settings of its own on a compiled design: the registry entry alone, here a
   toy design with every pole at 0.8, against the controller with ``poles=0.8`` (the same
   compiled code: bit for bit) and its oracle;
-* a compiled design: a new module and the registry entry, here Ackermann's formula on poles
-  the design's compiled argument carries (every pole at 0.8), against the controller's pole
-  placement with ``poles=0.8`` (the same arithmetic: bit for bit);
+* a compiled design: a new module and the registry entry, applied to a copy of the package
+  and run in a fresh process, here Ackermann's formula on poles the design's compiled argument
+  carries (every pole at 0.8), against the controller's pole placement with ``poles=0.8``
+  (the same arithmetic: bit for bit);
 * a state estimator: the registry entry, its lane function and its branch in the estimator's
   state step, applied to a copy of the package (``TOY``: the closed-loop observer (50) with the
   gain fixed at ``K = e_1 / 2``), run in a fresh process, against ``CO-`` with that gain.
@@ -21,7 +22,6 @@ import re
 import shutil
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +62,32 @@ def _closed_loop(controller: SelfTuningController, other: SelfTuningController) 
         u = controller.predict(obs)[0]
         np.testing.assert_array_equal(u, other.predict(obs)[0])
         x = A @ x + b * np.ravel(u)[0]
+
+
+def _run_in_copy(
+    tmp_path: Path, edits: list[tuple[str, str, str]], new_files: dict[str, str], script: str
+) -> dict:
+    """Apply a recipe to a copy of the package -- ``edits``: (file, anchor that occurs once,
+    text inserted before it); ``new_files``: path -> text -- and run ``script`` on the copy in
+    a fresh process with a numba cache of its own; returns the JSON of its last line."""
+    pkg = tmp_path / "pkg"
+    for name, src in PACKAGES.items():
+        shutil.copytree(src, pkg / "stcgym" / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for rel, anchor, text in edits:
+        path = pkg / "stcgym" / rel
+        source = path.read_text()
+        assert source.count(anchor) == 1, (rel, anchor)
+        path.write_text(source.replace(anchor, text + anchor))
+    for rel, text in new_files.items():
+        (pkg / "stcgym" / rel).write_text(text)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CACHE")}
+    env.update(PYTHONPATH=str(pkg), PYTHONDONTWRITEBYTECODE="1")
+    env["NUMBA_CACHE_DIR"] = str(tmp_path / "cache")
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=env, cwd=pkg
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 # ------------------------------------------------------------------------------ a design
@@ -134,22 +160,47 @@ COMPILED_DESIGN = CompiledDesign(
 '''
 
 
+# its registry entry, inserted at the end of DESIGNS
+TOY_DESIGN_ENTRY = (
+    "\n    )\n}  # fmt: skip",
+    """
+        Design(
+            name="toy_compiled", compiled="stcgym.adaptive.control.new_design",
+            doc="Ackermann's formula with every pole at 0.8, from the design's own argument",
+            parameters=(), oracle="KnownModelController", oracle_options={"poles": 0.8},
+        ),""",
+)
+
+TOY_DESIGN_RUN = """
+import json, numpy as np
+from stcgym.adaptive import SelfTuningController
+toy = SelfTuningController(2, design="toy_compiled", seed=3, num_envs=2)
+same = SelfTuningController(2, poles=0.8, seed=3, num_envs=2)
+A, b, x = np.array([[1.5, 1.0], [-0.56, 0.0]]), np.array([1.0, 0.5]), np.zeros(2)
+rng = np.random.default_rng(0)
+u_toy, u_same = [], []
+for _ in range(150):
+    obs = np.tile([x[0] + 0.01 * rng.standard_normal(), 1.0], (2, 1))
+    u_toy.append(toy.predict(obs)[0].ravel().tolist())
+    u_same.append(same.predict(obs)[0].ravel().tolist())
+    x = A @ x + b * u_toy[-1][0]
+print(json.dumps({"toy": u_toy, "same": u_same, "K": [toy.K.tolist(), same.K.tolist()],
+                  "char_poly": toy.compiled_args.design.char_poly.tolist()}))
+"""
+
+
 @pytest.mark.equality
-def test_a_compiled_design_is_a_new_module_and_its_registry_entry(monkeypatch, tmp_path) -> None:
+def test_a_compiled_design_is_a_new_module_and_its_registry_entry(tmp_path: Path) -> None:
     new_module, registry = _recipe_files("Adding a compiled design")
     assert registry == "adaptive/variants.py"
-    name = Path(new_module).stem
-    (tmp_path / f"{name}.py").write_text(TOY_MODULE)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    # the same oracle as the toy design above; the poles are the compiled argument's
-    entry = replace(TOY_DESIGN, name="toy_compiled", compiled=name, poles=None)
-    monkeypatch.setitem(DESIGNS, entry.name, entry)
-    toy = SelfTuningController(2, design="toy_compiled", seed=3, num_envs=2)
-    same = SelfTuningController(2, poles=0.8, seed=3, num_envs=2)
-    assert toy.compiled_args.design.char_poly.shape == (3,)  # its own argument
-    _closed_loop(toy, same)
-    np.testing.assert_array_equal(toy.K, same.K)
-    assert toy.diagnostics["n_rejected"].tolist() == same.diagnostics["n_rejected"].tolist()
+    assert new_module.endswith("/new_design.py")
+    out = _run_in_copy(
+        tmp_path, [(registry, *TOY_DESIGN_ENTRY)], {new_module: TOY_MODULE}, TOY_DESIGN_RUN
+    )
+    assert len(out["char_poly"]) == 3  # its own argument: the augmented model's 3 poles
+    assert np.abs(np.array(out["toy"])).max() > 0.1  # the loop ran
+    assert out["toy"] == out["same"]  # bit for bit (floats through JSON: repr round-trips)
+    assert out["K"][0] == out["K"][1]
 
 
 # ----------------------------------------------------------------------- a state estimator
@@ -221,25 +272,8 @@ print(json.dumps({"toy": toy.run(u, y).tolist(), "co": ref.run(u, y).tolist(),
 def test_a_state_estimator_takes_the_three_files_of_its_recipe(tmp_path: Path) -> None:
     listed = _recipe_files("Adding a state estimator")
     assert len(listed) <= 3
-    pkg = tmp_path / "pkg"
-    for name, src in PACKAGES.items():
-        shutil.copytree(src, pkg / "stcgym" / name, ignore=shutil.ignore_patterns("__pycache__"))
-    touched = set()
-    for rel, anchor, text in TOY_STATE_EDITS:
-        path = pkg / "stcgym" / rel
-        source = path.read_text()
-        assert source.count(anchor) == 1, (rel, anchor)
-        path.write_text(source.replace(anchor, text + anchor))
-        touched.add(rel)
-    assert sorted(touched) == sorted(listed)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CACHE")}
-    env.update(PYTHONPATH=str(pkg), PYTHONDONTWRITEBYTECODE="1")
-    env["NUMBA_CACHE_DIR"] = str(tmp_path / "cache")
-    done = subprocess.run(
-        [sys.executable, "-c", TOY_RUN], capture_output=True, text=True, env=env, cwd=pkg
-    )
-    assert done.returncode == 0, done.stderr
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = _run_in_copy(tmp_path, TOY_STATE_EDITS, {}, TOY_RUN)
+    assert sorted({rel for rel, _, _ in TOY_STATE_EDITS}) == sorted(listed)
     assert out["name"] == "TOY-RLS" and out["flops"] == 4 * 2 * 2 + 2
     toy, co = np.array(out["toy"]), np.array(out["co"])
     assert np.all(np.isfinite(toy)) and np.abs(toy[-1] - toy[0]).max() > 0.1
