@@ -30,7 +30,7 @@ from stcgym.adaptive.control.placement import (
 from stcgym.adaptive.estimation import estimator_spec as _spec
 from stcgym.adaptive.estimation import flops
 from stcgym.adaptive.estimation import iterative as _iterative
-from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec, parse_name
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSettings, EstimatorSpec, parse_name
 from stcgym.adaptive.estimation.factory import make_estimator
 from stcgym.adaptive.estimation.health import NumericalHealthError
 from stcgym.adaptive.estimation.iterative import IterativeResult, fit_iterative
@@ -71,6 +71,7 @@ __all__ = [
     "GreyBoxRegression",
     "NotLinearInParameters",
     "RecursiveLeastSquares",
+    "EstimatorSettings",
     "EstimatorSpec",
     "ITERATIVE_NAMES",
     "IterativeResult",

@@ -15,7 +15,8 @@ documentation):
 * :class:`ExtendedLS` (:data:`CONTROLLER_ESTIMATORS`): an estimator of the self-tuning
   controller outside the paper's ``<state>-[D-]<rule>`` names, extended least squares;
 * :class:`Design` (:data:`DESIGNS`): the certainty-equivalence design of the self-tuning
-  controller -- the compiled design it runs, its parameters and the known-model oracle that
+  controller -- the compiled design it runs (:class:`CompiledDesign`: its lane function, its
+  compiled argument, lane state and scratch), its parameters and the known-model oracle that
   applies the same design to the true model.
 
 A name is resolved once into its record: :func:`variant` (``"KF-D-MILS"`` ->
@@ -28,6 +29,7 @@ compare codes for equality only (never an order between variants).
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -40,8 +42,10 @@ __all__ = [
     "ALGORITHMS",
     "CONTROLLER_ESTIMATORS",
     "DESIGNS",
+    "PLACEMENT",
     "RULES",
     "STATE_ESTIMATORS",
+    "CompiledDesign",
     "CompiledVersion",
     "Design",
     "EstimatorName",
@@ -49,6 +53,7 @@ __all__ = [
     "Parameter",
     "Rule",
     "StateEstimator",
+    "compiled_design",
     "compiled_version",
     "controller_estimator",
     "parse_name",
@@ -118,16 +123,38 @@ class StateEstimator:
 
 
 @dataclass(frozen=True, kw_only=True)
+class CompiledDesign:
+    """A compiled design of the self-tuning controller's step 3: its lane function and what
+    the controller builds for it. The class of its compiled argument chooses the compiled
+    version of the controller step that runs it (:func:`stcgym.lanes.compiled.chosen_by_type`);
+    a design module declares one as ``COMPILED_DESIGN``, which :attr:`Design.compiled` names."""
+
+    argument: type  # the named tuple class of its compiled argument (one class a design)
+    step: Callable[..., int]  # the lane function step(argument, theta, cfg, state, gain, w,
+    # lane_i) -> status: the gain of theta into lane lane_i of gain (a safe_set.Gain)
+    make_argument: Callable[[int, Any], tuple]  # (n, law: LawOptions) -> its compiled argument
+    make_state: Callable[[int, Any, int], tuple]  # (n, law, num_lanes) -> its lane state,
+    # every lane at its cold start (an empty named tuple: it keeps none)
+    make_work: Callable[[int, bool, int], tuple]  # (n, integral, num_lanes) -> its scratch, with
+    # the model A, b of theta_hat (safe_set.DesignWork's fields) that the Kalman filter reads
+
+
+@dataclass(frozen=True, kw_only=True)
 class Design:
     """A certainty-equivalence design of the self-tuning controller."""
 
     name: str
-    lq: bool  # compiles the one-step Riccati design (else Ackermann's formula): compiled_version
+    compiled: str  # the module whose COMPILED_DESIGN it runs (a CompiledDesign)
     doc: str
     parameters: tuple[str, ...]  # the controller's settings it reads
     oracle: str  # the known-model oracle (a class of stcgym.adaptive) with the same design
     oracle_options: dict[str, Any] = field(default_factory=dict)
     poles: float | None = None  # every closed-loop pole fixed here (None: from `poles`)
+
+    @property
+    def compiled_design(self) -> CompiledDesign:
+        """The :class:`CompiledDesign` it runs (its module imported on first use)."""
+        return importlib.import_module(self.compiled).COMPILED_DESIGN
 
     def make_oracle(self, a: Any, b: Any, **options: Any) -> Any:
         """The known-model oracle of this design on the true ``a``, ``b`` (``options``: the
@@ -241,16 +268,19 @@ ALGORITHMS: tuple[str, ...] = tuple(
 )
 
 # ---- designs --------------------------------------------------------------------------------
+#: The compiled design of Ackermann's formula (poles: the controller's ``cfg.char_poly``).
+PLACEMENT = "stcgym.adaptive.control.pole_placement"
+
 DESIGNS: dict[str, Design] = {
     d.name: d
     for d in (
         Design(
-            name="pole_placement", lq=False,
+            name="pole_placement", compiled=PLACEMENT,
             doc="Ackermann's formula on the integral-augmented model: every closed-loop pole at "
             "`poles`", parameters=("poles",), oracle="KnownModelController",
         ),
         Design(
-            name="lq", lq=True,
+            name="lq", compiled="stcgym.adaptive.control.lq",
             doc="one Riccati iteration a sample of the LQ problem on the integral-augmented "
             "model (weights `law.lq_weights`)", parameters=("law.lq_weights",),
             oracle="LQGController",
@@ -258,7 +288,7 @@ DESIGNS: dict[str, Design] = {
         # Astrom & Wittenmark, Adaptive Control (2nd ed., 1995), sec. 3.2: deadbeat control is
         # pole placement with every closed-loop pole at the origin
         Design(
-            name="deadbeat", lq=False,
+            name="deadbeat", compiled=PLACEMENT,
             doc="Ackermann's formula with every closed-loop pole at z = 0: (A - b K)^(n+1) = 0 "
             "on the integral-augmented model, the error of the estimated model dies in n + 1 "
             "samples", parameters=(), oracle="KnownModelController",
@@ -367,15 +397,24 @@ def controller_estimator(name: str) -> EstimatorName | ExtendedLS:
 class CompiledVersion(NamedTuple):
     """A compiled version of the self-tuning controller's step: numba prunes ``if x is None``
     on an argument's type, so ``est_cfg`` / ``els_cfg`` (one of them ``None``) choose the
-    estimator it contains and ``lq_weights`` (``None`` or an array) the design."""
+    estimator it contains, and the class of the design's compiled argument the design."""
 
     paper: bool  # the paper's estimator (est_cfg), else extended least squares (els_cfg)
-    lq: bool  # the one-step Riccati design (lq_weights), else Ackermann's formula
+    design: str  # the compiled design's module (Design.compiled)
 
 
 def compiled_version(estimator: EstimatorName | ExtendedLS, design: Design) -> CompiledVersion:
     """The one map from an estimator and a design to the controller step's compiled version."""
-    return CompiledVersion(paper=estimator.paper, lq=design.lq)
+    return CompiledVersion(paper=estimator.paper, design=design.compiled)
+
+
+def compiled_design(argument: type) -> CompiledDesign:
+    """The compiled design of :data:`DESIGNS` whose compiled argument is of class
+    ``argument`` (the controller step's choice of its design)."""
+    for d in DESIGNS.values():
+        if d.compiled_design.argument is argument:
+            return d.compiled_design
+    raise TypeError(f"no design of DESIGNS takes a compiled argument of class {argument!r}")
 
 
 def parse_name(name: str) -> tuple[str, bool, str]:

@@ -40,6 +40,7 @@ never runs stale machine code: :mod:`stcgym.lanes.kernel_cache`.
 from __future__ import annotations
 
 import functools
+import inspect
 import logging
 import os
 import threading
@@ -50,6 +51,7 @@ from typing import Any, TypeVar
 
 import numba
 import numpy as np
+from numba.extending import overload
 from numpy.typing import NDArray
 
 from stcgym.lanes import numba_internals as internals
@@ -216,6 +218,32 @@ def lane(
     into the whole step (measured: 2.5-3 s more on the controller's cold first ``predict``).
     """
     return _jit(fn, allocates, inline=inline, inline_ir=inline_ir, entry=entry)
+
+
+def chosen_by_type(choose: Callable[[type], Any]) -> Callable[[F], F]:
+    """Make ``fn(arg, ...)`` a lane function that runs ``choose(type(arg))(arg, ...)``: the
+    lane function of the class of its first argument (a named tuple), which takes ``fn``'s
+    parameters under the same names.
+
+    The choice is made when numba types the caller, from the argument's type: each class gets
+    a compiled version of the caller that contains only its own implementation (as ``if x is
+    None`` chooses a version on ``None``, for any number of alternatives). The implementation
+    is inlined into the caller as numba IR (like ``inline_ir=True``). ``fn``'s body is the
+    same choice made at run time, for Python and ``NUMBA_DISABLE_JIT=1``.
+    """
+
+    def decorate(fn: F) -> F:
+        if internals.jit_disabled():
+            return fn
+
+        def typer(*args: Any) -> Any:  # numba calls it with the arguments' types
+            return choose(args[0].instance_class).py_func
+
+        typer.__signature__ = inspect.signature(fn)  # type: ignore[attr-defined]
+        overload(fn, inline="always")(typer)
+        return fn
+
+    return decorate
 
 
 #: Fewest lanes a thread of a batch loop gets by default: below ``2 * DEFAULT_MIN_LANES`` lanes a

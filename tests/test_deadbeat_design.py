@@ -11,7 +11,7 @@ import pytest
 
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import KnownModelController, SelfTuningController
-from stcgym.adaptive.variants import DESIGNS
+from stcgym.adaptive.variants import DESIGNS, PLACEMENT
 from stcgym.envs import get_plant
 from stcgym.envs.canonical import companion_A
 
@@ -49,7 +49,7 @@ def test_the_self_tuning_controller_places_every_pole_at_the_origin():
 
 def test_the_registry_entry_and_its_oracle():
     design = DESIGNS["deadbeat"]
-    assert not design.lq and design.poles == 0.0  # Ackermann's formula, every pole at 0
+    assert design.compiled == PLACEMENT and design.poles == 0.0  # Ackermann, every pole at 0
     plant = get_plant("stable2")
     oracle = design.make_oracle(plant.a, plant.b)
     assert isinstance(oracle, KnownModelController)

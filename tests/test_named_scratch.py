@@ -14,12 +14,14 @@ from stcgym.adaptive.control import safe_set as ss
 from stcgym.adaptive.control.controller_step import make_controller_state
 from stcgym.adaptive.control.extended_ls import make_extended_ls
 from stcgym.adaptive.control.known_model import make_oracle_state, oracle_shapes
+from stcgym.adaptive.control.options import LawOptions
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
 from stcgym.adaptive.estimation.least_squares import least_squares_work
 from stcgym.adaptive.multivariable import mimo_lq
 from stcgym.adaptive.multivariable.controller_step import make_mimo_state
 from stcgym.adaptive.multivariable.state_matrix import make_state_matrix
 from stcgym.adaptive.regression.rls_step import make_rls_state, rls_shapes
+from stcgym.adaptive.variants import DESIGNS
 from stcgym.envs.dynamics import OBSERVER
 from stcgym.lanes.compiled import make_work
 
@@ -47,7 +49,9 @@ SCRATCH = {
     "LQSolveWork": lambda: lq.lq_work(4, True, 2, solve=True),
     "DareWork": lambda: lq.dare_work(3, 2),
     "MimoDesignWork": lambda: mimo_lq.mimo_design_work(4, 2, 3),
-    "ControllerState+Work": lambda: make_controller_state(2, 3, True, True),
+    "ControllerState+Work": lambda: make_controller_state(
+        2, 3, LawOptions(), DESIGNS["lq"].compiled_design
+    ),
     "MimoState+Work": lambda: make_mimo_state(3, 2, 2),
     "OracleState+Proposal": lambda: make_oracle_state(3, 2),
     "RLSState+Work": lambda: make_rls_state(3, 2, 4, 2),

@@ -49,7 +49,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control import controller_step as kc
 from stcgym.adaptive.control.extended_ls import ExtendedLSConfig, make_extended_ls
-from stcgym.adaptive.control.lq import lq_initial_P
 from stcgym.adaptive.control.options import (
     DEFAULT_POLE,
     ChangeDetection,
@@ -95,18 +94,21 @@ class _Steps:
     commit: FixedTypes  # step 6 (commit) with the applied input: controllers_commit(*args, u)
 
 
-# One set a compiled version (variants.compiled_version: the estimator and the design); the
-# argument types differ between versions.
-_STEPS = {
-    CompiledVersion(paper, lq): _Steps(
-        step=FixedTypes(kc.controller_step),
-        steps=FixedTypes(kc.controllers_step),
-        act=FixedTypes(kc.controllers_act),
-        commit=FixedTypes(kc.controllers_commit),
-    )
-    for paper in (False, True)
-    for lq in (False, True)
-}
+class _StepsByVersion(dict):
+    """One :class:`_Steps` a compiled version (variants.compiled_version: the estimator and the
+    design; the argument types differ between versions), made on first use."""
+
+    def __missing__(self, version: CompiledVersion) -> _Steps:
+        steps = self[version] = _Steps(
+            step=FixedTypes(kc.controller_step),
+            steps=FixedTypes(kc.controllers_step),
+            act=FixedTypes(kc.controllers_act),
+            commit=FixedTypes(kc.controllers_commit),
+        )
+        return steps
+
+
+_STEPS = _StepsByVersion()
 
 
 def _frozen(values: Any) -> NDArray:
@@ -265,8 +267,9 @@ class SelfTuningController(SelfTuningLanes):
         )
         # the compiled version (variants.compiled_version) is chosen by which of est_cfg /
         # els_cfg is None (the step compiled for one estimator contains none of the other) and
-        # whether lq_weights is None (the step compiled for pole placement has no LQ design)
+        # the class of the design's compiled argument (the step contains that design only)
         self._version = compiled_version(v, d)
+        cd = d.compiled_design
         if self._spec is None:  # extended least squares
             self._est_init, _ = make_extended_ls(n, 1, self.p0)
             est, est_work = make_extended_ls(n, self.B, self.p0)
@@ -276,19 +279,18 @@ class SelfTuningController(SelfTuningLanes):
             est, est_work = self._spec.make_state(self.B), self._spec.make_work(self.B)
             est_cfg, els_cfg = self._spec.config, None
         # a reset lane starts here: Kalman filter at x(1) = 0, P1(1) = I; no gain; the loop
-        # open (the estimator at theta(0) = 0, P(0) = p0 I: _est_init)
-        init, _ = kc.make_controller_state(n, 1, lw.integral, d.lq)
+        # open; the design at its cold start (the estimator at theta(0) = 0, P(0) = p0 I:
+        # _est_init)
+        init, _ = kc.make_controller_state(n, 1, lw, cd)
         init.P1[0] = np.eye(n)
-        if d.lq:
-            init.P_lq[0] = lq_initial_P(n, lw.integral, np.asarray(lw.lq_weights, dtype=float))
         init.closed_t[0] = -1
         self._init = init
-        state, work = kc.make_controller_state(n, self.B, lw.integral, d.lq)
+        state, work = kc.make_controller_state(n, self.B, lw, cd)
         state.seed[:] = self.seeds
         state.episode[:] = -1  # the first reset starts episode 0
         self._args = kc.ControllerArgs(
             s=state, w=work, cfg=cfg, est=est, est_work=est_work, est_cfg=est_cfg,
-            els_cfg=els_cfg, lq_weights=_frozen(lw.lq_weights) if d.lq else None,
+            els_cfg=els_cfg, design=cd.make_argument(n, lw),
         )  # fmt: skip
         self._u = np.zeros(self.B)
         self._step_one: Any = None  # the single plant's bound step (_act_one)

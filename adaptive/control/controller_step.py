@@ -35,10 +35,13 @@ Lane state: :class:`ControllerState` (the controller's own fields and counters) 
 :class:`ControllerWork`, named tuples of batched arrays (lane ``i``'s field ``f`` is
 ``state.f[i]``; shapes in :func:`controller_shapes`); the estimator's state and scratch are its
 own (:class:`.estimator_spec.EstimatorState` or :class:`.extended_ls.ExtendedLSState`).
-The estimator (``est_cfg`` or ``els_cfg`` is ``None``) and the design (``lq_weights is None``:
-pole placement) are decided on the arguments' types: numba prunes a branch under ``x is not
-None`` before typing when ``x`` is ``None``, so each estimator family and design is a compiled
-version of its own, shared by single plant and batch.
+The estimator (``est_cfg`` or ``els_cfg`` is ``None``) and the design (the class of its
+compiled argument ``design``, :func:`design_gain`) are decided on the arguments' types: numba
+prunes a branch under ``x is not None`` before typing when ``x`` is ``None``, and types the
+design's call for its argument's class only, so each estimator family and design is a compiled
+version of its own, shared by single plant and batch. The design's compiled argument, lane
+state (``ControllerState.design``) and scratch (``ControllerWork.design``) are its
+registry entry's (:class:`stcgym.adaptive.variants.CompiledDesign`).
 """
 
 from __future__ import annotations
@@ -51,13 +54,12 @@ from numpy.typing import NDArray
 
 from stcgym.adaptive.control.extended_ls import extended_ls_push, extended_ls_update
 from stcgym.adaptive.control.law import track
-from stcgym.adaptive.control.lq import lq_design, lq_work
-from stcgym.adaptive.control.pole_placement import place_design
-from stcgym.adaptive.control.safe_set import OK, design_work, make_gain
+from stcgym.adaptive.control.safe_set import OK, make_gain
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.adaptive.kernels.canonical import model_matrices
-from stcgym.lanes.compiled import lane, lane_state, lanes
+from stcgym.adaptive.variants import CompiledDesign, compiled_design
+from stcgym.lanes.compiled import chosen_by_type, lane, lane_state, lanes
 from stcgym.lanes.linalg import copy_matrix
 
 __all__ = [
@@ -66,6 +68,7 @@ __all__ = [
     "ControllerState",
     "ControllerWork",
     "change_alarm",
+    "design_gain",
     "controller_shapes",
     "controller_act",
     "controller_commit",
@@ -98,7 +101,8 @@ class ControllerState(NamedTuple):
     Q: NDArray  # its process noise Q(t) (n, n)
     gain: Any  # the last accepted design: a safe_set.Gain (K_x, k_i, N, rcond)
     has_gain: NDArray  # a design has been accepted since the reset (bool)
-    P_lq: NDArray  # Riccati matrix of the LQ design (m, m; (0, 0) for pole placement)
+    design: Any  # the design's own lane state (CompiledDesign.make_state; the LQ design's
+    # Riccati matrix, nothing for pole placement)
     xi: NDArray  # the tracking law's integrator xi(t)
     saturated: NDArray  # the last input was saturated (bool)
     u_unsat: NDArray  # the last input before saturation
@@ -119,8 +123,8 @@ class ControllerState(NamedTuple):
 class ControllerWork(NamedTuple):
     """The controller's scratch, one row a lane (its content is irrelevant between calls)."""
 
-    design: Any  # the design's scratch: a safe_set.DesignWork (pole placement) or lq.LQWork;
-    # its model A, b of theta_hat(t) is also the Kalman filter's (step 4)
+    design: Any  # the design's scratch (CompiledDesign.make_work: a safe_set.DesignWork for
+    # pole placement, lq.LQWork); its model A, b of theta_hat(t) is also the Kalman filter's
     AP: NDArray  # the Kalman time update's A P1 (n, n)
     P_upd: NDArray  # its P1(t+1) until it is accepted (n, n)
 
@@ -135,36 +139,37 @@ _DTYPES: dict[str, Any] = {
 }
 
 
-def controller_shapes(
-    n: int, integral: bool, lq: bool
-) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+def controller_shapes(n: int) -> tuple[dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
     """The shapes of one lane's :class:`ControllerState` and :class:`ControllerWork` fields for
-    order ``n``: the one place they are declared (``m = n + integral``; ``lq=False`` leaves
-    out the Riccati matrix of the LQ design). The design's scratch ``ControllerWork.design``
-    is the design's own (:func:`.safe_set.design_shapes`, :func:`.lq.lq_shapes`)."""
+    order ``n``: the one place they are declared. The design's lane state and scratch (the
+    fields ``design``) are the design's own (:class:`.variants.CompiledDesign`), the gain a lane
+    state of its own (:func:`.safe_set.gain_shapes`)."""
     n = int(n)
-    m = n + int(bool(integral))
     state: dict[str, tuple[int, ...]] = {
         **dict.fromkeys(("x", "xf", "x_next", "L1"), (n,)),
         **dict.fromkeys(("P1", "Q"), (n, n)),
-        "P_lq": (m, m) if lq else (0, 0),
     }
     for scalar in ControllerState._fields:
-        if scalar != "gain":  # a lane state of its own (safe_set.gain_shapes)
+        if scalar not in ("gain", "design"):
             state.setdefault(scalar, ())
     work = dict.fromkeys(("AP", "P_upd"), (n, n))
     return state, work
 
 
 def make_controller_state(
-    n: int, num_lanes: int, integral: bool, lq: bool
+    n: int, num_lanes: int, law: Any, design: CompiledDesign
 ) -> tuple[ControllerState, ControllerWork]:
-    """A zeroed :class:`ControllerState` of ``num_lanes`` lanes and their scratch."""
-    shapes, work = controller_shapes(n, integral, lq)
-    design = lq_work(n, integral, num_lanes) if lq else design_work(n, integral, num_lanes)
+    """A :class:`ControllerState` of ``num_lanes`` lanes and their scratch for the law ``law``
+    (a ``LawOptions``) and the compiled design ``design``: zeros, but the design's lane state
+    at its cold start."""
+    shapes, work = controller_shapes(n)
+    nested = {"gain": make_gain(n, num_lanes), "design": design.make_state(n, law, num_lanes)}
     return (
-        lane_state(ControllerState, shapes, num_lanes, _DTYPES, {"gain": make_gain(n, num_lanes)}),
-        ControllerWork(design, **{f: np.zeros((num_lanes, *shape)) for f, shape in work.items()}),
+        lane_state(ControllerState, shapes, num_lanes, _DTYPES, nested),
+        ControllerWork(
+            design.make_work(n, law.integral, num_lanes),
+            **{f: np.zeros((num_lanes, *shape)) for f, shape in work.items()},
+        ),
     )
 
 
@@ -285,12 +290,22 @@ def process_noise(S, n, y, u, q, q_floor, Q):
             Q[j, i] = v
 
 
+@chosen_by_type(lambda argument: compiled_design(argument).step)
+def design_gain(design, theta, cfg, state, gain, w, lane_i):
+    """Step 3: the certainty-equivalence design whose compiled argument is ``design`` (its
+    :class:`~stcgym.adaptive.variants.CompiledDesign`'s lane function, chosen by the class of
+    ``design`` at compile time) on ``theta``, from its lane state ``state``, into lane
+    ``lane_i`` of ``gain`` on success, with its scratch ``w``; returns the status code."""
+    step = compiled_design(type(design)).step
+    return step(design, theta, cfg, state, gain, w, lane_i)
+
+
 class ControllerArgs(NamedTuple):
     """The compiled arguments of one controller, in the order every step function takes them
     (spread: ``controller_step(*args, lane_i, y, r)``, ``controllers_step(*args, y, r, u)``).
 
-    ``est_cfg`` / ``els_cfg`` (one of them ``None``) and ``lq_weights`` (``None`` or the LQ
-    weights) choose the compiled version (:func:`stcgym.adaptive.variants.compiled_version`).
+    ``est_cfg`` / ``els_cfg`` (one of them ``None``) and the class of ``design`` choose the
+    compiled version (:func:`stcgym.adaptive.variants.compiled_version`).
     """
 
     s: ControllerState  # the controller's lane state
@@ -300,12 +315,12 @@ class ControllerArgs(NamedTuple):
     est_work: Any  # its scratch: EstimatorWork or ExtendedLSWork
     est_cfg: Any  # the paper estimator's EstimatorConfig, or None (extended least squares)
     els_cfg: Any  # extended least squares' ExtendedLSConfig, or None (a paper estimator)
-    lq_weights: NDArray | None  # [q_y, q_i, rho] of the LQ design, or None (pole placement)
+    design: Any  # the design's compiled argument (CompiledDesign.argument: LQ's weights)
 
 
 # --------------------------------------------------------------------------------- the step
 @lane(entry=True, inline=True)
-def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r):
+def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, y, r):
     """One sample of the self-tuning controller (module docstring, steps 1-6); returns ``u(t)``.
 
     The arguments before ``lane_i`` are one :class:`ControllerArgs`, spread:
@@ -314,18 +329,17 @@ def controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane
     ``est``/``est_work``: the estimator's lane state and scratch, either an ``EstimatorState``
     and ``EstimatorWork`` with the paper estimator's configuration ``est_cfg`` (``els_cfg``
     ``None``), or an ``ExtendedLSState`` and ``ExtendedLSWork`` with extended least squares'
-    ``els_cfg`` (``est_cfg`` ``None``); ``lq_weights``: ``[q_y, q_i, rho]`` of the LQ design,
-    ``None`` for pole placement. The ``None`` arguments are resolved at compile time (module
-    docstring). It is :func:`controller_act` followed by :func:`controller_commit` of the
-    input it chose.
+    ``els_cfg`` (``est_cfg`` ``None``); ``design``: the design's compiled argument. The
+    ``None`` arguments and the design are resolved at compile time (module docstring). It is
+    :func:`controller_act` followed by :func:`controller_commit` of the input it chose.
     """
-    u = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r)
-    controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, u)
+    u = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, y, r)
+    controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, u)
     return u
 
 
 @lane(inline=True, inline_ir=True)
-def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r):
+def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, y, r):
     """Steps 1-5 of :func:`controller_step` (arguments alike): the estimator's measurement
     step with ``y(t)``, change detection, design, ``x(t|t)`` and the input ``u(t)`` the law
     chooses, which it returns. The time update (step 6) waits for :func:`controller_commit`
@@ -357,10 +371,7 @@ def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_
         s.n_alarms[lane_i] += 1
         s.last_alarm[lane_i] = t
     # -- 3. certainty-equivalence design inside the safe set (gain written only on success)
-    if lq_weights is None:
-        status = place_design(theta, cfg, s.gain, w.design, lane_i)
-    else:
-        status = lq_design(theta, cfg, lq_weights, s.P_lq[lane_i], s.gain, w.design, lane_i)
+    status = design_gain(design, theta, cfg, s.design, s.gain, w.design, lane_i)
     s.last_reason[lane_i] = status
     if status == OK:
         s.has_gain[lane_i] = True
@@ -378,10 +389,10 @@ def controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_
 
 
 @lane(inline=True, inline_ir=True)
-def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, u):
+def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, u):
     """Step 6 of :func:`controller_step` with the input ``u(t)`` the plant was given (the
     one :func:`controller_act` chose, or another: a residual on top of it, a clipped one;
-    ``lq_weights`` is not read: every step function takes the same :class:`ControllerArgs`):
+    ``design`` is not read: every step function takes the same :class:`ControllerArgs`):
     process noise, the Kalman time update, the estimator's state step or regressor shift;
     the sample ends (``t`` advances). Reads ``y(t)`` and the residual :func:`controller_act`
     kept and its model ``A, b`` of ``theta_hat(t)`` in the lane's design scratch.
@@ -456,23 +467,21 @@ def control(s, lane_i, cfg, y, r, xc):
 
 
 @lanes
-def controllers_step(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, r, u, first, last):
+def controllers_step(s, w, cfg, est, est_work, est_cfg, els_cfg, design, y, r, u, first, last):
     """:func:`controller_step` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in range(first, last):
-        u[i] = controller_step(
-            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y[i], r[i]
-        )
+        u[i] = controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, design, i, y[i], r[i])
 
 
 @lanes
-def controllers_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, y, r, u, first, last):
+def controllers_act(s, w, cfg, est, est_work, est_cfg, els_cfg, design, y, r, u, first, last):
     """:func:`controller_act` for every lane: ``u[i]`` from ``y[i]``, ``r[i]``."""
     for i in range(first, last):
-        u[i] = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, y[i], r[i])
+        u[i] = controller_act(s, w, cfg, est, est_work, est_cfg, els_cfg, design, i, y[i], r[i])
 
 
 @lanes
-def controllers_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, u, first, last):
+def controllers_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, design, u, first, last):
     """:func:`controller_commit` for every lane with the applied input ``u[i]``."""
     for i in range(first, last):
-        controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, u[i])
+        controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, design, i, u[i])

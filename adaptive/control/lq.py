@@ -21,6 +21,9 @@
     on the dual problem.
 
 Batch loops ``lq_solve_lanes`` and ``kalman_covariance_lanes`` (the scratch has a row a lane).
+:data:`COMPILED_DESIGN` is the self-tuning controller's LQ design: :func:`lq_design` with the
+weights of its compiled argument :class:`LQDesign`, its lane state :class:`LQState` the Riccati
+matrix it warm-starts from.
 Status codes and the gain written (:class:`.safe_set.Gain`): :mod:`.safe_set`.
 """
 
@@ -43,15 +46,19 @@ from stcgym.adaptive.control.safe_set import (
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
 from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
+from stcgym.adaptive.variants import CompiledDesign
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
 from stcgym.lanes.linalg import all_finite, copy_matrix, matmul, max_abs
 from stcgym.lanes.validation import real_in
 
 __all__ = [
+    "COMPILED_DESIGN",
     "DEFAULT_LQ_WEIGHTS",
     "P_MAX",
     "DareWork",
+    "LQDesign",
     "LQSolveWork",
+    "LQState",
     "LQWeights",
     "LQWork",
     "RiccatiStepWork",
@@ -260,6 +267,47 @@ def lq_design(theta, cfg, weights, P, gain, w, lane_i):
         return NOT_STABILISABLE
     _lq_gain(Ad, bd, rho, P, K)
     return finish(theta, cfg, rcond, gain, w, lane_i)
+
+
+class LQDesign(NamedTuple):
+    """The compiled argument of the controller's LQ design."""
+
+    weights: NDArray  # [q_y, q_i, rho], read-only float64 (lq_weights)
+
+
+class LQState(NamedTuple):
+    """The lane state of the controller's LQ design."""
+
+    P: NDArray  # the Riccati matrix of the one-step iteration (m, m)
+
+
+@lane(inline=True)
+def controller_design(design, theta, cfg, state, gain, w, lane_i):
+    """Step 3 of the self-tuning controller: :func:`lq_design` with the weights of
+    ``design`` (an :class:`LQDesign`) from lane ``lane_i``'s Riccati matrix of ``state`` (an
+    :class:`LQState`)."""
+    return lq_design(theta, cfg, design.weights, state.P[lane_i], gain, w, lane_i)
+
+
+def _argument(n: int, law: Any) -> LQDesign:
+    weights = np.array(law.lq_weights, dtype=np.float64)
+    weights.setflags(write=False)
+    return LQDesign(weights)
+
+
+def _cold_start(n: int, law: Any, num_lanes: int) -> LQState:
+    """Every lane's Riccati matrix at :func:`lq_initial_P` of ``law.lq_weights``."""
+    P = lq_initial_P(n, law.integral, np.asarray(law.lq_weights, dtype=float))
+    return LQState(np.repeat(P[None], int(num_lanes), axis=0))
+
+
+COMPILED_DESIGN = CompiledDesign(
+    argument=LQDesign,
+    step=controller_design,
+    make_argument=_argument,
+    make_state=_cold_start,
+    make_work=lq_work,
+)
 
 
 @lane(inline=True)

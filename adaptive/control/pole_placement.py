@@ -13,14 +13,33 @@
     the numpy helpers of :mod:`stcgym.adaptive.control.placement`.
 ``place_design_lanes(thetas, cfg, gains, status, w)``
     The batch loop (``w`` a :data:`.safe_set.DesignWork` with a row a lane).
+
+:data:`COMPILED_DESIGN` is the self-tuning controller's pole placement (its compiled argument
+:class:`Placement` is empty: the poles are the controller's ``cfg.char_poly``; it keeps no lane
+state).
 """
 
 from __future__ import annotations
 
-from stcgym.adaptive.control.safe_set import OK, controllability, design_start, finish
+from typing import NamedTuple
+
+from stcgym.adaptive.control.safe_set import (
+    OK,
+    controllability,
+    design_start,
+    design_work,
+    finish,
+)
+from stcgym.adaptive.variants import CompiledDesign
 from stcgym.lanes.compiled import lane, lanes
 
-__all__ = ["ackermann_gain", "place_design", "place_design_lanes"]
+__all__ = [
+    "COMPILED_DESIGN",
+    "Placement",
+    "ackermann_gain",
+    "place_design",
+    "place_design_lanes",
+]
 
 
 @lane(inline=True)
@@ -89,3 +108,24 @@ def place_design_lanes(thetas, cfg, gains, status, w, first, last):
     :data:`.safe_set.DesignWork` of ``B`` lanes)."""
     for i in range(first, last):
         status[i] = place_design(thetas[i], cfg, gains, w, i)
+
+
+class Placement(NamedTuple):
+    """The compiled argument of the controller's pole placement (none: the poles are the
+    controller's ``cfg.char_poly``); also its lane state (it keeps none)."""
+
+
+@lane(inline=True)
+def controller_design(design, theta, cfg, state, gain, w, lane_i):
+    """Step 3 of the self-tuning controller: :func:`place_design` (``design``, ``state``:
+    empty :class:`Placement`)."""
+    return place_design(theta, cfg, gain, w, lane_i)
+
+
+COMPILED_DESIGN = CompiledDesign(
+    argument=Placement,
+    step=controller_design,
+    make_argument=lambda n, law: Placement(),
+    make_state=lambda n, law, num_lanes: Placement(),
+    make_work=design_work,
+)

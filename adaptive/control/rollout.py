@@ -69,7 +69,7 @@ def charge_divergence(cost: NDArray, steps_run: ArrayLike) -> NDArray:
 
 
 @lane(inline=True)
-def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, x, theta,
+def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, x, theta,
                  theta_after, jump_at, form, bound, sigma_v, z, r, rho, y_bound, window, cost,
                  y_tr, u_tr, traces):  # fmt: skip
     """``T = r.size - 1`` closed-loop steps of lane ``lane_i`` (the arguments before ``lane_i``: the
@@ -81,9 +81,7 @@ def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i,
     if traces:
         y_tr[0] = y
     for k in range(T):
-        u_raw = controller_step(
-            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i, y, r[k]
-        )
+        u_raw = controller_step(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i, y, r[k])
         th = theta_after if k >= jump_at else theta
         reward, _, diverged, u, _, y = canonical_plant_step(
             x, th, u_raw, bound, 0.0, none, sigma_v, z[k + 1], r[k + 1], rho, y_bound, form
@@ -98,13 +96,13 @@ def rollout_lane(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, lane_i,
 
 
 @lanes(min_lanes=1)  # a lane is a whole episode
-def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, X, Theta,
+def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, design, X, Theta,
                   Theta_after, jump_at, form, bound, sigma_v, Z, R, rho, y_bound, window, Cost, Y,
                   U, traces, steps_run, diverged, first: int, last: int):  # fmt: skip
     """:func:`rollout_lane` for every lane (``R``, ``Theta``... one row per lane)."""
     for i in range(first, last):
         steps_run[i], diverged[i] = rollout_lane(
-            s, w, cfg, est, est_work, est_cfg, els_cfg, lq_weights, i, X[i], Theta[i],
+            s, w, cfg, est, est_work, est_cfg, els_cfg, design, i, X[i], Theta[i],
             Theta_after[i], jump_at, form, bound, sigma_v, Z[i], R[i], rho, y_bound, window,
             Cost[i], Y[i], U[i], traces,
         )  # fmt: skip
@@ -128,8 +126,7 @@ def rollout(
     *,
     reference: ArrayLike,
     noise_std: float = 0.05,
-    seed: int = 0,
-    z: ArrayLike | None = None,
+    z: ArrayLike | int = 0,
     control_cost: float = 0.01,
     y_bound: float = 100.0,
     x0: ArrayLike | None = None,
@@ -157,9 +154,9 @@ def rollout(
         ``r(0..T)``, ``(T + 1,)`` (every lane) or ``(B, T + 1)``; the controller sees ``r(k)``
         at step ``k``, and the cost of step ``k`` is ``(y_clean(k+1) - r(k+1))^2 + rho u(k)^2``
         (the env's ``-reward``, ``rho = control_cost``).
-    noise_std, seed, z
+    noise_std, z
         Output noise ``noise_std * z``, ``z`` ``(B, T + 1)`` standard normals (``z[:, 0]`` for
-        ``y(0)``), drawn from ``numpy.random.default_rng(seed)`` unless given.
+        ``y(0)``), or an int: the seed they are drawn from (``numpy.random.default_rng(z)``).
     control_cost
         ``rho``.
     y_bound
@@ -200,8 +197,8 @@ def rollout(
     R = _per_lane(reference, B, steps + 1, "reference")
     X = _per_lane(np.zeros(n) if x0 is None else x0, B, n, "x0").copy()
     noise_std = non_negative(noise_std, "noise_std")
-    if z is None:
-        Z = np.random.default_rng(seed).standard_normal((B, steps + 1))
+    if isinstance(z, (int, np.integer)):
+        Z = np.random.default_rng(z).standard_normal((B, steps + 1))
     else:
         Z = _per_lane(z, B, steps + 1, "z")
     window = steps if window is None else int(window)

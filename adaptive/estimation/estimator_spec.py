@@ -20,7 +20,7 @@ The lane functions themselves are in :mod:`stcgym.adaptive.estimation.estimator`
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -45,6 +45,7 @@ __all__ = [
     "ALGORITHMS",
     "REGRESSORS",
     "EstimatorConfig",
+    "EstimatorSettings",
     "EstimatorSpec",
     "EstimatorState",
     "EstimatorWork",
@@ -188,6 +189,46 @@ def upper_cholesky(P: NDArray) -> NDArray:
     return S
 
 
+@dataclass(frozen=True, kw_only=True)
+class EstimatorSettings:
+    """The settings of a recursive estimator: the keywords of
+    :func:`stcgym.adaptive.make_estimator` besides ``name``, ``n``, ``num_envs`` and a rule's
+    own parameters, with their defaults (each documented there). Not checked here:
+    :meth:`EstimatorSpec.build` validates them against the estimator they are for.
+
+    >>> from stcgym.adaptive import EstimatorSettings, EstimatorSpec
+    >>> tracking = EstimatorSettings(p=3, forgetting=0.98)
+    >>> EstimatorSpec.build("KF-MILS", 2, tracking).forgetting
+    0.98
+    """
+
+    p: int = 1
+    p0: float = 1e6
+    form: str = "observer"
+    forgetting: float = 1.0
+    window: int | None = None
+    theta0: ArrayLike | None = None
+    P0: ArrayLike | None = None
+    r0: float | None = None
+    stacked_r: bool = False
+    x_init: ArrayLike | None = None
+    P1_init: ArrayLike | None = None
+    process_noise: ArrayLike | None = None
+    measurement_noise: float | None = None
+    observer_gain: Any = None
+    enabled: bool = True
+    on_failure: str = "reset"
+    pd_check_every: int = 1
+    project_stable: bool = False
+    frozen_ratio: float = FROZEN_RATIO
+    regressor: str = "predicted"
+    injection: float = 1.0
+    injection_warmup: int = 0
+
+
+_SETTINGS = frozenset(f.name for f in fields(EstimatorSettings))
+
+
 @dataclass(frozen=True, eq=False)
 class EstimatorSpec:
     """One validated estimator configuration: lane-state shapes, configuration, initial state.
@@ -275,38 +316,21 @@ class EstimatorSpec:
         cls,
         name: str | EstimatorName,
         n: int,
-        *,
-        p: int = 1,
-        p0: float = 1e6,
-        form: str = "observer",
-        forgetting: float = 1.0,
-        window: int | None = None,
-        theta0: ArrayLike | None = None,
-        P0: ArrayLike | None = None,
-        r0: float | None = None,
-        stacked_r: bool = False,
-        x_init: ArrayLike | None = None,
-        P1_init: ArrayLike | None = None,
-        process_noise: ArrayLike | None = None,
-        measurement_noise: float | None = None,
-        observer_gain: Any = None,
-        enabled: bool = True,
-        on_failure: str = "reset",
-        pd_check_every: int = 1,
-        project_stable: bool = False,
-        frozen_ratio: float = FROZEN_RATIO,
-        regressor: str = "predicted",
-        injection: float = 1.0,
-        injection_warmup: int = 0,
-        **rule_parameters: float,
+        settings: EstimatorSettings | None = None,
+        **options: Any,
     ) -> EstimatorSpec:
         """Validate ``make_estimator``'s arguments (a ``ValueError`` naming the argument).
 
         Parameters
         ----------
-        name, n, **options
-            As for :func:`stcgym.adaptive.make_estimator`, which documents each; ``name`` may
-            be the registry's record of a name already resolved (:func:`.variants.variant`).
+        name, n
+            As for :func:`stcgym.adaptive.make_estimator`; ``name`` may be the registry's
+            record of a name already resolved (:func:`.variants.variant`).
+        settings
+            The estimator's settings (default: :class:`EstimatorSettings`'s defaults).
+        **options
+            Settings by keyword, as :func:`stcgym.adaptive.make_estimator` takes them (each
+            replaces the one of ``settings``), and the rule's own parameters.
 
         Returns
         -------
@@ -318,107 +342,115 @@ class EstimatorSpec:
             An unknown name, or an argument out of its range, of the wrong shape or not
             applying to the rule or state estimator.
         """
+        given = {k: options.pop(k) for k in list(options) if k in _SETTINGS}
+        s = replace(settings or EstimatorSettings(), **given)
+        rule_parameters = options
         v = name if isinstance(name, EstimatorName) else variant(name)
         decomposed, rule = v.decomposed, v.rule.name
         n = integer(n, "n", 1)
-        p = integer(p, "p", 1)
+        p = integer(s.p, "p", 1)
         if not v.rule.multi_innovation and p != 1:
             multi = "/".join(r.name for r in _RULES.values() if r.multi_innovation)
             raise ValueError(
                 f"p (innovation length) applies to {multi}; {rule} has p = 1, got p={p}"
             )
-        p0 = positive(p0, "p0")
-        form = check_form(form)
-        lam = forgetting_factor(forgetting, "forgetting (lambda)")
-        given = {"P0": P0 is not None, "r0": r0 is not None, "stacked_r": bool(stacked_r)}
-        given.update(window=window is not None, forgetting=lam != 1.0)
+        p0 = positive(s.p0, "p0")
+        form = check_form(s.form)
+        lam = forgetting_factor(s.forgetting, "forgetting (lambda)")
+        given = {"P0": s.P0 is not None, "r0": s.r0 is not None, "stacked_r": bool(s.stacked_r)}
+        given.update(window=s.window is not None, forgetting=lam != 1.0)
         for keyword, is_given in given.items():
             if is_given and keyword not in v.rule.keywords:
                 rules = "/".join(r.name for r in _RULES.values() if keyword in r.keywords)
                 raise ValueError(f"{keyword} applies to {rules} rules only, not {rule}")
         least_squares = v.rule.covariance
+        window = s.window
         if window is not None:
             window = integer(window, "window", 1)
             if lam != 1.0:
                 raise ValueError("window and forgetting < 1 are mutually exclusive")
         d = 2 * n
         theta0_arr = (
-            np.full(d, 1.0 / p0) if theta0 is None else as_finite_vector(theta0, "theta0", length=d)
+            np.full(d, 1.0 / p0)
+            if s.theta0 is None
+            else as_finite_vector(s.theta0, "theta0", length=d)
         )
         P0_mat = None
         if least_squares:
-            P0_mat = p0 * np.eye(d) if P0 is None else covariance(P0, d, "P0")
+            P0_mat = p0 * np.eye(d) if s.P0 is None else covariance(s.P0, d, "P0")
             if decomposed and (np.any(P0_mat[:n, n:] != 0.0) or np.any(P0_mat[n:, :n] != 0.0)):
                 raise ValueError(
                     "P0 must be block-diagonal diag(P_a, P_b) for D- rules (separate a and b "
                     "covariances)"
                 )
-        r0_val = 1.0 if r0 is None else positive(r0, "r0")
+        r0_val = 1.0 if s.r0 is None else positive(s.r0, "r0")
         x_init_arr = (
-            np.full(n, 1.0 / p0) if x_init is None else as_finite_vector(x_init, "x_init", length=n)
+            np.full(n, 1.0 / p0)
+            if s.x_init is None
+            else as_finite_vector(s.x_init, "x_init", length=n)
         )
         kf = {
-            "P1_init": P1_init,
-            "process_noise": process_noise,
-            "measurement_noise": measurement_noise,
+            "P1_init": s.P1_init,
+            "process_noise": s.process_noise,
+            "measurement_noise": s.measurement_noise,
         }
         P1 = Q = None
         R = 1.0
         gain: Any = None
         if v.state.kalman:
-            if observer_gain is not None:
+            if s.observer_gain is not None:
                 raise ValueError(
                     f"observer_gain applies to {_states_with(False)} state estimators, not "
                     f"{v.state.name}"
                 )
-            P1 = np.eye(n) if P1_init is None else covariance(P1_init, n, "P1_init")
+            P1 = np.eye(n) if s.P1_init is None else covariance(s.P1_init, n, "P1_init")
             Q = (
                 np.zeros((n, n))
-                if process_noise is None
-                else covariance(process_noise, n, "process_noise", allow_singular=True)
+                if s.process_noise is None
+                else covariance(s.process_noise, n, "process_noise", allow_singular=True)
             )
-            if measurement_noise is not None:
-                R = positive(measurement_noise, "measurement_noise")
+            if s.measurement_noise is not None:
+                R = positive(s.measurement_noise, "measurement_noise")
         else:
             given = [k for k, v in kf.items() if v is not None]
             if given:
                 raise ValueError(
                     f"{', '.join(given)} apply to {_states_with(True)} state estimators only"
                 )
-            if v.state.observer_gain and observer_gain is None:
+            if v.state.observer_gain and s.observer_gain is None:
                 raise ValueError(
                     f"{v.state.name} (closed-loop observer) needs observer_gain=K (or a callable)"
                 )
-            if observer_gain is not None:  # the closed-loop observer on that gain
+            if s.observer_gain is not None:  # the closed-loop observer on that gain
                 v = v._replace(state=next(e for e in _STATES.values() if e.observer_gain))
-                if callable(observer_gain):
-                    gain = observer_gain
+                if callable(s.observer_gain):
+                    gain = s.observer_gain
                 else:
-                    K = np.asarray(observer_gain, dtype=float)
+                    K = np.asarray(s.observer_gain, dtype=float)
                     if K.shape != (n,) or not np.all(np.isfinite(K)):
                         raise ValueError(
                             f"observer_gain must be a finite vector of length n={n} or a "
-                            f"callable (a_hat, b_hat) -> K, got {observer_gain!r}"
+                            f"callable (a_hat, b_hat) -> K, got {s.observer_gain!r}"
                         )
                     gain = K.copy()
-        one_of(on_failure, "on_failure", ("reset", "raise"))
-        pd_check_every = integer(pd_check_every, "pd_check_every", 0)
+        one_of(s.on_failure, "on_failure", ("reset", "raise"))
+        pd_check_every = integer(s.pd_check_every, "pd_check_every", 0)
         frozen_ratio = real_in(
-            frozen_ratio, "frozen_ratio (math.inf: no frozen signal)", 0.0, lo_open=True
+            s.frozen_ratio, "frozen_ratio (math.inf: no frozen signal)", 0.0, lo_open=True
         )
-        one_of(regressor, "regressor", REGRESSORS)
-        if regressor == "filtered" and not v.state.filtered_regressor:
+        one_of(s.regressor, "regressor", REGRESSORS)
+        if s.regressor == "filtered" and not v.state.filtered_regressor:
             raise ValueError(
                 "regressor='filtered' applies to the open-loop observer (O) and the Kalman filter "
                 "(KF); the closed-loop observer (CO, observer_gain) has its own output injection"
             )
-        injection = real_in(injection, "injection", 0.0, 1.0)
-        injection_warmup = integer(injection_warmup, "injection_warmup", 0)
+        injection = real_in(s.injection, "injection", 0.0, 1.0)
+        injection_warmup = integer(s.injection_warmup, "injection_warmup", 0)
         partial = injection != 1.0 or injection_warmup != 0
-        if partial and (not v.state.injection or regressor != "filtered"):
+        if partial and (not v.state.injection or s.regressor != "filtered"):
             raise ValueError(
                 "injection and injection_warmup apply to the open-loop observer (O) with "
-                f"regressor='filtered', not to {v.state.name} with regressor={regressor!r}"
+                f"regressor='filtered', not to {v.state.name} with regressor={s.regressor!r}"
             )
         return cls(
             name=v.name,
@@ -430,11 +462,11 @@ class EstimatorSpec:
             decomposed=decomposed,
             forgetting=lam,
             window=window,
-            stacked_r=bool(stacked_r),
-            project_stable=bool(project_stable),
+            stacked_r=bool(s.stacked_r),
+            project_stable=bool(s.project_stable),
             pd_check_every=pd_check_every,
-            on_failure=on_failure,
-            enabled=bool(enabled),
+            on_failure=s.on_failure,
+            enabled=bool(s.enabled),
             theta0=theta0_arr,
             P0=P0_mat,
             r0=r0_val,
@@ -444,7 +476,7 @@ class EstimatorSpec:
             R=R,
             observer_gain=gain,
             frozen=(FROZEN_RATE, float(frozen_ratio), FROZEN_GAIN),
-            regressor=regressor,
+            regressor=s.regressor,
             injection=injection,
             injection_warmup=injection_warmup,
             rule_parameters=_rule_parameters(v.rule, rule_parameters),

@@ -11,12 +11,13 @@ algorithms, the time convention and the two half-steps, is
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
+from stcgym.adaptive.estimation.estimator_spec import EstimatorSettings, EstimatorSpec
 from stcgym.lanes.validation import covariance, integer
 
 if TYPE_CHECKING:
@@ -136,7 +137,7 @@ def make_estimator(
     ...
     ValueError: forgetting (lambda) must lie in (0, 1], got 2
     """
-    _BUILD_SIGNATURE.bind(name, n, **options)  # a TypeError naming an unknown keyword
+    make_estimator.__signature__.bind(name, n, **options)  # a TypeError: an unknown keyword
     theta0, P0 = options.get("theta0"), options.get("P0")
     lane_theta0 = lane_P0 = None
     if num_envs is not None:
@@ -163,17 +164,20 @@ def make_estimator(
     return RecursiveEstimator(spec, num_envs, lane_theta0=lane_theta0, lane_P0=lane_P0)
 
 
-# One source of truth for the keywords: make_estimator takes EstimatorSpec.build's (which
-# validates them) plus num_envs; help() and inspect show that combined signature.
-_BUILD_SIGNATURE = inspect.signature(EstimatorSpec.build)
-_PARAMETERS = list(_BUILD_SIGNATURE.parameters.values())
-make_estimator.__signature__ = _BUILD_SIGNATURE.replace(  # type: ignore[attr-defined]
-    parameters=[
-        *_PARAMETERS[:-1],  # the last is the rules' own parameters (**rule_parameters)
-        inspect.Parameter(
-            "num_envs", inspect.Parameter.KEYWORD_ONLY, default=None, annotation="int | None"
+# One source of truth for the keywords: make_estimator takes EstimatorSettings' fields (which
+# EstimatorSpec.build validates) plus num_envs and the rules' own parameters; help() and
+# inspect show that combined signature.
+_KEYWORD = inspect.Parameter.KEYWORD_ONLY
+make_estimator.__signature__ = inspect.Signature(  # type: ignore[attr-defined]
+    [
+        inspect.Parameter("name", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation="str"),
+        inspect.Parameter("n", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation="int"),
+        *(
+            inspect.Parameter(f.name, _KEYWORD, default=f.default, annotation=f.type)
+            for f in dataclasses.fields(EstimatorSettings)
         ),
-        _PARAMETERS[-1],
+        inspect.Parameter("num_envs", _KEYWORD, default=None, annotation="int | None"),
+        inspect.Parameter("rule_parameters", inspect.Parameter.VAR_KEYWORD, annotation="float"),
     ],
     return_annotation="RecursiveEstimator",
 )
