@@ -35,14 +35,8 @@ __all__ = ["main", "build_parser"]
 
 
 def _bench_parser(sub: argparse._SubParsersAction) -> None:
-    from stcgym.agents.benchmark.config import (
-        FULL,
-        QUICK,
-        QUICK_MIMO_INTERVALS,
-        SCENARIO_KINDS,
-        STANDARD,
-        BenchConfig,
-    )
+    from stcgym.agents.benchmark.config import QUICK_MIMO_INTERVALS, BenchConfig
+    from stcgym.agents.benchmark.tiers import FULL, QUICK, SCENARIO_KINDS, STANDARD
     from stcgym.agents.controllers import CONTROLLERS
     from stcgym.agents.executors import EXECUTORS
     from stcgym.agents.rl.configs import ALGORITHMS, DEFAULT_CONFIGS

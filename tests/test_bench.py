@@ -14,7 +14,7 @@ import pytest
 import stcgym.agents.benchmark as benchmark
 from stcgym.agents.benchmark import METRIC_COLUMNS, BenchConfig, build_config, make_scenarios
 from stcgym.agents.benchmark import runner as runner_mod
-from stcgym.agents.benchmark.config import EVALUATIONS_PER_CAP, FULL, QUICK
+from stcgym.agents.benchmark.config import EVALUATIONS_PER_CAP
 from stcgym.agents.benchmark.plan import (
     WORKER_START_SECONDS,
     curve_evaluations,
@@ -24,6 +24,7 @@ from stcgym.agents.benchmark.plan import (
 )
 from stcgym.agents.benchmark.scenarios import training_envs
 from stcgym.agents.benchmark.store import ResultsStore
+from stcgym.agents.benchmark.tiers import FULL, QUICK
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import CONTROLLERS, ControllerInfo
 

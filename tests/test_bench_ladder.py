@@ -7,8 +7,8 @@ import pytest
 
 from stcgym.agents.benchmark import build_config
 from stcgym.agents.benchmark.config import BenchInputError
+from stcgym.agents.benchmark.ladder_report import ladder_table
 from stcgym.agents.benchmark.plan import describe_plan, rl_tasks, tuning_seconds
-from stcgym.agents.benchmark.report import _ladder_table
 from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
 from stcgym.agents.evaluation.statistics import Estimate
 from stcgym.envs.families import LADDER, get_family
@@ -93,7 +93,7 @@ def test_the_ladder_table_puts_the_rungs_side_by_side_with_the_family_last():
         },  # fmt: skip
         "family:test": {"ppo": res(7.0, 0.25), "stc": res(2.2, 0.01)},
     }
-    lines = _ladder_table(cfg, scenarios, statistics)
+    lines = ladder_table(cfg, scenarios, statistics)
     assert lines[0] == ("| controller | ladder-l1-v1 | ladder-l2-v1 | ladder-l4-v1 (family:test) |")
     assert lines[2] == (
         "| ppo | 2.5 [2.25, 2.75] | no improvement over initialisation | 7 [6.3, 7.7]; 25 % div. |"
@@ -101,7 +101,7 @@ def test_the_ladder_table_puts_the_rungs_side_by_side_with_the_family_last():
     assert lines[3] == "| stc | 1.8 [1.62, 1.98] | 1.9 [1.71, 2.09] | 2.2 [1.98, 2.42]; 1 % div. |"
     # another family is not the last rung: the rungs alone
     other = _ladder_config(ladder="ladder-l1-v1", family="ladder-l2-v1", ood="ood_order3")
-    assert "family:test" not in _ladder_table(other, make_scenarios(other), statistics)[0]
+    assert "family:test" not in ladder_table(other, make_scenarios(other), statistics)[0]
 
 
 def test_a_tuning_run_plans_its_studies_and_tunes_only_the_agents_named():

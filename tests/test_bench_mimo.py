@@ -15,8 +15,8 @@ import pytest
 import stcgym.envs  # noqa: F401  (registers the envs)
 from stcgym.adaptive import LQRController, MultivariableSelfTuningController
 from stcgym.agents.benchmark import build_config, make_scenarios
-from stcgym.agents.benchmark.config import FULL, QUICK
 from stcgym.agents.benchmark.plan import rl_tasks
+from stcgym.agents.benchmark.tiers import FULL, QUICK
 from stcgym.agents.cli import main
 from stcgym.agents.controllers import controllers_for
 from stcgym.agents.evaluation.env_spec import EnvSpec

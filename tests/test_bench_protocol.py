@@ -289,7 +289,8 @@ def test_obs_norm_is_vec_normalize():
 
 def test_rl_trains_on_the_scored_cost_by_default():
     from stcgym.agents import TrainingReward, default_config
-    from stcgym.agents.rl.configs import ABLATIONS, DEFAULT_CONFIGS, ZOO_DEPARTURES
+    from stcgym.agents.rl.configs import ABLATIONS, DEFAULT_CONFIGS
+    from stcgym.agents.rl.zoo_departures import ZOO_DEPARTURES
 
     env = TrainingReward(gym.make("stcgym/ObserverCanonical-v0", plant="stable2"), horizon=50)
     raw = gym.make("stcgym/ObserverCanonical-v0", plant="stable2")

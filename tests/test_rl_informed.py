@@ -298,11 +298,11 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
         ALGORITHMS,
         FAMILY_ALGORITHMS,
         INFORMED,
-        ZOO_DEPARTURES,
         agent_knowledge,
         base_algorithm,
         validate_config,
     )
+    from stcgym.agents.rl.zoo_departures import ZOO_DEPARTURES
 
     for agent, (base, what) in INFORMED.items():
         cfg, ref = default_config(agent), default_config(base)
@@ -354,8 +354,8 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
 
 
 def test_the_tiers_list_the_informed_agents():
-    from stcgym.agents.benchmark.config import FULL, QUICK, STANDARD
     from stcgym.agents.benchmark.style import COLORS, color
+    from stcgym.agents.benchmark.tiers import FULL, QUICK, STANDARD
     from stcgym.agents.benchmark.tuning import sample_rl
 
     assert {"theta_ppo", "theta_sac", "residual_ppo"} <= set(FULL["agents"])

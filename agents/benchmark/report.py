@@ -25,16 +25,14 @@ import numpy as np
 from stcgym.agents.benchmark.attribution import identification_or_design
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
-    STRATA,
     aggregate,
-    by_stratum,
     headline,
     paired,
-    plant_strata,
     scenario_tables,
     training_stops,
     untrained_runs,
 )
+from stcgym.agents.benchmark.ladder_report import ladder_table, strata_section
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 from stcgym.agents.evaluation.statistics import Estimate
 
@@ -213,71 +211,6 @@ def _rl_objective(cfg: Any) -> str:
     )
 
 
-def _ladder_table(cfg: Any, scenarios: Sequence[Any], statistics: dict[str, Any]) -> list[str]:
-    """The difficulty ladder at a glance: each controller's cost / LQG (IQM over the bounded
-    episodes, with its interval) and divergence rate (where not 0) on every rung's test
-    split, the family's test split last when the family is the last rung's distribution."""
-    from stcgym.envs.families import LADDER
-
-    rungs = [(sc.name, sc.name.split(":")[0]) for sc in scenarios if sc.kind == "ladder"]
-    if not rungs:
-        return []
-    if cfg.family in ("siso2-v1", LADDER[-1]) and "family:test" in statistics:
-        rungs.append(("family:test", f"{LADDER[-1]} (family:test)"))
-    rungs = [(name, label) for name, label in rungs if name in statistics]
-    names: list[str] = []
-    for name, _ in rungs:
-        names += [c for c in statistics[name] if c not in names]
-    lines = [
-        "| controller | " + " | ".join(label for _, label in rungs) + " |",
-        "|---|" + "---|" * len(rungs),
-    ]
-    for c in names:
-        cells = []
-        for name, _ in rungs:
-            res = statistics[name].get(c)
-            if res is None:
-                cells.append("-")
-            elif "ratio" not in res:
-                cells.append("no improvement over initialisation")
-            else:
-                div = res["diverged"].value
-                cells.append(res["ratio"].format(3) + (f"; {100 * div:.0f} % div." if div else ""))
-        lines.append(f"| {c} | " + " | ".join(cells) + " |")
-    return lines
-
-
-def _strata_section(sc: Any, tables: dict[str, Any], reps: int) -> list[str]:
-    """Cost / LQG and divergences by stratum of the family's plants (:data:`STRATA`), where
-    the scenario's plants fall in more than one."""
-    strata = plant_strata(sc.episodes.plants[:: sc.episodes.units[1]])
-    present = [k for k in range(len(STRATA)) if (strata == k).any()]
-    if len(present) < 2:
-        return []
-    cells = by_stratum(tables, strata, reps=reps)
-    counts = [int((strata == k).sum()) for k in present]
-    head = [f"{STRATA[k]} ({n} plant{'s' * (n > 1)})" for k, n in zip(present, counts, strict=True)]
-    lines = [
-        "By stratum of the test plants, each plant under the last ladder feature it has: "
-        "cost / LQG, median over the bounded episodes [95 % interval], and the diverged share "
-        "where any.",
-        "",
-        "| controller | " + " | ".join(head) + " |",
-        "|---|" + "---|" * len(present),
-    ]
-    for c, per in cells.items():
-        row = []
-        for k in present:
-            ratio, div = per[k]["ratio"], per[k]["diverged"].value
-            diverged = f"{100 * div:.0f} % div."
-            if math.isnan(ratio.value):  # every episode of the stratum diverged
-                row.append(diverged)
-            else:
-                row.append(ratio.format(3) + (f"; {diverged}" if div else ""))
-        lines.append(f"| {c} | " + " | ".join(row) + " |")
-    return [*lines, ""]
-
-
 def _headline_table(
     hl: dict[str, dict[str, Any]], jump: bool, stops: dict, untrained: dict[str, tuple[int, int]]
 ) -> list[str]:
@@ -420,7 +353,7 @@ def _detail_table(agg: dict, name: str, controllers: Sequence[str]) -> list[str]
 
 
 def _training_table(cfg: Any, data: Any) -> list[str]:
-    from stcgym.agents.rl.configs import ZOO_DEPARTURES
+    from stcgym.agents.rl.zoo_departures import ZOO_DEPARTURES
 
     lines = [
         "| training env | agent | run | stop | steps (cap) | last gain at | best validation "
@@ -581,7 +514,7 @@ def write_report(
         table = _headline_table(hl, sc.kind == "jump", stops, untrained)
         out += [f"### `{sc.name}`", "", *table, ""]
         if sc.kind in ("family", "ladder"):
-            out += _strata_section(sc, tables, cfg.bootstrap_reps)
+            out += strata_section(sc, tables, cfg.bootstrap_reps)
         if pairs:
             out += ["Paired on the same (plant, episode):", "", *_paired_table(pairs), ""]
         channels = _channel_table(rows, sc.name, order) if sc.env.plant_kind == "mimo" else []
@@ -598,7 +531,7 @@ def write_report(
         if sc.kind in ("family", "ood", "jump"):
             family.append((sc.name, tables))
             family_stops = family_stops or stops
-    ladder = _ladder_table(cfg, scenarios, statistics)
+    ladder = ladder_table(cfg, scenarios, statistics)
     if ladder:
         out += [
             "## The difficulty ladder",

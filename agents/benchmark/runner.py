@@ -146,7 +146,7 @@ def run_bench(
     scenarios: list[Scenario] = []
 
     def write_config() -> None:
-        from stcgym.agents.rl.configs import ZOO_DEPARTURES
+        from stcgym.agents.rl.zoo_departures import ZOO_DEPARTURES
 
         config_doc["bench"] = state.cfg.to_dict()
         # the departures from the RL Zoo these agents train with, for the report to cite

@@ -4,15 +4,15 @@ The defaults are the RL Baselines3 Zoo's entries for its closest problems, ``Pen
 (``ppo.yml``, ``sac.yml``, ``td3.yml``, ``a2c.yml``: one bounded continuous action, a dense
 quadratic cost) and, for RecurrentPPO, ``PendulumNoVel-v1`` in ``ppo_lstm.yml`` (the same task
 observed without velocity, so the memory must infer it). Every setting that differs from the
-Zoo's is listed in :data:`ZOO_DEPARTURES` with its reason and measurement (the report prints
-the list); the main ones: PPO's and RecurrentPPO's update (16 lanes of 256 steps, so that one
-update sees 16 plants, minibatches of 256, lr 3e-4, ``target_kl`` 0.03: with the Zoo's
-settings approx_kl and clip_fraction were 4-6x and 2x their usual ranges; ``gamma`` is the
-Zoo's 0.9, chosen again by an ablation of 0.9 / 0.95 / 0.99, ``benchmarks/rl_ablation.py``),
-observation and reward normalisation (SB3's ``VecNormalize``, the Zoo's ``normalize``: the
-observation mixes signals of different scales), and small networks or LSTMs where the Zoo's
-would not train on two CPU cores in the time a tier has. Every agent trains on the score per step
-(``reward = "lqg_ratio"``, :mod:`stcgym.agents.rl.reward`).
+Zoo's is listed in :data:`~stcgym.agents.rl.zoo_departures.ZOO_DEPARTURES` with its reason and
+measurement (the report prints the list); the main ones: PPO's and RecurrentPPO's update (16
+lanes of 256 steps, so that one update sees 16 plants, minibatches of 256, lr 3e-4,
+``target_kl`` 0.03: with the Zoo's settings approx_kl and clip_fraction were 4-6x and 2x their
+usual ranges; ``gamma`` is the Zoo's 0.9, chosen again by an ablation of 0.9 / 0.95 / 0.99,
+``benchmarks/rl_ablation.py``), observation and reward normalisation (SB3's ``VecNormalize``,
+the Zoo's ``normalize``: the observation mixes signals of different scales), and small networks
+or LSTMs where the Zoo's would not train on two CPU cores in the time a tier has. Every agent
+trains on the score per step (``reward = "lqg_ratio"``, :mod:`stcgym.agents.rl.reward`).
 
 Besides the keyword arguments of the Stable-Baselines3 constructor (``hyperparams``) a config
 holds the bench-level knobs the Zoo keeps next to them: the number of parallel training envs
@@ -62,7 +62,6 @@ __all__ = [
     "validate_config",
     "AlgoConfig",
     "DEFAULT_CONFIGS",
-    "ZOO_DEPARTURES",
     "agent_knowledge",
     "algorithm_class",
     "apply_overrides",
@@ -473,88 +472,6 @@ TRUE_PARAMETER_ALGORITHMS: tuple[str, ...] = tuple(
 # MuJoCo entries): with SB3's default the noise is itself a large input disturbance of the
 # loop (on the family the validation cost went from 1.8x LQG to 150x within 4096 steps).
 DEFAULT_CONFIGS["residual_ppo"].hyperparams["policy_kwargs"]["log_std_init"] = -2.0
-
-#: Where a default config departs from the Zoo entry it follows: ``agent -> [(setting, Zoo
-#: value, ours, reason)]`` (the report prints it).
-ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
-    "ppo": [
-        ("n_envs x n_steps", "4 x 1024", "16 x 256", "one update sees 16 plants, not about 4"),
-        ("batch_size, learning_rate, target_kl", "64, 1e-3, none", "256, 3e-4, 0.03",
-         "healthy updates: on ladder-l1-v1 (3 seeds, 1e5 steps) the Zoo's update had median "
-         "approx_kl 0.088 and clip_fraction 0.38 and stayed near the untrained policy "
-         "(median 15.1x LQG, untrained 16.6-17.9x); ours 0.027 and 0.19, and 6.5x"),
-        ("reward", "the environment's", "cost / the plant's LQG cost, capped at 100 per step",
-         "the score per step: on ladder-l4-v1 (3 seeds, 1e5 steps) median 14.3x LQG against "
-         "20.7x on the raw cost (zero input 19.4x); on ladder-l1-v1, where nothing diverges, "
-         "6.5x and 6.9x"),
-        ("log_std_init", "0 (SB3's default)", "-5", "exploration in the range of useful inputs, "
-         "a small fraction of the action bound: with the default the gSDE noise saturates "
-         "the action and the first updates make the policy far worse than the untrained one"),
-        ("action scale", "the box [-1, 1] is the action bound", "one action unit is the "
-         "input LQG stays within on 99 % of the training steps; the box widened to keep the "
-         "bound",
-         "the bound is set by LQG's rare largest transients: in units of it the useful inputs "
-         "are about 1 %, and each optimiser step of the mean action a large input (the policy "
-         "got worse as it trained)"),
-        ("normalize", "off", "observations and rewards", "signals of mixed scales; costs "
-         "spanning orders of magnitude across plants"),
-        ("n_timesteps", "1e5", "cap 1e6 on the family (2e5 on one plant), plateau rule",
-         "a plant family is a harder task than one pendulum"),
-    ],
-    "sac": [
-        ("reward", "the environment's", "cost / the plant's LQG cost, capped", "as for PPO"),
-        ("net_arch", "[256, 256]", "[64, 64]", "one gradient step per env step on a CPU core: "
-         "4x fewer multiply-adds fit the tier's time"),
-        ("learning_starts", "100", "1000", "one episode of random actions before learning"),
-        ("n_envs, gradient_steps", "1, 1 (one gradient step per env step)",
-         "8, 2 (a quarter of the gradient steps per env step)",
-         "about 4x the env steps per second on one CPU core; what it costs at 10^5 steps: "
-         "benchmarks/rl_ablation_summary.json"),
-        ("normalize", "off", "observations and rewards", "as for PPO"),
-        ("n_timesteps", "2e4", "cap 2e5 on the family (5e4 on one plant), plateau rule",
-         "what fits the tier's time"),
-    ],
-    "td3": [
-        ("reward", "the environment's", "cost / the plant's LQG cost, capped", "as for PPO"),
-        ("net_arch", "[400, 300]", "[64, 64]", "as for SAC"),
-        ("normalize", "off", "observations and rewards", "as for PPO"),
-    ],
-    "a2c": [
-        ("reward", "the environment's", "cost / the plant's LQG cost, capped", "as for PPO"),
-        ("learning_rate", "lin_7e-4", "7e-4", "a constant rate, as every other agent's"),
-        ("action scale", "the box [-1, 1] is the action bound", "as for PPO", "as for PPO"),
-        ("n_timesteps", "1e6", "cap 1e6 on the family (4e5 on one plant), plateau rule",
-         "what fits the tier's time"),
-    ],
-    "rppo": [
-        ("n_envs x n_steps", "4 x 1024", "16 x 256", "as for PPO"),
-        ("batch_size, learning_rate, target_kl", "128 (default), 1e-3, none", "256, 3e-4, 0.03",
-         "as for PPO (chosen on PPO; one RecurrentPPO run on ladder-l1-v1, 1e5 steps: "
-         "median approx_kl 0.024, clip_fraction 0.20)"),
-        ("reward", "the environment's", "cost / the plant's LQG cost, capped", "as for PPO"),
-        ("lstm_hidden_size", "256 (default)", "128 (the Zoo's PyBullet entries)",
-         "the LSTM dominates the CPU time of a step; 1e6 steps must fit the tier"),
-        ("net_arch", "default", "pi [64], vf [64] after the LSTM", "small heads, as PPO's"),
-        ("n_timesteps", "1e5", "cap 1e6 on the family, plateau rule",
-         "identifying a plant from a family is harder than a pendulum's velocity"),
-        ("normalize", "off (PendulumNoVel-v1; on in its other continuous entries)",
-         "observations and rewards", "as for PPO"),
-        ("log_std_init", "0 (SB3's default)", "-5", "as for PPO"),
-        ("action scale", "the box [-1, 1] is the action bound", "as for PPO", "as for PPO"),
-    ],
-}  # fmt: skip
-ZOO_DEPARTURES["ppo_noint"] = ZOO_DEPARTURES["ppo"]
-ZOO_DEPARTURES["theta_ppo"] = ZOO_DEPARTURES["ppo"]
-ZOO_DEPARTURES["theta_sac"] = ZOO_DEPARTURES["sac"]
-ZOO_DEPARTURES["oracle_ppo"] = ZOO_DEPARTURES["ppo"]
-ZOO_DEPARTURES["residual_ppo"] = [
-    *(entry for entry in ZOO_DEPARTURES["ppo"] if entry[0] != "log_std_init"),
-    ("action_net init", "orthogonal, gain 0.01", "zeros",
-     "the mean residual starts at exactly 0: the agent starts as the self-tuning controller"),
-    ("log_std_init", "0 (SB3's default)", "-2", "exploration around the controller's input: "
-     "with the default the noise is a large input disturbance of the loop (on the family "
-     "1.8x LQG before training, 150x after 4096 steps)"),
-]  # fmt: skip
 
 
 def with_action_unit(config: AlgoConfig, unit: float) -> AlgoConfig:

@@ -1,0 +1,77 @@
+"""The report's view of the difficulty ladder: every controller across the rungs, and the
+family's test plants by stratum (the last ladder feature each plant has)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from stcgym.agents.benchmark.headline import STRATA, by_stratum, plant_strata
+
+__all__ = ["ladder_table", "strata_section"]
+
+
+def ladder_table(cfg: Any, scenarios: Sequence[Any], statistics: dict[str, Any]) -> list[str]:
+    """The difficulty ladder at a glance: each controller's cost / LQG (IQM over the bounded
+    episodes, with its interval) and divergence rate (where not 0) on every rung's test
+    split, the family's test split last when the family is the last rung's distribution."""
+    from stcgym.envs.families import LADDER
+
+    rungs = [(sc.name, sc.name.split(":")[0]) for sc in scenarios if sc.kind == "ladder"]
+    if not rungs:
+        return []
+    if cfg.family in ("siso2-v1", LADDER[-1]) and "family:test" in statistics:
+        rungs.append(("family:test", f"{LADDER[-1]} (family:test)"))
+    rungs = [(name, label) for name, label in rungs if name in statistics]
+    names: list[str] = []
+    for name, _ in rungs:
+        names += [c for c in statistics[name] if c not in names]
+    lines = [
+        "| controller | " + " | ".join(label for _, label in rungs) + " |",
+        "|---|" + "---|" * len(rungs),
+    ]
+    for c in names:
+        cells = []
+        for name, _ in rungs:
+            res = statistics[name].get(c)
+            if res is None:
+                cells.append("-")
+            elif "ratio" not in res:
+                cells.append("no improvement over initialisation")
+            else:
+                div = res["diverged"].value
+                cells.append(res["ratio"].format(3) + (f"; {100 * div:.0f} % div." if div else ""))
+        lines.append(f"| {c} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def strata_section(sc: Any, tables: dict[str, Any], reps: int) -> list[str]:
+    """Cost / LQG and divergences by stratum of the family's plants (:data:`STRATA`), where
+    the scenario's plants fall in more than one."""
+    strata = plant_strata(sc.episodes.plants[:: sc.episodes.units[1]])
+    present = [k for k in range(len(STRATA)) if (strata == k).any()]
+    if len(present) < 2:
+        return []
+    cells = by_stratum(tables, strata, reps=reps)
+    counts = [int((strata == k).sum()) for k in present]
+    head = [f"{STRATA[k]} ({n} plant{'s' * (n > 1)})" for k, n in zip(present, counts, strict=True)]
+    lines = [
+        "By stratum of the test plants, each plant under the last ladder feature it has: "
+        "cost / LQG, median over the bounded episodes [95 % interval], and the diverged share "
+        "where any.",
+        "",
+        "| controller | " + " | ".join(head) + " |",
+        "|---|" + "---|" * len(present),
+    ]
+    for c, per in cells.items():
+        row = []
+        for k in present:
+            ratio, div = per[k]["ratio"], per[k]["diverged"].value
+            diverged = f"{100 * div:.0f} % div."
+            if math.isnan(ratio.value):  # every episode of the stratum diverged
+                row.append(diverged)
+            else:
+                row.append(ratio.format(3) + (f"; {diverged}" if div else ""))
+        lines.append(f"| {c} | " + " | ".join(row) + " |")
+    return [*lines, ""]
