@@ -1,6 +1,7 @@
 """``stcgym bench``: the self-tuning controllers against RL agents on identical terms.
 
 Modules: :mod:`~stcgym.agents.benchmark.config` (the run's settings and their checks),
+:mod:`~stcgym.agents.benchmark.tiers` (the scenario kinds and each tier's preset),
 :mod:`~stcgym.agents.benchmark.scenarios` (scenarios and RL training environments),
 :mod:`~stcgym.agents.evaluation.env_spec` (a scenario's environment as data),
 :mod:`~stcgym.agents.evaluation.episodes` (fixed evaluation episodes, run as a batch),
@@ -20,6 +21,7 @@ per-episode metrics), :mod:`~stcgym.agents.evaluation.response` (settling agains
 :mod:`~stcgym.agents.evaluation.statistics` and :mod:`~stcgym.agents.benchmark.headline` (interval
 estimates with the run as the unit), :mod:`~stcgym.agents.benchmark.report` and
 :mod:`~stcgym.agents.benchmark.attribution` (its answer to "identification or design?"),
+:mod:`~stcgym.agents.benchmark.ladder_report` (the ladder across its rungs, results by stratum),
 :mod:`~stcgym.agents.benchmark.plots` and :mod:`~stcgym.agents.benchmark.style` (output).
 
 Identical terms
@@ -27,9 +29,10 @@ Identical terms
 Every controller meets the same fixed episodes of a scenario (plants, seeds, noise, reference,
 initial state, jump time), observes ``[y(k), r(k)]`` only, and is clipped at the same action
 bound, set per training distribution from the LQG yardstick's input range. RL agents train on
-the scored cost itself (the environment's reward, a running reward scale, no squash), on
-episodes drawn like the evaluation episodes (length, noise, reference, jumps), with ``gamma
-0.99``, normalised observations and the integral of the tracking error among their inputs; the
+the score per step (the scored cost over the LQG cost of the episode's own plant, capped:
+:mod:`stcgym.agents.rl.reward`), on episodes drawn like the evaluation episodes (length,
+noise, reference, jumps), with ``gamma 0.9``, normalised observations and the integral of the
+tracking error among their inputs; the
 self-tuning controllers are told the plant order of the training distribution. Every ratio is
 to LQG on the true model on the same episode. The report lists what each controller knows.
 
