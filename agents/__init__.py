@@ -56,8 +56,12 @@ __all__ = [
 
 def __getattr__(name: str):
     # SB3 pulls torch in (seconds); load it only when asked for.
-    if name in ("SB3Policy", "load_agent", "train_agent"):
+    if name in ("load_agent", "train_agent"):
         from stcgym.agents.rl import sb3
 
         return getattr(sb3, name)
+    if name == "SB3Policy":
+        from stcgym.agents.rl.policy import SB3Policy
+
+        return SB3Policy
     raise AttributeError(f"module 'stcgym.agents' has no attribute {name!r}")

@@ -181,7 +181,7 @@ def test_training_reward_charges_divergence_and_squashes():
 # ------------------------------------------------------------------------------ adapter
 def test_sb3_adapter_rebuilds_the_training_features():
     """The adapter, fed raw [y, r], gives the model exactly what HistoryWindow gave it."""
-    from stcgym.agents.rl.sb3 import SB3Policy
+    from stcgym.agents.rl.policy import SB3Policy
 
     cfg = WindowConfig(window=4)
     model_w, model_a = FakeModel(), FakeModel()
@@ -201,7 +201,7 @@ def test_sb3_adapter_rebuilds_the_training_features():
 
 
 def test_sb3_adapter_batch_lanes_are_independent():
-    from stcgym.agents.rl.sb3 import SB3Policy
+    from stcgym.agents.rl.policy import SB3Policy
 
     cfg = WindowConfig(window=3)
     rng = np.random.default_rng(0)

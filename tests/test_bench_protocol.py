@@ -272,7 +272,7 @@ def test_obs_norm_is_vec_normalize():
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from stcgym.agents import HistoryWindow
-    from stcgym.agents.rl.sb3 import ObsNorm
+    from stcgym.agents.rl.policy import ObsNorm
 
     def make():
         return HistoryWindow(gym.make("stcgym/ObserverCanonical-v0", noise_std=0.1))

@@ -11,7 +11,7 @@ import pytest
 
 from stcgym.adaptive import KnownModelController, LQGController, Policy, SelfTuningController
 from stcgym.adaptive.policy import LanePolicy
-from stcgym.agents.rl.sb3 import SB3Policy
+from stcgym.agents.rl.policy import SB3Policy
 from stcgym.agents.rl.wrappers import WindowConfig
 
 A_S2, B_S2 = (-1.5, 0.7), (1.0, 0.5)

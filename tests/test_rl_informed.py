@@ -74,7 +74,7 @@ class _Recorder:
 
 @pytest.mark.equality
 def test_estimate_features_are_the_estimator_run_alone_in_evaluation():
-    from stcgym.agents.rl.sb3 import SB3Policy
+    from stcgym.agents.rl.policy import SB3Policy
 
     spec = EnvSpec(split="test", jump_probability=1.0, steps=80, **FAMILY)
     episodes = EpisodeSet.of(spec, 1, 500, 3)
@@ -534,7 +534,7 @@ def test_identification_or_design_follows_the_numbers(costs, expected):
 
 
 def test_a_single_env_adapter_returns_one_action_of_the_input_shape():
-    from stcgym.agents.rl.sb3 import SB3Policy
+    from stcgym.agents.rl.policy import SB3Policy
 
     for kind in ("window", "estimate", "residual"):
         policy = SB3Policy(_Recorder(), WINDOW, 2.0, interface=InterfaceSpec(kind, order=2))

@@ -10,7 +10,7 @@ from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.configs import agent_knowledge, default_config
 from stcgym.agents.rl.interfaces import InterfaceSpec
-from stcgym.agents.rl.sb3 import SB3Policy
+from stcgym.agents.rl.policy import SB3Policy
 from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
 from stcgym.agents.rl.wrappers import WindowConfig
 

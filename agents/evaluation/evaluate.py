@@ -1,6 +1,6 @@
 """One evaluation loop for every controller, and the metrics the bench reports.
 
-Every controller (an SB3 model behind :class:`~stcgym.agents.rl.sb3.SB3Policy`, the self-tuning
+Every controller (an SB3 model behind :class:`~stcgym.agents.rl.policy.SB3Policy`, the self-tuning
 controller, the known-model oracles) is driven through the shared policy protocol
 (:mod:`stcgym.adaptive.policy`) by the closed-loop driver
 (:func:`stcgym.agents.closed_loop.run_closed_loop`): ``policy.reset()``, then

@@ -74,7 +74,7 @@ episodes (``"lqg"``: :func:`stcgym.agents.evaluation.bounds.lqg_action_unit`). S
 policies (SAC's) span their box whatever its width, so a unit would change nothing for them.
 
 One object serves training (:class:`~stcgym.agents.rl.vec_env.VecHistoryWindow`, over the lanes
-of a vector env) and evaluation (:class:`~stcgym.agents.rl.sb3.SB3Policy`, from raw ``[y, r]``
+of a vector env) and evaluation (:class:`~stcgym.agents.rl.policy.SB3Policy`, from raw ``[y, r]``
 observations), so the two build the same features: per step, :meth:`WindowInterface.observe`
 takes the observation of every lane (``starts`` marks the lanes whose episode starts with it),
 :meth:`~WindowInterface.features` gives the network input and :meth:`~WindowInterface.to_input`

@@ -31,7 +31,7 @@ plant needs, the bench's Gaussian-policy agents act in units of a typical input 
 The same feature construction is needed at evaluation time, when the harness hands every
 controller the raw environment observation: :class:`HistoryBuffer` holds it and is shared by the
 wrappers (training: :class:`HistoryWindow` here, :class:`~stcgym.agents.rl.vec_env.
-VecHistoryWindow` on a native vector env) and :class:`stcgym.agents.rl.sb3.SB3Policy`
+VecHistoryWindow` on a native vector env) and :class:`stcgym.agents.rl.policy.SB3Policy`
 (evaluation), so the two cannot drift apart.
 """
 
