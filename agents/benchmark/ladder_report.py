@@ -9,7 +9,14 @@ from typing import Any
 
 from stcgym.agents.benchmark.headline import STRATA, by_stratum, plant_strata
 
-__all__ = ["ladder_table", "strata_section"]
+__all__ = ["diverged_share", "ladder_table", "strata_section"]
+
+
+def diverged_share(share: float) -> str:
+    """``"3 % div."``: a diverged share as a table cell prints it (one decimal below 1 %,
+    so that a rare divergence does not read as none)."""
+    percent = 100 * share
+    return f"{percent:.0f} % div." if percent >= 1 else f"{percent:.1f} % div."
 
 
 def ladder_table(cfg: Any, scenarios: Sequence[Any], statistics: dict[str, Any]) -> list[str]:
@@ -41,7 +48,7 @@ def ladder_table(cfg: Any, scenarios: Sequence[Any], statistics: dict[str, Any])
                 cells.append("no improvement over initialisation")
             else:
                 div = res["diverged"].value
-                cells.append(res["ratio"].format(3) + (f"; {100 * div:.0f} % div." if div else ""))
+                cells.append(res["ratio"].format(3) + (f"; {diverged_share(div)}" if div else ""))
         lines.append(f"| {c} | " + " | ".join(cells) + " |")
     return lines
 
@@ -68,7 +75,7 @@ def strata_section(sc: Any, tables: dict[str, Any], reps: int) -> list[str]:
         row = []
         for k in present:
             ratio, div = per[k]["ratio"], per[k]["diverged"].value
-            diverged = f"{100 * div:.0f} % div."
+            diverged = diverged_share(div)
             if math.isnan(ratio.value):  # every episode of the stratum diverged
                 row.append(diverged)
             else:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from stcgym.agents.benchmark.config import BenchConfig
+from stcgym.agents.benchmark.ladder_report import diverged_share
 from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS, format_value
 from stcgym.agents.benchmark.rundir import classical_key, job_id, read_run_config
 from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
@@ -292,7 +293,7 @@ def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
                 cells.append("no improvement over initialisation")
             else:
                 div = (est.get("diverged") or {}).get("value") or 0.0
-                cells.append(_cell(est["ratio"]) + (f"; {100 * div:.0f} % div." if div else ""))
+                cells.append(_cell(est["ratio"]) + (f"; {diverged_share(div)}" if div else ""))
         lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
     return [*lines, ""]
 
