@@ -4,12 +4,12 @@ family's test plants by stratum (the last ladder feature each plant has)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from stcgym.agents.benchmark.headline import STRATA, by_stratum, plant_strata
 
-__all__ = ["diverged_share", "ladder_table", "strata_section"]
+__all__ = ["diverged_share", "ladder_rows", "ladder_table", "strata_section"]
 
 
 def diverged_share(share: float) -> str:
@@ -31,26 +31,45 @@ def ladder_table(cfg: Any, scenarios: Sequence[Any], statistics: dict[str, Any])
     if cfg.family in ("siso2-v1", LADDER[-1]) and "family:test" in statistics:
         rungs.append(("family:test", f"{LADDER[-1]} (family:test)"))
     rungs = [(name, label) for name, label in rungs if name in statistics]
-    names: list[str] = []
-    for name, _ in rungs:
-        names += [c for c in statistics[name] if c not in names]
     lines = [
         "| controller | " + " | ".join(label for _, label in rungs) + " |",
         "|---|" + "---|" * len(rungs),
     ]
-    for c in names:
+    rows = ladder_rows(
+        statistics, [name for name, _ in rungs],
+        ratio=lambda est: est.format(3), diverged=lambda res: res["diverged"].value,
+    )  # fmt: skip
+    return lines + [f"| {c} | " + " | ".join(cells) + " |" for c, cells in rows]
+
+
+def ladder_rows(
+    statistics: dict[str, Any],
+    columns: Sequence[str],
+    *,
+    ratio: Callable[[Any], str],
+    diverged: Callable[[dict[str, Any]], float],
+) -> list[tuple[str, list[str]]]:
+    """``[(controller, cells)]`` of the ladder table over the scenarios ``columns``, every
+    controller of any of them in order of appearance: ``-`` where it did not run, "no
+    improvement over initialisation" where every run kept its untrained network, else its
+    cost / LQG (``ratio`` writes the estimate) and the diverged share where any. ``ratio``
+    and ``diverged`` read the statistics as the report holds them (estimates) or as
+    ``statistics.json`` does (dicts)."""
+    names = list(dict.fromkeys(c for s in columns for c in statistics[s]))
+    rows = []
+    for name in names:
         cells = []
-        for name, _ in rungs:
-            res = statistics[name].get(c)
+        for s in columns:
+            res = statistics[s].get(name)
             if res is None:
                 cells.append("-")
             elif "ratio" not in res:
                 cells.append("no improvement over initialisation")
             else:
-                div = res["diverged"].value
-                cells.append(res["ratio"].format(3) + (f"; {diverged_share(div)}" if div else ""))
-        lines.append(f"| {c} | " + " | ".join(cells) + " |")
-    return lines
+                div = diverged(res)
+                cells.append(ratio(res["ratio"]) + (f"; {diverged_share(div)}" if div else ""))
+        rows.append((name, cells))
+    return rows
 
 
 def strata_section(sc: Any, tables: dict[str, Any], reps: int) -> list[str]:

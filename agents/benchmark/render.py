@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from stcgym.agents.benchmark.config import BenchConfig
-from stcgym.agents.benchmark.ladder_report import diverged_share
+from stcgym.agents.benchmark.ladder_report import ladder_rows
 from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS, format_value
 from stcgym.agents.benchmark.rundir import classical_key, job_id, read_run_config
 from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
@@ -275,7 +275,6 @@ def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
     if not rungs:
         return []
     columns = [*rungs, *(["family:test"] if "family:test" in statistics else [])]
-    names = list(dict.fromkeys(c for s in columns for c in statistics[s]))
     lines = [
         "The ladder: cost / LQG, IQM over the bounded episodes [95 % CI], and the diverged "
         "share where any",
@@ -283,18 +282,11 @@ def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
         "| controller | " + " | ".join(f"`{s}`" for s in columns) + " |",
         "|---|" + "---|" * len(columns),
     ]
-    for name in names:
-        cells = []
-        for s in columns:
-            est = statistics[s].get(name)
-            if est is None:
-                cells.append("-")
-            elif "ratio" not in est:
-                cells.append("no improvement over initialisation")
-            else:
-                div = (est.get("diverged") or {}).get("value") or 0.0
-                cells.append(_cell(est["ratio"]) + (f"; {diverged_share(div)}" if div else ""))
-        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
+    rows = ladder_rows(
+        statistics, columns, ratio=_cell,
+        diverged=lambda est: (est.get("diverged") or {}).get("value") or 0.0,
+    )  # fmt: skip
+    lines += [f"| `{name}` | " + " | ".join(cells) + " |" for name, cells in rows]
     return [*lines, ""]
 
 

@@ -189,14 +189,13 @@ def _rl_objective(cfg: Any) -> str:
     """What the run's RL agents were trained on, read from their configs."""
     if not cfg.algo_configs:
         return ""
-    by_reward: dict[str, list[str]] = {}
+    by_reward: dict[tuple[str, str, Any], list[str]] = {}
     for algo, c in cfg.algo_configs.items():
-        gamma = c["hyperparams"].get("gamma", 0.99)
-        key = f"{c.get('reward', 'lqg_ratio')}|{gamma:g}|{c.get('cost_cap')}"
+        gamma = f"{c['hyperparams'].get('gamma', 0.99):g}"
+        key = (c.get("reward", "lqg_ratio"), gamma, c.get("cost_cap"))
         by_reward.setdefault(key, []).append(algo)
     parts = []
-    for key, algos in by_reward.items():
-        reward, gamma, cap = key.split("|")
+    for (reward, gamma, cap), algos in by_reward.items():
         what = (
             "the per-step cost over the LQG cost of the episode's own plant, capped at "
             f"{cap} (the score's unit; that LQG cost is privileged information, in the "
