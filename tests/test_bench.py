@@ -864,6 +864,31 @@ def test_plan_prints_the_jobs_and_the_estimate_and_runs_nothing(tmp_path, capsys
     assert not out.exists()  # nothing written
 
 
+def test_a_resumed_plan_estimates_only_what_the_store_lacks(tiny_run, tmp_path, capsys):
+    import shutil
+
+    from stcgym.agents.benchmark.plan import estimate_seconds, job_weights, rl_tasks
+    from stcgym.agents.benchmark.rundir import read_run_config
+    from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
+    from stcgym.agents.benchmark.store import ResultsStore
+
+    run = tmp_path / "tiny"
+    shutil.copytree(tiny_run[0], run)
+    (removed,) = [p for p in (run / "store").glob("family_rppo_s1.*.json.gz")]
+    removed.unlink()
+    assert main(["bench", "--resume", str(run), "--plan"]) == 0
+    text = capsys.readouterr().out
+    assert "still to run, the store holding the rest: 1 of the 6 RL jobs, estimated" in text
+    cfg, _ = read_run_config(run)
+    kept = frozenset(ResultsStore(run / "store", []).ids())
+    scenarios = make_scenarios(cfg)
+    tasks = rl_tasks(cfg, scenarios, training_envs(cfg, scenarios), {})
+    weights = job_weights(cfg, scenarios, tasks)
+    left, whole = estimate_seconds(cfg, kept), estimate_seconds(cfg)
+    # the one job left and what runs whatever the store holds (references, output), not more
+    assert weights[("rl", "family_rppo_s1")] < left < whole - weights[("rl", "family_ppo_s0")]
+
+
 def test_a_partial_store_renders_a_partial_report_that_names_the_missing_jobs(
     tiny_run, tmp_path, capsys
 ):

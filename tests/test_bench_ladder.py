@@ -194,3 +194,43 @@ def test_a_page_opens_a_runs_tables_with_the_ladder_across_its_rungs():
     # without rungs, the per-scenario tables alone
     plain = page_tables("r", {"family:test": statistics["family:test"]}).splitlines()
     assert plain[2].startswith("`family:test`: cost / LQG")
+
+
+def test_a_pages_headline_of_a_run_is_its_first_table_and_update_page_renders_every_block(
+    tmp_path,
+):
+    import json
+
+    from stcgym.agents.benchmark.render import page_blocks, page_headline, update_page
+
+    def est(value):
+        return {"value": value, "low": value, "high": value}
+
+    statistics = {
+        "nominal:stable2": {"ppo": {"ratio": est(3.0), "diverged": est(0.0)}},
+        "ladder-l1-v1:test": {"ppo": {"ratio": est(2.5), "diverged": est(0.0)}},
+    }
+    head = page_headline("r", statistics).splitlines()
+    assert head[0].startswith("<!-- headline of results/r") and head[-1].endswith("results/r -->")
+    assert "| `ppo` | 2.5 |" in head and not any("stable2" in line for line in head)
+    # without rungs, the first scenario's table
+    plain = page_headline("r", {"nominal:stable2": statistics["nominal:stable2"]})
+    assert "`nominal:stable2`: cost / LQG" in plain
+    run = tmp_path / "r"
+    run.mkdir()
+    (run / "statistics.json").write_text(json.dumps(statistics))
+    page = tmp_path / "page.md"
+    stale = "<!-- headline of results/r: rendered by `stcgym report`, do not edit -->\nold\n"
+    stale += "<!-- end of the headline of results/r -->\n\ntext\n\n"
+    stale += "<!-- tables of results/r: rendered by `stcgym report`, do not edit -->\nold\n"
+    stale += "<!-- end of the tables of results/r -->\n"
+    page.write_text(stale)
+    assert update_page(page, run) and not update_page(page, run)  # a second pass changes nothing
+    blocks = page_blocks(page.read_text(), "r")
+    assert set(blocks) == {"headline", "tables"} and "old" not in page.read_text()
+    assert (
+        blocks["headline"] == page_headline("r", statistics) and "\n\ntext\n\n" in page.read_text()
+    )
+    page.write_text("no block\n")
+    with pytest.raises(ValueError, match="has no block for r"):
+        update_page(page, run)

@@ -12,21 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from stcgym.agents.benchmark.render import PAGE_START, page_tables, render_run
+from stcgym.agents.benchmark.render import PAGE_BLOCKS, page_blocks, render_run
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = sorted(p.parent for p in (ROOT / "results").glob("*/config.json"))
 PAGES = [ROOT / "docs" / "benchmark.md", ROOT / "README.md"]
 #: The largest store a committed run may have (the repository carries every version of it).
 MAX_STORE_BYTES = 20 * 2**20
-
-
-def _block(text: str, run: str) -> str | None:
-    start = PAGE_START.format(run=run)
-    if start not in text:
-        return None
-    end_marker = "<!-- end of the tables of results/" + run + " -->"
-    return start + text.split(start, 1)[1].split(end_marker, 1)[0] + end_marker
 
 
 @pytest.mark.skipif(not RUNS, reason="no committed run under results/")
@@ -54,8 +46,10 @@ def test_a_committed_store_renders_to_its_committed_statistics(run, tmp_path):
 @pytest.mark.parametrize("run", RUNS, ids=[p.name for p in RUNS])
 def test_the_pages_print_the_tables_of_the_committed_statistics(run):
     statistics = json.loads((run / "statistics.json").read_text())
-    blocks = [b for page in PAGES if (b := _block(page.read_text(), run.name)) is not None]
+    blocks = [b for page in PAGES for b in page_blocks(page.read_text(), run.name).items()]
     if "**PARTIAL" not in (run / "report.md").read_text():  # a finished run is on a page
-        assert blocks, f"no page prints the tables of results/{run.name}"
-    for block in blocks:
-        assert block == page_tables(run.name, statistics)
+        assert any(kind == "tables" for kind, _ in blocks), (
+            f"no page prints the tables of results/{run.name}"
+        )
+    for kind, block in blocks:
+        assert block == PAGE_BLOCKS[kind][2](run.name, statistics), (kind, run.name)

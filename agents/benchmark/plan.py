@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stcgym.agents.benchmark.config import BenchConfig
+from stcgym.agents.benchmark.rundir import classical_key, job_id
 from stcgym.agents.benchmark.scenarios import Scenario, TrainingEnv, make_scenarios, training_envs
 from stcgym.agents.controllers import controllers_for
 from stcgym.agents.evaluation.env_spec import EnvSpec
@@ -200,29 +201,48 @@ def tuning_seconds(cfg: BenchConfig, envs: dict[str, TrainingEnv]) -> float:
     return rl + stc
 
 
-def estimate_seconds(cfg: BenchConfig) -> float:
+def estimate_seconds(cfg: BenchConfig, kept: frozenset[str] = frozenset()) -> float:
     """Rough wall time of ``cfg`` on ``cfg.jobs`` cores (announced before long runs).
 
     The reference runs come first, in the driver, then the tuning studies (with tuning
     trials: :func:`tuning_seconds`); then the RL jobs on ``cfg.jobs`` workers,
     longest first, while the driver evaluates the classical controllers (their work shares
     the cores); then the plots and the report, side by side.
+
+    ``kept`` holds the ids of the records a store already has (:meth:`~stcgym.agents.
+    benchmark.store.ResultsStore.ids`): those jobs are left out, and so are the tuning
+    studies where ``cfg`` carries their outcome, as a resumed run skips them. The default
+    (nothing kept) is the run from an empty store.
     """
     scenarios = make_scenarios(cfg)
     envs = training_envs(cfg, scenarios)
     tasks = rl_tasks(cfg, scenarios, envs, {})
     weights = job_weights(cfg, scenarios, tasks)
-    classical = sum(w for (kind, _), w in weights.items() if kind == "classical")
+    classical = sum(
+        classical_seconds(cfg, sc, name) * _share_left(cfg, sc, name, kept)
+        for sc in scenarios
+        for name in controllers_for(cfg.classical, sc.env)
+    )
     references = sum(reference_weights(cfg, envs).values())
-    rl = [weights[("rl", t.name)] for t in tasks]
+    rl = [weights[("rl", t.name)] for t in tasks if job_id(t) not in kept]
     cores = max(1, cfg.jobs)
     if not rl:
         train = classical
     else:
         # the classical evaluations take their share of the cores from the workers
         train = max(schedule(rl, cfg.jobs)) + classical / cores
+    tuning = 0.0 if kept and cfg.tuned else tuning_seconds(cfg, envs)
     output = OUTPUT_SECONDS_PER_SCENARIO * len(scenarios) * (1 if cores > 1 else 2)
-    return references + tuning_seconds(cfg, envs) + train + output
+    return references + tuning + train + output
+
+
+def _share_left(cfg: BenchConfig, sc: Scenario, name: str, kept: frozenset[str]) -> float:
+    """The share of the runs of classical controller ``name`` on ``sc`` not in ``kept``."""
+    if not kept:
+        return 1.0
+    runs = cfg.runs_of(name)
+    held = sum(classical_key(cfg, sc, name, r)[1] in kept for r in range(runs))
+    return (runs - held) / runs
 
 
 def parse_duration(text: str) -> float:
@@ -356,7 +376,6 @@ def describe_plan(cfg: BenchConfig) -> str:
     """The jobs of ``cfg`` with their estimated seconds, those its run folder's store already
     holds marked ``kept``, and the whole run's estimate (``stcgym bench --plan``)."""
     from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS
-    from stcgym.agents.benchmark.rundir import classical_key, job_id
     from stcgym.agents.benchmark.store import STORE_FOLDER, ResultsStore
 
     scenarios = make_scenarios(cfg)
@@ -392,4 +411,10 @@ def describe_plan(cfg: BenchConfig) -> str:
         f"{format_duration(estimate_seconds(cfg))} (every RL agent at its cap; the plateau "
         "rule can only shorten a run)",
     ]
+    if kept:
+        left = sum(job_id(t) not in kept for t in tasks)
+        lines.append(
+            f"still to run, the store holding the rest: {left} of the {len(tasks)} RL jobs, "
+            f"estimated {format_duration(estimate_seconds(cfg, frozenset(kept)))}"
+        )
     return "\n".join(lines)

@@ -29,11 +29,16 @@ from stcgym.agents.benchmark.store import STORE_FOLDER, JobRecord, ResultsStore
 from stcgym.agents.controllers import YARDSTICK, controllers_for
 
 __all__ = [
+    "HEADLINE_END",
+    "HEADLINE_START",
+    "PAGE_BLOCKS",
     "PAGE_END",
     "PAGE_START",
     "RunData",
     "Rendered",
     "load_run",
+    "page_blocks",
+    "page_headline",
     "page_tables",
     "planned_records",
     "prune_store",
@@ -216,6 +221,10 @@ def render_run(
 #: The markers around a page's block of tables rendered from a run (``stcgym report --page``).
 PAGE_START = "<!-- tables of results/{run}: rendered by `stcgym report`, do not edit -->"
 PAGE_END = "<!-- end of the tables of results/{run} -->"
+#: The markers around a page's headline of a run: its first table alone (a page that opens with
+#: a run's result and gives every table further down).
+HEADLINE_START = "<!-- headline of results/{run}: rendered by `stcgym report`, do not edit -->"
+HEADLINE_END = "<!-- end of the headline of results/{run} -->"
 
 
 def _cell(estimate: dict[str, Any] | None, digits: int = 3) -> str:
@@ -239,32 +248,57 @@ def page_tables(run_name: str, statistics: dict[str, Any]) -> str:
     """The headline tables of a run for a documentation page, from its ``statistics.json``:
     per scenario, cost / LQG over the bounded episodes (IQM and median, 95 % intervals) and
     the divergence rate beside it, between the :data:`PAGE_START` / :data:`PAGE_END`
-    markers."""
+    markers (the ladder across its rungs first, where the run has them)."""
     lines = [PAGE_START.format(run=run_name), "", *_ladder_page_table(statistics)]
     for scenario, table in statistics.items():
-        lines += [
-            f"`{scenario}`: cost / LQG over the bounded episodes, and the diverged share",
-            "",
-            "| controller | runs | IQM [95 % CI] | median [95 % CI] | diverged |",
-            "|---|---|---|---|---|",
-        ]
-        for name, est in table.items():
-            div = est.get("diverged") or {}
-            pct = (
-                "-"
-                if div.get("value") is None
-                else f"{100 * div['value']:.1f} % [{100 * div['low']:.1f}, {100 * div['high']:.1f}]"
-            )
-            runs = f"{est.get('runs', '-')}"
-            if est.get("untrained_runs"):
-                runs += f" (+{est['untrained_runs']} untrained, left out)"
-            lines.append(
-                f"| `{name}` | {runs} | {_cell(est.get('ratio'))} | "
-                f"{_cell(est.get('ratio_median'))} | {pct} |"
-            )
-        lines.append("")
+        lines += _scenario_page_table(scenario, table)
     lines.append(PAGE_END.format(run=run_name))
     return "\n".join(lines)
+
+
+def page_headline(run_name: str, statistics: dict[str, Any]) -> str:
+    """A run's first table alone, between the :data:`HEADLINE_START` / :data:`HEADLINE_END`
+    markers: the ladder across its rungs where the run has them, else the table of its first
+    scenario."""
+    first = next(iter(statistics.items()), None)
+    table = _ladder_page_table(statistics) or (
+        [] if first is None else _scenario_page_table(*first)
+    )
+    return "\n".join(
+        [HEADLINE_START.format(run=run_name), "", *table, HEADLINE_END.format(run=run_name)]
+    )
+
+
+#: The blocks a page can hold of a run: their markers and what renders them.
+PAGE_BLOCKS = {
+    "tables": (PAGE_START, PAGE_END, page_tables),
+    "headline": (HEADLINE_START, HEADLINE_END, page_headline),
+}
+
+
+def _scenario_page_table(scenario: str, table: dict[str, Any]) -> list[str]:
+    """One scenario's rows: runs, IQM and median of cost / LQG, the diverged share."""
+    lines = [
+        f"`{scenario}`: cost / LQG over the bounded episodes, and the diverged share",
+        "",
+        "| controller | runs | IQM [95 % CI] | median [95 % CI] | diverged |",
+        "|---|---|---|---|---|",
+    ]
+    for name, est in table.items():
+        div = est.get("diverged") or {}
+        pct = (
+            "-"
+            if div.get("value") is None
+            else f"{100 * div['value']:.1f} % [{100 * div['low']:.1f}, {100 * div['high']:.1f}]"
+        )
+        runs = f"{est.get('runs', '-')}"
+        if est.get("untrained_runs"):
+            runs += f" (+{est['untrained_runs']} untrained, left out)"
+        lines.append(
+            f"| `{name}` | {runs} | {_cell(est.get('ratio'))} | "
+            f"{_cell(est.get('ratio_median'))} | {pct} |"
+        )
+    return [*lines, ""]
 
 
 def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
@@ -290,21 +324,34 @@ def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
     return [*lines, ""]
 
 
+def page_blocks(text: str, run: str) -> dict[str, str]:
+    """The blocks of ``run`` that the page ``text`` holds, by kind (:data:`PAGE_BLOCKS`), each
+    from its start marker to its end marker included."""
+    out = {}
+    for kind, (start, end, _) in PAGE_BLOCKS.items():
+        start, end = start.format(run=run), end.format(run=run)
+        if start in text and end in text.split(start, 1)[1]:
+            out[kind] = start + text.split(start, 1)[1].split(end, 1)[0] + end
+    return out
+
+
 def update_page(page: str | Path, run_dir: str | Path) -> bool:
-    """Replace the block of ``run_dir``'s tables in the Markdown file ``page`` with tables made
-    from its ``statistics.json``; returns whether the page changed. ``ValueError`` when the
-    page has no block for the run (add the two marker lines where the tables go)."""
+    """Replace the blocks of ``run_dir`` in the Markdown file ``page`` (its tables, its
+    headline: :data:`PAGE_BLOCKS`) with blocks made from its ``statistics.json``; returns
+    whether the page changed. ``ValueError`` when the page has no block for the run (add the
+    two marker lines where the tables go)."""
     from stcgym.agents.executors import write_atomic
 
     page, run_dir = Path(page), Path(run_dir)
     text = page.read_text()
-    start, end = PAGE_START.format(run=run_dir.name), PAGE_END.format(run=run_dir.name)
-    if start not in text or end not in text:
+    blocks = page_blocks(text, run_dir.name)
+    if not blocks:
+        start, end = PAGE_START.format(run=run_dir.name), PAGE_END.format(run=run_dir.name)
         raise ValueError(f"{page} has no block for {run_dir.name}: add the lines\n{start}\n{end}")
-    before, rest = text.split(start, 1)
-    after = rest.split(end, 1)[1]
     statistics = json.loads((run_dir / "statistics.json").read_text())
-    new = before + page_tables(run_dir.name, statistics) + after
+    new = text
+    for kind, block in blocks.items():
+        new = new.replace(block, PAGE_BLOCKS[kind][2](run_dir.name, statistics))
     if new != text:
         write_atomic(page, new)
     return new != text

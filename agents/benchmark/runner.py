@@ -521,9 +521,11 @@ class _RunState:
         weights = job_weights(cfg, scenarios, planned)  # (the references ran while planning)
         progress = JobProgress(weights, self.log, cfg.jobs)
         workers = "worker" if cfg.jobs == 1 else "workers"
+        kept = frozenset(self.store.ids())
+        left = f" (the store holds {len(kept)} records)" if kept else ""
         self.log(
             f"{len(weights)} jobs ({len(planned)} RL trainings on {cfg.jobs} {workers}), "
-            f"estimated {format_duration(estimate_seconds(cfg))}"
+            f"estimated {format_duration(estimate_seconds(cfg, kept))}{left}"
         )
         for sc in scenarios:
             self._yardstick(sc)
