@@ -251,3 +251,13 @@ def test_conclusions_say_where_rl_wins_and_qualify_wins_over_capped_agents():
     pairs = [("stc", "ppo", {"probability": Estimate(0.5, 0.3, 0.7),
                              "ratio": Estimate(1.0, 0.8, 1.2)})]  # fmt: skip
     assert "neither stc nor ppo" in report._conclusion("family:test", hl, pairs, {})
+    # an agent that diverged on every episode has no ratio and is not ranked first
+    nan = float("nan")
+    hl["ppo"] = {"family": "rl", "ratio": Estimate(nan, nan, nan), "diverged": Estimate(1, 1, 1)}
+    line = report._conclusion("family:ood", hl, pairs, {})
+    assert line.startswith("`family:ood`: the lowest cost / LQG is stc's, 1.5")
+    assert "ppo 100.0 %" in line
+    hl["stc"] = hl["ppo"]
+    assert report._conclusion("family:ood", hl, pairs, {}).startswith(
+        "`family:ood`: no controller stayed bounded on any episode"
+    )

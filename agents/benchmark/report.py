@@ -287,8 +287,14 @@ def _channel_table(
 
 
 def _best(hl: dict[str, dict[str, Any]], names: Sequence[str]) -> str | None:
-    present = [n for n in names if n in hl]
+    """The controller of ``names`` with the lowest cost / LQG; one whose every episode
+    diverged has no ratio (nothing bounded to average) and is not ranked."""
+    present = [n for n in names if n in hl and _finite(hl[n]["ratio"].value)]
     return min(present, key=lambda n: hl[n]["ratio"].value) if present else None
+
+
+def _finite(value: Any) -> bool:
+    return value is not None and math.isfinite(float(value))
 
 
 def _conclusion(name: str, hl: dict[str, dict[str, Any]], pairs: list, stops: dict) -> str:
@@ -299,7 +305,10 @@ def _conclusion(name: str, hl: dict[str, dict[str, Any]], pairs: list, stops: di
     if not ranked:
         return ""
     best = _best(hl, ranked)
-    parts = [f"`{name}`: the lowest cost / LQG is {best}'s, {hl[best]['ratio'].format(3)}"]
+    if best is None:  # every controller diverged on every episode
+        parts = [f"`{name}`: no controller stayed bounded on any episode"]
+    else:
+        parts = [f"`{name}`: the lowest cost / LQG is {best}'s, {hl[best]['ratio'].format(3)}"]
     best_rl, best_tuner = _best(hl, rl), _best(hl, tuners)
     if best_rl and best_tuner:
         p = next((q for a, b, q in pairs if a == best_tuner and b == best_rl), None)
