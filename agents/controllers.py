@@ -278,6 +278,22 @@ def _adaptive(
     )
 
 
+def _known_model(
+    build: Any, description: str, integral: str, plants: tuple[str, ...] = ("siso",)
+) -> ControllerInfo:
+    """A known-model oracle's entry: offline, told the true parameters whenever they change;
+    ``integral`` says whether its law has integral action, for the report."""
+    return ControllerInfo(
+        "oracle",
+        build,
+        False,
+        description,
+        plants,
+        informed=True,
+        knows={**_KNOWN, "integral": integral},
+    )
+
+
 #: Classical controllers by name (tests may register more).
 CONTROLLERS: dict[str, ControllerInfo] = {
     "stc": _adaptive(_stc, "self-tuning controller (defaults)"),
@@ -291,22 +307,16 @@ CONTROLLERS: dict[str, ControllerInfo] = {
     "stc_kfmils": _adaptive(
         _stc_kfmils, "the self-tuning controller on the paper's KF-MILS estimator"
     ),
-    "lqg": ControllerInfo(
-        "oracle",
+    "lqg": _known_model(
         _lqg,
-        False,
         "LQG on the true model, the bench's cost (LQR with measured state on a MIMO plant)",
+        "no (reference feed-forward)",
         ("siso", "mimo"),
-        informed=True,
-        knows={**_KNOWN, "integral": "no (reference feed-forward)"},
     ),
-    "oracle": ControllerInfo(
-        "oracle",
+    "oracle": _known_model(
         _oracle,
-        False,
         "pole placement on the true model (the self-tuning controller's poles)",
-        informed=True,
-        knows={**_KNOWN, "integral": "yes, with anti-windup"},
+        "yes, with anti-windup",
     ),
     "zero": ControllerInfo(
         "reference",

@@ -67,6 +67,15 @@ _DRIFT_DEFAULT: dict[str, Any] = {"std": 0.0}
 _REFERENCE_KINDS = ("square", "meander", "step", "sine", "zero", "random_steps")
 #: Split and variant names: they become part of plant names (``family-v1/split/index``).
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+#: The keys that are settings of the plant envs (:attr:`FamilySpec.env_settings`).
+_ENV_SETTINGS = (
+    "noise_std",
+    "control_cost",
+    "action_bound",
+    "y_bound",
+    "reference",
+    "initial_state_std",
+)
 #: Keys replaced whole (never deep-merged) when a variant is built over its base spec.
 _REPLACED_WHOLE = ("reference", "splits")
 
@@ -174,6 +183,13 @@ class FamilySpec:
         """Reference period (the window of the re-convergence metric); ``steps // 10`` if none."""
         ref = self.data["reference"]
         return int(ref.get("period", max(1, self.steps // 10)))
+
+    @property
+    def env_settings(self) -> dict[str, Any]:
+        """What an env of the family's plants takes from the spec, as keyword arguments of the
+        canonical plant envs: ``noise_std``, ``control_cost``, ``action_bound``, ``y_bound``,
+        ``reference`` and ``initial_state_std``."""
+        return {key: self.data[key] for key in _ENV_SETTINGS}
 
     @property
     def splits(self) -> dict[str, range]:

@@ -17,12 +17,7 @@ def single_family_env(fam: Any, plant: Any, steps: int, **extra: Any) -> gym.Env
         "stcgym/ObserverCanonical-v0",
         a=plant.a,
         b=plant.b,
-        noise_std=fam["noise_std"],
-        control_cost=fam["control_cost"],
-        action_bound=fam["action_bound"],
-        y_bound=fam["y_bound"],
-        reference=fam["reference"],
-        initial_state_std=fam["initial_state_std"],
+        **fam.env_settings,
         max_episode_steps=steps,
         **extra,
     )

@@ -43,14 +43,19 @@ RICH = {
 }
 
 
+def assert_drawn_alone(plants, family):
+    """Each of ``plants`` is the plant of its index drawn alone from ``family``, before and
+    after the jump."""
+    for p in plants:
+        alone = draw_plant(family, p.index)
+        for key in ("a", "b", "a_after", "b_after"):
+            np.testing.assert_array_equal(getattr(alone, key), getattr(p, key))
+
+
 def test_a_plant_depends_only_on_family_seed_and_index():
     fam = load_family(RICH)
     chunk = draw_plants(fam, range(100, 140))
-    for p in chunk[::7]:
-        alone = draw_plant(fam, p.index)
-        np.testing.assert_array_equal(alone.a, p.a)
-        np.testing.assert_array_equal(alone.b, p.b)
-        np.testing.assert_array_equal(alone.a_after, p.a_after)
+    assert_drawn_alone(chunk[::7], fam)
     other = draw_plant(load_family({**RICH, "seed": 8}), 100)
     assert not np.array_equal(other.a, chunk[0].a)
     # The count does not enter the draw: plant 5 of a bigger family is the same plant.
@@ -252,11 +257,7 @@ def test_splits_are_disjoint_and_a_plant_is_the_same_in_any_split_or_chunk():
     # The split layout does not enter the draw: plant 1050 is the same under any splits.
     other = load_family({**SISO2.to_dict(), "splits": {"x": [1040, 1060]}, "variants": {}})
     chunk = draw_plants(SISO2, range(1040, 1060))
-    for p in chunk[::5]:
-        q = draw_plant(other, p.index)
-        np.testing.assert_array_equal(q.a, p.a)
-        np.testing.assert_array_equal(q.b, p.b)
-        np.testing.assert_array_equal(q.b_after, p.b_after)
+    assert_drawn_alone(chunk[::5], other)
     # A variant's plants are its own: another seed, documented.
     variant = SISO2.variant("ood_high_gain")
     assert variant["seed"] == 2026 * 2**32 + zlib.crc32(b"ood_high_gain")

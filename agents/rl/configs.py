@@ -334,6 +334,17 @@ _HEALTHY_PPO: dict[str, Any] = {
     "target_kl": 0.03,
     "gamma": 0.9,
 }
+#: The rest of PPO's and RecurrentPPO's recipe, the Zoo's in ``ppo.yml`` and ``ppo_lstm.yml``
+#: alike: 10 epochs, gae 0.95, clip 0.2, no entropy bonus, gSDE resampled every 4 steps.
+_PPO: dict[str, Any] = {
+    **_HEALTHY_PPO,
+    "n_epochs": 10,
+    "gae_lambda": 0.95,
+    "clip_range": 0.2,
+    "ent_coef": 0.0,
+    "use_sde": True,
+    "sde_sample_freq": 4,
+}
 
 DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
     # Zoo ppo.yml Pendulum-v1: n_envs 4, n_steps 1024, gae 0.95, gamma 0.9, 10 epochs, lr 1e-3,
@@ -342,16 +353,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
     # (ZOO_DEPARTURES); gamma 0.9, the Zoo's, was measured too.
     "ppo": AlgoConfig(
         "ppo",
-        {
-            **_HEALTHY_PPO,
-            "n_epochs": 10,
-            "gae_lambda": 0.95,
-            "clip_range": 0.2,
-            "ent_coef": 0.0,
-            "use_sde": True,
-            "sde_sample_freq": 4,
-            "policy_kwargs": {**_NET, "log_std_init": _LOG_STD_INIT},
-        },
+        {**_PPO, "policy_kwargs": {**_NET, "log_std_init": _LOG_STD_INIT}},
         n_envs=_HEALTHY_ENVS,
         normalize_reward=True,
         quick_steps=40_960,
@@ -414,13 +416,7 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
     "rppo": AlgoConfig(
         "rppo",
         {
-            **_HEALTHY_PPO,
-            "n_epochs": 10,
-            "gae_lambda": 0.95,
-            "clip_range": 0.2,
-            "ent_coef": 0.0,
-            "use_sde": True,
-            "sde_sample_freq": 4,
+            **_PPO,
             "policy_kwargs": {
                 "lstm_hidden_size": 128,
                 "net_arch": dict(pi=[64], vf=[64]),
@@ -441,28 +437,26 @@ DEFAULT_CONFIGS: dict[str, AlgoConfig] = {
 }
 
 
-def _ablation(agent: str, **window: Any) -> AlgoConfig:
-    base = copy.deepcopy(DEFAULT_CONFIGS[ABLATIONS[agent][0]])
+def _derived(
+    agent: str, *, window: dict[str, Any] | None = None, interface: dict[str, Any] | None = None
+) -> AlgoConfig:
+    """The config of an ablation or an informed agent: that of the agent it varies or extends
+    (:func:`base_algorithm`: same recipe, same budgets) under its own name, with the fields of
+    ``window`` and ``interface`` changed."""
+    base = copy.deepcopy(DEFAULT_CONFIGS[base_algorithm(agent)])
     base.algo = agent
-    base.window = {**base.window, **window}
+    base.window = {**base.window, **(window or {})}
+    base.interface = {**base.interface, **(interface or {})}
     return base
 
 
-DEFAULT_CONFIGS["ppo_noint"] = _ablation("ppo_noint", include_integral=False)
-
-
-def _informed(agent: str, **interface: Any) -> AlgoConfig:
-    base = copy.deepcopy(DEFAULT_CONFIGS[INFORMED[agent][0]])
-    base.algo = agent
-    base.interface = {**base.interface, **interface}
-    return base
-
-
-# The agent they extend with its interface: same recipe, same budgets.
-DEFAULT_CONFIGS["theta_ppo"] = _informed("theta_ppo", kind="estimate")
-DEFAULT_CONFIGS["theta_sac"] = _informed("theta_sac", kind="estimate")
-DEFAULT_CONFIGS["residual_ppo"] = _informed("residual_ppo", kind="residual", fraction=0.25)
-DEFAULT_CONFIGS["oracle_ppo"] = _informed("oracle_ppo", kind="true")
+DEFAULT_CONFIGS["ppo_noint"] = _derived("ppo_noint", window={"include_integral": False})
+DEFAULT_CONFIGS["theta_ppo"] = _derived("theta_ppo", interface={"kind": "estimate"})
+DEFAULT_CONFIGS["theta_sac"] = _derived("theta_sac", interface={"kind": "estimate"})
+DEFAULT_CONFIGS["residual_ppo"] = _derived(
+    "residual_ppo", interface={"kind": "residual", "fraction": 0.25}
+)
+DEFAULT_CONFIGS["oracle_ppo"] = _derived("oracle_ppo", interface={"kind": "true"})
 #: The agents told the true plant parameters (the ``"true"`` interface): they run only on
 #: plants of their training distribution's order.
 TRUE_PARAMETER_ALGORITHMS: tuple[str, ...] = tuple(

@@ -96,12 +96,7 @@ def _vector_env(family: FamilySpec, plants: Sequence[Plant]) -> Any:
         num_envs=len(plants),
         a=np.array([p.a for p in plants]),
         b=np.array([p.b for p in plants]),
-        noise_std=family["noise_std"],
-        control_cost=family["control_cost"],
-        action_bound=family["action_bound"],
-        y_bound=family["y_bound"],
-        reference=family["reference"],
-        initial_state_std=family["initial_state_std"],
+        **family.env_settings,
         info_keys=(),
     )
     if family.jump_step is not None:
