@@ -340,15 +340,13 @@ class MultivariableSelfTuningController(SelfTuningLanes):
     def A_hat(self) -> NDArray:
         """The estimate ``A_hat`` ``(n, n)`` (per lane ``(B, n, n)``), the first ``n`` columns of
         :attr:`theta`."""
-        th = self.theta
-        return th[..., : self.n_states]
+        return self.theta[..., : self.n_states]
 
     @property
     def B_hat(self) -> NDArray:
         """The estimate ``B_hat`` ``(n, m)`` (per lane ``(B, n, m)``), the last ``m`` columns of
         :attr:`theta`."""
-        th = self.theta
-        return th[..., self.n_states :]
+        return self.theta[..., self.n_states :]
 
     @property
     def diagnostics(self) -> dict[str, Any]:
