@@ -247,6 +247,11 @@ class LanePolicy(ABC):
         """Start a new episode on every lane, or on ``lanes`` (indices or a boolean mask)."""
         self._reset_lanes(lane_indices(lanes, self.num_lanes))
 
+    def _repr(self, settings: str) -> str:
+        """``Class(settings)``, with ``num_envs`` for lanes: the policies' ``repr``."""
+        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
+        return f"{type(self).__name__}({settings}{lanes})"
+
     def _lanes_out(self, arr: NDArray, scalar: type | None = None) -> Any:
         """A copy of every lane of ``arr``; for a single plant a copy of lane 0, or lane 0 as a
         Python ``scalar`` (``int``, ``float``) when given."""

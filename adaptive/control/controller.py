@@ -519,8 +519,4 @@ class SelfTuningController(SelfTuningLanes):
         return sum(map(state_nbytes_per_lane, (a.s, a.w, a.est, a.est_work)))
 
     def __repr__(self) -> str:
-        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
-        return (
-            f"SelfTuningController(n={self.n}, estimator={self.estimator!r}, "
-            f"design={self.design!r}{lanes})"
-        )
+        return self._repr(f"n={self.n}, estimator={self.estimator!r}, design={self.design!r}")

@@ -358,8 +358,4 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         )
 
     def __repr__(self) -> str:
-        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
-        return (
-            f"MultivariableSelfTuningController(n_states={self.n_states}, "
-            f"n_inputs={self.n_inputs}{lanes})"
-        )
+        return self._repr(f"n_states={self.n_states}, n_inputs={self.n_inputs}")

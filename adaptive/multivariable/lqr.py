@@ -199,5 +199,4 @@ class LQRController(LanePolicy):
         return self._lanes_out(self._F)
 
     def __repr__(self) -> str:
-        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
-        return f"LQRController(n_states={self.n_states}, n_inputs={self.n_inputs}{lanes})"
+        return self._repr(f"n_states={self.n_states}, n_inputs={self.n_inputs}")
