@@ -45,6 +45,7 @@ from stcgym.lanes.compiled import set_lanes
 from stcgym.lanes.validation import lane_indices
 
 __all__ = [
+    "OBSERVATION_LIMIT",
     "LanePolicy",
     "Policy",
     "episode_starts",
@@ -158,6 +159,10 @@ def episode_starts(episode_start: ArrayLike | bool | None, batch: int) -> NDArra
     return starts
 
 
+#: Observations beyond this magnitude are rejected by the self-tuning controllers and the LQ
+#: oracle (squares would overflow inside their steps).
+OBSERVATION_LIMIT = 1e100
+
 _FLOAT64 = np.dtype(np.float64)
 _FLOAT_MAX = sys.float_info.max
 
@@ -242,6 +247,18 @@ class LanePolicy(ABC):
         """Start a new episode on every lane, or on ``lanes`` (indices or a boolean mask)."""
         self._reset_lanes(lane_indices(lanes, self.num_lanes))
 
+    def _repr(self, settings: str) -> str:
+        """``Class(settings)``, with ``num_envs`` for lanes: the policies' ``repr``."""
+        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
+        return f"{type(self).__name__}({settings}{lanes})"
+
+    def _lanes_out(self, arr: NDArray, scalar: type | None = None) -> Any:
+        """A copy of every lane of ``arr``; for a single plant a copy of lane 0, or lane 0 as a
+        Python ``scalar`` (``int``, ``float``) when given."""
+        if self.num_envs is not None:
+            return arr.copy()
+        return arr[0].copy() if scalar is None else scalar(arr[0])
+
     def _observations(self, observation: ArrayLike) -> tuple[NDArray, bool]:
         """The validated ``(lanes, obs_dim)`` batch and whether a single observation was given."""
         obs, single = validate_observation(observation, self.obs_dim)
@@ -294,6 +311,7 @@ class SelfTuningLanes(LanePolicy):
     a reset copies one lane's initial values ``_init`` and ``_est_init`` into them.
     """
 
+    observation_limit = OBSERVATION_LIMIT
     #: One seed per lane.
     seeds: NDArray
     #: The name of each status code of the designs (``last_rejection`` of :attr:`diagnostics`).
@@ -331,15 +349,10 @@ class SelfTuningLanes(LanePolicy):
         s.episode[idx] = episodes
         set_lanes(self._est, idx, self._est_init)
 
-    def _lanes_out(self, arr: NDArray) -> NDArray:
-        """A copy of lane 0 of ``arr`` for a single plant, else of every lane."""
-        return arr[0].copy() if self.num_envs is None else arr.copy()
-
     @property
     def t(self) -> int | NDArray:
         """Samples since the lane's last reset."""
-        v = self._counter("t").copy()
-        return int(v[0]) if self.num_envs is None else v
+        return self._lanes_out(self._counter("t"), int)
 
     def _diagnostics(
         self, flags: dict[str, NDArray], counters: dict[str, NDArray]

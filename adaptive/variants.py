@@ -269,7 +269,7 @@ ALGORITHMS: tuple[str, ...] = tuple(
 
 # ---- designs --------------------------------------------------------------------------------
 #: The compiled design of Ackermann's formula (poles: the controller's ``cfg.char_poly``).
-PLACEMENT = "stcgym.adaptive.control.pole_placement"
+PLACEMENT = "stcgym.adaptive.control.placement"
 
 DESIGNS: dict[str, Design] = {
     d.name: d

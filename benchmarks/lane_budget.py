@@ -51,7 +51,7 @@ import numpy as np
 from perf import rollout_rate
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.adaptive.control.pole_placement import place_design
+from stcgym.adaptive.control.placement import place_design
 from stcgym.adaptive.control.safe_set import DesignConfig, design_work
 from stcgym.adaptive.estimation.estimator_lanes import run_lane
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec

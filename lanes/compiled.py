@@ -456,6 +456,14 @@ def make_work(fields: type[R], shapes: dict[str, tuple[int, ...]], num_lanes: in
     return lane_state(fields, {f: shapes[f] for f in fields._fields}, num_lanes)
 
 
+def read_only(values: Any) -> NDArray:
+    """A read-only ``float64`` copy of ``values``: a configuration array of the lane functions
+    (a field of a compiled argument, which no step writes)."""
+    arr = np.array(values, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
 def set_lanes(dst: R, lanes: Any, src: R, row: Any = 0) -> None:
     """``dst.f[lanes] = src.f[row]`` for every field ``f`` of two lane states (a reset, a copy
     of some lanes), fields that are lane states themselves included."""

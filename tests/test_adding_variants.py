@@ -123,7 +123,7 @@ from typing import NamedTuple
 import numpy as np
 
 from stcgym.adaptive.control.placement import characteristic_coefficients
-from stcgym.adaptive.control.pole_placement import ackermann_gain
+from stcgym.adaptive.control.placement import ackermann_gain
 from stcgym.adaptive.control.safe_set import OK, design_start, design_work, finish
 from stcgym.adaptive.variants import CompiledDesign
 from stcgym.lanes.compiled import lane

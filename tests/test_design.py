@@ -1,4 +1,4 @@
-"""Certainty-equivalence design lane functions (pole_placement, lq, safe_set, law of
+"""Certainty-equivalence design lane functions (placement, lq, safe_set, law of
 stcgym.adaptive.control).
 
 References: python-control's ``acker`` / ``dlqr`` on the integral-augmented canonical model, the
@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from lane_call import call
 
 from stcgym.adaptive.control import law, lq
-from stcgym.adaptive.control import pole_placement as pp
+from stcgym.adaptive.control import placement as pp
 from stcgym.adaptive.control import safe_set as ss
 from stcgym.adaptive.control.placement import augment_integral, controllability_matrix
 from stcgym.adaptive.estimation import state_estimation as se

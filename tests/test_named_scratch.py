@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from stcgym.adaptive.control import lq, safe_set
-from stcgym.adaptive.control import pole_placement as pp
+from stcgym.adaptive.control import placement as pp
 from stcgym.adaptive.control import safe_set as ss
 from stcgym.adaptive.control.controller_step import make_controller_state
 from stcgym.adaptive.control.extended_ls import make_extended_ls

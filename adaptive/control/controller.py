@@ -61,7 +61,7 @@ from stcgym.adaptive.control.options import (
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.control.safe_set import STATUS_NAMES, feedback_gain
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSpec
-from stcgym.adaptive.policy import SelfTuningLanes, episode_starts
+from stcgym.adaptive.policy import OBSERVATION_LIMIT, SelfTuningLanes, episode_starts
 from stcgym.adaptive.variants import (
     DESIGNS,
     RULES,
@@ -74,13 +74,10 @@ from stcgym.adaptive.variants import (
 from stcgym.envs.canonical import observer_to_observability_b
 from stcgym.envs.dynamics import OBSERVABILITY, OBSERVER
 from stcgym.envs.env_settings import plant_settings
-from stcgym.lanes.compiled import FixedTypes, state_nbytes_per_lane
+from stcgym.lanes.compiled import FixedTypes, read_only, state_nbytes_per_lane
 from stcgym.lanes.validation import integer
 
 __all__ = ["OBSERVATION_LIMIT", "SelfTuningController"]
-
-#: Observations beyond this magnitude are rejected (squares would overflow inside the step).
-OBSERVATION_LIMIT = 1e100
 
 
 @dataclass(frozen=True)
@@ -109,13 +106,6 @@ class _StepsByVersion(dict):
 
 
 _STEPS = _StepsByVersion()
-
-
-def _frozen(values: Any) -> NDArray:
-    """A read-only ``float64`` copy: a configuration array of the lane functions."""
-    arr = np.array(values, dtype=np.float64)
-    arr.setflags(write=False)
-    return arr
 
 
 class SelfTuningController(SelfTuningLanes):
@@ -185,7 +175,6 @@ class SelfTuningController(SelfTuningLanes):
     (3, 1)
     """
 
-    observation_limit = OBSERVATION_LIMIT
     status_names = STATUS_NAMES
 
     def __init__(
@@ -248,8 +237,6 @@ class SelfTuningController(SelfTuningLanes):
             filtered=bool(lw.filtered),
             probe_steps=probe_steps,
             probe_max=max(5 * n if pm is None else int(pm), probe_steps),
-            detect=bool(cd.enabled),
-            holdoff=int(cd.holdoff),
             # ELS estimates the observer-form transfer function
             form=OBSERVABILITY if observability else OBSERVER,
             action_bound=float(self.action_bound),
@@ -257,13 +244,10 @@ class SelfTuningController(SelfTuningLanes):
             q_gain=float(eo.process_noise_gain),
             q_floor=float(eo.process_noise_floor),
             R=float(eo.measurement_noise),
-            threshold=float(cd.threshold),
-            inflation=float(cd.inflation),
-            ew_short=float(cd.short),
-            ew_long=float(cd.long),
             probe_output=float(self.startup.probe_output),
-            safe=_frozen(self.safe_set.vector()),
-            char_poly=_frozen(characteristic_coefficients(self.poles)),
+            safe=read_only(self.safe_set.vector()),
+            char_poly=read_only(characteristic_coefficients(self.poles)),
+            **cd.step_fields(),
         )
         # the compiled version (variants.compiled_version) is chosen by which of est_cfg /
         # els_cfg is None (the step compiled for one estimator contains none of the other) and
@@ -517,8 +501,7 @@ class SelfTuningController(SelfTuningLanes):
     @property
     def N(self) -> NDArray | float:
         """Reference feed-forward gain in use."""
-        v = self._state.gain.N.copy()
-        return float(v[0]) if self.num_envs is None else v
+        return self._lanes_out(self._state.gain.N, float)
 
     @property
     def diagnostics(self) -> dict[str, Any]:
@@ -536,8 +519,4 @@ class SelfTuningController(SelfTuningLanes):
         return sum(map(state_nbytes_per_lane, (a.s, a.w, a.est, a.est_work)))
 
     def __repr__(self) -> str:
-        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
-        return (
-            f"SelfTuningController(n={self.n}, estimator={self.estimator!r}, "
-            f"design={self.design!r}{lanes})"
-        )
+        return self._repr(f"n={self.n}, estimator={self.estimator!r}, design={self.design!r}")

@@ -47,7 +47,7 @@ from stcgym.adaptive.estimation.state_estimation import is_schur_stable
 from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_matrices
 from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
 from stcgym.adaptive.variants import CompiledDesign
-from stcgym.lanes.compiled import fields_of, lane, lanes, make_work
+from stcgym.lanes.compiled import fields_of, lane, lanes, make_work, read_only
 from stcgym.lanes.linalg import all_finite, copy_matrix, matmul, max_abs
 from stcgym.lanes.validation import real_in
 
@@ -290,9 +290,7 @@ def controller_design(design, theta, cfg, state, gain, w, lane_i):
 
 
 def _argument(n: int, law: Any) -> LQDesign:
-    weights = np.array(law.lq_weights, dtype=np.float64)
-    weights.setflags(write=False)
-    return LQDesign(weights)
+    return LQDesign(read_only(law.lq_weights))
 
 
 def _cold_start(n: int, law: Any, num_lanes: int) -> LQState:

@@ -259,7 +259,7 @@ class SafeSet:
     gain_max: float = 1e3
 
     def __post_init__(self) -> None:
-        safe_set.safe_set(self.b_min, self.rcond_min, self.dc_rcond_min, self.gain_max)
+        self.vector()
 
     def vector(self) -> NDArray:
         """The safe-set vector the design lane functions read.
@@ -322,6 +322,19 @@ class ChangeDetection:
         real_in(self.inflation, "inflation", lo=1.0)
         real_in(self.short, "short", lo=0.0, hi=1.0, lo_open=True)
         real_in(self.long, "long", lo=0.0, hi=1.0, lo_open=True)
+
+    def step_fields(self) -> dict[str, Any]:
+        """The change-detection fields of both controllers' compiled configurations
+        (:class:`~stcgym.adaptive.control.controller_step.ControllerConfig`,
+        :class:`~stcgym.adaptive.multivariable.controller_step.MimoConfig`)."""
+        return {
+            "detect": bool(self.enabled),
+            "holdoff": int(self.holdoff),
+            "threshold": float(self.threshold),
+            "inflation": float(self.inflation),
+            "ew_short": float(self.short),
+            "ew_long": float(self.long),
+        }
 
 
 @dataclass(frozen=True)

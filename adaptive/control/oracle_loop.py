@@ -173,46 +173,40 @@ class _KnownModelLoop(LanePolicy):
             field[rows] = 0
 
     # -- public state ----------------------------------------------------------------------
-    def _lane0(self, value: NDArray) -> NDArray:
-        return value[0].copy() if self.num_envs is None else value.copy()
-
     @property
     def a(self) -> NDArray:
         """True ``a`` in force (``(n,)``, or ``(num_envs, n)`` when batched)."""
-        return self._lane0(self._a)
+        return self._lanes_out(self._a)
 
     @property
     def b(self) -> NDArray:
         """True ``b`` in force (``(n,)``, or ``(num_envs, n)`` when batched)."""
-        return self._lane0(self._b)
+        return self._lanes_out(self._b)
 
     @property
     def t(self) -> int | NDArray:
         """Steps taken since the last reset (per lane when batched)."""
-        t = self._state.t.copy()
-        return int(t[0]) if self.num_envs is None else t
+        return self._lanes_out(self._state.t, int)
 
     @property
     def xi(self) -> float | NDArray:
         """Integral of the tracking error ``xi(t)`` (per lane when batched)."""
-        xi = self._state.xi.copy()
-        return float(xi[0]) if self.num_envs is None else xi
+        return self._lanes_out(self._state.xi, float)
 
     @property
     def x_hat(self) -> NDArray:
         """State estimate ``x(t|t-1)`` of the Kalman filter (per lane when batched)."""
-        return self._lane0(self._state.x)
+        return self._lanes_out(self._state.x)
 
     @property
     def K(self) -> NDArray:
         """State-feedback gain ``[K_x, k_i]`` (``k_i`` only with integral action)."""
-        return self._lane0(safe_set.feedback_gain(self._state.gain, self.law.integral))
+        return self._lanes_out(safe_set.feedback_gain(self._state.gain, self.law.integral))
 
     @property
     def N(self) -> float | NDArray:
         """Reference feed-forward gain ``N``."""
-        N = self._state.gain.N.copy()
-        return float(N[0]) if self.num_envs is None else N
+        return self._lanes_out(self._state.gain.N, float)
 
     def set_model(self, a: ArrayLike, b: ArrayLike, lanes: ArrayLike | None = None) -> None:
         """Switch to new true parameters (e.g. at a scheduled jump); the state estimate is kept.

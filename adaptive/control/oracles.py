@@ -8,7 +8,7 @@ regulator's tracking law :func:`~stcgym.adaptive.control.law.track`, the Kalman 
 ``kalman_step``) and differ in their design and filter tuning:
 
 * :class:`KnownModelController` places the regulator's poles on the known ``(A, b)``
-  (:func:`~stcgym.adaptive.control.pole_placement.place_design`: the same integral action,
+  (:func:`~stcgym.adaptive.control.placement.place_design`: the same integral action,
   feed-forward, saturation and anti-windup), with the regulator's kind of state estimate: the
   seed paper's time-varying Kalman filter (Ding & Ma 2014, eq. (66)-(72): ``Q = 0``, ``R = 1``,
   ``P1(1) = I``), corrected by the current sample. With ``Q = 0`` the filter is optimal for the
@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.control import lq, pole_placement, safe_set
+from stcgym.adaptive.control import lq, placement, safe_set
 from stcgym.adaptive.control.options import DEFAULT_POLE, LawOptions
 from stcgym.adaptive.control.oracle_loop import (
     MAX_SETTING,
@@ -132,9 +132,9 @@ class KnownModelController(_KnownModelLoop):
         cfg = self._design_config(self._char_poly)
         work = safe_set.design_work(self.n, cfg.integral, thetas.shape[0])
         if thetas.shape[0] == 1:
-            status[0] = pole_placement.place_design(thetas[0], cfg, gains, work, 0)
+            status[0] = placement.place_design(thetas[0], cfg, gains, work, 0)
         else:
-            pole_placement.place_design_lanes(thetas, cfg, gains, status, work)
+            placement.place_design_lanes(thetas, cfg, gains, status, work)
 
     def _failure(self, status: int) -> str:
         return f"cannot place the poles on the given model: {safe_set.STATUS_NAMES[status]}"
@@ -284,13 +284,12 @@ class LQGController(_KnownModelLoop):
     @property
     def x_ss(self) -> NDArray:
         """Steady state per unit output of the model in force."""
-        return self._lane0(self._steady()[0])
+        return self._lanes_out(self._steady()[0])
 
     @property
     def u_ss(self) -> float | NDArray:
         """Steady-state input per unit output of the model in force."""
-        u = self._steady()[1]
-        return float(u[0]) if self.num_envs is None else u
+        return self._lanes_out(self._steady()[1], float)
 
     def _steady(self) -> tuple[NDArray, NDArray]:
         A, b = self._state.A, self._state.b

@@ -1,10 +1,11 @@
-"""Certainty-equivalence design for single-input models: the numpy face of the lane functions.
+"""Certainty-equivalence design for single-input models: pole placement and the numpy face.
 
 The self-tuning regulator re-designs its state feedback at every step on the estimated model
 ``(A_hat(t), b_hat(t))`` built from ``theta_hat(t)`` (Ding & Ma 2014, eq. (59)-(60) for O-RLS,
-the same matrices for every estimator). The algorithms live once, as compiled lane functions in
-:mod:`.pole_placement`, :mod:`.lq` and :mod:`.safe_set`; this module validates numpy input,
-calls them, and turns their status codes into exceptions:
+the same matrices for every estimator). The algorithms live once, as compiled lane functions:
+Ackermann's formula here (below), the LQ designs in :mod:`.lq`, the model, the safe set and the
+steady state in :mod:`.safe_set`. The numpy functions validate their input, call them, and turn
+their status codes into exceptions:
 
 * :func:`ackermann` / :func:`place_poles`: Ackermann's formula
 
@@ -20,21 +21,51 @@ calls them, and turns their status codes into exceptions:
   ``dlqr`` / ``dare`` for a single input), by structured doubling.
 * :func:`augment_integral`, :func:`steady_state_gains`: the integral-action augmentation used
   for offset-free tracking and the steady-state (feed-forward) solution of a model.
+
+The lane functions of Ackermann's formula on the (integral-augmented) model:
+
+``place_design(theta, cfg, gain, w, lane_i) -> int``
+    Ackermann pole placement of the ``m`` poles with monic characteristic polynomial
+    ``z^m + char_poly[0] z^{m-1} + ... + char_poly[m-1]`` (``cfg.char_poly``, length ``m``) on
+    the (augmented) model of ``theta``; ``N = u_ss + K_x x_ss`` from the steady state. ``cfg``:
+    a :class:`.safe_set.DesignConfig` (form, integral action, feed-forward, safe set); ``w`` is
+    a :data:`.safe_set.DesignWork` (:func:`.safe_set.design_work`), of which lane ``lane_i`` is
+    used. Returns the status code of :mod:`.safe_set`; ``gain`` is written only on success.
+``ackermann_gain(A, b, char_poly, K, w, lane_i) -> rcond``
+    The same formula on a general pair (``rcond <= 0``: singular; ``K`` written only when
+    ``rcond > 0``; ``w`` with the fields of :class:`.safe_set.ControllabilityWork`), used by
+    the numpy helpers of this module.
+``place_design_lanes(thetas, cfg, gains, status, w)``
+    The batch loop (``w`` a :data:`.safe_set.DesignWork` with a row a lane).
+
+:data:`COMPILED_DESIGN` is the self-tuning controller's pole placement (its compiled argument
+:class:`Placement` is empty: the poles are the controller's ``cfg.char_poly``; it keeps no lane
+state).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from stcgym.adaptive.control import pole_placement, safe_set
+from stcgym.adaptive.control import safe_set
+from stcgym.adaptive.control.safe_set import OK, controllability, design_start, design_work, finish
 from stcgym.adaptive.kernels import canonical as _canonical
 from stcgym.adaptive.multivariable import mimo_lq as _mimo_lq
 from stcgym.adaptive.multivariable.lqr import lq_failure_reason
+from stcgym.adaptive.variants import CompiledDesign
+from stcgym.lanes.compiled import lane, lanes
 from stcgym.lanes.validation import finite_vector, matrix, positive, square_matrix
 
 __all__ = [
+    "COMPILED_DESIGN",
+    "Placement",
     "UncontrollableError",
+    "ackermann_gain",
+    "place_design",
+    "place_design_lanes",
     "check_poles",
     "characteristic_coefficients",
     "controllability_matrix",
@@ -192,7 +223,7 @@ def ackermann(
     m = A.shape[0]
     alpha = finite_vector(np.reshape(alpha, -1), "alpha", length=m)
     K = np.zeros(m)
-    rcond = float(pole_placement.ackermann_gain(A, b, alpha, K, safe_set.design_work(m, False), 0))
+    rcond = float(ackermann_gain(A, b, alpha, K, design_work(m, False), 0))
     if not rcond > max(rcond_min, safe_set.RCOND_FLOOR):
         raise UncontrollableError(
             f"(A, b) is (nearly) uncontrollable: rcond of the controllability matrix {rcond:.3g}"
@@ -204,7 +235,7 @@ def place_poles(A: ArrayLike, b: ArrayLike, poles: ArrayLike, *, rcond_min: floa
     """Validate ``poles`` and return the Ackermann gain ``K`` (1-D) with ``eig(A - b K) = poles``.
 
     Equivalent to ``control.acker(A, b, poles)`` (and to ``control.place`` for distinct poles),
-    closed-form (the lane function :func:`stcgym.adaptive.control.pole_placement.ackermann_gain`).
+    closed-form (the lane function :func:`ackermann_gain`).
 
     Parameters
     ----------
@@ -313,7 +344,7 @@ def steady_state_gains(A: ArrayLike, b: ArrayLike) -> tuple[NDArray, float, floa
     """
     A, b = _single_input_model(A, b)
     n = A.shape[0]
-    work = safe_set.design_work(n, False)
+    work = design_work(n, False)
     u_ss, rcond = safe_set.steady_state(A, b, work, 0)
     return work.x_ss[0].copy(), float(u_ss), float(rcond)
 
@@ -397,8 +428,100 @@ def lq_gain(
     work = _mimo_lq.mimo_design_work(m, 1)
     problem = _mimo_lq.LQProblem(Q, R_mat, N, float(tol), int(max_iter))
     status = _mimo_lq.dare_solve(A, B, problem, P, K, work, 0)
-    if status != safe_set.OK:
+    if status != OK:
         raise UncontrollableError(
             "no stabilising LQ solution: " + lq_failure_reason(A, B, Q, R_mat, N, status)
         )
     return K[0].copy(), P
+
+
+# ---- the lane functions ---------------------------------------------------------------------
+
+
+@lane(inline=True)
+def _ackermann_from_ctrb(A, char_poly, K, w, lane_i):
+    """Ackermann's formula ``K = e_m^T Ctrb^{-1} phi_d(A)`` (Ackermann 1972; Franklin, Powell &
+    Workman, *Digital Control of Dynamic Systems*, 3rd ed.) with ``phi_d(z) = z^m + c_1 z^{m-1}
+    + ... + c_m`` (``c = char_poly``), as ``K = sum_k c_{m-k} v A^k`` with ``v`` the last row of
+    ``Ctrb^{-1}`` (``phi_d(A)`` never formed: ``m`` row-vector/matrix products), from the
+    inverse ``w.Cinv`` and column norms ``w.norms`` that :func:`.safe_set.controllability`
+    left in lane ``lane_i``."""
+    m = A.shape[0]
+    Cinv = w.Cinv[lane_i]
+    norms = w.norms[lane_i]
+    v = w.v[lane_i]
+    vA = w.v_next[lane_i]
+    for j in range(m):  # v = e_m^T Ctrb^{-1} (the columns of Ctrb were scaled by norms)
+        v[j] = Cinv[m - 1, j] / norms[m - 1]
+        K[j] = char_poly[m - 1] * v[j]  # c_m v A^0
+    for k in range(1, m + 1):  # + c_{m-k} v A^k, k = 1..m (c_0 = 1): K = v phi_d(A)
+        coef = char_poly[m - 1 - k] if k < m else 1.0
+        for j in range(m):
+            acc = 0.0
+            for r in range(m):
+                acc += v[r] * A[r, j]
+            vA[j] = acc
+        for j in range(m):
+            v[j] = vA[j]
+            K[j] += coef * v[j]
+
+
+@lane(entry=True)
+def ackermann_gain(A, b, char_poly, K, w, lane_i):
+    """Ackermann gain of a general pair ``(A, b)`` (``m x m``; ``w`` with the fields of
+    :class:`.safe_set.ControllabilityWork` for order ``m``, lane ``lane_i`` used).
+
+    ``eig(A - b K)`` are the roots of ``z^m + char_poly[0] z^{m-1} + ... + char_poly[m-1]``.
+    Returns the reciprocal 1-norm condition of the column-normalised controllability matrix
+    (``<= 0``: singular or non-finite, ``K`` untouched).
+    """
+    if w.C.shape[1] != A.shape[0]:
+        raise ValueError("ackermann_gain: w is not the scratch of this order")
+    rcond = controllability(A, b, w, lane_i)  # Ctrb = [b, A b, ..., A^{m-1} b] and its inverse
+    if rcond > 0.0:
+        _ackermann_from_ctrb(A, char_poly, K, w, lane_i)
+    return rcond
+
+
+@lane(entry=True, inline=True)
+def place_design(theta, cfg, gain, w, lane_i):
+    """Pole placement on the (augmented) model of ``theta``; see the module docstring.
+
+    Returns the status code; lane ``lane_i`` of ``gain`` (a :class:`.safe_set.Gain`) is written
+    only when it is ``OK`` (0).
+    """
+    status, rcond = design_start(theta, cfg, w, lane_i)  # model, augmentation, Ctrb^{-1}
+    if status != OK:
+        return status
+    _ackermann_from_ctrb(w.A_aug[lane_i], cfg.char_poly, w.K[lane_i], w, lane_i)
+    return finish(theta, cfg, rcond, gain, w, lane_i)  # safe set, steady state, N
+
+
+@lanes(min_lanes=16)  # one design a lane
+def place_design_lanes(thetas, cfg, gains, status, w, first, last):
+    """:func:`place_design` for every lane (``thetas`` ``(B, 2n)``, ``gains`` a
+    :class:`.safe_set.Gain` of ``B`` lanes, ``status`` ``(B,)`` int64, ``w`` a
+    :data:`.safe_set.DesignWork` of ``B`` lanes)."""
+    for i in range(first, last):
+        status[i] = place_design(thetas[i], cfg, gains, w, i)
+
+
+class Placement(NamedTuple):
+    """The compiled argument of the controller's pole placement (none: the poles are the
+    controller's ``cfg.char_poly``); also its lane state (it keeps none)."""
+
+
+@lane(inline=True)
+def controller_design(design, theta, cfg, state, gain, w, lane_i):
+    """Step 3 of the self-tuning controller: :func:`place_design` (``design``, ``state``:
+    empty :class:`Placement`)."""
+    return place_design(theta, cfg, gain, w, lane_i)
+
+
+COMPILED_DESIGN = CompiledDesign(
+    argument=Placement,
+    step=controller_design,
+    make_argument=lambda n, law: Placement(),
+    make_state=lambda n, law, num_lanes: Placement(),
+    make_work=design_work,
+)

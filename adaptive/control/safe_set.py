@@ -1,6 +1,6 @@
 """The safe set every certainty-equivalence design passes, and the gain it writes.
 
-Shared by pole placement (:mod:`.pole_placement`) and the LQ designs (:mod:`.lq`): the tests
+Shared by pole placement (:mod:`.placement`) and the LQ designs (:mod:`.lq`): the tests
 of the safe set in order, the accepted design (:class:`Gain`: ``K_x``, ``k_i``, ``N``,
 ``rcond``), written **only on success** (a rejected model keeps the last good gain), and the
 designs' scratch

@@ -51,6 +51,7 @@ from stcgym.adaptive.estimation.least_squares import (
     downdate_block,
     factor_is_healthy,
     gradient_increment,
+    innovation,
     least_squares_increment,
     projection_increment,
     upper_factor,
@@ -99,17 +100,6 @@ def reset_covariance(s: EstimatorState, lane_i: int, cfg: EstimatorConfig) -> No
     copy_matrix(s.S0[lane_i], s.S[lane_i])  # empty without a covariance
     copy_vector(s.r0[lane_i], s.r[lane_i])  # empty without normalisers
     s.count[lane_i] = 0
-
-
-@lane
-def _innovation(theta: NDArray, Phi: NDArray, Y: NDArray, p: int, E: NDArray) -> None:
-    """``E(p, t) = Y(p, t) - Phi(p, t)^T theta``, eq. (17), (38)."""
-    d = theta.shape[0]
-    for k in range(p):
-        acc = Y[k]
-        for i in range(d):
-            acc -= Phi[k, i] * theta[i]
-        E[k] = acc
 
 
 @lane(inline=True)
@@ -191,7 +181,7 @@ def _replay_window(
                 for j in range(p):
                     carlson_update(S, lo, lo + n, Phi[j], 1.0, gain)
         else:
-            _innovation(theta_w, Phi, Yk, p, E)
+            innovation(theta_w, Phi, Yk, p, E)
             scalar = cfg.rule == RULE_RLS
             least_squares_increment(S, 0, d, Phi, E, p, 1.0, scalar, delta, gain, scratch)
             for j in range(d):
@@ -225,7 +215,7 @@ def _slide_window(
         E_old, tw = w.E_old[lane_i], w.theta_prev[lane_i]
         for j in range(d):
             tw[j] = theta[j] + delta[j]
-        _innovation(tw, hPhi, hY, p, E_old)
+        innovation(tw, hPhi, hY, p, E_old)
         S, saved = s.S[lane_i], w.S_saved[lane_i]
         copy_matrix(S, saved)
         nblocks = 2 if cfg.decomposed else 1
@@ -301,7 +291,7 @@ def estimator_update(
     s.y[lane_i] = y
     s.phase[lane_i] = True
     status = 0
-    _innovation(theta, Phi, Y, p, E)  # E(p, t) = Y(p, t) - Phi^T theta(t-1)       (38), (17)
+    innovation(theta, Phi, Y, p, E)  # E(p, t) = Y(p, t) - Phi^T theta(t-1)       (38), (17)
     if not s.enabled[lane_i]:
         return status
     delta, theta_prev = w.delta[lane_i], w.theta_prev[lane_i]

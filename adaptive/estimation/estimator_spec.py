@@ -31,7 +31,7 @@ from stcgym.adaptive.variants import ALGORITHMS, EstimatorName, Rule, parse_name
 from stcgym.adaptive.variants import RULES as _RULES
 from stcgym.adaptive.variants import STATE_ESTIMATORS as _STATES
 from stcgym.envs.canonical import as_finite_vector, check_form
-from stcgym.lanes.compiled import lane_state, state_nbytes_per_lane
+from stcgym.lanes.compiled import lane_state, read_only, state_nbytes_per_lane
 from stcgym.lanes.validation import (
     covariance,
     forgetting_factor,
@@ -173,12 +173,6 @@ def _rule_parameters(rule: Rule, given: dict[str, Any]) -> tuple[float, ...]:
 def _states_with(kalman: bool) -> str:
     """The names of the state estimators that are (or are not) Kalman filters, ``"O/CO"``."""
     return "/".join(e.name for e in _STATES.values() if e.kalman == kalman)
-
-
-def _read_only(values: tuple[float, ...]) -> NDArray:
-    arr = np.array(values, dtype=np.float64)
-    arr.setflags(write=False)
-    return arr
 
 
 def upper_cholesky(P: NDArray) -> NDArray:
@@ -508,7 +502,7 @@ class EstimatorSpec:
             frozen_rate=float(self.frozen[0]),
             frozen_ratio=float(self.frozen[1]),
             frozen_gain=float(self.frozen[2]),
-            rule_parameters=_read_only(self.rule_parameters),
+            rule_parameters=read_only(self.rule_parameters),
         )
         object.__setattr__(self, "config", config)
 

@@ -421,11 +421,8 @@ def fit_iterative(
         history.append(theta.copy())
         if state_est is not None:
             A_hat = companion_A(theta[:n], form)
-            b_hat = theta[n:]
-            if not STATE_ESTIMATORS[state_est].kalman:
-                x_prev = _states(A_hat, b_hat, u_arr, Y, x1, False, 0.0, 1.0)
-            else:
-                x_prev = _states(A_hat, b_hat, u_arr, Y, x1, True, kalman_q, kalman_r)
+            kf = STATE_ESTIMATORS[state_est].kalman  # the observer ignores q and r
+            x_prev = _states(A_hat, theta[n:], u_arr, Y, x1, kf, kalman_q, kalman_r)
             if not np.all(np.abs(x_prev) <= STATE_LIMIT):  # also catches inf and NaN
                 rho = float(np.max(np.abs(np.linalg.eigvals(A_hat))))
                 raise NumericalHealthError(

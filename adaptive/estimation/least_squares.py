@@ -60,6 +60,7 @@ __all__ = [
     "carlson_update",
     "factor_is_healthy",
     "gradient_increment",
+    "innovation",
     "least_squares_downdate",
     "least_squares_increment",
     "least_squares_shapes",
@@ -181,6 +182,27 @@ def factor_is_healthy(S: NDArray, lo: int, hi: int) -> bool:
 
 
 @lane
+def innovation(theta: NDArray, Phi: NDArray, Y: NDArray, p: int, E: NDArray) -> None:
+    """``E(p, t) = Y(p, t) - Phi(p, t)^T theta``, eq. (17), (38)."""
+    d = theta.shape[0]
+    for k in range(p):
+        acc = Y[k]
+        for i in range(d):
+            acc -= Phi[k, i] * theta[i]
+        E[k] = acc
+
+
+@lane
+def _phi_t_e(Phi: NDArray, E: NDArray, p: int, lo: int, hi: int, out: NDArray) -> None:
+    """``out[lo:hi] = Phi^T E`` on the block ``[lo, hi)`` (the first ``p`` rows of ``Phi``)."""
+    for i in range(lo, hi):
+        acc = 0.0
+        for k in range(p):
+            acc += Phi[k, i] * E[k]
+        out[i] = acc
+
+
+@lane
 def _p_times(S: NDArray, lo: int, hi: int, g: NDArray, w: NDArray, out: NDArray) -> None:
     """``out[lo:hi] = S S^T g`` on the block (``w`` scratch)."""
     for j in range(lo, hi):
@@ -230,11 +252,7 @@ def least_squares_increment(
         return denom
     for k in range(1, p):
         denom = carlson_update(S, lo, hi, Phi[k], 1.0, gain)
-    for i in range(lo, hi):  # g = Phi^T E on the block
-        acc = 0.0
-        for k in range(p):
-            acc += Phi[k, i] * E[k]
-        gain[i] = acc
+    _phi_t_e(Phi, E, p, lo, hi, gain)  # g = Phi^T E on the block
     _p_times(S, lo, hi, gain, w, delta)
     return denom
 
@@ -264,11 +282,9 @@ def gradient_increment(
             inc += Phi[k, i] * Phi[k, i]
     r_new = lam * r + inc
     inv_r = 1.0 / r_new
+    _phi_t_e(Phi, E, p, lo, hi, delta)
     for i in range(lo, hi):
-        acc = 0.0
-        for k in range(p):
-            acc += Phi[k, i] * E[k]
-        delta[i] = acc * inv_r
+        delta[i] *= inv_r
     return r_new
 
 
@@ -316,11 +332,7 @@ def least_squares_step(
     delta = w.delta[lane_i]
     gain = w.gain[lane_i]
     E = w.E[lane_i]
-    for k in range(p):  # E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)     (38); p = 1: in (32)
-        acc = Y[k]
-        for j in range(d):
-            acc -= Phi[k, j] * theta[j]
-        E[k] = acc
+    innovation(theta, Phi, Y, p, E)  # E(p, t) = Y(p, t) - Phi(p, t)^T theta(t-1)  (38); (32)
     # L(t) (33)/(39) and P(t) = S S^T (34)/(40) by Carlson's rotations; delta = L(t) E(p, t)
     denom = least_squares_increment(
         S, 0, d, Phi, E, p, lam, p == 1, delta, gain, w.factor_work[lane_i]
@@ -368,11 +380,7 @@ def downdate_block(
         rank_one_update(S, lo, hi, v)
     if not block_trace_is_finite(S, lo, hi):
         return False
-    for i in range(lo, hi):
-        acc = 0.0
-        for k in range(p):
-            acc += Phi[k, i] * E[k]
-        f[i] = acc
+    _phi_t_e(Phi, E, p, lo, hi, f)
     _p_times(S, lo, hi, f, v, f)
     for i in range(lo, hi):
         delta[i] -= f[i]
@@ -390,11 +398,7 @@ def least_squares_downdate(
     E = w.E[lane_i]
     saved = w.S_saved[lane_i]
     copy_matrix(S, saved)
-    for k in range(p):
-        acc = Y[k]
-        for i in range(d):
-            acc -= Phi[k, i] * theta[i]
-        E[k] = acc
+    innovation(theta, Phi, Y, p, E)
     for i in range(d):
         delta[i] = 0.0
     if not downdate_block(S, 0, d, Phi, E, p, delta, w.factor_work[lane_i]):

@@ -288,6 +288,14 @@ class RecursiveEstimator(EstimatorViews):
 
     # ---- the two half-steps -------------------------------------------------------------------
 
+    def _lane_signal(self, value: ArrayLike, name: str) -> NDArray:
+        """``y(t)`` or ``u(t)`` of every lane, validated, as the lane functions take it (one
+        plant's value in the reused buffer ``_signal``)."""
+        if self.num_envs is not None:
+            return lane_vector(value, self._B, name)
+        self._signal[0] = _scalar(value, name)
+        return self._signal
+
     def _check_phase(self, expected: bool, what: str) -> None:
         phase = self._state.phase
         if (phase[0] != expected) if self.num_envs is None else np.any(phase != expected):
@@ -332,11 +340,7 @@ class RecursiveEstimator(EstimatorViews):
             definiteness or overflowed; the estimator is left as before the call.
         """
         self._check_phase(False, "update")
-        if self.num_envs is None:
-            self._signal[0] = _scalar(y_t, "y(t)")
-            y = self._signal
-        else:
-            y = lane_vector(y_t, self._B, "y(t)")
+        y = self._lane_signal(y_t, "y(t)")
         snapshot = self._snapshot() if self.spec.on_failure == "raise" else None
         _update_lanes(self._state, self._work, self.spec.config, y, self._status)
         if self._status.any():
@@ -373,10 +377,7 @@ class RecursiveEstimator(EstimatorViews):
         self._check_phase(True, "predict")
         spec = self.spec
         B = self._B
-        if self.num_envs is None:
-            u = _scalar(u_t, "u(t)")
-        else:
-            u = lane_vector(u_t, B, "u(t)")
+        u = self._lane_signal(u_t, "u(t)")
         known = None
         if x_next is not None:
             if self.num_envs is None:
@@ -389,9 +390,6 @@ class RecursiveEstimator(EstimatorViews):
         snapshot = self._snapshot() if spec.on_failure == "raise" else None
         if gains is not None:
             self._state.K[...] = gains
-        if self.num_envs is None:
-            self._signal[0] = u
-            u = self._signal
         _predict_lanes(self._state, self._work, spec.config, u, self._status)
         if known is not None:
             self._state.x_hat[...] = known

@@ -53,8 +53,6 @@ __all__ = [
 _step = FixedTypes(km.mimo_step)
 _steps = FixedTypes(km.mimo_steps)
 
-#: Observations beyond this magnitude are rejected (squares would overflow inside the step).
-OBSERVATION_LIMIT = 1e100
 #: The start-up probe's input cost ``a^2 trace(R)`` is at most this share of the largest state
 #: cost ``(x - r)^T Q (x - r)`` seen while probing (measured: the multivariable page).
 PROBE_COST_SHARE = 0.004
@@ -102,6 +100,27 @@ def cross_weight(N: Any, Q: NDArray, R: NDArray) -> NDArray:
             f"(Q - N R^-1 N^T has the eigenvalue {np.min(np.linalg.eigvalsh(QN)):.3g}), got {N!r}"
         )
     return np.ascontiguousarray(arr)
+
+
+def plant_and_weights(
+    policy: Any, n: Any, m: Any, num_envs: Any, action_bound: Any, env: Any, Q: Any, R: Any, N: Any
+) -> tuple[int, int]:
+    """Set a state-feedback policy's plant settings and LQ weights; return ``(n, m)``.
+
+    ``n_states``, ``n_inputs`` (= ``action_dim``), ``obs_dim``, ``num_envs`` and
+    ``action_bound`` from the arguments and ``env``
+    (:func:`~stcgym.envs.env_settings.resolve_dimensions`); ``Q``, ``R``
+    (:func:`lq_weight_matrices`, ``R`` by default the env's control cost) and ``N``
+    (:func:`cross_weight`).
+    """
+    n, m, policy.num_envs, policy.action_bound, cost, policy.obs_dim = resolve_dimensions(
+        n, m, num_envs, action_bound, env
+    )
+    policy.n_states, policy.n_inputs = n, m
+    policy.action_dim = m
+    policy.Q, policy.R = lq_weight_matrices(n, m, Q, R, cost)
+    policy.N = cross_weight(N, policy.Q, policy.R)
+    return n, m
 
 
 class MultivariableSelfTuningController(SelfTuningLanes):
@@ -192,8 +211,6 @@ class MultivariableSelfTuningController(SelfTuningLanes):
 
     status_names = STATUS_NAMES
 
-    observation_limit = OBSERVATION_LIMIT
-
     def __init__(
         self,
         n_states: int | None = None,
@@ -213,17 +230,11 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         safe_set: SafeSet | dict | None = None,
         change_detection: ChangeDetection | dict | None = None,
     ) -> None:
-        n, m, self.num_envs, self.action_bound, cost, self.obs_dim = resolve_dimensions(
-            n_states, n_inputs, num_envs, action_bound, env
-        )
-        self.n_states, self.n_inputs = n, m
-        self.action_dim = m
+        n, m = plant_and_weights(self, n_states, n_inputs, num_envs, action_bound, env, Q, R, N)
         env_range = None if env is None else mimo_env_settings(env, n_states)["input_range"]
         self.input_low, self.input_high = input_limits(
             input_range, m, float(self.action_bound), env_range
         )
-        self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
-        self.N = cross_weight(N, self.Q, self.R)
         self.forgetting = real_in(forgetting, "forgetting", lo=0.0, hi=1.0, lo_open=True)
         self.dependence_tol = real_in(
             dependence_tol, "dependence_tol", lo=0.0, hi=1.0, lo_open=True, hi_open=True
@@ -250,17 +261,11 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             probe_steps=probe_steps,
             probe_min=probe_min,
             probe_max=max(probe_max, probe_steps),
-            detect=bool(cd.enabled),
-            holdoff=int(cd.holdoff),
             action_bound=float(self.action_bound),
             probe_amplitude=float(su.probe_amplitude),
             probe_output=float(su.probe_output),
             probe_cost_share=PROBE_COST_SHARE,
             input_weight=float(np.trace(self.R)),
-            threshold=float(cd.threshold),
-            inflation=float(cd.inflation),
-            ew_short=float(cd.short),
-            ew_long=float(cd.long),
             forgetting=float(self.forgetting),
             dependence_tol=float(self.dependence_tol),
             p0=P0_RESTART,
@@ -273,6 +278,7 @@ class MultivariableSelfTuningController(SelfTuningLanes):
             Q=np.array(self.Q, dtype=float),
             R=np.array(self.R, dtype=float),
             N=np.array(self.N, dtype=float),
+            **cd.step_fields(),
         )
         # a reset lane starts here: C = 0, the minimum-norm phase from R = I, no gain, P_lq = Q
         self._est_init, _ = make_state_matrix(n, m, 1)
@@ -334,15 +340,13 @@ class MultivariableSelfTuningController(SelfTuningLanes):
     def A_hat(self) -> NDArray:
         """The estimate ``A_hat`` ``(n, n)`` (per lane ``(B, n, n)``), the first ``n`` columns of
         :attr:`theta`."""
-        th = self.theta
-        return th[..., : self.n_states]
+        return self.theta[..., : self.n_states]
 
     @property
     def B_hat(self) -> NDArray:
         """The estimate ``B_hat`` ``(n, m)`` (per lane ``(B, n, m)``), the last ``m`` columns of
         :attr:`theta`."""
-        th = self.theta
-        return th[..., self.n_states :]
+        return self.theta[..., self.n_states :]
 
     @property
     def diagnostics(self) -> dict[str, Any]:
@@ -354,8 +358,4 @@ class MultivariableSelfTuningController(SelfTuningLanes):
         )
 
     def __repr__(self) -> str:
-        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
-        return (
-            f"MultivariableSelfTuningController(n_states={self.n_states}, "
-            f"n_inputs={self.n_inputs}{lanes})"
-        )
+        return self._repr(f"n_states={self.n_states}, n_inputs={self.n_inputs}")

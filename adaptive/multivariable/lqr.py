@@ -17,13 +17,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from stcgym.adaptive.control.safe_set import NOT_STABILISABLE, STATUS_NAMES, UNIT_CIRCLE_MODE
 from stcgym.adaptive.multivariable import mimo_lq as lq
-from stcgym.adaptive.multivariable.controller import (
-    OBSERVATION_LIMIT,
-    cross_weight,
-    lq_weight_matrices,
-)
-from stcgym.adaptive.policy import LanePolicy
-from stcgym.envs.env_settings import resolve_dimensions, split_observation
+from stcgym.adaptive.multivariable.controller import plant_and_weights
+from stcgym.adaptive.policy import OBSERVATION_LIMIT, LanePolicy
+from stcgym.envs.env_settings import split_observation
 from stcgym.lanes.validation import matrix
 
 __all__ = ["LQRController", "lqr_design"]
@@ -166,11 +162,7 @@ class LQRController(LanePolicy):
                 f"shapes {A_arr.shape} and {B_arr.shape}"
             )
         n, m = B_arr.shape[-2:]
-        n, m, self.num_envs, self.action_bound, cost, self.obs_dim = resolve_dimensions(
-            n, m, num_envs, action_bound, env
-        )
-        self.n_states, self.n_inputs = n, m
-        self.action_dim = m
+        n, m = plant_and_weights(self, n, m, num_envs, action_bound, env, Q, R, N)
         lanes = self.num_lanes
         if A_arr.ndim == 2:
             A_arr = np.broadcast_to(matrix(A_arr, "A", (n, n)), (lanes, n, n))
@@ -182,8 +174,6 @@ class LQRController(LanePolicy):
             )
         if not (np.all(np.isfinite(A_arr)) and np.all(np.isfinite(B_arr))):
             raise ValueError("A and B must be finite")
-        self.Q, self.R = lq_weight_matrices(n, m, Q, R, cost)
-        self.N = cross_weight(N, self.Q, self.R)
         self._K = np.zeros((lanes, m, n))
         self._F = np.zeros((lanes, m, n))
         for i in range(lanes):
@@ -196,18 +186,17 @@ class LQRController(LanePolicy):
     def _act(self, obs: NDArray, starts: NDArray | None, deterministic: bool) -> NDArray:
         X, Rr = split_observation(obs, self.n_states)
         lq.feedback_laws(self._K, self._F, X, Rr, float(self.action_bound), self._u)
-        return self._u[0].copy() if self.num_envs is None else self._u.copy()
+        return self._lanes_out(self._u)
 
     @property
     def K(self) -> NDArray:
         """LQ gain, ``(m, n)`` (``(B, m, n)`` for lanes)."""
-        return self._K[0].copy() if self.num_envs is None else self._K.copy()
+        return self._lanes_out(self._K)
 
     @property
     def F(self) -> NDArray:
         """Reference feed-forward, shapes as :attr:`K`."""
-        return self._F[0].copy() if self.num_envs is None else self._F.copy()
+        return self._lanes_out(self._F)
 
     def __repr__(self) -> str:
-        lanes = "" if self.num_envs is None else f", num_envs={self.num_envs}"
-        return f"LQRController(n_states={self.n_states}, n_inputs={self.n_inputs}{lanes})"
+        return self._repr(f"n_states={self.n_states}, n_inputs={self.n_inputs}")
