@@ -10,7 +10,8 @@ range of each update diagnostic (approx_kl, clip_fraction, explained_variance, e
 
 Recipes (``--recipe``): ``zoo``, the RL Zoo's Pendulum-v1 PPO entry as the bench ran it
 (4 envs x 1024 steps, 10 epochs of batch 64, lr 1e-3); ``healthy``, 16 envs x 256 steps
-(16 plants per update), 10 epochs of batch 256, lr 3e-4, ``target_kl`` 0.03. For SAC:
+(16 plants per update), 10 epochs of batch 256, lr 3e-4, ``target_kl`` 0.03;
+``healthy_wide``, the same with networks of 256 x 256. For SAC:
 ``sac_zoo``, the Zoo's one gradient step per env step; ``sac_every4``, one every fourth step;
 ``sac_vec8``, 8 envs and 2 gradient steps per vector step (the bench's). The reward is
 ``--reward`` (``lqg_ratio`` or ``cost``).
@@ -85,6 +86,9 @@ RECIPES: dict[str, dict[str, Any]] = {
             "learning_rate": 1e-3, "target_kl": None},
     "healthy": {"n_envs": 16, "n_steps": 256, "batch_size": 256, "n_epochs": 10,
                 "learning_rate": 3e-4, "target_kl": 0.03},
+    # ... with networks of 256 x 256 (the capacity question: is a wider policy closer to LQG?)
+    "healthy_wide": {"n_envs": 16, "n_steps": 256, "batch_size": 256, "n_epochs": 10,
+                     "learning_rate": 3e-4, "target_kl": 0.03, "net_arch": [256, 256]},
     # SAC: the Zoo's Pendulum-v1 entry (one gradient step per env step), and two that take a
     # quarter of the gradient steps: every fourth step of one env, or two steps per step of 8
     "sac_zoo": {"n_envs": 1, "train_freq": 1, "gradient_steps": 1},
@@ -156,12 +160,13 @@ def train_run(args: argparse.Namespace) -> dict[str, Any]:
     config = default_config(args.agent)
     recipe = dict(RECIPES[args.recipe])
     config.n_envs = recipe.pop("n_envs")
+    net_arch = recipe.pop("net_arch", BASE["policy_kwargs"]["net_arch"])
     # the PPO family shares BASE; SAC keeps its own settings but for the recipe's
     on_policy = not args.recipe.startswith("sac")
     shared = {k: v for k, v in BASE.items() if k != "policy_kwargs"} if on_policy else {}
     config.hyperparams = {**config.hyperparams, **shared, **recipe, "gamma": args.gamma}
     if args.agent in ("ppo", "oracle_ppo", "theta_ppo"):
-        config.hyperparams["policy_kwargs"] = BASE["policy_kwargs"]
+        config.hyperparams["policy_kwargs"] = {**BASE["policy_kwargs"], "net_arch": net_arch}
     config.normalize_reward, config.normalize_obs = True, True
     config.reward = args.reward
     t0 = time.perf_counter()
