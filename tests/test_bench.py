@@ -752,6 +752,12 @@ def test_tuned_settings_build_valid_agents_and_controllers():
             validate_config(config)
             rollout = config.hyperparams.get("n_steps", 1) * config.n_envs
             assert config.eval_interval % rollout == 0
+            # the PPO agents keep the ablation's network; the others take the sampled width
+            net = config.hyperparams["policy_kwargs"]["net_arch"]
+            default = default_config(algo).hyperparams["policy_kwargs"]["net_arch"]
+            assert (
+                net == {"ppo": default, "sac": [128, 128], "rppo": {"pi": [128], "vf": [128]}}[algo]
+            )
         ctl = SelfTuningController(2, **stc_options(sample_stc(trial)))
         assert list(ctl.poles) == [0.3] * 3
 

@@ -50,14 +50,17 @@ def sample_rl(trial: Any, algo: str) -> dict[str, Any]:
         # the range of the seeded ablation behind the default (benchmarks/rl_ablation.py)
         "gamma": trial.suggest_categorical("gamma", [0.9, 0.95, 0.99]),
     }
-    width = trial.suggest_categorical("net_width", [64, 128])
+    out: dict[str, Any] = {"hyperparams": hp}
+    if base != "ppo":
+        # the PPO agents' network is the ablation's (agents/rl/configs.py): a trial of a tenth
+        # of the cap favours the small network that learns first, not the one that ends best
+        out["net_width"] = trial.suggest_categorical("net_width", [64, 128])
     if base in ("sac", "td3"):
         hp["batch_size"] = trial.suggest_categorical("batch_size", [128, 256, 512])
         hp["tau"] = trial.suggest_categorical("tau", [0.005, 0.01, 0.02])
     else:
         hp["n_steps"] = trial.suggest_categorical("n_steps", [256, 512, 1024])
         hp["gae_lambda"] = trial.suggest_categorical("gae_lambda", [0.9, 0.95, 0.98])
-    out: dict[str, Any] = {"hyperparams": hp, "net_width": width}
     if algo in RECURRENT_ALGORITHMS:
         out["lstm_hidden_size"] = trial.suggest_categorical("lstm_hidden_size", [64, 128, 256])
     return out
@@ -68,12 +71,12 @@ def apply_rl_params(config: AlgoConfig, params: dict[str, Any]) -> AlgoConfig:
     out = copy.deepcopy(config)
     out.hyperparams.update(params["hyperparams"])
     kwargs = dict(out.hyperparams.get("policy_kwargs", {}))
-    width = int(params["net_width"])
+    width = params.get("net_width")
     if "lstm_hidden_size" in params:
         kwargs["lstm_hidden_size"] = int(params["lstm_hidden_size"])
-        kwargs["net_arch"] = {"pi": [width], "vf": [width]}
-    else:
-        kwargs["net_arch"] = [width, width]
+    if width is not None:
+        lstm = "lstm_hidden_size" in params
+        kwargs["net_arch"] = {"pi": [width], "vf": [width]} if lstm else [width, width]
     out.hyperparams["policy_kwargs"] = kwargs
     # the evaluation interval stays a whole number of rollouts
     rollout = int(out.hyperparams.get("n_steps", 1)) * int(out.n_envs)

@@ -29,6 +29,10 @@ ZOO_DEPARTURES: dict[str, list[tuple[str, str, str, str]]] = {
          "the bound is set by LQG's rare largest transients: in units of it the useful inputs "
          "are about 1 %, and each optimiser step of the mean action a large input (the policy "
          "got worse as it trained)"),
+        ("net_arch", "[64, 64]", "[256, 256]", "capacity: on ladder-l1-v1 (10^6 steps) PPO "
+         "told the true parameters 1.77x and 1.86x LQG (2 seeds) against 2.96-3.27x (3 "
+         "seeds; 2.77x and 3.14x after 3 x 10^6 steps), the window PPO 2.42x and 2.62x "
+         "against 2.97-3.06x"),
         ("normalize", "off", "observations and rewards", "signals of mixed scales; costs "
          "spanning orders of magnitude across plants"),
         ("n_timesteps", "1e5", "cap 1e6 on the family (2e5 on one plant), plateau rule",
