@@ -35,6 +35,11 @@ processes side by side on the shared 2-core machine, about 40 s per 10^5 steps e
   ``ladder-l4-v1``;
 - ``--recipe healthy --gamma 0.9 --steps 1000000`` on ``ladder-l1-v1``, for ``ppo`` and
   ``oracle_ppo``;
+- ``--agent oracle_ppo --recipe healthy --steps 3000000`` on ``ladder-l1-v1``: ``--gamma 0.9``
+  seeds 0 and 1, ``--gamma 0.95`` and ``--gamma 0.99`` seed 0;
+- ``--recipe healthy_wide --gamma 0.9 --steps 1000000``: ``ppo`` and ``oracle_ppo`` on
+  ``ladder-l1-v1``, seeds 0 and 1; ``oracle_ppo`` on ``ladder-l2-v1`` and ``ppo`` on
+  ``ladder-l4-v1``, seed 0 (the last eight beside one other run, as pairs);
 - ``--agent rppo --recipe healthy --gamma 0.9 --steps 100000`` on ``ladder-l1-v1``, seed 0
   only;
 - ``--agent sac --recipe R --gamma 0.9 --steps 100000`` on ``ladder-l1-v1`` for R in
