@@ -39,9 +39,12 @@ def _o_rls_alone():
     )  # fmt: skip
 
 
-def _alone(ys, us):
+def _alone(ys, us, estimator="O-RLS"):
     """theta_hat(t), log10 diag P(t) and e(t) of the estimator run alone on one episode:
-    ``update(y(t))``, then ``predict(u(t))`` while there is an input."""
+    ``update(y(t))``, then ``predict(u(t))`` while there is an input; ``"ELS"``: a
+    self-tuning controller's ``propose([y(t), 0])`` and ``commit(u(t))``."""
+    if estimator == "ELS":
+        return _els_alone(ys, us)
     est = _o_rls_alone()
     out = []
     for k, y in enumerate(ys):
@@ -49,6 +52,24 @@ def _alone(ys, us):
         out.append(np.concatenate([est.theta, np.log10(np.diag(est.P)), [est.e]]))
         if k < len(us) and us[k] is not None:
             est.predict(us[k])
+    return np.array(out)
+
+
+def _els_alone(ys, us):
+    """The self-tuning controller's extended least squares on one episode, one plant: told
+    another reference and seed than the interface's controller, which change its proposals
+    only (never applied), not its estimate."""
+    from stcgym.adaptive import SelfTuningController
+
+    ctl = SelfTuningController(2, seed=12345)
+    out = []
+    for k, y in enumerate(ys):
+        ctl.propose(np.array([y, 0.0]))
+        S = ctl.compiled_args.est.S[0]
+        diag_p = np.diag(S @ S.T)[:4]  # theta over [a; b; c]: the variances of a and b
+        out.append(np.concatenate([ctl.theta, np.log10(diag_p), [ctl.compiled_args.s.e[0]]]))
+        if k < len(us) and us[k] is not None:
+            ctl.commit(us[k])
     return np.array(out)
 
 
@@ -73,13 +94,14 @@ class _Recorder:
 
 
 @pytest.mark.equality
-def test_estimate_features_are_the_estimator_run_alone_in_evaluation():
+@pytest.mark.parametrize("estimator", ["O-RLS", "ELS"])
+def test_estimate_features_are_the_estimator_run_alone_in_evaluation(estimator):
     from stcgym.agents.rl.policy import SB3Policy
 
     spec = EnvSpec(split="test", jump_probability=1.0, steps=80, **FAMILY)
     episodes = EpisodeSet.of(spec, 1, 500, 3)
     model = _Recorder()
-    interface = InterfaceSpec("estimate", order=2)
+    interface = InterfaceSpec("estimate", order=2, estimator=estimator)
     policy = SB3Policy(model, WINDOW, spec.action_bound, interface=interface)
     batch = run_episodes(lambda p, s: policy.with_lanes(len(p), s), spec, episodes)
     assert not batch.diverged.any() and (batch.jump_step > 0).all()
@@ -95,11 +117,13 @@ def test_estimate_features_are_the_estimator_run_alone_in_evaluation():
     n_window = WINDOW.n_features
     assert features.shape == (spec.steps, 3, n_window + 9)
     for lane in range(3):
-        _check(features[:, lane, n_window:], _alone(ys[:, lane], list(batch.u[lane])))
+        expected = _alone(ys[:, lane], list(batch.u[lane]), estimator)
+        _check(features[:, lane, n_window:], expected)
 
 
 @pytest.mark.equality
-def test_estimate_features_are_the_estimator_run_alone_in_training_across_restarts():
+@pytest.mark.parametrize("estimator", ["O-RLS", "ELS"])
+def test_estimate_features_are_the_estimator_run_alone_in_training_across_restarts(estimator):
     from stable_baselines3.common.vec_env import VecEnvWrapper
 
     from stcgym.agents.rl.vec_env import SB3VecEnv, VecHistoryWindow
@@ -124,7 +148,7 @@ def test_estimate_features_are_the_estimator_run_alone_in_training_across_restar
 
     spec = EnvSpec(split="train", steps=30, **FAMILY)  # 30-step episodes: two restarts
     raw = Raw(SB3VecEnv(spec.make_vec(2, info_keys=())))
-    interface = InterfaceSpec("estimate", order=2)
+    interface = InterfaceSpec("estimate", order=2, estimator=estimator)
     vec = VecHistoryWindow(raw, WINDOW, spec.steps, interface=interface)
     assert vec.observation_space.shape == (WINDOW.n_features + 9,)
     vec.seed(4)
@@ -148,7 +172,7 @@ def test_estimate_features_are_the_estimator_run_alone_in_training_across_restar
             us = list(u[start:end, lane])
             if end in ends:  # the final observation of the episode
                 ys.append(raw.last[end - 1][lane][0])
-            expected = _alone(ys, us)
+            expected = _alone(ys, us, estimator)
             _check(features[start:end, lane], expected[: end - start])
             if end in ends:
                 _check(terminal[end - 1][lane][WINDOW.n_features :], expected[-1])
@@ -282,7 +306,7 @@ def test_interface_values_are_checked():
     with pytest.raises(ValueError, match="interface.kind"):
         InterfaceSpec("oracle")
     with pytest.raises(ValueError, match="interface.estimator"):
-        InterfaceSpec("estimate", estimator="ELS")
+        InterfaceSpec("estimate", estimator="RLS")
     with pytest.raises(ValueError, match="interface.fraction"):
         InterfaceSpec("residual", fraction=-0.1)
     with pytest.raises(ValueError, match="plant order"):
@@ -290,6 +314,7 @@ def test_interface_values_are_checked():
     with pytest.raises(ValueError, match="SISO"):
         InterfaceSpec("residual", order=2).build(WINDOW, 1.0, channels=(2, 2))
     assert InterfaceSpec("estimate", estimator="kf-mils").estimator == "KF-MILS"
+    assert InterfaceSpec("estimate", estimator="els").estimator == "ELS"
 
 
 def test_informed_agents_are_their_base_agent_with_an_interface():
@@ -333,14 +358,15 @@ def test_informed_agents_are_their_base_agent_with_an_interface():
         "self-tuning controller inside"
         in agent_knowledge("residual_ppo", residual.to_dict())["model"]
     )
-    configs = apply_overrides({}, ["theta_ppo.interface.estimator=KF-MILS"])
-    assert configs["theta_ppo"].interface == {
-        "action_unit": "lqg",
-        "kind": "estimate",
-        "estimator": "KF-MILS",
-    }
+    for name in ("KF-MILS", "ELS"):
+        configs = apply_overrides({}, [f"theta_ppo.interface.estimator={name}"])
+        assert configs["theta_ppo"].interface == {
+            "action_unit": "lqg",
+            "kind": "estimate",
+            "estimator": name,
+        }
     for bad, message in [
-        ("theta_ppo.interface.estimator=ELS", "interface.estimator"),
+        ("theta_ppo.interface.estimator=RLS", "interface.estimator"),
         ("residual_ppo.interface.fraction=2", "interface.fraction"),
         ("theta_ppo.interface.order=3", "set by the bench"),
         ("theta_ppo.interface.colour=1", "interface"),
