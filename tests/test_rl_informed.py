@@ -467,8 +467,10 @@ def test_bench_runs_the_informed_agents_and_a_zero_residual_is_stc(tiny_run):
     report = (tiny_run / "report.md").read_text()
     knows = report.split("## What each controller knows")[1].split("## Headline")[0]
     assert "| theta_ppo | the training distribution's n (its estimator's)" in knows
-    assert "online estimate of O-RLS" in knows and "self-tuning controller inside" in knows
+    assert "online estimate of the self-tuning controller's extended least squares" in knows
+    assert "self-tuning controller inside" in knows
     answer = report.split("## Identification or design?")[1].split("## ")[0]
+    assert "`theta_ppo` is given the controller's own estimate" in answer
     assert "`family:test`" in answer and "`jump:test`" in answer
     assert "Residual RL on the controller lowers its cost in 0 of 3" in answer
     # the same costs on every episode: a ratio of 1 (its interval pairs runs of each at random)
@@ -569,3 +571,17 @@ def test_a_single_env_adapter_returns_one_action_of_the_input_shape():
         assert policy.predict(obs, episode_start=True)[0].shape == (1,)
         batch = policy.with_lanes(3, [1, 2, 3])
         assert batch.predict(np.tile(obs, (3, 1)))[0].shape == (3, 1)
+
+
+def test_the_estimate_conditioned_agents_observe_the_controllers_estimate_and_records_keep_theirs():
+    from stcgym.agents.benchmark.attribution import _given
+    from stcgym.agents.rl.configs import agent_knowledge, default_config
+
+    for agent in ("theta_ppo", "theta_sac"):
+        interface = default_config(agent).interface
+        assert interface["kind"] == "estimate" and interface["estimator"] == "ELS"
+    # a config recorded without an estimator (an earlier run's) means O-RLS, as it did then
+    recorded = default_config("theta_ppo").to_dict()
+    recorded["interface"] = {"kind": "estimate", "action_unit": "lqg"}
+    assert "online estimate of O-RLS " in agent_knowledge("theta_ppo", recorded)["model"]
+    assert "not the controller's own" in _given("O-RLS") and "only the design" in _given("ELS")

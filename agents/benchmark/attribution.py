@@ -57,8 +57,11 @@ def _share(gain: Estimate, gap: Estimate) -> float:
     return math.log(gain.value) / math.log(gap.value)
 
 
-def _sentence(name: str, tables: dict[str, Any], reps: int) -> tuple[str, str | None]:
-    """The sentence of one scenario and its class (``None``: no advantage to attribute)."""
+def _sentence(
+    name: str, tables: dict[str, Any], reps: int, own: bool = False
+) -> tuple[str, str | None]:
+    """The sentence of one scenario and its class (``None``: no advantage to attribute);
+    ``own``: ``theta_ppo`` is given the controller's own estimate."""
     gap = paired(tables, STC, PLAIN, reps=reps)["ratio"]
     gain = paired(tables, THETA, PLAIN, reps=reps)["ratio"]
     design = paired(tables, STC, THETA, reps=reps)["ratio"]
@@ -75,9 +78,10 @@ def _sentence(name: str, tables: dict[str, Any], reps: int) -> tuple[str, str | 
         kind = "design"
         text = (
             "the estimate does not lower RL's cost, so the advantage lies in what the "
-            "controller does with its estimate, the model-based design (or in an estimate "
-            "better than the one RL was given)"
+            "controller does with its estimate, the model-based design"
         )
+        if not own:
+            text += " (or in an estimate better than the one RL was given)"
     elif verdict(design) == "lower":
         kind = "both"
         text = (
@@ -104,8 +108,26 @@ def _residual(name: str, tables: dict[str, Any], reps: int) -> tuple[str, str]:
     return f"`{name}`: residual_ppo / stc {ratio.format(3)}, {what}", v
 
 
+def _given(estimator: str) -> str:
+    """What ``theta_ppo`` is given, for the paragraph's opening."""
+    if estimator == "ELS":
+        return (
+            "`theta_ppo` is given the controller's own estimate (its extended least squares, "
+            "run beside the agent on the inputs the agent applies): between `stc` and "
+            "`theta_ppo` only the design differs."
+        )
+    return (
+        "`theta_ppo` is given the estimate of one of the paper's estimators (the knowledge "
+        "table names it), not the controller's own extended least squares."
+    )
+
+
 def identification_or_design(
-    scenarios: Sequence[tuple[str, dict[str, Any]]], *, reps: int, stops: dict | None = None
+    scenarios: Sequence[tuple[str, dict[str, Any]]],
+    *,
+    reps: int,
+    stops: dict | None = None,
+    estimator: str = "O-RLS",
 ) -> list[str]:
     """The report's paragraph (lines of markdown): is the self-tuning controller's advantage
     on unseen plants the online identification or the model-based design on top of it?
@@ -119,6 +141,9 @@ def identification_or_design(
         Bootstrap replications of the paired comparisons.
     stops : dict, optional
         ``agent -> training_stops`` summary: agents that hit their training cap are named.
+    estimator : str, default "O-RLS"
+        The estimator ``theta_ppo`` observed (its interface's): ``"ELS"`` is the
+        controller's own, which leaves the design alone between ``stc`` and ``theta_ppo``.
 
     Returns
     -------
@@ -130,7 +155,7 @@ def identification_or_design(
     for name, tables in scenarios:
         if not {STC, THETA, PLAIN} <= set(tables):
             continue
-        text, kind = _sentence(name, tables, reps)
+        text, kind = _sentence(name, tables, reps, own=estimator == "ELS")
         lines.append(f"- {text}.")
         kinds.append(kind)
         if RESIDUAL in tables:
@@ -157,9 +182,7 @@ def identification_or_design(
         "identification, or the model-based design on top of it? `theta_ppo` is PPO given an "
         f"online estimate, `ppo` the same without it{residual_text}. Paired on the same "
         "(plant, episode), cost ratios with 95 % intervals; a ratio is lower or higher only "
-        "when its interval excludes 1. `theta_ppo` is given the estimate of one of the "
-        "paper's estimators (the knowledge table names it), not the controller's own "
-        "extended least squares.",
+        "when its interval excludes 1. " + _given(estimator),
         "",
         summary + ".",
         "",

@@ -555,7 +555,13 @@ def write_report(
             "",
         ]
     out += ["## Conclusions", "", *(s for s in sentences if s), ""]
-    answer = identification_or_design(family, reps=cfg.bootstrap_reps, stops=family_stops)
+    theta = cfg.algo_configs.get("theta_ppo", {}).get("interface", {})
+    answer = identification_or_design(
+        family,
+        reps=cfg.bootstrap_reps,
+        stops=family_stops,
+        estimator=str(theta.get("estimator", "O-RLS")).upper(),
+    )
     if answer:
         out += ["## Identification or design?", "", *answer, ""]
     if cfg.tuned:
