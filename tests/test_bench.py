@@ -7,6 +7,7 @@ import csv
 import io
 import json
 import re
+import types
 
 import numpy as np
 import pytest
@@ -704,6 +705,39 @@ def test_schedule_gives_each_job_to_the_first_free_worker():
     assert cost == sorted(cost, reverse=True)
     busy = schedule(cost, 2)
     assert max(busy) - min(busy) <= min(cost)
+
+
+def test_a_study_starts_at_the_default_recipe_and_fails_trials_with_unhealthy_updates(
+    monkeypatch,
+):
+    import optuna
+
+    from stcgym.agents.benchmark import tuning
+    from stcgym.agents.rl import sb3
+    from stcgym.agents.rl.configs import default_config
+
+    for algo in ("ppo", "sac", "rppo"):  # the first trial is the default recipe, exactly
+        config = default_config(algo)
+        trial = optuna.trial.FixedTrial(tuning.default_params(config, algo))
+        tried = tuning.apply_rl_params(config, tuning.sample_rl(trial, algo))
+        if algo == "sac":  # SB3's default tau, now written out
+            assert tried.hyperparams.pop("tau") == 0.005
+        assert tried == config
+
+    def fake_training(algo, config, *args, **kw):
+        lr = config.hyperparams["learning_rate"]
+        # a larger step scores better early, and beyond 5e-4 its updates are too large
+        kl = 0.02 if lr <= 5e-4 else 0.3
+        updates = [{"approx_kl": kl, "clip_fraction": 0.15}] * 4
+        return types.SimpleNamespace(curve=[(0, 20.0), (1, 1e-3 / lr)], updates=updates)
+
+    monkeypatch.setattr(sb3, "train_agent", fake_training)
+    task = tuning.TuningTask("ppo", default_config("ppo"), None, None, None, (), 8, 100)
+    out = tuning.tune_rl(task)
+    assert out["trials"][0] == pytest.approx(1e-3 / 3e-4)  # the defaults, tried first
+    assert tuning.FAILED in out["trials"]  # some trials went beyond 5e-4 and failed
+    assert out["params"]["hyperparams"]["learning_rate"] <= 5e-4
+    assert out["best_value"] == min(out["trials"])
 
 
 def test_tuning_gives_rl_and_the_self_tuning_controller_one_budget(tmp_path, monkeypatch):

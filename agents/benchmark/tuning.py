@@ -5,14 +5,18 @@ Each study runs ``N`` trials of Optuna's TPE sampler (seeded) and scores a trial
 cost ratio to the LQG yardstick on the training distribution's validation episodes, the score
 the plateau rule reads; the test episodes are never seen. An RL trial trains the agent with the
 sampled hyperparameters for a fraction of its cap (``tune_fraction``) and keeps its best
-validation score; a self-tuning controller trial runs the controller with the sampled options
-on the same validation episodes. The best trial's settings then train every run of the agent
-(:data:`~stcgym.agents.benchmark.config.BenchConfig.algo_configs`) and configure the tuned
-self-tuning controller ``stc_tuned`` (``BenchConfig.tuned``); ``config.json`` and the report
-keep every study's trials.
+validation score; its first trial is the default recipe, and a trial whose PPO updates leave
+the usual range (:func:`unhealthy`) fails, as a diverged one does: a short trial rewards steps
+too large to last (a learning rate of 2.8e-3, picked without this rule, had median approx_kl
+0.4-2.1 and left PPO at 8.7x LQG on L1, against 2.4-2.6x for the default recipe). A
+self-tuning controller trial runs the controller with the sampled options on the same
+validation episodes. The best trial's settings then train every run of the agent
+(``BenchConfig.algo_configs``) and configure the tuned self-tuning controller ``stc_tuned``
+(``BenchConfig.tuned``); ``config.json`` and the report keep every study's trials.
 
 The search spaces (:func:`sample_rl`, :func:`sample_stc`) follow the RL Zoo's samplers where it
-has one (learning rate, rollout length, discount, GAE, network size; ``rl_zoo3/hyperparams_opt.py``)
+has one (learning rate, rollout length, discount, GAE, network size but for the PPO agents, whose
+network is the ablation's; ``rl_zoo3/hyperparams_opt.py``)
 and, for the self-tuning controller, span its documented options (closed-loop pole, forgetting
 factor, probe amplitude, change-detection threshold, the estimator's measurement noise).
 """
@@ -32,13 +36,16 @@ from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.configs import RECURRENT_ALGORITHMS, AlgoConfig, base_algorithm
 
 __all__ = [
+    "FAILED",
     "TuningTask",
     "apply_rl_params",
+    "default_params",
     "sample_rl",
     "sample_stc",
     "stc_options",
     "tune_rl",
     "tune_stc",
+    "unhealthy",
 ]
 
 
@@ -46,7 +53,8 @@ def sample_rl(trial: Any, algo: str) -> dict[str, Any]:
     """Sampled hyperparameters of ``algo``: ``{"hyperparams": {...}, "net": [w, w], ...}``."""
     base = base_algorithm(algo)
     hp: dict[str, Any] = {
-        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
+        # up to 1e-3: PPO's updates at 2.8e-3 had median approx_kl 0.4-2.1 on the family
+        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 1e-3, log=True),
         # the range of the seeded ablation behind the default (benchmarks/rl_ablation.py)
         "gamma": trial.suggest_categorical("gamma", [0.9, 0.95, 0.99]),
     }
@@ -147,9 +155,57 @@ class TuningTask:
         return f"tune_{self.algo}"
 
 
+#: A trial whose updates leave the usual range by this factor (median approx_kl over 0.06,
+#: clip fraction over 0.3) fails: its early score comes from steps too large to last.
+UNHEALTHY_FACTOR = {"approx_kl": 2.0, "clip_fraction": 1.5}
+#: The score of a failed trial (diverged, or unhealthy updates).
+FAILED = 1e12
+
+
+def unhealthy(updates: list[dict[str, float]]) -> list[str]:
+    """The diagnostics whose median over ``updates`` is above :data:`UNHEALTHY_FACTOR` times
+    the top of their usual range (:data:`~stcgym.agents.rl.learning_curve.HEALTHY`).
+
+    Examples
+    --------
+    >>> from stcgym.agents.benchmark.tuning import unhealthy
+    >>> unhealthy([{"approx_kl": 0.02, "clip_fraction": 0.2}] * 3)
+    []
+    >>> unhealthy([{"approx_kl": 0.4, "clip_fraction": 0.42}] * 3)
+    ['approx_kl', 'clip_fraction']
+    """
+    from stcgym.agents.rl.learning_curve import HEALTHY, summarise_updates
+
+    summary = summarise_updates(updates)
+    return [
+        name
+        for name, factor in UNHEALTHY_FACTOR.items()
+        if name in summary and summary[name]["median"] > factor * HEALTHY[name][1]
+    ]
+
+
+def default_params(config: AlgoConfig, algo: str) -> dict[str, Any]:
+    """The settings of ``config`` in the search space of :func:`sample_rl` (Optuna's trial
+    parameters), so that a study's first trial is the default recipe."""
+    hp, base = config.hyperparams, base_algorithm(algo)
+    out: dict[str, Any] = {"learning_rate": hp["learning_rate"], "gamma": hp["gamma"]}
+    arch = hp.get("policy_kwargs", {}).get("net_arch")
+    if base != "ppo" and arch is not None:
+        out["net_width"] = (arch["pi"] if isinstance(arch, dict) else arch)[0]
+    if base in ("sac", "td3"):
+        out.update(batch_size=hp["batch_size"], tau=hp.get("tau", 0.005))
+    else:
+        out.update(n_steps=hp["n_steps"], gae_lambda=hp["gae_lambda"])
+    if algo in RECURRENT_ALGORITHMS:
+        out["lstm_hidden_size"] = hp["policy_kwargs"]["lstm_hidden_size"]
+    return out
+
+
 def tune_rl(task: TuningTask) -> dict[str, Any]:
     """One RL agent's study; returns its summary with the best trial's parameters
-    (:func:`sample_rl` form)."""
+    (:func:`sample_rl` form). The first trial is the default recipe (:func:`default_params`),
+    so a study keeps the defaults unless a trial scores better; a trial whose updates are
+    unhealthy (:func:`unhealthy`) scores :data:`FAILED`."""
     from stcgym.agents.rl.sb3 import train_agent
 
     sampled: dict[int, dict[str, Any]] = {}
@@ -161,10 +217,13 @@ def tune_rl(task: TuningTask) -> dict[str, Any]:
             task.seed + trial.number, curve_spec=task.curve, curve_episodes=task.curve_episodes,
             curve_points=2, curve_reference=task.reference,
         )  # fmt: skip
+        trial.set_user_attr("unhealthy", unhealthy(agent.updates))
         best = min(score for _, score in agent.curve)
-        return best if math.isfinite(best) else 1e12
+        failed = trial.user_attrs["unhealthy"] or not math.isfinite(best)
+        return FAILED if failed else best
 
     study = _study(task.seed)
+    study.enqueue_trial(default_params(task.config, task.algo))
     study.optimize(objective, n_trials=task.trials)
     return {**_summary(study), "params": sampled[study.best_trial.number]}
 
