@@ -82,7 +82,7 @@ for name in seen + unseen:
 # What the agent is given
 # -----------------------
 # Left: both on the first episode of an unseen plant. Right: the estimate among the
-# agent's inputs on that episode (``policy.lanes.estimator``) against the true
+# agent's inputs on that episode (``policy.lanes.theta_hat``) against the true
 # parameters. The estimator learns only from what the inputs excite: an agent whose
 # input barely moves the plant gives it little to go on, where the controller's
 # probe and steps give its own estimator a clear response.
@@ -93,7 +93,7 @@ obs, info = env.reset(seed=episodes.seeds[6], options={"plant": unseen[0]})
 estimates = []
 for _ in range(test.steps):
     action, _ = policy.predict(obs)
-    estimates.append(policy.lanes.estimator.theta[0])
+    estimates.append(policy.lanes.theta_hat[0].copy())
     obs, *_ = env.step(action)
 estimates = np.array(estimates)
 

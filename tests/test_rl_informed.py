@@ -585,3 +585,21 @@ def test_the_estimate_conditioned_agents_observe_the_controllers_estimate_and_re
     recorded["interface"] = {"kind": "estimate", "action_unit": "lqg"}
     assert "online estimate of O-RLS " in agent_knowledge("theta_ppo", recorded)["model"]
     assert "not the controller's own" in _given("O-RLS") and "only the design" in _given("ELS")
+
+
+def test_both_estimate_interfaces_show_the_estimate_their_features_hold():
+    from stcgym.agents import WindowConfig
+    from stcgym.agents.rl.interfaces import InterfaceSpec
+
+    for estimator in ("O-RLS", "ELS"):
+        lanes = InterfaceSpec("estimate", estimator=estimator, order=2).build(
+            WindowConfig(window=4), 2.0, 2
+        )
+        lanes.observe(np.array([[0.1, 1.0], [0.0, 1.0]]), starts=np.ones(2, bool))
+        for k in range(30):
+            lanes.to_input(np.array([[0.5], [-0.5]]) * (-1) ** k)
+            lanes.observe(np.array([[0.4 * (-1) ** k, 1.0], [-0.3, 1.0]]))
+        theta = lanes.theta_hat
+        assert theta.shape == (2, 4) and np.abs(theta).sum() > 0, estimator
+        # the features after the window: theta_hat first
+        np.testing.assert_array_equal(lanes.features()[:, -9:-5], theta.astype(np.float32))

@@ -426,6 +426,11 @@ class EstimateInterface(WindowInterface):
             warnings.simplefilter("ignore")
             estimator.update(y)
 
+    @property
+    def theta_hat(self) -> NDArray:
+        """The estimate among the features, ``[a | b]`` of every lane, ``(B, 2n)``."""
+        return self.estimator.theta
+
     def _estimate(self, estimator: Any) -> NDArray:
         return estimate_features(self.spec, self.window, estimator.theta, estimator.S, estimator.e)
 
@@ -500,6 +505,12 @@ class ControllerEstimateInterface(WindowInterface):
         super().observe(obs, starts)
         # the sample stays open until to_input commits the input applied
         self.controller.propose(obs, episode_start=starts)
+
+    @property
+    def theta_hat(self) -> NDArray:
+        """The estimate among the features, ``[a | b]`` of every lane, ``(B, 2n)`` (the
+        controller's ``theta`` without its noise-model part ``c``)."""
+        return np.asarray(self.controller.theta)[:, : 2 * self.spec._order()]
 
     def _estimate(self, controller: Any) -> NDArray:
         state = controller.compiled_args
