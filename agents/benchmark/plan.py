@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -241,8 +241,13 @@ def _share_left(cfg: BenchConfig, sc: Scenario, name: str, kept: frozenset[str])
     if not kept:
         return 1.0
     runs = cfg.runs_of(name)
-    held = sum(classical_key(cfg, sc, name, r)[1] in kept for r in range(runs))
-    return (runs - held) / runs
+    return (runs - _runs_kept(cfg, sc, name, kept)) / runs
+
+
+def _runs_kept(cfg: BenchConfig, sc: Scenario, name: str, kept: Collection[str]) -> int:
+    """How many runs of classical controller ``name`` on ``sc`` have their record in
+    ``kept``."""
+    return sum(classical_key(cfg, sc, name, r)[1] in kept for r in range(cfg.runs_of(name)))
 
 
 def parse_duration(text: str) -> float:
@@ -389,9 +394,8 @@ def describe_plan(cfg: BenchConfig) -> str:
         names = controllers_for(cfg.classical, sc.env)
         cells = []
         for name in names:
-            runs = cfg.runs_of(name)
-            held = sum(classical_key(cfg, sc, name, r)[1] in kept for r in range(runs))
-            cells.append(f"{name} x{runs}" + (f" ({held} kept)" if held else ""))
+            held = _runs_kept(cfg, sc, name, kept)
+            cells.append(f"{name} x{cfg.runs_of(name)}" + (f" ({held} kept)" if held else ""))
         lines.append(f"  {sc.name} ({len(sc.episodes.seeds)} episodes): {', '.join(cells)}; "
                      f"{weights[('classical', sc.name)]:.0f} s")  # fmt: skip
     tuning = tuning_seconds(cfg, envs)

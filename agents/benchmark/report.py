@@ -35,6 +35,7 @@ from stcgym.agents.benchmark.headline import (
 from stcgym.agents.benchmark.ladder_report import ladder_table, strata_section
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
 from stcgym.agents.evaluation.statistics import Estimate
+from stcgym.agents.rl.interfaces import InterfaceSpec
 
 __all__ = ["write_report"]
 
@@ -555,12 +556,9 @@ def write_report(
             "",
         ]
     out += ["## Conclusions", "", *(s for s in sentences if s), ""]
-    theta = cfg.algo_configs.get("theta_ppo", {}).get("interface", {})
+    theta = InterfaceSpec(**cfg.algo_configs.get("theta_ppo", {}).get("interface", {}))
     answer = identification_or_design(
-        family,
-        reps=cfg.bootstrap_reps,
-        stops=family_stops,
-        estimator=str(theta.get("estimator", "O-RLS")).upper(),
+        family, reps=cfg.bootstrap_reps, stops=family_stops, estimator=theta.estimator
     )
     if answer:
         out += ["## Identification or design?", "", *answer, ""]

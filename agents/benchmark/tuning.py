@@ -50,7 +50,9 @@ __all__ = [
 
 
 def sample_rl(trial: Any, algo: str) -> dict[str, Any]:
-    """Sampled hyperparameters of ``algo``: ``{"hyperparams": {...}, "net": [w, w], ...}``."""
+    """Sampled hyperparameters of ``algo``: ``{"hyperparams": {...}}``, with ``"net_width"``
+    where the width is searched (not for the PPO agents) and ``"lstm_hidden_size"`` for the
+    recurrent ones."""
     base = base_algorithm(algo)
     hp: dict[str, Any] = {
         # up to 1e-3: PPO's updates at 2.8e-3 had median approx_kl 0.4-2.1 on the family
@@ -217,10 +219,8 @@ def tune_rl(task: TuningTask) -> dict[str, Any]:
             task.seed + trial.number, curve_spec=task.curve, curve_episodes=task.curve_episodes,
             curve_points=2, curve_reference=task.reference,
         )  # fmt: skip
-        trial.set_user_attr("unhealthy", unhealthy(agent.updates))
         best = min(score for _, score in agent.curve)
-        failed = trial.user_attrs["unhealthy"] or not math.isfinite(best)
-        return FAILED if failed else best
+        return FAILED if unhealthy(agent.updates) or not math.isfinite(best) else best
 
     study = _study(task.seed)
     study.enqueue_trial(default_params(task.config, task.algo))

@@ -49,6 +49,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from stcgym.agents.rl.config_rules import HYPERPARAMETER_RULES, RESERVED_ARGS, validate_config
+from stcgym.agents.rl.interfaces import InterfaceSpec
 
 __all__ = [
     "ABLATIONS",
@@ -149,7 +150,7 @@ def agent_knowledge(agent: str, config: dict[str, Any]) -> dict[str, str]:
         # asymmetric actor-critic: privileged information in the reward, never in the input
         data += "; in training, each plant's LQG cost (the reward's unit: privileged)"
     if kind == "estimate":
-        name = str(interface.get("estimator", "O-RLS")).upper()
+        name = InterfaceSpec(**interface).estimator  # (a record without one: the default)
         if name == "ELS":
             name = "the self-tuning controller's extended least squares (ELS)"
         return {

@@ -382,7 +382,60 @@ class WindowInterface:
         return np.concatenate([window, extra], axis=1)
 
 
-class EstimateInterface(WindowInterface):
+class _EstimateFeatures(WindowInterface):
+    """The window and an online estimate's ``theta_hat``, ``log10 diag P`` and innovation: the
+    machinery the two estimate interfaces share. A subclass says what makes the estimate
+    (:meth:`_new_source`), its measurement step with ``y(t)`` (:meth:`_measure`), its step with
+    the input applied (:meth:`_apply`) and the features it gives (:meth:`_estimate`)."""
+
+    def __init__(
+        self, window: WindowConfig, action_bound: float, batch: int, spec: InterfaceSpec
+    ) -> None:
+        super().__init__(window, action_bound, batch, action_unit=spec.action_unit)
+        self.spec = spec
+        self._source = self._new_source()
+
+    def _new_source(self) -> Any:
+        raise NotImplementedError
+
+    def _measure(self, source: Any, obs: ArrayLike, starts: NDArray | None) -> None:
+        raise NotImplementedError
+
+    def _apply(self, u: NDArray) -> None:
+        raise NotImplementedError
+
+    def _estimate(self, source: Any) -> NDArray:
+        raise NotImplementedError
+
+    @property
+    def n_features(self) -> int:
+        return super().n_features + self.spec.extra_features
+
+    @property
+    def theta_hat(self) -> NDArray:
+        """The estimate among the features, ``[a | b]`` of every lane, ``(B, 2n)``."""
+        return self._source.theta
+
+    def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
+        super().observe(obs, starts)
+        self._measure(self._source, obs, starts)
+
+    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
+        window = super().terminal_features(last, lanes)
+        ahead = copy.deepcopy(self._source)  # the lanes restart: the real one stays
+        self._measure(ahead, last, None)
+        return self._with_extra(window, self._estimate(ahead))
+
+    def features(self) -> NDArray:
+        return self._with_extra(super().features(), self._estimate(self._source))
+
+    def to_input(self, action: ArrayLike) -> NDArray:
+        u = super().to_input(action)
+        self._apply(u)
+        return u
+
+
+class EstimateInterface(_EstimateFeatures):
     """The window and an estimator's ``theta_hat``, ``log10 diag P`` and innovation (module
     docstring), the estimator batched over the lanes.
 
@@ -403,55 +456,32 @@ class EstimateInterface(WindowInterface):
     ((3, 18), True)
     """
 
-    def __init__(
-        self, window: WindowConfig, action_bound: float, batch: int, spec: InterfaceSpec
-    ) -> None:
-        super().__init__(window, action_bound, batch, action_unit=spec.action_unit)
-        self.spec = spec
-        self.estimator = closed_loop_estimator(spec.estimator, spec._order(), self.batch)
+    def _new_source(self) -> Any:
+        return closed_loop_estimator(self.spec.estimator, self.spec._order(), self.batch)
 
     @property
-    def n_features(self) -> int:
-        return super().n_features + self.spec.extra_features
+    def estimator(self) -> Any:
+        """The estimator (read-only use)."""
+        return self._source
 
-    def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
-        super().observe(obs, starts)
+    def _measure(self, estimator: Any, obs: ArrayLike, starts: NDArray | None) -> None:
         if starts is not None and starts.any():
-            self.estimator.reset(lanes=starts)
-        self._update(self.estimator, obs)
-
-    def _update(self, estimator: Any, obs: ArrayLike) -> None:
+            estimator.reset(lanes=starts)
         y = np.asarray(obs, dtype=float).reshape(self.batch, 2)[:, 0]
         with warnings.catch_warnings():  # its health events: documented safe actions
             warnings.simplefilter("ignore")
             estimator.update(y)
 
-    @property
-    def theta_hat(self) -> NDArray:
-        """The estimate among the features, ``[a | b]`` of every lane, ``(B, 2n)``."""
-        return self.estimator.theta
+    def _apply(self, u: NDArray) -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self._source.predict(u[:, 0])
 
     def _estimate(self, estimator: Any) -> NDArray:
         return estimate_features(self.spec, self.window, estimator.theta, estimator.S, estimator.e)
 
-    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
-        window = super().terminal_features(last, lanes)
-        ahead = copy.deepcopy(self.estimator)  # the lanes restart: the real one stays
-        self._update(ahead, last)
-        return self._with_extra(window, self._estimate(ahead))
 
-    def features(self) -> NDArray:
-        return self._with_extra(super().features(), self._estimate(self.estimator))
-
-    def to_input(self, action: ArrayLike) -> NDArray:
-        u = super().to_input(action)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            self.estimator.predict(u[:, 0])
-        return u
-
-
-class ControllerEstimateInterface(WindowInterface):
+class ControllerEstimateInterface(_EstimateFeatures):
     """The window and the self-tuning controller's own estimate (``estimator="ELS"``, module
     docstring): ``theta_hat``, ``log10 diag P`` and the innovation of the extended least squares
     inside ``controller``, a :class:`~stcgym.adaptive.SelfTuningController` with its defaults
@@ -486,53 +516,32 @@ class ControllerEstimateInterface(WindowInterface):
     True
     """
 
-    def __init__(
-        self, window: WindowConfig, action_bound: float, batch: int, spec: InterfaceSpec
-    ) -> None:
+    def _new_source(self) -> Any:
         from stcgym.adaptive import SelfTuningController
 
-        super().__init__(window, action_bound, batch, action_unit=spec.action_unit)
-        self.spec = spec
-        self.controller = SelfTuningController(
-            spec._order(), num_envs=self.batch, action_bound=self.action_bound
+        return SelfTuningController(
+            self.spec._order(), num_envs=self.batch, action_bound=self.action_bound
         )
 
     @property
-    def n_features(self) -> int:
-        return super().n_features + self.spec.extra_features
+    def controller(self) -> Any:
+        """The self-tuning controller whose estimate the features hold (read-only use)."""
+        return self._source
 
-    def observe(self, obs: ArrayLike, starts: NDArray | None = None) -> None:
-        super().observe(obs, starts)
+    def _measure(self, controller: Any, obs: ArrayLike, starts: NDArray | None) -> None:
         # the sample stays open until to_input commits the input applied
-        self.controller.propose(obs, episode_start=starts)
+        controller.propose(obs, episode_start=starts)
 
-    @property
-    def theta_hat(self) -> NDArray:
-        """The estimate among the features, ``[a | b]`` of every lane, ``(B, 2n)`` (the
-        controller's ``theta`` without its noise-model part ``c``)."""
-        return np.asarray(self.controller.theta)[:, : 2 * self.spec._order()]
+    def _apply(self, u: NDArray) -> None:
+        # the estimator's regressor holds the input the plant got, not the controller's own
+        self._source.commit(u)
 
     def _estimate(self, controller: Any) -> NDArray:
         state = controller.compiled_args
         d = 2 * self.spec._order()
-        # theta over [a; b; c]: the factor's rows of a and b give their variances
+        # the estimate is over [a; b; c]: the factor's rows of a and b give their variances
         S = state.est.S[:, :d]
         return estimate_features(self.spec, self.window, controller.theta, S, state.s.e)
-
-    def terminal_features(self, last: NDArray, lanes: NDArray) -> NDArray:
-        window = super().terminal_features(last, lanes)
-        ahead = copy.deepcopy(self.controller)  # the lanes restart: the real one stays
-        ahead.propose(last)
-        return self._with_extra(window, self._estimate(ahead))
-
-    def features(self) -> NDArray:
-        return self._with_extra(super().features(), self._estimate(self.controller))
-
-    def to_input(self, action: ArrayLike) -> NDArray:
-        u = super().to_input(action)
-        # the estimator's regressor holds the input the plant got, not the controller's own
-        self.controller.commit(u)
-        return u
 
 
 def estimate_features(
