@@ -93,6 +93,17 @@ def _rows(path):
         return reader.fieldnames, list(reader)
 
 
+def _in_process_config(tmp_path, run, **settings):
+    """A quick-tier config small enough for ``runner_mod.run_bench`` in this process: 2 test
+    plants per family split, 2 nominal episodes, 2 episodes per learning-curve point, 5 plants
+    for the action bound, no plots, a small bootstrap; ``settings``: the scenarios, agents,
+    episode length, ..."""
+    small = dict(test_plants=2, nominal_episodes=2, bound_plants=5, curve_episodes=2)
+    return build_config(
+        quick=True, run=run, out=str(tmp_path), plots=False, bootstrap_reps=50, **small, **settings
+    )
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
@@ -572,19 +583,12 @@ def test_stc_kfmils_is_stc_on_the_kf_mils_estimator_in_every_scenario(tmp_path):
         assert "stc_kfmils" in agents
     info = CONTROLLERS["stc_kfmils"]
     assert info.kind == "adaptive" and info.online and info.seeded
-    cfg = build_config(
-        quick=True,
-        run="kf",
-        out=str(tmp_path),
+    cfg = _in_process_config(
+        tmp_path,
+        "kf",
         scenarios="nominal,family,ood,jump",  # stc_kfmils is SISO-only
         agents="stc,stc_lq,stc_kfmils,oracle,lqg",
-        test_plants=2,
-        nominal_episodes=2,
-        bound_plants=5,
-        curve_episodes=2,
         episode_steps=120,
-        plots=False,
-        bootstrap_reps=50,
     )
     for sc in make_scenarios(cfg):
         plants = [object(), object()]
@@ -644,19 +648,8 @@ def test_interrupted_run_keeps_finished_rows(tmp_path, monkeypatch):
     build = lambda cfg, sc: lambda plants, seeds: _Exploding(len(plants))  # noqa: E731
     monkeypatch.setitem(CONTROLLERS, "boom", ControllerInfo("oracle", build))
     _Exploding.runs = 0
-    cfg = build_config(
-        quick=True,
-        run="int",
-        out=str(tmp_path),
-        agents="oracle,boom",
-        scenarios="nominal,family",
-        test_plants=2,
-        nominal_episodes=2,
-        bound_plants=5,
-        curve_episodes=2,
-        episode_steps=50,
-        plots=False,
-        bootstrap_reps=50,
+    cfg = _in_process_config(
+        tmp_path, "int", scenarios="nominal,family", agents="oracle,boom", episode_steps=50
     )
     with pytest.raises(KeyboardInterrupt):
         runner_mod.run_bench(cfg, log=lambda msg: None)
