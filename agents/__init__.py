@@ -32,11 +32,13 @@ from stcgym.agents.evaluation.evaluate import (
     summarize,
 )
 from stcgym.agents.rl.configs import AlgoConfig, apply_overrides, default_config
+from stcgym.agents.rl.learning_curve import CurveOptions
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
 __all__ = [
     "AlgoConfig",
     "EnvSpec",
+    "CurveOptions",
     "Episode",
     "EvalResult",
     "HistoryBuffer",

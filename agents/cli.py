@@ -259,8 +259,9 @@ def _bench_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--bootstrap-reps",
         type=int,
-        default=1000,
-        help="bootstrap replications of the confidence intervals (default 1000)",
+        default=None,
+        help="bootstrap replications of the confidence intervals "
+        f"(default {BenchConfig.bootstrap_reps})",
     )
     p.add_argument("--out", default="results", help="output folder (default results/)")
     p.add_argument("--run", help="run name (default: timestamp and mode)")
@@ -338,49 +339,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_bench(args: argparse.Namespace, argv: Sequence[str]) -> int:
+    from dataclasses import fields
+
     from stcgym.agents.benchmark import build_config, check_runnable, estimate_seconds, run_bench
+    from stcgym.agents.benchmark.config import BenchConfig
     from stcgym.agents.benchmark.plan import format_duration, parse_duration
 
     if args.resume is not None:
         cfg = _resumed_config(args)
     else:
+        # the bench options are named as the config's fields, but for these three
+        named = {"noise_std": args.noise, "overrides": args.hp, "plots": not args.no_plots}
         cfg = build_config(
             mode=next((m for m in ("smoke", "standard", "full") if getattr(args, m)), "quick"),
-            run=args.run,
-            out=args.out,
-            scenarios=args.scenarios,
-            plants=args.plants,
-            family=args.family,
-            ood=args.ood,
-            ladder=args.ladder,
-            ladder_agents=args.ladder_agents,
-            tune_agents=args.tune_agents,
-            mimo_plants=args.mimo_plants,
-            agents=args.agents,
-            train_steps=args.train_steps,
-            patience=args.patience,
-            min_improvement=args.min_improvement,
-            min_train_fraction=args.min_train_fraction,
-            eval_interval=args.eval_interval,
-            train_seeds=args.train_seeds,
-            test_plants=args.test_plants,
-            episodes_per_plant=args.episodes_per_plant,
-            nominal_episodes=args.nominal_episodes,
-            curve_episodes=args.curve_episodes,
-            bound_plants=args.bound_plants,
-            tune_trials=args.tune_trials,
-            first_seed=args.first_seed,
-            episode_steps=args.episode_steps,
-            noise_std=args.noise,
-            hp=args.hp,
-            curve_points=args.curve_points,
-            plots=not args.no_plots,
-            progress=args.progress,
-            jobs=args.jobs,
-            executor=args.executor,
-            address=args.address,
-            tensorboard_log=args.tensorboard_log,
-            bootstrap_reps=args.bootstrap_reps,
+            **{f.name: getattr(args, f.name) for f in fields(BenchConfig) if f.name in vars(args)},
+            **named,
         )
     time_limit = None if args.time_limit is None else parse_duration(args.time_limit)
     if args.plan:

@@ -74,7 +74,7 @@ from stcgym.agents.evaluation.bounds import BOUND_SEED, lqg_action_bound
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
 from stcgym.agents.rl.configs import default_config
-from stcgym.agents.rl.learning_curve import summarise_updates
+from stcgym.agents.rl.learning_curve import CurveOptions, summarise_updates
 
 VALIDATION_SEED = 10_000
 #: What every recipe shares (the bench's PPO before this ablation, but for the discount).
@@ -177,8 +177,7 @@ def train_run(args: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     agent = train_agent(
         args.agent, config, train, args.steps, args.seed,
-        curve_spec=val, curve_episodes=episodes, curve_points=4, curve_reference=lqg.tolist(),
-        keep_best=False, progress=False,
+        curve=CurveOptions(val, episodes, 4, lqg.tolist(), keep_best=False), progress=False,
         tensorboard_log=None if args.tensorboard is None else str(args.tensorboard),
         tb_log_name=f"{args.family}_{args.agent}_{args.recipe}_g{args.gamma}_s{args.seed}",
     )  # fmt: skip

@@ -27,7 +27,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from stcgym.adaptive import KnownModelController, SelfTuningController
-from stcgym.agents import EnvSpec, default_config, run_episode, train_agent
+from stcgym.agents import (
+    CurveOptions,
+    EnvSpec,
+    default_config,
+    run_episode,
+    train_agent,
+)
 from stcgym.agents.benchmark import style
 from stcgym.agents.evaluation.episodes import EpisodeSet
 
@@ -42,8 +48,7 @@ agent = train_agent(
     spec,
     steps=4096,
     seed=0,
-    curve_points=3,
-    curve_episodes=validation,
+    curve=CurveOptions(episodes=validation, points=3),
     progress=False,
 )
 print(f"PPO: {agent.steps} environment steps in {agent.wall_s:.1f} s")

@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from stcgym.adaptive import SelfTuningController
-from stcgym.agents import EnvSpec, default_config, train_agent
+from stcgym.agents import CurveOptions, EnvSpec, default_config, train_agent
 from stcgym.agents.benchmark import style
 from stcgym.agents.controllers import controller_seeds
 from stcgym.agents.evaluation.episodes import EpisodeSet, run_episodes
@@ -47,8 +47,9 @@ agent = train_agent(
     train,
     steps=8192,
     seed=0,
-    curve_points=3,
-    curve_episodes=EpisodeSet(seen, (10_000, 10_001, 10_002)),
+    curve=CurveOptions(
+        episodes=EpisodeSet(seen, (10_000, 10_001, 10_002)), points=3
+    ),
     progress=False,
 )
 print(f"theta_ppo: {agent.steps} steps in {agent.wall_s:.0f} s, kept the "

@@ -220,13 +220,21 @@ def test_sb3_adapter_batch_lanes_are_independent():
 
 
 def test_train_save_load_roundtrip(tmp_path):
+    from stcgym.agents.rl.learning_curve import CurveOptions
     from stcgym.agents.rl.sb3 import load_agent, train_agent
 
     cfg = default_config("ppo")
     apply_overrides({"ppo": cfg}, ["ppo.n_steps=32", "ppo.batch_size=32", "ppo.n_envs=2"])
     spec = EnvSpec(("stable2",), steps=40)
     agent = train_agent(
-        "ppo", cfg, spec, 64, seed=1, out_dir=tmp_path, curve_points=2, progress=False
+        "ppo",
+        cfg,
+        spec,
+        64,
+        seed=1,
+        curve=CurveOptions(points=2),
+        out_dir=tmp_path,
+        progress=False,
     )
     assert agent.steps == 64 and agent.curve[0][0] == 0 and agent.curve[-1][0] == 64
     assert (tmp_path / "model.zip").is_file() and (tmp_path / "agent.json").is_file()
@@ -416,13 +424,21 @@ def test_sb3_rejects_what_the_rules_cannot_see():
 
 
 def test_recurrent_agent_carries_its_state_and_reloads(tmp_path):
+    from stcgym.agents.rl.learning_curve import CurveOptions
     from stcgym.agents.rl.sb3 import load_agent, train_agent
 
     cfg = default_config("rppo")
     apply_overrides({"rppo": cfg}, ["rppo.n_steps=16", "rppo.batch_size=32", "rppo.n_envs=2"])
     spec = EnvSpec(("stable2", "unstable2"), steps=40)
     agent = train_agent(
-        "rppo", cfg, spec, 32, seed=0, out_dir=tmp_path, curve_points=1, progress=False
+        "rppo",
+        cfg,
+        spec,
+        32,
+        seed=0,
+        curve=CurveOptions(points=1),
+        out_dir=tmp_path,
+        progress=False,
     )
     assert agent.policy.recurrent
     a = run_episode(agent.policy, spec, 3)

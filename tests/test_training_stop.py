@@ -9,6 +9,7 @@ import pytest
 from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.rl import sb3 as sb3_mod
 from stcgym.agents.rl.configs import default_config
+from stcgym.agents.rl.learning_curve import CurveOptions
 from stcgym.agents.rl.sb3 import curve_checkpoints, train_agent
 from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
 
@@ -99,9 +100,8 @@ def _train(cap, rule):
     config.n_envs = 2
     config.hyperparams.update(n_steps=64, batch_size=64, n_epochs=1)
     spec = EnvSpec(("stable2",), steps=60)
-    return train_agent(
-        "ppo", config, spec, cap, 0, curve_points=1, plateau=rule, eval_interval=ROLLOUT
-    )
+    curve = CurveOptions(points=1, plateau=rule, interval=ROLLOUT)
+    return train_agent("ppo", config, spec, cap, 0, curve=curve)
 
 
 def test_min_evals_hand_worked():
@@ -181,6 +181,17 @@ def test_the_default_rule_never_stops_before_half_the_cap(monkeypatch):
     assert "50 % of the cap" in agent.stop.rule
 
 
+def test_curve_options_check_what_they_are_given():
+    with pytest.raises(ValueError, match="interval must be a positive integer with a plateau"):
+        CurveOptions(plateau=PlateauRule())
+    with pytest.raises(ValueError, match="interval must be a positive integer"):
+        CurveOptions(plateau=PlateauRule(), interval=0.5)
+    with pytest.raises(ValueError, match="points must be a positive integer"):
+        CurveOptions(points=0)
+    assert CurveOptions(plateau=PlateauRule(), interval=128.0).interval == 128
+    assert CurveOptions(interval=None).plateau is None  # no rule: no interval needed
+
+
 def test_cap_below_one_interval_is_refused():
     with pytest.raises(ValueError, match="below one evaluation interval"):
         train_agent(
@@ -189,8 +200,7 @@ def test_cap_below_one_interval_is_refused():
             EnvSpec(("stable2",), steps=60),
             100,
             0,
-            plateau=PlateauRule(),
-            eval_interval=ROLLOUT,
+            curve=CurveOptions(plateau=PlateauRule(), interval=ROLLOUT),
         )
 
 

@@ -150,7 +150,7 @@ class BenchConfig:
     executor: str = "local"
     address: str | None = None
     tensorboard_log: str | None = None
-    bootstrap_reps: int = 2000
+    bootstrap_reps: int = 1000
 
     @property
     def run_dir(self) -> Path:
@@ -254,107 +254,84 @@ def parse_train_steps(value: str | int | dict | None, algos: Sequence[str]) -> d
     return out
 
 
-#: build_config's keyword arguments that are BenchConfig fields taken as given when not None
-_PLAIN = (
-    "train_seeds",
-    "test_plants",
-    "episodes_per_plant",
-    "nominal_episodes",
-    "curve_episodes",
-    "bound_plants",
-    "episode_steps",
-    "noise_std",
-    "curve_points",
-    "eval_interval",
-    "tune_trials",
+#: BenchConfig fields that take a comma-separated string or a sequence of names
+_NAME_LISTS = (
+    "scenarios",
+    "plants",
+    "ood",
+    "ladder",
+    "ladder_agents",
+    "tune_agents",
+    "mimo_plants",
+    "agents",
+)
+#: BenchConfig fields a run derives from the preset, the caps or its own measurements
+_DERIVED = (
+    "mode",
+    "family_train_steps",
+    "mimo_train_steps",
+    "action_bounds",
+    "action_units",
+    "tuned",
+    "algo_configs",
 )
 
 
 def build_config(
+    mode: str | None = None,
     *,
     quick: bool = True,
-    mode: str | None = None,
-    run: str | None = None,
-    out: str = "results",
-    scenarios: str | Sequence[str] | None = None,
-    plants: str | Sequence[str] | None = None,
-    family: str | None = None,
-    ood: str | Sequence[str] | None = None,
-    ladder: str | Sequence[str] | None = None,
-    ladder_agents: str | Sequence[str] | None = None,
-    tune_agents: str | Sequence[str] | None = None,
-    mimo_plants: str | Sequence[str] | None = None,
-    agents: str | Sequence[str] | None = None,
     train_steps: str | int | dict | None = None,
-    patience: int = PlateauRule.patience,
-    min_improvement: float = PlateauRule.min_improvement,
-    min_train_fraction: float = PlateauRule.min_fraction,
-    first_seed: int = 1000,
-    hp: Sequence[str] = (),
-    plots: bool = True,
-    progress: bool | None = None,
-    jobs: int | None = None,
-    executor: str = "local",
-    address: str | None = None,
-    tensorboard_log: str | None = None,
-    bootstrap_reps: int = 2000,
-    **plain: Any,
+    **settings: Any,
 ) -> BenchConfig:
     """Build and validate a :class:`BenchConfig` (raises :class:`BenchInputError`).
 
-    Defaults come from the preset ``mode`` (``"quick"``, ``"standard"`` or ``"full"``; without
-    it ``quick`` picks quick or full); every list argument takes a comma-separated string or a
-    sequence; ``plain`` takes the fields ``train_seeds``, ``test_plants``,
-    ``episodes_per_plant``, ``nominal_episodes``, ``curve_episodes``, ``bound_plants``,
-    ``episode_steps``, ``noise_std``, ``curve_points``, ``eval_interval`` and ``tune_trials``
-    (``None``: the preset's). Nothing is trained or written here.
+    Parameters
+    ----------
+    mode
+        The preset, ``"smoke"``, ``"quick"``, ``"standard"`` or ``"full"``; ``None``: quick
+        or full as ``quick`` says.
+    train_steps
+        The training caps: ``20000`` (every algorithm), ``"ppo=40000,sac=10000"`` or a dict
+        (``None``: the preset's caps).
+    **settings
+        Any other field of :class:`BenchConfig` (``run``, ``agents``, ``train_seeds``,
+        ``patience``, ``jobs``, ...); ``None`` or absent: the preset's value, else the field's
+        default (``jobs``: at most 2, the cores there are). The list fields (``scenarios``,
+        ``plants``, ``ood``, ``ladder``, ``ladder_agents``, ``tune_agents``, ``mimo_plants``,
+        ``agents``) take a comma-separated string or a sequence.
+
+    Nothing is trained or written here.
     """
-    unknown = sorted(set(plain) - set(_PLAIN))
+    settable = {f.name for f in fields(BenchConfig)} - {*_DERIVED, "train_steps"}
+    unknown = sorted(set(settings) - settable)
     if unknown:
-        raise TypeError(f"build_config() got unexpected keyword arguments {unknown}")
+        raise TypeError(
+            f"build_config() got unexpected keyword arguments {unknown}; "
+            f"the settings are BenchConfig's fields {sorted(settable)}"
+        )
     mode = mode if mode is not None else ("quick" if quick else "full")
     if mode not in MODES:
         raise BenchInputError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
     preset = MODES[mode]
+    given = {k: v for k, v in settings.items() if v is not None}
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    cfg = BenchConfig(run=run or f"{stamp}-{preset['mode']}", out=str(out))
+    cfg = BenchConfig(run=given.pop("run", "") or f"{stamp}-{preset['mode']}")
     for key, value in preset.items():
         _set(cfg, key, value if not isinstance(value, list) else list(value))
-    for name, value in (
-        ("scenarios", scenarios),
-        ("plants", plants),
-        ("ood", ood),
-        ("ladder", ladder),
-        ("ladder_agents", ladder_agents),
-        ("tune_agents", tune_agents),
-        ("mimo_plants", mimo_plants),
-        ("agents", agents),
-    ):
-        parsed = _split(value)
-        if parsed is not None:
-            _set(cfg, name, parsed)
-    if family is not None:
-        _set(cfg, "family", str(family))
-    for name, value in plain.items():
-        if value is not None:
-            _set(cfg, name, value)
-    if plain.get("tune_trials") is None and not set(FAMILY_KINDS) & set(cfg.scenarios):
+    for name, value in given.items():
+        _set(cfg, name, _split(value) if name in _NAME_LISTS else value)
+    if "tune_trials" not in given and not set(FAMILY_KINDS) & set(cfg.scenarios):
         # the preset's studies tune on the family's validation split: none without the family
         _set(cfg, "tune_trials", 0)
-        if agents is None:
+        if "agents" not in given:
             _set(cfg, "agents", [a for a in cfg.agents if a != "stc_tuned"])
-    _set(cfg, "first_seed", first_seed)
-    _set(cfg, "plots", bool(plots))
-    _set(cfg, "progress", progress)
-    _set(cfg, "jobs", jobs if jobs is not None else min(2, os.cpu_count() or 1))
-    _set(cfg, "executor", executor)
-    _set(cfg, "address", address)
-    _set(cfg, "tensorboard_log", None if tensorboard_log is None else str(tensorboard_log))
-    _set(cfg, "bootstrap_reps", bootstrap_reps)
-    _set(cfg, "patience", patience)
-    _set(cfg, "min_improvement", min_improvement)
-    _set(cfg, "min_train_fraction", min_train_fraction)
-    _set(cfg, "overrides", list(hp))
+    if "jobs" not in given:
+        _set(cfg, "jobs", min(2, os.cpu_count() or 1))
+    for name, kind in (("out", str), ("family", str), ("plots", bool), ("overrides", list)):
+        _set(cfg, name, kind(getattr(cfg, name)))
+    if cfg.tensorboard_log is not None:
+        _set(cfg, "tensorboard_log", str(cfg.tensorboard_log))
     try:
         validate(cfg, train_steps)
     except BenchInputError:

@@ -46,6 +46,7 @@ __all__ = [
     "DETAIL_COLUMNS",
     "SELF_TUNING",
     "aggregate",
+    "as_float",
     "headline",
     "STRATA",
     "by_stratum",
@@ -87,7 +88,8 @@ _TABLE_COLUMNS = (
 )
 
 
-def _float(v: Any) -> float:
+def as_float(v: Any) -> float:
+    """A metric cell as a number: ``nan`` where it is empty or not one."""
     try:
         return float(v)
     except (TypeError, ValueError):
@@ -117,12 +119,12 @@ def scenario_tables(
         for r in rs:
             if not _untrained(r):  # the untrained network is no trained agent's cost
                 by_run.setdefault(r["run"], []).append(r)
-        runs = [k for k in sorted(by_run, key=_float) if len(by_run[k]) == P * E]
+        runs = [k for k in sorted(by_run, key=as_float) if len(by_run[k]) == P * E]
         if not runs:
             continue
         table = {
             col: np.array(
-                [[_float(r.get(col)) for r in by_run[k]] for k in runs], dtype=float
+                [[as_float(r.get(col)) for r in by_run[k]] for k in runs], dtype=float
             ).reshape(len(runs), P, E)
             for col in _TABLE_COLUMNS
         }
@@ -133,7 +135,7 @@ def scenario_tables(
 def _untrained(row: dict[str, Any]) -> bool:
     """An RL run whose kept checkpoint is step 0: training never improved on the untrained
     network's validation score."""
-    return row["family"] == "rl" and _float(row.get("train_kept_step")) == 0
+    return row["family"] == "rl" and as_float(row.get("train_kept_step")) == 0
 
 
 def untrained_runs(rows: Sequence[dict[str, Any]], scenario: str) -> dict[str, tuple[int, int]]:
@@ -262,8 +264,8 @@ def aggregate(rows: Sequence[dict[str, Any]]) -> dict[tuple[str, str], dict[str,
     """``(scenario, controller) -> {column: summarize(...)} plus row and failure counts``."""
     out = {}
     for key, rs in _groups(rows).items():
-        failed = [not int(_float(r["bounded"])) for r in rs]
-        stats = {c: summarize([_float(r.get(c)) for r in rs], failed) for c in DETAIL_COLUMNS}
+        failed = [not int(as_float(r["bounded"])) for r in rs]
+        stats = {c: summarize([as_float(r.get(c)) for r in rs], failed) for c in DETAIL_COLUMNS}
         stats["rows"] = len(rs)
         stats["failures"] = int(sum(failed))
         stats["family"] = rs[0]["family"]
@@ -275,12 +277,12 @@ def training_stops(rs: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """How the training runs behind the rows ``rs`` (one RL agent) ended, one per run:
     ``{"seeds", "plateau", "cap", "steps", "last_improvement"}`` (step lists by run)."""
     per_run = {r["run"]: r for r in rs}
-    runs = [per_run[k] for k in sorted(per_run, key=_float)]
+    runs = [per_run[k] for k in sorted(per_run, key=as_float)]
     status = [str(r.get("train_stop", "")) for r in runs]
     return {
         "seeds": len(runs),
         "plateau": status.count("plateau"),
         "cap": status.count("cap"),
-        "steps": [_float(r["train_steps"]) for r in runs],
-        "last_improvement": [_float(r.get("train_last_improvement")) for r in runs],
+        "steps": [as_float(r["train_steps"]) for r in runs],
+        "last_improvement": [as_float(r.get("train_last_improvement")) for r in runs],
     }

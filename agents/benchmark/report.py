@@ -26,6 +26,7 @@ from stcgym.agents.benchmark.attribution import identification_or_design
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
     aggregate,
+    as_float,
     headline,
     paired,
     scenario_tables,
@@ -381,7 +382,7 @@ def _training_table(cfg: Any, data: Any) -> list[str]:
             f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
             f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
             f"{_g(min(curve)) if curve else '-'} | {_k(kept)} | {diagnostics} | "
-            f"{_g(_float(stop.get('wall_s')), 4)} |"
+            f"{_g(as_float(stop.get('wall_s')), 4)} |"
         )
     if len(lines) == 2:
         return []
@@ -412,19 +413,12 @@ def _diagnostics_cell(diagnostics: Sequence[dict[str, Any]]) -> str:
     cells = []
     for name in _DIAGNOSTICS:
         values = [
-            _float(d.get(name, d.get(f"train/{name}")))
+            as_float(d.get(name, d.get(f"train/{name}")))
             for d in diagnostics
         ]  # fmt: skip
         values = [v for v in values if math.isfinite(v)]
         cells.append(_g(float(np.median(values)), 2) if values else "-")
     return ", ".join(cells)
-
-
-def _float(v: Any) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def write_report(

@@ -208,16 +208,17 @@ def tune_rl(task: TuningTask) -> dict[str, Any]:
     (:func:`sample_rl` form). The first trial is the default recipe (:func:`default_params`),
     so a study keeps the defaults unless a trial scores better; a trial whose updates are
     unhealthy (:func:`unhealthy`) scores :data:`FAILED`."""
+    from stcgym.agents.rl.learning_curve import CurveOptions
     from stcgym.agents.rl.sb3 import train_agent
 
     sampled: dict[int, dict[str, Any]] = {}
 
     def objective(trial: Any) -> float:
         params = sampled[trial.number] = sample_rl(trial, task.algo)
+        curve = CurveOptions(task.curve, task.curve_episodes, 2, task.reference)
         agent = train_agent(
             task.algo, apply_rl_params(task.config, params), task.train, task.steps,
-            task.seed + trial.number, curve_spec=task.curve, curve_episodes=task.curve_episodes,
-            curve_points=2, curve_reference=task.reference,
+            task.seed + trial.number, curve=curve,
         )  # fmt: skip
         best = min(score for _, score in agent.curve)
         return FAILED if unhealthy(agent.updates) or not math.isfinite(best) else best

@@ -13,6 +13,7 @@ per step), and :func:`make_curve_callback` is the SB3 callback that records the 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,7 @@ from stcgym.agents.rl.stopping import PlateauRule, PlateauTracker
 
 __all__ = [
     "UPDATE_DIAGNOSTICS",
+    "CurveOptions",
     "curve_checkpoints",
     "curve_cost",
     "make_curve_callback",
@@ -47,6 +49,54 @@ UPDATE_DIAGNOSTICS: tuple[str, ...] = (
     "critic_loss",
     "ent_coef",
 )
+
+
+@dataclass(frozen=True)
+class CurveOptions:
+    """How :func:`~stcgym.agents.train_agent` measures its learning curve, which checkpoint it
+    keeps and when it stops: SB3's ``EvalCallback`` settings, on the bench's own score.
+
+    Attributes
+    ----------
+    spec
+        The validation environment (``None``: the training spec).
+    episodes
+        The validation episodes (``None``: two per plant of ``spec``, its first 20 plants,
+        seeds from 10 000), run by the deterministic policy as one batch of lanes.
+    points
+        Log-spaced measurements up to the first ``interval``, or up to the budget without a
+        plateau rule (:func:`curve_checkpoints`); step 0 is always measured.
+    reference
+        The yardstick's mean cost per step on each episode: the curve is then the median cost
+        ratio to it (:func:`curve_cost`), else the mean cost per step.
+    keep_best
+        Keep the checkpoint with the lowest score (RL Zoo's ``EvalCallback`` best model)
+        rather than the last one. Validation episodes only, never the bench's test episodes.
+    plateau
+        Stop on a plateau of the curve (:class:`~stcgym.agents.rl.stopping.PlateauRule`),
+        the budget then being a cap; measured every ``interval`` env steps.
+    interval
+        The plateau rule's evaluation interval in env steps (a positive integer, required
+        with ``plateau``).
+    """
+
+    spec: EnvSpec | None = None
+    episodes: EpisodeSet | None = None
+    points: int = 10
+    reference: Sequence[float] | None = None
+    keep_best: bool = True
+    plateau: PlateauRule | None = None
+    interval: int | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.points, bool) or int(self.points) != self.points or self.points < 1:
+            raise ValueError(f"points must be a positive integer, got {self.points!r}")
+        if self.plateau is None:
+            return
+        n = self.interval
+        if n is None or isinstance(n, bool) or int(n) != n or n < 1:
+            raise ValueError(f"interval must be a positive integer with a plateau, got {n!r}")
+        object.__setattr__(self, "interval", int(n))
 
 
 def update_record(logged: dict[str, Any], step: int) -> dict[str, float] | None:

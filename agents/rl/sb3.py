@@ -35,9 +35,14 @@ from stcgym.agents.evaluation.env_spec import EnvSpec
 from stcgym.agents.evaluation.episodes import EpisodeSet
 from stcgym.agents.rl.configs import AlgoConfig, algorithm_class, with_action_unit
 from stcgym.agents.rl.interfaces import InterfaceSpec
-from stcgym.agents.rl.learning_curve import curve_checkpoints, curve_cost, make_curve_callback
+from stcgym.agents.rl.learning_curve import (
+    CurveOptions,
+    curve_checkpoints,
+    curve_cost,
+    make_curve_callback,
+)
 from stcgym.agents.rl.policy import ObsNorm, SB3Policy
-from stcgym.agents.rl.stopping import PlateauRule, StopSummary
+from stcgym.agents.rl.stopping import StopSummary
 from stcgym.agents.rl.wrappers import WindowConfig
 
 __all__ = [
@@ -233,14 +238,8 @@ def train_agent(
     steps: int,
     seed: int,
     *,
+    curve: CurveOptions | None = None,
     out_dir: str | Path | None = None,
-    curve_spec: EnvSpec | None = None,
-    curve_episodes: EpisodeSet | None = None,
-    curve_points: int = 10,
-    curve_reference: Sequence[float] | None = None,
-    keep_best: bool = True,
-    plateau: PlateauRule | None = None,
-    eval_interval: int | None = None,
     progress: bool | None = None,
     tensorboard_log: str | Path | None = None,
     tb_log_name: str | None = None,
@@ -260,22 +259,14 @@ def train_agent(
         Environment steps of training (``> 0``): the budget, or the cap with ``plateau``.
     seed
         Seeds SB3 (network init, exploration) and the training lanes (``seed + i``).
+    curve
+        The learning curve, the checkpoint kept and the plateau rule
+        (:class:`~stcgym.agents.rl.learning_curve.CurveOptions`; ``None``: its defaults, ten
+        points on two episodes per plant of ``train_spec``, the best checkpoint kept, no
+        plateau rule). Its episodes are validation episodes, never the bench's test episodes.
     out_dir
         Where to save ``model.zip``, ``agent.json`` and ``monitor.csv`` (nothing saved when
         ``None``).
-    curve_spec, curve_episodes, curve_points
-        Learning curve: at ``curve_points`` log-spaced training steps (up to the first
-        ``eval_interval`` when given, then every ``eval_interval`` steps:
-        :func:`curve_checkpoints`) and at step 0 the deterministic policy runs the episodes
-        ``curve_episodes`` of ``curve_spec`` (default ``train_spec``; default episodes: two per
-        plant of the spec, the first 20 plants, seeds from 10 000) as one batch of lanes.
-    curve_reference
-        The yardstick's mean cost per step on each curve episode: the curve is then the median
-        cost ratio to it (:func:`curve_cost`), else the mean cost per step.
-    keep_best
-        Keep the checkpoint with the lowest learning-curve score rather than the last one (RL
-        Zoo's ``EvalCallback`` best model). The curve episodes are validation episodes, never
-        the bench's test episodes.
     progress
         SB3's progress bar; default on when stderr is a terminal.
     tensorboard_log, tb_log_name
@@ -292,9 +283,8 @@ def train_agent(
     Raises
     ------
     ValueError
-        ``steps`` not a positive integer, or with ``plateau`` an ``eval_interval`` that is not
-        a positive integer or exceeds ``steps``; an unknown ``algo`` or a config value its
-        rule rejects.
+        ``steps`` not a positive integer, or a plateau rule's interval that exceeds ``steps``;
+        an unknown ``algo`` or a config value its rule rejects.
 
     Examples
     --------
@@ -302,13 +292,13 @@ def train_agent(
 
     >>> import tempfile
     >>> import numpy as np
-    >>> from stcgym.agents import EnvSpec, default_config, load_agent, train_agent
+    >>> from stcgym.agents import CurveOptions, EnvSpec, default_config, load_agent, train_agent
     >>> config = default_config("ppo")
     >>> config.n_envs = 1
     >>> config.hyperparams.update(n_steps=64, batch_size=64)
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     agent = train_agent("ppo", config, EnvSpec("stable2", steps=100), 128, seed=0,
-    ...                         out_dir=folder, curve_points=2)
+    ...                         curve=CurveOptions(points=2), out_dir=folder)
     ...     again = load_agent(folder)
     >>> agent.algo, agent.steps, [step for step, cost in agent.curve]
     ('ppo', 128, [0, 64, 128])
@@ -321,14 +311,12 @@ def train_agent(
 
     if int(steps) != steps or steps < 1:
         raise ValueError(f"training steps must be a positive integer, got {steps!r}")
-    if plateau is not None:
-        if eval_interval is None or int(eval_interval) != eval_interval or eval_interval < 1:
-            raise ValueError(f"eval_interval must be a positive integer, got {eval_interval!r}")
-        if eval_interval > steps:
-            raise ValueError(
-                f"the cap of {steps} steps is below one evaluation interval ({eval_interval})"
-            )
-        eval_interval = int(eval_interval)
+    curve_options = CurveOptions() if curve is None else curve
+    plateau, eval_interval = curve_options.plateau, curve_options.interval
+    if plateau is not None and eval_interval > steps:
+        raise ValueError(
+            f"the cap of {steps} steps is below one evaluation interval ({eval_interval})"
+        )
     # Small MLPs: one thread is faster than two fighting over a shared 2-core machine.
     torch.set_num_threads(1)
     config = measured_action_unit(config, train_spec)
@@ -341,8 +329,9 @@ def train_agent(
     model = build_model(algo, config, vec, seed, tensorboard_log=tb)
     normaliser = vec if getattr(vec, "norm_obs", False) else None
 
-    cspec = curve_spec or train_spec
-    episodes = curve_episodes or EpisodeSet.of(cspec, 2, 10_000, max_plants=20)
+    cspec = curve_options.spec or train_spec
+    episodes = curve_options.episodes or EpisodeSet.of(cspec, 2, 10_000, max_plants=20)
+    reference = curve_options.reference
     lanes = SB3Policy(
         model, window, train_spec.action_bound, None, train_spec.channels,
         interface=interface_of(config, train_spec, seed),
@@ -356,7 +345,7 @@ def train_agent(
     def restore(norm: ObsNorm | None) -> None:
         lanes.obs_norm = norm
 
-    curve: list[tuple[int, float]] = []
+    scores: list[tuple[int, float]] = []  # the learning curve
     updates: list[dict[str, float]] = []
     if lanes.informed:  # told the plants the episodes start on, and every jump
 
@@ -364,18 +353,18 @@ def train_agent(
             def builder(plants: list[Any], seeds: list[int]) -> SB3Policy:
                 return p.with_lanes(len(plants), seeds, plants)
 
-            return curve_cost(builder, cspec, episodes, curve_reference, informed=True)
+            return curve_cost(builder, cspec, episodes, reference, informed=True)
     else:
 
         def measure(p: SB3Policy) -> float:
-            return curve_cost(p, cspec, episodes, curve_reference)
+            return curve_cost(p, cspec, episodes, reference)
 
     callback = make_curve_callback(
-        curve,
+        scores,
         lanes,
-        curve_checkpoints(int(steps), curve_points, eval_interval if plateau else None),
+        curve_checkpoints(int(steps), curve_options.points, eval_interval if plateau else None),
         measure,
-        keep_best,
+        curve_options.keep_best,
         plateau,
         eval_interval,
         int(steps),
@@ -400,7 +389,7 @@ def train_agent(
         stop = callback.tracker.summary(status, used, int(steps), eval_interval)
         stop.best_step, stop.improved = (
             callback.best_step,
-            improved_on_start(curve, callback.best_step),
+            improved_on_start(scores, callback.best_step),
         )
     agent = TrainedAgent(
         algo,
@@ -410,7 +399,7 @@ def train_agent(
         train_spec,
         used,
         wall,
-        curve,
+        scores,
         out,
         callback.best_step,
         stop,

@@ -153,6 +153,7 @@ def _traces(batch: Any, count: int) -> dict[str, Any]:
 
 def train_and_evaluate(task: TrainingTask) -> TrainingResult:
     """Train the agent of ``task`` and evaluate it on the task's scenarios (worker side)."""
+    from stcgym.agents.rl.learning_curve import CurveOptions
     from stcgym.agents.rl.sb3 import train_agent
 
     folder = Path(task.model_dir)
@@ -162,13 +163,15 @@ def train_and_evaluate(task: TrainingTask) -> TrainingResult:
         task.train_env,
         task.steps,
         task.seed,
+        curve=CurveOptions(
+            spec=task.curve_env,
+            episodes=task.curve_episodes,
+            points=task.curve_points,
+            reference=task.curve_reference,
+            plateau=task.plateau,
+            interval=task.eval_interval,
+        ),
         out_dir=folder,
-        curve_spec=task.curve_env,
-        curve_episodes=task.curve_episodes,
-        curve_points=task.curve_points,
-        curve_reference=task.curve_reference,
-        plateau=task.plateau,
-        eval_interval=task.eval_interval,
         progress=task.progress,
         tensorboard_log=task.tensorboard_log,
         tb_log_name=task.name,
