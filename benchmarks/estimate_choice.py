@@ -4,8 +4,8 @@ self-tuning controller's extended least squares (ELS), on the bench's family tes
 Both estimators run side by side on the same episodes and the same applied inputs, as an agent
 would feed them:
 
-* ``O-RLS`` exactly as :class:`~stcgym.agents.rl.interfaces.EstimateInterface` runs it
-  (:func:`~stcgym.agents.rl.interfaces.closed_loop_estimator`: ``update(y(t))``, then
+* ``O-RLS`` exactly as :class:`~stcgym.agents.rl.estimate_interfaces.EstimateInterface` runs it
+  (:func:`~stcgym.agents.rl.estimate_interfaces.closed_loop_estimator`: ``update(y(t))``, then
   ``predict(u(t))`` with the input applied);
 * ``ELS`` as a :class:`~stcgym.adaptive.SelfTuningController` with its defaults reports it when
   it is told the applied input: ``propose([y(t), r(t)])`` (its measurement step, change
@@ -71,7 +71,7 @@ from stcgym.adaptive import SelfTuningController
 from stcgym.agents.benchmark import build_config, make_scenarios
 from stcgym.agents.benchmark.headline import STRATA, plant_strata
 from stcgym.agents.controllers import CONTROLLERS, controller_seeds
-from stcgym.agents.rl.interfaces import closed_loop_estimator
+from stcgym.agents.rl.estimate_interfaces import closed_loop_estimator
 
 ESTIMATES = ("O-RLS", "ELS")
 DRIVERS = ("stc", "lqg", "noise", "noise_small", "theta_ppo")
