@@ -31,8 +31,9 @@ from stcgym.agents.evaluation.evaluate import (
     run_episode,
     summarize,
 )
-from stcgym.agents.rl.configs import AlgoConfig, apply_overrides, default_config
+from stcgym.agents.rl.configs import AlgoConfig, default_config
 from stcgym.agents.rl.learning_curve import CurveOptions
+from stcgym.agents.rl.overrides import apply_overrides
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
 __all__ = [

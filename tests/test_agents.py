@@ -17,12 +17,8 @@ from stcgym.agents.evaluation.evaluate import (
     run_episode,
     summarize,
 )
-from stcgym.agents.rl.configs import (
-    DEFAULT_CONFIGS,
-    apply_overrides,
-    default_config,
-    parse_override,
-)
+from stcgym.agents.rl.configs import DEFAULT_CONFIGS, default_config
+from stcgym.agents.rl.overrides import apply_overrides, parse_override
 from stcgym.agents.rl.wrappers import HistoryBuffer, HistoryWindow, TrainingReward, WindowConfig
 
 

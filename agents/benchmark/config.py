@@ -27,12 +27,8 @@ from typing import Any
 from stcgym.agents.benchmark.mimo import check_mimo_plants
 from stcgym.agents.benchmark.tiers import FAMILY_KINDS, MODES, SCENARIO_KINDS
 from stcgym.agents.controllers import CONTROLLERS, YARDSTICK
-from stcgym.agents.rl.configs import (
-    ALGORITHMS,
-    FAMILY_ALGORITHMS,
-    apply_overrides,
-    default_config,
-)
+from stcgym.agents.rl.configs import ALGORITHMS, FAMILY_ALGORITHMS, default_config
+from stcgym.agents.rl.overrides import apply_overrides
 from stcgym.agents.rl.stopping import PlateauRule
 from stcgym.envs.catalogue import get_plant, plant_names
 from stcgym.envs.families import LADDER
