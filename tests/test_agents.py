@@ -288,6 +288,12 @@ def test_parse_and_apply_overrides():
     for bad in ("ppo.no_such_arg=1", "dqn.learning_rate=1", "ppo=1", "learning_rate=1"):
         with pytest.raises(ValueError):
             apply_overrides({}, [bad])
+    with pytest.raises(ValueError, match=r"ppo\.n_envs is not a dict"):
+        apply_overrides({}, ["ppo.n_envs.x=1"])
+    with pytest.raises(ValueError, match="'seed' is not a hyperparameter"):
+        apply_overrides({}, ["ppo.hyperparams.seed=1"])
+    with pytest.raises(ValueError, match="'seed' is not a hyperparameter"):
+        apply_overrides({}, ["ppo.seed=1"])
 
 
 # ------------------------------------------------------------------------------ evaluation

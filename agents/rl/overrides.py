@@ -94,9 +94,10 @@ def apply_overrides(
             _check(cfg, text)
             continue
         if path[0] in config_fields:
-            target, path = getattr(cfg, path[0]), path[1:]
+            target = getattr(cfg, path[0])
             if not isinstance(target, dict):
                 raise ValueError(f"--hp {text!r}: {algo}.{path[0]} is not a dict")
+            path = path[1:]
         elif path[0] in RESERVED_ARGS or path[0] in _constructor_args(algo):
             target = cfg.hyperparams  # short for ALGO.hyperparams.KEY
         else:
