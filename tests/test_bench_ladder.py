@@ -91,12 +91,16 @@ def test_the_ladder_table_puts_the_rungs_side_by_side_with_the_family_last():
             "ppo": {"family": "rl", "runs": 0, "untrained_runs": 2},
             "stc": res(1.9, 0.0),
         },  # fmt: skip
-        "family:test": {"ppo": res(7.0, 0.25), "stc": res(2.2, 0.01)},
+        "family:test": {
+            "ppo": {**res(7.0, 0.25), "runs": 2, "untrained_runs": 3},
+            "stc": res(2.2, 0.01),
+        },
     }
     lines = ladder_table(cfg, scenarios, statistics)
     assert lines[0] == ("| controller | ladder-l1-v1 | ladder-l2-v1 | ladder-l4-v1 (family:test) |")
     assert lines[2] == (
-        "| ppo | 2.5 [2.25, 2.75] | no improvement over initialisation | 7 [6.3, 7.7]; 25 % div. |"
+        "| ppo | 2.5 [2.25, 2.75] | no improvement over initialisation "
+        "| 7 [6.3, 7.7]; 25 % div.; 3 of 5 runs untrained |"
     )
     assert lines[3] == "| stc | 1.8 [1.62, 1.98] | 1.9 [1.71, 2.09] | 2.2 [1.98, 2.42]; 1 % div. |"
     # another family is not the last rung: the rungs alone

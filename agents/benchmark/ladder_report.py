@@ -52,7 +52,8 @@ def ladder_rows(
     """``[(controller, cells)]`` of the ladder table over the scenarios ``columns``, every
     controller of any of them in order of appearance: ``-`` where it did not run, "no
     improvement over initialisation" where every run kept its untrained network, else its
-    cost / LQG (``ratio`` writes the estimate) and the diverged share where any. ``ratio``
+    cost / LQG (``ratio`` writes the estimate), the diverged share where any and how many runs
+    kept their untrained network (left out of the estimate) where any. ``ratio``
     and ``diverged`` read the statistics as the report holds them (estimates) or as
     ``statistics.json`` does (dicts)."""
     names = list(dict.fromkeys(c for s in columns for c in statistics[s]))
@@ -66,8 +67,16 @@ def ladder_rows(
             elif "ratio" not in res:
                 cells.append("no improvement over initialisation")
             else:
-                div = diverged(res)
-                cells.append(ratio(res["ratio"]) + (f"; {diverged_share(div)}" if div else ""))
+                div, untrained = diverged(res), res.get("untrained_runs", 0)
+                cells.append(
+                    ratio(res["ratio"])
+                    + (f"; {diverged_share(div)}" if div else "")
+                    + (
+                        f"; {untrained} of {res['runs'] + untrained} runs untrained"
+                        if untrained
+                        else ""
+                    )
+                )
         rows.append((name, cells))
     return rows
 

@@ -310,8 +310,9 @@ def _ladder_page_table(statistics: dict[str, Any]) -> list[str]:
         return []
     columns = [*rungs, *(["family:test"] if "family:test" in statistics else [])]
     lines = [
-        "The ladder: cost / LQG, IQM over the bounded episodes [95 % CI], and the diverged "
-        "share where any",
+        "The ladder: cost / LQG, IQM over the bounded episodes [95 % CI], the diverged share "
+        "and the runs whose training never improved on the untrained network (left out) "
+        "where any",
         "",
         "| controller | " + " | ".join(f"`{s}`" for s in columns) + " |",
         "|---|" + "---|" * len(columns),

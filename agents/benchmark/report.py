@@ -539,8 +539,9 @@ def write_report(
         out += [
             "## The difficulty ladder",
             "",
-            "Cost / LQG (IQM over the bounded episodes [95 % interval]) and the share of "
-            "diverged episodes (where any) on each rung's test split, one feature added per "
+            "Cost / LQG (IQM over the bounded episodes [95 % interval]), the share of "
+            "diverged episodes and the runs kept at step 0, left out (where any) on each "
+            "rung's test split, one feature added per "
             "rung (L1 stable, minimum phase, positive gain; L2 both gain signs; L3 "
             "nonminimum-phase zeros; L4 unstable poles: `stcgym.envs.families.LADDER`). The "
             "RL agents of a rung trained on its training split; on the family's test split "
