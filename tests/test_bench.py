@@ -219,7 +219,7 @@ def test_end_to_end_writes_every_file(tiny_run):
     assert "has not improved on its best by more than 5 % in 3 consecutive" in report
     # every training run's kept checkpoint, as the training callback kept it (agent.json)
     training = report.split("## RL training")[1].split("Departures")[0]
-    header = "| kept step | updates: approx KL, clip fraction, explained variance | wall s |"
+    header = "| kept step | updates: approx KL, clip fraction, explained variance, entropy |"
     assert header in training
     for meta_file in (run / "models").glob("*/agent.json"):
         meta = json.loads(meta_file.read_text())

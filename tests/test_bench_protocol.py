@@ -354,11 +354,26 @@ def test_the_training_table_gives_each_run_its_wall_time_and_update_statistics()
                 {"approx_kl": 0.01, "clip_fraction": 0.1, "explained_variance": 0.5},
                 {"approx_kl": 0.03, "clip_fraction": 0.2, "explained_variance": 0.7},
                 {"approx_kl": 0.02, "clip_fraction": 0.3, "explained_variance": float("nan")},
+                {"entropy_loss": 1.5},  # the entropy of a narrow Gaussian is negative
             ]
         },
     )
     cfg = SimpleNamespace(rl_agents=[])
     table = _training_table(cfg, data)
     assert "| family | ppo | 0 | cap |" in table[2]
-    assert table[2].endswith("| 0.02, 0.2, 0.6 | 222 |")  # medians; a nan is not counted
-    assert "| nominal:stable2 | ppo | 0 |" in table[3] and table[3].endswith("| -, -, - | 11 |")
+    assert table[2].endswith("| 0.02, 0.2, 0.6, -1.5 | 222 |")  # medians; nan is not counted
+    assert "| nominal:stable2 | ppo | 0 |" in table[3] and table[3].endswith("| -, -, -, - | 11 |")
+
+
+def test_table_cells_write_numbers_and_step_counts():
+    from stcgym.agents.benchmark.cells import number, percent, thousands
+    from stcgym.agents.evaluation.statistics import Estimate
+
+    assert [thousands(x) for x in (999, 1000, 2345, 999_499, 999_500, 1_003_520)] == [
+        "999", "1k", "2.35k", "999k", "1M", "1M",
+    ]  # fmt: skip
+    assert [number(x) for x in (None, math.nan, math.inf, -math.inf, 1.23456)] == [
+        "-", "-", "inf", "-inf", "1.23",
+    ]  # fmt: skip
+    assert number(123456.0) == "1.23e+05"  # a diverged cost: the exponent form
+    assert percent(Estimate(0.032, 0.012, 0.057)) == "3.2 % [1.2, 5.7]"

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from stcgym.agents.benchmark.attribution import identification_or_design
+from stcgym.agents.benchmark.cells import number, percent, thousands
 from stcgym.agents.benchmark.headline import (
     SELF_TUNING,
     aggregate,
@@ -44,24 +45,6 @@ __all__ = ["write_report"]
 _REFERENCES = (YARDSTICK, "zero", "oracle")
 
 
-def _g(x: float | None, digits: int = 3) -> str:
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "-"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    if abs(x) >= 10 ** (digits + 2):
-        return f"{x:.2e}"
-    return f"{x:.{digits}g}"
-
-
-def _k(x: float) -> str:
-    return f"{x / 1000:.3g}k" if x >= 1000 else f"{x:.0f}"
-
-
-def _pct(e: Estimate) -> str:
-    return f"{100 * e.value:.1f} % [{100 * e.low:.1f}, {100 * e.high:.1f}]"
-
-
 def _steps(res: dict[str, Any]) -> str:
     """``"2.3k (4/5)"``: median steps and how many got there; ``never`` when none did."""
     n, reached = res["n"], res["reached"]
@@ -71,7 +54,7 @@ def _steps(res: dict[str, Any]) -> str:
         return f"never (0/{n})"
     if 2 * reached <= n:  # the median is a "never"
         return f"never in half or more ({reached}/{n})"
-    return f"{_k(res['median'])} ({reached}/{n})"
+    return f"{thousands(res['median'])} ({reached}/{n})"
 
 
 def _training_cell(res: dict[str, Any] | None) -> str:
@@ -83,7 +66,7 @@ def _training_cell(res: dict[str, Any] | None) -> str:
 
 
 def _settings(params: dict[str, Any]) -> str:
-    return ", ".join(f"{k}={_g(v) if isinstance(v, float) else v}" for k, v in params.items())
+    return ", ".join(f"{k}={number(v) if isinstance(v, float) else v}" for k, v in params.items())
 
 
 def _knowledge_table(cfg: Any) -> list[str]:
@@ -117,10 +100,11 @@ def _protocol(cfg: Any, scenarios: Sequence[Any], data: Any) -> list[str]:
 
     fam = get_family(cfg.family)
     splits = ", ".join(f"{k} {len(fam.split_indices(k))}" for k in fam.splits)
-    bounds = "; ".join(f"`{k}` {_g(v)}" for k, v in cfg.action_bounds.items())
-    units = "; ".join(f"`{k}` {_g(v)}" for k, v in cfg.action_units.items())
+    bounds = "; ".join(f"`{k}` {number(v)}" for k, v in cfg.action_bounds.items())
+    units = "; ".join(f"`{k}` {number(v)}" for k, v in cfg.action_units.items())
     peaks = "; ".join(
-        f"`{k}`: median {_g(b['peak_median'])}, max {_g(b['peak_max'])} over {b['episodes']}"
+        f"`{k}`: median {number(b['peak_median'])}, max {number(b['peak_max'])} over "
+        f"{b['episodes']}"
         for k, b in data.bounds.items()
     )
     kinds = {sc.kind for sc in scenarios}
@@ -238,7 +222,7 @@ def _headline_table(
             res["ratio_median"].format(3),
             res["steady"].format(3),
             res["score"].format(3),
-            _pct(res["diverged"]),
+            percent(res["diverged"]),
             _steps(res["to_target"]),
         ]
         if jump:
@@ -283,7 +267,7 @@ def _channel_table(
         for col in cols:
             vals = [float(r[col]) for r in mine if r.get(col) not in (None, "")]
             vals = [v for v in vals if math.isfinite(v)]
-            cells.append(_g(float(np.mean(vals))) if vals else "-")
+            cells.append(number(float(np.mean(vals))) if vals else "-")
         lines.append(f"| {c} | " + " | ".join(cells) + " |")
     return lines if len(lines) > 2 else []
 
@@ -332,7 +316,7 @@ def _conclusion(name: str, hl: dict[str, dict[str, Any]], pairs: list, stops: di
             parts.append(
                 f"{verdict}: P = {prob.format(3)}, paired cost ratio {ratio.format(3)}{caveat}"
             )
-    div = [f"{c} {_pct(r['diverged'])}" for c, r in hl.items() if r["diverged"].value > 0]
+    div = [f"{c} {percent(r['diverged'])}" for c, r in hl.items() if r["diverged"].value > 0]
     if div:
         parts.append("diverged: " + ", ".join(div))
     return "; ".join(parts) + "."
@@ -357,7 +341,7 @@ def _detail_table(agg: dict, name: str, controllers: Sequence[str]) -> list[str]
         if a is None:
             continue
         div = f" ({a['failures']})" if a["failures"] else ""
-        cells = [c, f"{a['rows']}{div}", *(_g(a[col][stat]) for col, stat in cols)]
+        cells = [c, f"{a['rows']}{div}", *(number(a[col][stat]) for col, stat in cols)]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -367,7 +351,8 @@ def _training_table(cfg: Any, data: Any) -> list[str]:
 
     lines = [
         "| training env | agent | run | stop | steps (cap) | last gain at | best validation "
-        "score | kept step | updates: approx KL, clip fraction, explained variance | wall s |",
+        "score | kept step | updates: approx KL, clip fraction, explained variance, entropy | "
+        "wall s |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     untrained: dict[str, list[str]] = {}
@@ -379,10 +364,10 @@ def _training_table(cfg: Any, data: Any) -> list[str]:
             untrained.setdefault(f"{algo} on {key}", []).append(str(ts))
         diagnostics = _diagnostics_cell(data.diagnostics.get((key, algo, ts), []))
         lines.append(
-            f"| {key} | {algo} | {ts} | {stop['status']} | {_k(stop['steps'])} "
-            f"({_k(stop['cap'])}) | {_k(stop['last_improvement_step'] or 0)} | "
-            f"{_g(min(curve)) if curve else '-'} | {_k(kept)} | {diagnostics} | "
-            f"{_g(as_float(stop.get('wall_s')), 4)} |"
+            f"| {key} | {algo} | {ts} | {stop['status']} | {thousands(stop['steps'])} "
+            f"({thousands(stop['cap'])}) | {thousands(stop['last_improvement_step'] or 0)} | "
+            f"{number(min(curve)) if curve else '-'} | {thousands(kept)} | {diagnostics} | "
+            f"{number(as_float(stop.get('wall_s')), 4)} |"
         )
     if len(lines) == 2:
         return []
@@ -403,21 +388,27 @@ def _training_table(cfg: Any, data: Any) -> list[str]:
     return [*lines, "", "Departures from the RL Zoo's settings:", "", *dep]
 
 
-#: SB3's update statistics the training table summarises, as its logger names them.
-_DIAGNOSTICS = ("approx_kl", "clip_fraction", "explained_variance")
+#: SB3's update statistics the training table summarises, as its logger names them, with the
+#: sign each is shown with: the policy's entropy is minus SB3's ``entropy_loss``.
+_DIAGNOSTICS = (
+    ("approx_kl", 1.0),
+    ("clip_fraction", 1.0),
+    ("explained_variance", 1.0),
+    ("entropy_loss", -1.0),
+)
 
 
 def _diagnostics_cell(diagnostics: Sequence[dict[str, Any]]) -> str:
     """The median over a run's recorded updates of each of :data:`_DIAGNOSTICS` (``-`` where
     the algorithm logs none, e.g. SAC's clip fraction)."""
     cells = []
-    for name in _DIAGNOSTICS:
+    for name, sign in _DIAGNOSTICS:
         values = [
-            as_float(d.get(name, d.get(f"train/{name}")))
+            sign * as_float(d.get(name, d.get(f"train/{name}")))
             for d in diagnostics
         ]  # fmt: skip
         values = [v for v in values if math.isfinite(v)]
-        cells.append(_g(float(np.median(values)), 2) if values else "-")
+        cells.append(number(float(np.median(values)), 2) if values else "-")
     return ", ".join(cells)
 
 
@@ -569,7 +560,7 @@ def write_report(
             "| study | trials | best validation score | best settings |",
             "|---|---|---|---|",
             *(
-                f"| {name} | {len(t['trials'])} | {_g(t['best_value'])} | "
+                f"| {name} | {len(t['trials'])} | {number(t['best_value'])} | "
                 f"{_settings(t['best_params'])} |"
                 for name, t in cfg.tuned.items()
             ),
@@ -585,7 +576,8 @@ def write_report(
             "on the validation episodes), the step of the checkpoint kept (the best score's; "
             "0 is the untrained policy), the median over its recorded updates of SB3's "
             "approx_kl, clip_fraction and explained_variance (healthy PPO: about 0.01-0.03, "
-            "0.05-0.2 and towards 1; `-` where not recorded) and its wall time "
+            "0.05-0.2 and towards 1) and of the policy's entropy (minus SB3's entropy_loss; "
+            "falling as the exploration narrows), `-` where not recorded, and its wall time "
             "(`learning_curves.csv`, `data_efficiency.png`).",
             "",
             *training,
