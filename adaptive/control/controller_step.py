@@ -60,7 +60,7 @@ from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_s
 from stcgym.adaptive.kernels.canonical import model_matrices
 from stcgym.adaptive.variants import CompiledDesign, compiled_design
 from stcgym.lanes.compiled import chosen_by_type, lane, lane_state, lanes
-from stcgym.lanes.linalg import copy_matrix
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 __all__ = [
     "COUNTERS",
@@ -415,8 +415,7 @@ def controller_commit(s, w, cfg, est, est_work, est_cfg, els_cfg, design, lane_i
         )
         == 0
     ):
-        for k in range(n):
-            x[k] = x_next[k]
+        copy_vector(x_next, x)
     else:  # numerical trouble in the filter: back to x(1) = 0, P1(1) = I (counted)
         s.n_kf_resets[lane_i] += 1
         for k in range(n):

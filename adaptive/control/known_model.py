@@ -22,7 +22,7 @@ from stcgym.adaptive.control.law import track
 from stcgym.adaptive.control.safe_set import make_gain
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.lanes.compiled import lane, lane_state, lanes
-from stcgym.lanes.linalg import all_finite
+from stcgym.lanes.linalg import all_finite, copy_matrix
 
 __all__ = [
     "OracleProposal",
@@ -133,9 +133,7 @@ def known_model_propose(s, p, lane_i, y, r, filtered, integral, anti_windup, act
     p.xi[lane_i] = xi
     p.saturated[lane_i] = saturated
     p.u_unsat[lane_i] = u_unsat
-    for i in range(P.shape[0]):
-        for j in range(P.shape[1]):
-            P_next[i, j] = P[i, j]
+    copy_matrix(P, P_next)
     kf_status = kalman_step(
         s.A[lane_i], s.b[lane_i], P_next, s.Q[lane_i], R, x, u, y, x_next, p.L1[lane_i],
         p.AP[lane_i], p.P_upd[lane_i],

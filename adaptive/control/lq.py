@@ -48,7 +48,7 @@ from stcgym.adaptive.kernels.canonical import augmented_characteristic, model_ma
 from stcgym.adaptive.multivariable.mimo_lq import P_MAX, DoublingWork, doubling, doubling_shapes
 from stcgym.adaptive.variants import CompiledDesign
 from stcgym.lanes.compiled import fields_of, lane, lanes, make_work, read_only
-from stcgym.lanes.linalg import all_finite, copy_matrix, matmul, max_abs
+from stcgym.lanes.linalg import all_finite, copy_matrix, copy_vector, matmul, max_abs
 from stcgym.lanes.validation import real_in
 
 __all__ = [
@@ -251,19 +251,14 @@ def lq_design(theta, cfg, weights, P, gain, w, lane_i):
     Ad = w.A_aug[lane_i]
     bd = w.b_aug[lane_i]
     K = w.K[lane_i]
-    m = Ad.shape[0]
     Q = w.Q[lane_i]
     _weight_matrix(theta.size // 2, cfg.integral, weights, Q)
     if not all_finite(P):
-        for i in range(m):
-            for j in range(m):
-                P[i, j] = Q[i, j]
+        copy_matrix(Q, P)
     rho = weight_fields(weights).rho
     _riccati_step(Ad, bd, Q, rho, P, K, w.A_cl[lane_i], w.P_Acl[lane_i])
     if not (max_abs(P) <= P_MAX):
-        for i in range(m):
-            for j in range(m):
-                P[i, j] = Q[i, j]
+        copy_matrix(Q, P)
         return NOT_STABILISABLE
     _lq_gain(Ad, bd, rho, P, K)
     return finish(theta, cfg, rcond, gain, w, lane_i)
@@ -320,8 +315,7 @@ def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
     gain.
     """
     m = A.shape[0]
-    for i in range(m):
-        v[i] = b[i]
+    copy_vector(b, v)
     for k in range(m):
         acc = char_A[k]
         for i in range(m):
@@ -332,8 +326,7 @@ def _closed_loop_is_stable(A, b, char_A, K, v, w, c):
             for j in range(m):
                 t += A[i, j] * v[j]
             w[i] = t
-        for i in range(m):
-            v[i] = w[i]
+        copy_vector(w, v)
     return is_schur_stable(c, m, c)
 
 
@@ -398,7 +391,6 @@ def lq_solve(theta, cfg, weights, P, gain, w, lane_i, tol, max_iter):
     if status != OK:
         return status
     Ad = w.A_aug[lane_i]
-    m = Ad.shape[0]
     Q = w.Q[lane_i]
     _weight_matrix(theta.size // 2, cfg.integral, weights, Q)
     Psol = w.P_sol[lane_i]
@@ -410,9 +402,7 @@ def lq_solve(theta, cfg, weights, P, gain, w, lane_i, tol, max_iter):
         return status
     status = finish(theta, cfg, rcond, gain, w, lane_i)
     if status == OK:
-        for i in range(m):
-            for j in range(m):
-                P[i, j] = Psol[i, j]
+        copy_matrix(Psol, P)
     return status
 
 

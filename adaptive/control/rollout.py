@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from stcgym.adaptive.control.controller import SelfTuningController
 from stcgym.adaptive.control.controller_step import controller_step
 from stcgym.envs.dynamics import canonical_plant_step
+from stcgym.envs.lanes import per_lane
 from stcgym.lanes.compiled import lane, lanes
 from stcgym.lanes.validation import integer, non_negative
 
@@ -109,14 +110,8 @@ def rollout_lanes(s, w, cfg, est, est_work, est_cfg, els_cfg, design, X, Theta,
 
 
 def _per_lane(value: ArrayLike, B: int, width: int, name: str) -> NDArray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 1 and arr.shape[0] == width:
-        arr = np.broadcast_to(arr, (B, width))
-    if arr.shape != (B, width):
-        raise ValueError(f"{name} must have shape ({width},) or ({B}, {width}), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite")
-    return np.ascontiguousarray(arr)
+    """One row of ``width`` per lane (one for all lanes or one each), C-contiguous."""
+    return np.ascontiguousarray(per_lane(value, B, (width,), name))
 
 
 def rollout(

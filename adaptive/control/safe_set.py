@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 from stcgym.adaptive.kernels.canonical import augment_integral, model_matrices
 from stcgym.envs.dynamics import matvec
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
-from stcgym.lanes.linalg import all_finite, invert, norm1
+from stcgym.lanes.linalg import all_finite, copy_matrix, copy_vector, invert, norm1
 from stcgym.lanes.validation import real_in
 
 __all__ = [
@@ -251,8 +251,7 @@ def controllability(A, b, w, lane_i):
     norms = w.norms[lane_i]
     v = w.v[lane_i]
     Av = w.v_next[lane_i]
-    for i in range(m):
-        v[i] = b[i]
+    copy_vector(b, v)
     for k in range(m):
         s = 0.0
         for i in range(m):
@@ -260,8 +259,7 @@ def controllability(A, b, w, lane_i):
             s += v[i] * v[i]
         norms[k] = math.sqrt(s)
         matvec(A, v, Av)
-        for i in range(m):
-            v[i] = Av[i]
+        copy_vector(Av, v)
     for k in range(m):
         if not (norms[k] > 0.0 and math.isfinite(norms[k])):
             return 0.0
@@ -292,9 +290,7 @@ def _steady_state(A, b, w, lane_i):
             M[i, j] = A[i, j] - (1.0 if i == j else 0.0)
         M[i, n] = b[i]
     M[n, 0] = 1.0
-    for i in range(n + 1):
-        for j in range(n + 1):
-            M_lu[i, j] = M[i, j]
+    copy_matrix(M, M_lu)
     if not invert(M_lu, Minv) or not all_finite(Minv):
         for i in range(n):
             x_ss[i] = 0.0

@@ -168,8 +168,7 @@ def _replay_window(
         w.factor_work[lane_i],
         w.E_replay[lane_i],
     )
-    for j in range(d):
-        theta_w[j] = theta0[j]
+    copy_vector(theta0, theta_w)
     first = count % W  # the oldest block (the newest was written just before)
     for m in range(W):
         k = (first + m) % W
@@ -228,8 +227,7 @@ def _slide_window(
         if not ok:
             copy_matrix(saved, S)
             copy_matrix(Phi[:p], hPhi)
-            for j in range(p):
-                hY[j] = Y[j]
+            copy_vector(Y, hY)
             s.n_window_recomputes[lane_i] += 1
             _replay_window(s, w, lane_i, cfg, tw)
             if not cfg.decomposed:
@@ -237,8 +235,7 @@ def _slide_window(
                     delta[j] = tw[j] - theta[j]
             return ST_RECOMPUTED
     copy_matrix(Phi[:p], hPhi)
-    for j in range(p):
-        hY[j] = Y[j]
+    copy_vector(Y, hY)
     return 0
 
 
@@ -319,14 +316,12 @@ def estimator_update(
         s.n_resets[lane_i] += 1
         return status | ST_RESET
     if cfg.project_stable:
-        for j in range(d):
-            theta_prev[j] = theta[j]
+        copy_vector(theta, theta_prev)
     for j in range(d):
         theta[j] += delta[j]  # theta(t) = theta(t-1) + delta           (32), (37); (12), (16)
     # the gain vector's row is scratch here: the Schur test of A_hat(t) runs in it
     if cfg.project_stable and not is_schur_stable(theta, n, w.gain[lane_i]):
-        for j in range(d):
-            theta[j] = theta_prev[j]
+        copy_vector(theta_prev, theta)
         s.n_projections[lane_i] += 1
         status |= ST_PROJECTED
     if least_squares:
@@ -395,8 +390,7 @@ def estimator_predict(
         copy_vector(s.x_init[lane_i], x_next)
         s.n_state_resets[lane_i] += 1
         status |= ST_STATE_RESET
-    for j in range(n):
-        x[j] = x_next[j]
+    copy_vector(x_next, x)
     s.phase[lane_i] = False
     return status
 
@@ -429,8 +423,7 @@ def _corrected_state(
         x_reg[j] = 1.0 if j == n - 1 else 0.0
     for _ in range(n - 1):
         matvec(A, x_reg, tmp)
-        for j in range(n):
-            x_reg[j] = tmp[j]
+        copy_vector(tmp, x_reg)
     for j in range(n):
         x_reg[j] = x[j] + x_reg[j] * innov
 
@@ -446,7 +439,6 @@ def estimator_restart(
 ) -> bool:
     """Restart lane ``lane_i`` at ``theta`` and ``P``; see the module docstring."""
     n = cfg.n
-    d = 2 * n
     if cfg.covariance:
         F = w.S_saved[lane_i]
         if cfg.decomposed:
@@ -460,7 +452,5 @@ def estimator_restart(
     else:
         reset_covariance(s, lane_i, cfg)
     s.count[lane_i] = 0
-    th = s.theta[lane_i]
-    for j in range(d):
-        th[j] = theta[j]
+    copy_vector(theta, s.theta[lane_i])
     return True

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from stcgym.adaptive.estimation.estimator import estimator_predict, estimator_update
 from stcgym.adaptive.estimation.estimator_spec import EstimatorConfig, EstimatorState, EstimatorWork
 from stcgym.lanes.compiled import lane, lanes
+from stcgym.lanes.linalg import copy_vector
 
 __all__ = ["predict_lanes", "run_lane", "update_lanes"]
 
@@ -66,8 +67,7 @@ def run_lane(
     theta = s.theta[lane_i]
     for k in range(u.shape[0]):
         st = estimator_update(s, w, lane_i, cfg, y[k], True)
-        for j in range(theta.shape[0]):
-            thetas[k, j] = theta[j]
+        copy_vector(theta, thetas[k])
         if st & stop_mask:
             status[k] = st
             return k + 1

@@ -175,6 +175,14 @@ def _states_with(kalman: bool) -> str:
     return "/".join(e.name for e in _STATES.values() if e.kalman == kalman)
 
 
+def _initial_vector(value: ArrayLike | None, name: str, length: int, p0: float) -> NDArray:
+    """The given initial vector, finite and of ``length``, or the paper's default ``1/p0``
+    in every entry (``theta_hat(0)``, ``x_hat(1)``)."""
+    if value is None:
+        return np.full(length, 1.0 / p0)
+    return as_finite_vector(value, name, length=length)
+
+
 def upper_cholesky(P: NDArray) -> NDArray:
     """Upper-triangular ``S`` with ``S S^T = P`` (``P`` symmetric positive definite)."""
     S = np.zeros_like(P)
@@ -364,11 +372,7 @@ class EstimatorSpec:
             if lam != 1.0:
                 raise ValueError("window and forgetting < 1 are mutually exclusive")
         d = 2 * n
-        theta0_arr = (
-            np.full(d, 1.0 / p0)
-            if s.theta0 is None
-            else as_finite_vector(s.theta0, "theta0", length=d)
-        )
+        theta0_arr = _initial_vector(s.theta0, "theta0", d, p0)
         P0_mat = None
         if least_squares:
             P0_mat = p0 * np.eye(d) if s.P0 is None else covariance(s.P0, d, "P0")
@@ -378,11 +382,7 @@ class EstimatorSpec:
                     "covariances)"
                 )
         r0_val = 1.0 if s.r0 is None else positive(s.r0, "r0")
-        x_init_arr = (
-            np.full(n, 1.0 / p0)
-            if s.x_init is None
-            else as_finite_vector(s.x_init, "x_init", length=n)
-        )
+        x_init_arr = _initial_vector(s.x_init, "x_init", n, p0)
         kf = {
             "P1_init": s.P1_init,
             "process_noise": s.process_noise,

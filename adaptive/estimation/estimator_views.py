@@ -94,30 +94,29 @@ class EstimatorViews:
             self._restore(snapshot)
             raise health_error(status, rule, state)
         if rule:
-            self._last_event = f"{rule}: covariance reset"
-            warnings.warn(
+            self._event(
+                f"{rule}: covariance reset",
                 f"{rule}: P reset to P(0) (r to r(0)), theta_hat kept at its last finite value",
-                RuntimeWarning,
-                stacklevel=3,
             )
         if state:
-            self._last_event = f"{state}: state estimate reset"
-            warnings.warn(
+            self._event(
+                f"{state}: state estimate reset",
                 f"{state}: state estimate x_hat(t+1) is not finite; reset to x_hat(1)",
-                RuntimeWarning,
-                stacklevel=3,
             )
         frozen = describe(_k.ST_FROZEN)
         if frozen and not self._frozen_warned:
             self._frozen_warned = True
-            self._last_event = f"{frozen}: frozen"
-            warnings.warn(
+            self._event(
+                f"{frozen}: frozen",
                 f"{frozen}: the estimator looks frozen on a wrong model (P has collapsed while "
                 f"the innovation stays large); with p0 = 1e6 use p0 = 10..100, forgetting < 1 "
                 f"or project_stable=True",
-                RuntimeWarning,
-                stacklevel=3,
             )
+
+    def _event(self, last_event: str, message: str) -> None:
+        """Record ``last_event`` and warn with ``message`` at the caller of the public step."""
+        self._last_event = last_event
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
 
     # ---- read-only views ----------------------------------------------------------------------
 
@@ -264,12 +263,9 @@ class EstimatorViews:
         ``project_stable``), ``n_window_recomputes`` (ill-conditioned finite-history downdates
         replaced by an exact recomputation), ``frozen``, ``last_event``.
         """
+        counters = ("n_resets", "n_state_resets", "n_kf_resets", "n_projections")
         return {
-            "n_resets": self._scalar_field("n_resets"),
-            "n_state_resets": self._scalar_field("n_state_resets"),
-            "n_kf_resets": self._scalar_field("n_kf_resets"),
-            "n_projections": self._scalar_field("n_projections"),
-            "n_window_recomputes": self._scalar_field("n_window_recomputes"),
+            **{name: self._scalar_field(name) for name in (*counters, "n_window_recomputes")},
             "frozen": self._scalar_field("frozen", bool),
             "last_event": self._last_event,
         }

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from stcgym.adaptive.estimation.estimator_spec import EstimatorSettings, EstimatorSpec
+from stcgym.envs.lanes import lane_rows
 from stcgym.lanes.validation import covariance, integer
 
 if TYPE_CHECKING:
@@ -144,9 +145,7 @@ def make_estimator(
         B = num_envs = integer(num_envs, "num_envs")
         d = 2 * int(n) if isinstance(n, (int, np.integer)) else 0
         if theta0 is not None and np.ndim(theta0) == 2:
-            lane_theta0 = np.array(theta0, dtype=float)
-            if lane_theta0.shape != (B, d) or not np.all(np.isfinite(lane_theta0)):
-                raise ValueError(f"per-lane theta0 must be finite with shape ({B}, {d})")
+            lane_theta0 = lane_rows(np.array(theta0, dtype=float), B, d, "theta0")
             options["theta0"] = lane_theta0[0]
         if P0 is not None and np.ndim(P0) == 3:
             P0_arr = np.asarray(P0, dtype=float)

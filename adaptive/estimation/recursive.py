@@ -57,6 +57,7 @@ from stcgym.adaptive.estimation.estimator_spec import (
 )
 from stcgym.adaptive.estimation.estimator_views import EstimatorViews
 from stcgym.adaptive.estimation.state_estimation import is_schur_stable as _schur_lane
+from stcgym.envs.lanes import lane_rows, per_lane
 from stcgym.lanes.compiled import FixedTypes, set_lanes
 from stcgym.lanes.validation import (
     finite_vector,
@@ -259,17 +260,11 @@ class RecursiveEstimator(EstimatorViews):
         """
         idx = lane_indices(lanes, self._B)
         d = 2 * self.n
-        th = np.asarray(theta, dtype=float)
-        th = np.broadcast_to(th, (idx.size, d)) if th.ndim == 1 else th
-        if th.shape != (idx.size, d) or not np.all(np.isfinite(th)):
-            raise ValueError(f"theta must be finite with shape ({d},) or ({idx.size}, {d})")
+        th = per_lane(theta, idx.size, (d,), "theta")
         if self.spec.least_squares:
             if P is None:
                 raise ValueError("P (2n x 2n covariance) is needed to restart an RLS/MILS rule")
-            Pm = np.asarray(P, dtype=float)
-            Pm = np.broadcast_to(Pm, (idx.size, d, d)) if Pm.ndim == 2 else Pm
-            if Pm.shape != (idx.size, d, d):
-                raise ValueError(f"P must have shape ({d}, {d}) or ({idx.size}, {d}, {d})")
+            Pm = per_lane(P, idx.size, (d, d), "P")
         else:
             Pm = np.zeros((idx.size, d, d))
         saved = self._snapshot()
@@ -383,9 +378,7 @@ class RecursiveEstimator(EstimatorViews):
             if self.num_envs is None:
                 known = finite_vector(x_next, "x_next", length=self.n)[None, :]
             else:
-                known = np.asarray(x_next, dtype=float)
-                if known.shape != (B, self.n) or not np.all(np.isfinite(known)):
-                    raise ValueError(f"x_next must be finite with shape ({B}, {self.n})")
+                known = lane_rows(np.asarray(x_next, dtype=float), B, self.n, "x_next")
         gains = self._observer_gains() if self._gain_fn else None
         snapshot = self._snapshot() if spec.on_failure == "raise" else None
         if gains is not None:

@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.lanes.compiled import lane
-from stcgym.lanes.linalg import matmul
+from stcgym.lanes.linalg import copy_matrix, matmul
 
 __all__ = [
     "advance_regressor",
@@ -122,9 +122,7 @@ def kalman_step(
     for i in range(n):
         L1[i] = AP[i, 0] * inv_s  # L1 = g / s                                        (67)/(81)
         x_next[i] += L1[i] * innov  # + L1 [y - c x_hat]                               (66)/(80)
-    for i in range(n):
-        for j in range(n):
-            P1[i, j] = P_upd[i, j]
+    copy_matrix(P_upd, P1)
     return 0
 
 

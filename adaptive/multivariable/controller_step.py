@@ -59,7 +59,7 @@ from stcgym.adaptive.multivariable.mimo_lq import (
 )
 from stcgym.adaptive.multivariable.state_matrix import RESET, state_matrix_update
 from stcgym.lanes.compiled import lane, lane_state, lanes
-from stcgym.lanes.linalg import copy_matrix
+from stcgym.lanes.linalg import all_finite, copy_matrix, copy_vector, max_abs
 
 __all__ = [
     "COUNTERS",
@@ -236,11 +236,8 @@ def _design(s, w, est, lane_i, cfg):
     P_lq = s.P_lq[lane_i]
     work = w.design
     fresh = s.fresh[lane_i] or not s.has_gain[lane_i]
-    q, n = theta.shape
-    for i in range(q):
-        for j in range(n):
-            if not math.isfinite(theta[i, j]):
-                return NONFINITE
+    if not all_finite(theta):
+        return NONFINITE
     if fresh:
         status = dare_solve(A, B, cfg, P, K, work, lane_i)
         if status != OK:
@@ -248,11 +245,7 @@ def _design(s, w, est, lane_i, cfg):
     else:
         copy_matrix(P_lq, P)
         riccati_step(A, B, cfg, P, K, work, lane_i)
-        big = False
-        for i in range(n):
-            for j in range(n):
-                big = big or not abs(P[i, j]) <= P_MAX
-        if big or not lq_gain(A, B, cfg, P, K, work, lane_i):
+        if not max_abs(P) <= P_MAX or not lq_gain(A, B, cfg, P, K, work, lane_i):
             copy_matrix(cfg.Q, P_lq)  # restart the iteration at P = Q
             return NOT_STABILISABLE
         if settled and _lagging(P, P_lq, cfg.lag_tol):
@@ -366,8 +359,7 @@ def mimo_step(s, w, est, est_work, lane_i, cfg, x, r, u):
             s.n_saturated[lane_i] += 1
     # -- the next regressor z(t) = [x(t); u(t)]
     z = est.z[lane_i]
-    for i in range(n):
-        z[i] = x[i]
+    copy_vector(x, z)
     for j in range(m):
         z[n + j] = u[j]
     s.t[lane_i] = t + 1

@@ -295,12 +295,11 @@ class MatrixRLS:
             self.K = self._work.gain[0].copy() if self.symmetric else K
             return self.theta
         problem = "P lost positive definiteness or P, the gain or Theta overflowed"
+        self._S[...] = saved_S  # Theta as before this sample
         if self.on_failure == "raise":
-            self._S[...] = saved_S
             self.t = t - 1
             raise NumericalHealthError(f"MatrixRLS update {t}: {problem}; state left unchanged")
-        self._S[...] = saved_S  # Theta as before this sample, then the restart at P0
-        kept = self.theta
+        kept = self.theta  # then the restart at P0
         self._S[...] = self._S0
         self._theta_s[...] = kept
         self._prior[...] = kept

@@ -41,7 +41,7 @@ from stcgym.adaptive.estimation.least_squares import (
 )
 from stcgym.adaptive.multivariable.multichannel import matrix_rls_step
 from stcgym.lanes.compiled import fields_of, lane, lane_state, make_work
-from stcgym.lanes.linalg import invert
+from stcgym.lanes.linalg import copy_matrix, invert
 
 __all__ = [
     "DEPENDENT",
@@ -141,9 +141,7 @@ def _switch_to_rls(est, work, lane_i, p0):
     Ginv = work.Ginv[lane_i]
     T = work.T[lane_i]
     q, n = theta.shape
-    for i in range(q):
-        for j in range(q):
-            M[i, j] = gram[i, j]
+    copy_matrix(gram, M)
     ok = invert(M, Ginv)
     if ok:
         for i in range(q):  # symmetric part, then its factor (M is free again)
@@ -159,9 +157,7 @@ def _switch_to_rls(est, work, lane_i, p0):
                 T[i, j] = acc
                 ok = ok and math.isfinite(acc)
         if ok:
-            for i in range(q):
-                for j in range(n):
-                    theta[i, j] = T[i, j]
+            copy_matrix(T, theta)
     if not ok:
         _restart_covariance(S, p0)
 
