@@ -22,7 +22,7 @@ from stcgym.adaptive.control.law import track
 from stcgym.adaptive.control.safe_set import make_gain
 from stcgym.adaptive.estimation.state_estimation import filtered_state, kalman_step
 from stcgym.lanes.compiled import lane, lane_state, lanes
-from stcgym.lanes.linalg import all_finite, copy_matrix
+from stcgym.lanes.linalg import all_finite, copy_matrix, copy_vector
 
 __all__ = [
     "OracleProposal",
@@ -154,11 +154,9 @@ def known_model_commit(s, p, lane_i):
     returns ``u``."""
     x, x_filt, P = s.x[lane_i], s.x_filt[lane_i], s.P[lane_i]
     x_next, x_filt_next, P_next = p.x[lane_i], p.x_filt[lane_i], p.P[lane_i]
-    for i in range(x.size):
-        x[i] = x_next[i]
-        x_filt[i] = x_filt_next[i]
-        for j in range(x.size):
-            P[i, j] = P_next[i, j]
+    copy_vector(x_next, x)
+    copy_vector(x_filt_next, x_filt)
+    copy_matrix(P_next, P)
     s.innov[lane_i] = p.innov[lane_i]
     s.xi[lane_i] = p.xi[lane_i]
     s.saturated[lane_i] = p.saturated[lane_i]

@@ -54,6 +54,7 @@ from stcgym.adaptive.control.oracle_loop import (
 from stcgym.adaptive.control.placement import characteristic_coefficients, check_poles
 from stcgym.adaptive.estimation import state_estimation
 from stcgym.adaptive.estimation.state_estimation import kalman_step
+from stcgym.lanes.validation import square_matrix
 
 __all__ = ["KalmanObserver", "KnownModelController", "LQGController"]
 
@@ -251,9 +252,8 @@ class LQGController(_KnownModelLoop):
         return f"no LQ design on the given model: {safe_set.STATUS_NAMES[status]}"
 
     def _process_noise(self, b: NDArray) -> NDArray:
-        return self.input_noise_std**2 * np.einsum(
-            "li,lj->lij", b, b
-        ) + self.process_noise_floor * np.eye(self.n)
+        bb = np.einsum("li,lj->lij", b, b)  # b b^T of every lane
+        return self.input_noise_std**2 * bb + self.process_noise_floor * np.eye(self.n)
 
     def _initial_covariance(self, a: NDArray, b: NDArray) -> NDArray:
         """A-priori covariance of the steady-state Kalman filter: the dual Riccati equation."""
@@ -365,9 +365,7 @@ class KalmanObserver:
         measurement_noise: float = 1.0,
         P0: float = 1.0,
     ) -> None:
-        A_arr = np.asarray(A, dtype=float)
-        if A_arr.ndim != 2 or A_arr.shape[0] != A_arr.shape[1] or A_arr.shape[0] == 0:
-            raise ValueError(f"A must be a non-empty square matrix, got shape {A_arr.shape}")
+        A_arr = square_matrix(A, "A")
         self.n = A_arr.shape[0]
         self.set_model(A_arr, b)
         q = np.asarray(process_noise, dtype=float)

@@ -383,11 +383,6 @@ class EstimatorSpec:
                 )
         r0_val = 1.0 if s.r0 is None else positive(s.r0, "r0")
         x_init_arr = _initial_vector(s.x_init, "x_init", n, p0)
-        kf = {
-            "P1_init": s.P1_init,
-            "process_noise": s.process_noise,
-            "measurement_noise": s.measurement_noise,
-        }
         P1 = Q = None
         R = 1.0
         gain: Any = None
@@ -406,7 +401,8 @@ class EstimatorSpec:
             if s.measurement_noise is not None:
                 R = positive(s.measurement_noise, "measurement_noise")
         else:
-            given = [k for k, v in kf.items() if v is not None]
+            kf = ("P1_init", "process_noise", "measurement_noise")
+            given = [k for k in kf if getattr(s, k) is not None]
             if given:
                 raise ValueError(
                     f"{', '.join(given)} apply to {_states_with(True)} state estimators only"

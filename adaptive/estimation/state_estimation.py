@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from stcgym.lanes.compiled import lane
-from stcgym.lanes.linalg import copy_matrix, matmul
+from stcgym.lanes.linalg import copy_matrix, copy_vector, matmul
 
 __all__ = [
     "advance_regressor",
@@ -152,8 +152,7 @@ def advance_regressor(
         for j in range(n - 1, 0, -1):
             for i in range(n):
                 xs[j, i] = xs[j - 1, i]
-        for i in range(n):
-            xs[0, i] = x[i]
+        copy_vector(x, xs[0])
         for i in range(n):  # -x_hat(t+1-n) in reverse order
             phi[i] = -xs[n - 1, n - 1 - i]
     else:
@@ -213,13 +212,11 @@ def state_trajectory(
     P_upd = np.empty((n, n))
     K = np.zeros(n)
     for t in range(u.shape[0]):
-        for i in range(n):
-            xs[t, i] = x[i]
+        copy_vector(x, xs[t])
         if kalman:
             if kalman_step(A, b, P1, Q, R, x, u[t], y[t], x_next, L1, AP, P_upd) != 0:
                 # P1 overflowed: propagate the open-loop prediction; the caller's limit trips
                 observer_step(A, b, x, u[t], y[t], K, False, x_next)
         else:
             observer_step(A, b, x, u[t], y[t], K, False, x_next)
-        for i in range(n):
-            x[i] = x_next[i]
+        copy_vector(x_next, x)

@@ -19,6 +19,18 @@ from stcgym.lanes.validation import finite_array
 __all__ = ["GreyBoxRegression"]
 
 
+def _samples(value: ArrayLike, name: str, width: int) -> NDArray:
+    """``value`` as ``T`` finite samples of ``width`` signals, shape ``(T, width)`` (a single
+    signal may be given as ``(T,)``)."""
+    arr = finite_array(value, name)
+    if arr.ndim == 1 and width == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2 or arr.shape[1] != width:
+        want = "(T,) or (T, 1)" if width == 1 else f"(T, {width})"
+        raise ValueError(f"{name} must have shape {want}, got {np.shape(value)}")
+    return arr
+
+
 @dataclass(frozen=True)
 class GreyBoxRegression:
     """A linear regression ``z(k) = phi(k) theta`` built from measured ``u``, ``y``.
@@ -109,20 +121,8 @@ class GreyBoxRegression:
             :class:`~stcgym.adaptive.regression.rls.RecursiveLeastSquares` takes.
         z : ndarray, shape (T - order,) or (T - order, p)
         """
-        u_arr = finite_array(u, "u")
-        y_arr = finite_array(y, "y")
-        m = self.num_inputs
-        p_meas = self._measured_outputs
-        if u_arr.ndim == 1 and m == 1:
-            u_arr = u_arr[:, None]
-        if y_arr.ndim == 1 and p_meas == 1:
-            y_arr = y_arr[:, None]
-        if u_arr.ndim != 2 or u_arr.shape[1] != m:
-            want = "(T,) or (T, 1)" if m == 1 else f"(T, {m})"
-            raise ValueError(f"u must have shape {want}, got {np.shape(u)}")
-        if y_arr.ndim != 2 or y_arr.shape[1] != p_meas:
-            want = "(T,) or (T, 1)" if p_meas == 1 else f"(T, {p_meas})"
-            raise ValueError(f"y must have shape {want}, got {np.shape(y)}")
+        u_arr = _samples(u, "u", self.num_inputs)
+        y_arr = _samples(y, "y", self._measured_outputs)
         if u_arr.shape[0] != y_arr.shape[0]:
             raise ValueError(
                 f"u and y must have the same number of samples T, got {u_arr.shape[0]} and "

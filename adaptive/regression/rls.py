@@ -221,30 +221,26 @@ class RecursiveLeastSquares:
     # ---------------------------------------------------------------- data checks
     def _regressor(self, phi: ArrayLike, lead: tuple[int, ...]) -> NDArray:
         """``phi`` as ``lead + (p, d)`` float64, C-contiguous; ValueError naming it otherwise."""
-        d, p = self._d, self._p
-        arr = real_array(phi, "phi")
-        if p == 1 and arr.shape == lead + (d,):
-            arr = arr[..., None, :]
-        if arr.shape != lead + (p, d):
-            want = lead + (d,) if p == 1 else lead + (p, d)
-            raise ValueError(
-                f"phi must have shape {want} ({'num_outputs x ' if p > 1 else ''}num_params), "
-                f"got {arr.shape}"
-            )
-        if not np.isfinite(arr).all():
-            raise ValueError("phi must be finite (no NaN or inf)")
-        return np.ascontiguousarray(arr)
+        return self._per_output(phi, "phi", lead, (self._d,))
 
     def _output(self, y: ArrayLike, lead: tuple[int, ...]) -> NDArray:
+        """``y`` as ``lead + (p,)`` float64, C-contiguous; ValueError naming it otherwise."""
+        return self._per_output(y, "y", lead, ())
+
+    def _per_output(
+        self, value: ArrayLike, name: str, lead: tuple[int, ...], row: tuple[int, ...]
+    ) -> NDArray:
+        """``value`` as ``lead + (p,) + row``, finite; with one output its axis may be left out."""
         p = self._p
-        arr = real_array(y, "y")
-        if p == 1 and arr.shape == lead:
-            arr = arr[..., None]
-        if arr.shape != lead + (p,):
-            want = lead if p == 1 else lead + (p,)
-            raise ValueError(f"y must have shape {want}, got {arr.shape}")
+        arr = real_array(value, name)
+        if p == 1 and arr.shape == lead + row:
+            arr = np.expand_dims(arr, len(lead))
+        if arr.shape != lead + (p, *row):
+            want = lead + row if p == 1 else lead + (p, *row)
+            what = f" ({'num_outputs x ' if p > 1 else ''}num_params)" if row else ""
+            raise ValueError(f"{name} must have shape {want}{what}, got {arr.shape}")
         if not np.isfinite(arr).all():
-            raise ValueError("y must be finite (no NaN or inf)")
+            raise ValueError(f"{name} must be finite (no NaN or inf)")
         return np.ascontiguousarray(arr)
 
     def _config(self) -> RLSConfig:
