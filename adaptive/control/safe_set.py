@@ -378,9 +378,7 @@ def finish(theta, cfg, rcond, gain, w, lane_i):
             kmax = abs(K[i]) if math.isfinite(K[i]) else math.inf
     if not (kmax <= bounds.gain_max and math.isfinite(N)):
         return GAIN_LARGE
-    K_x = gain.K_x[lane_i]
-    for i in range(n):
-        K_x[i] = K[i]
+    copy_vector(K[:n], gain.K_x[lane_i])
     gain.k_i[lane_i] = K[n] if cfg.integral else 0.0
     gain.N[lane_i] = N
     gain.rcond[lane_i] = rcond

@@ -169,8 +169,7 @@ def is_schur_stable(a: NDArray, n: int, c: NDArray) -> bool:
     ``c`` (at least ``n`` floats) is scratch that receives the step-down coefficients; it may be
     ``a`` itself when ``a`` need not survive. The step-down ``c_i <- (c_i - k c_{m-2-i}) / (1 -
     k^2)`` is done in place pairwise (``i`` with ``m-2-i``), so the test allocates nothing."""
-    for i in range(n):
-        c[i] = a[i]
+    copy_vector(a[:n], c)
     m = n
     while m > 0:
         k = c[m - 1]

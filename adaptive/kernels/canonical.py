@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from stcgym.envs.dynamics import OBSERVABILITY
 from stcgym.lanes.compiled import lane, lanes
+from stcgym.lanes.linalg import copy_matrix, copy_vector
 
 __all__ = [
     "augment_integral",
@@ -60,10 +61,8 @@ def model_matrices(theta, form, A, b):
 def augment_integral(A, b, integral, Ad, bd):
     """``(A_aug, b_aug)`` of the integral state ``xi(t+1) = xi(t) + r(t) - c x(t)`` (or a copy)."""
     n = A.shape[0]
-    for i in range(n):
-        for j in range(n):
-            Ad[i, j] = A[i, j]
-        bd[i] = b[i]
+    copy_matrix(A, Ad)  # the top-left n x n block
+    copy_vector(b, bd)
     if integral:
         for j in range(n + 1):
             Ad[n, j] = 0.0
@@ -79,8 +78,7 @@ def augmented_characteristic(theta, integral, out):
     canonical forms: ``A_aug`` is block triangular), or ``a`` itself without integral action."""
     n = theta.size // 2
     if not integral:
-        for k in range(n):
-            out[k] = theta[k]
+        copy_vector(theta[:n], out)
         return
     prev = 1.0
     for k in range(n):

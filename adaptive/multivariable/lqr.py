@@ -76,10 +76,7 @@ def lqr_design(
     stabilisable, or a mode on the unit circle unobservable through ``Q - N R^-1 N^T``) or when
     there is no equilibrium for some reference (an uncontrollable mode at ``z = 1``).
     """
-    A = np.ascontiguousarray(A, dtype=float)
-    B = np.ascontiguousarray(B, dtype=float)
-    Q = np.ascontiguousarray(Q, dtype=float)
-    R = np.ascontiguousarray(R, dtype=float)
+    A, B, Q, R = (np.ascontiguousarray(M, dtype=float) for M in (A, B, Q, R))
     n, m = B.shape
     N = np.zeros((n, m)) if N is None else np.ascontiguousarray(N, dtype=float)
     work = lq.mimo_design_work(n, m)

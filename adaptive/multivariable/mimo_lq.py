@@ -357,10 +357,9 @@ def _doubling_from(B, delta, c, w, lane_i):
     RB = w.RinvBt[lane_i]
     matmul(Rinv, B, RB, False, True)  # R^{-1} B^T
     matmul(B, RB, Gk, False, False)
+    copy_matrix(AN, Ak)
+    copy_matrix(QN, Hk)
     for i in range(n):
-        for j in range(n):
-            Ak[i, j] = AN[i, j]
-            Hk[i, j] = QN[i, j]
         Hk[i, i] += delta
     return doubling(Ak, Gk, Hk, w, lane_i, c.solve_tol, c.solve_max_iter)
 
