@@ -40,6 +40,10 @@ processes side by side on the shared 2-core machine, about 40 s per 10^5 steps e
 - ``--recipe healthy_wide --gamma 0.9 --steps 1000000``: ``ppo`` and ``oracle_ppo`` on
   ``ladder-l1-v1``, seeds 0 and 1; ``oracle_ppo`` on ``ladder-l2-v1`` and ``ppo`` on
   ``ladder-l4-v1``, seed 0 (the last eight beside one other run, as pairs);
+- ``--agent oracle_ppo --recipe healthy_wide --gamma 0.9``: ``--steps 3000000`` on
+  ``ladder-l2-v1`` seeds 0 and 1, on ``ladder-l1-v1`` and ``ladder-l3-v1`` seed 0;
+  ``--steps 10000000`` on ``ladder-l1-v1`` and ``ladder-l2-v1`` seed 2 (as pairs, on the
+  otherwise idle machine);
 - ``--agent rppo --recipe healthy --gamma 0.9 --steps 100000`` on ``ladder-l1-v1``, seed 0
   only;
 - ``--agent sac --recipe R --gamma 0.9 --steps 100000`` on ``ladder-l1-v1`` for R in
