@@ -377,3 +377,11 @@ def test_table_cells_write_numbers_and_step_counts():
     ]  # fmt: skip
     assert number(123456.0) == "1.23e+05"  # a diverged cost: the exponent form
     assert percent(Estimate(0.032, 0.012, 0.057)) == "3.2 % [1.2, 5.7]"
+    # an estimate reads back from statistics.json and writes as the report wrote it
+    est = Estimate(2.5, 2.25, -math.inf)
+    from stcgym.agents.benchmark.report import _jsonable
+
+    again = Estimate.from_dict(_jsonable(est))
+    assert again == est and again.format() == "2.5 [2.25, -inf]"
+    assert Estimate.from_dict({"value": 1.0, "low": None, "high": None}).format() == "1 [-, -]"
+    assert Estimate(1.0, 1.0, 1.0).format() == "1"  # nothing resampled: the value alone

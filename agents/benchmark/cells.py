@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from stcgym.agents.evaluation.statistics import Estimate
+from stcgym.agents.evaluation.statistics import Estimate, number_text
 
 __all__ = ["number", "percent", "thousands"]
 
@@ -12,13 +12,9 @@ __all__ = ["number", "percent", "thousands"]
 def number(x: float | None, digits: int = 3) -> str:
     """``x`` to ``digits`` significant digits; ``-`` for a missing value, ``inf`` / ``-inf``,
     and the exponent form from ``10 ** (digits + 2)`` on (a diverged cost)."""
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "-"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    if abs(x) >= 10 ** (digits + 2):
+    if x is not None and math.isfinite(x) and abs(x) >= 10 ** (digits + 2):
         return f"{x:.2e}"
-    return f"{x:.{digits}g}"
+    return number_text(x, digits)
 
 
 def thousands(x: float) -> str:

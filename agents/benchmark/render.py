@@ -27,6 +27,7 @@ from stcgym.agents.benchmark.rundir import classical_key, job_id, read_run_confi
 from stcgym.agents.benchmark.scenarios import make_scenarios, training_envs
 from stcgym.agents.benchmark.store import STORE_FOLDER, JobRecord, ResultsStore
 from stcgym.agents.controllers import YARDSTICK, controllers_for
+from stcgym.agents.evaluation.statistics import Estimate
 
 __all__ = [
     "HEADLINE_END",
@@ -229,19 +230,7 @@ HEADLINE_END = "<!-- end of the headline of results/{run} -->"
 
 def _cell(estimate: dict[str, Any] | None, digits: int = 3) -> str:
     """``value [low, high]`` of an estimate as ``statistics.json`` holds it."""
-    if not estimate or estimate.get("value") is None:
-        return "-"
-
-    def g(v: Any) -> str:
-        if v is None:
-            return "-"
-        if isinstance(v, str):
-            return v
-        return f"{v:.{digits}g}"
-
-    if estimate["low"] == estimate["high"] == estimate["value"]:  # nothing to resample
-        return g(estimate["value"])
-    return f"{g(estimate['value'])} [{g(estimate['low'])}, {g(estimate['high'])}]"
+    return Estimate.from_dict(estimate).format(digits) if estimate else "-"
 
 
 def page_tables(run_name: str, statistics: dict[str, Any]) -> str:

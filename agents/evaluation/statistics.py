@@ -35,12 +35,23 @@ __all__ = [
     "Estimate",
     "PairedComparison",
     "interval_estimates",
+    "number_text",
     "paired_comparison",
     "bounded_estimates",
     "probability_of_improvement",
     "rate_estimate",
     "summarize",
 ]
+
+
+def number_text(x: float | None, digits: int = 3) -> str:
+    """``x`` as a table cell writes it: ``digits`` significant digits, ``-`` for a missing
+    value (``None`` or ``nan``), ``inf`` / ``-inf``."""
+    if x is None or math.isnan(x):
+        return "-"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return f"{x:.{digits}g}"
 
 
 @dataclass(frozen=True)
@@ -56,16 +67,22 @@ class Estimate:
     high: float
 
     def format(self, digits: int = 3) -> str:
-        def g(x: float) -> str:
-            if math.isnan(x):
-                return "-"
-            return "inf" if math.isinf(x) else f"{x:.{digits}g}"
-
         if math.isnan(self.value):
             return "-"
+        value = number_text(self.value, digits)
         if self.low == self.high == self.value:  # nothing to resample: no interval to show
-            return g(self.value)
-        return f"{g(self.value)} [{g(self.low)}, {g(self.high)}]"
+            return value
+        return f"{value} [{number_text(self.low, digits)}, {number_text(self.high, digits)}]"
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Estimate:
+        """The estimate ``statistics.json`` holds as ``{value, low, high}`` (``null`` for
+        ``nan``, infinities as the strings ``"inf"`` / ``"-inf"``)."""
+
+        def number(x: Any) -> float:
+            return math.nan if x is None else float(x)
+
+        return cls(number(data["value"]), number(data["low"]), number(data["high"]))
 
 
 def _rs(seed: int) -> np.random.RandomState:
