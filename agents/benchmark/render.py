@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stcgym.agents.benchmark.cells import percent
 from stcgym.agents.benchmark.config import BenchConfig
 from stcgym.agents.benchmark.ladder_report import ladder_rows
 from stcgym.agents.benchmark.metrics_csv import METRIC_COLUMNS, format_value
@@ -275,11 +276,7 @@ def _scenario_page_table(scenario: str, table: dict[str, Any]) -> list[str]:
     ]
     for name, est in table.items():
         div = est.get("diverged") or {}
-        pct = (
-            "-"
-            if div.get("value") is None
-            else f"{100 * div['value']:.1f} % [{100 * div['low']:.1f}, {100 * div['high']:.1f}]"
-        )
+        pct = "-" if div.get("value") is None else percent(Estimate.from_dict(div))
         runs = f"{est.get('runs', '-')}"
         if est.get("untrained_runs"):
             runs += f" (+{est['untrained_runs']} untrained, left out)"
