@@ -88,7 +88,9 @@ def apply_overrides(
         algo, path, value = parse_override(text)
         if algo not in ALGORITHMS:
             raise ValueError(f"--hp {text!r}: algorithm must be one of {sorted(ALGORITHMS)}")
-        cfg = configs.setdefault(algo, default_config(algo))
+        if algo not in configs:
+            configs[algo] = default_config(algo)
+        cfg = configs[algo]
         if path[0] in config_fields and len(path) == 1:
             setattr(cfg, path[0], value)
             _check(cfg, text)
