@@ -204,8 +204,9 @@ def estimate_features(
 
 
 def closed_loop_estimator(name: str, n: int, batch: int) -> Any:
-    """The estimator ``name`` (one of :data:`ESTIMATORS` but ``"ELS"``, which runs inside the
-    controller: :class:`ControllerEstimateInterface`) for ``batch`` lanes with the settings
+    """The estimator ``name`` (one of :data:`~stcgym.agents.rl.interfaces.ESTIMATORS` but
+    ``"ELS"``, which runs inside the controller: :class:`ControllerEstimateInterface`) for
+    ``batch`` lanes with the settings
     :class:`~stcgym.adaptive.SelfTuningController` gives it in closed loop
     (:class:`~stcgym.adaptive.EstimatorOptions`'s defaults), ``theta_hat(0) = 0``."""
     from stcgym.adaptive import EstimatorOptions, make_estimator
